@@ -1,0 +1,29 @@
+# Two user-facing targets: `make demo` (main job) and `make test`. Both create .venv when missing.
+VENV   ?= .venv
+PY     := $(VENV)/bin/python
+# The CPU build of torch on this machine's find-links; a torch already in the venv (e.g. a CUDA build) is kept.
+TORCH  ?= torch==2.13.0
+STAMP  := $(VENV)/.solidkit-installed
+
+.PHONY: demo test test-slow test-real bench clean-venv
+
+$(STAMP): pyproject.toml constraints.txt
+	test -x $(PY) || python3 -m venv $(VENV)
+	$(PY) -c "import torch" 2>/dev/null || $(PY) -m pip install -q "$(TORCH)"
+	$(PY) -m pip install -q -c constraints.txt -e ".[test]"
+	touch $(STAMP)
+
+demo: $(STAMP)
+	$(VENV)/bin/solidkit demo --out demo_out
+
+test: $(STAMP)
+	$(PY) -m pytest -q -n 2 -p no:cacheprovider
+
+test-slow: $(STAMP)
+	$(PY) -m pytest -q -n 2 -p no:cacheprovider -m slow
+
+bench: $(STAMP)
+	$(PY) benchmarks/run.py
+
+clean-venv:
+	rm -rf $(VENV)

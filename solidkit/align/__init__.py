@@ -1,0 +1,1 @@
+"""Sun positions and rotating probes into the photo's view frame."""

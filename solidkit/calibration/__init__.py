@@ -1,0 +1,1 @@
+"""Lens, response-curve, colour and photo-camera profiles (see the Calibration issue)."""

@@ -1,0 +1,45 @@
+"""The ``solidkit`` command: one sub-command group per pipeline stage."""
+
+from __future__ import annotations
+
+import sys
+
+import typer
+
+from solidkit.envmap.cli import app as envmap_app
+from solidkit.errors import SolidkitError
+
+app = typer.Typer(
+    name="solidkit",
+    help="Real outdoor 360° captures -> a SOLID-Net real test set; evaluate and fine-tune SOLID-Net.",
+    no_args_is_help=True,
+    pretty_exceptions_enable=False,
+    add_completion=False,
+)
+app.add_typer(envmap_app, name="envmap", help="Inspect, rotate, crop panoramas and find the sun.")
+
+
+def main() -> None:
+    """Entry point: user errors become one line on stderr and exit code 2, never a traceback."""
+    try:
+        app(standalone_mode=False)
+    except SolidkitError as exc:
+        typer.secho(f"error: {exc}", err=True, fg="red")
+        sys.exit(2)
+    except (typer.Abort, KeyboardInterrupt):
+        typer.secho("aborted", err=True)
+        sys.exit(130)
+    except typer.Exit as exc:
+        sys.exit(exc.exit_code)
+    except Exception as exc:  # click usage errors and anything unforeseen: still one line
+        import click
+
+        if isinstance(exc, click.ClickException):
+            exc.show()
+            sys.exit(exc.exit_code)
+        typer.secho(f"error: {type(exc).__name__}: {exc}", err=True, fg="red")
+        sys.exit(1)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,4 @@
+"""The panorama core shared by every part of solidkit (conventions: docs/conventions.md)."""
+
+from solidkit.envmap.coords import *  # noqa: F401,F403
+from solidkit.envmap.io import *  # noqa: F401,F403

@@ -1,0 +1,45 @@
+"""``solidkit envmap ...``: panorama commands. Angles are degrees at this edge (conventions §6)."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import typer
+from rich.console import Console
+from rich.table import Table
+
+from solidkit.envmap.coords import solid_angle
+from solidkit.envmap.io import read_image, validate_panorama
+
+app = typer.Typer(no_args_is_help=True)
+console = Console()
+
+
+def load_panorama(path: Path) -> tuple[np.ndarray, dict]:
+    """Read and validate a panorama file (EXR or LDR); errors are one-line SolidkitErrors."""
+    img, meta = read_image(path)
+    return validate_panorama(img, str(path)), meta
+
+
+@app.command()
+def info(pano: Path = typer.Argument(..., help="Equirectangular panorama (EXR or LDR).")) -> None:
+    """Size, dynamic range and radiometric summary of a panorama."""
+    img, meta = load_panorama(pano)
+    h, w = img.shape[:2]
+    lum = img @ np.array([0.2126, 0.7152, 0.0722], dtype=np.float32)
+    omega = solid_angle(h)
+    positive = lum[lum > 0]
+    table = Table(title=str(pano), show_header=False)
+    table.add_row("size", f"{w} x {h} ({img.shape[2]} channels used)")
+    table.add_row("kind", "LDR (sRGB decoded to linear)" if meta.get("ldr") else "HDR (linear)")
+    table.add_row("min / max luminance", f"{lum.min():.4g} / {lum.max():.4g}")
+    if positive.size:
+        table.add_row("dynamic range", f"{np.log2(positive.max() / max(positive.min(), 1e-12)):.1f} stops")
+    table.add_row("mean radiance (RGB)", ", ".join(f"{c:.4g}" for c in img.reshape(-1, 3).mean(0)))
+    table.add_row("irradiance integral ∫L dω", f"{float((lum * omega).sum()):.4g}")
+    for key in ("exposure_time", "provenance", "conventions_version"):
+        if key in meta:
+            table.add_row(key, json.dumps(meta[key]))
+    console.print(table)

@@ -1,0 +1,201 @@
+"""Equirectangular coordinates, directions, solid angles and rotations.
+
+The formulas of ``docs/conventions.md`` §2-4, written once for NumPy and torch alike
+through the array API (``array_api_compat``): pass NumPy arrays and get NumPy arrays, pass
+torch tensors (any device, batched, differentiable) and get tensors.
+
+Coordinates are *continuous image coordinates*: the pixel in column ``u`` and row ``v``
+covers ``[u, u+1) x [v, v+1)`` and has its centre at ``(u + 0.5, v + 0.5)``.
+Angles are radians. Directions are unit vectors in the panorama frame
+(x right, y down, z forward), stored in a trailing axis of size 3.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import array_api_compat
+import numpy as np
+
+CONVENTIONS_VERSION = 1
+
+__all__ = [
+    "CONVENTIONS_VERSION",
+    "namespace",
+    "module_namespace",
+    "angles_from_coords",
+    "coords_from_angles",
+    "direction_from_angles",
+    "angles_from_direction",
+    "coords_from_direction",
+    "direction_from_coords",
+    "angles_grid",
+    "direction_grid",
+    "solid_angle",
+    "rotation_x",
+    "rotation_y",
+    "rotation_z",
+    "rotation_from_ypr",
+    "ypr_from_rotation",
+    "angular_distance",
+]
+
+
+def namespace(*arrays: Any) -> Any:
+    """Array-API namespace of ``arrays`` (NumPy or torch); Python scalars are ignored."""
+    arrays = [a for a in arrays if not isinstance(a, (int, float))]
+    return array_api_compat.array_namespace(*arrays) if arrays else array_api_compat.array_namespace(np.zeros(0))
+
+
+def module_namespace(module: Any) -> Any:
+    """Array-API namespace for a module given by the caller (``numpy`` or ``torch``)."""
+    return array_api_compat.array_namespace(module.zeros(0))
+
+
+def angles_from_coords(x: Any, y: Any, height: int) -> tuple[Any, Any]:
+    """Azimuth and elevation of continuous equirect coordinates (conventions §3).
+
+    Parameters
+    ----------
+    x, y : array (...)
+        Continuous coordinates; pixel ``(u, v)`` has its centre at ``(u + 0.5, v + 0.5)``.
+    height : int
+        Panorama height ``H`` (width ``W = 2H``).
+
+    Returns
+    -------
+    (phi, theta) : arrays (...)
+        Azimuth in ``[-pi, pi)`` (0 = forward, positive to the right) and elevation in
+        ``[-pi/2, pi/2]`` (positive up), radians.
+    """
+    phi = x * (math.pi / height) - math.pi
+    theta = math.pi / 2 - y * (math.pi / height)
+    return phi, theta
+
+
+def coords_from_angles(phi: Any, theta: Any, height: int) -> tuple[Any, Any]:
+    """Inverse of :func:`angles_from_coords`; ``x`` is wrapped into ``[0, W)``."""
+    width = 2 * height
+    x = ((phi + math.pi) * (height / math.pi)) % width
+    y = (math.pi / 2 - theta) * (height / math.pi)
+    return x, y
+
+
+def direction_from_angles(phi: Any, theta: Any) -> Any:
+    """Unit direction ``(cos t sin p, -sin t, cos t cos p)``; shape ``(..., 3)``."""
+    xp = namespace(phi, theta)
+    ct = xp.cos(theta)
+    return xp.stack([ct * xp.sin(phi), -xp.sin(theta), ct * xp.cos(phi)], axis=-1)
+
+
+def angles_from_direction(d: Any) -> tuple[Any, Any]:
+    """Azimuth ``atan2(dx, dz)`` and elevation ``asin(-dy)`` of (not necessarily unit) ``d (..., 3)``."""
+    xp = namespace(d)
+    norm = xp.sqrt(xp.sum(d * d, axis=-1))
+    phi = xp.atan2(d[..., 0], d[..., 2])
+    theta = xp.asin(xp.clip(-d[..., 1] / norm, -1.0, 1.0))
+    return phi, theta
+
+
+def coords_from_direction(d: Any, height: int) -> tuple[Any, Any]:
+    """Continuous equirect coordinates ``(x, y)`` of directions ``d (..., 3)``."""
+    return coords_from_angles(*angles_from_direction(d), height)
+
+
+def direction_from_coords(x: Any, y: Any, height: int) -> Any:
+    """Unit directions ``(..., 3)`` of continuous equirect coordinates."""
+    return direction_from_angles(*angles_from_coords(x, y, height))
+
+
+def _pixel_centres(height: int, xp: Any, **kw: Any) -> tuple[Any, Any]:
+    width = 2 * height
+    x = xp.arange(width, **kw) + 0.5
+    y = xp.arange(height, **kw) + 0.5
+    yy, xx = xp.meshgrid(y, x, indexing="ij")
+    return xx, yy
+
+
+def angles_grid(height: int, xp: Any = np, **kw: Any) -> tuple[Any, Any]:
+    """Azimuth and elevation of every pixel centre, each ``(H, 2H)``.
+
+    ``xp`` is ``numpy`` (default) or ``torch``; ``kw`` go to ``xp.arange`` (``dtype``, ``device``).
+    """
+    kw.setdefault("dtype", xp.float64 if xp is np else xp.float32)
+    xx, yy = _pixel_centres(height, module_namespace(xp), **kw)
+    return angles_from_coords(xx, yy, height)
+
+
+def direction_grid(height: int, xp: Any = np, **kw: Any) -> Any:
+    """Unit direction of every pixel centre, ``(H, 2H, 3)``, in the panorama frame."""
+    return direction_from_angles(*angles_grid(height, xp, **kw))
+
+
+def solid_angle(height: int, xp: Any = np, **kw: Any) -> Any:
+    """Exact solid angle of every pixel, ``(H, 2H)`` steradians, summing to ``4 pi``.
+
+    ``Omega(v) = (2 pi / W) (sin theta_top(v) - sin theta_bottom(v))``.
+    """
+    kw.setdefault("dtype", xp.float64 if xp is np else xp.float32)
+    ns = module_namespace(xp)
+    edges = ns.arange(height + 1, **kw)
+    s = ns.sin(math.pi / 2 - edges * (math.pi / height))
+    row = (s[:-1] - s[1:]) * (math.pi / height)
+    return ns.broadcast_to(row[:, None], (height, 2 * height))
+
+
+def _elementary(angle: Any, axes: tuple[int, int]) -> Any:
+    """Right-handed rotation by ``angle`` about the axis not in ``axes``; ``(..., 3, 3)``."""
+    xp = namespace(angle)
+    angle = xp.asarray(angle, dtype=xp.float64) if isinstance(angle, (int, float)) else angle
+    c, s = xp.cos(angle), xp.sin(angle)
+    one, zero = xp.ones_like(c), xp.zeros_like(c)
+    i, j = axes
+    rows = [[one, zero, zero], [zero, one, zero], [zero, zero, one]]
+    rows[i][i], rows[i][j] = c, -s
+    rows[j][i], rows[j][j] = s, c
+    return xp.stack([xp.stack(r, axis=-1) for r in rows], axis=-2)
+
+
+def rotation_x(angle: Any) -> Any:
+    """``R_x``: right-handed rotation about x (right); maps forward z toward -y (up) for angle > 0."""
+    return _elementary(angle, (1, 2))
+
+
+def rotation_y(angle: Any) -> Any:
+    """``R_y``: right-handed rotation about y (down); maps forward z toward +x (right) for angle > 0."""
+    return _elementary(angle, (2, 0))
+
+
+def rotation_z(angle: Any) -> Any:
+    """``R_z``: right-handed rotation about z (forward); maps right x toward +y (down) for angle > 0."""
+    return _elementary(angle, (0, 1))
+
+
+def rotation_from_ypr(yaw: Any, pitch: Any = 0.0, roll: Any = 0.0) -> Any:
+    """``R = R_y(yaw) R_x(pitch) R_z(roll)`` (conventions §4), radians; ``(..., 3, 3)``.
+
+    ``R`` maps camera-frame vectors to panorama-frame vectors: a camera with this orientation
+    looks at azimuth ``yaw`` and elevation ``pitch``, and ``roll > 0`` turns its right axis down.
+    """
+    return rotation_y(yaw) @ rotation_x(pitch) @ rotation_z(roll)
+
+
+def ypr_from_rotation(R: Any) -> tuple[Any, Any, Any]:
+    """Inverse of :func:`rotation_from_ypr`: ``(yaw, pitch, roll)`` in radians.
+
+    Pitch is in ``[-pi/2, pi/2]``; at pitch = ±pi/2 (gimbal lock) roll is returned as 0.
+    """
+    xp = namespace(R)
+    # forward = R e_z = (cp sy, -sp, cp cy); right = R e_x = (cy cr + sy sp sr, cp sr, -sy cr + cy sp sr)
+    fwd = R[..., :, 2]
+    yaw, pitch = angles_from_direction(fwd)
+    roll = xp.atan2(R[..., 1, 0], R[..., 1, 1])
+    return yaw, pitch, roll
+
+
+def angular_distance(a: Any, b: Any) -> Any:
+    """Angle in radians between directions ``a`` and ``b`` (``(..., 3)``), robust near 0 and pi."""
+    xp = namespace(a, b)
+    cross = xp.linalg.cross(a, b)
+    return xp.atan2(xp.sqrt(xp.sum(cross * cross, axis=-1)), xp.sum(a * b, axis=-1))

@@ -1,0 +1,204 @@
+"""Panorama I/O: HDR EXR (OpenEXR 3.x) with header attributes, sRGB LDR, validation, tonemap.
+
+Conventions §5: HDR is linear float32 in memory and EXR on disk; LDR is sRGB-encoded 8-bit.
+All EXR I/O goes through OpenEXR: opencv-contrib 5.x has no EXR codec.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+import OpenEXR
+
+from solidkit.envmap.coords import CONVENTIONS_VERSION, namespace
+from solidkit.errors import InputError, PanoramaError
+from solidkit.fsutil import atomic_path
+
+__all__ = [
+    "PAPER_EXPOSURE",
+    "PAPER_GAMMA",
+    "read_exr",
+    "write_exr",
+    "read_ldr",
+    "write_ldr",
+    "read_image",
+    "validate_panorama",
+    "tonemap",
+    "srgb_encode",
+    "srgb_decode",
+]
+
+PAPER_EXPOSURE = -0.3
+PAPER_GAMMA = 2.2
+LDR_SUFFIXES = {".jpg", ".jpeg", ".png", ".tif", ".tiff", ".bmp", ".webp"}
+_META_KEY = "solidkit"
+
+
+def read_exr(path: str | os.PathLike) -> tuple[np.ndarray, dict[str, Any]]:
+    """Read an EXR image as float32.
+
+    Returns
+    -------
+    image : ndarray (H, W, C) float32
+        RGB (C=3), RGBA (C=4) or a single channel (C=1), channels in that order.
+    meta : dict
+        The solidkit attributes written by :func:`write_exr` (e.g. ``exposure_time``,
+        ``provenance``) plus ``"header"``: the raw OpenEXR header.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise InputError(f"{path}: no such file")
+    try:
+        with OpenEXR.File(str(path)) as f:
+            header = dict(f.header())
+            channels = {name: np.array(ch.pixels) for name, ch in f.channels().items()}
+    except Exception as exc:  # OpenEXR raises plain RuntimeError/TypeError on corrupt data
+        raise InputError(f"{path}: not a readable EXR file ({exc})") from None
+    if "RGBA" in channels:
+        img = channels["RGBA"]
+    elif "RGB" in channels:
+        img = channels["RGB"]
+    elif len(channels) == 1:
+        img = next(iter(channels.values()))[..., None]
+    else:
+        raise InputError(f"{path}: EXR has channels {sorted(channels)}; expected RGB, RGBA or one channel")
+    meta: dict[str, Any] = {}
+    if _META_KEY in header:
+        try:
+            meta = json.loads(header[_META_KEY])
+        except (TypeError, ValueError):
+            meta = {}
+    meta["header"] = header
+    return np.ascontiguousarray(img, dtype=np.float32), meta
+
+
+def write_exr(
+    path: str | os.PathLike,
+    image: np.ndarray,
+    meta: dict[str, Any] | None = None,
+    *,
+    half: bool = False,
+) -> Path:
+    """Write ``image (H, W, C)`` (C in 1, 3, 4) to EXR atomically.
+
+    ``meta`` (JSON-serialisable: exposure time in seconds, provenance, ...) is stored in a
+    ``solidkit`` string attribute together with the conventions version. ``half=True`` stores
+    16-bit floats (values above 65504 become inf: refused).
+    """
+    image = np.asarray(image)
+    if image.ndim == 2:
+        image = image[..., None]
+    if image.ndim != 3 or image.shape[2] not in (1, 3, 4):
+        raise InputError(f"cannot write image of shape {image.shape} as EXR")
+    dtype = np.float16 if half else np.float32
+    if half and np.nanmax(np.abs(image)) > np.finfo(np.float16).max:
+        raise InputError("values exceed the half-float range; write with half=False")
+    data = np.ascontiguousarray(image.astype(dtype))
+    names = {1: "Y", 3: "RGB", 4: "RGBA"}[data.shape[2]]
+    channels = {names: data if data.shape[2] > 1 else data[..., 0]}
+    attrs = dict(meta or {})
+    attrs.setdefault("conventions_version", CONVENTIONS_VERSION)
+    header = {
+        "compression": OpenEXR.ZIP_COMPRESSION,
+        "type": OpenEXR.scanlineimage,
+        _META_KEY: json.dumps(attrs, sort_keys=True, default=str),
+    }
+    path = Path(path)
+    with atomic_path(path, suffix=".exr") as tmp:
+        with OpenEXR.File(header, channels) as f:
+            f.write(str(tmp))
+    return path
+
+
+def srgb_encode(linear: Any) -> Any:
+    """IEC 61966-2-1 sRGB encoding of linear values in [0, 1] (NumPy or torch)."""
+    xp = namespace(linear)
+    x = xp.clip(linear, 0.0, 1.0)
+    return xp.where(x <= 0.0031308, 12.92 * x, 1.055 * xp.clip(x, 0.0031308, 1.0) ** (1 / 2.4) - 0.055)
+
+
+def srgb_decode(encoded: Any) -> Any:
+    """Inverse of :func:`srgb_encode`."""
+    xp = namespace(encoded)
+    x = xp.clip(encoded, 0.0, 1.0)
+    return xp.where(x <= 0.04045, x / 12.92, ((xp.clip(x, 0.04045, 1.0) + 0.055) / 1.055) ** 2.4)
+
+
+def tonemap(hdr: Any, exposure: float = PAPER_EXPOSURE, gamma: float = PAPER_GAMMA) -> Any:
+    """The paper's tonemap ``clip((2^e * H)^(1/gamma), 0, 1)`` (§4.3, L_tom); NumPy or torch.
+
+    Negative inputs map to 0; the result is differentiable where ``0 < 2^e H < 1``.
+    """
+    xp = namespace(hdr)
+    scaled = xp.clip(hdr * (2.0**exposure), 1e-12, None)
+    return xp.clip(scaled ** (1.0 / gamma), 0.0, 1.0) * (hdr > 0)
+
+
+def read_ldr(path: str | os.PathLike, *, linear: bool = False) -> np.ndarray:
+    """Read an 8/16-bit image as RGB float32 in [0, 1]; ``linear=True`` undoes sRGB."""
+    path = Path(path)
+    if not path.is_file():
+        raise InputError(f"{path}: no such file")
+    img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    if img is None:
+        raise InputError(f"{path}: not a readable image")
+    scale = float(np.iinfo(img.dtype).max) if np.issubdtype(img.dtype, np.integer) else 1.0
+    if img.ndim == 2:
+        img = np.repeat(img[..., None], 3, axis=2)
+    img = cv2.cvtColor(img[..., :3], cv2.COLOR_BGR2RGB).astype(np.float32) / scale
+    return srgb_decode(img).astype(np.float32) if linear else img
+
+
+def write_ldr(path: str | os.PathLike, image: np.ndarray, *, encode_srgb: bool = False, quality: int = 95) -> Path:
+    """Write RGB float in [0, 1] (or uint8) as 8-bit PNG/JPEG atomically.
+
+    ``encode_srgb=True`` applies the sRGB transfer function to linear input first.
+    """
+    image = np.asarray(image)
+    if image.dtype != np.uint8:
+        x = srgb_encode(image.astype(np.float32)) if encode_srgb else np.clip(image, 0.0, 1.0)
+        image = np.round(np.nan_to_num(x) * 255.0).astype(np.uint8)
+    if image.ndim == 2:
+        image = image[..., None]
+    bgr = cv2.cvtColor(np.ascontiguousarray(image[..., :3]), cv2.COLOR_RGB2BGR) if image.shape[2] >= 3 else image
+    path = Path(path)
+    params = [cv2.IMWRITE_JPEG_QUALITY, quality] if path.suffix.lower() in (".jpg", ".jpeg") else []
+    with atomic_path(path) as tmp:
+        if not cv2.imwrite(str(tmp), bgr, params):
+            raise InputError(f"{path}: OpenCV could not write this format")
+    return path
+
+
+def read_image(path: str | os.PathLike) -> tuple[np.ndarray, dict[str, Any]]:
+    """Read an EXR (linear HDR) or an LDR file (sRGB decoded to linear); ``(H, W, 3)`` float32."""
+    path = Path(path)
+    if path.suffix.lower() == ".exr":
+        img, meta = read_exr(path)
+        if img.shape[2] == 1:
+            img = np.repeat(img, 3, axis=2)
+        return img[..., :3], meta
+    if path.suffix.lower() in LDR_SUFFIXES:
+        return read_ldr(path, linear=True), {"ldr": True}
+    raise InputError(f"{path}: unknown image type '{path.suffix}' (expected .exr or an LDR format)")
+
+
+def validate_panorama(image: np.ndarray, name: str = "panorama") -> np.ndarray:
+    """Check an equirectangular panorama: ``(H, 2H, C)``, finite; returns it unchanged.
+
+    Raises :class:`~solidkit.errors.PanoramaError` with a one-line reason otherwise.
+    """
+    if image.ndim != 3:
+        raise PanoramaError(f"{name}: expected an (H, W, C) image, got shape {image.shape}")
+    h, w = image.shape[:2]
+    if w != 2 * h:
+        raise PanoramaError(f"{name}: not an equirectangular panorama: {w}x{h} (width must be 2 x height)")
+    bad = ~np.isfinite(image)
+    if bad.any():
+        n = int(bad.any(axis=-1).sum())
+        raise PanoramaError(f"{name}: {n} pixel(s) are NaN or Inf")
+    return image

@@ -1,0 +1,1 @@
+"""Training, the paper's metrics and sim-to-real fine-tuning."""

@@ -1,0 +1,1 @@
+"""Browser labeling app for sun centroids and probe pixels."""

@@ -1,0 +1,1 @@
+"""SOLID-Img-style synthetic data and a virtual field campaign (Mitsuba 3)."""

@@ -1,0 +1,1 @@
+"""The SOLID-Net-style real test set: validation and versioning."""
