@@ -1,0 +1,614 @@
+"""Merge an exposure bracket into one linear HDR image, with ghost detection.
+
+Model (Debevec & Malik, SIGGRAPH 1997; Robertson, Borman & Stevenson, JEI 2003): frame ``i``
+with effective exposure ``t_i`` records ``Z_i = f(E · t_i)`` (clipped, noisy, quantised). With
+the inverse response ``R = f⁻¹`` (a ``(256, 3)`` table: 8-bit code -> relative linear exposure;
+the sRGB inverse by default, a calibrated curve from :mod:`solidkit.calibration` otherwise)
+each frame gives an estimate ``R(Z_i) / t_i`` of the radiance ``E``; the merge is the weighted
+mean
+
+    ``E = Σ_i w_i · R(Z_i) / t_i  /  Σ_i w_i``,   ``w_i = h(Z_i) · t_i``,
+
+with Debevec's hat ``h`` in code space (zero at the black and saturation limits) times the
+exposure (longer exposures collect more light: higher SNR for the same code, cf. Granados
+et al., CVPR 2010). RAW frames are already linear: ``h = 1`` on valid photosites.
+
+- A frame's pixel is excluded when any channel is saturated (code >= ``saturation``) and, per
+  channel, when it is black (code <= ``black``).
+- A pixel saturated in every frame takes the shortest exposure's value (a lower bound) and is
+  flagged in ``MergeResult.saturated``; one black in every frame takes the longest exposure's
+  value and is flagged in ``MergeResult.underexposed``.
+- Ghosts: each frame's code is predicted from the merged radiance (``f(E · t_i)``); pixels whose
+  residual exceeds ``ghost_k`` robust standard deviations (per frame, median absolute
+  deviation over all valid pixels) in any frame, after a 3x3 opening that removes isolated
+  noise, form the ghost mask. ``deghost=True`` replaces ghost pixels by the reference frame's
+  estimate (the frame with the most well-exposed pixels) where that frame is valid.
+
+Units: the output is ``code-linear units per second`` at the bracket's reference ISO and
+f-number (``effective_exposure``), i.e. relative radiance; absolute calibration is the
+Calibration issue's business.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Sequence
+
+import cv2
+import numpy as np
+
+from solidkit.envmap.io import srgb_decode
+from solidkit.errors import InputError, SolidkitError
+
+__all__ = [
+    "Frame",
+    "MergeResult",
+    "srgb_response",
+    "validate_response",
+    "load_response",
+    "hat_weight",
+    "frame_from_ldr",
+    "frame_from_raw",
+    "load_frame",
+    "merge_frames",
+    "detect_ghosts",
+    "dynamic_range_stops",
+    "effective_exposure",
+    "sniff_format",
+    "merge_files",
+]
+
+DEFAULT_SATURATION = 0.97  # code fraction (≈ 247/255): JPEG ringing sits just below 255
+DEFAULT_BLACK = 0.02  # code fraction (≈ 5/255)
+_LUMA = np.array([0.2126, 0.7152, 0.0722], dtype=np.float32)
+
+
+# --------------------------------------------------------------------------- response curves
+def srgb_response() -> np.ndarray:
+    """The default inverse response: sRGB decoding of each 8-bit code, ``(256, 3)`` float64."""
+    codes = np.arange(256, dtype=np.float64) / 255.0
+    return np.repeat(np.asarray(srgb_decode(codes), dtype=np.float64)[:, None], 3, axis=1)
+
+
+def validate_response(response: Any) -> np.ndarray:
+    """Check an inverse response curve and return it as ``(256, 3)`` float64.
+
+    Accepts ``(256,)``, ``(256, 1)`` or ``(256, 3)``: entry ``[z, c]`` is the relative linear
+    exposure that produced 8-bit code ``z`` in channel ``c``. It must be finite, non-negative
+    and non-decreasing with ``R[255] > R[0]``; the overall scale is irrelevant.
+    """
+    r = np.asarray(response, dtype=np.float64)
+    if r.ndim == 1:
+        r = r[:, None]
+    if r.ndim != 2 or r.shape[0] != 256 or r.shape[1] not in (1, 3):
+        raise InputError(f"response curve must have shape (256, 3) (or (256,)); got {np.shape(response)}")
+    if r.shape[1] == 1:
+        r = np.repeat(r, 3, axis=1)
+    if not np.all(np.isfinite(r)):
+        raise InputError("response curve contains NaN or Inf")
+    if np.any(r < 0):
+        raise InputError("response curve has negative values (it maps codes to linear exposure >= 0)")
+    if np.any(np.diff(r, axis=0) < 0):
+        raise InputError("response curve is not non-decreasing in the code value")
+    if np.any(r[-1] <= r[0]):
+        raise InputError("response curve is constant in some channel")
+    return r
+
+
+def load_response(path: str | os.PathLike) -> np.ndarray:
+    """Read an inverse response curve from ``.npy``, ``.csv``/``.txt`` (256 rows) or ``.json``.
+
+    JSON: a :class:`solidkit.calibration.response.ResponseProfile` (``"kind": "response"``,
+    validated by its loader), a 256 x 3 list, or an object holding one under ``response``,
+    ``inverse_response``, ``curve`` or ``g`` (``g`` = natural log of exposure, Debevec's
+    convention, exponentiated here).
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise InputError(f"{path}: no such response file")
+    suffix = path.suffix.lower()
+    try:
+        if suffix == ".npy":
+            arr = np.load(path, allow_pickle=False)
+        elif suffix in (".csv", ".txt"):
+            arr = np.loadtxt(path, delimiter="," if suffix == ".csv" else None)
+        elif suffix == ".json":
+            data = json.loads(path.read_text())
+            arr = None
+            if isinstance(data, list):
+                arr = np.asarray(data, dtype=np.float64)
+            elif isinstance(data, dict) and data.get("kind") == "response":
+                from solidkit.calibration.response import ResponseProfile  # the Calibration issue's profile
+
+                arr = ResponseProfile.from_dict(data, str(path)).array()
+            elif isinstance(data, dict):
+                for key in ("response", "inverse_response", "curve"):
+                    if key in data:
+                        arr = np.asarray(data[key], dtype=np.float64)
+                        break
+                else:
+                    if "g" in data:
+                        arr = np.exp(np.asarray(data["g"], dtype=np.float64))
+            if arr is None:
+                raise InputError(f"{path}: no response curve found (expected a 256x3 list or a 'response' key)")
+        else:
+            raise InputError(f"{path}: unknown response file type '{suffix}' (use .npy, .csv, .txt or .json)")
+    except SolidkitError:
+        raise
+    except Exception as exc:
+        raise InputError(f"{path}: cannot read response curve ({exc})") from None
+    return validate_response(arr)
+
+
+def hat_weight(code: np.ndarray, black: float = DEFAULT_BLACK, saturation: float = DEFAULT_SATURATION) -> np.ndarray:
+    """Debevec & Malik's hat weight on normalised codes in ``[0, 1]``.
+
+    Linear ramps from 0 at ``black`` to 1 at the midpoint and back to 0 at ``saturation``;
+    a floor of 1e-3 inside the open interval keeps a pixel that is valid in one frame only.
+    """
+    mid = 0.5 * (black + saturation)
+    half = 0.5 * (saturation - black)
+    w = 1.0 - np.abs(code - mid) / half
+    inside = (code > black) & (code < saturation)
+    return np.where(inside, np.maximum(w, 1e-3), 0.0).astype(np.float32)
+
+
+# --------------------------------------------------------------------------- frames
+@dataclass
+class Frame:
+    """One frame of a bracket, decoded.
+
+    Attributes
+    ----------
+    linear : (H, W, 3) float32
+        Relative linear exposure ``R(Z)`` (response applied; raw: normalised sensor values).
+    code : (H, W, 3) float32
+        Recorded values normalised to ``[0, 1]`` (weights, validity, ghost residuals); for raw
+        frames the clipped linear values.
+    exposure : float
+        Effective exposure (seconds, scaled to the bracket's reference ISO and f-number).
+    saturated : (H, W) bool
+        Any channel clipped.
+    response : (256, 3) or None
+        The inverse response for LDR frames; ``None`` for linear (raw) frames.
+    name : str
+        A label (file name) for reports.
+    """
+
+    linear: np.ndarray
+    code: np.ndarray
+    exposure: float
+    saturated: np.ndarray
+    response: np.ndarray | None = None
+    name: str = ""
+    black: float = DEFAULT_BLACK
+    saturation: float = DEFAULT_SATURATION
+
+    @property
+    def is_raw(self) -> bool:
+        return self.response is None
+
+    def valid(self) -> np.ndarray:
+        """``(H, W, 3)`` bool: usable samples (not saturated anywhere, channel above black)."""
+        return (~self.saturated)[..., None] & (self.code > self.black)
+
+    def base_weight(self) -> np.ndarray:
+        """``(H, W, 3)`` code-space weight (hat for LDR, 1 for raw) on valid samples."""
+        if self.is_raw:
+            return self.valid().astype(np.float32)
+        return hat_weight(self.code, self.black, self.saturation) * (~self.saturated)[..., None]
+
+    def observed(self) -> np.ndarray:
+        """The frame in its noise domain (codes for LDR, sqrt of linear for raw)."""
+        return self.code if not self.is_raw else np.sqrt(np.clip(self.linear, 0.0, None))
+
+    def predict(self, radiance: np.ndarray) -> np.ndarray:
+        """Predicted observation for ``radiance`` (H, W, 3): ``f(E · t)`` in the noise domain."""
+        x = radiance * self.exposure
+        if self.is_raw:
+            return np.sqrt(np.clip(x, 0.0, None))
+        codes = np.arange(256, dtype=np.float64) / 255.0
+        out = np.empty_like(x, dtype=np.float32)
+        for c in range(3):
+            out[..., c] = np.interp(x[..., c], self.response[:, c], codes)
+        return out
+
+
+def frame_from_ldr(
+    image: np.ndarray,
+    exposure: float,
+    response: np.ndarray | None = None,
+    *,
+    name: str = "",
+    black: float = DEFAULT_BLACK,
+    saturation: float = DEFAULT_SATURATION,
+) -> Frame:
+    """Build a :class:`Frame` from an 8-bit (or 16-bit) RGB image and its exposure.
+
+    ``response`` is the ``(256, 3)`` inverse response (default: sRGB inverse). 16-bit input is
+    looked up at fractional codes (linear interpolation in the table).
+    """
+    img = np.asarray(image)
+    if img.ndim != 3 or img.shape[2] != 3:
+        raise InputError(f"{name or 'frame'}: expected an (H, W, 3) RGB image, got {img.shape}")
+    if not (np.isfinite(exposure) and exposure > 0):
+        raise InputError(f"{name or 'frame'}: exposure time must be positive, got {exposure}")
+    r = srgb_response() if response is None else validate_response(response)
+    if np.issubdtype(img.dtype, np.integer):
+        code = img.astype(np.float32) / float(np.iinfo(img.dtype).max)
+    else:
+        code = np.clip(img.astype(np.float32), 0.0, 1.0)
+    if img.dtype == np.uint8:
+        linear = np.stack([r[img[..., c], c] for c in range(3)], axis=-1).astype(np.float32)
+    else:
+        grid = np.arange(256, dtype=np.float64) / 255.0
+        linear = np.stack([np.interp(code[..., c], grid, r[:, c]) for c in range(3)], axis=-1).astype(np.float32)
+    saturated = (code >= saturation).any(axis=-1)
+    return Frame(linear, code, float(exposure), saturated, r, name, black, saturation)
+
+
+def frame_from_raw(raw: Any, exposure: float, *, name: str = "", black: float = 0.0) -> Frame:
+    """Build a :class:`Frame` from a :class:`solidkit.capture.raw.RawImage` (linear)."""
+    if not (np.isfinite(exposure) and exposure > 0):
+        raise InputError(f"{name or 'frame'}: exposure time must be positive, got {exposure}")
+    linear = np.asarray(raw.linear, dtype=np.float32)
+    code = np.clip(linear, 0.0, 1.0)
+    return Frame(linear, code, float(exposure), np.asarray(raw.saturated, bool), None, name, black, 1.0 + 1e-6)
+
+
+def sniff_format(path: str | os.PathLike) -> str:
+    """``"jpeg"``, ``"png"``, ``"tiff"`` (TIFF, DNG and most raws) or ``"unknown"`` from magic bytes."""
+    with open(path, "rb") as f:
+        head = f.read(12)
+    if head[:3] == b"\xff\xd8\xff":
+        return "jpeg"
+    if head[:8] == b"\x89PNG\r\n\x1a\n":
+        return "png"
+    if head[:4] in (b"II*\x00", b"MM\x00*"):
+        return "tiff"
+    if head[4:12] in (b"ftypcrx ",):
+        return "raw"
+    return "unknown"
+
+
+def read_ldr_codes(path: str | os.PathLike) -> np.ndarray:
+    """Decode an LDR image fully (a truncated JPEG is an error, not a grey tail) -> (H, W, 3) uint8/16.
+
+    EXIF orientation is applied so that all frames of a bracket share one geometry.
+    """
+    from PIL import Image, ImageOps
+
+    path = Path(path)
+    try:
+        with Image.open(path) as im:
+            im.load()
+            im = ImageOps.exif_transpose(im)
+            if im.mode in ("I;16", "I;16B", "I"):
+                arr = np.asarray(im, dtype=np.uint16)
+                arr = np.repeat(arr[..., None], 3, axis=2)
+            else:
+                arr = np.asarray(im.convert("RGB"))
+    except Exception as exc:  # PIL: UnidentifiedImageError, OSError('image file is truncated'), ...
+        raise InputError(f"{path}: cannot decode image ({type(exc).__name__}: {exc})") from None
+    return arr
+
+
+def effective_exposure(
+    exposure_time: float, iso: float | None = None, f_number: float | None = None,
+    ref_iso: float | None = None, ref_f_number: float | None = None,
+) -> float:
+    """Exposure relative to a reference ISO and f-number: ``t · (ISO/ISO_ref) · (N_ref/N)²``.
+
+    Missing ISO or f-number (or reference) leave that factor at 1.
+    """
+    e = float(exposure_time)
+    if iso and ref_iso:
+        e *= float(iso) / float(ref_iso)
+    if f_number and ref_f_number:
+        e *= (float(ref_f_number) / float(f_number)) ** 2
+    return e
+
+
+def load_frame(path: str | os.PathLike, exposure: float, response: np.ndarray | None = None, *, wb: Any = "camera") -> Frame:
+    """Read one bracket frame from disk (JPEG/PNG/TIFF via the response, DNG/raw linearly)."""
+    from solidkit.capture.raw import is_raw_file, read_raw
+
+    path = Path(path)
+    if not path.is_file():
+        raise InputError(f"{path}: no such file")
+    if path.stat().st_size == 0:
+        raise InputError(f"{path}: empty file (0 bytes)")
+    kind = sniff_format(path)
+    suffix = path.suffix.lower()
+    if is_raw_file(path):
+        return frame_from_raw(read_raw(path, wb=wb), exposure, name=path.name)
+    if suffix in (".jpg", ".jpeg") and kind == "tiff":
+        raise InputError(f"{path}: content is TIFF/DNG (raw) but the name ends in {path.suffix}; rename it to .dng")
+    if suffix in (".jpg", ".jpeg") and kind != "jpeg":
+        raise InputError(f"{path}: not a JPEG file (bad signature)")
+    return frame_from_ldr(read_ldr_codes(path), exposure, response, name=path.name)
+
+
+# --------------------------------------------------------------------------- merging
+@dataclass
+class MergeResult:
+    """Output of :func:`merge_frames`.
+
+    ``hdr`` (H, W, 3) float32 relative radiance; masks are (H, W) bool; ``ghost_fraction`` is
+    the fraction of pixels in the ghost mask; ``reference`` indexes the reference frame.
+    """
+
+    hdr: np.ndarray
+    weight_sum: np.ndarray
+    saturated: np.ndarray
+    underexposed: np.ndarray
+    ghost: np.ndarray
+    ghost_fraction: float
+    reference: int
+    exposures: list[float]
+    noise_sigma: list[float] = field(default_factory=list)
+
+    def stats(self) -> dict[str, Any]:
+        """JSON-friendly summary (fractions, dynamic range in stops)."""
+        n = self.hdr.shape[0] * self.hdr.shape[1]
+        return {
+            "size": [int(self.hdr.shape[1]), int(self.hdr.shape[0])],
+            "exposures": self.exposures,
+            "reference_frame": self.reference,
+            "saturated_in_all_frames_fraction": float(self.saturated.sum() / n),
+            "underexposed_in_all_frames_fraction": float(self.underexposed.sum() / n),
+            "ghost_fraction": float(self.ghost_fraction),
+            "noise_sigma": self.noise_sigma,
+            "dynamic_range_stops": dynamic_range_stops(self.hdr, self.saturated | self.underexposed),
+        }
+
+
+def dynamic_range_stops(hdr: np.ndarray, exclude: np.ndarray | None = None, percentile: float = 0.1) -> float:
+    """Robust dynamic range: ``log2(p_{100-q} / p_q)`` of positive luminance (q = ``percentile`` %)."""
+    lum = np.asarray(hdr, dtype=np.float32) @ _LUMA
+    keep = lum > 0
+    if exclude is not None:
+        keep &= ~exclude
+    vals = lum[keep]
+    if vals.size < 2:
+        return 0.0
+    lo, hi = np.percentile(vals, [percentile, 100.0 - percentile])
+    return float(np.log2(hi / lo)) if lo > 0 else float("inf")
+
+
+def _check_frames(frames: Sequence[Frame]) -> None:
+    if len(frames) < 1:
+        raise InputError("no frames to merge")
+    shape = frames[0].linear.shape
+    for f in frames[1:]:
+        if f.linear.shape != shape:
+            raise InputError(f"frame {f.name or '?'} is {f.linear.shape[1]}x{f.linear.shape[0]}, "
+                             f"expected {shape[1]}x{shape[0]} like {frames[0].name or 'the first frame'}")
+    order = sorted(range(len(frames)), key=lambda i: frames[i].exposure)
+    for a, b in zip(order, order[1:]):
+        ea, eb = frames[a].exposure, frames[b].exposure
+        if eb <= ea * 1.02:
+            raise InputError(
+                f"frames {frames[a].name or a} and {frames[b].name or b} have the same exposure "
+                f"({ea:.6g} s vs {eb:.6g} s): a bracket needs distinct exposures (check --times)"
+            )
+
+
+def merge_frames(
+    frames: Sequence[Frame],
+    *,
+    ghost_k: float = 6.0,
+    deghost: bool = False,
+) -> MergeResult:
+    """Merge frames into linear HDR (see the module docstring for the estimator and masks).
+
+    Parameters
+    ----------
+    frames : sequence of Frame
+        Same size, distinct exposures (raises :class:`InputError` otherwise).
+    ghost_k : float
+        Ghost threshold in robust standard deviations of each frame's residual.
+    deghost : bool
+        Replace ghost pixels by the reference frame's estimate.
+    """
+    _check_frames(frames)
+    h, w, _ = frames[0].linear.shape
+    num = np.zeros((h, w, 3), np.float64)
+    den = np.zeros((h, w, 3), np.float64)
+    sat_all = np.ones((h, w), bool)
+    for f in frames:
+        wgt = f.base_weight() * np.float32(f.exposure)
+        num += wgt * (f.linear / np.float32(f.exposure))
+        den += wgt
+        sat_all &= f.saturated
+    shortest = min(frames, key=lambda f: f.exposure)
+    longest = max(frames, key=lambda f: f.exposure)
+    empty = den <= 0
+    hdr = np.where(empty, 0.0, num / np.where(empty, 1.0, den))
+    fill_short = empty & sat_all[..., None]
+    fill_long = empty & ~sat_all[..., None]
+    hdr = np.where(fill_short, shortest.linear / shortest.exposure, hdr)
+    hdr = np.where(fill_long, longest.linear / longest.exposure, hdr)
+    hdr = hdr.astype(np.float32)
+    underexposed = fill_long.any(axis=-1)
+    # reference frame: the one with most well-exposed samples
+    scores = [float(f.base_weight().mean()) for f in frames]
+    ref = int(np.argmax(scores))
+    ghost, sigmas = detect_ghosts(frames, hdr, k=ghost_k)
+    if deghost and ghost.any():
+        rf = frames[ref]
+        ok = ghost[..., None] & rf.valid()
+        hdr = np.where(ok, rf.linear / rf.exposure, hdr).astype(np.float32)
+    return MergeResult(
+        hdr=hdr,
+        weight_sum=den.sum(axis=-1).astype(np.float32),
+        saturated=sat_all,
+        underexposed=underexposed,
+        ghost=ghost,
+        ghost_fraction=float(ghost.mean()),
+        reference=ref,
+        exposures=[float(f.exposure) for f in frames],
+        noise_sigma=sigmas,
+    )
+
+
+def detect_ghosts(frames: Sequence[Frame], hdr: np.ndarray, *, k: float = 6.0, min_sigma: float = 1.0 / 255.0) -> tuple[np.ndarray, list[float]]:
+    """Ghost mask: pixels where some frame disagrees with the merged radiance beyond noise.
+
+    For each frame the residual ``observed − f(E · t)`` is computed on samples valid in that
+    frame whose prediction is also in the valid code range; its noise level is the robust
+    sigma ``1.4826 · MAD`` (at least ``min_sigma``, one 8-bit step). A pixel is a ghost
+    candidate when ``|residual| > k · sigma`` in any channel of any frame; a 3x3 morphological
+    opening removes isolated candidates (noise, JPEG blocks) and a 3x3 dilation restores
+    the blobs' extent. Returns ``(mask (H, W) bool, [sigma per frame])``.
+    """
+    h, w, _ = hdr.shape
+    cand = np.zeros((h, w), bool)
+    sigmas: list[float] = []
+    if len(frames) < 2:
+        return cand, [0.0 for _ in frames]
+    for f in frames:
+        pred = f.predict(hdr)
+        obs = f.observed()
+        valid = f.valid()
+        if not f.is_raw:
+            valid &= (pred > f.black) & (pred < f.saturation)
+        res = np.abs(obs - pred)
+        vals = res[valid]
+        if vals.size == 0:
+            sigmas.append(0.0)
+            continue
+        sigma = max(1.4826 * float(np.median(vals)), min_sigma if not f.is_raw else 1e-4)
+        sigmas.append(sigma)
+        cand |= ((res > k * sigma) & valid).any(axis=-1)
+    kernel = np.ones((3, 3), np.uint8)
+    mask = cv2.morphologyEx(cand.astype(np.uint8), cv2.MORPH_OPEN, kernel)
+    mask = cv2.dilate(mask, kernel) & cand.astype(np.uint8) | mask
+    return mask.astype(bool), sigmas
+
+
+# --------------------------------------------------------------------------- files -> EXR
+def _bracket_infos(paths: Sequence[Path], times: Sequence[float] | None) -> list[tuple[Path, Any, float]]:
+    """(path, metadata, exposure time in s) per file; times from ``times`` or EXIF."""
+    from solidkit.capture.metadata import read_metadata
+
+    if times is not None and len(times) != len(paths):
+        raise InputError(f"--times has {len(times)} value(s) for {len(paths)} frame(s)")
+    out = []
+    for i, p in enumerate(paths):
+        if not p.is_file():
+            raise InputError(f"{p}: no such file")
+        if p.stat().st_size == 0:
+            raise InputError(f"{p}: empty file (0 bytes)")
+        meta = read_metadata(p)
+        if times is not None:
+            t = float(times[i])
+            if not (np.isfinite(t) and t > 0):
+                raise InputError(f"--times: exposure time {times[i]} for {p.name} is not positive")
+        else:
+            t = meta.exposure_time
+            if not t or t <= 0:
+                raise InputError(f"{p}: no exposure time in the metadata; pass --times t1,t2,...")
+        out.append((p, meta, float(t)))
+    return out
+
+
+def merge_files(
+    paths: Sequence[str | os.PathLike],
+    out: str | os.PathLike,
+    *,
+    times: Sequence[float] | None = None,
+    response_path: str | os.PathLike | None = None,
+    response: np.ndarray | None = None,
+    group: bool = True,
+    max_gap_s: float = 10.0,
+    deghost: bool = False,
+    ghost_k: float = 6.0,
+    ghost_mask_path: str | os.PathLike | None = None,
+    wb: Any = "camera",
+    progress: Any = None,
+) -> list[dict[str, Any]]:
+    """Group ``paths`` into brackets, merge each and write EXR(s) with provenance.
+
+    One bracket is written to ``out``; several to ``<stem>-1.exr``, ``<stem>-2.exr``, ... in
+    capture order (``group=False`` merges all frames as one bracket). Exposure times come from
+    the metadata (scaled by ISO and f-number relative to the bracket's first frame) or from
+    ``times`` (seconds, in the order of ``paths``, taken as effective exposures). The EXR's
+    ``solidkit`` attribute holds ``exposure_time`` (the reference frame's), ``units`` and
+    ``provenance`` (inputs with sha256, times, response, parameters, solidkit version,
+    merge statistics). Returns one summary dict per written file.
+    """
+    from solidkit import __version__
+    from solidkit.capture.brackets import ShotInfo, group_brackets, sequence_from_name
+    from solidkit.envmap.io import write_exr, write_ldr
+    from solidkit.fsutil import sha256_file
+
+    paths = [Path(p) for p in paths]
+    if not paths:
+        raise InputError("no frames given")
+    if len(set(p.resolve() for p in paths)) != len(paths):
+        raise InputError("the same file is given more than once")
+    out = Path(out)
+    if out.suffix.lower() != ".exr":
+        raise InputError(f"{out}: the output must be an .exr file")
+    if response is not None and response_path is not None:
+        raise InputError("give a response array or a response file, not both")
+    resp = load_response(response_path) if response_path is not None else (
+        validate_response(response) if response is not None else srgb_response())
+    resp_info: dict[str, Any] = (
+        {"kind": "file", "path": str(response_path), "sha256": sha256_file(response_path)} if response_path is not None
+        else {"kind": "array"} if response is not None else {"kind": "srgb_inverse"})
+    infos = _bracket_infos(paths, times)
+    if group and times is None:
+        shots = [
+            ShotInfo(
+                key=str(i), time=m.datetime_original, sequence=m.sequence if m.sequence is not None else sequence_from_name(p.name),
+                exposure=t, camera=" ".join(x for x in (m.make, m.model, m.serial) if x), size=(m.width, m.height), name=p.name,
+            )
+            for i, (p, m, t) in enumerate(infos)
+        ]
+        brackets = [[infos[int(s.key)] for s in g] for g in group_brackets(shots, max_gap_s=max_gap_s)]
+    else:
+        brackets = [infos]
+    outputs = [out] if len(brackets) == 1 else [out.with_name(f"{out.stem}-{i + 1}{out.suffix}") for i in range(len(brackets))]
+    summaries = []
+    for bracket, target in zip(brackets, outputs):
+        if len(bracket) < 2:
+            raise InputError(f"{bracket[0][0].name} forms a bracket of one frame (by time/sequence/exposure); "
+                             "pass the frames of one bracket, or --no-group to merge them as one")
+        ref_meta = bracket[0][1]
+        frames, inputs = [], []
+        for p, m, t in bracket:
+            eff = t if times is not None else effective_exposure(t, m.iso, m.f_number, ref_meta.iso, ref_meta.f_number)
+            frames.append(load_frame(p, eff, resp, wb=wb))
+            inputs.append({"path": str(p), "sha256": sha256_file(p), "exposure_time": t, "effective_exposure": eff,
+                           "iso": m.iso, "f_number": m.f_number})
+            if progress is not None:
+                progress()
+        result = merge_frames(frames, ghost_k=ghost_k, deghost=deghost)
+        stats = result.stats()
+        meta = {
+            "exposure_time": bracket[0][2],
+            "units": "relative radiance: linear code per second at the first frame's ISO and f-number",
+            "provenance": {
+                "tool": "solidkit capture merge",
+                "solidkit_version": __version__,
+                "inputs": inputs,
+                "response": resp_info,
+                "parameters": {"ghost_k": ghost_k, "deghost": deghost, "wb": str(wb),
+                               "saturation": DEFAULT_SATURATION, "black": DEFAULT_BLACK},
+                "stats": stats,
+            },
+        }
+        write_exr(target, result.hdr, meta)
+        mask_file = None
+        if ghost_mask_path is not None:
+            gm = Path(ghost_mask_path)
+            mask_file = gm if len(brackets) == 1 else gm.with_name(f"{gm.stem}-{len(summaries) + 1}{gm.suffix}")
+            write_ldr(mask_file, (result.ghost.astype(np.uint8) * 255)[..., None].repeat(3, axis=2))
+        summaries.append({"output": str(target), "frames": [str(p) for p, _, _ in bracket],
+                          "ghost_mask": str(mask_file) if mask_file else None, **stats})
+    return summaries
