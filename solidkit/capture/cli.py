@@ -49,3 +49,52 @@ def info(
         for w in meta.warnings:
             table.add_row("[yellow]warning[/]", escape(w))
         console.print(table)
+
+
+@app.command()
+def merge(
+    frames: list[Path] = typer.Argument(..., help="Bracket frames (JPEG via the response curve, DNG linearly)."),
+    out: Path = typer.Option(..., "-o", "--out", help="Output EXR (several brackets: OUT-1.exr, OUT-2.exr, ...)."),
+    times: str | None = typer.Option(None, "--times", help="Exposure times in seconds, comma-separated, in FRAMES order (default: EXIF)."),
+    response: Path | None = typer.Option(None, "--response", help="Inverse response curve (.json profile, .npy, .csv); default sRGB inverse."),
+    group: bool = typer.Option(True, "--group/--no-group", help="Split FRAMES into brackets by time, sequence and exposure."),
+    deghost: bool = typer.Option(False, "--deghost", help="Replace ghost pixels by the reference frame."),
+    ghost_mask: Path | None = typer.Option(None, "--ghost-mask", help="Write the ghost mask as a PNG."),
+    wb: str = typer.Option("camera", "--wb", help="Raw white balance: camera, daylight, none or r,g,b."),
+    as_json: bool = typer.Option(False, "--json", help="Print the merge statistics as JSON."),
+) -> None:
+    """Merge exposure brackets into linear HDR EXR (weights, saturation/black exclusion, ghost report)."""
+    from solidkit.capture.merge import merge_files
+    from solidkit.errors import InputError
+
+    try:
+        t = [float(eval_fraction(x)) for x in times.split(",")] if times else None
+        wb_arg: object = tuple(float(x) for x in wb.split(",")) if "," in wb else wb
+    except ValueError as exc:
+        raise InputError(f"--times/--wb: {exc}") from None
+    summaries = merge_files(frames, out, times=t, response_path=response, group=group, deghost=deghost,
+                            ghost_mask_path=ghost_mask, wb=wb_arg)
+    if as_json:
+        typer.echo(json.dumps(summaries, indent=2))
+        return
+    for s in summaries:
+        table = Table(title=escape(s["output"]), show_header=False)
+        table.add_row("frames", escape(", ".join(Path(f).name for f in s["frames"])))
+        table.add_row("exposures (s)", ", ".join(f"{e:.6g}" for e in s["exposures"]))
+        table.add_row("dynamic range", f"{s['dynamic_range_stops']:.1f} stops")
+        table.add_row("saturated in every frame", f"{100 * s['saturated_in_all_frames_fraction']:.2f} % (shortest exposure used)")
+        table.add_row("black in every frame", f"{100 * s['underexposed_in_all_frames_fraction']:.2f} %")
+        table.add_row("ghosts", f"{100 * s['ghost_fraction']:.2f} % of pixels" + (f" -> {escape(s['ghost_mask'])}" if s["ghost_mask"] else ""))
+        console.print(table)
+        if s["ghost_fraction"] > 0.02 and response is None:
+            console.print("[yellow]note:[/] many inconsistent pixels: moving objects, camera motion, or a response "
+                          "curve that is not sRGB (calibrate one: solidkit.calibration.response, then --response)")
+
+
+def eval_fraction(text: str) -> float:
+    """``"1/8"`` -> 0.125, ``"2.5"`` -> 2.5 (exposure times as cameras print them)."""
+    text = text.strip()
+    if "/" in text:
+        num, den = text.split("/", 1)
+        return float(num) / float(den)
+    return float(text)
