@@ -3,3 +3,4 @@
 from solidkit.envmap.coords import *  # noqa: F401,F403
 from solidkit.envmap.io import *  # noqa: F401,F403
 from solidkit.envmap.sh import *  # noqa: F401,F403
+from solidkit.envmap.sun import *  # noqa: F401,F403
