@@ -98,14 +98,17 @@ def test_projection_of_smooth_map_is_stable_under_area_downsampling():
     np.testing.assert_allclose(sh.sh_project(pano, height=16), L, atol=2e-2 * np.abs(L).max())
 
 
-def test_area_downsampling_keeps_radiance_times_solid_angle():
+def test_working_height_matches_resize_for_batched_numpy_and_torch():
+    from solidkit.envmap.resample import resize
+
     h = 32
-    pano = RNG.random((3, h, 2 * h)) ** 4  # channels first, as used internally
-    small = sh._working(pano, 8, C.module_namespace(np))
-    energy = (pano * C.solid_angle(h)).sum(axis=(-2, -1))
-    np.testing.assert_allclose((small * C.solid_angle(8)).sum(axis=(-2, -1)), energy, rtol=1e-12)
+    panos = RNG.random((2, h, 2 * h, 3)) ** 4  # NumPy batch (B, H, W, C)
+    ref = np.stack([sh.sh_project(resize(p, 8)) for p in panos])
+    np.testing.assert_allclose(sh.sh_project(panos, height=8), ref, rtol=1e-12)
+    t = torch.from_numpy(np.ascontiguousarray(np.moveaxis(panos, -1, 1)))
+    np.testing.assert_allclose(sh.sh_project(t, height=8).numpy(), ref, rtol=1e-12)
     with pytest.raises(InputError):
-        sh._working(pano, 5, C.module_namespace(np))
+        sh.sh_project(panos, height=0)
 
 
 def test_render_and_lambertian_sphere():

@@ -55,6 +55,7 @@ import array_api_compat
 import numpy as np
 
 from solidkit.envmap.coords import angles_from_coords, direction_grid, namespace, solid_angle
+from solidkit.envmap.resample import resize
 from solidkit.errors import InputError, PanoramaError
 
 __all__ = [
@@ -169,23 +170,21 @@ def _cached(name: str, height: int, builder: Callable[[int], Any], like: Any, xp
     return value
 
 
-def _working(x_cf: Any, height: int | None, xp: Any) -> Any:
-    """Area-downsample ``(..., C, H, W)`` to ``height`` rows, keeping radiance x solid angle.
-
-    Each output pixel is the solid-angle-weighted mean of the ``f x f`` block it covers
-    (``f = H / height``, which must be an integer), so ``sum(out * s_out) == sum(in * s_in)``.
-    """
-    h = x_cf.shape[-2]
-    if height is None or height == h:
-        return x_cf
-    if not isinstance(height, int) or height < 1 or height > h or h % height:
-        raise InputError(f"working height {height} must be a positive divisor of the panorama height {h}")
-    f = h // height
-    s = solid_angle(h, xp, dtype=x_cf.dtype, device=array_api_compat.device(x_cf))[:, 0]
-    lead = tuple(x_cf.shape[:-2])
-    blocks = xp.reshape(x_cf * s[:, None], lead + (height, f, 2 * height, f))
-    weight = xp.sum(xp.reshape(s, (height, f)), axis=-1) * f
-    return xp.sum(xp.sum(blocks, axis=-1), axis=-2) / weight[:, None]
+def _working(pano: Any, height: int | None) -> tuple[Any, Any]:
+    """``pano`` at the working ``height`` (energy-preserving :func:`~solidkit.envmap.resample.resize`),
+    channels first ``(..., C, h, 2h)``, and its namespace."""
+    x, xp = _channels_first(pano)
+    if height is None or height == x.shape[-2]:
+        return x, xp
+    if not isinstance(height, int) or height < 1:
+        raise InputError(f"working height must be a positive integer, got {height!r}")
+    if _is_torch(x):
+        return resize(x, height), xp
+    # NumPy resize takes (H, W, C): fold any leading batch dimensions into the channels
+    lead, (c, h) = tuple(x.shape[:-3]), x.shape[-3:-1]
+    folded = xp.moveaxis(xp.reshape(x, (-1, h, 2 * h)), 0, -1)  # (H, W, N*C)
+    small = xp.moveaxis(resize(folded, height), -1, 0)
+    return xp.reshape(small, lead + (c, height, 2 * height)), xp
 
 
 # --------------------------------------------------------------------------------------------
@@ -232,15 +231,14 @@ def sh_project(pano: Any, height: int | None = None) -> Any:
     pano : array
         NumPy ``(..., H, 2H, C)`` or torch ``(..., C, H, 2H)``, linear radiance.
     height : int, optional
-        Working resolution: the panorama is first area-downsampled (energy preserving) to this
-        height, which must divide ``H``. Default: the panorama's own.
+        Working resolution: the panorama is first resized to this height with the energy-preserving
+        :func:`~solidkit.envmap.resample.resize`. Default: the panorama's own.
 
     Returns
     -------
     array ``(..., C, 9)``, same backend, dtype and device as ``pano``.
     """
-    x, xp = _channels_first(pano)
-    x = _working(x, height, xp)
+    x, xp = _working(pano, height)
     h = x.shape[-2]
     proj = _cached("projector", h, _projector_np, x, xp)
     flat = xp.reshape(x, tuple(x.shape[:-2]) + (h * 2 * h,))
@@ -405,8 +403,8 @@ def diffuse_convolution(pano: Any, normals: Any = None, *, height: int | None = 
         Default: the panorama's own direction grid (the paper's sphere normal map ``N_ll``),
         evaluated exactly with a cached circulant operator (FFT-free, a few real matmuls).
     height : int, optional
-        Working resolution: the panorama is first area-downsampled (energy preserving) to this
-        height (a divisor of ``H``). With ``normals=None`` the result is on that grid.
+        Working resolution: the panorama is first resized to this height with the energy-preserving
+        :func:`~solidkit.envmap.resample.resize`. With ``normals=None`` the result is on that grid.
 
     Returns
     -------
@@ -414,8 +412,7 @@ def diffuse_convolution(pano: Any, normals: Any = None, *, height: int | None = 
     ``h`` the working height). Otherwise NumPy ``(..., *S, C)`` / torch ``(..., C, *S)``.
     Differentiable in torch with respect to ``pano`` (and ``normals``).
     """
-    x, xp = _channels_first(pano)
-    x = _working(x, height, xp)
+    x, xp = _working(pano, height)
     if normals is None:
         return _to_layout(_diffuse_full(x, xp), pano, xp)
     if normals.shape[-1] != 3:
