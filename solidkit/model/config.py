@@ -1,0 +1,166 @@
+"""SOLID-Net configuration: widths, input sizes, P-Net inputs, loss weights (one frozen dataclass).
+
+The paper (Zhu et al., CVPR 2021, §4.2 and supplementary) gives the structure of I-Net and
+P-Net but no layer widths. Two presets are provided:
+
+- ``small``: a CPU-friendly configuration (≈1-2 M parameters) used by the shipped checkpoint;
+- ``paper``: a paper-sized configuration (standard U-Net widths 32..512) for GPU training.
+
+The configuration travels inside every checkpoint (:mod:`solidkit.model.checkpoint`), so a
+model is always rebuilt with the widths it was trained with.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass, field
+from typing import Any
+
+from solidkit.errors import SolidkitError
+
+__all__ = ["PNET_INPUTS", "ConfigError", "SolidNetConfig", "preset", "PRESETS"]
+
+# Inputs P-Net may receive (paper Table 2): warped colour W_col (+ its observed mask), warped
+# shadow W_sha, the Lambertian sphere relit with P_SH (W_SH) and the global sky H_g (W_sky).
+PNET_INPUTS = ("col", "sha", "sh", "sky")
+
+
+class ConfigError(SolidkitError):
+    """A model configuration is invalid or unknown."""
+
+
+@dataclass(frozen=True)
+class SolidNetConfig:
+    """Hyper-parameters of SOLID-Net.
+
+    Attributes
+    ----------
+    name : str
+        Preset name (informational).
+    widths : tuple of int
+        I-Net encoder channels per level; level ``k`` works at ``1/2**(k+1)`` of the input size.
+        The A/N/G/S decoders mirror them (U-Net skip links).
+    light_width : int
+        Channels of the lighting branch (the features behind ``P_SH`` and the sky features).
+    sky_widths : tuple of int
+        Sky-decoder channels at panorama heights ``pano_height/8, /4, /2, /1``.
+    pnet_widths : tuple of int
+        P-Net (U-Net) channels per level on the ``pano_height x 2 pano_height`` panorama.
+    pnet_inputs : tuple of str
+        Subset of :data:`PNET_INPUTS` fed to P-Net; ``("col", "sha", "sky")`` is the full model.
+    image_size : (int, int)
+        Input ``(height, width)``; the paper uses 240 x 320.
+    pano_height : int
+        Height ``H`` of H_g and H_l (width ``2H``); the paper uses 128.
+    hfov_deg : float
+        Horizontal field of view assumed by :meth:`SolidNet.predict` when no intrinsics are given,
+        and the footprint of the image in the sky decoder's flip-padded sky features.
+    probe_offset : float
+        Metres the probe centre is moved along the surface normal (paper §3.1: 0.10 m).
+    loss_weights : dict
+        Weights of ``sup1`` terms and of ``dif``, ``rec``, ``sup2``, ``tom`` (paper: all 1).
+    """
+
+    name: str = "small"
+    widths: tuple[int, ...] = (16, 24, 32, 64, 96)
+    light_width: int = 64
+    sky_widths: tuple[int, ...] = (32, 24, 16, 16)
+    pnet_widths: tuple[int, ...] = (16, 24, 32, 64, 96)
+    pnet_inputs: tuple[str, ...] = ("col", "sha", "sky")
+    image_size: tuple[int, int] = (240, 320)
+    pano_height: int = 128
+    hfov_deg: float = 60.0
+    probe_offset: float = 0.10
+    loss_weights: dict[str, float] = field(
+        default_factory=lambda: {
+            "albedo": 1.0,
+            "normal": 1.0,
+            "distance": 1.0,
+            "shadow": 1.0,
+            "sky": 1.0,
+            "dif": 1.0,
+            "rec": 1.0,
+            "local": 1.0,
+            "tom": 1.0,
+        }
+    )
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "widths", tuple(int(w) for w in self.widths))
+        object.__setattr__(self, "sky_widths", tuple(int(w) for w in self.sky_widths))
+        object.__setattr__(self, "pnet_widths", tuple(int(w) for w in self.pnet_widths))
+        object.__setattr__(self, "pnet_inputs", tuple(self.pnet_inputs))
+        object.__setattr__(self, "image_size", tuple(int(s) for s in self.image_size))
+        if len(self.widths) < 2 or min(self.widths) < 1:
+            raise ConfigError(f"widths must list at least two positive channel counts, got {self.widths}")
+        if len(self.pnet_widths) < 2 or min(self.pnet_widths) < 1:
+            raise ConfigError(f"pnet_widths must list at least two positive channel counts, got {self.pnet_widths}")
+        if len(self.sky_widths) != 4 or min(self.sky_widths) < 1:
+            raise ConfigError(f"sky_widths must list 4 positive channel counts, got {self.sky_widths}")
+        bad = [k for k in self.pnet_inputs if k not in PNET_INPUTS]
+        if bad or "col" not in self.pnet_inputs:
+            raise ConfigError(f"pnet_inputs must include 'col' and be drawn from {PNET_INPUTS}, got {self.pnet_inputs}")
+        if self.pano_height % 8 or self.pano_height < 16:
+            raise ConfigError(f"pano_height must be a multiple of 8 and >= 16, got {self.pano_height}")
+        if self.pano_height % (2 ** (len(self.pnet_widths) - 1)):
+            raise ConfigError(
+                f"pano_height {self.pano_height} must be divisible by 2**(len(pnet_widths)-1) = "
+                f"{2 ** (len(self.pnet_widths) - 1)}"
+            )
+        if not 1.0 < self.hfov_deg < 179.0:
+            raise ConfigError(f"hfov_deg must be in (1, 179), got {self.hfov_deg}")
+        unknown = set(self.loss_weights) - set(SolidNetConfig.__dataclass_fields__["loss_weights"].default_factory())
+        if unknown:
+            raise ConfigError(f"unknown loss weights {sorted(unknown)}")
+
+    @property
+    def vfov_deg(self) -> float:
+        """Vertical field of view implied by ``hfov_deg`` and the image aspect (square pixels)."""
+        h, w = self.image_size
+        return math.degrees(2 * math.atan(math.tan(math.radians(self.hfov_deg) / 2) * h / w))
+
+    def replace(self, **changes: Any) -> SolidNetConfig:
+        """A copy with ``changes`` applied (validated)."""
+        return dataclasses.replace(self, **changes)
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-serialisable form (tuples become lists)."""
+        return {k: (list(v) if isinstance(v, tuple) else v) for k, v in dataclasses.asdict(self).items()}
+
+    @classmethod
+    def from_dict(cls, data: dict[str, Any]) -> SolidNetConfig:
+        """Inverse of :meth:`to_dict`; unknown keys are refused with a clear message."""
+        unknown = set(data) - set(cls.__dataclass_fields__)
+        if unknown:
+            raise ConfigError(f"unknown SolidNetConfig keys {sorted(unknown)} (written by a newer solidkit?)")
+        weights = dict(cls.__dataclass_fields__["loss_weights"].default_factory())
+        weights.update(data.get("loss_weights", {}))
+        return cls(**{**data, "loss_weights": weights})
+
+
+PRESETS: dict[str, SolidNetConfig] = {
+    "small": SolidNetConfig(),
+    "paper": SolidNetConfig(
+        name="paper",
+        widths=(32, 64, 128, 256, 512),
+        light_width=256,
+        sky_widths=(128, 64, 32, 32),
+        pnet_widths=(32, 64, 128, 256, 512),
+    ),
+    # for unit tests: a few thousand parameters, fast on one CPU core
+    "tiny": SolidNetConfig(
+        name="tiny",
+        widths=(4, 8, 8, 16),
+        light_width=16,
+        sky_widths=(8, 8, 4, 4),
+        pnet_widths=(4, 8, 8, 16),
+    ),
+}
+
+
+def preset(name: str, **changes: Any) -> SolidNetConfig:
+    """A named configuration (``small``, ``paper``, ``tiny``), optionally modified."""
+    if name not in PRESETS:
+        raise ConfigError(f"unknown preset {name!r}; choose one of {sorted(PRESETS)}")
+    return PRESETS[name].replace(**changes) if changes else PRESETS[name]

@@ -1,0 +1,144 @@
+"""I-Net (SOLID-Net stage 1, paper §4.2): intrinsics, SH lighting and the global HDR sky.
+
+One encoder on the ``240 x 320`` LDR image; U-Net decoders (skip links) for diffuse albedo A,
+surface normal N, plane distance G and shadow S; a lighting branch whose feature maps go through
+a fully-connected layer to the 27 second-order SH coefficients ``P_SH`` (9 per RGB channel, the
+paper's ``L in R^{3x9}``, basis :func:`solidkit.envmap.sh.sh_basis`); and a sky decoder that
+turns ``P_SH`` into the ``128 x 256`` HDR sky ``H_g``.
+
+Sky decoder (the paper: "we reshape this vector and upsample it 8 times, and then combine it by
+flipping padded sky features"). Here ``P_SH`` is rendered (``L b(d)``, :func:`sh_render`) on the
+panorama grid at 1/8 of the output height (16 x 32 for H = 128) and upsampled 8x by three
+(x2 upsample, conv) stages. At every stage it is concatenated with *flip-padded sky features*:
+the lighting branch's image feature map resized to the image's footprint on the panorama
+(``hfov x vfov`` around the forward direction at the horizon) and extended to the whole panorama
+by mirror tiling (alternately flipped copies, horizontally and vertically), plus a
+``sin(elevation)`` channel. The head outputs ``y = log1p(H_g)`` (see
+:data:`solidkit.model.blocks.HDR_PARAMETERISATION`).
+
+Frames: N is predicted in the camera frame (OpenCV: x right, y down, z forward); ``P_SH`` and
+``H_g`` live in the panorama frame (docs/conventions.md §2), so using ``P_SH`` to shade N requires
+the camera rotation (done in :mod:`solidkit.model.losses`).
+"""
+
+from __future__ import annotations
+
+import torch
+import torch.nn.functional as F
+from torch import nn
+
+from solidkit.envmap.coords import angles_grid, direction_grid
+from solidkit.envmap.sh import sh_basis
+from solidkit.model.blocks import ConvBlock, Encoder, UNetDecoder, radiance_from_log, resize_to
+from solidkit.model.config import SolidNetConfig
+
+__all__ = ["INet", "flip_pad", "image_footprint", "sh_panorama"]
+
+
+def flip_pad(x: torch.Tensor, out_size: tuple[int, int], top: int, left: int) -> torch.Tensor:
+    """Extend ``x (B, C, h, w)`` to ``out_size`` by mirror tiling, ``x`` itself placed at ``(top, left)``.
+
+    Output pixel ``(i, j)`` takes ``x[r(i - top), c(j - left)]`` where ``r, c`` reflect their
+    argument into ``[0, h)`` / ``[0, w)`` with period ``2h`` / ``2w`` (copies alternate between
+    ``x`` and its flip), so the padding is continuous at every copy's border.
+    """
+    h, w = x.shape[-2:]
+    H, W = out_size
+
+    def reflect(n: int, start: int, size: int) -> torch.Tensor:
+        t = (torch.arange(n, device=x.device) - start) % (2 * size)
+        return torch.where(t < size, t, 2 * size - 1 - t)
+
+    return x[:, :, reflect(H, top, h)][:, :, :, reflect(W, left, w)]
+
+
+def image_footprint(pano_height: int, hfov_deg: float, vfov_deg: float) -> tuple[int, int, int, int]:
+    """``(height, width, top, left)`` in pixels of a camera's field of view centred on the panorama's
+    forward direction at the horizon (an approximation that ignores pitch and roll)."""
+    W = 2 * pano_height
+    fw = max(1, round(W * hfov_deg / 360.0))
+    fh = max(1, round(pano_height * vfov_deg / 180.0))
+    return fh, fw, (pano_height - fh) // 2, (W - fw) // 2
+
+
+def sh_panorama(L: torch.Tensor, height: int) -> torch.Tensor:
+    """``L b(d)`` over the equirect grid: ``(B, C, height, 2 height)`` from ``L (B, C, 9)``."""
+    basis = sh_basis(direction_grid(height, torch, dtype=L.dtype, device=L.device))  # (H, W, 9)
+    return torch.einsum("bck,hwk->bchw", L, basis)
+
+
+class INet(nn.Module):
+    """I-Net: ``image (B, 3, H, W)`` in [0, 1] (sRGB LDR) -> dict of intrinsics and lighting.
+
+    Output keys (all float32, ``B`` leading):
+
+    - ``albedo`` (B, 3, H, W) in [0, 1] (sigmoid)
+    - ``normal`` (B, 3, H, W) unit vectors, camera frame
+    - ``distance`` (B, 1, H, W) plane distance ``p`` in metres, >= 0 (softplus)
+    - ``shadow`` (B, 1, H, W) in [0, 1], 1 = lit, 0 = fully shadowed (sigmoid)
+    - ``sh`` (B, 3, 9) the SH coefficients ``L`` (the paper's ``P_SH`` reshaped)
+    - ``sky_log`` (B, 3, Hp, 2Hp) ``log1p(H_g)``; ``sky`` (B, 3, Hp, 2Hp) the radiance ``H_g``
+    """
+
+    def __init__(self, config: SolidNetConfig) -> None:
+        super().__init__()
+        self.config = config
+        w = config.widths
+        self.encoder = Encoder(3, w)
+        self.decoders = nn.ModuleDict(
+            {
+                "albedo": UNetDecoder(w, 3, extra_in=3),
+                "normal": UNetDecoder(w, 3, extra_in=3),
+                "distance": UNetDecoder(w, 1, extra_in=3),
+                "shadow": UNetDecoder(w, 1, extra_in=3),
+            }
+        )
+        lw = config.light_width
+        self.light = nn.Sequential(ConvBlock(w[-1], lw), ConvBlock(lw, lw))
+        self.light_pool = nn.AdaptiveAvgPool2d((3, 4))
+        self.light_fc = nn.Linear(lw * 12, 27)
+        mid = min(2, len(w) - 1)  # the 1/8-resolution level provides the sky features
+        self._sky_level = mid
+        self.sky_features = ConvBlock(w[mid] + lw, lw)
+        sw = config.sky_widths
+        self.sky_in = nn.Sequential(ConvBlock(3 + lw + 1, sw[0], panorama=True), ConvBlock(sw[0], sw[0], panorama=True))
+        self.sky_ups = nn.ModuleList(ConvBlock(sw[i] + 3 + lw + 1, sw[i + 1], panorama=True) for i in range(3))
+        self.sky_head = nn.Conv2d(sw[-1], 3, 1)
+        self._footprints = [
+            image_footprint(config.pano_height >> (3 - k), config.hfov_deg, config.vfov_deg) for k in range(4)
+        ]
+
+    def _sky_stage_inputs(self, L: torch.Tensor, feats: torch.Tensor, k: int) -> torch.Tensor:
+        h = self.config.pano_height >> (3 - k)
+        fh, fw, top, left = self._footprints[k]
+        shading = torch.log1p(sh_panorama(L, h).clamp_min(0.0))
+        padded = flip_pad(resize_to(feats, (fh, fw)), (h, 2 * h), top, left)
+        _, theta = angles_grid(h, torch, dtype=L.dtype, device=L.device)
+        elev = torch.sin(theta).expand(L.shape[0], 1, h, 2 * h)
+        return torch.cat([shading, padded, elev], dim=1)
+
+    def forward(self, image: torch.Tensor) -> dict[str, torch.Tensor]:
+        size = tuple(image.shape[-2:])
+        x = image * 2.0 - 1.0
+        feats = self.encoder(x)
+        out: dict[str, torch.Tensor] = {}
+        out["albedo"] = torch.sigmoid(self.decoders["albedo"](feats, size, x))
+        out["normal"] = F.normalize(self.decoders["normal"](feats, size, x), dim=1, eps=1e-6)
+        out["distance"] = F.softplus(self.decoders["distance"](feats, size, x))
+        out["shadow"] = torch.sigmoid(self.decoders["shadow"](feats, size, x))
+        light = self.light(feats[-1])
+        L = self.light_fc(torch.flatten(self.light_pool(light), 1)).view(-1, 3, 9)
+        out["sh"] = L
+        mid = feats[self._sky_level]
+        sky_feats = self.sky_features(torch.cat([mid, resize_to(light, mid.shape[-2:])], dim=1))
+        y = self.sky_in(self._sky_stage_inputs(L, sky_feats, 0))
+        for k, up in enumerate(self.sky_ups, start=1):
+            y = F.interpolate(y, scale_factor=2.0, mode="bilinear", align_corners=False)
+            y = up(torch.cat([y, self._sky_stage_inputs(L, sky_feats, k)], dim=1))
+        out["sky_log"] = F.softplus(self.sky_head(y))
+        out["sky"] = radiance_from_log(out["sky_log"])
+        return out
+
+    @property
+    def num_parameters(self) -> int:
+        return sum(p.numel() for p in self.parameters())
