@@ -503,7 +503,15 @@ def _bracket_infos(paths: Sequence[Path], times: Sequence[float] | None) -> list
             raise InputError(f"{p}: no such file")
         if p.stat().st_size == 0:
             raise InputError(f"{p}: empty file (0 bytes)")
-        meta = read_metadata(p)
+        if sniff_format(p) == "png":  # no EXIF in PNG: size only
+            from PIL import Image
+
+            from solidkit.capture.metadata import CaptureMetadata
+
+            with Image.open(p) as im:
+                meta = CaptureMetadata(path=str(p), width=im.width, height=im.height, warnings=["no_exif: PNG file"])
+        else:
+            meta = read_metadata(p)
         if times is not None:
             t = float(times[i])
             if not (np.isfinite(t) and t > 0):
