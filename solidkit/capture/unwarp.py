@@ -1,0 +1,302 @@
+"""Dual-fisheye -> equirectangular unwarping through a lens profile, and re-orienting stitched input.
+
+For every output pixel (direction from :func:`solidkit.envmap.coords.direction_from_coords`,
+i.e. the :func:`~solidkit.envmap.coords.direction_grid` formula, evaluated in row blocks to bound
+memory) the direction is taken into the camera frame (``d_cam = R_levelᵀ d_pano``), projected
+into each lens through the profile (:func:`solidkit.capture.lens.project`) and the lens images
+are sampled with ``cv2.remap``. The lenses are blended by *feathering* across their overlap: with
+``m_i = max_angle_i - theta_i`` the angular margin of lens ``i``, the weights are
+``w_i = clip(0.5 + (m_i - max_{j != i} m_j) / (2 f), 0, 1)`` (normalised), a linear cross-fade
+over a band of ``feather_deg`` of incidence angle centred where the margins are equal (90° for
+two opposite lenses of equal field). Per-lens, per-channel gains are matched in *linear* light on
+the overlap (median log ratio of unsaturated pixels, split symmetrically between the lenses)
+before blending.
+
+Orientation (docs/conventions.md §2): the output panorama is gravity-aligned with forward = the
+front lens' axis projected onto the horizontal plane. ``R_level = R(0, pitch, roll)`` comes from
+the metadata (:func:`solidkit.capture.metadata.level_rotation`); Ricoh's camera axes (Z up, +Y
+toward the front lens, X right) map to ours by ``RICOH_TO_OURS`` (x = X, y = -Z, z = Y).
+Stitched equirectangular input (e.g. Theta SC2 stills) that the camera did not zenith-correct
+is rotated by ``R_level`` (:func:`solidkit.envmap.resample.rotate`); when no rotation is needed
+the pixels are passed through untouched (no resampling).
+
+Remap tables are cached per (profile, input size, output size, orientation): in memory (LRU of
+:data:`CACHE_SIZE` entries) and optionally on disk (``.npz`` named by a SHA-256 of the key).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import math
+import os
+from collections import OrderedDict
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+
+from solidkit.capture.lens import LensProfile, project
+from solidkit.envmap.coords import direction_from_coords
+from solidkit.errors import InputError
+
+__all__ = [
+    "CACHE_SIZE",
+    "UnwarpMaps",
+    "build_maps",
+    "get_maps",
+    "feather_weights",
+    "match_gains",
+    "unwarp",
+    "seam_disagreement",
+    "clear_cache",
+    "render_fisheye",
+]
+
+CACHE_SIZE = 4
+_ROWS = 256
+_cache: "OrderedDict[str, UnwarpMaps]" = OrderedDict()
+
+
+@dataclass
+class UnwarpMaps:
+    """Per-lens remap tables for one (profile, input size, output size, orientation).
+
+    ``map_x``, ``map_y``: ``(L, H, 2H)`` float32 fisheye pixel coordinates (OpenCV convention);
+    ``weight``: ``(L, H, 2H)`` float32 feather weights summing to 1 where any lens sees;
+    ``margin``: ``(L, H, 2H)`` float32 ``max_angle - theta`` in radians (negative outside a lens).
+    """
+
+    map_x: np.ndarray
+    map_y: np.ndarray
+    weight: np.ndarray
+    margin: np.ndarray
+
+    @property
+    def coverage(self) -> np.ndarray:
+        """``(H, 2H)`` bool: some lens sees this output pixel."""
+        return self.weight.sum(axis=0) > 0
+
+    @property
+    def overlap(self) -> np.ndarray:
+        """``(H, 2H)`` bool: at least two lenses see this output pixel."""
+        return (self.margin > 0).sum(axis=0) >= 2
+
+
+def feather_weights(margin: np.ndarray, feather_deg: float) -> np.ndarray:
+    """Cross-fade weights ``(L, ...)`` from angular margins ``(L, ...)`` (radians); see module doc."""
+    L = margin.shape[0]
+    f = max(math.radians(feather_deg), 1e-6)
+    valid = margin > 0
+    m = np.where(valid, margin, -np.inf)
+    if L == 1:
+        return valid.astype(np.float32)
+    w = np.empty_like(margin, dtype=np.float32)
+    for i in range(L):
+        others = np.max(np.delete(m, i, axis=0), axis=0)
+        diff = np.where(np.isfinite(others), m[i] - others, np.inf)
+        w[i] = np.where(valid[i], np.clip(0.5 + diff / (2 * f), 0.0, 1.0), 0.0)
+    s = w.sum(axis=0)
+    return np.where(s > 0, w / np.where(s > 0, s, 1), 0).astype(np.float32)
+
+
+def build_maps(
+    profile: LensProfile, in_size: tuple[int, int], out_height: int, R_level: Any = None, feather_deg: float = 10.0
+) -> UnwarpMaps:
+    """Remap tables for unwarping a ``in_size = (W, H)`` dual-fisheye image to a ``(out_height, 2 out_height)`` panorama."""
+    prof = profile.scaled(*in_size)
+    R = np.eye(3) if R_level is None else np.asarray(R_level, dtype=np.float64)
+    H, W, L = out_height, 2 * out_height, len(prof.lenses)
+    map_x = np.empty((L, H, W), np.float32)
+    map_y = np.empty((L, H, W), np.float32)
+    margin = np.empty((L, H, W), np.float32)
+    xs = np.arange(W, dtype=np.float64) + 0.5
+    for r0 in range(0, H, _ROWS):
+        r1 = min(H, r0 + _ROWS)
+        yy, xx = np.meshgrid(np.arange(r0, r1, dtype=np.float64) + 0.5, xs, indexing="ij")
+        d_cam = direction_from_coords(xx, yy, H) @ R  # row vectors: (R^T d)^T
+        for i, lens in enumerate(prof.lenses):
+            x, y, theta = project(lens, d_cam)
+            map_x[i, r0:r1] = x
+            map_y[i, r0:r1] = y
+            margin[i, r0:r1] = math.radians(lens.max_angle_deg) - theta
+    # never sample outside the image frame
+    for i in range(L):
+        inside = (map_x[i] >= -0.5) & (map_x[i] <= in_size[0] - 0.5) & (map_y[i] >= -0.5) & (map_y[i] <= in_size[1] - 0.5)
+        margin[i][~inside] = np.minimum(margin[i][~inside], -1e-6)
+    weight = feather_weights(margin, feather_deg)
+    return UnwarpMaps(map_x, map_y, weight, margin)
+
+
+def _key(profile: LensProfile, in_size: tuple[int, int], out_height: int, R: np.ndarray, feather_deg: float) -> str:
+    h = hashlib.sha256()
+    h.update(profile.key().encode())
+    h.update(repr((tuple(in_size), int(out_height), float(feather_deg))).encode())
+    h.update(np.round(np.asarray(R, dtype=np.float64), 12).tobytes())
+    return h.hexdigest()[:24]
+
+
+def clear_cache() -> None:
+    """Empty the in-memory remap cache."""
+    _cache.clear()
+
+
+def get_maps(
+    profile: LensProfile, in_size: tuple[int, int], out_height: int, R_level: Any = None, feather_deg: float = 10.0,
+    cache_dir: str | os.PathLike | None = None,
+) -> tuple[UnwarpMaps, str]:
+    """:func:`build_maps` through the in-memory LRU and the optional on-disk cache.
+
+    Returns ``(maps, source)`` with ``source`` one of ``"memory"``, ``"disk"``, ``"built"``.
+    """
+    R = np.eye(3) if R_level is None else np.asarray(R_level, dtype=np.float64)
+    key = _key(profile, in_size, out_height, R, feather_deg)
+    if key in _cache:
+        _cache.move_to_end(key)
+        return _cache[key], "memory"
+    path = Path(cache_dir) / f"unwarp-{key}.npz" if cache_dir is not None else None
+    maps = None
+    source = "built"
+    if path is not None and path.is_file():
+        try:
+            with np.load(path) as z:
+                maps = UnwarpMaps(z["map_x"], z["map_y"], z["weight"], z["margin"])
+            source = "disk"
+        except (OSError, ValueError, KeyError):
+            maps = None  # unreadable cache file: rebuild and overwrite
+    if maps is None:
+        maps = build_maps(profile, in_size, out_height, R, feather_deg)
+        if path is not None:
+            from solidkit.fsutil import atomic_path
+
+            path.parent.mkdir(parents=True, exist_ok=True)
+            with atomic_path(path, suffix=".npz") as tmp:
+                with open(tmp, "wb") as f:
+                    np.savez(f, map_x=maps.map_x, map_y=maps.map_y, weight=maps.weight, margin=maps.margin)
+    _cache[key] = maps
+    while len(_cache) > CACHE_SIZE:
+        _cache.popitem(last=False)
+    return maps, source
+
+
+def _warp(image: np.ndarray, maps: UnwarpMaps, interp: int = cv2.INTER_LINEAR) -> np.ndarray:
+    """``(L, H, 2H, C)`` float32: each lens' image sampled at its map (zeros outside)."""
+    img = image.astype(np.float32, copy=False)
+    out = []
+    for i in range(maps.map_x.shape[0]):
+        w = cv2.remap(img, maps.map_x[i], maps.map_y[i], interp, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
+        out.append(w.reshape(*w.shape[:2], -1))
+    return np.stack(out)
+
+
+def match_gains(warped: np.ndarray, maps: UnwarpMaps, saturation: float | None = 0.98, floor: float = 1e-3) -> np.ndarray:
+    """Per-lens, per-channel linear gains ``(L, C)`` equalising the lenses on their overlap.
+
+    For two lenses: ``ratio_c = exp(median(log I_0 - log I_1))`` over feather-band pixels that are
+    neither black (``< floor``) nor saturated (``>= saturation`` in any channel, for LDR input);
+    lens 0 gets ``ratio^-1/2``, lens 1 ``ratio^+1/2``. More lenses are matched pairwise to lens 0
+    and renormalised to a geometric mean of 1. Returns ones when the overlap has < 100 usable pixels.
+    """
+    L, C = warped.shape[0], warped.shape[-1]
+    gains = np.ones((L, C), np.float64)
+    valid = maps.weight > 0
+    for i in range(1, L):
+        both = valid[0] & valid[i]
+        a, b = warped[0][both], warped[i][both]
+        ok = np.all((a > floor) & (b > floor), axis=-1)
+        if saturation is not None:
+            ok &= np.all((a < saturation) & (b < saturation), axis=-1)
+        if ok.sum() < 100:
+            continue
+        gains[i] = np.exp(np.median(np.log(a[ok]) - np.log(b[ok]), axis=0))
+    gains /= np.exp(np.mean(np.log(gains), axis=0, keepdims=True))
+    return gains
+
+
+def seam_disagreement(warped: np.ndarray, maps: UnwarpMaps, gains: np.ndarray | None = None) -> dict[str, float]:
+    """Photometric disagreement of the lenses on their overlap (after ``gains``).
+
+    Returns ``{"seam_mad": median |I_0 - I_1|, "seam_rmse": ..., "overlap_px": n}`` over the
+    feather band (pixels where both lenses have weight > 0; channel-averaged, image units).
+    """
+    if warped.shape[0] < 2:
+        return {"seam_mad": math.nan, "seam_rmse": math.nan, "overlap_px": 0}
+    g = np.ones((warped.shape[0], warped.shape[-1])) if gains is None else gains
+    both = (maps.weight[0] > 0) & (maps.weight[1] > 0)
+    diff = (warped[0][both] * g[0] - warped[1][both] * g[1]).mean(axis=-1)
+    if diff.size == 0:
+        return {"seam_mad": math.nan, "seam_rmse": math.nan, "overlap_px": 0}
+    return {"seam_mad": float(np.median(np.abs(diff))), "seam_rmse": float(np.sqrt(np.mean(diff**2))), "overlap_px": int(diff.size)}
+
+
+def unwarp(
+    image: np.ndarray,
+    profile: LensProfile,
+    out_height: int,
+    R_level: Any = None,
+    *,
+    feather_deg: float = 10.0,
+    gain_match: bool = True,
+    saturation: float | None = None,
+    cache_dir: str | os.PathLike | None = None,
+    stats: dict | None = None,
+) -> np.ndarray:
+    """Unwarp a linear dual-fisheye image ``(h, w, C)`` to an equirect panorama ``(out_height, 2 out_height, C)``.
+
+    ``image`` must be *linear* (decode sRGB first) so that gains and blending are physical.
+    ``saturation``: pixel value at/above which a pixel is treated as clipped when estimating gains
+    (``None``: no clipping, e.g. HDR). ``stats`` (if given) receives the gains, the seam
+    disagreement before/after gain matching, coverage and the remap-cache source.
+    """
+    if image.ndim == 2:
+        image = image[..., None]
+    if image.ndim != 3:
+        raise InputError(f"expected an (H, W, C) image, got shape {image.shape}")
+    h, w = image.shape[:2]
+    maps, source = get_maps(profile, (w, h), out_height, R_level, feather_deg, cache_dir)
+    warped = _warp(image, maps)
+    gains = match_gains(warped, maps, saturation) if gain_match and len(profile.lenses) > 1 else np.ones((warped.shape[0], warped.shape[-1]))
+    out = np.einsum("lhw,lhwc,lc->hwc", maps.weight, warped, gains.astype(np.float32), optimize=True)
+    if stats is not None:
+        stats["gains"] = gains.tolist()
+        stats["cache"] = source
+        stats["coverage"] = float(maps.coverage.mean())
+        before = seam_disagreement(warped, maps)
+        after = seam_disagreement(warped, maps, gains)
+        stats["seam_mad_before_gain"] = before["seam_mad"]
+        stats.update(after)
+    return out.astype(np.float32)
+
+
+def render_fisheye(
+    source: Any, profile: LensProfile, size: tuple[int, int], R_level: Any = None, interp: str = "linear"
+) -> np.ndarray:
+    """The forward model: a dual-fisheye image of ``size = (W, H)`` seeing ``source``.
+
+    ``source`` is an equirect panorama ``(h, 2h, C)`` (sampled seam/pole-aware with
+    :func:`solidkit.envmap.resample.sample_panorama`) or a callable ``f(d_pano (..., 3)) -> (..., C)``.
+    Each pixel within ``r(max_angle)`` of a lens centre shows that lens' view of the scene
+    (``d_pano = R_level d_cam``); other pixels are 0. Used to make ground truth for tests.
+    """
+    from solidkit.capture.lens import unproject
+    from solidkit.envmap.resample import sample_panorama
+
+    W, H = size
+    prof = profile.scaled(W, H)
+    R = np.eye(3) if R_level is None else np.asarray(R_level, dtype=np.float64)
+    yy, xx = np.meshgrid(np.arange(H, dtype=np.float64), np.arange(W, dtype=np.float64), indexing="ij")
+    out = None
+    taken = np.zeros((H, W), bool)
+    for lens in prof.lenses:
+        r = np.hypot(xx - lens.center[0], yy - lens.center[1])
+        sel = (r <= lens.max_radius()) & ~taken
+        d_cam, _ = unproject(lens, xx[sel], yy[sel])
+        d = d_cam @ R.T
+        vals = source(d) if callable(source) else sample_panorama(np.asarray(source, np.float32), d, interp)
+        vals = np.asarray(vals, np.float32).reshape(len(d), -1)
+        if out is None:
+            out = np.zeros((H, W, vals.shape[-1]), np.float32)
+        out[sel] = vals
+        taken |= sel
+    return out
