@@ -6,6 +6,7 @@ import sys
 
 import typer
 
+from solidkit.capture.campaign import ingest_cli
 from solidkit.capture.cli import app as capture_app
 from solidkit.envmap.cli import app as envmap_app
 from solidkit.errors import SolidkitError
@@ -19,6 +20,7 @@ app = typer.Typer(
 )
 app.add_typer(envmap_app, name="envmap", help="Inspect, rotate, crop panoramas and find the sun.")
 app.add_typer(capture_app, name="capture", help="Theta captures: metadata, dual-fisheye unwarping.")
+app.command("ingest")(ingest_cli)
 
 
 def main() -> None:
