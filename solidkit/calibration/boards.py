@@ -1,0 +1,168 @@
+"""Checkerboard targets: geometry, corner detection with view rejection, and synthetic rendering.
+
+A board with ``pattern = (cols, rows)`` *inner* corners has squares of side ``square`` (any
+unit; the calibration's extrinsics come out in it). Its corners lie in the board plane
+``z = 0`` at ``(i·square, j·square, 0)``, row-major (``j`` slow), which is the order of
+OpenCV's detectors.
+
+:func:`detect_views` runs the detector on every view and returns, for each, either the corners
+or the reason it was rejected (no board found, too blurred), so calibrations can say *which*
+views were dropped and *why*.
+
+:func:`render_board` draws a board seen by any central camera given as a pixel -> ray function
+(pinhole, ``cv2.fisheye`` / lens-profile fisheye, ...), with supersampled anti-aliasing: the
+ground truth for calibration tests.
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from solidkit.errors import InputError
+
+__all__ = ["BoardView", "board_points", "find_corners", "detect_views", "render_board", "read_gray"]
+
+
+@dataclass
+class BoardView:
+    """One calibration image: its name, size, detected corners (N, 2) or the rejection reason."""
+
+    name: str
+    size: tuple[int, int]  # width, height
+    corners: np.ndarray | None = None
+    reason: str | None = None
+    sharpness_px: float | None = None
+    extra: dict = field(default_factory=dict)
+
+    @property
+    def ok(self) -> bool:
+        return self.corners is not None and self.reason is None
+
+
+def board_points(pattern: tuple[int, int], square: float = 1.0) -> np.ndarray:
+    """Object points (N, 3) float64 of a ``(cols, rows)`` inner-corner board, row-major."""
+    cols, rows = pattern
+    j, i = np.mgrid[0:rows, 0:cols]
+    return np.stack([i.ravel() * square, j.ravel() * square, np.zeros(cols * rows)], 1).astype(np.float64)
+
+
+def read_gray(path: str | os.PathLike) -> np.ndarray:
+    """An image file as 8-bit grey; :class:`InputError` when unreadable."""
+    img = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
+    if img is None:
+        raise InputError(f"{path}: not a readable image")
+    return img
+
+
+def find_corners(gray: np.ndarray, pattern: tuple[int, int], max_blur_px: float = 4.0) -> tuple[np.ndarray | None, str | None, float | None]:
+    """Detect a board's inner corners in an 8-bit grey image.
+
+    ``cv2.findChessboardCornersSB`` (exhaustive, sub-pixel) first, then the classic detector
+    refined with ``cv2.cornerSubPix``. The edge sharpness (``cv2.estimateChessboardSharpness``:
+    width in px of the 10-90 % black-white transition) rejects blurred views above ``max_blur_px``.
+
+    Returns ``(corners (N, 2) float64 | None, reason | None, sharpness_px | None)``.
+    """
+    if gray.ndim != 2 or gray.dtype != np.uint8:
+        raise InputError("find_corners needs an 8-bit single-channel image")
+    ok, c = cv2.findChessboardCornersSB(gray, pattern, flags=cv2.CALIB_CB_EXHAUSTIVE | cv2.CALIB_CB_ACCURACY)
+    if not ok:
+        ok, c = cv2.findChessboardCorners(
+            gray, pattern, flags=cv2.CALIB_CB_ADAPTIVE_THRESH | cv2.CALIB_CB_NORMALIZE_IMAGE
+        )
+        if ok:
+            c = cv2.cornerSubPix(gray, c, (5, 5), (-1, -1), (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_MAX_ITER, 50, 0.01))
+    if not ok or c is None:
+        return None, f"no {pattern[0]}x{pattern[1]} board found", None
+    c = c.reshape(-1, 2).astype(np.float64)
+    sharp = None
+    try:
+        s = cv2.estimateChessboardSharpness(gray, pattern, c.astype(np.float32).reshape(-1, 1, 2))
+        sharp = float(s[0][0]) if isinstance(s, tuple) else float(s[0])
+    except cv2.error:
+        pass
+    if sharp is not None and sharp > max_blur_px:
+        return c, f"blurred: edge width {sharp:.1f} px > {max_blur_px:g} px", sharp
+    return c, None, sharp
+
+
+def detect_views(
+    images: Sequence[str | os.PathLike | np.ndarray], pattern: tuple[int, int], max_blur_px: float = 4.0,
+    names: Sequence[str] | None = None, progress: Callable[[int], None] | None = None,
+) -> list[BoardView]:
+    """Detect the board in every view; rejected views carry their reason. Sizes must agree."""
+    views: list[BoardView] = []
+    for k, img in enumerate(images):
+        if isinstance(img, np.ndarray):
+            gray = img if img.ndim == 2 else cv2.cvtColor(img, cv2.COLOR_BGR2GRAY)
+            name = names[k] if names else f"view{k}"
+        else:
+            gray = read_gray(img)
+            name = names[k] if names else Path(img).name
+        corners, reason, sharp = find_corners(np.ascontiguousarray(gray, dtype=np.uint8), pattern, max_blur_px)
+        views.append(BoardView(name=name, size=(gray.shape[1], gray.shape[0]), corners=corners, reason=reason, sharpness_px=sharp))
+        if progress:
+            progress(k)
+    sizes = {v.size for v in views}
+    if len(sizes) > 1:
+        raise InputError(f"calibration views differ in size: {sorted(sizes)}")
+    return views
+
+
+def render_board(
+    rays: Callable[[np.ndarray, np.ndarray], np.ndarray],
+    size: tuple[int, int],
+    R: np.ndarray,
+    t: np.ndarray,
+    pattern: tuple[int, int],
+    square: float = 1.0,
+    border: float = 1.0,
+    supersample: int = 3,
+    background: float = 0.5,
+) -> np.ndarray:
+    """Render a checkerboard (8-bit grey) seen by a central camera.
+
+    Parameters
+    ----------
+    rays : function ``(x, y) -> (..., 3)`` camera-frame ray directions of pixel coordinates
+        (OpenCV convention: pixel centres at integers); rays it cannot form may be NaN.
+    size : (width, height).
+    R, t : board pose: a board point ``X_b`` is at ``R @ X_b + t`` in the camera frame.
+    pattern, square : the inner-corner count and square side (so the board has
+        ``(cols + 1) x (rows + 1)`` squares, the first one black), plus a white ``border``
+        of that many squares around it.
+    supersample : samples per pixel side (box filter anti-aliasing).
+    """
+    w, h = size
+    s = supersample
+    off = (np.arange(s) + 0.5) / s - 0.5
+    ys, xs = np.mgrid[0:h, 0:w].astype(np.float64)
+    acc = np.zeros((h, w))
+    R = np.asarray(R, dtype=np.float64)
+    t = np.asarray(t, dtype=np.float64).reshape(3)
+    n = R[:, 2]  # board normal in the camera frame
+    cols, rows = pattern
+    for oy in off:
+        for ox in off:
+            d = rays(xs + ox, ys + oy)
+            denom = d @ n
+            with np.errstate(invalid="ignore", divide="ignore"):
+                lam = (t @ n) / denom
+            hit = np.isfinite(lam) & (lam > 0)
+            P = np.where(hit[..., None], lam[..., None] * d, 0.0)
+            b = (P - t) @ R  # board coordinates
+            u, v = b[..., 0] / square + 1.0, b[..., 1] / square + 1.0  # square index (first square at -1..0)
+            inside = hit & (u >= 0) & (u < cols + 1) & (v >= 0) & (v < rows + 1)
+            paper = hit & (u >= -border) & (u < cols + 1 + border) & (v >= -border) & (v < rows + 1 + border)
+            black = inside & ((np.floor(u) + np.floor(v)) % 2 == 0)
+            val = np.where(paper, 1.0, background)
+            val = np.where(black, 0.0, val)
+            acc += val
+    img = acc / (s * s)
+    return np.clip(img * 235 + 10, 0, 255).round().astype(np.uint8)
