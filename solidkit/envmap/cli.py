@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+from enum import Enum
 from pathlib import Path
 
 import numpy as np
@@ -43,3 +44,41 @@ def info(pano: Path = typer.Argument(..., help="Equirectangular panorama (EXR or
         if key in meta:
             table.add_row(key, json.dumps(meta[key]))
     console.print(table)
+
+
+class SunMethod(str, Enum):
+    """``solidkit envmap sun --method``: see :func:`solidkit.envmap.sun.detect_sun`."""
+
+    core = "core"
+    paper = "paper"
+
+
+@app.command()
+def sun(
+    pano: Path = typer.Argument(..., help="Equirectangular panorama (EXR, or LDR decoded to linear)."),
+    as_json: bool = typer.Option(
+        False, "--json", help='Print {"found", "azimuth_deg", "elevation_deg", "confidence"} only.'
+    ),
+    method: SunMethod = typer.Option(
+        SunMethod.core, "--method", help="core: finds the sun (default); paper: the SOLID-Net paper's metric."
+    ),
+) -> None:
+    """Find the sun: azimuth and elevation in degrees (conventions §3), or 'no sun'."""
+    from solidkit.envmap.sun import detect_sun
+
+    img, _ = load_panorama(pano)
+    result = detect_sun(img, method=method.value)
+    if as_json:
+        typer.echo(json.dumps(result.to_json()))
+    elif result.found:
+        console.print(
+            f"[bold]sun[/bold] azimuth {result.azimuth_deg:.2f}°, elevation {result.elevation_deg:.2f}° "
+            f"(pixel {result.x:.2f}, {result.y:.2f}), confidence {result.confidence:.2f} "
+            f"[dim]\\[{result.method}: {result.reason}][/dim]",
+            highlight=False,
+            soft_wrap=True,
+        )
+    else:
+        console.print(
+            f"[bold]no sun[/bold] [dim]\\[{result.method}: {result.reason}][/dim]", highlight=False, soft_wrap=True
+        )

@@ -34,6 +34,7 @@ from scipy.sparse.csgraph import connected_components
 
 from solidkit.envmap.coords import (
     angles_from_direction,
+    angular_distance,
     coords_from_direction,
     direction_grid,
     solid_angle,
@@ -264,6 +265,7 @@ def _result(method: str, direction: np.ndarray | None, h: int, **kw: Any) -> Sun
     if direction is None:
         return SunDetection(False, None, None, None, None, None, method=method, **kw)
     phi, theta = angles_from_direction(direction)
+    phi = float(phi) - 2.0 * math.pi if float(phi) >= math.pi else float(phi)  # [-pi, pi) (conventions §3)
     x, y = coords_from_direction(direction, h)
     return SunDetection(True, direction, float(phi), float(theta), float(x), float(y), method=method, **kw)
 
@@ -305,20 +307,23 @@ def sun_core(
        blobs: the largest solid angle).
     4. Background: the ``background_quantile`` (solid-angle weighted) of ``L`` outside a cap of
        radius ``exclude`` about the candidate, i.e. the bright sky, not the median of a dark ground.
-    5. Direction. HDR: the centroid is taken over the candidate grown to its skirt, the component
-       of ``Lb >= t = max(rel_centroid * peak, 2 * background)`` that contains it, with weights
+    5. Direction: the centroid (:func:`spherical_centroid`, luminance- and solid-angle-weighted
+       unit vectors) of the candidate grown to its skirt, the component of
+       ``Lb >= t = max(rel_centroid * peak, 2 * background)`` that contains it, with weights
        ``L - t`` (continuous at the mask's edge, so pixels entering or leaving it do not make the
-       result jump); this captures the sun's whole point-spread function, which makes the
-       centroid unbiased and sub-pixel. Saturated LDR: the centroid of the saturated blob.
-       Either way: :func:`spherical_centroid` (luminance- and solid-angle-weighted unit vectors).
+       result jump). This captures the sun's whole point-spread function (for a saturated blob:
+       its partially covered rim), which makes the centroid unbiased and sub-pixel. If that
+       centroid strays from the core's own centroid by more than the core's radius (a lopsided
+       skirt: lens flare, an adjacent cloud), the core's centroid is kept.
     6. Decision. ``contrast = peak / background``; ``size = 2 sqrt(Omega / pi)`` of the core, its
        equivalent angular diameter, allowed up to ``max(max_size, 4 pixels)`` for a blurred or
        saturated core (the disk itself is 0.53°). The sun is found iff ``contrast >= min_contrast``
        and ``size <= max_size``; otherwise (overcast sky, a bright cloud, a sunlit wall while the
        sun is occluded) ``found=False`` with no angles.
 
-    ``confidence = (1 - min_contrast / contrast) * (1 - (size / max_size)^2)``, clipped to
-    ``[0, 1]``: 0 exactly when not found, near 1 for a sharp sun far above the sky.
+    ``confidence = (1 - min_contrast / contrast) * (1 - ((size - s0) / (max_size - s0))^2)``,
+    each factor clipped to ``[0, 1]``, with ``s0 = max(0.53°, 2.5 pixels)`` the smallest core a sun
+    can show at this resolution: 0 exactly when not found, near 1 for a sharp sun far above the sky.
 
     Accuracy (``tests/test_sun.py``): a 0.53° disk rendered at 1024 x 512 (box-filtered, 1.5 px
     wide) is found within 0.02°; one blurred by a 1-pixel PSF at 256 x 128 within 0.01°, at the
@@ -371,15 +376,16 @@ def sun_core(
     peak = float(peaks[best - 1])
     size = _size(float(areas[best - 1]))
     bg = _background(lum, omega, direction, exclude, background_quantile)
-    if not saturated:
-        t = max(rel_centroid * peak, 2.0 * bg)
-        skirt_labels, _ = label_spherical(lum_b >= t)
-        skirt = np.isin(skirt_labels, np.unique(skirt_labels[core & (skirt_labels > 0)]))
-        refined = spherical_centroid(np.clip(lum - t, 0.0, None), skirt | core)
-        direction = direction if refined is None else refined
+    t = max(rel_centroid * peak, 2.0 * bg)
+    skirt_labels, _ = label_spherical(lum_b >= t)
+    skirt = np.isin(skirt_labels, np.unique(skirt_labels[core & (skirt_labels > 0)]))
+    refined = spherical_centroid(np.clip(lum - t, 0.0, None), skirt | core)
+    if refined is not None and float(angular_distance(refined, direction)) <= max(size / 2, px):
+        direction = refined  # else the skirt is lopsided (flare, a cloud): keep the core's centroid
     contrast = peak / bg if bg > 0 else math.inf
     c_contrast = 1.0 - min_contrast / contrast if contrast > 0 else 0.0
-    c_size = 1.0 - (size / limit) ** 2
+    nominal = max(SUN_ANGULAR_DIAMETER, 2.5 * px)  # the smallest core a sun can show at this resolution
+    c_size = 1.0 - (max(size - nominal, 0.0) / max(limit - nominal, 1e-12)) ** 2
     common = dict(contrast=contrast, size=size, n_pixels=int(core.sum()))
     if contrast < min_contrast:
         reason = f"brightest spot only {contrast:.3g}x the bright sky (< {min_contrast:g}x): overcast or occluded"
