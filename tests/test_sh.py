@@ -10,7 +10,12 @@ from solidkit.envmap import coords as C
 from solidkit.envmap import sh
 from solidkit.errors import InputError, PanoramaError
 
-RNG = np.random.default_rng(7)
+
+
+@pytest.fixture
+def rng():
+    """A fresh generator per test: results do not depend on test order (pytest-xdist)."""
+    return np.random.default_rng(7)
 
 
 def unit(n):
@@ -40,8 +45,8 @@ def naive_diffuse(pano, normals, height):
 # ---------------------------------------------------------------------------------------- basis
 
 
-def test_basis_matches_paper_formula_numpy_and_torch():
-    n = unit(RNG.normal(size=(50, 3)))
+def test_basis_matches_paper_formula_numpy_and_torch(rng):
+    n = unit(rng.normal(size=(50, 3)))
     x, y, z = n.T
     expected = np.stack([np.ones_like(x), x, y, z, 3 * z**2 - 1, x * y, x * z, y * z, x**2 - y**2], -1)
     np.testing.assert_allclose(sh.sh_basis(n), expected, atol=1e-15)
@@ -67,8 +72,8 @@ def test_orthonormal_scale_matches_ramamoorthi_hanrahan_and_integrates_to_identi
 
 
 @pytest.mark.parametrize("h", [8, 32])
-def test_projection_recovers_coefficients_numpy(h):
-    L = RNG.normal(size=(3, 9))
+def test_projection_recovers_coefficients_numpy(h, rng):
+    L = rng.normal(size=(3, 9))
     pano = sh.sh_render(L, C.direction_grid(h))  # (H, W, 3)
     assert pano.shape == (h, 2 * h, 3)
     Lp = sh.sh_project(pano)
@@ -76,9 +81,9 @@ def test_projection_recovers_coefficients_numpy(h):
     assert np.abs(Lp - L).max() / np.abs(L).max() < 1e-6
 
 
-def test_projection_recovers_coefficients_torch_batched_and_matches_numpy():
+def test_projection_recovers_coefficients_torch_batched_and_matches_numpy(rng):
     h = 32
-    L = RNG.normal(size=(2, 3, 9))
+    L = rng.normal(size=(2, 3, 9))
     d = C.direction_grid(h)
     panos = np.stack([sh.sh_render(L[i], d) for i in range(2)])  # (B, H, W, C)
     np.testing.assert_allclose(sh.sh_project(panos), L, rtol=0, atol=1e-9)  # NumPy batch (..., H, W, C)
@@ -91,18 +96,18 @@ def test_projection_recovers_coefficients_torch_batched_and_matches_numpy():
     assert (L32.double() - torch.from_numpy(L)).abs().max() < 1e-4
 
 
-def test_projection_of_smooth_map_is_stable_under_area_downsampling():
+def test_projection_of_smooth_map_is_stable_under_area_downsampling(rng):
     h = 64
-    L = RNG.normal(size=(3, 9))
+    L = rng.normal(size=(3, 9))
     pano = sh.sh_render(L, C.direction_grid(h))
     np.testing.assert_allclose(sh.sh_project(pano, height=16), L, atol=2e-2 * np.abs(L).max())
 
 
-def test_working_height_matches_resize_for_batched_numpy_and_torch():
+def test_working_height_matches_resize_for_batched_numpy_and_torch(rng):
     from solidkit.envmap.resample import resize
 
     h = 32
-    panos = RNG.random((2, h, 2 * h, 3)) ** 4  # NumPy batch (B, H, W, C)
+    panos = rng.random((2, h, 2 * h, 3)) ** 4  # NumPy batch (B, H, W, C)
     ref = np.stack([sh.sh_project(resize(p, 8)) for p in panos])
     np.testing.assert_allclose(sh.sh_project(panos, height=8), ref, rtol=1e-12)
     t = torch.from_numpy(np.ascontiguousarray(np.moveaxis(panos, -1, 1)))
@@ -111,9 +116,9 @@ def test_working_height_matches_resize_for_batched_numpy_and_torch():
         sh.sh_project(panos, height=0)
 
 
-def test_render_and_lambertian_sphere():
+def test_render_and_lambertian_sphere(rng):
     h = 16
-    L = RNG.normal(size=(3, 9))
+    L = rng.normal(size=(3, 9))
     d = C.direction_grid(h)
     sphere = sh.lambertian_sphere(L, h)
     assert sphere.shape == (h, 2 * h, 3)
@@ -130,11 +135,11 @@ def test_render_and_lambertian_sphere():
 # --------------------------------------------------------------------------------- irradiance
 
 
-def test_sh_irradiance_of_constant_environment_is_analytic():
+def test_sh_irradiance_of_constant_environment_is_analytic(rng):
     c = np.array([0.3, 1.0, 2.5])
     pano = np.broadcast_to(c, (32, 64, 3)).copy()
     L = sh.sh_project(pano)
-    n = unit(RNG.normal(size=(20, 3)))
+    n = unit(rng.normal(size=(20, 3)))
     np.testing.assert_allclose(sh.sh_render(sh.sh_irradiance(L, "irradiance"), n), np.tile(math.pi * c, (20, 1)), rtol=1e-9)
     np.testing.assert_allclose(sh.sh_render(sh.sh_irradiance(L, "radiance"), n), np.tile(c, (20, 1)), rtol=1e-9)
     np.testing.assert_allclose(sh.sh_render(sh.sh_irradiance(L), n), np.tile(c / 2, (20, 1)), rtol=1e-9)
@@ -142,11 +147,11 @@ def test_sh_irradiance_of_constant_environment_is_analytic():
         sh.sh_irradiance(L, "bogus")
 
 
-def test_sh_irradiance_of_linear_environment_is_analytic():
-    a = RNG.normal(size=3)
+def test_sh_irradiance_of_linear_environment_is_analytic(rng):
+    a = rng.normal(size=3)
     L = np.zeros((1, 9))
     L[0, 1:4] = a  # H(w) = a . w
-    n = unit(RNG.normal(size=(20, 3)))
+    n = unit(rng.normal(size=(20, 3)))
     np.testing.assert_allclose(sh.sh_render(sh.sh_irradiance(L, "irradiance"), n)[:, 0], 2 * math.pi / 3 * n @ a, rtol=1e-12)
     np.testing.assert_allclose(sh.sh_render(sh.sh_irradiance(L), n)[:, 0], n @ a / 3, rtol=1e-12)
 
@@ -183,22 +188,22 @@ def test_diffuse_convolution_of_point_light():
     np.testing.assert_allclose(D, np.maximum(d @ w, 0) / (2 * math.pi), atol=2e-3 / (2 * math.pi))
 
 
-def test_full_grid_operator_equals_naive_sum_and_explicit_normals():
+def test_full_grid_operator_equals_naive_sum_and_explicit_normals(rng):
     h = 8
-    pano = RNG.random((h, 2 * h, 3)) ** 3
+    pano = rng.random((h, 2 * h, 3)) ** 3
     d = C.direction_grid(h)
     naive = naive_diffuse(pano, d, h)
     np.testing.assert_allclose(sh.diffuse_convolution(pano), naive, rtol=1e-12, atol=1e-14)
     np.testing.assert_allclose(sh.diffuse_convolution(pano, d), naive, rtol=1e-12, atol=1e-14)
-    n = unit(RNG.normal(size=(4, 5, 3)))
+    n = unit(rng.normal(size=(4, 5, 3)))
     Dn = sh.diffuse_convolution(pano, n)
     assert Dn.shape == (4, 5, 3)
     np.testing.assert_allclose(Dn, naive_diffuse(pano, n, h), rtol=1e-12)
 
 
-def test_sh_irradiance_agrees_with_diffuse_convolution_on_band_limited_maps():
+def test_sh_irradiance_agrees_with_diffuse_convolution_on_band_limited_maps(rng):
     h = 64
-    L = RNG.normal(size=(3, 9))
+    L = rng.normal(size=(3, 9))
     d = C.direction_grid(h)
     pano = sh.sh_render(L, d)
     D = sh.diffuse_convolution(pano)
@@ -229,9 +234,9 @@ def test_downsampled_source_error_is_small():
     assert sh.diffuse_convolution(pano, height=16).shape == (16, 32, 1)
 
 
-def test_numpy_and_torch_agree_and_batch():
+def test_numpy_and_torch_agree_and_batch(rng):
     h = 16
-    panos = RNG.random((2, h, 2 * h, 3)) ** 2
+    panos = rng.random((2, h, 2 * h, 3)) ** 2
     ref = sh.diffuse_convolution(panos)  # NumPy batch (B, H, W, C)
     np.testing.assert_allclose(ref[1], sh.diffuse_convolution(panos[1]), rtol=1e-12)
     t = torch.from_numpy(np.ascontiguousarray(np.moveaxis(panos, -1, 1)))
@@ -241,18 +246,18 @@ def test_numpy_and_torch_agree_and_batch():
     D32 = sh.diffuse_convolution(t.float())
     assert D32.dtype == torch.float32
     np.testing.assert_allclose(D32.permute(0, 2, 3, 1).numpy(), ref, rtol=1e-4, atol=1e-6)
-    n = unit(RNG.normal(size=(7, 3)))
+    n = unit(rng.normal(size=(7, 3)))
     Dn = sh.diffuse_convolution(t, torch.from_numpy(n))
     assert Dn.shape == (2, 3, 7)
     np.testing.assert_allclose(Dn.permute(0, 2, 1).numpy(), sh.diffuse_convolution(panos, n), rtol=1e-10)
 
 
 def test_gradients_flow_in_torch():
-    h = 4
-    pano = torch.rand(1, 3, h, 2 * h, dtype=torch.float64, requires_grad=True)
+    h = 2  # gradcheck differentiates numerically: keep it tiny
+    pano = torch.rand(1, 2, h, 2 * h, dtype=torch.float64, requires_grad=True)
     assert torch.autograd.gradcheck(sh.diffuse_convolution, (pano,))
     assert torch.autograd.gradcheck(sh.sh_project, (pano,))
-    L = torch.randn(1, 3, 9, dtype=torch.float64, requires_grad=True)
+    L = torch.randn(1, 2, 9, dtype=torch.float64, requires_grad=True)
     assert torch.autograd.gradcheck(lambda x: sh.lambertian_sphere(x, h), (L,))
     # the paper's L_dif: both the sky map and the SH coefficients receive gradients
     sky = torch.rand(2, 3, 16, 32, requires_grad=True)

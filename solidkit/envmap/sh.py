@@ -399,9 +399,15 @@ def diffuse_convolution(pano: Any, normals: Any = None, *, height: int | None = 
     pano : array
         NumPy ``(..., H, 2H, C)`` or torch ``(..., C, H, 2H)``, linear radiance.
     normals : array ``(*S, 3)``, optional
-        Unit normals at which to evaluate ``D`` (shared by every panorama of the batch).
+        Unit normals at which to evaluate ``D`` (shared by every panorama of the batch), by the
+        direct sum: cost ``O(#normals x h x 2h)`` (about 24 s for all 32768 directions of one
+        128 x 256 panorama on 2 CPU threads; pass ``height=`` to integrate a smaller map), and under
+        autograd the ``(#normals x h 2h)`` kernel is kept for the backward pass.
         Default: the panorama's own direction grid (the paper's sphere normal map ``N_ll``),
-        evaluated exactly with a cached circulant operator (FFT-free, a few real matmuls).
+        evaluated exactly (same numbers as the direct sum, to float rounding) with a cached
+        circulant operator: rfft along azimuth, one batched ``(H x H)`` matmul per frequency,
+        inverse rfft (about 10 ms forward for 8 x 3 x 128 x 256 float32 on 2 CPU threads; the
+        operator, ``(H + 1) H^2`` numbers, is cached per size, backend, device and dtype).
     height : int, optional
         Working resolution: the panorama is first resized to this height with the energy-preserving
         :func:`~solidkit.envmap.resample.resize`. With ``normals=None`` the result is on that grid.
