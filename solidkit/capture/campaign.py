@@ -302,7 +302,7 @@ def _check_decodable(path: Path, fmt: str) -> None:
             with Image.open(path) as im:
                 im.load()
         except Exception as exc:
-            raise InputError(f"cannot decode JPEG ({type(exc).__name__}: {exc})") from None
+            raise InputError(f"cannot decode JPEG: truncated or corrupt ({type(exc).__name__}: {exc})") from None
     else:
         import rawpy
 
@@ -677,17 +677,15 @@ def _pool(jobs: int):
     return ProcessPoolExecutor(max_workers=jobs, mp_context=mp.get_context("spawn"))
 
 
-def _run_tasks(fn: Callable, tasks: list[tuple], jobs: int, on_result: Callable[[tuple, dict], None]) -> None:
-    """Run ``fn(*task)`` for every task, inline (jobs <= 1) or in a process pool."""
-    pool = _pool(jobs)
+def _run_tasks(fn: Callable, tasks: list[tuple], pool: ProcessPoolExecutor | None, on_result: Callable[[tuple, dict], None]) -> None:
+    """Run ``fn(*task)`` for every task, inline (no pool) or in the process pool."""
     if pool is None:
         for t in tasks:
             on_result(t, fn(*t))
         return
-    with pool:
-        futures = {pool.submit(fn, *t): t for t in tasks}
-        for fut in as_completed(futures):
-            on_result(futures[fut], fut.result())
+    futures = {pool.submit(fn, *t): t for t in tasks}
+    for fut in as_completed(futures):
+        on_result(futures[fut], fut.result())
 
 
 def ingest(
@@ -719,7 +717,10 @@ def ingest(
         raise InputError("the card must not be inside the campaign directory")
     throttle = float(os.environ.get("SOLIDKIT_INGEST_THROTTLE_S", "0") or 0)  # testing aid: slow each file down
     report = IngestReport()
-    with _lock(campaign):
+    with _lock(campaign), contextlib.ExitStack() as stack:
+        pool = _pool(jobs)
+        if pool is not None:
+            stack.enter_context(pool)
         _clean_temporaries(campaign)
         manifest = load_manifest(campaign)
         before = manifest.model_dump_json()
@@ -801,7 +802,7 @@ def ingest(
 
         if progress is not None:
             progress("files", 0, len(todo))
-        _run_tasks(_ingest_one, todo, jobs, on_file)
+        _run_tasks(_ingest_one, todo, pool, on_file)
         manifest.shots[:] = [s for s in manifest.shots if s.sources]
         manifest.errors.sort(key=lambda e: (e.card, e.path))
         for s in manifest.shots:
@@ -810,17 +811,18 @@ def ingest(
         group_shots(manifest)
         report.regrouped = bool(todo) and old_groups != json.dumps(
             [s.model_dump(mode="json") for s in manifest.scenes], sort_keys=True)
-        _save_manifest(campaign, manifest)
+        if manifest.model_dump_json() != before:
+            _save_manifest(campaign, manifest)
 
         if products:
-            _build_products(manifest, campaign, jobs, report, progress)
+            _build_products(manifest, campaign, pool, report, progress)
         manifest.products.sort(key=lambda p: p.id)
         if manifest.model_dump_json() != before:
             _save_manifest(campaign, manifest)
     return report
 
 
-def _build_products(manifest: Manifest, campaign: Path, jobs: int, report: IngestReport, progress: Any) -> None:
+def _build_products(manifest: Manifest, campaign: Path, pool: ProcessPoolExecutor | None, report: IngestReport, progress: Any) -> None:
     wanted = planned_products(manifest)
     existing = {p.id: p for p in manifest.products}
     keep: list[Product] = []
@@ -861,7 +863,7 @@ def _build_products(manifest: Manifest, campaign: Path, jobs: int, report: Inges
     if tasks:
         if progress is not None:
             progress("products", 0, len(tasks))
-        _run_tasks(_make_product, tasks, jobs, on_product)
+        _run_tasks(_make_product, tasks, pool, on_product)
     manifest.products = sorted(results, key=lambda p: p.id)
 
 

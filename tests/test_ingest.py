@@ -1,0 +1,253 @@
+"""`solidkit ingest`: content-addressed originals, grouping, products, idempotence, kill -9 resume."""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import shutil
+import signal
+import subprocess
+import sys
+import time
+from datetime import datetime, timedelta
+from pathlib import Path
+
+import numpy as np
+import pytest
+from PIL import Image, TiffImagePlugin
+from typer.testing import CliRunner
+
+from solidkit.capture.campaign import MANIFEST_NAME, ingest, load_manifest
+from solidkit.envmap.io import read_exr
+from solidkit.errors import InputError
+
+REPO = Path(__file__).resolve().parents[1]
+T0 = datetime(2024, 6, 1, 12, 0, 0)
+XMP_EQUIRECT = (
+    b'<x:xmpmeta xmlns:x="adobe:ns:meta/"><rdf:RDF xmlns:rdf="http://www.w3.org/1999/02/22-rdf-syntax-ns#">'
+    b'<rdf:Description xmlns:GPano="http://ns.google.com/photos/1.0/panorama/" GPano:ProjectionType="equirectangular"/>'
+    b"</rdf:RDF></x:xmpmeta>"
+)
+RADIANCE = np.exp(np.linspace(np.log(0.5), np.log(500.0), 64))[None, :, None] * np.array([1.0, 0.8, 0.6])
+
+
+def write_shot(path: Path, when: datetime, exposure: tuple[int, int], make: str = "RICOH", model: str = "RICOH THETA V") -> None:
+    """A 64x32 equirect JPEG of a synthetic gradient scene exposed for ``exposure`` seconds, with EXIF."""
+    t = exposure[0] / exposure[1]
+    code = np.round(255 * np.clip(RADIANCE * t, 0, 1) ** (1 / 2.2)).astype(np.uint8)
+    img = Image.fromarray(np.broadcast_to(code, (32, 64, 3)).copy())
+    ex = Image.Exif()
+    ex[0x010F], ex[0x0110] = make, model
+    ifd = ex.get_ifd(0x8769)
+    ifd[0x829A] = TiffImagePlugin.IFDRational(*exposure)
+    ifd[0x829D] = TiffImagePlugin.IFDRational(2, 1)
+    ifd[0x8827] = 100
+    ifd[0x9003] = when.strftime("%Y:%m:%d %H:%M:%S")
+    path.parent.mkdir(parents=True, exist_ok=True)
+    img.save(path, exif=ex.tobytes(), xmp=XMP_EQUIRECT if make == "RICOH" else b"", quality=95)
+
+
+def make_card(root: Path, bad: bool = True, extra_brackets: int = 0) -> Path:
+    """A Theta card in the camera's own layout (DCIM/100RICOH), two scenes, plus a photo and junk."""
+    d = root / "DCIM" / "100RICOH"
+    n = [0]
+
+    def shot(dt: float, exposure: tuple[int, int], **kw) -> Path:
+        n[0] += 1
+        p = d / f"R00100{n[0]:02d}.JPG"
+        write_shot(p, T0 + timedelta(seconds=dt), exposure, **kw)
+        return p
+
+    # scene 1, probe 1: a 3-shot bracket, then the sun frame 20 s later
+    shot(0, (1, 500)), shot(1, (1, 125)), shot(2, (1, 30))
+    shot(22, (1, 25000))
+    # scene 1, probe 2 (2 minutes later): a single shot and a 2-shot bracket
+    shot(140, (1, 60))
+    shot(160, (1, 250)), shot(161, (1, 15))
+    # scene 2, two hours later: a bracket
+    shot(7200, (1, 1000)), shot(7201, (1, 100)), shot(7202, (1, 10))
+    for i in range(extra_brackets):
+        base = 14400 + 60 * i
+        shot(base, (1, 1000)), shot(base + 1, (1, 100)), shot(base + 2, (1, 10))
+    # the scene photo from another camera
+    write_shot(root / "DCIM" / "100CANON" / "IMG_0001.JPG", T0 + timedelta(seconds=60), (1, 200), make="Canon", model="EOS R")
+    (root / "notes.txt").write_text("field notes\n")
+    (root / ".hidden.JPG").write_bytes(b"x")
+    (d / "R0010099.MP4").write_bytes(b"\x00\x00\x00\x18ftypmp42")
+    if bad:
+        (d / "R0010090.JPG").write_bytes(b"")
+        good = (d / "R0010001.JPG").read_bytes()
+        (d / "R0010091.JPG").write_bytes(good[: len(good) // 2])
+        (d / "R0010092.JPG").write_bytes(b"II*\x00\x08\x00\x00\x00" + bytes(64))
+    return root
+
+
+def tree_digest(root: Path) -> dict[str, tuple[str, int]]:
+    return {str(p.relative_to(root)): (hashlib.sha256(p.read_bytes()).hexdigest(), p.stat().st_mtime_ns)
+            for p in sorted(root.rglob("*")) if p.is_file()}
+
+
+@pytest.fixture
+def card(tmp_path) -> Path:
+    return make_card(tmp_path / "card")
+
+
+def test_ingest_builds_campaign(card, tmp_path):
+    before = tree_digest(card)
+    camp = tmp_path / "camp"
+    report = ingest(card, camp)
+    assert tree_digest(card) == before  # the card is never modified
+    m = load_manifest(camp)
+    assert m.schema_version == 1 and m.solidkit_version
+
+    # originals: content-addressed, byte-identical, read-only
+    assert len(m.shots) == 11 and report.copied == 11
+    for s in m.shots:
+        orig = camp / s.original
+        assert orig.read_bytes() == (card / s.sources[0].path).read_bytes()
+        assert hashlib.sha256(orig.read_bytes()).hexdigest() == s.sha256 and s.sha256 in orig.name
+        assert orig.stat().st_mode & 0o222 == 0
+
+    # grouping: 2 scenes; scene 1 has probes p01 (bracket + sun frame) and p02, and the photo
+    assert [sc.id for sc in m.scenes] == ["scene-20240601-120000", "scene-20240601-140000"]
+    s1 = m.scenes[0]
+    assert [p.id for p in s1.probes] == ["p01", "p02"] and len(s1.photos) == 1
+    kinds = {s.sources[0].path.rsplit("/", 1)[-1]: s.kind for s in m.shots}
+    assert kinds["R0010001.JPG"] == kinds["R0010003.JPG"] == "bracket_member"
+    assert kinds["R0010004.JPG"] == "low_exposure" and kinds["R0010005.JPG"] == "probe"
+    assert kinds["IMG_0001.JPG"] == "photo"
+    p01 = s1.probes[0]
+    assert [b.exposure_times for b in p01.brackets] == [[1 / 500, 1 / 125, 1 / 30]]
+    assert m.shot(p01.sun_frame).metadata["exposure_time"] == pytest.approx(1 / 25000)
+
+    # products: 3 HDR merges + 1 sun frame, reproducible records
+    kinds = sorted(p.kind for p in m.products)
+    assert kinds == ["hdr", "hdr", "hdr", "sun_frame"]
+    sun = next(p for p in m.products if p.kind == "sun_frame")
+    assert sun.path == m.shot(p01.sun_frame).original and sun.exposure_time == pytest.approx(1 / 25000)
+    assert sun.layout == "equirect" and sun.error is None
+    for p in m.products:
+        if p.kind == "hdr":
+            hdr, meta = read_exr(camp / p.path)
+            assert [i["sha256"] for i in meta["provenance"]["inputs"]] == p.inputs
+            assert meta["provenance"]["solidkit_version"] == p.solidkit_version
+            assert hashlib.sha256((camp / p.path).read_bytes()).hexdigest() == p.sha256
+            # the merge recovers the synthetic scene's radiance ratios
+            row = hdr[16, :, 1]
+            true = RADIANCE[0, :, 0] * 0.8
+            ok = row > 0
+            ratio = row[ok] / true[ok]
+            assert np.median(np.abs(ratio / np.median(ratio) - 1)) < 0.03
+
+    # per-file errors, collected; unrelated files listed
+    errs = {e.path.rsplit("/", 1)[-1]: e.message for e in m.errors}
+    assert set(errs) == {"R0010090.JPG", "R0010091.JPG", "R0010092.JPG"}
+    assert "empty" in errs["R0010090.JPG"]
+    assert "truncated" in errs["R0010091.JPG"]
+    assert "rename it to .dng" in errs["R0010092.JPG"]
+    assert {r.path for r in m.skipped} == {"notes.txt", ".hidden.JPG", "DCIM/100RICOH/R0010099.MP4"}
+    assert not [p for p in camp.rglob(".*") if p.name != ".lock"]  # no temporaries left
+
+
+def test_second_run_does_nothing_and_says_so(card, tmp_path):
+    from solidkit.cli import app
+
+    camp = tmp_path / "camp"
+    ingest(card, camp)
+    before = tree_digest(camp)
+    runner = CliRunner()
+    r = runner.invoke(app, ["ingest", str(card), str(camp)])
+    assert "nothing to do" in r.output
+    assert isinstance(r.exception, InputError) and "3 file(s)" in str(r.exception)  # the bad files, again
+    assert tree_digest(camp) == before  # not a byte or an mtime changed
+
+
+def test_fixed_file_is_picked_up_and_error_cleared(card, tmp_path):
+    camp = tmp_path / "camp"
+    ingest(card, camp)
+    bad = card / "DCIM" / "100RICOH" / "R0010091.JPG"
+    bad.unlink()
+    write_shot(bad, T0 + timedelta(hours=5), (1, 8))
+    report = ingest(card, camp)
+    assert report.copied == 1 and not report.errors and report.known_errors == 2
+    m = load_manifest(camp)
+    assert "R0010091.JPG" not in {e.path.rsplit("/", 1)[-1] for e in m.errors}
+
+
+def test_duplicate_exposure_is_reported(tmp_path):
+    card = tmp_path / "card"
+    for i, dt in enumerate((0, 1, 2)):
+        write_shot(card / "s1" / "p1" / f"R00100{i + 1:02d}.JPG", T0 + timedelta(seconds=dt), (1, 8) if i < 2 else (1, 2))
+    ingest(card, tmp_path / "camp")
+    m = load_manifest(tmp_path / "camp")
+    probe = m.scenes[0].probes[0]
+    assert m.scenes[0].id == "s1" and probe.id == "p1"  # explicit folder layout
+    assert len(probe.brackets) == 1 and len(probe.brackets[0].shots) == 2  # 1/8 (second one) + 1/2
+    assert any("duplicate_exposure" in w and "R0010002.JPG" in w for w in probe.warnings)
+
+
+def test_parallel_jobs_give_the_same_manifest(tmp_path):
+    card = make_card(tmp_path / "card", bad=True)
+    ingest(card, tmp_path / "a", jobs=1)
+    ingest(card, tmp_path / "b", jobs=2)
+    assert (tmp_path / "a" / MANIFEST_NAME).read_bytes() == (tmp_path / "b" / MANIFEST_NAME).read_bytes()
+
+
+def test_kill9_mid_run_then_resume(tmp_path):
+    card = make_card(tmp_path / "card", bad=True, extra_brackets=4)
+    camp = tmp_path / "camp"
+    env = {**os.environ, "SOLIDKIT_INGEST_THROTTLE_S": "0.15"}
+    proc = subprocess.Popen(
+        [sys.executable, "-c", "from solidkit.cli import main; main()", "ingest", str(card), str(camp)],
+        cwd=REPO, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+    )
+    deadline = time.monotonic() + 60
+    originals = camp / "originals"
+    while time.monotonic() < deadline:
+        if originals.is_dir() and sum(1 for p in originals.rglob("*.jpg")) >= 4:
+            break
+        time.sleep(0.01)
+    assert proc.poll() is None, "ingest finished before it could be killed"
+    proc.send_signal(signal.SIGKILL)
+    proc.wait()
+    # nothing half-written under a final name
+    for p in originals.rglob("*.jpg"):
+        if not p.name.startswith("."):
+            assert hashlib.sha256(p.read_bytes()).hexdigest() == p.stem
+    if (camp / MANIFEST_NAME).exists():
+        json.loads((camp / MANIFEST_NAME).read_text())  # a complete, valid manifest or none
+    n_before = len(load_manifest(camp).shots)
+    assert n_before < 23
+    ingest(card, camp)  # resume
+    ingest(card, tmp_path / "clean")  # an uninterrupted run
+    assert (camp / MANIFEST_NAME).read_bytes() == (tmp_path / "clean" / MANIFEST_NAME).read_bytes()
+    assert not [p for p in camp.rglob(".*") if p.name != ".lock"]
+    assert ingest(card, camp).nothing_done
+
+
+def test_bad_arguments(tmp_path, card):
+    with pytest.raises(InputError, match="not found"):
+        ingest(tmp_path / "nope", tmp_path / "camp")
+    with pytest.raises(InputError, match="inside the card"):
+        ingest(card, card / "camp")
+    (tmp_path / "camp2").mkdir()
+    (tmp_path / "camp2" / MANIFEST_NAME).write_text('{"schema_version": 99}')
+    with pytest.raises(InputError, match="schema version 99"):
+        ingest(card, tmp_path / "camp2")
+
+
+@pytest.mark.real
+def test_real_theta_jpeg_ingests_with_metadata(real_data, tmp_path):
+    card = tmp_path / "card" / "DCIM" / "100RICOH"
+    card.mkdir(parents=True)
+    shutil.copyfile(real_data / "theta_s_equirect" / "Jobsite1.JPG", card / "R0010001.JPG")
+    ingest(tmp_path / "card", tmp_path / "camp")
+    m = load_manifest(tmp_path / "camp")
+    (shot,) = m.shots
+    md = shot.metadata
+    assert md["make"].upper().startswith("RICOH") and "THETA S" in md["model"]
+    assert md["exposure_time"] == pytest.approx(1 / 500) and md["f_number"] == 2.0 and md["iso"] == 100
+    assert md["image_type"] == "equirect" and (md["width"], md["height"]) == (5376, 2688)
+    assert shot.kind == "probe" and m.scenes[0].id == "scene-20150101-000128"
+    assert (tmp_path / "camp" / shot.original).read_bytes() == (card / "R0010001.JPG").read_bytes()
