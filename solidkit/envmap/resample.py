@@ -64,6 +64,12 @@ def _is_torch(x: Any) -> bool:
     return type(x).__module__.startswith("torch")
 
 
+def _vecmat(v: Any, M: Any) -> Any:
+    """Row vectors times matrices, ``v (..., 3) @ M (..., 3, 3)`` with broadcasting, as 3 fused
+    element-wise terms: tiny torch matmuls stall on a busy multi-threaded CPU, this never does."""
+    return v[..., 0:1] * M[..., 0, :] + v[..., 1:2] * M[..., 1, :] + v[..., 2:3] * M[..., 2, :]
+
+
 def _check_interp(interp: str) -> None:
     if interp not in INTERPOLATIONS:
         raise InputError(f"unknown interpolation '{interp}'; expected one of {', '.join(INTERPOLATIONS)}")
@@ -118,8 +124,12 @@ def pad_panorama(pano: Any, pad: int = PAD) -> Any:
     return xp.concat([left, tall, right], axis=cols)
 
 
-def _remap(img: np.ndarray, map_x: np.ndarray, map_y: np.ndarray, interp: str) -> np.ndarray:
-    """``cv2.remap`` for maps of any shape ``(...)``; returns ``(..., [C])``; constant zero border."""
+def _remap(img: np.ndarray, map_x: np.ndarray, map_y: np.ndarray, interp: str, border: str = "constant") -> np.ndarray:
+    """``cv2.remap`` for maps of any shape ``(...)``; returns ``(..., [C])``.
+
+    Map values are OpenCV pixel coordinates (pixel centres at integers). ``border`` is
+    ``"constant"`` (zeros) or ``"replicate"``.
+    """
     shape = map_x.shape
     if max(img.shape[:2]) >= _CV2_MAX_SIDE:
         raise InputError(f"image side {max(img.shape[:2])} too large for cv2.remap (max {_CV2_MAX_SIDE - 1})")
@@ -136,7 +146,7 @@ def _remap(img: np.ndarray, map_x: np.ndarray, map_y: np.ndarray, interp: str) -
         np.ascontiguousarray(map_x, dtype=np.float32),
         np.ascontiguousarray(map_y, dtype=np.float32),
         _CV2_INTERP[interp],
-        borderMode=cv2.BORDER_CONSTANT,
+        borderMode=cv2.BORDER_REPLICATE if border == "replicate" else cv2.BORDER_CONSTANT,
         borderValue=0,
     )
     if img.ndim == 3 and out.ndim == 2:  # cv2 drops a trailing channel axis of size 1
@@ -184,7 +194,6 @@ def sample_panorama(pano: Any, directions: Any, interp: str = "linear", *, per_i
 
 def _sample_torch(pano: Any, directions: Any, height: int, interp: str, per_item: bool | None) -> Any:
     import torch
-    import torch.nn.functional as F
 
     unbatched = pano.ndim == 3
     if pano.ndim not in (3, 4):
@@ -199,17 +208,32 @@ def _sample_torch(pano: Any, directions: Any, height: int, interp: str, per_item
         per_item = not unbatched and d.ndim >= 3 and d.shape[0] == b
     if per_item and (unbatched or d.ndim < 2 or d.shape[0] != b):
         raise InputError(f"per-item directions must be (B={b}, ..., 3), got {tuple(d.shape)}")
-    padded = pad_panorama(img.to(dtype), PAD)
     x, y = _padded_coords(d, height, PAD)
-    grid = torch.stack([2 * x / padded.shape[-1] - 1, 2 * y / padded.shape[-2] - 1], dim=-1)
     if not per_item:
-        grid = grid.expand(b, *grid.shape)
-    spatial = grid.shape[1:-1]
-    out = F.grid_sample(
-        padded, grid.reshape(b, -1, 1, 2), mode=_TORCH_INTERP[interp], padding_mode="zeros", align_corners=False
-    )
-    out = out.reshape(b, img.shape[1], *spatial)
+        x, y = x.expand(b, *x.shape), y.expand(b, *y.shape)
+    out = _torch_remap(pad_panorama(img.to(dtype), PAD), x - 0.5, y - 0.5, interp)
     return out[0] if unbatched else out
+
+
+def _torch_remap(img: Any, x: Any, y: Any, interp: str, border: str = "constant") -> Any:
+    """``grid_sample`` at OpenCV pixel coordinates (centres at integers), the torch twin of :func:`_remap`.
+
+    ``img (B, C, Hi, Wi)``, ``x, y (B, ...)``; returns ``(B, C, ...)``. ``align_corners=False``
+    spans the pixel edges: OpenCV coordinate ``x`` is grid value ``2 (x + 0.5) / Wi - 1``.
+    """
+    import torch
+    import torch.nn.functional as F
+
+    grid = torch.stack([2 * (x + 0.5) / img.shape[-1] - 1, 2 * (y + 0.5) / img.shape[-2] - 1], dim=-1)
+    b, spatial = grid.shape[0], grid.shape[1:-1]
+    out = F.grid_sample(
+        img,
+        grid.reshape(b, -1, 1, 2).to(img.dtype),
+        mode=_TORCH_INTERP[interp],
+        padding_mode="border" if border == "replicate" else "zeros",
+        align_corners=False,
+    )
+    return out.reshape(b, img.shape[1], *spatial)
 
 
 @lru_cache(maxsize=2)
@@ -258,7 +282,7 @@ def rotate(pano: Any, R: Any, interp: str = "linear", height: int | None = None)
             raise InputError(f"R must be (3, 3) or (B, 3, 3), got {tuple(Rt.shape)}")
         d = direction_grid(out_h, torch, dtype=dtype, device=pano.device)
         # row vectors times R = (Rᵀ d)ᵀ; (B, 3, 3) -> (B, H, W, 3)
-        src = d @ Rt if Rt.ndim == 2 else d[None] @ Rt[:, None]
+        src = _vecmat(d, Rt if Rt.ndim == 2 else Rt[:, None, None])
         if Rt.ndim == 3 and pano.ndim == 3:
             raise InputError("a batch of rotations needs a batched (B, C, H, W) panorama")
         return sample_panorama(pano, src, interp, per_item=Rt.ndim == 3)

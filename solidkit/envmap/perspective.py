@@ -1,0 +1,205 @@
+"""Perspective (pinhole) views of a panorama, and the inverse: embedding a photo into a panorama.
+
+Camera model (conventions §1): OpenCV frame (x right, y down, z forward), intrinsics
+``K = [[fx, s, cx], [0, fy, cy], [0, 0, 1]]``, pixel centres at *integer* coordinates (an ideal
+``w x h`` camera has ``cx = (w - 1)/2``); the ray through pixel ``(x, y)`` is
+``K⁻¹ (x, y, 1)``. A camera orientation ``R`` maps camera-frame vectors to panorama-frame
+vectors (conventions §4): ``R = rotation_from_ypr(yaw, pitch, roll)`` looks at azimuth ``yaw``
+and elevation ``pitch``.
+
+NumPy images are ``(h, w[, C])``; torch images are ``(B, C, h, w)`` or ``(C, h, w)``, and the
+torch functions are differentiable w.r.t. the images and ``R``.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import numpy as np
+
+from solidkit.envmap.coords import module_namespace, namespace
+from solidkit.envmap.resample import (
+    _cached_direction_grid,
+    _check_interp,
+    _is_torch,
+    _vecmat,
+    _remap,
+    _torch_remap,
+    sample_panorama,
+)
+from solidkit.errors import InputError
+
+__all__ = [
+    "intrinsics_from_fov",
+    "pixel_rays",
+    "project_to_pixels",
+    "perspective_crop",
+    "embed_perspective",
+]
+
+
+def intrinsics_from_fov(fov: float, width: int, height: int) -> np.ndarray:
+    """``K`` of an ideal ``width x height`` pinhole camera with horizontal field of view ``fov``.
+
+    ``fov`` (radians, in ``(0, pi)``) spans the image edge to edge: ``fx = fy = (width / 2) / tan(fov / 2)``,
+    ``cx = (width - 1) / 2``, ``cy = (height - 1) / 2`` (square pixels; conventions §1).
+    """
+    if not 0.0 < float(fov) < math.pi:
+        raise InputError(f"field of view must be in (0, 180) degrees, got {math.degrees(float(fov)):.4g}")
+    if int(width) < 1 or int(height) < 1:
+        raise InputError(f"image size must be positive, got {width}x{height}")
+    f = (width / 2.0) / math.tan(float(fov) / 2.0)
+    return np.array([[f, 0.0, (width - 1) / 2.0], [0.0, f, (height - 1) / 2.0], [0.0, 0.0, 1.0]])
+
+
+def _check_K(K: Any) -> None:
+    if tuple(K.shape) != (3, 3):
+        raise InputError(f"K must be a 3x3 intrinsics matrix, got shape {tuple(K.shape)}")
+
+
+def pixel_rays(K: Any, width: int, height: int, xp: Any = np, **kw: Any) -> Any:
+    """Camera-frame rays ``K⁻¹ (x, y, 1)`` through every pixel centre, ``(height, width, 3)`` (z = 1).
+
+    ``xp`` is ``numpy`` (default, float64) or ``torch`` (``kw``: ``dtype``, ``device``).
+    """
+    ns = module_namespace(xp)
+    kw.setdefault("dtype", xp.float64 if xp is np else xp.float32)
+    K = ns.asarray(K, **kw)
+    _check_K(K)
+    Kinv = ns.linalg.inv(K)
+    ys, xs = ns.meshgrid(ns.arange(height, **kw), ns.arange(width, **kw), indexing="ij")
+    pix = ns.stack([xs, ys, ns.ones_like(xs)], axis=-1)
+    return _vecmat(pix, Kinv.T)
+
+
+def project_to_pixels(K: Any, c: Any) -> tuple[Any, Any, Any]:
+    """Pixel coordinates of camera-frame directions ``c (..., 3)``: ``K c / c_z``.
+
+    Returns ``(x, y, in_front)``: OpenCV pixel coordinates (centres at integers) and a boolean
+    mask of directions with ``c_z > 0``; behind the camera ``x, y`` are meaningless.
+    """
+    xp = namespace(c)
+    p = _vecmat(c, xp.asarray(K, dtype=c.dtype, **({"device": c.device} if _is_torch(c) else {})).T)
+    z = p[..., 2]
+    in_front = c[..., 2] > 1e-12
+    safe = xp.where(in_front, z, xp.ones_like(z))
+    return p[..., 0] / safe, p[..., 1] / safe, in_front
+
+
+def _intrinsics(K: Any, fov: float | None, size: tuple[int, int]) -> np.ndarray:
+    if (K is None) == (fov is None):
+        raise InputError("give exactly one of K or fov")
+    return intrinsics_from_fov(fov, *size) if K is None else K
+
+
+def perspective_crop(
+    pano: Any,
+    R: Any,
+    size: tuple[int, int],
+    *,
+    K: Any = None,
+    fov: float | None = None,
+    interp: str = "linear",
+) -> Any:
+    """Render the pinhole view of a panorama seen by a camera with orientation ``R``.
+
+    Parameters
+    ----------
+    pano : ndarray (H, 2H[, C]) or tensor (B, C, H, 2H) / (C, H, 2H)
+        Equirectangular panorama.
+    R : array (3, 3), or for tensors also (B, 3, 3)
+        Camera-to-panorama rotation, e.g. ``rotation_from_ypr(yaw, pitch, roll)``.
+    size : (width, height)
+        Output image size in pixels.
+    K : array (3, 3), optional
+        Intrinsics (OpenCV convention, conventions §1).
+    fov : float, optional
+        Horizontal field of view in radians (instead of ``K``): :func:`intrinsics_from_fov`.
+    interp : {"nearest", "linear", "cubic"}
+
+    Returns
+    -------
+    ndarray (height, width[, C]) or tensor (B, C, height, width) / (C, height, width).
+    Pixel ``(x, y)`` shows the panorama in direction ``R K⁻¹ (x, y, 1)``.
+    """
+    _check_interp(interp)
+    width, height = (int(s) for s in size)
+    K = _intrinsics(K, fov, (width, height))
+    if _is_torch(pano):
+        import torch
+
+        dtype = pano.dtype if pano.dtype in (torch.float32, torch.float64) else torch.float32
+        Rt = torch.as_tensor(R, dtype=dtype, device=pano.device)
+        rays = pixel_rays(K, width, height, torch, dtype=dtype, device=pano.device)
+        if Rt.shape[-2:] != (3, 3) or Rt.ndim not in (2, 3):
+            raise InputError(f"R must be (3, 3) or (B, 3, 3), got {tuple(Rt.shape)}")
+        d = _vecmat(rays, Rt.T if Rt.ndim == 2 else Rt.transpose(-1, -2)[:, None, None])
+        return sample_panorama(pano, d, interp, per_item=Rt.ndim == 3)
+    R = np.asarray(R, dtype=np.float64)
+    if R.shape != (3, 3):
+        raise InputError(f"R must be a 3x3 matrix, got shape {R.shape}")
+    return sample_panorama(pano, pixel_rays(K, width, height) @ R.T, interp)
+
+
+def embed_perspective(photo: Any, K: Any, R: Any, height: int, interp: str = "linear") -> tuple[Any, Any]:
+    """Project a pinhole photo onto the sphere: the inverse of :func:`perspective_crop`.
+
+    Parameters
+    ----------
+    photo : ndarray (h, w[, C]) or tensor (B, C, h, w) / (C, h, w)
+    K : array (3, 3)
+        The photo's intrinsics (OpenCV convention).
+    R : array (3, 3), or for tensors also (B, 3, 3)
+        Camera-to-panorama rotation.
+    height : int
+        Output panorama height ``H`` (width ``2H``).
+    interp : {"nearest", "linear", "cubic"}
+
+    Returns
+    -------
+    (pano, mask)
+        ``pano``: ndarray (H, 2H[, C]) / tensor (B, C, H, 2H), zero outside the photo.
+        ``mask``: coverage, 1 where the pixel centre's direction projects inside the photo
+        (within ``[-0.5, w - 0.5] x [-0.5, h - 0.5]``, in front of the camera), else 0;
+        ndarray (H, 2H) float32 / tensor (B, 1, H, 2H).
+    """
+    _check_interp(interp)
+    height = int(height)
+    if height < 1:
+        raise InputError(f"panorama height must be >= 1, got {height}")
+    if _is_torch(photo):
+        import torch
+
+        from solidkit.envmap.coords import direction_grid
+
+        unbatched = photo.ndim == 3
+        img = photo[None] if unbatched else photo
+        dtype = img.dtype if img.dtype in (torch.float32, torch.float64) else torch.float32
+        img = img.to(dtype)
+        Rt = torch.as_tensor(R, dtype=dtype, device=img.device)
+        d = direction_grid(height, torch, dtype=dtype, device=img.device)
+        c = _vecmat(d, Rt if Rt.ndim == 2 else Rt[:, None, None])  # Rᵀ d as row vectors
+        c = c.expand(img.shape[0], *c.shape) if c.ndim == 3 else c
+        x, y, front = project_to_pixels(torch.as_tensor(K, dtype=dtype), c)
+        h, w = img.shape[-2:]
+        inside = front & (x >= -0.5) & (x <= w - 0.5) & (y >= -0.5) & (y <= h - 0.5)
+        out = _torch_remap(img, torch.where(inside, x, 0.0), torch.where(inside, y, 0.0), interp, "replicate")
+        mask = inside[:, None].to(dtype)
+        out = out * mask
+        return (out[0], mask[0]) if unbatched else (out, mask)
+    R = np.asarray(R, dtype=np.float64)
+    K = np.asarray(K, dtype=np.float64)
+    _check_K(K)
+    if R.shape != (3, 3):
+        raise InputError(f"R must be a 3x3 matrix, got shape {R.shape}")
+    photo = np.asarray(photo)
+    if photo.ndim not in (2, 3):
+        raise InputError(f"photo must be (h, w) or (h, w, C), got shape {photo.shape}")
+    h, w = photo.shape[:2]
+    x, y, front = project_to_pixels(K, _cached_direction_grid(height) @ R)
+    inside = front & (x >= -0.5) & (x <= w - 0.5) & (y >= -0.5) & (y <= h - 0.5)
+    out = _remap(photo, np.where(inside, x, 0.0), np.where(inside, y, 0.0), interp, "replicate")
+    mask = inside.astype(np.float32)
+    out = out * (mask if out.ndim == 2 else mask[..., None]).astype(out.dtype)
+    return out, mask
