@@ -251,3 +251,25 @@ def test_real_theta_jpeg_ingests_with_metadata(real_data, tmp_path):
     assert md["image_type"] == "equirect" and (md["width"], md["height"]) == (5376, 2688)
     assert shot.kind == "probe" and m.scenes[0].id == "scene-20150101-000128"
     assert (tmp_path / "camp" / shot.original).read_bytes() == (card / "R0010001.JPG").read_bytes()
+
+
+def test_dual_fisheye_products_become_panoramas():
+    """A dual-fisheye capture (Theta V layout) goes through the shipped lens profile."""
+    from solidkit.capture.campaign import to_panorama
+    from solidkit.capture.lens import load_profile
+    from solidkit.capture.unwarp import render_fisheye
+    from solidkit.envmap.coords import direction_grid
+
+    H = 64
+    d = np.asarray(direction_grid(H))  # (H, 2H, 3) directions in the panorama frame
+    truth = np.stack([1.0 + 0.5 * d[..., 0], 1.0 - 0.5 * d[..., 1], 1.0 + 0.5 * d[..., 2]], -1).astype(np.float32)
+    fish = render_fisheye(truth, load_profile("theta-v"), (4 * H, 2 * H))
+    md = {"path": "x", "width": 4 * H, "height": 2 * H, "model": "RICOH THETA V", "image_type": "dual_fisheye"}
+    pano, info = to_panorama(fish, md)
+    assert pano.shape == (H, 2 * H, 3) and info["resampled"] and info["profile"]
+    assert np.median(np.abs(pano - truth)) < 0.02
+    md_eq = {"path": "x", "width": 2 * H, "height": H, "image_type": "equirect"}
+    same, info = to_panorama(truth, md_eq)
+    assert same is truth and info == {"resampled": False}  # level stitched input: untouched
+    with pytest.raises(InputError):
+        to_panorama(truth, {**md_eq, "image_type": "perspective"})

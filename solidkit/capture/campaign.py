@@ -563,6 +563,51 @@ def _product_path(p: Product, suffix: str) -> Path:
     return Path("products") / p.scene / p.probe / f"{p.id.rsplit('/', 1)[-1]}{suffix}"
 
 
+def _level_rotation(md: dict[str, Any]):
+    """The metadata's levelling rotation (identity for upright dual-fisheye / corrected equirect)."""
+    from solidkit.capture.metadata import CaptureMetadata, level_rotation
+
+    meta = CaptureMetadata.model_validate(md)
+    import numpy as np
+
+    if meta.image_type == "dual_fisheye_upright":
+        return np.eye(3)
+    return np.asarray(level_rotation(meta))
+
+
+def to_panorama(image, md: dict[str, Any]) -> tuple[Any, dict[str, Any]]:
+    """A linear capture-layout image -> an equirect panorama in the panorama frame (conventions §2).
+
+    Equirect: levelled by the metadata's gravity when the camera did not correct it (returned
+    unchanged otherwise); dual-fisheye: unwarped through the shipped lens profile of the camera
+    model (:func:`solidkit.capture.unwarp.unwarp`, output height = input width / 4 like
+    ``solidkit capture unwarp``). Returns ``(panorama, info)``; raises :class:`InputError` when
+    no profile fits or the layout is unknown.
+    """
+    import numpy as np
+
+    layout = md.get("image_type")
+    R = _level_rotation(md)
+    identity = bool(np.allclose(R, np.eye(3), atol=1e-12))
+    if layout == "equirect":
+        if identity:
+            return image, {"resampled": False}
+        from solidkit.envmap.resample import rotate
+
+        return rotate(image, R, "linear"), {"resampled": True, "levelled": True}
+    if layout in ("dual_fisheye", "dual_fisheye_upright"):
+        from solidkit.capture.lens import profile_for_metadata
+        from solidkit.capture.unwarp import unwarp
+
+        h, w = image.shape[:2]
+        prof = profile_for_metadata(md.get("model"), w, h)
+        stats: dict[str, Any] = {}
+        pano = unwarp(image, prof, max(2, w // 4), R, stats=stats)
+        return pano, {"resampled": True, "levelled": not identity, "profile": prof.model, "profile_key": prof.key(),
+                      "seam_mad": stats.get("seam_mad")}
+    raise InputError(f"image type {layout!r} is not a panorama layout (equirect or dual-fisheye)")
+
+
 def _make_product(product: dict[str, Any], shots: list[dict[str, Any]], campaign: str, response: dict[str, Any]) -> dict[str, Any]:
     """Worker: build one product; returns the updated product dict (``error`` set on failure)."""
     p = Product.model_validate(product)
@@ -585,8 +630,16 @@ def _make_product(product: dict[str, Any], shots: list[dict[str, Any]], campaign
                 inputs.append({"original": s["original"], "sha256": s["sha256"], "exposure_time": t, "effective_exposure": eff})
             result = merge_frames(frames, ghost_k=p.recipe["ghost_k"], deghost=p.recipe["deghost"])
             stats = result.stats()
+            hdr, layout = result.hdr, p.layout
+            try:
+                hdr, pano_info = to_panorama(hdr, ref)
+                layout = "equirect"
+            except SolidkitError as exc:  # no lens profile for this camera: keep the capture layout
+                pano_info = {"panorama": f"not made: {exc}"}
+            stats.update(pano_info)
+            p.layout = layout
             rel = _product_path(p, ".exr")
-            write_exr(camp / rel, result.hdr, {
+            write_exr(camp / rel, hdr, {
                 "exposure_time": ref.get("exposure_time"), "layout": p.layout,
                 "units": "relative radiance: linear code per second at the first frame's ISO and f-number",
                 "provenance": {"tool": p.recipe["tool"], "solidkit_version": p.solidkit_version, "inputs": inputs,
@@ -595,17 +648,24 @@ def _make_product(product: dict[str, Any], shots: list[dict[str, Any]], campaign
             p.path, p.sha256, p.stats = rel.as_posix(), sha256_file(camp / rel), {
                 k: (round(v, 6) if isinstance(v, float) else v) for k, v in stats.items() if k != "noise_sigma"}
         else:
+            import numpy as np
+
             s = shots[0]
             md = s["metadata"]
-            if md.get("image_type") == "equirect" and s["original"].endswith(".jpg"):
-                # the stitched JPEG is already an LDR panorama: referenced, not re-encoded
+            if (md.get("image_type") == "equirect" and s["original"].endswith(".jpg")
+                    and np.allclose(_level_rotation(md), np.eye(3), atol=1e-12)):
+                # the stitched, level JPEG is already the LDR panorama: referenced, not re-encoded
                 p.path, p.sha256 = s["original"], s["sha256"]
                 p.stats = {"resampled": False}
             else:
-                p.path, p.sha256 = None, None
-                p.stats = {"resampled": False}
-                p.error = (f"sun frame is a {md.get('image_type')} {md.get('file_format')} capture: "
-                           "unwarp it with `solidkit capture unwarp` to get its panorama")
+                from solidkit.capture.merge import load_frame
+                from solidkit.envmap.io import write_ldr
+
+                frame = load_frame(camp / s["original"], float(md.get("exposure_time") or 1.0))
+                pano, info = to_panorama(frame.linear, md)
+                rel = _product_path(p, ".png")
+                write_ldr(camp / rel, np.clip(pano, 0.0, 1.0), encode_srgb=True)  # lossless 8-bit sRGB
+                p.path, p.sha256, p.stats, p.layout = rel.as_posix(), sha256_file(camp / rel), info, "equirect"
     except SolidkitError as exc:
         p.error = str(exc)
         p.path = p.sha256 = None
