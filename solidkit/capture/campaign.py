@@ -40,12 +40,16 @@ frame), ``probe`` (any other single shot), ``photo``.
 Products (``CAMPAIGN_DIR/products/<scene>/<probe>/``)
 -----------------------------------------------------
 - ``hdr``: each bracket merged to linear HDR EXR (:func:`solidkit.capture.merge.merge_frames`,
-  response curve from ``--response`` or the sRGB inverse), in the capture's own layout
-  (``layout`` = the metadata's image type; equirect captures are panoramas as they are).
+  response curve from ``--response`` or the sRGB inverse) in the capture's layout, then made a
+  panorama in the panorama frame (:func:`to_panorama`: dual-fisheye unwarped through the shipped
+  lens profile of the camera model; stitched input levelled from its gravity when the camera did
+  not; untouched otherwise). Without a fitting profile the EXR keeps the capture layout
+  (``layout``) and says why in ``stats["panorama"]``.
 - ``sun_frame``: the probe's shortest exposure at or below ``low_exposure_max_s`` (a low-exposure
   shot, else the shortest bracket member), kept as an LDR panorama plus its exposure (time,
-  f-number, ISO): the original JPEG itself when it is an equirect image (no resampling, the
-  sun disk saturates anyway: it gives a position, not an intensity).
+  f-number, ISO): the original JPEG itself when it is a level equirect image (no resampling; the
+  sun disk saturates anyway: it gives a position, not an intensity), else an 8-bit sRGB PNG of
+  :func:`to_panorama`.
 
 Each product records its inputs (sha256), a recipe (tool, parameters, response-curve sha256),
 the solidkit version and the output's sha256: it is reproducible from originals + profiles +
@@ -108,6 +112,7 @@ __all__ = [
     "group_shots",
     "planned_products",
     "ingest_cli",
+    "to_panorama",
 ]
 
 SCHEMA_VERSION = 1
