@@ -291,3 +291,107 @@ def test_torch_resizing_matches_numpy_and_is_differentiable():
     omega = C.solid_angle(27, torch, dtype=torch.float64)
     assert torch.allclose((resize(t, 27)[0] * omega).sum((-2, -1)), torch.from_numpy(ref), rtol=1e-6)
 
+
+
+# --- CLI: solidkit envmap rotate / crop ---------------------------------------------------
+
+
+def _cli(*args: str):
+    from typer.testing import CliRunner
+
+    from solidkit.cli import app
+
+    return CliRunner().invoke(app, ["envmap", *args])
+
+
+def test_cli_rotate_writes_the_rotated_exr_with_provenance(tmp_path):
+    from solidkit.envmap.io import read_exr, write_exr
+
+    src = tmp_path / "in.exr"
+    p = np.abs(smooth_pano(32)) + 0.1
+    write_exr(src, p, {"exposure_time": 0.01})
+    res = _cli("rotate", str(src), str(tmp_path / "out.exr"), "--yaw", "-30", "--pitch", "10", "--roll", "5")
+    assert res.exit_code == 0, res.output
+    out, meta = read_exr(tmp_path / "out.exr")
+    R = C.rotation_from_ypr(math.radians(-30), math.radians(10), math.radians(5))
+    np.testing.assert_allclose(out, rotate(p, R), atol=1e-6)
+    assert meta["exposure_time"] == 0.01 and meta["provenance"]["yaw_deg"] == -30.0
+    res = _cli("rotate", str(src), str(tmp_path / "cubic.exr"), "--yaw", "12", "--interp", "cubic")
+    assert res.exit_code == 0 and read_exr(tmp_path / "cubic.exr")[0].min() >= 0
+
+
+def test_cli_crop_writes_exr_and_tonemapped_png(tmp_path):
+    from solidkit.envmap.io import read_exr, read_ldr, tonemap, write_exr
+
+    src = tmp_path / "in.exr"
+    p = np.abs(smooth_pano(64)) + 0.1
+    write_exr(src, p)
+    args = ["--fov", "80", "--yaw", "35", "--pitch", "-5", "--roll", "3", "--size", "64x48"]
+    assert _cli("crop", str(src), str(tmp_path / "c.exr"), *args).exit_code == 0
+    assert _cli("crop", str(src), str(tmp_path / "c.png"), *args).exit_code == 0
+    from solidkit.envmap.perspective import perspective_crop
+
+    R = C.rotation_from_ypr(math.radians(35), math.radians(-5), math.radians(3))
+    expected = perspective_crop(p, R, (64, 48), fov=math.radians(80))
+    exr, _ = read_exr(tmp_path / "c.exr")
+    assert exr.shape == (48, 64, 3)
+    np.testing.assert_allclose(exr, expected, atol=1e-6)
+    png = read_ldr(tmp_path / "c.png")
+    assert np.abs(png - tonemap(expected)).max() <= 1 / 255 + 1e-6
+
+
+def test_cli_ldr_round_trip_keeps_srgb(tmp_path):
+    from solidkit.envmap.io import read_ldr, write_ldr
+
+    src = tmp_path / "in.png"
+    img = (np.clip(smooth_pano(32) / 8 + 0.5, 0, 1) * 255).round().astype(np.uint8)
+    write_ldr(src, img)
+    assert _cli("rotate", str(src), str(tmp_path / "out.png"), "--yaw", str(360 / 64 * 3)).exit_code == 0
+    np.testing.assert_allclose(read_ldr(tmp_path / "out.png"), np.roll(img, 3, axis=1) / 255, atol=1 / 255 + 1e-6)
+
+
+@pytest.mark.parametrize(
+    "args",
+    [
+        ["rotate", "{bad}", "{out}.exr"],  # W != 2H
+        ["rotate", "{missing}", "{out}.exr"],
+        ["rotate", "{good}", "{out}.txt"],  # unknown output type
+        ["rotate", "{good}", "{good}"],  # would overwrite the input
+        ["crop", "{good}", "{out}.exr", "--fov", "90", "--size", "64"],
+        ["crop", "{good}", "{out}.exr", "--fov", "190", "--size", "64x48"],
+        ["crop", "{nan}", "{out}.exr", "--fov", "90", "--size", "64x48"],
+    ],
+)
+def test_cli_bad_input_is_a_solidkit_error(tmp_path, args):
+    from solidkit.envmap.io import write_exr
+    from solidkit.errors import SolidkitError
+
+    good, bad, nan = tmp_path / "good.exr", tmp_path / "bad.exr", tmp_path / "nan.exr"
+    write_exr(good, np.ones((16, 32, 3), np.float32))
+    write_exr(bad, np.ones((16, 30, 3), np.float32))
+    pix = np.ones((16, 32, 3), np.float32)
+    pix[3, 4, 1] = np.nan
+    write_exr(nan, pix)
+    names = {"good": good, "bad": bad, "nan": nan, "missing": tmp_path / "none.exr", "out": tmp_path / "out"}
+    res = _cli(*[a.format(**names) for a in args])
+    assert res.exit_code != 0 and isinstance(res.exception, SolidkitError), res.output
+    assert not (tmp_path / "out.exr").exists()
+    assert good.stat().st_size > 0
+
+
+def test_cli_error_is_one_line_and_exit_code_2(tmp_path):
+    import subprocess
+    import sys
+
+    bad = tmp_path / "bad.exr"
+    from solidkit.envmap.io import write_exr
+
+    write_exr(bad, np.ones((16, 30, 3), np.float32))
+    run = subprocess.run(
+        [sys.executable, "-m", "solidkit.cli", "envmap", "crop", str(bad), str(tmp_path / "o.png"), "--fov", "60", "--size", "32x24"],
+        capture_output=True,
+        text=True,
+    )
+    assert run.returncode == 2
+    assert run.stderr.strip().count("\n") == 0 and "width must be 2 x height" in run.stderr
+    assert "Traceback" not in run.stderr + run.stdout

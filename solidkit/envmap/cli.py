@@ -82,3 +82,102 @@ def sun(
         console.print(
             f"[bold]no sun[/bold] [dim]\\[{result.method}: {result.reason}][/dim]", highlight=False, soft_wrap=True
         )
+
+
+class Interp(str, Enum):
+    """``--interp`` of ``rotate`` / ``crop``."""
+
+    linear = "linear"
+    cubic = "cubic"
+
+
+def _output_writer(pano: Path, out: Path):
+    """Check ``out`` before any work (known suffix, not the input file); return its writer."""
+    from solidkit.envmap.io import LDR_SUFFIXES, tonemap, write_exr, write_ldr
+    from solidkit.errors import InputError
+
+    suffix = out.suffix.lower()
+    if suffix != ".exr" and suffix not in LDR_SUFFIXES:
+        raise InputError(f"{out}: unknown output type '{out.suffix}' (use .exr, or .png/.jpg for a tonemapped LDR)")
+    if out.exists() and pano.exists() and out.resolve() == pano.resolve():
+        raise InputError(f"{out}: refusing to overwrite the input panorama")
+
+    def write(img: np.ndarray, meta: dict, provenance: dict) -> None:
+        if suffix == ".exr":
+            attrs = {k: v for k, v in meta.items() if k not in ("header", "ldr", "conventions_version")}
+            attrs["provenance"] = provenance if "provenance" not in attrs else [attrs["provenance"], provenance]
+            write_exr(out, img, attrs)
+        elif meta.get("ldr"):  # LDR in (decoded to linear): encode back to sRGB
+            write_ldr(out, img, encode_srgb=True)
+        else:  # HDR in: the paper's tonemap (conventions §5)
+            write_ldr(out, tonemap(img))
+
+    return write
+
+
+@app.command()
+def rotate(
+    pano: Path = typer.Argument(..., help="Equirectangular panorama (EXR or LDR)."),
+    out: Path = typer.Argument(..., help="Output: .exr (linear HDR) or .png/.jpg (tonemapped LDR)."),
+    yaw: float = typer.Option(0.0, "--yaw", help="Degrees; > 0 moves the content to the right."),
+    pitch: float = typer.Option(0.0, "--pitch", help="Degrees; > 0 moves the forward content up."),
+    roll: float = typer.Option(0.0, "--roll", help="Degrees (conventions §4)."),
+    interp: Interp = typer.Option(Interp.linear, "--interp", help="Interpolation; cubic output is clamped at 0."),
+) -> None:
+    """Rotate a panorama: content in direction d moves to R(yaw, pitch, roll) d (conventions §4)."""
+    import math
+
+    from solidkit.envmap.coords import rotation_from_ypr
+    from solidkit.envmap.resample import rotate as rotate_pano
+
+    write = _output_writer(pano, out)
+    img, meta = load_panorama(pano)
+    R = rotation_from_ypr(math.radians(yaw), math.radians(pitch), math.radians(roll))
+    result = rotate_pano(img, R, interp.value)
+    if interp is Interp.cubic and img.min() >= 0:
+        result = np.maximum(result, 0.0)  # bicubic overshoot next to the sun
+    prov = {"op": "envmap rotate", "source": str(pano), "yaw_deg": yaw, "pitch_deg": pitch, "roll_deg": roll, "interp": interp.value}
+    write(result, meta, prov)
+    console.print(f"rotated {pano} by yaw {yaw}°, pitch {pitch}°, roll {roll}° -> {out}", highlight=False, soft_wrap=True)
+
+
+@app.command()
+def crop(
+    pano: Path = typer.Argument(..., help="Equirectangular panorama (EXR or LDR)."),
+    out: Path = typer.Argument(..., help="Output: .exr (linear HDR) or .png/.jpg (tonemapped LDR)."),
+    fov: float = typer.Option(..., "--fov", help="Horizontal field of view, degrees (0-180)."),
+    yaw: float = typer.Option(0.0, "--yaw", help="Viewing azimuth, degrees (> 0: right)."),
+    pitch: float = typer.Option(0.0, "--pitch", help="Viewing elevation, degrees (> 0: up)."),
+    roll: float = typer.Option(0.0, "--roll", help="Camera roll, degrees (> 0: right axis down)."),
+    size: str = typer.Option(..., "--size", help="Output size WIDTHxHEIGHT in pixels, e.g. 640x480."),
+    interp: Interp = typer.Option(Interp.linear, "--interp", help="Interpolation; cubic output is clamped at 0."),
+) -> None:
+    """Perspective (pinhole) view of a panorama, camera R(yaw, pitch, roll) (conventions §1, §4)."""
+    import math
+    import re
+
+    from solidkit.envmap.coords import rotation_from_ypr
+    from solidkit.envmap.perspective import intrinsics_from_fov, perspective_crop
+    from solidkit.errors import InputError
+
+    match = re.fullmatch(r"\s*(\d+)\s*[xX]\s*(\d+)\s*", size)
+    if not match or min(int(match[1]), int(match[2])) < 1 or max(int(match[1]), int(match[2])) > 32000:
+        raise InputError(f"--size must be WIDTHxHEIGHT with positive integers (e.g. 640x480), got '{size}'")
+    width, height = int(match[1]), int(match[2])
+    K = intrinsics_from_fov(math.radians(fov), width, height)  # validates fov
+    write = _output_writer(pano, out)
+    img, meta = load_panorama(pano)
+    R = rotation_from_ypr(math.radians(yaw), math.radians(pitch), math.radians(roll))
+    result = perspective_crop(img, R, (width, height), K=K, interp=interp.value)
+    if interp is Interp.cubic and img.min() >= 0:
+        result = np.maximum(result, 0.0)
+    prov = {
+        "op": "envmap crop", "source": str(pano), "fov_deg": fov, "yaw_deg": yaw, "pitch_deg": pitch,
+        "roll_deg": roll, "size": [width, height], "K": K.tolist(), "interp": interp.value,
+    }
+    write(result, meta, prov)
+    console.print(
+        f"cropped {pano}: {width}x{height}, fov {fov}°, yaw {yaw}°, pitch {pitch}°, roll {roll}° -> {out}",
+        highlight=False,
+        soft_wrap=True,
+    )
