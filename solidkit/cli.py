@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import sys
+from pathlib import Path
+from typing import Optional
 
 import typer
 
@@ -10,6 +12,7 @@ from solidkit.capture.campaign import ingest_cli
 from solidkit.capture.cli import app as capture_app
 from solidkit.envmap.cli import app as envmap_app
 from solidkit.errors import SolidkitError
+from solidkit.synth.cli import app as synth_app
 
 app = typer.Typer(
     name="solidkit",
@@ -20,7 +23,19 @@ app = typer.Typer(
 )
 app.add_typer(envmap_app, name="envmap", help="Inspect, rotate, crop panoramas and find the sun.")
 app.add_typer(capture_app, name="capture", help="Theta captures: metadata, dual-fisheye unwarping.")
+app.add_typer(synth_app, name="synth", help="Synthetic SOLID-Img-style data and a virtual campaign (Mitsuba 3).")
 app.command("ingest")(ingest_cli)
+
+
+@app.command()
+def demo(
+    out: Path = typer.Option(Path("demo_out"), help="Output folder."),
+    pano: Optional[Path] = typer.Option(None, help="HDR panorama to use (default: the shipped city.exr)."),
+) -> None:
+    """End-to-end demo on a real HDR panorama: sun, virtual photo, 256x128, SH, report."""
+    from solidkit.demo import DEFAULT_PANORAMA, run_demo
+
+    run_demo(out, pano or DEFAULT_PANORAMA, log=typer.echo)
 
 
 def main() -> None:
