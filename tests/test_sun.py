@@ -30,7 +30,6 @@ from solidkit.envmap.coords import (
     direction_from_angles,
     direction_from_coords,
     direction_grid,
-    solid_angle,
 )
 from solidkit.envmap.io import srgb_decode, srgb_encode, write_exr
 from solidkit.envmap.sun import (
@@ -217,6 +216,13 @@ def test_black_and_bad_input():
         detect_sun(bad)
     with pytest.raises(InputError):
         detect_sun(np.ones((8, 16, 3), np.float32), method="nope")
+    with pytest.raises(InputError, match="float"):
+        detect_sun(np.full((8, 16, 3), 255, np.uint8))
+    # RGBA: the alpha channel is ignored; single-channel and 2-D luminance maps work
+    img = add_sun(sky(64), 0.4, 0.2, psf=math.pi / 64)
+    rgba = np.concatenate([img, np.zeros_like(img[..., :1])], axis=2)
+    for variant in (rgba, luminance(img), luminance(img)[..., None]):
+        assert error_deg(detect_sun(variant), 0.4, 0.2) < 0.1
 
 
 # --------------------------------------------------------------------------------------------

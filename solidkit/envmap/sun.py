@@ -27,16 +27,18 @@ import math
 from dataclasses import dataclass
 from typing import Any, Literal
 
+import cv2
 import numpy as np
 from scipy import ndimage
 from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 
 from solidkit.envmap.coords import (
+    angles_from_coords,
     angles_from_direction,
     angular_distance,
     coords_from_direction,
-    direction_grid,
+    direction_from_coords,
     solid_angle,
 )
 from solidkit.envmap.io import validate_panorama
@@ -193,18 +195,18 @@ def spherical_centroid(weights: np.ndarray, mask: np.ndarray | None = None) -> n
 
     ``d = normalise(sum_p w_p Omega_p n_p)`` over the pixels in ``mask`` (all when ``None``), with
     ``n_p`` the unit direction and ``Omega_p`` the solid angle of pixel ``p``
-    (:func:`~solidkit.envmap.coords.direction_grid`, :func:`~solidkit.envmap.coords.solid_angle`).
+    (:func:`~solidkit.envmap.coords.direction_from_coords`, :func:`~solidkit.envmap.coords.solid_angle`).
     Returns the unit vector ``(3,)`` float64, or ``None`` when the weighted sum vanishes.
     """
-    weights = np.asarray(weights, dtype=np.float64)
+    weights = np.asarray(weights)
     h = weights.shape[0]
     if mask is None:
         mask = weights != 0
     rows, cols = np.nonzero(mask)
     if rows.size == 0:
         return None
-    w = weights[rows, cols] * solid_angle(h)[rows, cols]
-    dirs = _directions(h)[rows, cols]
+    w = weights[rows, cols].astype(np.float64) * solid_angle(h)[rows, cols]
+    dirs = _pixel_directions(rows, cols, h)
     s = (w[:, None] * dirs).sum(axis=0)
     norm = float(np.linalg.norm(s))
     if not np.isfinite(norm) or norm <= 1e-300 * max(float(np.abs(w).sum()), 1e-300):
@@ -212,16 +214,19 @@ def spherical_centroid(weights: np.ndarray, mask: np.ndarray | None = None) -> n
     return s / norm
 
 
-_DIR_CACHE: dict[int, np.ndarray] = {}
+def _pixel_directions(rows: np.ndarray, cols: np.ndarray, h: int) -> np.ndarray:
+    """Unit directions ``(n, 3)`` float64 of the centres of pixels ``(rows, cols)``."""
+    return direction_from_coords(cols + 0.5, rows + 0.5, h)
 
 
-def _directions(h: int) -> np.ndarray:
-    """Cached :func:`direction_grid` (float64); large panoramas are re-used by both methods."""
-    if h not in _DIR_CACHE:
-        if len(_DIR_CACHE) > 4:
-            _DIR_CACHE.clear()
-        _DIR_CACHE[h] = direction_grid(h)
-    return _DIR_CACHE[h]
+def _cos_to(h: int, centre: np.ndarray) -> np.ndarray:
+    """``cos`` of the angle between every pixel centre and ``centre`` (``(H, 2H)`` float32), built
+    from per-row and per-column factors instead of a full direction grid (large panoramas)."""
+    phi, theta = angles_from_coords(np.arange(2 * h) + 0.5, np.arange(h) + 0.5, h)
+    cols = (np.sin(phi) * centre[0] + np.cos(phi) * centre[2]).astype(np.float32)
+    return np.cos(theta).astype(np.float32)[:, None] * cols[None, :] - (
+        np.sin(theta) * centre[1]
+    ).astype(np.float32)[:, None]
 
 
 def _weighted_quantile(values: np.ndarray, weights: np.ndarray, q: float) -> float:
@@ -241,19 +246,41 @@ def _blur(lum: np.ndarray, sigma_px: float) -> np.ndarray:
     return ndimage.gaussian_filter(lum, sigma_px, mode=("nearest", "wrap"), truncate=3.0)
 
 
-def _background(lum: np.ndarray, omega: np.ndarray, centre: np.ndarray, exclude: float, q: float) -> float:
-    """Solid-angle-weighted ``q``-quantile of luminance outside a cap of radius ``exclude`` about ``centre``."""
+def _background(lum: np.ndarray, centre: np.ndarray, exclude: float, q: float, max_height: int = 512) -> float:
+    """Solid-angle-weighted ``q``-quantile of luminance outside a cap of radius ``exclude`` about
+    ``centre``: the bright-sky level. A smooth statistic, so it is taken on an area-averaged copy
+    at most ``max_height`` rows high (``cv2.INTER_AREA``), which keeps large panoramas fast."""
     h = lum.shape[0]
-    dirs = _directions(h)
-    outside = dirs @ centre < math.cos(exclude)
-    return _weighted_quantile(lum[outside], omega[outside], q)
+    if h > max_height:
+        small = max_height
+        lum = cv2.resize(lum, (2 * small, small), interpolation=cv2.INTER_AREA)
+        h = small
+    outside = _cos_to(h, centre) < math.cos(exclude)
+    return _weighted_quantile(lum[outside], solid_angle(h)[outside], q)
+
+
+def _component_stats(labels: np.ndarray, n: int, values: np.ndarray, omega: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Per-component peak of ``values`` and solid angle, for labels ``1 .. n`` (only labelled pixels are read)."""
+    sel = labels > 0
+    lab = labels[sel]
+    peaks = np.full(n + 1, -np.inf)
+    np.maximum.at(peaks, lab, values[sel].astype(np.float64))
+    areas = np.bincount(lab, weights=np.broadcast_to(omega, labels.shape)[sel], minlength=n + 1)
+    return peaks[1:], areas[1:]
 
 
 def _prepare(pano: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Validated ``(H, 2H, C)`` float panorama (C in 1, 3; negatives clipped) and its luminance."""
     pano = np.asarray(pano)
+    if not np.issubdtype(pano.dtype, np.floating):
+        raise InputError(f"expected a float (linear) panorama, got dtype {pano.dtype}; decode LDR with read_ldr(linear=True)")
     if pano.ndim == 2:
         pano = pano[..., None]
+    if pano.ndim == 3 and pano.shape[2] not in (1, 3):
+        pano = pano[..., :3]  # RGBA: alpha is not light
     validate_panorama(pano, "panorama")
+    if pano.shape[2] not in (1, 3):
+        raise InputError(f"panorama has {pano.shape[2]} channels; expected 1 or 3 (RGB)")
     if pano.shape[0] < 2:
         raise InputError(f"panorama of shape {pano.shape} is too small to look for the sun in")
     if np.any(pano < 0):
@@ -365,9 +392,7 @@ def sun_core(
     if not saturated:
         mask = lum_b >= rel_threshold * float(lum_b.max())
     labels, n = label_spherical(mask)
-    idx = np.arange(1, n + 1)
-    peaks = np.asarray(ndimage.maximum(lum_b, labels, idx), dtype=np.float64)
-    areas = np.asarray(ndimage.sum(omega, labels, idx), dtype=np.float64)
+    peaks, areas = _component_stats(labels, n, lum_b, omega)
     best = int(np.lexsort((areas, peaks))[-1]) + 1
     core = labels == best
     direction = spherical_centroid(lum, core)
@@ -375,7 +400,7 @@ def sun_core(
         return _result("core", None, h, confidence=0.0, reason="the candidate has no energy")
     peak = float(peaks[best - 1])
     size = _size(float(areas[best - 1]))
-    bg = _background(lum, omega, direction, exclude, background_quantile)
+    bg = _background(lum, direction, exclude, background_quantile)
     t = max(rel_centroid * peak, 2.0 * bg)
     skirt_labels, _ = label_spherical(lum_b >= t)
     skirt = np.isin(skirt_labels, np.unique(skirt_labels[core & (skirt_labels > 0)]))
@@ -444,8 +469,7 @@ def sun_paper(
     if not mask.any():  # e.g. a constant map: nothing is above its own percentile
         return _result("paper", None, h, confidence=0.0, reason=f"no pixel above the {percentile:g}th percentile")
     labels, n = label_spherical(mask)
-    idx = np.arange(1, n + 1)
-    areas = np.asarray(ndimage.sum(omega, labels, idx), dtype=np.float64)
+    _, areas = _component_stats(labels, n, lum, omega)
     best = int(np.argmax(areas)) + 1
     region = labels == best
     direction = spherical_centroid(lum if weighting == "luminance" else np.ones_like(lum), region)
@@ -454,14 +478,15 @@ def sun_paper(
     flat = np.where(region, lum, -np.inf)
     peak_pos = np.unravel_index(int(np.argmax(flat)), flat.shape)
     peak = float(lum[peak_pos])
-    bg = _background(lum, omega, _directions(h)[peak_pos], exclude, background_quantile)
+    peak_dir = _pixel_directions(np.array(peak_pos[0]), np.array(peak_pos[1]), h)
+    bg = _background(lum, peak_dir, exclude, background_quantile)
     contrast = peak / bg if bg > 0 else math.inf
     common = dict(contrast=contrast, size=_size(float(areas[best - 1])), n_pixels=int(region.sum()))
     if contrast < min_contrast:
         reason = f"largest bright component peaks only {contrast:.3g}x the bright sky (< {min_contrast:g}x)"
         return _result("paper", None, h, confidence=0.0, reason=reason, **common)
     energy = (lum * omega)[region]
-    near = _directions(h)[region] @ direction >= math.cos(concentration_radius)
+    near = _pixel_directions(*np.nonzero(region), h) @ direction >= math.cos(concentration_radius)
     frac = float(energy[near].sum() / energy.sum())
     confidence = float(np.clip(1.0 - min_contrast / contrast, 0.0, 1.0) * frac)
     reason = f"largest component above the {percentile:g}th percentile: {int(region.sum())} px"
