@@ -5,7 +5,7 @@ PY     := $(VENV)/bin/python
 TORCH  ?= torch==2.13.0
 STAMP  := $(VENV)/.solidkit-installed
 
-.PHONY: demo test test-slow test-real bench clean-venv
+.PHONY: demo test test-slow test-real bench clean-venv system-deps
 
 $(STAMP): pyproject.toml constraints.txt
 	test -x $(PY) || python3 -m venv $(VENV)
@@ -27,3 +27,8 @@ bench: $(STAMP)
 
 clean-venv:
 	rm -rf $(VENV)
+
+# Optional: Debian's LLVM 19 for Mitsuba's llvm_ad_rgb variant (solidkit.synth; LLVM 14/15 crash in drjit).
+# Without it solidkit.synth falls back to scalar_rgb (slow); make test does not need it.
+system-deps:
+	apt-get update && apt-get install -y libllvm19

@@ -1,0 +1,179 @@
+"""Cameras of the synthetic photos and probes, and the paper's "best view per 60° sector".
+
+A :class:`Camera` is an ideal OpenCV pinhole (conventions §1) at ``position`` in the scene
+frame (:mod:`solidkit.synth.scene`), oriented by ``R = rotation_from_ypr(yaw, pitch, roll)``
+(camera -> scene frame, conventions §4). Its *panorama frame* is ``R_y(yaw)``: the scene frame
+turned to the camera's heading, with pitch and roll removed (conventions §2).
+
+View selection (paper §3.1 and supplementary §2): for each of the six 60° heading sectors,
+candidate cameras are drawn at random walkable positions (sidewalks and road, away from
+obstacles), heading uniform in the sector, height ``1.55 ± 0.05`` m above the floor, pitch
+uniform within ±10° (roll within ±``max_roll``), an item buffer is rendered at low resolution
+and the candidate with the highest pixel coverage (non-sky fraction) among those showing at
+least ``min_categories`` object categories (each on >= 1% of the pixels) is kept.
+Deviation: a candidate whose largest single object fills more than ``max_object_share`` of the
+frame (default 0.5) is also rejected; coverage alone rewards staring at a wall from 1 m.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from solidkit.envmap import rotation_from_ypr, rotation_y
+from solidkit.synth.scene import CityBlock
+
+__all__ = ["Camera", "intrinsics", "pinhole_sensor", "equirect_sensor", "sample_candidate", "best_views"]
+
+
+def intrinsics(width: int, height: int, hfov_deg: float) -> np.ndarray:
+    """Ideal ``K`` with square pixels, horizontal FOV ``hfov_deg`` and ``c = ((W-1)/2, (H-1)/2)``."""
+    f = 0.5 * width / math.tan(math.radians(hfov_deg) / 2)
+    return np.array([[f, 0.0, (width - 1) / 2], [0.0, f, (height - 1) / 2], [0.0, 0.0, 1.0]])
+
+
+@dataclass
+class Camera:
+    """A pinhole camera; angles in radians, position in metres (scene frame)."""
+
+    K: np.ndarray
+    width: int
+    height: int
+    position: np.ndarray
+    yaw: float
+    pitch: float
+    roll: float = 0.0
+
+    @property
+    def rotation(self) -> np.ndarray:
+        """Camera -> scene frame, ``R_y(yaw) R_x(pitch) R_z(roll)``."""
+        return np.asarray(rotation_from_ypr(self.yaw, self.pitch, self.roll))
+
+    @property
+    def pano_rotation(self) -> np.ndarray:
+        """The camera's panorama frame -> scene frame, ``R_y(yaw)``."""
+        return np.asarray(rotation_y(self.yaw))
+
+    def scaled(self, width: int, height: int) -> "Camera":
+        """The same camera at another resolution (same FOV, principal point scaled about pixel centres)."""
+        sx, sy = width / self.width, height / self.height
+        K = self.K.copy()
+        K[0, 0] *= sx
+        K[1, 1] *= sy
+        K[0, 2] = (K[0, 2] + 0.5) * sx - 0.5
+        K[1, 2] = (K[1, 2] + 0.5) * sy - 0.5
+        return Camera(K, width, height, self.position.copy(), self.yaw, self.pitch, self.roll)
+
+    def rays(self) -> np.ndarray:
+        """Camera-frame rays ``v = ((x - cx)/fx, (y - cy)/fy, 1)`` of every pixel, ``(H, W, 3)``."""
+        y, x = np.mgrid[0 : self.height, 0 : self.width].astype(np.float64)
+        K = self.K
+        return np.stack([(x - K[0, 2]) / K[0, 0], (y - K[1, 2]) / K[1, 1], np.ones_like(x)], axis=-1)
+
+    def project(self, points: np.ndarray) -> np.ndarray:
+        """Pixel coordinates ``(..., 2)`` (OpenCV) of scene-frame points ``(..., 3)``."""
+        pc = (np.asarray(points) - self.position) @ self.rotation
+        uvw = pc @ self.K.T
+        return uvw[..., :2] / uvw[..., 2:3]
+
+    def to_json(self) -> dict[str, Any]:
+        """JSON-ready pose (angles in degrees, as at every user-facing edge)."""
+        return {"K": self.K.tolist(), "width": self.width, "height": self.height,
+                "position": [float(v) for v in self.position], "yaw_deg": math.degrees(self.yaw),
+                "pitch_deg": math.degrees(self.pitch), "roll_deg": math.degrees(self.roll),
+                "R_scene_from_camera": self.rotation.tolist()}
+
+    @classmethod
+    def from_json(cls, d: dict[str, Any]) -> "Camera":
+        return cls(np.asarray(d["K"], float), int(d["width"]), int(d["height"]), np.asarray(d["position"], float),
+                   math.radians(d["yaw_deg"]), math.radians(d["pitch_deg"]), math.radians(d["roll_deg"]))
+
+
+def _to_world(mi: Any, R: np.ndarray, t: np.ndarray) -> Any:
+    m = np.eye(4)
+    m[:3, :3] = R
+    m[:3, 3] = t
+    return mi.ScalarTransform4f(m.tolist())
+
+
+def _film(width: int, height: int) -> dict[str, Any]:
+    return {"type": "hdrfilm", "width": int(width), "height": int(height), "rfilter": {"type": "box"},
+            "pixel_format": "rgb", "sample_border": False}
+
+
+def pinhole_sensor(cam: Camera, *, jitter: bool = True, seed: int = 0, spp: int = 1) -> Any:
+    """A Mitsuba ``sk_pinhole`` sensor for ``cam`` (box filter, independent sampler)."""
+    from solidkit.synth.renderer import mitsuba
+
+    mi = mitsuba()
+    K = cam.K
+    return mi.load_dict({"type": "sk_pinhole", "fx": float(K[0, 0]), "fy": float(K[1, 1]), "cx": float(K[0, 2]),
+                         "cy": float(K[1, 2]), "jitter": jitter, "to_world": _to_world(mi, cam.rotation, cam.position),
+                         "film": _film(cam.width, cam.height),
+                         "sampler": {"type": "independent", "sample_count": int(spp), "seed": int(seed)}})
+
+
+def equirect_sensor(position: np.ndarray, rotation: np.ndarray, height: int, *, jitter: bool = True,
+                    seed: int = 0, spp: int = 1) -> Any:
+    """A Mitsuba ``sk_equirect`` sensor: a ``(height, 2 height)`` panorama at ``position`` whose frame is ``rotation``."""
+    from solidkit.synth.renderer import mitsuba
+
+    mi = mitsuba()
+    return mi.load_dict({"type": "sk_equirect", "jitter": jitter, "to_world": _to_world(mi, np.asarray(rotation), np.asarray(position)),
+                         "film": _film(2 * height, height),
+                         "sampler": {"type": "independent", "sample_count": int(spp), "seed": int(seed)}})
+
+
+def _inside(rects: list[tuple[float, float, float, float]], x: float, z: float) -> bool:
+    return any(x0 <= x <= x1 and z0 <= z <= z1 for x0, x1, z0, z1 in rects)
+
+
+def sample_candidate(block: CityBlock, rng: np.random.Generator, sector: int, K: np.ndarray, width: int, height: int,
+                     *, max_roll_deg: float = 2.0) -> Camera:
+    """One random camera in heading sector ``sector`` (0..5: yaw in ``[-180 + 60 s, -120 + 60 s)`` degrees)."""
+    areas = np.array([(r[1] - r[0]) * (r[3] - r[2]) for r in block.walkable])
+    for _ in range(1000):
+        r = block.walkable[int(rng.choice(len(areas), p=areas / areas.sum()))]
+        x, z = rng.uniform(r[0], r[1]), rng.uniform(r[2], r[3])
+        if not _inside(block.obstacles, x, z):
+            break
+    h = rng.uniform(1.50, 1.60)
+    yaw = math.radians(-180.0 + 60.0 * sector + rng.uniform(0.0, 60.0))
+    pitch = math.radians(rng.uniform(-10.0, 10.0))
+    roll = math.radians(rng.uniform(-max_roll_deg, max_roll_deg))
+    return Camera(K.copy(), width, height, np.array([x, r[4] - h, z]), yaw, pitch, roll)
+
+
+def best_views(block: CityBlock, scene: Any, rng: np.random.Generator, K: np.ndarray, width: int, height: int, *,
+               candidates: int = 16, min_categories: int = 3, max_object_share: float = 0.5, item_size: tuple[int, int] = (64, 48),
+               sectors: tuple[int, ...] = (0, 1, 2, 3, 4, 5)) -> list[tuple[Camera, dict[str, Any]]]:
+    """The best camera of each sector and its selection stats (coverage, categories, tries).
+
+    When no candidate of a sector qualifies, the one with the most categories (less its largest
+    object share) is kept and ``stats["accepted"]`` is False.
+    """
+    from solidkit.synth.sample import render_buffers
+
+    out = []
+    for s in sectors:
+        best: tuple[tuple[bool, float, int], Camera, dict[str, Any]] | None = None
+        for _ in range(candidates):
+            cam = sample_candidate(block, rng, s, K, width, height)
+            buf = render_buffers(scene, cam.scaled(*item_size), spp=1, shadows=False)
+            cats = block.category_of(buf["label"])
+            hit = cats >= 0
+            counts = np.bincount(cats[hit].ravel(), minlength=1)
+            ncat = int(np.sum(counts >= 0.01 * cats.size))
+            cov = float(hit.mean())
+            largest = float(np.bincount(buf["label"][hit].ravel()).max() / cats.size) if hit.any() else 0.0
+            ok = ncat >= min_categories and largest <= max_object_share
+            key = (ok, cov if ok else float(ncat) - largest, ncat)
+            if best is None or key > best[0]:
+                best = (key, cam, {"coverage": cov, "categories": ncat, "largest_object_share": largest, "accepted": ok})
+        assert best is not None
+        best[2]["candidates"] = candidates
+        out.append((best[1], best[2]))
+    return out

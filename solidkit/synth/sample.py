@@ -1,0 +1,293 @@
+"""One SOLID-Img-style sample: HDR/LDR image, intrinsic buffers, global map and 4 local probes.
+
+Buffers (all ``(H, W)`` or ``(H, W, 3)`` float32, 0 on sky pixels; paper §3.1):
+
+- ``albedo``: diffuse albedo (``BSDF.eval_diffuse_reflectance``), linear RGB;
+- ``normal``: unit surface normal facing the camera, **camera frame** (x right, y down, z forward);
+- ``depth``: z-depth along the optical axis, metres (``P = depth * v`` with ``v = ((x-cx)/fx, (y-cy)/fy, 1)``);
+- ``plane_distance``: Im2Pano3D's distance of the pixel's tangent plane to the camera,
+  ``p = -n . P = -depth (n . v)`` (>= 0 for camera-facing normals), so that the paper's
+  reprojection ``P = -p / (v . n) v`` (§4.2) recovers the point;
+- ``shadow``: ratio of the direct irradiance of a white Lambertian surface with and without
+  shadow rays, from the same emitter samples (paper: "render twice with shadows on and off"),
+  in [0, 1]; 1 = unshadowed.
+
+Geometric buffers use one ray through each pixel centre (exact per pixel); the shadow
+estimate uses ``buffer_spp`` emitter samples at that same point. The photo is path traced with
+``spp`` samples jittered in each pixel (box filter). The global map is the environment alone
+seen from the camera's panorama frame (``R_y(yaw)``); probes are 256x128 HDR panoramas in the
+same frame, centred 10 cm along the normal off the surface point seen at one random pixel per
+image quadrant (not sky, not within 5% of the border).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from solidkit.envmap import CONVENTIONS_VERSION, angles_from_direction, tonemap, write_exr, write_ldr
+from solidkit.fsutil import atomic_write_text
+from solidkit.synth.cameras import Camera, best_views, equirect_sensor, intrinsics, pinhole_sensor
+from solidkit.synth.lighting import Lighting, random_lighting
+from solidkit.synth.plugins import BUFFER_AOVS
+from solidkit.synth.scene import CATEGORIES, CityBlock, city_block, to_mitsuba
+
+__all__ = ["SampleConfig", "render_rgb", "render_buffers", "render_panorama", "pick_probe_pixels", "Generator",
+           "derive_seed", "FILES"]
+
+FILES = {
+    "image": "image.exr", "ldr": "image.png", "albedo": "albedo.exr", "normal": "normal.exr", "depth": "depth.exr",
+    "plane_distance": "plane_distance.exr", "shadow": "shadow.exr", "category": "category.png", "global": "global.exr",
+    "probes": ["probe_0.exr", "probe_1.exr", "probe_2.exr", "probe_3.exr"], "meta": "sample.json",
+}
+VIEWS_PER_BLOCK = 6
+
+
+@dataclass
+class SampleConfig:
+    """Renderer settings of a dataset (recorded in every sample JSON)."""
+
+    width: int = 320
+    height: int = 240
+    hfov_deg: float = 60.0
+    spp: int = 64
+    max_depth: int = 6
+    buffer_spp: int = 32
+    env_height: int = 128
+    env_spp: int = 64
+    probe_height: int = 128
+    probe_spp: int = 32
+    probe_offset_m: float = 0.10
+    border: float = 0.05
+    candidates: int = 12
+    min_categories: int = 3
+    max_object_share: float = 0.5
+    item_size: tuple[int, int] = (64, 48)
+    light_height: int = 512
+    tex_size: int = 64
+    p_sunsky: float = 0.5
+
+    def to_json(self) -> dict[str, Any]:
+        d = asdict(self)
+        d["item_size"] = list(self.item_size)
+        return d
+
+    @classmethod
+    def from_json(cls, d: dict[str, Any]) -> "SampleConfig":
+        d = dict(d)
+        d["item_size"] = tuple(d.get("item_size", (64, 48)))
+        return cls(**{k: v for k, v in d.items() if k in cls.__dataclass_fields__})
+
+
+def derive_seed(*parts: int) -> int:
+    """A 31-bit seed derived from integers (stable across runs and platforms; fits Mitsuba's samplers)."""
+    return int(np.random.SeedSequence([int(p) & 0xFFFFFFFF for p in parts]).generate_state(1, np.uint32)[0] & 0x7FFFFFFF)
+
+
+def _integrator(kind: str, **props: Any) -> Any:
+    from solidkit.synth.renderer import mitsuba
+
+    mi = mitsuba()
+    return mi.load_dict({"type": kind, **props})
+
+
+def render_rgb(scene: Any, sensor: Any, spp: int, *, max_depth: int = 6, seed: int = 0) -> np.ndarray:
+    """Path-traced linear RGB ``(H, W, 3)`` float32."""
+    from solidkit.synth.renderer import mitsuba
+
+    mi = mitsuba()
+    img = mi.render(scene, sensor=sensor, integrator=_integrator("path", max_depth=int(max_depth)), spp=int(spp),
+                    seed=int(seed) & 0x7FFFFFFF)
+    return np.array(img, dtype=np.float32)[..., :3]
+
+
+def render_buffers(scene: Any, cam: Camera, *, spp: int = 16, shadows: bool = True, seed: int = 0) -> dict[str, np.ndarray]:
+    """Intrinsic buffers of ``cam`` (see module doc): raw AOVs plus derived camera-frame quantities.
+
+    Returns ``t`` (ray distance), ``normal_world``, ``normal`` (camera frame), ``albedo``,
+    ``label`` (object id, -1 = sky), ``depth``, ``plane_distance``, ``shadow`` and ``hit`` (bool).
+    """
+    from solidkit.synth.renderer import mitsuba
+
+    mi = mitsuba()
+    sensor = pinhole_sensor(cam, jitter=False, spp=spp, seed=seed)
+    raw = np.array(mi.render(scene, sensor=sensor, integrator=_integrator("sk_buffers", shadows=shadows), spp=int(spp),
+                             seed=int(seed) & 0x7FFFFFFF), dtype=np.float64)
+    aov = {name: raw[..., raw.shape[-1] - len(BUFFER_AOVS) + i] for i, name in enumerate(BUFFER_AOVS)}
+    hit = aov["label"] > -0.5
+    nw = np.stack([aov["nx"], aov["ny"], aov["nz"]], -1)
+    nw /= np.maximum(np.linalg.norm(nw, axis=-1, keepdims=True), 1e-12)
+    nw[~hit] = 0.0
+    ncam = nw @ cam.rotation  # R^T n for row vectors
+    v = cam.rays()
+    depth = np.where(hit, aov["t"] / np.linalg.norm(v, axis=-1), 0.0)
+    plane = np.where(hit, -depth * np.sum(ncam * v, axis=-1), 0.0)
+    off = aov["shadow_off"]
+    shadow = np.where(hit & (off > 0), np.clip(aov["shadow_on"] / np.maximum(off, 1e-20), 0.0, 1.0), np.where(hit, 0.0, 1.0))
+    albedo = np.stack([aov["albedo_r"], aov["albedo_g"], aov["albedo_b"]], -1)
+    return {"t": aov["t"].astype(np.float32), "normal_world": nw.astype(np.float32), "normal": ncam.astype(np.float32),
+            "albedo": albedo.astype(np.float32), "label": np.where(hit, np.round(aov["label"]), -1).astype(np.int32),
+            "depth": depth.astype(np.float32), "plane_distance": plane.astype(np.float32),
+            "shadow": shadow.astype(np.float32), "hit": hit}
+
+
+def render_panorama(scene: Any, position: np.ndarray, rotation: np.ndarray, height: int, spp: int, *,
+                    max_depth: int = 6, seed: int = 0) -> np.ndarray:
+    """HDR equirect ``(height, 2 height, 3)`` seen from ``position`` in the frame ``rotation`` (conventions §3)."""
+    sensor = equirect_sensor(position, rotation, height, jitter=True, spp=spp, seed=seed)
+    return render_rgb(scene, sensor, spp, max_depth=max_depth, seed=seed)
+
+
+def pick_probe_pixels(hit: np.ndarray, rng: np.random.Generator, border: float = 0.05) -> list[dict[str, Any]]:
+    """One random valid pixel per image quadrant (TL, TR, BL, BR): a surface, not within ``border`` of the edge.
+
+    A quadrant without a valid pixel borrows one from the whole valid area (``quadrant`` is then -1).
+    Returns dicts with ``pixel`` ``[x, y]`` and ``quadrant``.
+    """
+    h, w = hit.shape
+    bx, by = int(math.ceil(border * w)), int(math.ceil(border * h))
+    valid = np.zeros_like(hit)
+    valid[by : h - by, bx : w - bx] = hit[by : h - by, bx : w - bx]
+    if not valid.any():
+        return []
+    out = []
+    for q, (ys, xs) in enumerate([(slice(0, h // 2), slice(0, w // 2)), (slice(0, h // 2), slice(w // 2, w)),
+                                  (slice(h // 2, h), slice(0, w // 2)), (slice(h // 2, h), slice(w // 2, w))]):
+        mask = np.zeros_like(valid)
+        mask[ys, xs] = valid[ys, xs]
+        quadrant = q
+        if not mask.any():
+            mask, quadrant = valid, -1
+        yy, xx = np.nonzero(mask)
+        i = int(rng.integers(len(yy)))
+        out.append({"pixel": [int(xx[i]), int(yy[i])], "quadrant": quadrant})
+    return out
+
+
+def _sun_json(sun: np.ndarray | None, cam: Camera) -> dict[str, Any]:
+    if sun is None:
+        return {"found": False}
+    d = cam.pano_rotation.T @ sun
+    az, el = angles_from_direction(d)
+    return {"found": True, "direction_scene": [float(x) for x in sun], "direction_pano": [float(x) for x in d],
+            "azimuth_deg": math.degrees(float(az)), "elevation_deg": math.degrees(float(el))}
+
+
+@dataclass
+class Generator:
+    """Renders samples ``index`` of a dataset with master ``seed`` (block ``index // 6``, sector ``index % 6``).
+
+    Blocks and their six selected views are cached, so consecutive indices (one shard) reuse them.
+    """
+
+    seed: int
+    config: SampleConfig = field(default_factory=SampleConfig)
+    _cache: dict[int, tuple[CityBlock, list[tuple[Camera, dict[str, Any]]]]] = field(default_factory=dict, repr=False)
+
+    def block_and_views(self, block_id: int) -> tuple[CityBlock, list[tuple[Camera, dict[str, Any]]]]:
+        if block_id not in self._cache:
+            cfg = self.config
+            block = city_block(derive_seed(self.seed, block_id, 1))
+            geometry = to_mitsuba(block, None, tex_size=8)
+            K = intrinsics(cfg.width, cfg.height, cfg.hfov_deg)
+            rng = np.random.default_rng(derive_seed(self.seed, block_id, 2))
+            views = best_views(block, geometry, rng, K, cfg.width, cfg.height, candidates=cfg.candidates,
+                               min_categories=cfg.min_categories, max_object_share=cfg.max_object_share,
+                               item_size=cfg.item_size)
+            self._cache.clear()
+            self._cache[block_id] = (block, views)
+        return self._cache[block_id]
+
+    def lighting(self, index: int) -> Lighting:
+        rng = np.random.default_rng(derive_seed(self.seed, index, 3))
+        return random_lighting(rng, p_sunsky=self.config.p_sunsky, height=self.config.light_height)
+
+    def render(self, index: int, out_dir: str | Path, *, timings: dict[str, float] | None = None) -> dict[str, Any]:
+        """Render sample ``index`` into ``out_dir`` (created); returns its JSON record.
+
+        ``sample.json`` is written last, so a folder with it is complete (resumability).
+        """
+        import time
+
+        from solidkit.synth.renderer import mitsuba, variant
+
+        mi = mitsuba()
+        cfg = self.config
+        out = Path(out_dir)
+        tm = timings if timings is not None else {}
+        t0 = time.perf_counter()
+        block_id, sector = divmod(int(index), VIEWS_PER_BLOCK)
+        block, views = self.block_and_views(block_id)
+        cam, view_stats = views[sector]
+        tm["views"] = time.perf_counter() - t0
+        t0 = time.perf_counter()
+        light = self.lighting(index)
+        emitter = light.emitter()
+        scene = to_mitsuba(block, emitter, tex_size=cfg.tex_size)
+        env_scene = to_mitsuba(None, light.emitter())
+        tm["scene"] = time.perf_counter() - t0
+        sseed = derive_seed(self.seed, index, 4)
+
+        t0 = time.perf_counter()
+        hdr = render_rgb(scene, pinhole_sensor(cam, spp=cfg.spp, seed=sseed), cfg.spp, max_depth=cfg.max_depth, seed=sseed)
+        tm["image"] = time.perf_counter() - t0
+        t0 = time.perf_counter()
+        buf = render_buffers(scene, cam, spp=cfg.buffer_spp, seed=sseed + 1)
+        tm["buffers"] = time.perf_counter() - t0
+        t0 = time.perf_counter()
+        glob = render_panorama(env_scene, np.zeros(3), cam.pano_rotation, cfg.env_height, cfg.env_spp, seed=sseed + 2)
+        tm["global"] = time.perf_counter() - t0
+
+        t0 = time.perf_counter()
+        rng = np.random.default_rng(derive_seed(self.seed, index, 5))
+        probes = pick_probe_pixels(buf["hit"], rng, cfg.border)
+        R = cam.rotation
+        probe_imgs = []
+        for k, p in enumerate(probes):
+            x, y = p["pixel"]
+            v = cam.rays()[y, x]
+            d = R @ (v / np.linalg.norm(v))
+            point = cam.position + float(buf["t"][y, x]) * d
+            n = buf["normal_world"][y, x].astype(np.float64)
+            centre = point + cfg.probe_offset_m * n
+            p.update(point_scene=point.tolist(), normal_scene=n.tolist(), centre_scene=centre.tolist(),
+                     point_camera=((point - cam.position) @ R).tolist(), depth=float(buf["depth"][y, x]),
+                     category=CATEGORIES[block.category_of(np.array([buf["label"][y, x]]))[0]])
+            probe_imgs.append(render_panorama(scene, centre, cam.pano_rotation, cfg.probe_height, cfg.probe_spp,
+                                              max_depth=cfg.max_depth, seed=sseed + 10 + k))
+        tm["probes"] = time.perf_counter() - t0
+
+        t0 = time.perf_counter()
+        out.mkdir(parents=True, exist_ok=True)
+        prov = {"generator": "solidkit.synth", "index": int(index), "seed": int(self.seed)}
+        write_exr(out / FILES["image"], hdr, prov)
+        write_ldr(out / FILES["ldr"], np.asarray(tonemap(hdr)))
+        write_exr(out / FILES["albedo"], buf["albedo"], prov)
+        write_exr(out / FILES["normal"], buf["normal"], {**prov, "frame": "camera (x right, y down, z forward)"})
+        write_exr(out / FILES["depth"], buf["depth"], {**prov, "units": "m", "kind": "z-depth"})
+        write_exr(out / FILES["plane_distance"], buf["plane_distance"], {**prov, "units": "m"})
+        write_exr(out / FILES["shadow"], buf["shadow"], prov)
+        cats = block.category_of(buf["label"])
+        write_ldr(out / FILES["category"], np.where(cats >= 0, cats + 1, 0).astype(np.uint8)[..., None].repeat(3, -1))
+        write_exr(out / FILES["global"], glob, {**prov, "frame": "camera panorama frame"})
+        for k, img in enumerate(probe_imgs):
+            write_exr(out / FILES["probes"][k], img, {**prov, "frame": "camera panorama frame", "probe": k})
+        record = {
+            "index": int(index), "seed": int(self.seed), "sample_seed": int(sseed), "block_seed": int(block.seed),
+            "block_id": block_id, "sector": sector, "conventions_version": CONVENTIONS_VERSION,
+            "camera": cam.to_json(), "view_selection": view_stats, "lighting": light.meta,
+            "sun": _sun_json(light.sun, cam), "probes": probes,
+            "categories": list(CATEGORIES),
+            "files": {k: v for k, v in FILES.items() if k != "meta"},
+            "renderer": {"mitsuba": mi.__version__, "variant": variant(), **cfg.to_json()},
+            "frames": {"scene": "x right, y down (gravity), z forward; ground y = 0; metres",
+                       "pano": "R_y(yaw) of the camera (conventions §2)", "normal": "camera frame"},
+        }
+        atomic_write_text(out / FILES["meta"], json.dumps(record, indent=1))
+        tm["write"] = time.perf_counter() - t0
+        return record
