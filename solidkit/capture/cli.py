@@ -98,3 +98,38 @@ def eval_fraction(text: str) -> float:
         num, den = text.split("/", 1)
         return float(num) / float(den)
     return float(text)
+
+
+@app.command()
+def unwarp(
+    src: Path = typer.Argument(..., help="Dual-fisheye (JPEG, DNG, EXR) or stitched equirect capture."),
+    out: Path = typer.Argument(..., help="Output panorama: .exr (linear HDR) or .png/.jpg (sRGB)."),
+    profile: str | None = typer.Option(None, "--profile", help="Lens profile: a shipped name (theta-v, theta-z1, theta-s, theta-s-video) or a unit.json; default from the EXIF model."),
+    size: str | None = typer.Option(None, "--size", help="Output WxH (W = 2H); default: width of the input."),
+    feather: float = typer.Option(10.0, "--feather", help="Seam cross-fade band, degrees of incidence angle."),
+    level: bool = typer.Option(True, "--level/--no-level", help="Apply the metadata's gravity (pitch/roll) so the horizon is level."),
+    gain: bool = typer.Option(True, "--gain/--no-gain", help="Match the lenses' gains on the overlap (linear light)."),
+    cache_dir: Path | None = typer.Option(None, "--cache-dir", help="Also cache remap tables on disk here."),
+    as_json: bool = typer.Option(False, "--json", help="Print the summary as JSON."),
+) -> None:
+    """Dual-fisheye -> equirectangular panorama in the panorama frame (docs/conventions.md)."""
+    from solidkit.capture.unwarp import unwarp_file
+
+    s = unwarp_file(src, out, profile=profile, size=size, feather_deg=feather, level=level, gain_match=gain, cache_dir=cache_dir)
+    if as_json:
+        typer.echo(json.dumps(s, indent=1, default=str))
+        return
+    table = Table(title=escape(str(out)), show_header=False)
+    table.add_row("mode", escape(s["mode"]))
+    if "profile" in s:
+        table.add_row("profile / size", f"{escape(s['profile'])} -> {s['size'][0]} x {s['size'][1]}")
+        table.add_row("lens gains (R,G,B)", "; ".join(", ".join(f"{g:.3f}" for g in lg) for lg in s["gains"]))
+        table.add_row("seam disagreement", f"median |diff| {s['seam_mad']:.4g} (before gain match {s['seam_mad_before_gain']:.4g}), rmse {s['seam_rmse']:.4g}")
+        table.add_row("coverage", f"{100 * s['coverage']:.2f} % of output pixels")
+        table.add_row("remap tables", s["cache"])
+    if s.get("level_pitch_roll_deg"):
+        table.add_row("levelled (pitch, roll)", ", ".join(f"{a:.2f}°" for a in s["level_pitch_roll_deg"]))
+    table.add_row("time", f"{s['seconds']:.2f} s")
+    for w in s["warnings"]:
+        table.add_row("[yellow]warning[/]", escape(w))
+    console.print(table)

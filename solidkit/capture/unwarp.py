@@ -300,3 +300,120 @@ def render_fisheye(
         out[sel] = vals
         taken |= sel
     return out
+
+
+def parse_size(text: str | None) -> int | None:
+    """``"2048x1024"`` -> output height 1024 (the equirect width must be twice the height)."""
+    if text is None:
+        return None
+    try:
+        w, h = (int(x) for x in text.lower().split("x"))
+    except ValueError:
+        raise InputError(f"--size {text!r}: expected WxH, e.g. 2048x1024") from None
+    if w != 2 * h or h < 2:
+        raise InputError(f"--size {text}: an equirectangular panorama needs W = 2 H (>= 4x2)")
+    return h
+
+
+def _read_linear(path: Path) -> tuple[np.ndarray, float | None]:
+    """Linear image and the clipping level used for gain estimation (None for HDR)."""
+    from solidkit.capture.raw import is_raw_file, read_raw
+    from solidkit.envmap.io import read_exr, read_ldr
+
+    if path.suffix.lower() == ".exr":
+        img, _ = read_exr(path)
+        return img[..., :3], None
+    if is_raw_file(path):
+        raw = read_raw(path)
+        return raw.linear, None
+    return read_ldr(path, linear=True), 0.98
+
+
+def _write(path: Path, linear: np.ndarray, meta: dict) -> None:
+    from solidkit.envmap.io import write_exr, write_ldr
+
+    if path.suffix.lower() == ".exr":
+        write_exr(path, linear, meta)
+    else:
+        write_ldr(path, np.clip(linear, 0.0, 1.0), encode_srgb=True)
+
+
+def unwarp_file(
+    src: str | os.PathLike,
+    dst: str | os.PathLike,
+    *,
+    profile: str | os.PathLike | None = None,
+    size: str | None = None,
+    feather_deg: float = 10.0,
+    level: bool = True,
+    gain_match: bool = True,
+    cache_dir: str | os.PathLike | None = None,
+) -> dict:
+    """``solidkit capture unwarp``: a capture file -> an equirect panorama in the panorama frame.
+
+    Dual-fisheye input goes through the lens profile (``profile``: a shipped name or a unit JSON;
+    default: the shipped profile of the EXIF camera model). Stitched equirect input is levelled
+    from its metadata, or copied byte for byte when no rotation (and no resize) is needed.
+    Returns a summary dict (what was done, gains, seam disagreement, timings).
+    """
+    import shutil
+    import time
+
+    from solidkit.capture.lens import load_profile, profile_for_metadata
+    from solidkit.capture.metadata import level_rotation, read_metadata
+    from solidkit.envmap.resample import resize, rotate
+    from solidkit.fsutil import atomic_path, sha256_file
+
+    src, dst = Path(src), Path(dst)
+    if src.resolve() == dst.resolve():
+        raise InputError(f"{dst}: refusing to overwrite the input (originals are never modified)")
+    t0 = time.perf_counter()
+    meta = read_metadata(src) if src.suffix.lower() != ".exr" else None
+    summary: dict[str, Any] = {"input": str(src), "output": str(dst), "warnings": list(meta.warnings) if meta else []}
+    out_h = parse_size(size)
+    R = level_rotation(meta) if (meta is not None and level) else np.eye(3)
+    summary["level_pitch_roll_deg"] = (
+        [meta.pitch_deg, meta.roll_deg] if meta is not None and level and not np.allclose(R, np.eye(3)) else None
+    )
+    stitched = meta is not None and meta.image_type == "equirect" and profile is None
+    if stitched:
+        w, h = meta.width, meta.height
+        if w != 2 * h:
+            raise InputError(f"{src}: marked equirectangular but {w}x{h} is not 2:1")
+        identity = np.allclose(R, np.eye(3), atol=1e-12)
+        if identity and (out_h is None or out_h == h) and src.suffix.lower() == dst.suffix.lower():
+            with atomic_path(dst) as tmp:
+                shutil.copyfile(src, tmp)
+            summary.update(mode="stitched: copied unchanged (no rotation needed)", resampled=False)
+        else:
+            img, _ = _read_linear(src)
+            if out_h is not None and out_h < img.shape[0]:
+                img = resize(img, out_h)  # energy-preserving downsampling first, then one rotation
+            if not identity:
+                img = rotate(img, R, "linear", height=out_h)  # out(d) = in(R^T d): camera -> level frame
+            elif out_h is not None and out_h != img.shape[0]:
+                img = resize(img, out_h)
+            _write(dst, img, {"source": str(src), "source_sha256": sha256_file(src), "rotation": R.tolist()})
+            summary.update(mode="stitched: levelled from metadata" if not identity else "stitched: re-encoded", resampled=not identity or out_h is not None)
+        summary["seconds"] = time.perf_counter() - t0
+        return summary
+    img, saturation = _read_linear(src)
+    h, w = img.shape[:2]
+    if profile is not None:
+        prof = load_profile(profile)
+    else:
+        prof = profile_for_metadata(meta.model if meta else None, w, h)
+    if meta is not None and meta.image_type == "dual_fisheye_upright":
+        summary["warnings"].append("upright_dual_fisheye: the camera already rotated the circles upright; no gravity applied")
+        R = np.eye(3)
+    out_h = out_h or max(2, w // 4 * 2 // 2)
+    stats: dict[str, Any] = {}
+    t1 = time.perf_counter()
+    pano = unwarp(img, prof, out_h, R, feather_deg=feather_deg, gain_match=gain_match, saturation=saturation,
+                  cache_dir=cache_dir, stats=stats)
+    t2 = time.perf_counter()
+    _write(dst, pano, {"source": str(src), "source_sha256": sha256_file(src), "profile": prof.model,
+                       "profile_key": prof.key(), "rotation": R.tolist(), "gains": stats["gains"]})
+    summary.update(mode="dual-fisheye unwarped", profile=prof.model, size=[2 * out_h, out_h], resampled=True,
+                   unwarp_seconds=t2 - t1, seconds=time.perf_counter() - t0, **stats)
+    return summary
