@@ -344,7 +344,23 @@ def test_real_courtyard_sun_is_occluded(real_data):
 
 
 def _run(*args):
+    """The installed ``solidkit`` entry point, in a subprocess."""
     return subprocess.run([str(SOLIDKIT), "envmap", "sun", *map(str, args)], capture_output=True, text=True)
+
+
+def _main(capsys, monkeypatch, *args):
+    """``solidkit.cli.main`` in-process (same error handling as the entry point, without the
+    start-up cost): returns ``(exit code, stdout, stderr)``."""
+    from solidkit.cli import main
+
+    monkeypatch.setattr(sys, "argv", ["solidkit", "envmap", "sun", *map(str, args)])
+    try:
+        main()
+        code = 0
+    except SystemExit as exc:
+        code = exc.code
+    out = capsys.readouterr()
+    return code, out.out, out.err
 
 
 @pytest.fixture(scope="module")
@@ -354,25 +370,43 @@ def sun_exr(tmp_path_factory):
     return write_exr(tmp_path_factory.mktemp("sun") / "sun.exr", img), img
 
 
-def test_cli_json_and_summary(sun_exr):
+def test_cli_json_entry_point(sun_exr):
     path, img = sun_exr
     out = _run(path, "--json")
     assert out.returncode == 0, out.stderr
     data = json.loads(out.stdout)
     assert set(data) == {"found", "azimuth_deg", "elevation_deg", "confidence"}
-    expected = detect_sun(img).to_json()
-    assert data == pytest.approx(expected)
+    assert data == pytest.approx(detect_sun(img).to_json())
     assert data["found"] is True
     assert abs(data["elevation_deg"] - 30.0) < 0.1 and abs(abs(data["azimuth_deg"]) - 179.8) < 0.1
-    out = _run(path)
-    assert out.returncode == 0 and len(out.stdout.strip().splitlines()) == 1
-    assert "azimuth" in out.stdout and "elevation" in out.stdout
-    paper = json.loads(_run(path, "--json", "--method", "paper").stdout)
-    assert paper == pytest.approx(detect_sun(img, method="paper").to_json())
+    bad = _run(path.with_name("missing.exr"))
+    assert bad.returncode != 0 and bad.stdout == "" and "Traceback" not in bad.stderr
+    assert len(bad.stderr.strip().splitlines()) == 1
+
+
+def test_cli_summary_and_paper_method(sun_exr, capsys, monkeypatch):
+    path, img = sun_exr
+    code, out, _ = _main(capsys, monkeypatch, path)
+    assert code == 0 and len(out.strip().splitlines()) == 1
+    assert "azimuth" in out and "elevation" in out
+    expected = detect_sun(img)
+    assert f"{expected.azimuth_deg:.2f}" in out and f"{expected.elevation_deg:.2f}" in out
+    code, out, _ = _main(capsys, monkeypatch, path, "--json", "--method", "paper")
+    assert code == 0
+    assert json.loads(out) == pytest.approx(detect_sun(img, method="paper").to_json())
+
+
+def test_cli_no_sun(tmp_path, capsys, monkeypatch):
+    path = write_exr(tmp_path / "overcast.exr", sky(32))
+    code, out, _ = _main(capsys, monkeypatch, path, "--json")
+    assert code == 0
+    assert json.loads(out) == {"found": False, "azimuth_deg": None, "elevation_deg": None, "confidence": 0.0}
+    code, out, _ = _main(capsys, monkeypatch, path)
+    assert code == 0 and out.startswith("no sun")
 
 
 @pytest.mark.parametrize("kind", ["missing", "not_image", "not_exr", "wrong_shape", "nan"])
-def test_cli_bad_input_is_one_line(tmp_path, kind):
+def test_cli_bad_input_is_one_line(tmp_path, capsys, monkeypatch, kind):
     if kind == "missing":
         path = tmp_path / "missing.exr"
     elif kind == "not_image":
@@ -388,8 +422,16 @@ def test_cli_bad_input_is_one_line(tmp_path, kind):
         img[3, 4, 0] = np.inf
         img[5, 6, 2] = np.nan
         path = write_exr(tmp_path / "nan.exr", img)
-    out = _run(path, "--json")
-    assert out.returncode != 0
-    assert out.stdout == ""
-    lines = out.stderr.strip().splitlines()
-    assert len(lines) == 1 and lines[0].startswith("error:") and "Traceback" not in out.stderr
+    code, out, err = _main(capsys, monkeypatch, path, "--json")
+    assert code != 0
+    assert out == ""
+    lines = err.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("error:") and "Traceback" not in err
+    expected = {
+        "missing": "no such file",
+        "not_image": "unknown image type",
+        "not_exr": "not a readable EXR",
+        "wrong_shape": "width must be 2",
+        "nan": "NaN or Inf",
+    }
+    assert expected[kind] in lines[0]
