@@ -50,10 +50,10 @@ def main() -> None:
         sys.exit(130)
     except typer.Exit as exc:
         sys.exit(exc.exit_code)
-    except Exception as exc:  # click usage errors and anything unforeseen: still one line
-        import click
+    except Exception as exc:  # usage errors and anything unforeseen: still one line
+        from typer._click.exceptions import ClickException  # typer >= 0.16 vendors click
 
-        if isinstance(exc, click.ClickException):
+        if isinstance(exc, ClickException):
             exc.show()
             sys.exit(exc.exit_code)
         typer.secho(f"error: {type(exc).__name__}: {exc}", err=True, fg="red")

@@ -94,3 +94,11 @@ def test_torch_gradients_flow():
     d = C.direction_from_angles(phi, torch.tensor([0.1]))
     d[..., 0].sum().backward()
     assert phi.grad is not None and phi.grad.abs().item() > 0
+
+
+def test_azimuth_of_back_direction_is_minus_pi():
+    for d in (np.array([0.0, 0.0, -1.0]), np.array([1e-17, 0.0, -1.0]), np.array([-0.0, 0.0, -1.0])):
+        phi, _ = C.angles_from_direction(d)
+        assert -math.pi <= float(phi) < math.pi
+    phi_t, _ = C.angles_from_direction(torch.tensor([1e-17, 0.0, -1.0], dtype=torch.float64))
+    assert float(phi_t) == pytest.approx(-math.pi)

@@ -94,6 +94,7 @@ def angles_from_direction(d: Any) -> tuple[Any, Any]:
     xp = namespace(d)
     norm = xp.sqrt(xp.sum(d * d, axis=-1))
     phi = xp.atan2(d[..., 0], d[..., 2])
+    phi = xp.where(phi >= math.pi, phi - 2 * math.pi, phi)  # atan2(+0, -1) = +pi; keep [-pi, pi)
     theta = xp.asin(xp.clip(-d[..., 1] / norm, -1.0, 1.0))
     return phi, theta
 
