@@ -26,7 +26,7 @@ import numpy as np
 
 from solidkit.errors import InputError
 
-__all__ = ["BoardView", "board_points", "find_corners", "detect_views", "render_board", "read_gray"]
+__all__ = ["BoardView", "board_points", "find_corners", "detect_views", "pixel_rays", "render_board", "read_gray"]
 
 
 @dataclass
@@ -115,15 +115,24 @@ def detect_views(
     return views
 
 
+def pixel_rays(rays: Callable[[np.ndarray, np.ndarray], np.ndarray], size: tuple[int, int], supersample: int = 2) -> list[np.ndarray]:
+    """Camera rays (H, W, 3) of every sub-pixel sample used by :func:`render_board` (reuse them
+    across views of one camera: the ray computation dominates rendering)."""
+    w, h = size
+    off = (np.arange(supersample) + 0.5) / supersample - 0.5
+    ys, xs = np.mgrid[0:h, 0:w].astype(np.float64)
+    return [np.asarray(rays(xs + ox, ys + oy), dtype=np.float64) for oy in off for ox in off]
+
+
 def render_board(
-    rays: Callable[[np.ndarray, np.ndarray], np.ndarray],
+    rays: Callable[[np.ndarray, np.ndarray], np.ndarray] | Sequence[np.ndarray],
     size: tuple[int, int],
     R: np.ndarray,
     t: np.ndarray,
     pattern: tuple[int, int],
     square: float = 1.0,
     border: float = 1.0,
-    supersample: int = 3,
+    supersample: int = 2,
     background: float = 0.5,
 ) -> np.ndarray:
     """Render a checkerboard (8-bit grey) seen by a central camera.
@@ -131,38 +140,40 @@ def render_board(
     Parameters
     ----------
     rays : function ``(x, y) -> (..., 3)`` camera-frame ray directions of pixel coordinates
-        (OpenCV convention: pixel centres at integers); rays it cannot form may be NaN.
+        (OpenCV convention: pixel centres at integers; rays it cannot form may be NaN), or the
+        precomputed list from :func:`pixel_rays` with the same ``size`` and ``supersample``.
     size : (width, height).
     R, t : board pose: a board point ``X_b`` is at ``R @ X_b + t`` in the camera frame.
     pattern, square : the inner-corner count and square side (so the board has
         ``(cols + 1) x (rows + 1)`` squares, the first one black), plus a white ``border``
         of that many squares around it.
-    supersample : samples per pixel side (box filter anti-aliasing).
+    supersample : samples per pixel side (box filter anti-aliasing). Keep it even: with an
+        odd count one sample sits on the pixel centre, and corners projecting exactly onto
+        pixel centres are then biased (measured: −0.16 px with 3, −0.49 px with 1, 0.01 px with 2).
     """
     w, h = size
     s = supersample
-    off = (np.arange(s) + 0.5) / s - 0.5
-    ys, xs = np.mgrid[0:h, 0:w].astype(np.float64)
+    samples = pixel_rays(rays, size, s) if callable(rays) else list(rays)
+    if len(samples) != s * s or samples[0].shape != (h, w, 3):
+        raise ValueError("precomputed rays do not match size/supersample")
     acc = np.zeros((h, w))
     R = np.asarray(R, dtype=np.float64)
     t = np.asarray(t, dtype=np.float64).reshape(3)
     n = R[:, 2]  # board normal in the camera frame
     cols, rows = pattern
-    for oy in off:
-        for ox in off:
-            d = rays(xs + ox, ys + oy)
-            denom = d @ n
-            with np.errstate(invalid="ignore", divide="ignore"):
-                lam = (t @ n) / denom
-            hit = np.isfinite(lam) & (lam > 0)
-            P = np.where(hit[..., None], lam[..., None] * d, 0.0)
-            b = (P - t) @ R  # board coordinates
-            u, v = b[..., 0] / square + 1.0, b[..., 1] / square + 1.0  # square index (first square at -1..0)
-            inside = hit & (u >= 0) & (u < cols + 1) & (v >= 0) & (v < rows + 1)
-            paper = hit & (u >= -border) & (u < cols + 1 + border) & (v >= -border) & (v < rows + 1 + border)
-            black = inside & ((np.floor(u) + np.floor(v)) % 2 == 0)
-            val = np.where(paper, 1.0, background)
-            val = np.where(black, 0.0, val)
-            acc += val
+    for d in samples:
+        denom = d @ n
+        with np.errstate(invalid="ignore", divide="ignore"):
+            lam = (t @ n) / denom
+        hit = np.isfinite(lam) & (lam > 0)
+        P = np.where(hit[..., None], lam[..., None] * np.nan_to_num(d), 0.0)
+        b = (P - t) @ R  # board coordinates
+        u, v = b[..., 0] / square + 1.0, b[..., 1] / square + 1.0  # square index (first square at -1..0)
+        inside = hit & (u >= 0) & (u < cols + 1) & (v >= 0) & (v < rows + 1)
+        paper = hit & (u >= -border) & (u < cols + 1 + border) & (v >= -border) & (v < rows + 1 + border)
+        black = inside & ((np.floor(u) + np.floor(v)) % 2 == 0)
+        val = np.where(paper, 1.0, background)
+        val = np.where(black, 0.0, val)
+        acc += val
     img = acc / (s * s)
     return np.clip(img * 235 + 10, 0, 255).round().astype(np.uint8)

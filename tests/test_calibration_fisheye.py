@@ -1,0 +1,157 @@
+"""Fisheye intrinsics: boards rendered through a known Kannala-Brandt lens are recovered."""
+
+from __future__ import annotations
+
+import json
+
+import cv2
+import numpy as np
+import pytest
+
+from solidkit.calibration.boards import BoardView, detect_views, pixel_rays, render_board
+from solidkit.calibration.fisheye import (
+    FisheyeCalibrationError,
+    FisheyeProfile,
+    calibrate_fisheye,
+    fit_kb,
+    fit_mei,
+    fit_model,
+    lens_profile_from_calibrations,
+)
+from solidkit.calibration.profile import load_profile
+from solidkit.capture.lens import LensModel
+from solidkit.capture.lens import load_profile as load_lens_profile
+from solidkit.capture.lens import project, unproject
+
+SIZE = (512, 512)
+F = 240.0
+KB = [-0.02, 0.03, -0.045, 0.02]
+CENTRE = (258.3, 254.2)
+PATTERN = (8, 6)
+TRUTH = LensModel(name="truth", center=CENTRE, poly=[F] + [F * k for k in KB], max_angle_deg=100)
+
+
+def _poses(n, seed=3):
+    rng = np.random.default_rng(seed)
+    centre = np.array([(PATTERN[0] - 1) / 2, (PATTERN[1] - 1) / 2, 0.0])
+    out = []
+    for _ in range(n):
+        R, _ = cv2.Rodrigues(rng.uniform(-0.5, 0.5, 3))
+        az, ang = rng.uniform(0, 2 * np.pi), np.radians(rng.uniform(0, 45))
+        look = np.array([np.sin(ang) * np.cos(az), np.sin(ang) * np.sin(az), np.cos(ang)])
+        out.append((R, -R @ centre + look * rng.uniform(6, 8)))
+    return out
+
+
+@pytest.fixture(scope="module")
+def rendered():
+    rays = pixel_rays(lambda x, y: unproject(TRUTH, x, y)[0], SIZE, supersample=2)
+    poses = _poses(9)
+    imgs = [render_board(rays, SIZE, R, t, PATTERN, supersample=2) for R, t in poses]
+    imgs.append(np.full(SIZE[::-1], 120, np.uint8))  # no board
+    imgs.append(cv2.GaussianBlur(imgs[0], (0, 0), 4.0))  # heavily blurred
+    names = [f"v{i}.png" for i in range(len(imgs))]
+    return detect_views(imgs, PATTERN, names=names), poses
+
+
+@pytest.fixture(scope="module")
+def calibrated(rendered):
+    views, _ = rendered
+    return calibrate_fisheye(views, PATTERN)
+
+
+def test_bad_views_rejected_with_reason(rendered):
+    views, _ = rendered
+    assert views[-2].reason == "no 8x6 board found"
+    assert views[-1].reason.startswith("blurred: edge width")
+    assert all(v.ok for v in views[:9])
+
+
+def test_kb_recovers_focal_and_centre(calibrated):
+    kb = calibrated.models["kb"]
+    # measured (512 px, f = 240): fx, fy +0.07 %, centre off by (-0.34, +0.04) px, RMS 0.11 px
+    assert abs(kb["fx"] / F - 1) < 0.005 and abs(kb["fy"] / F - 1) < 0.005
+    assert abs(kb["cx"] - CENTRE[0]) < 0.5 and abs(kb["cy"] - CENTRE[1]) < 0.5
+    assert kb["rms_px"] < 0.3
+
+
+def test_both_models_held_out_and_choice(calibrated):
+    for m in ("kb", "mei"):
+        ho = calibrated.models[m]["held_out"]
+        assert ho["rms_px"] is not None and ho["rms_px"] < 0.5
+        assert len(ho["per_view_rms_px"]) == 9
+    best = min(("kb", "mei"), key=lambda m: calibrated.models[m]["held_out"]["rms_px"])
+    assert calibrated.chosen_model == best
+    assert calibrated.views["v9.png"] == "no 8x6 board found" and calibrated.views["v10.png"].startswith("blurred")
+    assert calibrated.residuals["views_used"] == 9
+
+
+def test_exported_lens_matches_truth(calibrated, tmp_path):
+    lens = calibrated.lens_model()
+    th = np.radians(np.linspace(0, calibrated.observed_max_angle_deg, 100))
+    # measured: exported r(theta) within 0.39 px of the true lens up to the observed 66 deg
+    assert np.abs(lens.radius(th) - TRUTH.radius(th)).max() < 0.5
+    assert np.hypot(lens.center[0] - CENTRE[0], lens.center[1] - CENTRE[1]) < 0.5
+    # random directions inside the observed cone project to the same pixel as the truth
+    rng = np.random.default_rng(0)
+    d = rng.normal(size=(500, 3))
+    d[:, 2] = np.abs(d[:, 2]) + 1.2
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    x0, y0, th0 = project(TRUTH, d)
+    x1, y1, _ = project(lens, d)
+    inside = th0 <= np.radians(calibrated.observed_max_angle_deg)
+    err = np.hypot(x1 - x0, y1 - y0)[inside]
+    # measured: median 0.35 px, max 0.60 px (mostly the 0.34 px principal-point error)
+    assert inside.sum() > 300 and err.max() < 0.8 and np.median(err) < 0.5
+    # a one-lens profile in the shared lens-profile format, loadable by capture.lens
+    prof = lens_profile_from_calibrations([calibrated], "unit-test", SIZE)
+    back = load_lens_profile(prof.save(tmp_path / "lens.json"))
+    assert back.lenses[0].name == "front" and back.reference_size == SIZE
+    assert back.residuals["front"]["model"] == calibrated.chosen_model
+    # and the calibration record itself (versioned, with provenance) round-trips
+    rec = load_profile(calibrated.save(tmp_path / "front.calibration.json"))
+    assert isinstance(rec, FisheyeProfile) and rec.chosen_model == calibrated.chosen_model
+    assert json.loads((tmp_path / "front.calibration.json").read_text())["kind"] == "fisheye"
+
+
+def test_offset_and_second_lens_added(calibrated, tmp_path):
+    base = lens_profile_from_calibrations([calibrated], "dual", (1024, 512))
+    back = calibrated.model_copy(update={"lens_name": "back", "lens": calibrated.lens | {"name": "back", "ypr_deg": [180.0, 0.0, 0.0]}})
+    both = lens_profile_from_calibrations([back], "dual", (1024, 512), base=base)
+    assert [l.name for l in both.lenses] == ["front", "back"]
+    with pytest.raises(FisheyeCalibrationError, match="1024x512"):
+        lens_profile_from_calibrations([back], "dual", (2048, 1024), base=base)
+
+
+def test_omnidir_all_views_rejected_names_them():
+    rng = np.random.default_rng(0)
+    views = [BoardView(f"junk{i}.jpg", SIZE, rng.uniform(0, 512, (48, 2))) for i in range(4)]
+    with pytest.raises(FisheyeCalibrationError, match=r"cv2.omnidir rejected every view \(junk0.jpg, junk1.jpg, junk2.jpg, junk3.jpg\)"):
+        fit_mei(views, PATTERN)
+
+
+def test_too_few_views_lists_rejections():
+    views = [BoardView("a.jpg", SIZE, reason="no 8x6 board found"), BoardView("b.jpg", SIZE, reason="blurred: edge width 9 px")]
+    with pytest.raises(FisheyeCalibrationError, match="a.jpg: no 8x6 board found; b.jpg: blurred"):
+        fit_kb(views, PATTERN)
+
+
+def test_garbage_view_among_good_ones_is_rejected(rendered):
+    views, _ = rendered
+    junk = BoardView("junk.jpg", SIZE, np.random.default_rng(1).uniform(0, 512, (48, 2)))
+    for model in ("kb", "mei"):
+        fit = fit_model(model, [v for v in views if v.ok][:6] + [junk], PATTERN)
+        assert "junk.jpg" in fit.rejected and fit.rms_px < 0.5
+
+
+@pytest.mark.real
+def test_real_fisheye_chessboard(real_data):
+    paths = sorted((real_data / "fisheye_chessboard").glob("*.jpg"))
+    views = detect_views(paths, (6, 9))
+    prof = calibrate_fisheye(views, (6, 9), inputs=paths)
+    r = prof.residuals
+    # measured: 15/15 views used; kb RMS 0.278 px (held-out 0.296), mei RMS 0.275 px (held-out 0.289)
+    assert r["views_used"] == 15
+    assert r["rms_px"] < 0.4 and r["held_out_rms_px"] < 0.45
+    assert max(r["held_out_per_view_rms_px"].values()) < 1.0
+    assert 300 < prof.models["kb"]["fx"] < 320
