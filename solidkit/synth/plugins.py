@@ -120,12 +120,13 @@ def register(mi: ModuleType) -> None:
             frame = mi.Frame3f(n)
             d_c = frame.to_world(mi.warp.square_to_cosine_hemisphere(sampler.next_2d(valid)))
             off, on = mi.Float(0.0), mi.Float(0.0)
+            jit = dr.is_jit_v(mi.Float)
             for d in (ds.d, d_c):
                 cos = dr.maximum(dr.dot(n, d), 0.0)
                 si_e = dr.zeros(mi.SurfaceInteraction3f)
                 si_e.wi = -d
                 radiance = mi.luminance(env.eval(si_e, valid))
-                ds_q = dr.zeros(mi.DirectionSample3f)
+                ds_q = dr.zeros(mi.DirectionSample3f) if jit else mi.DirectionSample3f()
                 ds_q.d = d
                 p_e = env.pdf_direction(si, ds_q, valid)
                 p_c = cos / dr.pi
