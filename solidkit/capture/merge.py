@@ -165,9 +165,9 @@ class Frame:
     ----------
     linear : (H, W, 3) float32
         Relative linear exposure ``R(Z)`` (response applied; raw: normalised sensor values).
-    code : (H, W, 3) float32
-        Recorded values normalised to ``[0, 1]`` (weights, validity, ghost residuals); for raw
-        frames the clipped linear values.
+    codes : (H, W, 3) uint8 or float32
+        The recorded values: 8-bit codes, or values normalised to ``[0, 1]`` (16-bit input; raw
+        frames: the clipped linear values). :attr:`code` gives them normalised.
     exposure : float
         Effective exposure (seconds, scaled to the bracket's reference ISO and f-number).
     saturated : (H, W) bool
@@ -176,10 +176,12 @@ class Frame:
         The inverse response for LDR frames; ``None`` for linear (raw) frames.
     name : str
         A label (file name) for reports.
+    black, saturation : float
+        Normalised code limits of the usable range.
     """
 
     linear: np.ndarray
-    code: np.ndarray
+    codes: np.ndarray
     exposure: float
     saturated: np.ndarray
     response: np.ndarray | None = None
@@ -191,15 +193,36 @@ class Frame:
     def is_raw(self) -> bool:
         return self.response is None
 
+    @property
+    def code(self) -> np.ndarray:
+        """``(H, W, 3)`` float32 codes normalised to ``[0, 1]``."""
+        if self.codes.dtype == np.uint8:
+            return self.codes.astype(np.float32) * np.float32(1.0 / 255.0)
+        return self.codes
+
+    def _per_code(self, table: np.ndarray) -> np.ndarray:
+        """``table[codes]`` for 8-bit codes (a 256-entry lookup, one pass)."""
+        return table[self.codes]
+
     def valid(self) -> np.ndarray:
         """``(H, W, 3)`` bool: usable samples (not saturated anywhere, channel above black)."""
-        return (~self.saturated)[..., None] & (self.code > self.black)
+        if self.codes.dtype == np.uint8:
+            above = self._per_code(np.arange(256) / 255.0 > self.black)
+        else:
+            above = self.codes > self.black
+        above[self.saturated] = False
+        return above
 
     def base_weight(self) -> np.ndarray:
-        """``(H, W, 3)`` code-space weight (hat for LDR, 1 for raw) on valid samples."""
+        """``(H, W, 3)`` float32 code-space weight (hat for LDR, 1 for raw) on valid samples."""
         if self.is_raw:
             return self.valid().astype(np.float32)
-        return hat_weight(self.code, self.black, self.saturation) * (~self.saturated)[..., None]
+        if self.codes.dtype == np.uint8:
+            w = self._per_code(hat_weight(np.arange(256) / 255.0, self.black, self.saturation))
+        else:
+            w = hat_weight(self.codes, self.black, self.saturation)
+        w[self.saturated] = 0.0
+        return w
 
     def observed(self) -> np.ndarray:
         """The frame in its noise domain (codes for LDR, sqrt of linear for raw)."""
@@ -207,7 +230,7 @@ class Frame:
 
     def predict(self, radiance: np.ndarray) -> np.ndarray:
         """Predicted observation for ``radiance`` (H, W, 3): ``f(E · t)`` in the noise domain."""
-        x = radiance * self.exposure
+        x = radiance * np.float32(self.exposure)
         if self.is_raw:
             return np.sqrt(np.clip(x, 0.0, None))
         codes = np.arange(256, dtype=np.float64) / 255.0
@@ -237,17 +260,19 @@ def frame_from_ldr(
     if not (np.isfinite(exposure) and exposure > 0):
         raise InputError(f"{name or 'frame'}: exposure time must be positive, got {exposure}")
     r = srgb_response() if response is None else validate_response(response)
-    if np.issubdtype(img.dtype, np.integer):
-        code = img.astype(np.float32) / float(np.iinfo(img.dtype).max)
-    else:
-        code = np.clip(img.astype(np.float32), 0.0, 1.0)
     if img.dtype == np.uint8:
-        linear = np.stack([r[img[..., c], c] for c in range(3)], axis=-1).astype(np.float32)
+        codes = np.ascontiguousarray(img)
+        linear = r.astype(np.float32)[codes, np.arange(3)]  # one gather through the table
+        saturated = (codes >= np.uint8(np.ceil(saturation * 255.0))).any(axis=-1)
     else:
+        if np.issubdtype(img.dtype, np.integer):
+            codes = img.astype(np.float32) / float(np.iinfo(img.dtype).max)
+        else:
+            codes = np.clip(img.astype(np.float32), 0.0, 1.0)
         grid = np.arange(256, dtype=np.float64) / 255.0
-        linear = np.stack([np.interp(code[..., c], grid, r[:, c]) for c in range(3)], axis=-1).astype(np.float32)
-    saturated = (code >= saturation).any(axis=-1)
-    return Frame(linear, code, float(exposure), saturated, r, name, black, saturation)
+        linear = np.stack([np.interp(codes[..., c], grid, r[:, c]) for c in range(3)], axis=-1).astype(np.float32)
+        saturated = (codes >= saturation).any(axis=-1)
+    return Frame(linear, codes, float(exposure), saturated, r, name, black, saturation)
 
 
 def frame_from_raw(raw: Any, exposure: float, *, name: str = "", black: float = 0.0) -> Frame:
@@ -255,8 +280,8 @@ def frame_from_raw(raw: Any, exposure: float, *, name: str = "", black: float = 
     if not (np.isfinite(exposure) and exposure > 0):
         raise InputError(f"{name or 'frame'}: exposure time must be positive, got {exposure}")
     linear = np.asarray(raw.linear, dtype=np.float32)
-    code = np.clip(linear, 0.0, 1.0)
-    return Frame(linear, code, float(exposure), np.asarray(raw.saturated, bool), None, name, black, 1.0 + 1e-6)
+    codes = np.clip(linear, 0.0, 1.0)
+    return Frame(linear, codes, float(exposure), np.asarray(raw.saturated, bool), None, name, black, 1.0 + 1e-6)
 
 
 def sniff_format(path: str | os.PathLike) -> str:
@@ -416,26 +441,30 @@ def merge_frames(
     """
     _check_frames(frames)
     h, w, _ = frames[0].linear.shape
-    num = np.zeros((h, w, 3), np.float64)
-    den = np.zeros((h, w, 3), np.float64)
+    num = np.zeros((h, w, 3), np.float32)
+    den = np.zeros((h, w, 3), np.float32)
     sat_all = np.ones((h, w), bool)
+    scores = []
     for f in frames:
-        wgt = f.base_weight() * np.float32(f.exposure)
-        num += wgt * (f.linear / np.float32(f.exposure))
-        den += wgt
+        # w = h(Z) t and estimate R(Z)/t: the numerator term is h(Z) R(Z), the denominator h(Z) t
+        hz = f.base_weight()
+        scores.append(float(hz.mean()))
+        num += hz * f.linear
+        hz *= np.float32(f.exposure)
+        den += hz
+        del hz
         sat_all &= f.saturated
     shortest = min(frames, key=lambda f: f.exposure)
     longest = max(frames, key=lambda f: f.exposure)
     empty = den <= 0
-    hdr = np.where(empty, 0.0, num / np.where(empty, 1.0, den))
+    hdr = np.divide(num, den, out=num, where=~empty)  # num's storage is reused
+    hdr[empty] = 0.0
     fill_short = empty & sat_all[..., None]
     fill_long = empty & ~sat_all[..., None]
-    hdr = np.where(fill_short, shortest.linear / shortest.exposure, hdr)
-    hdr = np.where(fill_long, longest.linear / longest.exposure, hdr)
-    hdr = hdr.astype(np.float32)
+    hdr[fill_short] = shortest.linear[fill_short] / np.float32(shortest.exposure)
+    hdr[fill_long] = longest.linear[fill_long] / np.float32(longest.exposure)
     underexposed = fill_long.any(axis=-1)
     # reference frame: the one with most well-exposed samples
-    scores = [float(f.base_weight().mean()) for f in frames]
     ref = int(np.argmax(scores))
     ghost, sigmas = detect_ghosts(frames, hdr, k=ghost_k)
     if deghost and ghost.any():
