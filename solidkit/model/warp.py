@@ -18,7 +18,11 @@ from __future__ import annotations
 
 import torch
 from kornia.geometry.camera import unproject_points
-from kornia.utils import create_meshgrid
+
+try:  # kornia >= 0.8.3
+    from kornia.geometry import create_meshgrid
+except ImportError:  # pragma: no cover - kornia 0.8.2
+    from kornia.utils import create_meshgrid
 
 from solidkit.envmap.coords import coords_from_direction, rotation_from_ypr
 from solidkit.errors import InputError

@@ -1,0 +1,164 @@
+"""A minimal training loop for SOLID-Net and an analytic toy scene to exercise it.
+
+:func:`fit` runs Adam on ``L_I + L_P`` (paper §4.3 and supplementary §1: Adam, lr 5e-4) over an
+iterable of batches in the format of :mod:`solidkit.model.solidnet`. Full training and fine-tuning
+live in :mod:`solidkit.finetune`; this loop is what the shipped first checkpoint and the overfitting
+test use.
+
+:func:`toy_batch` renders an analytic scene (a ground plane and a wall facing the camera, a sky with a
+sun) with every ground-truth buffer consistent with the conventions: plane distances satisfy
+``n . P + p = 0``, the image is ``(A ⊙ shading)^(1/2.2)``, shadows are 1 where lit.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Callable, Iterable, Iterator
+from typing import Any
+
+import torch
+
+from solidkit.envmap.coords import direction_from_angles, direction_grid, rotation_from_ypr
+from solidkit.model.config import SolidNetConfig
+from solidkit.model.losses import solidnet_losses
+from solidkit.model.solidnet import SolidNet, default_intrinsics
+from solidkit.model.warp import camera_rays
+
+__all__ = ["toy_batch", "fit", "batch_to"]
+
+
+def _toy_sky(dirs: torch.Tensor, sun: torch.Tensor, ground: float = 0.3) -> torch.Tensor:
+    """Radiance ``(..., 3)`` of the toy sky: a blue gradient above the horizon, a 50x sun, grey ground."""
+    up = -dirs[..., 1]
+    sky = torch.stack([0.4 + 0.3 * up, 0.6 + 0.4 * up, 1.0 + 0.5 * up], dim=-1).clamp_min(0.0)
+    cos = (dirs * sun).sum(-1)
+    blob = 50.0 * torch.exp(-(1.0 - cos) / (1.0 - math.cos(math.radians(3.0))))
+    out = sky + blob[..., None]
+    return torch.where(up[..., None] > 0, out, torch.full_like(out, ground))
+
+
+def toy_batch(
+    config: SolidNetConfig,
+    batch: int = 1,
+    n_probes: int = 2,
+    seed: int = 0,
+) -> dict[str, torch.Tensor]:
+    """An analytic toy batch (see module docstring) at ``config.image_size`` / ``config.pano_height``.
+
+    Each sample draws a sun direction, camera height, pitch, roll and wall distance from ``seed``.
+    Returns the batch dictionary of :mod:`solidkit.model.solidnet` (float32, CPU).
+    """
+    g = torch.Generator().manual_seed(seed)
+    H, W = config.image_size
+    hp = config.pano_height
+    K = torch.tensor(default_intrinsics(H, W, config.hfov_deg), dtype=torch.float32)
+    rays = camera_rays(K[None], H, W)[0].permute(1, 2, 0)  # (H, W, 3), z = 1
+    pano_dirs = direction_grid(hp, torch)
+    out: dict[str, list[torch.Tensor]] = {k: [] for k in (
+        "image", "K", "pitch", "roll", "pixels", "albedo", "normal", "distance", "shadow", "geometry_mask", "sky", "local"
+    )}
+    for _ in range(batch):
+        r = torch.rand(6, generator=g)
+        pitch, roll = math.radians(-8 + 10 * r[0].item()), math.radians(-4 + 8 * r[1].item())
+        cam_h, wall_z = 1.5 + 0.1 * r[2].item(), 6.0 + 6.0 * r[3].item()
+        sun = direction_from_angles(torch.tensor(-2.0 + 4.0 * r[4].item()), torch.tensor(0.3 + 0.7 * r[5].item()))
+        R = rotation_from_ypr(*torch.tensor([0.0, pitch, roll], dtype=torch.float64)).to(torch.float32)  # camera -> panorama
+        d = rays @ R.T  # ray directions (unnormalised) in the panorama frame
+        # ground y = cam_h (normal up (0,-1,0)); wall z = wall_z (normal (0,0,-1)), up to 3 m above the camera
+        t_ground = torch.where(d[..., 1] > 1e-6, cam_h / d[..., 1].clamp_min(1e-6), torch.full_like(d[..., 1], math.inf))
+        t_wall = torch.where(d[..., 2] > 1e-6, wall_z / d[..., 2].clamp_min(1e-6), torch.full_like(d[..., 2], math.inf))
+        wall_ok = (t_wall * d[..., 1]) > -3.0
+        t_wall = torch.where(wall_ok, t_wall, torch.full_like(t_wall, math.inf))
+        on_wall = t_wall < t_ground
+        t = torch.minimum(t_ground, t_wall)
+        geo = torch.isfinite(t)
+        n_pano = torch.where(on_wall[..., None], torch.tensor([0.0, 0.0, -1.0]), torch.tensor([0.0, -1.0, 0.0]))
+        P = d * torch.where(geo, t, torch.zeros_like(t))[..., None]
+        p = -(n_pano * P).sum(-1)  # plane distance: n . P + p = 0
+        lit = (n_pano * sun).sum(-1).clamp_min(0.0)
+        cast = (~on_wall) & (P[..., 0] > 0.0) & (P[..., 0] < 1.0)  # a 1 m wide cast-shadow band on the ground
+        shadow = torch.where(geo & ~cast & (lit > 0), torch.ones_like(lit), torch.zeros_like(lit))
+        albedo = torch.where(on_wall[..., None], torch.tensor([0.6, 0.45, 0.35]), torch.tensor([0.35, 0.35, 0.38]))
+        shading = 1.5 * shadow[..., None] * lit[..., None] + 0.25
+        sky_img = _toy_sky(torch.nn.functional.normalize(d, dim=-1), sun)
+        radiance = torch.where(geo[..., None], albedo * shading, sky_img)
+        image = radiance.clamp(0, 1) ** (1 / 2.2)
+        n_cam = n_pano @ R  # R^T n, row vectors
+        pix = []
+        for qx, qy in ((0.25, 0.8), (0.75, 0.8), (0.5, 0.9), (0.3, 0.7))[:n_probes]:
+            pix.append([qx * (W - 1), qy * (H - 1)])
+        sky = _toy_sky(pano_dirs, sun).permute(2, 0, 1)
+        local = sky.clone()
+        lower = pano_dirs[..., 1] > 0
+        local[:, lower] = 0.35 * 0.8  # ground seen from the probe
+        out["image"].append(image.permute(2, 0, 1))
+        out["K"].append(K)
+        out["pitch"].append(torch.tensor(pitch))
+        out["roll"].append(torch.tensor(roll))
+        out["pixels"].append(torch.tensor(pix))
+        out["albedo"].append(torch.where(geo[..., None], albedo, torch.zeros_like(albedo)).permute(2, 0, 1))
+        out["normal"].append(torch.where(geo[..., None], n_cam, torch.zeros_like(n_cam)).permute(2, 0, 1))
+        out["distance"].append(torch.where(geo, p, torch.zeros_like(p))[None])
+        out["shadow"].append(shadow[None])
+        out["geometry_mask"].append(geo[None])
+        out["sky"].append(sky)
+        out["local"].append(local[None].expand(n_probes, -1, -1, -1))
+    return {k: torch.stack(v).to(torch.bool if k == "geometry_mask" else torch.float32) for k, v in out.items()}
+
+
+def batch_to(batch: dict[str, torch.Tensor], device: torch.device | str) -> dict[str, torch.Tensor]:
+    """Move every tensor of a batch to ``device``."""
+    return {k: v.to(device) for k, v in batch.items()}
+
+
+def fit(
+    model: SolidNet,
+    batches: Iterable[dict[str, torch.Tensor]],
+    steps: int,
+    lr: float = 5e-4,
+    teacher_geometry: bool = True,
+    callback: Callable[[int, dict[str, float]], None] | None = None,
+    max_seconds: float | None = None,
+) -> list[dict[str, float]]:
+    """Train ``model`` with Adam on ``L_I + L_P`` for ``steps`` batches (cycling ``batches``).
+
+    ``teacher_geometry=True`` warps with the ground-truth normal/distance/shadow (P-Net sees clean
+    warps while I-Net is still learning); ``False`` warps with I-Net's predictions, as at test time.
+    Stops early after ``max_seconds``. Returns the per-step loss terms (floats).
+    """
+    opt = torch.optim.Adam(model.parameters(), lr=lr)
+    model.train()
+    device = next(model.parameters()).device
+    history: list[dict[str, float]] = []
+    start = time.monotonic()
+    it = _cycle(batches)
+    for step in range(steps):
+        batch = batch_to(next(it), device)
+        geometry = {k: batch[k] for k in ("normal", "distance", "shadow") if k in batch} if teacher_geometry else None
+        out = model(batch["image"], batch["K"], batch.get("pixels"), batch.get("pitch"), batch.get("roll"), geometry)
+        losses = solidnet_losses(out, batch, model.config.loss_weights)
+        opt.zero_grad(set_to_none=True)
+        losses["total"].backward()
+        opt.step()
+        record = {k: float(v.detach()) for k, v in losses.items()}
+        history.append(record)
+        if callback is not None:
+            callback(step, record)
+        if max_seconds is not None and time.monotonic() - start > max_seconds:
+            break
+    model.eval()
+    return history
+
+
+def _cycle(batches: Iterable[Any]) -> Iterator[Any]:
+    if isinstance(batches, dict):
+        while True:
+            yield batches
+    while True:
+        empty = True
+        for b in batches:
+            empty = False
+            yield b
+        if empty:
+            raise ValueError("no batches to train on")
