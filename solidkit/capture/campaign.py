@@ -326,12 +326,15 @@ def _copy_original(src: Path, dest: Path, sha: str) -> bool:
         dest.chmod(stat.S_IWUSR | stat.S_IRUSR)  # a wrong-size file under a content name: replace it
         dest.unlink()
     with atomic_path(dest) as tmp:
+        h = hashlib.sha256()
         with open(src, "rb") as fi, open(tmp, "wb") as fo:
-            shutil.copyfileobj(fi, fo, 1 << 20)
+            while block := fi.read(1 << 20):  # hash exactly the bytes written
+                h.update(block)
+                fo.write(block)
             fo.flush()
             os.fsync(fo.fileno())
-        if sha256_file(tmp) != sha:
-            raise InputError("copy verification failed (the card changed during the copy?)")
+        if h.hexdigest() != sha:
+            raise InputError("copy verification failed: the file changed while it was being ingested")
         tmp.chmod(stat.S_IRUSR | stat.S_IRGRP | stat.S_IROTH)
     return True
 
@@ -362,8 +365,6 @@ def _ingest_one(card: str, rel: str, campaign: str, throttle_s: float = 0.0) -> 
         _check_decodable(src, "jpeg" if suffix == ".jpg" else "raw")
         original = Path("originals") / sha[:2] / f"{sha}{suffix}"
         copied = _copy_original(src, Path(campaign) / original, sha)
-        if sha256_file(src) != sha:
-            raise InputError("the file changed while it was being ingested")
         md = meta.model_dump(mode="json")
         md["path"] = original.as_posix()
         return {
