@@ -12,6 +12,7 @@ from solidkit.capture.campaign import ingest_cli
 from solidkit.capture.cli import app as capture_app
 from solidkit.envmap.cli import app as envmap_app
 from solidkit.errors import SolidkitError
+from solidkit.model.cli import predict_command
 from solidkit.synth.cli import app as synth_app
 
 app = typer.Typer(
@@ -25,6 +26,7 @@ app.add_typer(envmap_app, name="envmap", help="Inspect, rotate, crop panoramas a
 app.add_typer(capture_app, name="capture", help="Theta captures: metadata, dual-fisheye unwarping.")
 app.add_typer(synth_app, name="synth", help="Synthetic SOLID-Img-style data and a virtual campaign (Mitsuba 3).")
 app.command("ingest")(ingest_cli)
+app.command("predict")(predict_command)
 
 
 @app.command()

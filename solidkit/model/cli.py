@@ -1,0 +1,111 @@
+"""``solidkit predict IMAGE --at X,Y [--at X,Y ...] --out DIR``: SOLID-Net inference on one photo.
+
+Writes, into DIR: ``sky.exr`` (the global HDR sky H_g) and ``local_NN.exr`` (one local HDR
+panorama H_l per ``--at`` pixel), each with a tonemapped PNG beside it (the paper's tonemap,
+e = -0.3), and ``prediction.json`` with the sun direction found in H_g (degrees, panorama frame of
+docs/conventions.md) and each probe's pixel and 3D centre.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+import typer
+from rich.console import Console
+from rich.table import Table
+
+from solidkit.envmap.coords import CONVENTIONS_VERSION
+from solidkit.envmap.io import read_ldr, tonemap, write_exr, write_ldr
+from solidkit.errors import InputError
+from solidkit.fsutil import atomic_write_text
+from solidkit.model.blocks import HDR_PARAMETERISATION
+
+__all__ = ["predict_command", "parse_pixel"]
+
+console = Console(stderr=True)
+
+
+def parse_pixel(text: str) -> tuple[float, float]:
+    """``"X,Y"`` -> ``(x, y)`` floats; a clear InputError otherwise."""
+    parts = text.replace(" ", "").split(",")
+    try:
+        if len(parts) != 2:
+            raise ValueError
+        x, y = float(parts[0]), float(parts[1])
+    except ValueError:
+        raise InputError(f"--at expects X,Y pixel coordinates (e.g. --at 160,200), got {text!r}") from None
+    if not (math.isfinite(x) and math.isfinite(y)):
+        raise InputError(f"--at {text!r}: coordinates must be finite")
+    return x, y
+
+
+def _intrinsics(text: str | None) -> np.ndarray | None:
+    if text is None:
+        return None
+    try:
+        fx, fy, cx, cy = (float(v) for v in text.split(","))
+    except ValueError:
+        raise InputError(f"--intrinsics expects fx,fy,cx,cy in pixels, got {text!r}") from None
+    return np.array([[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]])
+
+
+def predict_command(
+    image: Path = typer.Argument(..., help="Limited-FOV LDR photo (JPEG/PNG)."),
+    at: list[str] = typer.Option(..., "--at", help="Probe pixel X,Y in IMAGE (repeatable)."),
+    out: Path = typer.Option(..., "--out", help="Output folder (created)."),
+    checkpoint: Path | None = typer.Option(None, help="SOLID-Net checkpoint (default: the shipped one)."),
+    fov: float | None = typer.Option(None, help="Horizontal field of view in degrees (default: the checkpoint's)."),
+    intrinsics: str | None = typer.Option(None, help="fx,fy,cx,cy of IMAGE in pixels (overrides --fov)."),
+    pitch: float = typer.Option(0.0, help="Camera pitch in degrees (positive = looking up)."),
+    roll: float = typer.Option(0.0, help="Camera roll in degrees (positive = right side down)."),
+) -> None:
+    """Predict the global HDR sky, its sun direction and a local HDR panorama at each --at pixel."""
+    from solidkit.model.solidnet import SolidNet, default_intrinsics
+
+    pixels = [parse_pixel(a) for a in at]
+    photo = read_ldr(image)
+    model = SolidNet.from_checkpoint(checkpoint)
+    K = _intrinsics(intrinsics)
+    if K is None and fov is not None:
+        if not 1.0 < fov < 179.0:
+            raise InputError(f"--fov must be in (1, 179) degrees, got {fov}")
+        K = default_intrinsics(photo.shape[0], photo.shape[1], fov)
+    pred = model.predict(photo, pixels, K=K, pitch=math.radians(pitch), roll=math.radians(roll))
+    out.mkdir(parents=True, exist_ok=True)
+    meta = {"source": str(image), "hdr_parameterisation": HDR_PARAMETERISATION, "model": model.config.name}
+    write_exr(out / "sky.exr", pred.sky, {**meta, "kind": "global sky H_g"})
+    write_ldr(out / "sky.png", tonemap(pred.sky))
+    probes = []
+    for i, (local, px, centre) in enumerate(zip(pred.local, pred.pixels, pred.centres)):
+        name = f"local_{i:02d}"
+        write_exr(out / f"{name}.exr", local, {**meta, "kind": "local H_l", "pixel": px.tolist()})
+        write_ldr(out / f"{name}.png", tonemap(local))
+        probes.append(
+            {"pixel": [float(px[0]), float(px[1])], "centre_m": [round(float(c), 4) for c in centre],
+             "exr": f"{name}.exr", "png": f"{name}.png"}
+        )
+    report = {
+        "image": str(image),
+        "checkpoint": str(checkpoint) if checkpoint else "shipped",
+        "conventions_version": CONVENTIONS_VERSION,
+        "pitch_deg": pitch,
+        "roll_deg": roll,
+        "sun": pred.sun.to_json(),
+        "sky": {"exr": "sky.exr", "png": "sky.png"},
+        "probes": probes,
+    }
+    atomic_write_text(out / "prediction.json", json.dumps(report, indent=2) + "\n")
+    table = Table(title=f"SOLID-Net prediction -> {out}", show_header=False)
+    sun = report["sun"]
+    table.add_row(
+        "sun",
+        f"azimuth {sun['azimuth_deg']:.1f}°, elevation {sun['elevation_deg']:.1f}° (confidence {sun['confidence']:.2f})"
+        if sun["found"]
+        else "not found",
+    )
+    for p in probes:
+        table.add_row(p["exr"], f"pixel ({p['pixel'][0]:g}, {p['pixel'][1]:g}), centre {p['centre_m']} m")
+    console.print(table)
