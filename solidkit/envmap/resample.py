@@ -25,6 +25,9 @@ continuous coordinate ``x`` of the padded image is map value ``x - 0.5``; ``grid
 
 from __future__ import annotations
 
+import os
+from collections.abc import Callable
+from concurrent.futures import ThreadPoolExecutor
 from functools import lru_cache
 from typing import Any
 
@@ -186,10 +189,39 @@ def sample_panorama(pano: Any, directions: Any, interp: str = "linear", *, per_i
     if _is_torch(pano):
         return _sample_torch(pano, directions, h, interp, per_item)
     directions = np.asarray(directions, dtype=np.float64)
-    if directions.shape[-1:] != (3,):
+    if directions.shape[-1:] != (3,) or directions.ndim < 1:
         raise InputError(f"directions must have shape (..., 3), got {directions.shape}")
-    x, y = _padded_coords(directions, h, PAD)
-    return _remap(pad_panorama(pano, PAD), x - 0.5, y - 0.5, interp)
+    rows = directions if directions.ndim > 1 else directions[None]
+    map_x, map_y = _cv2_maps(lambda a, b: rows[a:b], rows.shape[:-1], h)
+    return _remap(pad_panorama(pano, PAD), map_x, map_y, interp).reshape(*directions.shape[:-1], *pano.shape[2:])
+
+
+def _cv2_maps(direction_rows: Callable[[int, int], np.ndarray], shape: tuple[int, ...], height: int):
+    """float32 ``cv2.remap`` maps into the ``PAD``-padded panorama for directions of ``shape + (3,)``.
+
+    ``direction_rows(a, b)`` returns the directions of rows ``a:b`` (float64). The maps are
+    computed in float64 (a yaw by whole pixels gives exactly integral map values) in blocks
+    of rows, spread over a few threads (NumPy releases the GIL), then rounded to float32.
+    """
+    map_x = np.empty(shape, np.float32)
+    map_y = np.empty(shape, np.float32)
+    n = shape[0]
+    block = max(1, (1 << 16) // max(1, int(np.prod(shape[1:]))))
+
+    def work(a: int) -> None:
+        x, y = _padded_coords(direction_rows(a, min(a + block, n)), height, PAD)
+        map_x[a : a + block] = x - 0.5  # pixel centres: continuous x <-> cv2 x - 0.5
+        map_y[a : a + block] = y - 0.5
+
+    starts = range(0, n, block)
+    workers = min(os.cpu_count() or 1, 8, len(starts))
+    if workers > 1:
+        with ThreadPoolExecutor(workers) as pool:
+            list(pool.map(work, starts))
+    else:
+        for a in starts:
+            work(a)
+    return map_x, map_y
 
 
 def _sample_torch(pano: Any, directions: Any, height: int, interp: str, per_item: bool | None) -> Any:
@@ -289,7 +321,9 @@ def rotate(pano: Any, R: Any, interp: str = "linear", height: int | None = None)
     R = np.asarray(R, dtype=np.float64)
     if R.shape != (3, 3):
         raise InputError(f"R must be a 3x3 matrix for NumPy panoramas, got shape {R.shape}")
-    return sample_panorama(pano, _cached_direction_grid(out_h) @ R, interp)
+    grid = _cached_direction_grid(out_h)
+    map_x, map_y = _cv2_maps(lambda a, b: grid[a:b] @ R, grid.shape[:-1], h)
+    return _remap(pad_panorama(pano, PAD), map_x, map_y, interp)
 
 
 # ----------------------------------------------------------------------------------------
