@@ -395,3 +395,25 @@ def test_cli_error_is_one_line_and_exit_code_2(tmp_path):
     assert run.returncode == 2
     assert run.stderr.strip().count("\n") == 0 and "width must be 2 x height" in run.stderr
     assert "Traceback" not in run.stderr + run.stdout
+
+
+def test_torch_paths_stay_on_the_input_device():
+    """Every torch op runs on the input's device (checked on 'meta': mixing devices would raise)."""
+    from solidkit.envmap.cubemap import cube_from_equirect, equirect_from_cube
+    from solidkit.envmap.perspective import embed_perspective, intrinsics_from_fov, perspective_crop
+
+    dev = "meta"
+    p = torch.empty(2, 3, 16, 32, device=dev)
+    R = torch.as_tensor(ROTATIONS[0], dtype=torch.float32, device=dev)
+    K = intrinsics_from_fov(1.0, 8, 6)
+    outs = [
+        rotate(p, R),
+        rotate(p, torch.stack([R, R])),
+        perspective_crop(p, R, (8, 6), K=K),
+        embed_perspective(torch.empty(2, 3, 6, 8, device=dev), K, R, 16)[1],
+        cube_from_equirect(p, 8),
+        equirect_from_cube(torch.empty(2, 6, 3, 8, 8, device=dev), 16),
+        resize(p, 7),
+        downsample(p, 2),
+    ]
+    assert all(o.device.type == dev for o in outs)
