@@ -25,7 +25,7 @@ from solidkit.model.losses import solidnet_losses
 from solidkit.model.solidnet import SolidNet, default_intrinsics
 from solidkit.model.warp import camera_rays
 
-__all__ = ["toy_batch", "fit", "batch_to"]
+__all__ = ["toy_batch", "fit", "batch_to", "batch_from_synth"]
 
 
 def _toy_sky(dirs: torch.Tensor, sun: torch.Tensor, ground: float = 0.3) -> torch.Tensor:
@@ -104,6 +104,37 @@ def toy_batch(
         out["geometry_mask"].append(geo[None])
         out["sky"].append(sky)
         out["local"].append(local[None].expand(n_probes, -1, -1, -1))
+    return {k: torch.stack(v).to(torch.bool if k == "geometry_mask" else torch.float32) for k, v in out.items()}
+
+
+def batch_from_synth(items: list[dict[str, Any]]) -> dict[str, torch.Tensor]:
+    """Collate :class:`solidkit.synth.dataset.SynthDataset` items into the model's batch format.
+
+    Maps ``plane_distance -> distance``, ``global -> sky``, ``probes -> local``,
+    ``probe_pixels -> pixels``; ``geometry_mask`` marks pixels with a normal (the generator writes
+    0 on sky). Probes the generator could not place (``probe_valid == 0``) are replaced by the
+    sample's first valid one, so every sample keeps the same number of probes.
+    """
+    out: dict[str, list[torch.Tensor]] = {k: [] for k in (
+        "image", "K", "pitch", "roll", "pixels", "albedo", "normal", "distance", "shadow", "geometry_mask", "sky", "local"
+    )}
+    for it in items:
+        valid = it["probe_valid"] > 0
+        if not valid.any():
+            raise ValueError(f"synth sample {it.get('index')} has no valid probe")
+        order = torch.where(valid, torch.arange(valid.numel()), torch.nonzero(valid)[0, 0])
+        out["image"].append(it["image"])
+        out["K"].append(it["K"])
+        out["pitch"].append(it["pitch"])
+        out["roll"].append(it["roll"])
+        out["pixels"].append(it["probe_pixels"][order])
+        out["albedo"].append(it["albedo"][:3])
+        out["normal"].append(it["normal"][:3])
+        out["distance"].append(it["plane_distance"][:1])
+        out["shadow"].append(it["shadow"][:1])
+        out["geometry_mask"].append(it["normal"][:3].norm(dim=0, keepdim=True) > 0.5)
+        out["sky"].append(it["global"][:3])
+        out["local"].append(it["probes"][order, :3])
     return {k: torch.stack(v).to(torch.bool if k == "geometry_mask" else torch.float32) for k, v in out.items()}
 
 
