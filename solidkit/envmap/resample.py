@@ -114,14 +114,21 @@ def pad_panorama(pano: Any, pad: int = PAD) -> Any:
         raise InputError(f"pad must be in [0, {h}], got {pad}")
     if pad == 0:
         return pano
-    xp = module_namespace(__import__("torch")) if _is_torch(pano) else module_namespace(np)
-    rows, cols = (-2, -1) if _is_torch(pano) else (0, 1)
+    if _is_torch(pano):
+        import torch
+
+        xp, rows, cols = module_namespace(torch), -2, -1
+
+        def idx(a: int, b: int) -> Any:
+            return torch.arange(a, b, device=pano.device)
+    else:
+        xp, rows, cols, idx = module_namespace(np), 0, 1, np.arange
     w = 2 * h
-    n = pano.shape[rows]
-    idx = lambda a, b: xp.arange(a, b) if not _is_torch(pano) else xp.arange(a, b, device=pano.device)  # noqa: E731
+    # across a pole: padded row -1-k is row k, shifted by W/2 (likewise below the bottom)
     top = xp.roll(xp.flip(xp.take(pano, idx(0, pad), axis=rows), axis=rows), w // 2, axis=cols)
-    bottom = xp.roll(xp.flip(xp.take(pano, idx(n - pad, n), axis=rows), axis=rows), w // 2, axis=cols)
+    bottom = xp.roll(xp.flip(xp.take(pano, idx(h - pad, h), axis=rows), axis=rows), w // 2, axis=cols)
     tall = xp.concat([top, pano, bottom], axis=rows)
+    # across the seam: columns wrap
     left = xp.take(tall, idx(w - pad, w), axis=cols)
     right = xp.take(tall, idx(0, pad), axis=cols)
     return xp.concat([left, tall, right], axis=cols)
