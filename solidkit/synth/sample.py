@@ -71,6 +71,7 @@ class SampleConfig:
     light_height: int = 512
     tex_size: int = 64
     p_sunsky: float = 0.5
+    block_length: float = 60.0
 
     def to_json(self) -> dict[str, Any]:
         d = asdict(self)
@@ -182,26 +183,29 @@ def _sun_json(sun: np.ndarray | None, cam: Camera) -> dict[str, Any]:
 class Generator:
     """Renders samples ``index`` of a dataset with master ``seed`` (block ``index // 6``, sector ``index % 6``).
 
-    Blocks and their six selected views are cached, so consecutive indices (one shard) reuse them.
+    The current block, its geometry-only scene and its selected views are cached, so consecutive
+    indices (one shard) reuse them; each sector's view depends only on (seed, block, sector).
     """
 
     seed: int
     config: SampleConfig = field(default_factory=SampleConfig)
-    _cache: dict[int, tuple[CityBlock, list[tuple[Camera, dict[str, Any]]]]] = field(default_factory=dict, repr=False)
+    _cache: dict[int, tuple[CityBlock, Any, dict[int, tuple[Camera, dict[str, Any]]]]] = field(default_factory=dict, repr=False)
 
-    def block_and_views(self, block_id: int) -> tuple[CityBlock, list[tuple[Camera, dict[str, Any]]]]:
+    def block_and_view(self, block_id: int, sector: int) -> tuple[CityBlock, tuple[Camera, dict[str, Any]]]:
+        """The block ``block_id`` and its best view in heading sector ``sector`` (cached per block)."""
+        cfg = self.config
         if block_id not in self._cache:
-            cfg = self.config
-            block = city_block(derive_seed(self.seed, block_id, 1))
-            geometry = to_mitsuba(block, None, tex_size=8)
-            K = intrinsics(cfg.width, cfg.height, cfg.hfov_deg)
-            rng = np.random.default_rng(derive_seed(self.seed, block_id, 2))
-            views = best_views(block, geometry, rng, K, cfg.width, cfg.height, candidates=cfg.candidates,
-                               min_categories=cfg.min_categories, max_object_share=cfg.max_object_share,
-                               item_size=cfg.item_size)
+            block = city_block(derive_seed(self.seed, block_id, 1), length=cfg.block_length)
             self._cache.clear()
-            self._cache[block_id] = (block, views)
-        return self._cache[block_id]
+            self._cache[block_id] = (block, to_mitsuba(block, None, tex_size=4), {})
+        block, geometry, views = self._cache[block_id]
+        if sector not in views:
+            K = intrinsics(cfg.width, cfg.height, cfg.hfov_deg)
+            rng = np.random.default_rng(derive_seed(self.seed, block_id, 2, sector))
+            views[sector] = best_views(block, geometry, rng, K, cfg.width, cfg.height, candidates=cfg.candidates,
+                                       min_categories=cfg.min_categories, max_object_share=cfg.max_object_share,
+                                       item_size=cfg.item_size, sectors=(sector,))[0]
+        return block, views[sector]
 
     def lighting(self, index: int) -> Lighting:
         rng = np.random.default_rng(derive_seed(self.seed, index, 3))
@@ -222,8 +226,7 @@ class Generator:
         tm = timings if timings is not None else {}
         t0 = time.perf_counter()
         block_id, sector = divmod(int(index), VIEWS_PER_BLOCK)
-        block, views = self.block_and_views(block_id)
-        cam, view_stats = views[sector]
+        block, (cam, view_stats) = self.block_and_view(block_id, sector)
         tm["views"] = time.perf_counter() - t0
         t0 = time.perf_counter()
         light = self.lighting(index)

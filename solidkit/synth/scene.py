@@ -182,8 +182,9 @@ def city_block(seed: int, *, length: float = 60.0) -> CityBlock:
         xa, xb = min(x_in, x_out), max(x_in, x_out)
         for za, zb in z_segments(-L, L):
             blk.add(box((xa, -curb, za), (xb, 0.0, zb), walk_mat, "sidewalk"))
-            if abs(za) < L / 3 + 20 or abs(zb) < L / 3 + 20:
-                blk.walkable.append((xa + 0.3, xb - 0.3, max(za, -L / 3), min(zb, L / 3), -curb))
+            z0, z1 = max(za, -L / 3), min(zb, L / 3)
+            if z1 > z0 + 0.5:
+                blk.walkable.append((xa + 0.3, xb - 0.3, z0, z1, -curb))
     blk.walkable.append((-hw + 0.5, hw - 0.5, -L / 3, L / 3, 0.0))
     dash = float(rng.uniform(2.0, 4.0))
     for z in np.arange(-L, L, 2 * dash):
