@@ -159,6 +159,7 @@ def test_second_run_does_nothing_and_says_so(card, tmp_path):
     runner = CliRunner()
     r = runner.invoke(app, ["ingest", str(card), str(camp)])
     assert "nothing to do" in r.output
+    assert "skipped notes.txt: not a capture" in r.output and "R0010091.JPG: cannot decode JPEG" in r.output
     assert isinstance(r.exception, InputError) and "3 file(s)" in str(r.exception)  # the bad files, again
     assert tree_digest(camp) == before  # not a byte or an mtime changed
 

@@ -996,6 +996,12 @@ def ingest_command(
         for pr in sc.probes:
             for w in pr.warnings:
                 out.print(f"[yellow]warning[/] {escape(sc.id)}/{escape(pr.id)}: {escape(w)}")
+    for i, name in enumerate(report.unrelated):
+        if i == 20:
+            out.print(f"  ... and {len(report.unrelated) - 20} more unrelated file(s) (listed in the manifest's 'skipped')")
+            break
+        why = "hidden file" if Path(name).name.startswith(".") else "not a capture (.jpg/.jpeg/.dng)"
+        out.print(f"[dim]skipped[/] {escape(name)}: {why}")
     for msg in report.product_errors:
         out.print(f"[yellow]product not built[/] {escape(msg)}")
     errors = [e for e in manifest.errors if e.card == str(Path(card_dir).resolve())]
