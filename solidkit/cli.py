@@ -8,6 +8,7 @@ from typing import Optional
 
 import typer
 
+from solidkit.calibration.cli import app as calibrate_app
 from solidkit.capture.campaign import ingest_cli
 from solidkit.capture.cli import app as capture_app
 from solidkit.envmap.cli import app as envmap_app
@@ -24,6 +25,7 @@ app = typer.Typer(
 )
 app.add_typer(envmap_app, name="envmap", help="Inspect, rotate, crop panoramas and find the sun.")
 app.add_typer(capture_app, name="capture", help="Theta captures: metadata, dual-fisheye unwarping.")
+app.add_typer(calibrate_app, name="calibrate", help="Lens, response-curve, colour, vignetting and photo-camera profiles.")
 app.add_typer(synth_app, name="synth", help="Synthetic SOLID-Img-style data and a virtual campaign (Mitsuba 3).")
 app.command("ingest")(ingest_cli)
 app.command("predict")(predict_command)

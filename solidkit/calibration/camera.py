@@ -11,7 +11,9 @@ Sources of K, best first:
 2. EXIF ``FocalLength`` with ``FocalPlaneXResolution`` (pixels per mm on the sensor);
 3. EXIF ``FocalLength`` with the sensor width from :data:`SENSOR_WIDTH_MM` (by camera model);
 4. EXIF ``FocalLengthIn35mmFilm`` (35 mm-equivalent, defined on the 43.27 mm diagonal);
-5. a known horizontal field of view (e.g. a perspective crop of a Theta panorama).
+5. a known horizontal field of view (e.g. a perspective crop of a Theta panorama: its K is
+   the crop's, given by the FOV it was rendered with; a 360° camera's own stills are
+   equirectangular or fisheye and have no pinhole K, so they are refused without ``fov_deg``).
 """
 
 from __future__ import annotations
@@ -57,11 +59,6 @@ SENSOR_WIDTH_MM: dict[str, float] = {
     "Canon EOS 5D Mark III": 36.0,
     "Canon EOS Kiss X4": 22.3,
     "Canon EOS 550D": 22.3,
-    "RICOH THETA S": 6.17,  # 1/2.3" per lens
-    "RICOH THETA SC": 6.17,
-    "RICOH THETA V": 6.17,
-    "RICOH THETA SC2": 6.17,
-    "RICOH THETA Z1": 13.2,  # 1"
     "iPhone 11": 5.6,  # wide camera, 1/2.55"
     "iPhone 12": 5.6,
     "iPhone 13": 7.0,
@@ -255,6 +252,10 @@ def calibrate_camera_from_photo(
     """Camera profile of one photo from its EXIF (or a given horizontal FOV in degrees)."""
     photo = Path(photo)
     info = read_exif(photo)
+    if fov_deg is None and info.width == 2 * info.height and "THETA" in (info.model or "").upper():
+        raise IntrinsicsError(
+            f"{photo}: a {info.model} equirectangular panorama has no pinhole K; for a perspective crop of it give --fov-deg"
+        )
     if fov_deg is not None:
         K, source = intrinsics_from_fov(info.width, info.height, math.radians(fov_deg)), "fov"
     else:

@@ -1,0 +1,282 @@
+"""``solidkit calibrate ...``: lens, response, colour, vignetting and photo-camera profiles.
+
+Every command prints a short summary and writes its profile JSON atomically (with provenance:
+inputs and their SHA-256, date, solidkit version, and the fit's residuals). Angles are degrees
+at this edge (conventions §6).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Optional
+
+import numpy as np
+import typer
+from rich.console import Console
+from rich.markup import escape
+from rich.table import Table
+
+from solidkit.errors import InputError
+
+app = typer.Typer(no_args_is_help=True)
+console = Console()
+
+
+def _floats(text: str | None, n: int | None, what: str) -> list[float] | None:
+    if text is None:
+        return None
+    try:
+        vals = [float(x) for x in text.replace(" ", "").split(",") if x]
+    except ValueError:
+        raise InputError(f"{what}: expected comma-separated numbers, got {text!r}") from None
+    if n is not None and len(vals) != n:
+        raise InputError(f"{what}: expected {n} numbers, got {len(vals)}")
+    return vals
+
+
+def _pattern(text: str) -> tuple[int, int]:
+    try:
+        a, b = (int(x) for x in text.lower().split("x"))
+    except ValueError:
+        raise InputError(f"--pattern: expected inner corners as COLSxROWS (e.g. 9x6), got {text!r}") from None
+    if a < 2 or b < 2:
+        raise InputError(f"--pattern: a board needs at least 2x2 inner corners, got {text!r}")
+    return a, b
+
+
+def _fmt(x: float | None, spec: str = ".3g") -> str:
+    return "-" if x is None else format(x, spec)
+
+
+# ------------------------------------------------------------------------------------- response
+@app.command()
+def response(
+    frames: list[Path] = typer.Argument(..., help="Aligned bracket frames (8-bit JPEG/PNG/TIFF)."),
+    out: Path = typer.Option(..., "-o", "--out", help="Profile JSON to write (a plot is written beside it as .png)."),
+    times: Optional[str] = typer.Option(None, "--times", help="Exposure times in seconds, comma-separated (default: EXIF)."),
+    method: str = typer.Option("debevec", "--method", help="debevec (default) or robertson."),
+    samples: int = typer.Option(400, help="Debevec: pixel samples."),
+    smoothness: float = typer.Option(10.0, help="Debevec: smoothness weight lambda."),
+    plot: bool = typer.Option(True, "--plot/--no-plot", help="Save the curve plot beside the profile."),
+) -> None:
+    """Camera response curve (inverse, per channel) from exposure brackets."""
+    from solidkit.calibration.response import calibrate_response_files, plot_response
+
+    t = _floats(times, len(frames), "--times")
+    with console.status("fitting the response curve"):
+        prof = calibrate_response_files(frames, t, method=method, samples=samples, smoothness=smoothness)
+    prof.save(out)
+    table = Table(title=f"response curve ({prof.method})", show_header=False)
+    table.add_row("frames / exposure times", f"{len(frames)} / " + ", ".join(f"{x:g}" for x in prof.exposure_times_s) + " s")
+    san = prof.sanity
+    table.add_row("monotonic (smoothed)", "yes" if san["monotonic"] else f"[red]no[/] at codes {san['non_monotonic_codes']}")
+    table.add_row("codes observed (R, G, B)", ", ".join(f"{c:.0%}" for c in san.get("coverage_fraction", [])))
+    table.add_row("dynamic range codes 1..254", ", ".join(f"{d:.1f}" for d in san["dynamic_range_stops"]) + " stops")
+    table.add_row("radiance disagreement (RMS)", ", ".join(f"{r:.3f}" for r in prof.residuals["rms_stops_per_channel"]) + " stops")
+    if plot:
+        png = plot_response(prof.array(), out.with_suffix(".png"), title=f"inverse response ({prof.method})")
+        table.add_row("plot", str(png))
+    table.add_row("profile", str(out))
+    console.print(table)
+
+
+# --------------------------------------------------------------------------------------- colour
+@app.command()
+def colour(
+    image: Path = typer.Argument(..., help="Image of a ColorChecker 24: raw (DNG...), EXR, or 8-bit (with --response)."),
+    out: Path = typer.Option(..., "-o", "--out", help="Profile JSON to write."),
+    corners: Optional[str] = typer.Option(
+        None, "--corners", help="Centres of the corner patches x1,y1,...,x4,y4 in pixels: dark skin, bluish green, black, white."
+    ),
+    response_path: Optional[Path] = typer.Option(None, "--response", help="Response profile to linearise an 8-bit image."),
+    white_preserving: bool = typer.Option(True, "--white-preserving/--free", help="Constrain the CCM to map white exactly."),
+) -> None:
+    """White balance + 3x3 colour-correction matrix from a ColorChecker (CIEDE2000 before/after)."""
+    from solidkit.calibration.colour import calibrate_colour, read_linear_image
+    from solidkit.calibration.response import ResponseProfile
+
+    resp = ResponseProfile.load(response_path).array() if response_path else None
+    img = read_linear_image(image, resp)
+    c = _floats(corners, 8, "--corners")
+    with console.status("locating the chart and fitting"):
+        prof = calibrate_colour(img, None if c is None else np.array(c).reshape(4, 2), white_preserving, inputs=[image])
+    prof.save(out)
+    r = prof.residuals
+    table = Table(title=f"colour profile ({prof.detection})", show_header=False)
+    table.add_row("white balance (R, G, B)", ", ".join(f"{g:.4g}" for g in prof.white_balance))
+    table.add_row("CCM", "\n".join("  ".join(f"{v:+.4f}" for v in row) for row in prof.ccm))
+    for stage in ("before", "white_balance", "ccm"):
+        table.add_row(f"CIEDE2000 {stage.replace('_', ' ')}", f"mean {r['ciede2000_mean'][stage]:.2f}, max {r['ciede2000_max'][stage]:.2f}")
+    if r["patches_clipped"]:
+        table.add_row("[yellow]clipped patches[/]", str(r["patches_clipped"]))
+    table.add_row("profile", str(out))
+    console.print(table)
+
+
+# --------------------------------------------------------------------------------------- camera
+@app.command()
+def camera(
+    inputs: list[Path] = typer.Argument(..., help="One photo (EXIF route) or checkerboard views (with --pattern)."),
+    out: Path = typer.Option(..., "-o", "--out", help="Profile JSON to write."),
+    pattern: Optional[str] = typer.Option(None, "--pattern", help="Checkerboard inner corners COLSxROWS: calibrate from the views."),
+    square: float = typer.Option(1.0, "--square", help="Checkerboard square size (any unit)."),
+    sensor_width_mm: Optional[float] = typer.Option(None, "--sensor-width-mm", help="Sensor width (overrides the table)."),
+    fov_deg: Optional[float] = typer.Option(None, "--fov-deg", help="Known horizontal field of view in degrees."),
+) -> None:
+    """Photo-camera intrinsics K (EXIF, field of view or checkerboard) and K at the model's 320x240 input."""
+    from solidkit.calibration.camera import calibrate_camera_from_board, calibrate_camera_from_photo
+
+    if pattern:
+        with console.status(f"detecting the board in {len(inputs)} views"):
+            prof = calibrate_camera_from_board(inputs, _pattern(pattern), square)
+    else:
+        if len(inputs) != 1:
+            raise InputError("give one photo (EXIF route), or --pattern COLSxROWS for checkerboard views")
+        prof = calibrate_camera_from_photo(inputs[0], sensor_width_mm, fov_deg)
+    prof.save(out)
+    K, K2 = prof.matrix(), prof.matrix(True)
+    table = Table(title=f"camera profile ({prof.source})", show_header=False)
+    table.add_row("image", f"{prof.image_size[0]} x {prof.image_size[1]}" + (f" ({escape(prof.camera_model)})" if prof.camera_model else ""))
+    table.add_row("fx, fy / cx, cy", f"{K[0, 0]:.2f}, {K[1, 1]:.2f} / {K[0, 2]:.2f}, {K[1, 2]:.2f} px")
+    table.add_row("field of view", f"{prof.hfov_deg:.2f}° x {prof.vfov_deg:.2f}°")
+    x0, y0, w, h = prof.crop_box
+    table.add_row("crop -> 320x240", f"{w}x{h} at ({x0}, {y0}); fx {K2[0, 0]:.2f}, cx, cy {K2[0, 2]:.2f}, {K2[1, 2]:.2f}")
+    if "rms_px" in prof.residuals:
+        table.add_row("RMS reprojection", f"{prof.residuals['rms_px']:.3f} px ({prof.residuals['views_used']} views)")
+        for name, why in prof.residuals["rejected_views"].items():
+            table.add_row(f"[yellow]rejected[/] {escape(name)}", escape(why))
+    table.add_row("profile", str(out))
+    console.print(table)
+
+
+# ----------------------------------------------------------------------------------------- lens
+@app.command()
+def lens(
+    views: list[Path] = typer.Argument(..., help="Checkerboard views through the fisheye lens."),
+    out: Path = typer.Option(..., "-o", "--out", help="Lens profile JSON to write (lens-profile format); a .calibration.json record is written beside it."),
+    pattern: str = typer.Option(..., "--pattern", help="Inner corners COLSxROWS (e.g. 6x9)."),
+    square: float = typer.Option(1.0, "--square", help="Square size (any unit)."),
+    name: str = typer.Option("front", "--name", help="Lens name in the profile (front, back, ...)."),
+    model: str = typer.Option("auto", "--model", help="auto (lowest held-out error), kb or mei."),
+    crop: Optional[str] = typer.Option(None, "--crop", help="x0,y0,w,h: this lens' region of each view (dual-fisheye frames)."),
+    ypr: str = typer.Option("0,0,0", "--ypr", help="Lens orientation yaw,pitch,roll in degrees (back lens: 180,0,0)."),
+    max_angle_deg: Optional[float] = typer.Option(None, "--max-angle-deg", help="Largest incidence angle the lens images."),
+    holdout_k: Optional[int] = typer.Option(None, "--holdout-k", help="Views held out per fold (default: 5 folds)."),
+    add_to: Optional[Path] = typer.Option(None, "--add-to", help="Existing lens profile to add this lens to (replaces a lens of the same name)."),
+    profile_name: str = typer.Option("calibrated", "--profile-name", help="Profile 'model' name."),
+    camera_model: list[str] = typer.Option([], "--camera-model", help="EXIF camera model(s) the profile applies to."),
+    max_blur_px: float = typer.Option(4.0, "--max-blur-px", help="Reject views whose board edges are wider than this (px)."),
+) -> None:
+    """Fisheye intrinsics (Kannala-Brandt and Mei) from checkerboard views, exported as a lens profile."""
+    from solidkit.calibration.boards import detect_views, read_gray
+    from solidkit.calibration.fisheye import calibrate_fisheye, lens_profile_from_calibrations
+    from solidkit.capture.lens import load_profile as load_lens_profile
+
+    pat = _pattern(pattern)
+    models = ("kb", "mei") if model == "auto" else (model,)
+    if model not in ("auto", "kb", "mei"):
+        raise InputError(f"--model: auto, kb or mei, got {model!r}")
+    box = _floats(crop, 4, "--crop")
+    angles = _floats(ypr, 3, "--ypr")
+    full_size = None
+    images = []
+    for p in views:
+        g = read_gray(p)
+        if full_size is None:
+            full_size = (g.shape[1], g.shape[0])
+        if box is not None:
+            x0, y0, w, h = (int(round(v)) for v in box)
+            g = g[y0 : y0 + h, x0 : x0 + w]
+            if g.shape[:2] != (h, w):
+                raise InputError(f"{p}: --crop {crop} exceeds the {full_size[0]}x{full_size[1]} image")
+        images.append(np.ascontiguousarray(g))
+    with console.status(f"detecting the board in {len(views)} views"):
+        dviews = detect_views(images, pat, max_blur_px, names=[p.name for p in views])
+    with console.status("fitting " + " and ".join(models) + " with held-out folds"):
+        cal = calibrate_fisheye(
+            dviews, pat, square, models, holdout_k, name, offset=(box[0], box[1]) if box else (0.0, 0.0),
+            ypr_deg=tuple(angles), max_angle_deg=max_angle_deg, inputs=views,
+        )
+    base = load_lens_profile(add_to) if add_to else None
+    prof = lens_profile_from_calibrations([cal], profile_name, full_size, camera_model, base=base)
+    prof.save(out)
+    record = out.with_name(f"{out.stem}.{name}.calibration.json")
+    cal.save(record)
+    table = Table(title=f"lens {name}: {cal.chosen_model} ({escape(cal.choice_reason)})")
+    table.add_column("view", overflow="fold")
+    for m in cal.models:
+        table.add_column(f"{m} fit px")
+        table.add_column(f"{m} held-out px")
+    for v in dviews:
+        row = [escape(v.name)]
+        for m, info in cal.models.items():
+            if "error" in info:
+                row += ["-", "-"]
+                continue
+            row += [_fmt(info["per_view_rms_px"].get(v.name)), _fmt(info["held_out"]["per_view_rms_px"].get(v.name))]
+        if cal.views.get(v.name, "used") != "used":
+            row[0] += f" [yellow]({escape(cal.views[v.name])})[/]"
+        table.add_row(*row)
+    summary = ["total"]
+    for m, info in cal.models.items():
+        summary += ["-", "-"] if "error" in info else [_fmt(info["rms_px"]), _fmt(info["held_out"]["rms_px"])]
+    table.add_row(*summary, style="bold")
+    console.print(table)
+    for m, info in cal.models.items():
+        if "error" in info:
+            console.print(f"[yellow]{m} failed:[/] {escape(info['error'])}")
+    lm = cal.lens_model()
+    console.print(
+        f"centre ({lm.center[0]:.2f}, {lm.center[1]:.2f}) px, f {lm.poly[0]:.2f} px/rad, max angle {lm.max_angle_deg:.1f}° "
+        f"(board seen up to {cal.observed_max_angle_deg:.1f}°); wrote {out} and {record}"
+    )
+
+
+# ----------------------------------------------------------------------------------- vignetting
+@app.command()
+def vignetting(
+    image: Path = typer.Argument(..., help="Linear(isable) fisheye image: a flat field, or a dual-fisheye scene (overlap)."),
+    out: Path = typer.Option(..., "-o", "--out", help="Profile JSON to write."),
+    lens_profile: str = typer.Option(..., "--lens-profile", help="Lens profile name (theta-s, ...) or JSON file: the geometry."),
+    method: str = typer.Option("overlap", "--method", help="overlap (two lenses) or flat (flat field)."),
+    degree: Optional[int] = typer.Option(None, "--degree", help="Polynomial terms in rho^2 (default: 1 overlap, 3 flat)."),
+    response_path: Optional[Path] = typer.Option(None, "--response", help="Response profile to linearise an 8-bit image."),
+    saturation: float = typer.Option(0.98, help="Linear value at/above which a pixel counts as clipped."),
+) -> None:
+    """Radial falloff of each fisheye lens, from a flat field or the two lenses' overlap."""
+    from solidkit.calibration.colour import read_linear_image
+    from solidkit.calibration.response import ResponseProfile
+    from solidkit.calibration.vignetting import falloff, fit_flat_field, fit_overlap, lenses_from_profile, make_profile
+    from solidkit.capture.lens import load_profile as load_lens_profile
+
+    resp = ResponseProfile.load(response_path).array() if response_path else None
+    img = read_linear_image(image, resp)
+    h, w = img.shape[:2]
+    lp = load_lens_profile(lens_profile).scaled(w, h)
+    with console.status(f"fitting the falloff ({method})"):
+        if method == "overlap":
+            lenses, res = fit_overlap(img, lp, degree or 1, saturation=saturation)
+        elif method == "flat":
+            lenses, res = fit_flat_field(img, lenses_from_profile(lp), degree or 3, saturation=saturation)
+        else:
+            raise InputError(f"--method: overlap or flat, got {method!r}")
+    prof = make_profile("overlap" if method == "overlap" else "flat-field", lenses, (w, h), res, [image], lens_profile=lp,
+                        degree=degree, saturation=saturation)
+    prof.save(out)
+    table = Table(title=f"vignetting ({prof.method})", show_header=False)
+    for l in prof.lenses:
+        table.add_row(l.name, "V = 1 " + " ".join(f"{a:+.4f}·ρ^{2 * (k + 1)}" for k, a in enumerate(l.coeffs))
+                      + f";  V(0.5) = {falloff(l.coeffs, 0.5):.3f}, V(0.9) = {falloff(l.coeffs, 0.9):.3f}")
+    if prof.method == "overlap":
+        table.add_row("samples / ρ range", f"{res['samples']} / {res['rho_range'][0]:.3f}..{res['rho_range'][1]:.3f}")
+        table.add_row("coefficient std. error", ", ".join(f"{e:.3g}" for e in res["coeff_stderr"]))
+        table.add_row("log ratio robust RMS", f"{res['log_ratio_robust_rms_stops_before']:.3f} -> {res['log_ratio_robust_rms_stops_after']:.3f} stops")
+        table.add_row("lens gain ratio (R, G, B)", ", ".join(f"{g:.4f}" for g in res["gain_ratio_per_channel"]))
+    else:
+        for name, r in res.items():
+            table.add_row(f"{name} fit", f"RMS {r['rms_rel']:.2%} of the binned profile, {r['pixels']} pixels")
+    table.add_row("profile", str(out))
+    console.print(table)
+    if prof.method == "overlap" and res["log_ratio_robust_rms_stops_after"] >= res["log_ratio_robust_rms_stops_before"]:
+        console.print("[yellow]warning:[/] the falloff did not reduce the overlap disagreement: this scene does not "
+                      "constrain it (parallax, texture, a non-linear image); prefer a flat field")
