@@ -368,7 +368,10 @@ def unwarp_file(
     if src.resolve() == dst.resolve():
         raise InputError(f"{dst}: refusing to overwrite the input (originals are never modified)")
     t0 = time.perf_counter()
-    meta = read_metadata(src) if src.suffix.lower() != ".exr" else None
+    from solidkit.capture.raw import is_raw_file
+
+    has_exif = src.suffix.lower() in (".jpg", ".jpeg", ".dng", ".tif", ".tiff") or is_raw_file(src)
+    meta = read_metadata(src) if has_exif else None  # PNG/EXR inputs carry no camera metadata
     summary: dict[str, Any] = {"input": str(src), "output": str(dst), "warnings": list(meta.warnings) if meta else []}
     out_h = parse_size(size)
     R = level_rotation(meta) if (meta is not None and level) else np.eye(3)
