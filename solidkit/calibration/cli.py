@@ -280,3 +280,28 @@ def vignetting(
     if prof.method == "overlap" and res["log_ratio_robust_rms_stops_after"] >= res["log_ratio_robust_rms_stops_before"]:
         console.print("[yellow]warning:[/] the falloff did not reduce the overlap disagreement: this scene does not "
                       "constrain it (parallax, texture, a non-linear image); prefer a flat field")
+
+
+@app.command()
+def overlap(
+    images: list[Path] = typer.Argument(..., help="Dual-fisheye captures of one camera unit (same size; outdoor scenes with texture at the horizon work best)."),
+    base: str = typer.Option(..., "--base", help="Model lens profile to start from (theta-v, theta-z1, theta-s, theta-s-video or a JSON file)."),
+    out: Path = typer.Option(..., "-o", "--out", help="Per-unit lens profile to write (JSON; use with `capture unwarp --profile`)."),
+    circle_sigma: float = typer.Option(1.0, "--circle-sigma", help="Prior (px) tying each lens centre to its fitted image circle; 0 = photometric only."),
+    scale_sigma: float = typer.Option(0.02, "--scale-sigma", help="Prior std of the difference of the two lenses' log scales."),
+    fix_scale: bool = typer.Option(False, "--fix-scale", help="Keep r(theta) as in the base profile."),
+) -> None:
+    """Refine lens centres, scales and the inter-lens rotation on the overlap ring (robust photometric fit)."""
+    from solidkit.capture.refine import refine_files
+
+    s = refine_files(images, base, out, circle_sigma_px=circle_sigma or None, scale_sigma=scale_sigma, fix_scale=fix_scale)
+    table = Table(title=escape(str(out)), show_header=False)
+    table.add_row("base profile / images", f"{escape(s['base'])} / {s['images']}")
+    for i, name in enumerate(("front", "back")):
+        dx, dy = s["center_shift_px"][i]
+        table.add_row(f"{name} centre shift / scale", f"{dx:+.2f}, {dy:+.2f} px / {s['scale'][i]:.4f}")
+    table.add_row("back lens rotation change", f"{s['back_rotation_change_deg']:.3f}° (ypr now " + ", ".join(f"{a:.2f}°" for a in s["back_ypr_deg"]) + ")")
+    table.add_row("seam disagreement (linear)", f"{s['seam_mad_before']:.4g} -> {s['seam_mad_after']:.4g}")
+    console.print(table)
+    if s["seam_mad_after"] >= s["seam_mad_before"]:
+        console.print("[yellow]warning:[/] refinement did not reduce the seam disagreement; check the base profile and the images")

@@ -22,6 +22,7 @@ Profile format (JSON, ``schema_version`` 1; shared with the Calibration issue)
        },
        {"name": "back", ..., "ypr_deg": [180, 0, 0]}],
      "residuals": {...},                      # optional: fit/refinement quality (units in the key names)
+     "provenance": {...},                     # optional: inputs (path, sha256), tool, version, date
      "notes": "..."}
 
 Geometry
@@ -203,6 +204,7 @@ class LensProfile(BaseModel):
     lenses: list[LensModel]
     parent: str | None = None
     residuals: dict[str, Any] = Field(default_factory=dict)
+    provenance: dict[str, Any] = Field(default_factory=dict)
     notes: str = ""
 
     @field_validator("schema_version")
