@@ -163,3 +163,12 @@ def test_real_frobisher_exif(real_data):
     assert prof.source == "exif-sensor-table"  # Canon EOS 5D Mark II, 16 mm, full frame
     assert prof.matrix()[0, 0] == pytest.approx(16 * 640 / 36)
     assert prof.hfov_deg == pytest.approx(2 * math.degrees(math.atan(18 / 16)))
+
+
+@pytest.mark.real
+def test_real_theta_equirect_has_no_pinhole_K(real_data):
+    photo = real_data / "theta_s_equirect" / "Jobsite1.JPG"
+    with pytest.raises(IntrinsicsError, match="equirectangular panorama has no pinhole K"):
+        calibrate_camera_from_photo(photo)
+    prof = calibrate_camera_from_photo(photo, fov_deg=60)  # a perspective crop of it, rendered at 60° HFOV
+    assert prof.hfov_deg == pytest.approx(60)

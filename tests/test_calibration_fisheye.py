@@ -16,6 +16,7 @@ from solidkit.calibration.fisheye import (
     fit_kb,
     fit_mei,
     fit_model,
+    lens_model_from_fit,
     lens_profile_from_calibrations,
 )
 from solidkit.calibration.profile import load_profile
@@ -112,6 +113,14 @@ def test_exported_lens_matches_truth(calibrated, tmp_path):
     rec = load_profile(calibrated.save(tmp_path / "front.calibration.json"))
     assert isinstance(rec, FisheyeProfile) and rec.chosen_model == calibrated.chosen_model
     assert json.loads((tmp_path / "front.calibration.json").read_text())["kind"] == "fisheye"
+
+
+def test_crop_offset_moves_the_centre(rendered):
+    views, _ = rendered
+    fit = fit_model("kb", views, PATTERN)
+    a = lens_model_from_fit(fit, "front")
+    b = lens_model_from_fit(fit, "back", offset=(512.0, 0.0), ypr_deg=(180.0, 0.0, 0.0))
+    assert b.center == (a.center[0] + 512.0, a.center[1]) and b.poly == a.poly and b.ypr_deg == (180.0, 0.0, 0.0)
 
 
 def test_offset_and_second_lens_added(calibrated, tmp_path):
