@@ -277,3 +277,19 @@ def test_real_frobisher_brackets_merge(real_data, tmp_path):
     assert stats["dynamic_range_stops"] > 10
     print(f"frobisher: dynamic range {stats['dynamic_range_stops']:.2f} stops, ghosts {100 * stats['ghost_fraction']:.2f} %, "
           f"saturated in all frames {100 * stats['saturated_in_all_frames_fraction']:.2f} %")
+
+
+@pytest.mark.real
+def test_real_frobisher_with_calibrated_response(real_data, tmp_path):
+    """The Calibration issue's response profile plugs in; it removes the sRGB-mismatch 'ghosts'."""
+    from solidkit.calibration.response import calibrate_response_files
+
+    frames = sorted((real_data / "brackets_frobisher").glob("IMG_26*.jpg"))
+    calibrate_response_files(frames).save(tmp_path / "canon.json")
+    srgb = merge_files(frames, tmp_path / "a.exr")[0]
+    cal = merge_files(frames, tmp_path / "b.exr", response_path=tmp_path / "canon.json")[0]
+    _, meta = read_exr(tmp_path / "b.exr")
+    assert meta["provenance"]["response"]["kind"] == "file" and len(meta["provenance"]["response"]["sha256"]) == 64
+    print(f"frobisher ghost fraction: sRGB response {100 * srgb['ghost_fraction']:.2f} %, "
+          f"calibrated {100 * cal['ghost_fraction']:.2f} %; dynamic range {cal['dynamic_range_stops']:.2f} stops")
+    assert cal["ghost_fraction"] < 0.01 < srgb["ghost_fraction"]
