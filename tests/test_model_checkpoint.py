@@ -53,6 +53,27 @@ def test_round_trip_gives_identical_outputs(tiny_ckpt):
         assert torch.equal(a[k], c[k])
 
 
+def test_half_precision_checkpoint_is_smaller_and_close(tiny_ckpt, tmp_path):
+    model, path = tiny_ckpt
+    half = save_checkpoint(model, tmp_path / "half.pt", half=True)
+    assert half.stat().st_size < 0.75 * path.stat().st_size
+    loaded = SolidNet.from_checkpoint(half)
+    assert all(p.dtype == torch.float32 for p in loaded.parameters())
+    b = toy_batch(model.config, 1, 1, 2)
+    with torch.no_grad():
+        a = model.inet(b["image"])["sky_log"]
+        c = loaded.inet(b["image"])["sky_log"]
+    assert torch.allclose(a, c, rtol=0.02, atol=0.02)
+
+
+def test_missing_shipped_checkpoint_message(monkeypatch, tmp_path):
+    import solidkit.model.solidnet as sn
+
+    monkeypatch.setattr(sn, "DEFAULT_CHECKPOINT", tmp_path / "none.pt")
+    with pytest.raises(CheckpointError, match="no shipped checkpoint"):
+        SolidNet.from_checkpoint()
+
+
 def _rewrite(path, out, **changes):
     payload = torch.load(path, weights_only=True)
     payload.update(changes)

@@ -155,6 +155,10 @@ class SolidNet(nn.Module):
     @classmethod
     def from_checkpoint(cls, path: str | os.PathLike | None = None, map_location: str = "cpu") -> SolidNet:
         """Rebuild the model saved at ``path`` (default: the shipped checkpoint), in eval mode."""
+        if path is None and not DEFAULT_CHECKPOINT.is_file():
+            raise CheckpointError(
+                f"no shipped checkpoint at {DEFAULT_CHECKPOINT}; pass a checkpoint path (--checkpoint)"
+            )
         ckpt = load_checkpoint(path or DEFAULT_CHECKPOINT, map_location)
         model = cls(ckpt["config"])
         try:
@@ -259,8 +263,17 @@ class Prediction:
 # ---------------------------------------------------------------------- checkpoint I/O
 
 
-def save_checkpoint(model: SolidNet, path: str | os.PathLike, card: dict[str, Any] | None = None) -> Path:
-    """Save ``model`` with its config, the conventions version and ``card`` (atomic write)."""
+def save_checkpoint(
+    model: SolidNet, path: str | os.PathLike, card: dict[str, Any] | None = None, *, half: bool = False
+) -> Path:
+    """Save ``model`` with its config, the conventions version and ``card`` (atomic write).
+
+    ``half=True`` stores floating-point weights as float16 (half the size; they are cast back to
+    float32 on loading, a relative rounding of about 5e-4).
+    """
+    state = {k: v.detach().cpu() for k, v in model.state_dict().items()}
+    if half:
+        state = {k: v.half() if v.is_floating_point() else v for k, v in state.items()}
     payload = {
         "format": CHECKPOINT_FORMAT,
         "format_version": CHECKPOINT_VERSION,
@@ -268,7 +281,7 @@ def save_checkpoint(model: SolidNet, path: str | os.PathLike, card: dict[str, An
         "model": type(model).__name__,
         "config": model.config.to_dict(),
         "card": dict(card or {}),
-        "state_dict": {k: v.detach().cpu() for k, v in model.state_dict().items()},
+        "state_dict": state,
     }
     buf = io.BytesIO()
     torch.save(payload, buf)
@@ -307,4 +320,7 @@ def load_checkpoint(path: str | os.PathLike, map_location: str = "cpu") -> dict[
         raise CheckpointError(f"{path}: invalid model configuration ({exc})") from None
     if not isinstance(payload.get("state_dict"), dict):
         raise CheckpointError(f"{path}: checkpoint has no weights")
+    payload["state_dict"] = {
+        k: v.float() if torch.is_tensor(v) and v.is_floating_point() else v for k, v in payload["state_dict"].items()
+    }
     return payload

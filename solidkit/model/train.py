@@ -193,3 +193,103 @@ def _cycle(batches: Iterable[Any]) -> Iterator[Any]:
             yield b
         if empty:
             raise ValueError("no batches to train on")
+
+
+def train_on_synth(
+    data: str,
+    out: str,
+    config: SolidNetConfig | None = None,
+    *,
+    steps: int = 100_000,
+    max_seconds: float = 300.0,
+    batch_size: int = 2,
+    probes: int = 2,
+    lr: float = 1e-3,
+    seed: int = 0,
+    threads: int = 1,
+    half: bool = True,
+) -> dict[str, Any]:
+    """Briefly train ``config`` (default ``small``) on a ``solidkit synth dataset`` folder and save a
+    checkpoint with its card (data size, steps, time, hardware, seed, final losses).
+
+    Each step draws ``batch_size`` samples and ``probes`` of their 4 probes at random (seeded).
+    Returns the card.
+    """
+    import os
+    import platform
+
+    from solidkit.model.config import preset
+    from solidkit.model.solidnet import save_checkpoint
+    from solidkit.synth.dataset import SynthDataset
+
+    torch.manual_seed(seed)
+    torch.set_num_threads(threads)
+    cfg = config or preset("small")
+    ds = SynthDataset(data)
+    if len(ds) == 0:
+        raise ValueError(f"{data}: no kept samples")
+    items = [ds[i] for i in range(len(ds))]  # a small dataset: keep it in memory
+    g = torch.Generator().manual_seed(seed)
+
+    def batches() -> Iterator[dict[str, torch.Tensor]]:
+        while True:
+            idx = torch.randperm(len(items), generator=g)[:batch_size].tolist()
+            b = batch_from_synth([items[i] for i in idx])
+            pick = torch.randperm(b["pixels"].shape[1], generator=g)[:probes]
+            b["pixels"], b["local"] = b["pixels"][:, pick], b["local"][:, pick]
+            yield b
+
+    model = SolidNet(cfg)
+    t0 = time.monotonic()
+    history = fit(model, batches(), steps, lr=lr, max_seconds=max_seconds)
+    seconds = time.monotonic() - t0
+    last = history[-min(10, len(history)) :]
+    card = {
+        "what": "first small SOLID-Net checkpoint, trained briefly: a smoke-level model, not an accurate one",
+        "config": cfg.name,
+        "data": {"path": str(data), "samples": len(items), "generator": "solidkit synth dataset"},
+        "steps": len(history),
+        "batch_size": batch_size,
+        "probes_per_sample": probes,
+        "optimizer": f"Adam lr={lr}",
+        "teacher_geometry": True,
+        "seconds": round(seconds, 1),
+        "hardware": f"{platform.processor() or platform.machine()}, {os.cpu_count()} CPU cores (shared), {threads} torch thread(s)",
+        "torch": torch.__version__,
+        "seed": seed,
+        "loss_first": {k: round(v, 4) for k, v in history[0].items()},
+        "loss_last10_mean": {k: round(sum(h[k] for h in last) / len(last), 4) for k in last[0]},
+        "weights": "float16" if half else "float32",
+    }
+    save_checkpoint(model, out, card, half=half)
+    return card
+
+
+def main(argv: list[str] | None = None) -> None:
+    """``python -m solidkit.model.train DATA OUT [--seconds S] [--config small] [--seed N]``."""
+    import argparse
+    import json
+
+    from solidkit.model.config import preset
+
+    ap = argparse.ArgumentParser(description=train_on_synth.__doc__)
+    ap.add_argument("data")
+    ap.add_argument("out")
+    ap.add_argument("--config", default="small")
+    ap.add_argument("--seconds", type=float, default=300.0)
+    ap.add_argument("--steps", type=int, default=100_000)
+    ap.add_argument("--batch-size", type=int, default=2)
+    ap.add_argument("--probes", type=int, default=2)
+    ap.add_argument("--lr", type=float, default=1e-3)
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--threads", type=int, default=1)
+    a = ap.parse_args(argv)
+    card = train_on_synth(
+        a.data, a.out, preset(a.config), steps=a.steps, max_seconds=a.seconds, batch_size=a.batch_size,
+        probes=a.probes, lr=a.lr, seed=a.seed, threads=a.threads,
+    )
+    print(json.dumps(card, indent=1))
+
+
+if __name__ == "__main__":
+    main()
