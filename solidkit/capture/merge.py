@@ -58,7 +58,9 @@ __all__ = [
     "dynamic_range_stops",
     "effective_exposure",
     "sniff_format",
+    "lookup",
     "merge_files",
+    "BLOCK_ROWS",
 ]
 
 DEFAULT_SATURATION = 0.97  # code fraction (≈ 247/255): JPEG ringing sits just below 255
@@ -157,6 +159,25 @@ def hat_weight(code: np.ndarray, black: float = DEFAULT_BLACK, saturation: float
 
 
 # --------------------------------------------------------------------------- frames
+def _any3(x: np.ndarray) -> np.ndarray:
+    """``x.any(axis=-1)`` for a last axis of 3 (NumPy's small-axis reduction is slow)."""
+    return x[..., 0] | x[..., 1] | x[..., 2]
+
+
+def lookup(codes: np.ndarray, table: np.ndarray) -> np.ndarray:
+    """``table[codes]`` for ``(H, W, 3)`` uint8 codes; ``table`` is ``(256,)`` or per channel ``(256, 3)``.
+
+    Through ``cv2.LUT`` (several times faster than NumPy fancy indexing); bool tables give bool.
+    """
+    table = np.asarray(table)
+    is_bool = table.dtype == bool
+    t = table.astype(np.uint8) if is_bool else table.astype(np.float32)
+    if t.ndim == 2:
+        t = np.ascontiguousarray(t.reshape(256, 1, t.shape[1]))
+    out = cv2.LUT(np.ascontiguousarray(codes), t)
+    return out.view(bool) if is_bool else out
+
+
 @dataclass
 class Frame:
     """One frame of a bracket, decoded.
@@ -201,8 +222,8 @@ class Frame:
         return self.codes
 
     def _per_code(self, table: np.ndarray) -> np.ndarray:
-        """``table[codes]`` for 8-bit codes (a 256-entry lookup, one pass)."""
-        return table[self.codes]
+        """``table[codes]`` for 8-bit codes (a 256-entry lookup, per channel when ``(256, 3)``)."""
+        return lookup(self.codes, table)
 
     def valid(self) -> np.ndarray:
         """``(H, W, 3)`` bool: usable samples (not saturated anywhere, channel above black); cached."""
@@ -213,7 +234,7 @@ class Frame:
             above = self._per_code(np.arange(256) / 255.0 > self.black)
         else:
             above = self.codes > self.black
-        above[self.saturated] = False
+        above &= ~self.saturated[..., None]
         self.__dict__["_valid"] = above
         return above
 
@@ -239,7 +260,7 @@ class Frame:
             floor = 1e-6 * float(np.abs(self.response).max())
             inv = (1.0 / np.maximum(slope, floor)).astype(np.float32)
             res = np.abs(self.linear - x)
-            res *= inv[self.codes, np.arange(3)]
+            res *= self._per_code(inv)
             return res, valid
         return np.abs(self.code - self.predict(radiance)), valid
 
@@ -251,7 +272,7 @@ class Frame:
             w = self._per_code(hat_weight(np.arange(256) / 255.0, self.black, self.saturation))
         else:
             w = hat_weight(self.codes, self.black, self.saturation)
-        w[self.saturated] = 0.0
+        w *= ~self.saturated[..., None]
         return w
 
     def observed(self) -> np.ndarray:
@@ -292,8 +313,8 @@ def frame_from_ldr(
     r = srgb_response() if response is None else validate_response(response)
     if img.dtype == np.uint8:
         codes = np.ascontiguousarray(img)
-        linear = r.astype(np.float32)[codes, np.arange(3)]  # one gather through the table
-        saturated = (codes >= np.uint8(np.ceil(saturation * 255.0))).any(axis=-1)
+        linear = lookup(codes, r.astype(np.float32))  # one pass through the table
+        saturated = _any3(codes >= np.uint8(np.ceil(saturation * 255.0)))
     else:
         if np.issubdtype(img.dtype, np.integer):
             codes = img.astype(np.float32) / float(np.iinfo(img.dtype).max)
@@ -301,7 +322,7 @@ def frame_from_ldr(
             codes = np.clip(img.astype(np.float32), 0.0, 1.0)
         grid = np.arange(256, dtype=np.float64) / 255.0
         linear = np.stack([np.interp(codes[..., c], grid, r[:, c]) for c in range(3)], axis=-1).astype(np.float32)
-        saturated = (codes >= saturation).any(axis=-1)
+        saturated = _any3(codes >= saturation)
     return Frame(linear, codes, float(exposure), saturated, r, name, black, saturation)
 
 
@@ -452,6 +473,18 @@ def _check_frames(frames: Sequence[Frame]) -> None:
             )
 
 
+BLOCK_ROWS = 128  # rows per processing block: temporaries stay small (cache-friendly, no page-fault storms)
+
+
+def _blocks(h: int, rows: int = BLOCK_ROWS) -> list[slice]:
+    return [slice(r, min(r + rows, h)) for r in range(0, h, rows)]
+
+
+def _rows(f: Frame, sl: slice) -> Frame:
+    """A view of frame ``f`` restricted to the rows ``sl`` (no copies)."""
+    return Frame(f.linear[sl], f.codes[sl], f.exposure, f.saturated[sl], f.response, f.name, f.black, f.saturation)
+
+
 def merge_frames(
     frames: Sequence[Frame],
     *,
@@ -459,6 +492,8 @@ def merge_frames(
     deghost: bool = False,
 ) -> MergeResult:
     """Merge frames into linear HDR (see the module docstring for the estimator and masks).
+
+    Processed in blocks of :data:`BLOCK_ROWS` rows (results identical to whole-image processing).
 
     Parameters
     ----------
@@ -471,39 +506,46 @@ def merge_frames(
     """
     _check_frames(frames)
     h, w, _ = frames[0].linear.shape
-    num = np.zeros((h, w, 3), np.float32)
-    den = np.zeros((h, w, 3), np.float32)
-    sat_all = np.ones((h, w), bool)
-    scores = []
-    for f in frames:
-        # w = h(Z) t and estimate R(Z)/t: the numerator term is h(Z) R(Z), the denominator h(Z) t
-        hz = f.base_weight()
-        scores.append(float(hz.mean()))
-        num += hz * f.linear
-        hz *= np.float32(f.exposure)
-        den += hz
-        del hz
-        sat_all &= f.saturated
-    shortest = min(frames, key=lambda f: f.exposure)
-    longest = max(frames, key=lambda f: f.exposure)
-    empty = den <= 0
-    hdr = np.divide(num, den, out=num, where=~empty)  # num's storage is reused
-    hdr[empty] = 0.0
-    fill_short = empty & sat_all[..., None]
-    fill_long = empty & ~sat_all[..., None]
-    hdr[fill_short] = shortest.linear[fill_short] / np.float32(shortest.exposure)
-    hdr[fill_long] = longest.linear[fill_long] / np.float32(longest.exposure)
-    underexposed = fill_long.any(axis=-1)
+    hdr = np.empty((h, w, 3), np.float32)
+    weight_sum = np.empty((h, w), np.float32)
+    sat_all = np.empty((h, w), bool)
+    underexposed = np.empty((h, w), bool)
+    scores = np.zeros(len(frames))
+    i_short = min(range(len(frames)), key=lambda i: frames[i].exposure)
+    i_long = max(range(len(frames)), key=lambda i: frames[i].exposure)
+    for sl in _blocks(h):
+        sub = [_rows(f, sl) for f in frames]
+        num = np.zeros((sl.stop - sl.start, w, 3), np.float32)
+        den = np.zeros_like(num)
+        sat = np.ones(num.shape[:2], bool)
+        for i, f in enumerate(sub):
+            # w = h(Z) t and estimate R(Z)/t: the numerator term is h(Z) R(Z), the denominator h(Z) t
+            hz = f.base_weight()
+            scores[i] += float(hz.sum())
+            num += hz * f.linear
+            hz *= np.float32(f.exposure)
+            den += hz
+            sat &= f.saturated
+        empty = den <= 0
+        out = np.divide(num, den, out=num, where=~empty)
+        out[empty] = 0.0
+        fill_short = empty & sat[..., None]
+        fill_long = empty & ~sat[..., None]
+        out[fill_short] = sub[i_short].linear[fill_short] / np.float32(frames[i_short].exposure)
+        out[fill_long] = sub[i_long].linear[fill_long] / np.float32(frames[i_long].exposure)
+        hdr[sl], weight_sum[sl], sat_all[sl], underexposed[sl] = out, den[..., 0] + den[..., 1] + den[..., 2], sat, _any3(fill_long)
     # reference frame: the one with most well-exposed samples
     ref = int(np.argmax(scores))
     ghost, sigmas = detect_ghosts(frames, hdr, k=ghost_k)
     if deghost and ghost.any():
         rf = frames[ref]
-        ok = ghost[..., None] & rf.valid()
-        hdr = np.where(ok, rf.linear / rf.exposure, hdr).astype(np.float32)
+        for sl in _blocks(h):
+            sub = _rows(rf, sl)
+            ok = ghost[sl][..., None] & sub.valid()
+            hdr[sl][ok] = sub.linear[ok] / np.float32(rf.exposure)
     return MergeResult(
         hdr=hdr,
-        weight_sum=den.sum(axis=-1).astype(np.float32),
+        weight_sum=weight_sum,
         saturated=sat_all,
         underexposed=underexposed,
         ghost=ghost,
@@ -514,33 +556,42 @@ def merge_frames(
     )
 
 
-def detect_ghosts(frames: Sequence[Frame], hdr: np.ndarray, *, k: float = 6.0, min_sigma: float = 1.0 / 255.0) -> tuple[np.ndarray, list[float]]:
+def detect_ghosts(frames: Sequence[Frame], hdr: np.ndarray, *, k: float = 6.0, min_sigma: float = 1.0 / 255.0,
+                  max_samples: int = 2_000_000) -> tuple[np.ndarray, list[float]]:
     """Ghost mask: pixels where some frame disagrees with the merged radiance beyond noise.
 
     For each frame the residual (:meth:`Frame.residual`: ``observed − f(E · t)`` in code units for
     LDR, in sqrt-linear units for raw) is computed on samples valid in that frame whose
-    prediction is also in the valid code range; its noise level is the robust
-    sigma ``1.4826 · MAD`` (at least ``min_sigma``, one 8-bit step). A pixel is a ghost
-    candidate when ``|residual| > k · sigma`` in any channel of any frame; a 3x3 morphological
-    opening removes isolated candidates (noise, JPEG blocks) and a 3x3 dilation restores
-    the blobs' extent. Returns ``(mask (H, W) bool, [sigma per frame])``.
+    prediction is also in the valid code range; its noise level is the robust sigma
+    ``1.4826 · MAD`` (from a regular subsample: every few row blocks, at most about
+    ``max_samples`` residuals; at least
+    ``min_sigma``, one 8-bit step). A pixel is a ghost candidate when ``|residual| > k · sigma``
+    in any channel of any frame; a 3x3 morphological opening removes isolated candidates
+    (noise, JPEG blocks) and a 3x3 dilation restores the blobs' extent.
+    Returns ``(mask (H, W) bool, [sigma per frame])``.
     """
     h, w, _ = hdr.shape
     cand = np.zeros((h, w), bool)
-    sigmas: list[float] = []
     if len(frames) < 2:
         return cand, [0.0 for _ in frames]
-    for f in frames:
-        res, valid = f.residual(hdr)
-        vals = res[valid]
-        if vals.size > 1_000_000:  # the robust sigma from a regular subsample: same statistic, less sorting
-            vals = vals[:: vals.size // 1_000_000]
-        if vals.size == 0:
-            sigmas.append(0.0)
+    blocks = _blocks(h)
+    step = max(1, len(blocks) // 8)  # the noise level from every step-th block (at least 8 blocks)
+    stride = max(1, (h * w * 3) // (step * max_samples))
+    sigmas: list[float] = []
+    for f in frames:  # pass 1: the frame's noise level
+        samples = []
+        for sl in blocks[::step]:
+            res, valid = _rows(f, sl).residual(hdr[sl])
+            samples.append(res[valid][::stride])
+        vals = np.concatenate(samples)
+        floor = min_sigma if not f.is_raw else 1e-4
+        sigmas.append(max(1.4826 * float(np.median(vals)), floor) if vals.size else 0.0)
+    for f, sigma in zip(frames, sigmas):  # pass 2: outliers
+        if sigma <= 0:
             continue
-        sigma = max(1.4826 * float(np.median(vals)), min_sigma if not f.is_raw else 1e-4)
-        sigmas.append(sigma)
-        cand |= ((res > k * sigma) & valid).any(axis=-1)
+        for sl in blocks:
+            res, valid = _rows(f, sl).residual(hdr[sl])
+            cand[sl] |= _any3((res > np.float32(k * sigma)) & valid)
     kernel = np.ones((3, 3), np.uint8)
     mask = cv2.morphologyEx(cand.astype(np.uint8), cv2.MORPH_OPEN, kernel)
     mask = cv2.dilate(mask, kernel) & cand.astype(np.uint8) | mask
