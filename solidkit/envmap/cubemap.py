@@ -23,6 +23,9 @@ horizontal-cross layout ``. U . . / L F R B / . D . .``). Face pixel ``(x, y)`` 
 Back to equirect, each direction is looked up on the face it hits (largest component along
 the face axes). Faces are first padded with their neighbours' pixels (re-projected across
 the cube edges), so interpolation at face edges and corners mixes the true neighbours.
+
+The NumPy paths cache their ``cv2.remap`` maps per (face size, panorama height): repeated
+conversions of one size only pay for padding and ``cv2.remap``.
 """
 
 from __future__ import annotations
@@ -34,8 +37,21 @@ from typing import Any
 import numpy as np
 
 from solidkit.envmap.coords import direction_grid, rotation_from_ypr
-from solidkit.envmap.perspective import intrinsics_from_fov, perspective_crop, pixel_rays, project_to_pixels
-from solidkit.envmap.resample import _cached_direction_grid, _check_interp, _is_torch, _remap, _torch_remap, _vecmat
+from solidkit.envmap.perspective import intrinsics_from_fov, pixel_rays, project_to_pixels
+from solidkit.envmap.resample import (
+    PAD,
+    _blockwise_maps,
+    _cached_direction_grid,
+    _check_interp,
+    _cv2_maps,
+    _is_torch,
+    _pano_height,
+    _remap,
+    _torch_remap,
+    _vecmat,
+    pad_panorama,
+    sample_panorama,
+)
 from solidkit.errors import InputError
 
 __all__ = ["CUBE_FACES", "CUBE_FACE_YPR", "cube_face_rotations", "cube_from_equirect", "equirect_from_cube"]
@@ -75,63 +91,106 @@ def cube_from_equirect(pano: Any, size: int, interp: str = "linear") -> Any:
     size = int(size)
     if size < 1:
         raise InputError(f"cube face size must be >= 1, got {size}")
-    faces = [perspective_crop(pano, R, (size, size), fov=math.pi / 2, interp=interp) for R in cube_face_rotations()]
+    _check_interp(interp)
     if _is_torch(pano):
         import torch
 
-        return torch.stack(faces, dim=-4)
-    return np.stack(faces)
+        dtype = pano.dtype if pano.dtype in (torch.float32, torch.float64) else torch.float32
+        d = torch.as_tensor(_face_directions(size), dtype=dtype, device=pano.device)
+        out = sample_panorama(pano, d, interp, per_item=False)
+        return out.transpose(-4, -3)  # (B, C, 6, S, S) -> (B, 6, C, S, S)
+    h = _pano_height(pano)
+    map_x, map_y = _equirect_to_cube_maps(size, h)
+    return _remap(pad_panorama(pano, PAD), map_x, map_y, interp)
+
+
+def _face_directions(size: int) -> np.ndarray:
+    """Directions of every face pixel, ``(6, S, S, 3)``: the six 90° pinhole views' rays ``R_k K⁻¹ (x, y, 1)``."""
+    rays = pixel_rays(intrinsics_from_fov(math.pi / 2, size, size), size, size)
+    return np.stack([rays @ R.T for R in _rotations()])
+
+
+@lru_cache(maxsize=2)
+def _equirect_to_cube_maps(size: int, height: int) -> tuple[np.ndarray, np.ndarray]:
+    d = _face_directions(size)
+    maps = _cv2_maps(lambda a, b: d[a:b], d.shape[:-1], height)
+    for m in maps:
+        m.setflags(write=False)
+    return maps
 
 
 def _face_lookup(d: Any, size: int) -> tuple[Any, Any, Any]:
-    """Face index and face pixel coordinates (OpenCV, centres at integers) of directions ``d (..., 3)``."""
+    """Face index and face pixel coordinates (OpenCV, centres at integers) of directions ``d (..., 3)``.
+
+    A direction belongs to the face whose optical axis ``R_k e_z`` it is closest to, i.e. the
+    face with the largest camera-frame ``z``; its coordinates are ``K R_kᵀ d / z``.
+    """
     K = intrinsics_from_fov(math.pi / 2, size, size)
     R = _rotations()
-    if _is_torch(d):
+    if _is_torch(d):  # differentiable: every face's projection, selected per direction
         import torch
 
         Rt = torch.as_tensor(R.copy(), dtype=d.dtype, device=d.device)
-        c = _vecmat(d[..., None, :], Rt)  # Rₖᵀ d for every face, (..., 6, 3)
-        face = torch.argmax(c[..., 2], dim=-1)
-        c = torch.take_along_dim(c, face[..., None, None].expand(*face.shape, 1, 3), dim=-2)[..., 0, :]
-    else:
-        c = np.einsum("...i,kij->...kj", d, R)
-        face = np.argmax(c[..., 2], axis=-1)
-        c = np.take_along_axis(c, face[..., None, None], axis=-2)[..., 0, :]
-    x, y, _ = project_to_pixels(K, c)
+        face = torch.argmax(_vecmat(d, Rt[:, :, 2].T), dim=-1)
+        x = y = None
+        for k in range(6):
+            xk, yk, _ = project_to_pixels(K, _vecmat(d, Rt[k]))
+            x = xk if x is None else torch.where(face == k, xk, x)
+            y = yk if y is None else torch.where(face == k, yk, y)
+        return face, x, y
+    face = np.argmax(d @ R[:, :, 2].T, axis=-1)
+    x = np.empty(d.shape[:-1])
+    y = np.empty(d.shape[:-1])
+    for k in range(6):
+        m = face == k
+        x[m], y[m], _ = project_to_pixels(K, d[m] @ R[k])
     return face, x, y
+
+
+@lru_cache(maxsize=4)
+def _ring_maps(size: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Border ring of a padded face and where its pixels are on the unpadded face atlas."""
+    P, n = _FACE_PAD, size + 2 * _FACE_PAD
+    Kp = intrinsics_from_fov(math.pi / 2, size, size)
+    Kp[:2, 2] += P  # padded pixel (i, j) is face pixel (i - P, j - P)
+    ring = np.ones((n, n), bool)
+    ring[P:-P, P:-P] = False
+    rays = pixel_rays(Kp, n, n)[ring]  # (M, 3), camera frame
+    d = np.einsum("kij,mj->kmi", _rotations(), rays)  # R_k ray, (6, M, 3)
+    face, x, y = _face_lookup(d, size)
+    # clamp inside the source face so that interpolation never bleeds into the next atlas tile
+    x = x.clip(0, size - 1)
+    y = y.clip(0, size - 1) + face * size
+    for a in (ring, x, y):
+        a.setflags(write=False)
+    return ring, x, y
 
 
 def _padded_atlas(faces: Any, size: int, interp_pad: str = "linear") -> Any:
     """Faces padded by ``_FACE_PAD`` with re-projected neighbour pixels, stacked vertically.
 
-    NumPy: ``(6 (S + 2P), S + 2P[, C])``; torch: ``(B, C, 6 (S + 2P), S + 2P)``.
+    The interior of each padded tile is the face itself; only the border ring is looked up on
+    the neighbouring faces. NumPy: ``(6 (S + 2P), S + 2P[, C])``; torch: ``(B, C, 6 (S + 2P), S + 2P)``.
     """
     P, n = _FACE_PAD, size + 2 * _FACE_PAD
-    K = intrinsics_from_fov(math.pi / 2, size, size)
-    Kp = K.copy()
-    Kp[:2, 2] += P  # padded pixel (i, j) is face pixel (i - P, j - P)
-    torch_in = _is_torch(faces)
-    if torch_in:
+    ring, x, y = _ring_maps(size)
+    if _is_torch(faces):
         import torch
 
-        rays = pixel_rays(Kp, n, n, torch, dtype=faces.dtype, device=faces.device)
-        Rt = torch.as_tensor(cube_face_rotations(), dtype=faces.dtype, device=faces.device)
-        d = _vecmat(rays, Rt.transpose(-1, -2)[:, None, None])  # R_k ray, (6, n, n, 3)
-    else:
-        d = np.einsum("kij,hwj->khwi", _rotations(), pixel_rays(Kp, n, n))
-    face, x, y = _face_lookup(d, size)
-    # clamp inside the source face so that interpolation never bleeds into the next atlas tile
-    x = x.clip(0, size - 1)
-    y = y.clip(0, size - 1) + face * size
-    if torch_in:
         b, _, ch = faces.shape[:3]
         atlas = faces.transpose(1, 2).reshape(b, ch, 6 * size, size)
-        out = _torch_remap(atlas, x.expand(b, *x.shape), y.expand(b, *y.shape), interp_pad, "replicate")
-        return out.reshape(b, ch, 6 * n, n)  # (B, C, 6, n, n) -> stacked
+        xt = torch.tensor(x, dtype=faces.dtype, device=faces.device)
+        yt = torch.tensor(y, dtype=faces.dtype, device=faces.device)
+        border = _torch_remap(atlas, xt.expand(b, *xt.shape), yt.expand(b, *yt.shape), interp_pad, "replicate")
+        padded = faces.new_zeros(b, ch, 6, n, n)
+        padded[..., P:-P, P:-P] = faces.transpose(1, 2)
+        padded[..., torch.tensor(ring, device=faces.device)] = border
+        return padded.reshape(b, ch, 6 * n, n)
     atlas = faces.reshape(6 * size, size, *faces.shape[3:])
-    out = _remap(atlas, x, y, interp_pad, "replicate")
-    return out.reshape(6 * n, n, *faces.shape[3:])
+    padded = np.empty((6, n, n, *faces.shape[3:]), faces.dtype)
+    padded[:, P:-P, P:-P] = faces
+    padded[:, ring] = _remap(atlas, x, y, interp_pad, "replicate")
+    return padded.reshape(6 * n, n, *faces.shape[3:])
 
 
 def equirect_from_cube(faces: Any, height: int, interp: str = "linear") -> Any:
@@ -170,16 +229,28 @@ def equirect_from_cube(faces: Any, height: int, interp: str = "linear") -> Any:
         if faces.ndim not in (3, 4) or faces.shape[0] != 6 or faces.shape[1] != faces.shape[2]:
             raise InputError(f"cube faces must be (6, S, S[, C]), got {faces.shape}")
         size = faces.shape[1]
-        d = _cached_direction_grid(height)
     if 6 * (size + 2 * _FACE_PAD) >= 32767:
         raise InputError(f"cube face size {size} too large (max 5456)")
     atlas = _padded_atlas(faces, size)
-    face, x, y = _face_lookup(d, size)
-    n = size + 2 * _FACE_PAD
-    x = x + _FACE_PAD
-    y = y + _FACE_PAD + face * n
     if torch_in:
         b = faces.shape[0]
+        x, y = _atlas_coords(d, size)
         out = _torch_remap(atlas, x.expand(b, *x.shape), y.expand(b, *y.shape), interp)
         return out[0] if unbatched else out
-    return _remap(atlas, x, y, interp)
+    map_x, map_y = _cube_to_equirect_maps(size, height)
+    return _remap(atlas, map_x, map_y, interp)
+
+
+def _atlas_coords(d: Any, size: int) -> tuple[Any, Any]:
+    """Coordinates of directions ``d`` on the padded atlas (face tiles stacked vertically)."""
+    face, x, y = _face_lookup(d, size)
+    return x + _FACE_PAD, y + _FACE_PAD + face * (size + 2 * _FACE_PAD)
+
+
+@lru_cache(maxsize=2)
+def _cube_to_equirect_maps(size: int, height: int) -> tuple[np.ndarray, np.ndarray]:
+    d = _cached_direction_grid(height)
+    maps = _blockwise_maps(lambda a, b: _atlas_coords(d[a:b], size), d.shape[:-1])
+    for m in maps:
+        m.setflags(write=False)
+    return maps

@@ -203,12 +203,13 @@ def sample_panorama(pano: Any, directions: Any, interp: str = "linear", *, per_i
     return _remap(pad_panorama(pano, PAD), map_x, map_y, interp).reshape(*directions.shape[:-1], *pano.shape[2:])
 
 
-def _cv2_maps(direction_rows: Callable[[int, int], np.ndarray], shape: tuple[int, ...], height: int):
-    """float32 ``cv2.remap`` maps into the ``PAD``-padded panorama for directions of ``shape + (3,)``.
+def _blockwise_maps(
+    maps_rows: Callable[[int, int], tuple[np.ndarray, np.ndarray]], shape: tuple[int, ...]
+) -> tuple[np.ndarray, np.ndarray]:
+    """float32 ``cv2.remap`` maps of ``shape``, computed by ``maps_rows(a, b)`` for rows ``a:b``.
 
-    ``direction_rows(a, b)`` returns the directions of rows ``a:b`` (float64). The maps are
-    computed in float64 (a yaw by whole pixels gives exactly integral map values) in blocks
-    of rows, spread over a few threads (NumPy releases the GIL), then rounded to float32.
+    The rows are processed in blocks of ~64k pixels (temporaries stay in cache) spread over a
+    few threads (NumPy releases the GIL); each block is computed in float64, then rounded.
     """
     map_x = np.empty(shape, np.float32)
     map_y = np.empty(shape, np.float32)
@@ -216,9 +217,7 @@ def _cv2_maps(direction_rows: Callable[[int, int], np.ndarray], shape: tuple[int
     block = max(1, (1 << 16) // max(1, int(np.prod(shape[1:]))))
 
     def work(a: int) -> None:
-        x, y = _padded_coords(direction_rows(a, min(a + block, n)), height, PAD)
-        map_x[a : a + block] = x - 0.5  # pixel centres: continuous x <-> cv2 x - 0.5
-        map_y[a : a + block] = y - 0.5
+        map_x[a : a + block], map_y[a : a + block] = maps_rows(a, min(a + block, n))
 
     starts = range(0, n, block)
     workers = min(os.cpu_count() or 1, 8, len(starts))
@@ -229,6 +228,20 @@ def _cv2_maps(direction_rows: Callable[[int, int], np.ndarray], shape: tuple[int
         for a in starts:
             work(a)
     return map_x, map_y
+
+
+def _cv2_maps(direction_rows: Callable[[int, int], np.ndarray], shape: tuple[int, ...], height: int):
+    """float32 ``cv2.remap`` maps into the ``PAD``-padded panorama for directions of ``shape + (3,)``.
+
+    ``direction_rows(a, b)`` returns the directions of rows ``a:b`` (float64). Computed in
+    float64, so a yaw by whole pixels gives exactly integral map values.
+    """
+
+    def maps_rows(a: int, b: int) -> tuple[np.ndarray, np.ndarray]:
+        x, y = _padded_coords(direction_rows(a, b), height, PAD)
+        return x - 0.5, y - 0.5  # pixel centres: continuous x <-> cv2 x - 0.5
+
+    return _blockwise_maps(maps_rows, shape)
 
 
 def _sample_torch(pano: Any, directions: Any, height: int, interp: str, per_item: bool | None) -> Any:
