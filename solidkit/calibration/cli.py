@@ -90,6 +90,7 @@ def colour(
     ),
     response_path: Optional[Path] = typer.Option(None, "--response", help="Response profile to linearise an 8-bit image."),
     white_preserving: bool = typer.Option(True, "--white-preserving/--free", help="Constrain the CCM to map white exactly."),
+    objective: str = typer.Option("delta-e", "--objective", help="delta-e (least squares refined on CIEDE2000) or linear."),
 ) -> None:
     """White balance + 3x3 colour-correction matrix from a ColorChecker (CIEDE2000 before/after)."""
     from solidkit.calibration.colour import calibrate_colour, read_linear_image
@@ -99,13 +100,15 @@ def colour(
     img = read_linear_image(image, resp)
     c = _floats(corners, 8, "--corners")
     with console.status("locating the chart and fitting"):
-        prof = calibrate_colour(img, None if c is None else np.array(c).reshape(4, 2), white_preserving, inputs=[image])
+        prof = calibrate_colour(
+            img, None if c is None else np.array(c).reshape(4, 2), white_preserving, inputs=[image], objective=objective
+        )
     prof.save(out)
     r = prof.residuals
     table = Table(title=f"colour profile ({prof.detection})", show_header=False)
     table.add_row("white balance (R, G, B)", ", ".join(f"{g:.4g}" for g in prof.white_balance))
     table.add_row("CCM", "\n".join("  ".join(f"{v:+.4f}" for v in row) for row in prof.ccm))
-    for stage in ("before", "white_balance", "ccm"):
+    for stage in ("before", "white_balance", "ccm_linear_lsq", "ccm"):
         table.add_row(f"CIEDE2000 {stage.replace('_', ' ')}", f"mean {r['ciede2000_mean'][stage]:.2f}, max {r['ciede2000_max'][stage]:.2f}")
     if r["patches_clipped"]:
         table.add_row("[yellow]clipped patches[/]", str(r["patches_clipped"]))

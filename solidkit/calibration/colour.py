@@ -19,11 +19,13 @@ bluish green (6), black (24), white (19).
 from __future__ import annotations
 
 import os
+from functools import lru_cache
 from pathlib import Path
 
 import cv2
 import numpy as np
 from pydantic import Field
+from scipy.optimize import least_squares
 
 from solidkit.calibration.profile import Profile, make_provenance
 from solidkit.errors import InputError, SolidkitError
@@ -39,7 +41,9 @@ __all__ = [
     "sample_patches",
     "fit_white_balance",
     "fit_ccm",
+    "refine_ccm_delta_e",
     "delta_e2000",
+    "lab_from_linear_srgb",
     "apply_colour",
     "calibrate_colour",
     "read_linear_image",
@@ -86,17 +90,30 @@ def reference_linear_srgb(name: str = CHART_NAME) -> np.ndarray:
     )
 
 
-def delta_e2000(rgb_a: np.ndarray, rgb_b: np.ndarray) -> np.ndarray:
-    """CIEDE2000 between linear-sRGB colours (…, 3), via XYZ and CIE Lab with a D65 white."""
+@lru_cache(maxsize=1)
+def _srgb_to_xyz_and_white() -> tuple[np.ndarray, np.ndarray]:
     import colour
 
-    d65 = colour.CCS_ILLUMINANTS["CIE 1931 2 Degree Standard Observer"]["D65"]
+    M = np.asarray(colour.RGB_COLOURSPACES["sRGB"].matrix_RGB_to_XYZ, dtype=np.float64)
+    xy = colour.CCS_ILLUMINANTS["CIE 1931 2 Degree Standard Observer"]["D65"]
+    return M, np.asarray(colour.xyY_to_XYZ([xy[0], xy[1], 1.0]), dtype=np.float64)
 
-    def lab(rgb):
-        xyz = colour.RGB_to_XYZ(np.asarray(rgb, dtype=np.float64), "sRGB", apply_cctf_decoding=False)
-        return colour.XYZ_to_Lab(xyz, d65)
 
-    return np.asarray(colour.delta_E(lab(rgb_a), lab(rgb_b), method="CIE 2000"))
+def lab_from_linear_srgb(rgb: np.ndarray) -> np.ndarray:
+    """CIE Lab (D65 white, L in 0..100) of linear sRGB colours (…, 3) (CIE 15 formulas)."""
+    M, white = _srgb_to_xyz_and_white()
+    t = (np.asarray(rgb, dtype=np.float64) @ M.T) / white
+    d = 6.0 / 29.0
+    f = np.where(t > d**3, np.cbrt(t), t / (3 * d * d) + 4.0 / 29.0)
+    return np.stack([116 * f[..., 1] - 16, 500 * (f[..., 0] - f[..., 1]), 200 * (f[..., 1] - f[..., 2])], -1)
+
+
+def delta_e2000(rgb_a: np.ndarray, rgb_b: np.ndarray) -> np.ndarray:
+    """CIEDE2000 between linear-sRGB colours (…, 3), on CIE Lab with a D65 white (colour-science's
+    ``delta_E(method='CIE 2000')``)."""
+    import colour
+
+    return np.asarray(colour.delta_E(lab_from_linear_srgb(rgb_a), lab_from_linear_srgb(rgb_b), method="CIE 2000"))
 
 
 def patch_centres(H: np.ndarray) -> np.ndarray:
@@ -199,6 +216,36 @@ def fit_ccm(camera: np.ndarray, reference: np.ndarray, white_preserving: bool = 
     return M
 
 
+def refine_ccm_delta_e(
+    M0: np.ndarray, camera: np.ndarray, reference: np.ndarray, white_preserving: bool = True, white_index: int = 18,
+) -> np.ndarray:
+    """Refine a CCM to minimise the patches' CIEDE2000 (sum of squares), starting from ``M0``.
+
+    Linear least squares weighs bright patches most (their linear errors are largest), which can
+    leave dark patches perceptually worse than no correction; this step optimises the reported
+    metric directly. With ``white_preserving`` the updates stay in the null space of the white
+    patch (``M · c_w`` is unchanged).
+    """
+    A = np.asarray(camera, dtype=np.float64)
+    B = np.asarray(reference, dtype=np.float64)
+    if white_preserving:
+        w = A[white_index] / np.linalg.norm(A[white_index])
+        N = np.linalg.svd(w[None, :])[2][1:].T  # (3, 2): orthonormal basis of w's complement
+    else:
+        N = np.eye(3)
+    k = N.shape[1]
+
+    def matrix(u):
+        return M0 + u.reshape(3, k) @ N.T
+
+    def resid(u):
+        return delta_e2000(A @ matrix(u).T, B)
+
+    sol = least_squares(resid, np.zeros(3 * k), method="lm" if A.shape[0] >= 3 * k else "trf")
+    M = matrix(sol.x)
+    return M if np.sum(resid(sol.x) ** 2) <= np.sum(resid(np.zeros(3 * k)) ** 2) else M0
+
+
 def apply_colour(image: np.ndarray, profile: ColourProfile, preserve_exposure: bool = True) -> np.ndarray:
     """Apply a colour profile to a linear (…, 3) image; returns float32 linear sRGB."""
     m = profile.matrix(preserve_exposure).astype(np.float32)
@@ -258,6 +305,7 @@ def calibrate_colour(
     white_preserving: bool = True,
     clip_level: float = 0.98,
     inputs: list[str | os.PathLike] = (),
+    objective: str = "delta-e",
 ) -> ColourProfile:
     """Fit white balance + CCM on a linear camera image of a ColorChecker 24.
 
@@ -266,10 +314,14 @@ def calibrate_colour(
     image : (H, W, 3) float, camera linear RGB (clipped highlights near ``clip_level``).
     corners : optional (4, 2) corner-patch centres in pixels (see module doc); otherwise ``cv2.mcc``.
     white_preserving : constrain the CCM to map the white patch exactly.
+    objective : "delta-e" (default): linear least squares, then refined to minimise CIEDE2000
+        (:func:`refine_ccm_delta_e`); "linear": the least-squares fit only.
 
     Residuals: CIEDE2000 mean / max / per patch, before (exposure only), after white balance and
     after the CCM (colour-science, method 'CIE 2000').
     """
+    if objective not in ("delta-e", "linear"):
+        raise InputError(f"unknown CCM objective {objective!r} (delta-e or linear)")
     image = np.asarray(image, dtype=np.float32)
     if image.ndim != 3 or image.shape[2] < 3:
         raise InputError(f"colour calibration needs an RGB image, got shape {image.shape}")
@@ -289,12 +341,15 @@ def calibrate_colour(
         raise ChartError(f"patches {[int(i) + 1 for i in clipped]} are clipped or black; expose the chart lower")
     wb = fit_white_balance(cam, ref)
     cam_wb = cam * wb
-    ccm = fit_ccm(cam_wb[use], ref[use], white_preserving=white_preserving, white_index=int(np.nonzero(use == 18)[0][0]))
+    wi = int(np.nonzero(use == 18)[0][0])
+    ccm_ls = fit_ccm(cam_wb[use], ref[use], white_preserving=white_preserving, white_index=wi)
+    ccm = refine_ccm_delta_e(ccm_ls, cam_wb[use], ref[use], white_preserving, wi) if objective == "delta-e" else ccm_ls
     after = cam_wb @ ccm.T
     # "before": the camera values with one least-squares exposure scalar; "wb": plus a scalar too
     s0 = float((cam[use] * ref[use]).sum() / (cam[use] ** 2).sum())
     s1 = float((cam_wb[use] * ref[use]).sum() / (cam_wb[use] ** 2).sum())
-    de = {k: delta_e2000(v, ref) for k, v in (("before", cam * s0), ("white_balance", cam_wb * s1), ("ccm", after))}
+    de = {k: delta_e2000(v, ref) for k, v in (
+        ("before", cam * s0), ("white_balance", cam_wb * s1), ("ccm_linear_lsq", cam_wb @ ccm_ls.T), ("ccm", after))}
     grey = cam_wb[18]
     gain = float((ccm @ grey) @ np.array([0.2126, 0.7152, 0.0722]) / (grey @ np.array([0.2126, 0.7152, 0.0722])))
     residuals = {
@@ -306,6 +361,7 @@ def calibrate_colour(
         "patch_noise_rel": float(np.median(std / np.maximum(cam, 1e-9))),
     }
     prov = make_provenance(list(inputs), tool="solidkit.calibration.colour.calibrate_colour", white_preserving=white_preserving,
+                           objective=objective,
                            detection=how, corners=None if corners is None else np.asarray(corners).tolist())
     return ColourProfile(
         provenance=prov, residuals=residuals, white_balance=wb.tolist(), ccm=ccm.tolist(), exposure_gain=gain,
