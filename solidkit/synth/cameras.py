@@ -11,8 +11,10 @@ obstacles), heading uniform in the sector, height ``1.55 ± 0.05`` m above the f
 uniform within ±10° (roll within ±``max_roll``), an item buffer is rendered at low resolution
 and the candidate with the highest pixel coverage (non-sky fraction) among those showing at
 least ``min_categories`` object categories (each on >= 1% of the pixels) is kept.
-Deviation: a candidate whose largest single object fills more than ``max_object_share`` of the
-frame (default 0.5) is also rejected; coverage alone rewards staring at a wall from 1 m.
+Deviations (coverage alone rewards staring at a wall or a parked car from 1 m): a candidate
+whose largest single object (all parts of a car, tree, building... together) fills more than
+``max_object_share`` of the frame (default 0.35), or that shows less than ``min_sky`` sky
+(default 5%), is also rejected; cameras keep 0.8 m from street furniture and 1.5 m from cars.
 """
 
 from __future__ import annotations
@@ -148,7 +150,8 @@ def sample_candidate(block: CityBlock, rng: np.random.Generator, sector: int, K:
 
 
 def best_views(block: CityBlock, scene: Any, rng: np.random.Generator, K: np.ndarray, width: int, height: int, *,
-               candidates: int = 16, min_categories: int = 3, max_object_share: float = 0.5, item_size: tuple[int, int] = (64, 48),
+               candidates: int = 16, min_categories: int = 3, max_object_share: float = 0.35,
+               min_sky: float = 0.05, item_size: tuple[int, int] = (64, 48),
                sectors: tuple[int, ...] = (0, 1, 2, 3, 4, 5)) -> list[tuple[Camera, dict[str, Any]]]:
     """The best camera of each sector and its selection stats (coverage, categories, tries).
 
@@ -168,11 +171,13 @@ def best_views(block: CityBlock, scene: Any, rng: np.random.Generator, K: np.nda
             counts = np.bincount(cats[hit].ravel(), minlength=1)
             ncat = int(np.sum(counts >= 0.01 * cats.size))
             cov = float(hit.mean())
-            largest = float(np.bincount(buf["label"][hit].ravel()).max() / cats.size) if hit.any() else 0.0
-            ok = ncat >= min_categories and largest <= max_object_share
+            groups = block.group_of(buf["label"])
+            largest = float(np.bincount(groups[hit].ravel()).max() / cats.size) if hit.any() else 0.0
+            ok = ncat >= min_categories and largest <= max_object_share and 1.0 - cov >= min_sky
             key = (ok, cov if ok else float(ncat) - largest, ncat)
             if best is None or key > best[0]:
-                best = (key, cam, {"coverage": cov, "categories": ncat, "largest_object_share": largest, "accepted": ok})
+                best = (key, cam, {"coverage": cov, "categories": ncat, "largest_object_share": largest,
+                                   "accepted": ok})
         assert best is not None
         best[2]["candidates"] = candidates
         out.append((best[1], best[2]))

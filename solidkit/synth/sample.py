@@ -57,7 +57,7 @@ class SampleConfig:
     hfov_deg: float = 60.0
     spp: int = 64
     max_depth: int = 6
-    buffer_spp: int = 32
+    buffer_spp: int = 64
     env_height: int = 128
     env_spp: int = 64
     probe_height: int = 128
@@ -66,7 +66,8 @@ class SampleConfig:
     border: float = 0.05
     candidates: int = 12
     min_categories: int = 3
-    max_object_share: float = 0.5
+    max_object_share: float = 0.35
+    min_sky: float = 0.05
     item_size: tuple[int, int] = (64, 48)
     light_height: int = 512
     tex_size: int = 64
@@ -203,7 +204,7 @@ class Generator:
             K = intrinsics(cfg.width, cfg.height, cfg.hfov_deg)
             rng = np.random.default_rng(derive_seed(self.seed, block_id, 2, sector))
             views[sector] = best_views(block, geometry, rng, K, cfg.width, cfg.height, candidates=cfg.candidates,
-                                       min_categories=cfg.min_categories, max_object_share=cfg.max_object_share,
+                                       min_categories=cfg.min_categories, max_object_share=cfg.max_object_share, min_sky=cfg.min_sky,
                                        item_size=cfg.item_size, sectors=(sector,))[0]
         return block, views[sector]
 

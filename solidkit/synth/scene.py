@@ -40,6 +40,7 @@ class Part:
     material: str
     category: str
     label: int = -1
+    group: int = -1
 
 
 @dataclass
@@ -54,11 +55,27 @@ class CityBlock:
     parts: list[Part] = field(default_factory=list)
     walkable: list[tuple[float, float, float, float, float]] = field(default_factory=list)
     obstacles: list[tuple[float, float, float, float]] = field(default_factory=list)
+    _group: int | None = None
 
     def add(self, part: Part) -> int:
+        """Append a part; its label is its index, its group the open object's (else its own label)."""
         part.label = len(self.parts)
+        part.group = self._group if self._group is not None else part.label
         self.parts.append(part)
         return part.label
+
+    def begin_object(self) -> None:
+        """The next parts (until :meth:`end_object`) form one object (e.g. a car's body and wheels)."""
+        self._group = len(self.parts)
+
+    def end_object(self) -> None:
+        self._group = None
+
+    def group_of(self, labels: np.ndarray) -> np.ndarray:
+        """Object (group) id of part labels; -1 stays -1."""
+        table = np.array([p.group for p in self.parts] + [-1])
+        lab = np.asarray(labels).astype(np.int64)
+        return np.where(lab >= 0, table[np.clip(lab, 0, len(self.parts))], -1)
 
     def category_of(self, labels: np.ndarray) -> np.ndarray:
         """Category index (into :data:`CATEGORIES`) of object labels; -1 (no hit) stays -1."""
@@ -202,12 +219,14 @@ def city_block(seed: int, *, length: float = 60.0) -> CityBlock:
         floors = int(rng.integers(2, 14)) if rng.random() < 0.85 else int(rng.integers(14, 30))
         height = floors * 3.2
         mat = _pick(rng, FACADE)
+        blk.begin_object()
         blk.add(box((x0, -height, z0), (x1, 0.0, z1), mat, "building"))
         if rng.random() < 0.35:  # a setback upper part or rooftop volume
             inset = float(rng.uniform(1.0, 3.0))
             h2 = float(rng.uniform(3.0, 10.0))
             if x1 - x0 > 2 * inset + 1 and z1 - z0 > 2 * inset + 1:
                 blk.add(box((x0 + inset, -height - h2, z0 + inset), (x1 - inset, -height, z1 - inset), mat, "building"))
+        blk.end_object()
 
     for side in (-1, 1):
         z = -L - 10.0
@@ -234,7 +253,7 @@ def city_block(seed: int, *, length: float = 60.0) -> CityBlock:
             building(xa, xb, cz - chw - sw - 10, cz + chw + sw + 10)
 
     # street furniture
-    def obstacle(x0: float, x1: float, z0: float, z1: float, margin: float = 0.4) -> None:
+    def obstacle(x0: float, x1: float, z0: float, z1: float, margin: float = 0.8) -> None:
         blk.obstacles.append((x0 - margin, x1 + margin, z0 - margin, z1 + margin))
 
     def on_cross(z: float, pad: float = 1.0) -> bool:
@@ -249,9 +268,11 @@ def city_block(seed: int, *, length: float = 60.0) -> CityBlock:
             if not on_cross(z):
                 x = side * (hw + 0.9)
                 th = float(rng.uniform(2.0, 3.5))
+                blk.begin_object()
                 blk.add(box((x - 0.15, fy - th, z - 0.15), (x + 0.15, fy, z + 0.15), bark, "tree"))
                 r = float(rng.uniform(1.3, 2.6))
                 blk.add(blob((x, fy - th - 0.7 * r, z), (r, 0.9 * r, r), foliage, "tree"))
+                blk.end_object()
                 obstacle(x - 0.15, x + 0.15, z - 0.15, z + 0.15)
             z += spacing * float(rng.uniform(0.8, 1.2))
         pole = _pick(rng, materials_of("metal"))
@@ -260,8 +281,10 @@ def city_block(seed: int, *, length: float = 60.0) -> CityBlock:
             if not on_cross(z):
                 x = side * (hw + 0.35)
                 h = float(rng.uniform(5.0, 8.0))
+                blk.begin_object()
                 blk.add(box((x - 0.07, fy - h, z - 0.07), (x + 0.07, fy, z + 0.07), pole, "lamp"))
                 blk.add(box((x - side * 1.2 - 0.15, fy - h - 0.15, z - 0.2), (x + 0.15, fy - h + 0.05, z + 0.2), pole, "lamp"))
+                blk.end_object()
                 obstacle(x - 0.07, x + 0.07, z - 0.07, z + 0.07)
             z += float(rng.uniform(15.0, 25.0))
         for _ in range(int(rng.integers(1, 5))):
@@ -272,17 +295,21 @@ def city_block(seed: int, *, length: float = 60.0) -> CityBlock:
             kind = rng.random()
             if kind < 0.4:  # bench
                 wood = "woodbench_natural"
+                blk.begin_object()
                 blk.add(box((x - 0.25, fy - 0.45, z - 0.9), (x + 0.25, fy - 0.4, z + 0.9), wood, "bench"))
                 blk.add(box((x + side * 0.2, fy - 0.9, z - 0.9), (x + side * 0.25, fy - 0.45, z + 0.9), wood, "bench"))
                 for dz in (-0.8, 0.8):
                     blk.add(box((x - 0.2, fy - 0.4, z + dz - 0.04), (x + 0.2, fy, z + dz + 0.04), pole, "bench"))
+                blk.end_object()
                 obstacle(x - 0.25, x + 0.25, z - 0.9, z + 0.9)
             elif kind < 0.7:  # bin
                 blk.add(box((x - 0.3, fy - 0.9, z - 0.3), (x + 0.3, fy, z + 0.3), _pick(rng, materials_of("plastic")), "bin"))
                 obstacle(x - 0.3, x + 0.3, z - 0.3, z + 0.3)
             else:  # sign
+                blk.begin_object()
                 blk.add(box((x - 0.04, fy - 2.6, z - 0.04), (x + 0.04, fy, z + 0.04), "metal_galvanized", "sign"))
                 blk.add(box((x - 0.03, fy - 2.8, z - 0.35), (x + 0.03, fy - 2.1, z + 0.35), _pick(rng, materials_of("plastic")), "sign"))
+                blk.end_object()
                 obstacle(x - 0.04, x + 0.04, z - 0.04, z + 0.04)
         for _ in range(int(rng.integers(0, 4))):  # bollards near the curb
             z = float(rng.uniform(-L / 3, L / 3))
@@ -298,11 +325,13 @@ def city_block(seed: int, *, length: float = 60.0) -> CityBlock:
                 paint = _pick(rng, materials_of("carpaint"))
                 x = side * (hw - 1.1)
                 ln, wd = float(rng.uniform(3.8, 4.8)), float(rng.uniform(1.7, 1.9))
+                blk.begin_object()
                 blk.add(box((x - wd / 2, -1.0, z), (x + wd / 2, -0.3, z + ln), paint, "car"))
                 blk.add(box((x - wd / 2 + 0.1, -1.5, z + 0.25 * ln), (x + wd / 2 - 0.1, -1.0, z + 0.75 * ln), paint, "car"))
                 for dz in (0.6, ln - 0.6):
                     blk.add(box((x - wd / 2, -0.6, z + dz - 0.3), (x + wd / 2, 0.0, z + dz + 0.3), "rubber_black", "car"))
-                obstacle(x - wd / 2, x + wd / 2, z, z + ln)
+                blk.end_object()
+                obstacle(x - wd / 2, x + wd / 2, z, z + ln, margin=1.5)
             z += float(rng.uniform(5.0, 9.0))
     return blk
 

@@ -1,0 +1,347 @@
+"""The virtual field campaign: what a field team would bring home from synthetic streets, plus the truth.
+
+``solidkit synth campaign --scenes 29 --probes 67 --out DIR --seed S`` writes::
+
+    DIR/card/<scene>/photo/IMG_0001.JPG        the limited-FOV photo (EXIF: focal length, time, GPS)
+    DIR/card/<scene>/cam/R0010001.JPG ...      Theta shots at the photo camera's position
+    DIR/card/<scene>/p01/R0010003.JPG ...      Theta shots at each probe position
+    DIR/truth/truth.json                       :class:`CampaignTruth` (kept apart from the card)
+    DIR/truth/<scene>/photo.exr, <probe>.exr   HDR photo and HDR local probes (256x128, photo pano frame)
+
+(the card follows the *explicit* layout of :mod:`solidkit.capture.campaign`, so ``solidkit
+ingest DIR/card CAMPAIGN`` reads it). Every Theta position gets a normal exposure (1/2500 s,
+f/2, ISO 100) and, 20 s later, a low-exposure sun frame (1/25000 s, ISO 64); ``brackets`` adds a
+bracket before them. A Theta shot is a dual-fisheye JPEG (Ricoh THETA V layout, EXIF + Ricoh
+maker note: image type 2, ``[roll, pitch]`` as its accelerometer would record them, with
+``gravity_noise_deg`` noise; compass heading with ``compass_noise_deg`` noise) made through the
+lens profile of :mod:`solidkit.capture.lens` (``theta-v`` scaled to ``fisheye_width``): each
+fisheye pixel's direction (:func:`~solidkit.capture.lens.unproject`) is turned into the scene
+by the body's true rotation ``R(heading, pitch, roll)`` and looked up in an HDR panorama
+rendered at the position (scene frame, :func:`solidkit.envmap.resample.sample_panorama`). Both
+lenses share one centre (the ~2 cm baseline is ignored).
+
+Radiometry: scene radiance ``L`` (relative units of :mod:`solidkit.synth.lighting`) becomes the
+sensor value ``x = K_SENSOR L t (ISO/100) / N^2`` (``K_SENSOR = 3500``: radiance 1 at 1/2500 s,
+f/2, ISO 100 gives 0.35), plus shot and read noise (``var = 1e-3 x + 2e-3^2``), clipped to [0, 1]
+(the sun saturates even at 1/25000 s, as on a real Theta), through the sRGB response,
+quantised to 8 bits and JPEG-compressed. The photo uses f/2.8, ISO 100 and an automatic
+exposure putting the mean at 0.18.
+
+Frames (truth): the scene frame of :mod:`solidkit.synth.scene` (x east, y down, z north); a
+Theta body frame is our camera frame with z = front lens; ``R_scene_from_body =
+R(yaw, pitch, roll)``; ``R_pano_from_body = R_y(photo yaw)^T R_scene_from_body`` is what aligning
+a capture to the photo's panorama frame must recover. Time and GPS are plausible (scenes 15
+minutes apart near one base location) but not tied to the sun direction.
+"""
+
+from __future__ import annotations
+
+import datetime as dt
+import json
+import math
+import os
+from pathlib import Path
+from typing import Any, Literal
+
+import cv2
+import numpy as np
+from pydantic import BaseModel, Field
+
+from solidkit.envmap import CONVENTIONS_VERSION, angles_from_direction, rotation_from_ypr, srgb_encode, write_exr
+from solidkit.envmap.resample import sample_panorama
+from solidkit.errors import InputError
+from solidkit.fsutil import atomic_write_bytes, atomic_write_text
+from solidkit.synth.cameras import Camera, pinhole_sensor
+from solidkit.synth.exif import exif_app1, insert_app1
+from solidkit.synth.sample import Generator, SampleConfig, derive_seed, pick_probe_pixels, render_buffers, render_panorama, render_rgb
+from solidkit.synth.scene import CATEGORIES, to_mitsuba
+
+__all__ = ["K_SENSOR", "CampaignConfig", "Shot", "ProbeTruth", "CaptureTruth", "PhotoTruth", "SceneTruth",
+           "CampaignTruth", "expose", "fisheye_image", "generate_campaign", "load_truth"]
+
+K_SENSOR = 3500.0
+SCHEMA_VERSION = 1
+BASE_TIME = dt.datetime(2024, 6, 1, 10, 0, 0)
+BASE_GPS = (48.8566, 2.3522, 35.0)
+
+
+class CampaignConfig(BaseModel):
+    """Settings of a campaign (recorded in the truth)."""
+
+    photo_width: int = 640
+    photo_height: int = 480
+    hfov_deg: float = 60.0
+    photo_spp: int = 32
+    pano_height: int = 512
+    pano_spp: int = 16
+    probe_height: int = 128
+    probe_spp: int = 32
+    fisheye_width: int = 1920
+    lens_profile: str = "theta-v"
+    normal_exposure_s: float = 1 / 2500
+    low_exposure_s: float = 1 / 25000
+    brackets_s: list[float] = Field(default_factory=list)
+    max_tilt_deg: float = 5.0
+    gravity_noise_deg: float = 0.3
+    compass_noise_deg: float = 5.0
+    jpeg_quality: int = 92
+    candidates: int = 8
+    p_sunsky: float = 0.7
+
+
+class Shot(BaseModel):
+    file: str
+    exposure_time: float
+    f_number: float
+    iso: int
+    time: dt.datetime
+    role: Literal["photo", "normal", "low_exposure", "bracket"]
+
+
+class ProbeTruth(BaseModel):
+    pixel: list[int]
+    quadrant: int
+    point_scene: list[float]
+    normal_scene: list[float]
+    point_camera: list[float]
+    depth: float
+    category: str
+    hdr_file: str
+
+
+class CaptureTruth(BaseModel):
+    id: str
+    kind: Literal["camera_position", "probe"]
+    position: list[float]
+    yaw_deg: float
+    pitch_deg: float
+    roll_deg: float
+    R_scene_from_body: list[list[float]]
+    R_pano_from_body: list[list[float]]
+    recorded_pitch_deg: float
+    recorded_roll_deg: float
+    recorded_heading_deg: float
+    sun_body: list[float] | None
+    shots: list[Shot]
+    probe: ProbeTruth | None = None
+
+
+class PhotoTruth(BaseModel):
+    shot: Shot
+    camera: dict[str, Any]
+    focal_length_mm: float
+    sensor_width_mm: float
+    hdr_file: str
+
+
+class SceneTruth(BaseModel):
+    id: str
+    block_seed: int
+    sector: int
+    lighting: dict[str, Any]
+    sun_found: bool
+    sun_scene: list[float] | None
+    sun_azimuth_deg: float | None = Field(None, description="in the photo's panorama frame")
+    sun_elevation_deg: float | None = None
+    gps: list[float]
+    photo: PhotoTruth
+    captures: list[CaptureTruth]
+
+
+class CampaignTruth(BaseModel):
+    kind: Literal["solidkit-synth-campaign-truth"] = "solidkit-synth-campaign-truth"
+    schema_version: int = SCHEMA_VERSION
+    conventions_version: int = CONVENTIONS_VERSION
+    seed: int
+    scenes_requested: int
+    probes_requested: int
+    card_dir: str = "card"
+    config: CampaignConfig
+    renderer: dict[str, Any]
+    radiometry: dict[str, Any]
+    scenes: list[SceneTruth]
+
+
+def load_truth(path: str | os.PathLike) -> CampaignTruth:
+    """Read and validate a truth file."""
+    from pydantic import ValidationError
+
+    p = Path(path)
+    if not p.is_file():
+        raise InputError(f"{p}: no such truth file")
+    try:
+        truth = CampaignTruth.model_validate_json(p.read_text())
+    except ValidationError as exc:
+        raise InputError(f"{p}: not a campaign truth file ({exc.error_count()} schema errors)") from None
+    if truth.conventions_version != CONVENTIONS_VERSION:
+        from solidkit.errors import ConventionsError
+
+        raise ConventionsError(f"{p}: written under conventions version {truth.conventions_version}")
+    return truth
+
+
+def expose(radiance: np.ndarray, exposure_time: float, f_number: float, iso: float, rng: np.random.Generator,
+           *, quality: int = 92) -> tuple[np.ndarray, bytes]:
+    """Sensor model of the module doc: HDR radiance ``(H, W, 3)`` -> 8-bit sRGB image and its JPEG bytes."""
+    x = K_SENSOR * np.clip(radiance, 0.0, None) * exposure_time * (iso / 100.0) / f_number**2
+    x = x + rng.standard_normal(x.shape) * np.sqrt(1e-3 * np.clip(x, 0.0, 1.0) + 2e-3**2)
+    img = np.round(np.asarray(srgb_encode(np.clip(x, 0.0, 1.0))) * 255.0).astype(np.uint8)
+    ok, buf = cv2.imencode(".jpg", cv2.cvtColor(img, cv2.COLOR_RGB2BGR), [cv2.IMWRITE_JPEG_QUALITY, int(quality)])
+    if not ok:
+        raise InputError("JPEG encoding failed")
+    return img, buf.tobytes()
+
+
+def fisheye_image(pano_scene: np.ndarray, R_scene_from_body: np.ndarray, profile: Any) -> np.ndarray:
+    """Dual-fisheye image ``(h, w, 3)`` of a scene-frame HDR panorama seen by a body with that rotation.
+
+    Pixels outside both image circles (``theta > max_angle``) are 0.
+    """
+    from solidkit.capture.lens import unproject
+
+    w, h = profile.reference_size
+    ys, xs = np.mgrid[0:h, 0:w].astype(np.float64)
+    out = np.zeros((h, w, 3), np.float32)
+    half = w // 2
+    for k, lens in enumerate(profile.lenses):
+        # each lens owns the half of the frame holding its image circle
+        cols = slice(0, half) if lens.center[0] < half else slice(half, w)
+        d_body, theta = unproject(lens, xs[:, cols], ys[:, cols])
+        valid = theta <= math.radians(lens.max_angle_deg)
+        d_scene = d_body @ R_scene_from_body.T
+        vals = np.asarray(sample_panorama(pano_scene, d_scene.astype(np.float32)))
+        out[:, cols] = np.where(valid[..., None], vals, 0.0)
+    return out
+
+
+def _split(total: int, parts: int) -> list[int]:
+    return [total // parts + (1 if i < total % parts else 0) for i in range(parts)]
+
+
+def generate_campaign(out: str | os.PathLike, scenes: int, probes: int, *, seed: int = 0,
+                      config: CampaignConfig | None = None, progress: Any = None) -> CampaignTruth:
+    """Render the campaign (see module doc) into ``out``; returns the truth (also written to truth/truth.json)."""
+    from solidkit.capture.lens import load_profile
+    from solidkit.synth.renderer import mitsuba, variant
+
+    if scenes < 1 or probes < 0:
+        raise InputError("--scenes must be >= 1 and --probes >= 0")
+    mi = mitsuba()
+    cfg = config or CampaignConfig()
+    out = Path(out)
+    card, truth_dir = out / "card", out / "truth"
+    profile = load_profile(cfg.lens_profile)
+    rw, rh = profile.reference_size
+    profile = profile.scaled(cfg.fisheye_width, int(round(cfg.fisheye_width * rh / rw)))
+    model = profile.camera_models[0] if profile.camera_models else "RICOH THETA V"
+    scfg = SampleConfig(width=cfg.photo_width, height=cfg.photo_height, hfov_deg=cfg.hfov_deg, candidates=cfg.candidates,
+                        p_sunsky=cfg.p_sunsky, probe_height=cfg.probe_height)
+    gen = Generator(seed, scfg)
+    per_scene = _split(probes, scenes)
+    shot_no = 1
+    scenes_truth = []
+    for s in range(scenes):
+        rng = np.random.default_rng(derive_seed(seed, s, 77))
+        sid = f"scene{s + 1:02d}"
+        sector = int(rng.integers(6))
+        block, (cam, _) = gen.block_and_view(s, sector)
+        light = gen.lighting(s * 6 + sector)
+        scene = to_mitsuba(block, light.emitter())
+        t0 = BASE_TIME + dt.timedelta(minutes=15 * s)
+        gps = (BASE_GPS[0] + rng.uniform(-0.004, 0.004), BASE_GPS[1] + rng.uniform(-0.006, 0.006), BASE_GPS[2])
+        # --- the photo
+        hdr = render_rgb(scene, pinhole_sensor(cam, spp=cfg.photo_spp, seed=derive_seed(seed, s, 1)), cfg.photo_spp,
+                         seed=derive_seed(seed, s, 1))
+        f_number, iso = 2.8, 100
+        mean = float(np.mean(hdr))
+        t_photo = 0.18 * f_number**2 / (K_SENSOR * max(mean, 1e-9) * iso / 100.0)
+        _, jpg = expose(hdr, t_photo, f_number, iso, rng, quality=cfg.jpeg_quality)
+        sensor_w = 6.17
+        f_mm = cam.K[0, 0] * sensor_w / cam.width
+        app = exif_app1(make="SOLIDKIT", model="Virtual Photo Camera", when=t0, exposure_time=t_photo, f_number=f_number,
+                        iso=iso, gps=gps, focal_length_mm=f_mm, focal_35mm=cam.K[0, 0] * 36.0 / cam.width)
+        photo_file = f"card/{sid}/photo/IMG_{s + 1:04d}.JPG"
+        atomic_write_bytes(out / photo_file, insert_app1(jpg, app))
+        write_exr(truth_dir / sid / "photo.exr", hdr, {"scene": sid})
+        photo = PhotoTruth(shot=Shot(file=photo_file, exposure_time=t_photo, f_number=f_number, iso=iso, time=t0, role="photo"),
+                           camera=cam.to_json(), focal_length_mm=f_mm, sensor_width_mm=sensor_w, hdr_file=f"truth/{sid}/photo.exr")
+        # --- probe points (one per quadrant first, then anywhere valid)
+        buf = render_buffers(scene, cam, spp=1, shadows=False)
+        picks = pick_probe_pixels(buf["hit"], rng, 0.05)
+        rng.shuffle(picks)
+        while len(picks) < per_scene[s] and picks:
+            extra = pick_probe_pixels(buf["hit"], rng, 0.05)
+            picks += [dict(p, quadrant=-1) for p in extra]
+        picks = picks[: per_scene[s]]
+        captures = []
+        positions: list[tuple[str, np.ndarray, dict[str, Any] | None]] = [("cam", cam.position.copy(), None)]
+        R = cam.rotation
+        for k, p in enumerate(picks):
+            x, y = p["pixel"]
+            v = cam.rays()[y, x]
+            point = cam.position + float(buf["t"][y, x]) * (R @ (v / np.linalg.norm(v)))
+            n = buf["normal_world"][y, x].astype(np.float64)
+            lab = block.category_of(np.array([buf["label"][y, x]]))[0]
+            info = {"pixel": [int(x), int(y)], "quadrant": int(p["quadrant"]), "point_scene": point.tolist(),
+                    "normal_scene": n.tolist(), "point_camera": ((point - cam.position) @ R).tolist(),
+                    "depth": float(buf["depth"][y, x]), "category": CATEGORIES[lab]}
+            positions.append((f"p{k + 1:02d}", point + 0.10 * n, info))
+        for c, (cid, pos, info) in enumerate(positions):
+            tc = t0 + dt.timedelta(seconds=60 + 120 * c)
+            yaw = rng.uniform(-math.pi, math.pi)
+            tilt = math.radians(cfg.max_tilt_deg)
+            pitch, roll = rng.uniform(-tilt, tilt), rng.uniform(-tilt, tilt)
+            Rb = np.asarray(rotation_from_ypr(yaw, pitch, roll))
+            rec_pitch = math.degrees(pitch) + rng.normal(0.0, cfg.gravity_noise_deg)
+            rec_roll = math.degrees(roll) + rng.normal(0.0, cfg.gravity_noise_deg)
+            rec_heading = (math.degrees(yaw) + rng.normal(0.0, cfg.compass_noise_deg)) % 360.0
+            pano = render_panorama(scene, pos, np.eye(3), cfg.pano_height, cfg.pano_spp,
+                                   seed=derive_seed(seed, s, 100 + c))
+            fish = fisheye_image(pano, Rb, profile)
+            shots = []
+            plan: list[tuple[float, int, str, float]] = []
+            for b, t_b in enumerate(cfg.brackets_s):
+                plan.append((t_b, 100, "bracket", 3.0 * b))
+            off = 3.0 * len(cfg.brackets_s) + (15.0 if cfg.brackets_s else 0.0)
+            plan += [(cfg.normal_exposure_s, 100, "normal", off), (cfg.low_exposure_s, 64, "low_exposure", off + 20.0)]
+            for t_exp, iso_c, role, dtime in plan:
+                when = tc + dt.timedelta(seconds=dtime)
+                _, jpg = expose(fish, t_exp, 2.0, iso_c, rng, quality=cfg.jpeg_quality)
+                app = exif_app1(make="RICOH", model=model, when=when, exposure_time=t_exp, f_number=2.0, iso=iso_c,
+                                gps=gps, theta={"image_type": 2, "roll_deg": rec_roll, "pitch_deg": rec_pitch,
+                                                "heading_deg": rec_heading})
+                f = f"card/{sid}/{cid}/R{10000 + shot_no:07d}.JPG"
+                shot_no += 1
+                atomic_write_bytes(out / f, insert_app1(jpg, app))
+                shots.append(Shot(file=f, exposure_time=t_exp, f_number=2.0, iso=iso_c, time=when, role=role))
+            probe = None
+            if info is not None:
+                local = render_panorama(scene, pos, cam.pano_rotation, cfg.probe_height, cfg.probe_spp,
+                                        seed=derive_seed(seed, s, 200 + c))
+                write_exr(truth_dir / sid / f"{cid}.exr", local, {"scene": sid, "probe": cid, "frame": "photo panorama frame"})
+                probe = ProbeTruth(**info, hdr_file=f"truth/{sid}/{cid}.exr")
+            sun_body = None if light.sun is None else (Rb.T @ light.sun).tolist()
+            captures.append(CaptureTruth(
+                id=cid, kind="probe" if info is not None else "camera_position", position=pos.tolist(),
+                yaw_deg=math.degrees(yaw), pitch_deg=math.degrees(pitch), roll_deg=math.degrees(roll),
+                R_scene_from_body=Rb.tolist(), R_pano_from_body=(cam.pano_rotation.T @ Rb).tolist(),
+                recorded_pitch_deg=rec_pitch, recorded_roll_deg=rec_roll, recorded_heading_deg=rec_heading,
+                sun_body=sun_body, shots=shots, probe=probe))
+            if progress:
+                progress(sid, cid)
+        sun_az = sun_el = None
+        if light.sun is not None:
+            az, el = angles_from_direction(cam.pano_rotation.T @ light.sun)
+            sun_az, sun_el = math.degrees(float(az)), math.degrees(float(el))
+        scenes_truth.append(SceneTruth(
+            id=sid, block_seed=block.seed, sector=sector, lighting=light.meta, sun_found=light.sun is not None,
+            sun_scene=None if light.sun is None else [float(v) for v in light.sun], sun_azimuth_deg=sun_az,
+            sun_elevation_deg=sun_el, gps=list(gps), photo=photo, captures=captures))
+    truth = CampaignTruth(seed=seed, scenes_requested=scenes, probes_requested=probes, config=cfg,
+                          renderer={"mitsuba": mi.__version__, "variant": variant()},
+                          radiometry={"K_SENSOR": K_SENSOR, "response": "sRGB (IEC 61966-2-1)",
+                                      "noise": "var = 1e-3 x + (2e-3)^2, x in [0, 1] before clipping",
+                                      "lens_profile": cfg.lens_profile, "fisheye_size": list(profile.reference_size)},
+                          scenes=scenes_truth)
+    atomic_write_text(truth_dir / "truth.json", truth.model_dump_json(indent=1))
+    return truth
