@@ -110,6 +110,7 @@ def colour(
     table.add_row("CCM", "\n".join("  ".join(f"{v:+.4f}" for v in row) for row in prof.ccm))
     for stage in ("before", "white_balance", "ccm_linear_lsq", "ccm"):
         table.add_row(f"CIEDE2000 {stage.replace('_', ' ')}", f"mean {r['ciede2000_mean'][stage]:.2f}, max {r['ciede2000_max'][stage]:.2f}")
+    table.add_row("CIEDE2000 leave-one-patch-out", f"mean {r['ciede2000_leave_one_patch_out_mean']:.2f} (linear LSQ, each patch unseen)")
     if r["patches_clipped"]:
         table.add_row("[yellow]clipped patches[/]", str(r["patches_clipped"]))
     table.add_row("profile", str(out))

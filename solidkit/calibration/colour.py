@@ -350,12 +350,21 @@ def calibrate_colour(
     s1 = float((cam_wb[use] * ref[use]).sum() / (cam_wb[use] ** 2).sum())
     de = {k: delta_e2000(v, ref) for k, v in (
         ("before", cam * s0), ("white_balance", cam_wb * s1), ("ccm_linear_lsq", cam_wb @ ccm_ls.T), ("ccm", after))}
+    # generalisation: each patch predicted by a least-squares CCM fitted without it (white kept)
+    loo = []
+    for i in use:
+        if i == 18:
+            continue
+        rest = use[use != i]
+        M_i = fit_ccm(cam_wb[rest], ref[rest], white_preserving=white_preserving, white_index=int(np.nonzero(rest == 18)[0][0]))
+        loo.append(float(delta_e2000(M_i @ cam_wb[i], ref[i])))
     grey = cam_wb[18]
     gain = float((ccm @ grey) @ np.array([0.2126, 0.7152, 0.0722]) / (grey @ np.array([0.2126, 0.7152, 0.0722])))
     residuals = {
         "ciede2000_mean": {k: float(v[use].mean()) for k, v in de.items()},
         "ciede2000_max": {k: float(v[use].max()) for k, v in de.items()},
         "ciede2000_per_patch_after": [round(float(x), 4) for x in de["ccm"]],
+        "ciede2000_leave_one_patch_out_mean": float(np.mean(loo)),
         "patches_used": [int(i) + 1 for i in use],
         "patches_clipped": [int(i) + 1 for i in clipped],
         "patch_noise_rel": float(np.median(std / np.maximum(cam, 1e-9))),
