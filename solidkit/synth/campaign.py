@@ -53,7 +53,8 @@ from solidkit.errors import InputError
 from solidkit.fsutil import atomic_write_bytes, atomic_write_text
 from solidkit.synth.cameras import Camera, pinhole_sensor
 from solidkit.synth.exif import exif_app1, insert_app1
-from solidkit.synth.sample import Generator, SampleConfig, derive_seed, pick_probe_pixels, render_buffers, render_panorama, render_rgb
+from solidkit.synth.sample import (Generator, SampleConfig, derive_seed, pick_probe_pixels, render_buffers,
+                                   render_panorama, render_rgb)
 from solidkit.synth.scene import CATEGORIES, to_mitsuba
 
 __all__ = ["K_SENSOR", "CampaignConfig", "Shot", "ProbeTruth", "CaptureTruth", "PhotoTruth", "SceneTruth",
@@ -87,6 +88,7 @@ class CampaignConfig(BaseModel):
     jpeg_quality: int = 92
     candidates: int = 8
     p_sunsky: float = 0.7
+    block_length: float = 60.0
 
 
 class Shot(BaseModel):
@@ -235,7 +237,7 @@ def generate_campaign(out: str | os.PathLike, scenes: int, probes: int, *, seed:
     profile = profile.scaled(cfg.fisheye_width, int(round(cfg.fisheye_width * rh / rw)))
     model = profile.camera_models[0] if profile.camera_models else "RICOH THETA V"
     scfg = SampleConfig(width=cfg.photo_width, height=cfg.photo_height, hfov_deg=cfg.hfov_deg, candidates=cfg.candidates,
-                        p_sunsky=cfg.p_sunsky, probe_height=cfg.probe_height)
+                        p_sunsky=cfg.p_sunsky, probe_height=cfg.probe_height, block_length=cfg.block_length)
     gen = Generator(seed, scfg)
     per_scene = _split(probes, scenes)
     shot_no = 1

@@ -1,0 +1,113 @@
+"""The virtual campaign: fisheye geometry through the capture lens model, EXIF, sensor model, truth schema."""
+
+from __future__ import annotations
+
+import datetime as dt
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+pytest.importorskip("mitsuba")
+
+from solidkit.capture.lens import load_profile, project  # noqa: E402
+from solidkit.capture.metadata import read_metadata  # noqa: E402
+from solidkit.envmap import coords_from_direction, direction_from_coords, rotation_from_ypr, rotation_y  # noqa: E402
+from solidkit.synth.campaign import (CampaignConfig, CampaignTruth, expose, fisheye_image, generate_campaign,  # noqa: E402
+                                     load_truth)
+from solidkit.synth.cameras import Camera  # noqa: E402
+from solidkit.synth.exif import exif_app1, insert_app1  # noqa: E402
+
+
+@pytest.mark.parametrize("az,el", [(20.0, 30.0), (150.0, -10.0), (-100.0, 60.0)])
+def test_fisheye_spot_lands_where_the_lens_model_says(az: float, el: float) -> None:
+    h = 64
+    # a direction at a pixel centre of the panorama, near (az, el)
+    d = np.asarray(direction_from_coords(np.float64(np.floor((az + 180) / 360 * 2 * h) + 0.5),
+                                         np.float64(np.floor((90 - el) / 180 * h) + 0.5), h))
+    pano = np.zeros((h, 2 * h, 3), np.float32)
+    px, py = coords_from_direction(d, h)
+    pano[int(py), int(px)] = 100.0
+    profile = load_profile("theta-v").scaled(256, 128)
+    Rb = np.asarray(rotation_from_ypr(math.radians(33.0), math.radians(4.0), math.radians(-3.0)))
+    img = fisheye_image(pano, Rb, profile)
+    d_body = Rb.T @ d
+    # the lens that sees it best (smallest incidence angle)
+    best = min(profile.lenses, key=lambda L: project(L, d_body)[2])
+    ex, ey, theta = project(best, d_body)
+    assert theta < math.radians(best.max_angle_deg)
+    gy, gx = np.unravel_index(np.argmax(img.sum(-1)), img.shape[:2])
+    assert abs(gx - ex) <= 2.0 and abs(gy - ey) <= 2.0, (gx, gy, ex, ey)
+
+
+def test_exif_reads_back_through_capture_metadata(tmp_path: Path) -> None:
+    import cv2
+
+    ok, buf = cv2.imencode(".jpg", np.zeros((32, 64, 3), np.uint8))
+    when = dt.datetime(2024, 6, 1, 12, 0, 7)
+    app = exif_app1(make="RICOH", model="RICOH THETA V", when=when, exposure_time=1 / 25000, f_number=2.0, iso=64,
+                    gps=(48.85, -2.35, 35.0), theta={"image_type": 2, "roll_deg": -1.25, "pitch_deg": 3.5, "heading_deg": 271.0})
+    (tmp_path / "a.jpg").write_bytes(insert_app1(buf.tobytes(), app))
+    m = read_metadata(tmp_path / "a.jpg")
+    assert m.image_type == "dual_fisheye" and m.model == "RICOH THETA V" and not m.warnings
+    assert m.exposure_time == pytest.approx(1 / 25000) and m.f_number == 2.0 and m.iso == 64
+    assert m.pitch_deg == pytest.approx(3.5) and m.roll_deg == pytest.approx(-1.25) and m.heading_deg == pytest.approx(271.0)
+    assert m.datetime_original == when
+    assert m.gps["lat_deg"] == pytest.approx(48.85, abs=1e-6) and m.gps["lon_deg"] == pytest.approx(-2.35, abs=1e-6)
+    app = exif_app1(make="SOLIDKIT", model="Virtual Photo Camera", when=when, exposure_time=1 / 500, f_number=2.8, iso=100,
+                    focal_length_mm=5.3, focal_35mm=31)
+    (tmp_path / "b.jpg").write_bytes(insert_app1(buf.tobytes(), app))
+    m = read_metadata(tmp_path / "b.jpg")
+    assert m.image_type == "perspective" and m.exposure_time == pytest.approx(1 / 500)
+
+
+def test_sensor_model_saturates_the_sun_and_scales_with_exposure() -> None:
+    rng = np.random.default_rng(0)
+    rad = np.array([[[1.0, 1.0, 1.0], [0.01, 0.01, 0.01], [1e5, 1e5, 1e5]]], np.float32)
+    img, jpg = expose(rad, 1 / 2500, 2.0, 100, rng)
+    assert jpg[:2] == b"\xff\xd8"
+    assert img[0, 2].min() == 255  # the sun saturates at 1/2500 s ...
+    low, _ = expose(rad, 1 / 25000, 2.0, 64, rng)
+    assert low[0, 2].min() == 255  # ... and still at 1/25000 s
+    assert low[0, 0].mean() < img[0, 0].mean()  # everything else darkens
+    assert 120 < img[0, 0].mean() < 180  # radiance 1 at 1/2500 s, f/2, ISO 100 -> 0.35 linear
+
+
+def test_campaign_truth_round_trips(tmp_path: Path) -> None:
+    cfg = CampaignConfig(photo_width=32, photo_height=24, photo_spp=1, pano_height=16, pano_spp=1, probe_height=8,
+                         probe_spp=1, fisheye_width=128, candidates=2, block_length=25.0, brackets_s=[1 / 640])
+    truth = generate_campaign(tmp_path, 1, 2, seed=3, config=cfg)
+    again = load_truth(tmp_path / "truth" / "truth.json")
+    assert again == truth
+    assert CampaignTruth.model_validate_json(truth.model_dump_json()) == truth
+    sc = truth.scenes[0]
+    assert [c.id for c in sc.captures] == ["cam", "p01", "p02"]
+    cam = Camera.from_json(sc.photo.camera)
+    for c in sc.captures:
+        Rb = np.asarray(c.R_scene_from_body)
+        assert np.allclose(Rb, rotation_from_ypr(*(math.radians(a) for a in (c.yaw_deg, c.pitch_deg, c.roll_deg))))
+        assert np.allclose(np.asarray(c.R_pano_from_body), np.asarray(rotation_y(cam.yaw)).T @ Rb)
+        assert [s.role for s in c.shots] == ["bracket", "normal", "low_exposure"]
+        for s in c.shots:
+            m = read_metadata(tmp_path / s.file)
+            assert m.image_type == "dual_fisheye" and (m.width, m.height) == (128, 64)
+            assert m.exposure_time == pytest.approx(s.exposure_time, rel=1e-6)
+            assert m.pitch_deg == pytest.approx(c.recorded_pitch_deg, abs=1e-4)
+            assert m.roll_deg == pytest.approx(c.recorded_roll_deg, abs=1e-4)
+            assert abs(c.recorded_pitch_deg - c.pitch_deg) < 2.0  # gravity noise 0.3° rms
+        if c.probe is not None:
+            assert np.allclose(cam.project(np.asarray(c.probe.point_scene)), c.probe.pixel, atol=1e-3)
+            assert np.allclose(np.asarray(c.position) - c.probe.point_scene, 0.1 * np.asarray(c.probe.normal_scene), atol=1e-6)
+            assert (tmp_path / c.probe.hdr_file).is_file()
+    photo = read_metadata(tmp_path / sc.photo.shot.file)
+    assert photo.image_type == "perspective" and photo.gps is not None
+    # the schema refuses a damaged file with a one-line error
+    bad = json.loads((tmp_path / "truth" / "truth.json").read_text())
+    del bad["scenes"][0]["photo"]
+    (tmp_path / "bad.json").write_text(json.dumps(bad))
+    from solidkit.errors import InputError
+
+    with pytest.raises(InputError):
+        load_truth(tmp_path / "bad.json")
