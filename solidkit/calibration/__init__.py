@@ -1,1 +1,14 @@
-"""Lens, response-curve, colour and photo-camera profiles (see the Calibration issue)."""
+"""Lens, response-curve, colour, vignetting and photo-camera profiles (``solidkit calibrate ...``).
+
+Modules (imported on demand; each profile is a versioned JSON file with provenance, see
+:mod:`solidkit.calibration.profile`):
+
+- :mod:`~solidkit.calibration.response` — inverse camera response from brackets (Debevec, Robertson);
+- :mod:`~solidkit.calibration.colour` — white balance + 3x3 CCM from a ColorChecker, CIEDE2000;
+- :mod:`~solidkit.calibration.camera` — photo-camera K (EXIF / FOV / checkerboard), resize/crop to 320x240;
+- :mod:`~solidkit.calibration.fisheye` — fisheye intrinsics (Kannala-Brandt, Mei), exported to the
+  lens-profile format of :mod:`solidkit.capture.lens`;
+- :mod:`~solidkit.calibration.vignetting` — radial falloff per lens (flat field or lens overlap);
+- :mod:`~solidkit.calibration.boards` — checkerboard detection with view rejection, synthetic rendering;
+- :mod:`~solidkit.calibration.exif` — the EXIF fields calibration needs.
+"""
