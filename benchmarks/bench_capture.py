@@ -149,6 +149,7 @@ def main() -> None:
     tmp = Path(tempfile.mkdtemp(prefix="bench_capture_"))
     try:
         result = {"machine": platform.platform(), "cpus": __import__("os").cpu_count(),
+                  "load_average_at_start": list(__import__("os").getloadavg()),
                   "merge_5792x2896_3_frames": bench_merge(tmp), "ingest_20_captures": bench_ingest(tmp)}
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
@@ -156,7 +157,8 @@ def main() -> None:
     m, g = result["merge_5792x2896_3_frames"], result["ingest_20_captures"]
     lines = [
         "# Capture benchmarks", "",
-        f"Machine: {result['machine']}, {result['cpus']} CPUs.", "",
+        f"Machine: {result['machine']}, {result['cpus']} CPUs, load average at start "
+        f"{result['load_average_at_start'][0]:.1f} (shared machine: compare the ratios, not the seconds).", "",
         "## HDR merge, 3 JPEG frames at 5792x2896 (decode + merge + EXR write)", "",
         "| method | wall (s) | peak RSS (MiB) | median rel. error (well exposed) |", "|---|---|---|---|",
         *[f"| {k} | {m[k]['wall_s']:.2f} | {m[k]['peak_rss_mib']:.0f} | {100 * m[k]['median_rel_error_well_exposed']:.2f} % |"
