@@ -174,6 +174,14 @@ def test_fixed_file_is_picked_up_and_error_cleared(card, tmp_path):
     assert report.copied == 1 and not report.errors and report.known_errors == 2
     m = load_manifest(camp)
     assert "R0010091.JPG" not in {e.path.rsplit("/", 1)[-1] for e in m.errors}
+    # bad files removed from the card: their errors are forgotten, the campaign is clean
+    for name in ("R0010090.JPG", "R0010092.JPG"):
+        (card / "DCIM" / "100RICOH" / name).unlink()
+    (card / "notes.txt").unlink()
+    report = ingest(card, camp)
+    m = load_manifest(camp)
+    assert not m.errors and not report.known_errors and "notes.txt" not in {r.path for r in m.skipped}
+    assert len(m.shots) == 12  # nothing else changed
 
 
 def test_duplicate_exposure_is_reported(tmp_path):

@@ -814,6 +814,11 @@ def ingest(
         captures, unrelated = scan_card(card)
         report.files_seen = len(captures)
         report.unrelated = [p.as_posix() for p in unrelated]
+        # forget errors and skips of files that are no longer on this card
+        present = {p.as_posix() for p in captures}
+        manifest.errors = [e for e in manifest.errors if e.card != cstr or e.path in present]
+        still_unrelated = {p.as_posix() for p in unrelated}
+        manifest.skipped = [r for r in manifest.skipped if r.card != cstr or r.path in still_unrelated]
         known_skips = {(s.card, s.path) for s in manifest.skipped}
         for p in unrelated:
             if (cstr, p.as_posix()) not in known_skips:
