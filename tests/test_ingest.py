@@ -298,3 +298,14 @@ def test_products_are_reproducible_from_originals(card, tmp_path):
     m2 = load_manifest(camp)
     assert m2.model_dump() == m.model_dump()
     assert hashlib.sha256((camp / hdr.path).read_bytes()).hexdigest() == hdr.sha256
+
+
+@pytest.mark.real
+def test_real_dng_ingests(real_data, tmp_path):
+    card = tmp_path / "card" / "s1" / "p1"
+    card.mkdir(parents=True)
+    shutil.copyfile(real_data / "raw_dng" / "colorchart.dng", card / "R0010001.DNG")
+    ingest(tmp_path / "card", tmp_path / "camp")
+    (shot,) = load_manifest(tmp_path / "camp").shots
+    assert shot.file_format == "dng" and shot.original.endswith(".dng") and shot.kind == "probe"
+    assert (shot.metadata["width"], shot.metadata["height"]) != (0, 0)
