@@ -44,6 +44,17 @@ def _pattern(text: str) -> tuple[int, int]:
     return a, b
 
 
+def _target(pattern: str | None, charuco: str | None, square: float, marker_ratio: float, dictionary: str):
+    """The board: a checkerboard's inner corners (``--pattern``) or a ChArUco target (``--charuco``)."""
+    from solidkit.calibration.boards import CharucoTarget
+
+    if (pattern is None) == (charuco is None):
+        raise InputError("give exactly one of --pattern COLSxROWS (checkerboard inner corners) or --charuco COLSxROWS (squares)")
+    if charuco is not None:
+        return CharucoTarget(_pattern(charuco), square, marker_ratio, dictionary)
+    return _pattern(pattern)
+
+
 def _fmt(x: float | None, spec: str = ".3g") -> str:
     return "-" if x is None else format(x, spec)
 
@@ -123,16 +134,19 @@ def camera(
     inputs: list[Path] = typer.Argument(..., help="One photo (EXIF route) or checkerboard views (with --pattern)."),
     out: Path = typer.Option(..., "-o", "--out", help="Profile JSON to write."),
     pattern: Optional[str] = typer.Option(None, "--pattern", help="Checkerboard inner corners COLSxROWS: calibrate from the views."),
-    square: float = typer.Option(1.0, "--square", help="Checkerboard square size (any unit)."),
+    charuco: Optional[str] = typer.Option(None, "--charuco", help="ChArUco board squares COLSxROWS: calibrate from the views."),
+    square: float = typer.Option(1.0, "--square", help="Board square size (any unit)."),
+    marker_ratio: float = typer.Option(0.7, "--marker-ratio", help="ChArUco marker side / square side."),
+    dictionary: str = typer.Option("DICT_4X4_50", "--dictionary", help="ChArUco ArUco dictionary."),
     sensor_width_mm: Optional[float] = typer.Option(None, "--sensor-width-mm", help="Sensor width (overrides the table)."),
     fov_deg: Optional[float] = typer.Option(None, "--fov-deg", help="Known horizontal field of view in degrees."),
 ) -> None:
     """Photo-camera intrinsics K (EXIF, field of view or checkerboard) and K at the model's 320x240 input."""
     from solidkit.calibration.camera import calibrate_camera_from_board, calibrate_camera_from_photo
 
-    if pattern:
+    if pattern or charuco:
         with console.status(f"detecting the board in {len(inputs)} views"):
-            prof = calibrate_camera_from_board(inputs, _pattern(pattern), square)
+            prof = calibrate_camera_from_board(inputs, _target(pattern, charuco, square, marker_ratio, dictionary), square)
     else:
         if len(inputs) != 1:
             raise InputError("give one photo (EXIF route), or --pattern COLSxROWS for checkerboard views")
@@ -158,8 +172,11 @@ def camera(
 def lens(
     views: list[Path] = typer.Argument(..., help="Checkerboard views through the fisheye lens."),
     out: Path = typer.Option(..., "-o", "--out", help="Lens profile JSON to write (lens-profile format); a .calibration.json record is written beside it."),
-    pattern: str = typer.Option(..., "--pattern", help="Inner corners COLSxROWS (e.g. 6x9)."),
+    pattern: Optional[str] = typer.Option(None, "--pattern", help="Checkerboard inner corners COLSxROWS (e.g. 6x9)."),
+    charuco: Optional[str] = typer.Option(None, "--charuco", help="ChArUco board squares COLSxROWS (instead of --pattern)."),
     square: float = typer.Option(1.0, "--square", help="Square size (any unit)."),
+    marker_ratio: float = typer.Option(0.7, "--marker-ratio", help="ChArUco marker side / square side."),
+    dictionary: str = typer.Option("DICT_4X4_50", "--dictionary", help="ChArUco ArUco dictionary."),
     name: str = typer.Option("front", "--name", help="Lens name in the profile (front, back, ...)."),
     model: str = typer.Option("auto", "--model", help="auto (lowest held-out error), kb or mei."),
     crop: Optional[str] = typer.Option(None, "--crop", help="x0,y0,w,h: this lens' region of each view (dual-fisheye frames)."),
@@ -176,7 +193,8 @@ def lens(
     from solidkit.calibration.fisheye import calibrate_fisheye, lens_profile_from_calibrations
     from solidkit.capture.lens import load_profile as load_lens_profile
 
-    pat = _pattern(pattern)
+    target = _target(pattern, charuco, square, marker_ratio, dictionary)
+    pat = target if isinstance(target, tuple) else target.pattern
     models = ("kb", "mei") if model == "auto" else (model,)
     if model not in ("auto", "kb", "mei"):
         raise InputError(f"--model: auto, kb or mei, got {model!r}")
@@ -195,7 +213,7 @@ def lens(
                 raise InputError(f"{p}: --crop {crop} exceeds the {full_size[0]}x{full_size[1]} image")
         images.append(np.ascontiguousarray(g))
     with console.status(f"detecting the board in {len(views)} views"):
-        dviews = detect_views(images, pat, max_blur_px, names=[p.name for p in views])
+        dviews = detect_views(images, target, max_blur_px, names=[p.name for p in views])
     with console.status("fitting " + " and ".join(models) + " with held-out folds"):
         cal = calibrate_fisheye(
             dviews, pat, square, models, holdout_k, name, offset=(box[0], box[1]) if box else (0.0, 0.0),
@@ -292,7 +310,7 @@ def overlap(
     base: str = typer.Option(..., "--base", help="Model lens profile to start from (theta-v, theta-z1, theta-s, theta-s-video or a JSON file)."),
     out: Path = typer.Option(..., "-o", "--out", help="Per-unit lens profile to write (JSON; use with `capture unwarp --profile`)."),
     circle_sigma: float = typer.Option(1.0, "--circle-sigma", help="Prior (px) tying each lens centre to its fitted image circle; 0 = photometric only."),
-    scale_sigma: float = typer.Option(0.02, "--scale-sigma", help="Prior std of the difference of the two lenses' log scales."),
+    scale_sigma: float = typer.Option(0.005, "--scale-sigma", help="Prior std of the difference of the two lenses' log scales."),
     fix_scale: bool = typer.Option(False, "--fix-scale", help="Keep r(theta) as in the base profile."),
 ) -> None:
     """Refine lens centres, scales and the inter-lens rotation on the overlap ring (robust photometric fit)."""

@@ -167,7 +167,7 @@ def refine_overlap(
     ring_deg: tuple[float, float] | None = None,
     n_samples: int = 12000,
     saturation: float | None = 0.98,
-    scale_sigma: float = 0.02,
+    scale_sigma: float = 0.005,
     fix_scale: bool = False,
     max_nfev: int = 60,
     edge_px: float = 4.0,
@@ -342,7 +342,7 @@ def refine_files(
     out: Any,
     *,
     circle_sigma_px: float | None = 1.0,
-    scale_sigma: float = 0.02,
+    scale_sigma: float = 0.005,
     fix_scale: bool = False,
 ) -> dict:
     """``solidkit calibrate overlap``: refine a model profile on capture files, write ``out`` (JSON).
