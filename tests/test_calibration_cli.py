@@ -119,3 +119,28 @@ def test_errors_are_one_line(tmp_path):
     r = runner.invoke(app, ["calibrate", "lens", str(tmp_path / "a.png"), "--pattern", "6by4", "-o", str(tmp_path / "l.json")])
     assert r.exit_code != 0 and "COLSxROWS" in str(r.exception)
     assert not (tmp_path / "x.json").exists()
+
+
+def test_camera_command_charuco(tmp_path):
+    from solidkit.calibration.boards import CharucoTarget, render_board
+
+    K = np.array([[400.0, 0, 321.0], [0, 400.0, 238.5], [0, 0, 1]])
+    Ki = np.linalg.inv(K)
+    target = CharucoTarget((7, 5))
+    rng = np.random.default_rng(2)
+    paths = []
+    for i in range(6):
+        R, _ = cv2.Rodrigues(rng.uniform(-0.45, 0.45, 3))
+        t = -R @ np.array([3.5, 2.5, 0.0]) + np.array([*rng.uniform(-1, 1, 2), 9.0])
+        img = render_board(lambda x, y: np.stack([x, y, np.ones_like(x)], -1) @ Ki.T, (640, 480), R, t, target.pattern,
+                           texture=target.texture(48))
+        cv2.imwrite(str(tmp_path / f"c{i}.png"), img)
+        paths.append(tmp_path / f"c{i}.png")
+    out = _ok(["camera", *paths, "--charuco", "7x5", "-o", tmp_path / "cam.json"])
+    assert "charuco" in out
+    prof = load_profile(tmp_path / "cam.json")
+    Kf = prof.matrix()
+    # measured: f +0.3 %, centre off by (-0.63, +0.87) px, RMS 0.11 px (small board, 48 px/square texture)
+    assert abs(Kf[0, 0] / 400 - 1) < 0.01 and abs(Kf[0, 2] - 321.0) < 1.5 and abs(Kf[1, 2] - 238.5) < 1.5
+    r = runner.invoke(app, ["calibrate", "camera", *map(str, paths), "--charuco", "7x5", "--pattern", "6x4", "-o", str(tmp_path / "x.json")])
+    assert r.exit_code != 0 and "exactly one of --pattern" in str(r.exception)

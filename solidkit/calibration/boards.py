@@ -1,4 +1,4 @@
-"""Checkerboard targets: geometry, corner detection with view rejection, and synthetic rendering.
+"""Checkerboard and ChArUco targets: geometry, corner detection with view rejection, synthetic rendering.
 
 A board with ``pattern = (cols, rows)`` *inner* corners has squares of side ``square`` (any
 unit; the calibration's extrinsics come out in it). Its corners lie in the board plane
@@ -26,23 +26,92 @@ import numpy as np
 
 from solidkit.errors import InputError
 
-__all__ = ["BoardView", "board_points", "find_corners", "detect_views", "pixel_rays", "render_board", "read_gray"]
+__all__ = [
+    "BoardView",
+    "CharucoTarget",
+    "board_points",
+    "find_corners",
+    "find_charuco",
+    "detect_views",
+    "pixel_rays",
+    "render_board",
+    "read_gray",
+]
 
 
 @dataclass
 class BoardView:
-    """One calibration image: its name, size, detected corners (N, 2) or the rejection reason."""
+    """One calibration image: its name, size, detected corners (N, 2) or the rejection reason.
+
+    ``object_points`` (N, 3) are set for partial detections (ChArUco); for a checkerboard they
+    are the whole board (:func:`board_points`).
+    """
 
     name: str
     size: tuple[int, int]  # width, height
     corners: np.ndarray | None = None
     reason: str | None = None
     sharpness_px: float | None = None
+    object_points: np.ndarray | None = None
     extra: dict = field(default_factory=dict)
 
     @property
     def ok(self) -> bool:
         return self.corners is not None and self.reason is None
+
+    def points(self, pattern: tuple[int, int], square: float = 1.0) -> np.ndarray:
+        """Object points (N, 3) float64 matching ``corners``."""
+        if self.object_points is not None:
+            return np.asarray(self.object_points, dtype=np.float64)
+        return board_points(pattern, square)
+
+
+@dataclass
+class CharucoTarget:
+    """A ChArUco board: ``squares = (cols, rows)`` squares of side ``square``, ArUco markers of
+    side ``marker_ratio · square`` from the OpenCV dictionary ``dictionary``. Its inner corners
+    have object points ``(i·square, j·square, 0)``, ``i, j >= 1``, as in OpenCV."""
+
+    squares: tuple[int, int]
+    square: float = 1.0
+    marker_ratio: float = 0.7
+    dictionary: str = "DICT_4X4_50"
+    min_corners: int = 8
+
+    @property
+    def pattern(self) -> tuple[int, int]:
+        """Inner corners (cols, rows), for reporting."""
+        return self.squares[0] - 1, self.squares[1] - 1
+
+    def cv_board(self):
+        """The ``cv2.aruco.CharucoBoard``."""
+        try:
+            dic = cv2.aruco.getPredefinedDictionary(getattr(cv2.aruco, self.dictionary))
+        except AttributeError:
+            raise InputError(f"unknown ArUco dictionary {self.dictionary!r} (e.g. DICT_4X4_50, DICT_5X5_100)") from None
+        return cv2.aruco.CharucoBoard(tuple(self.squares), float(self.square), float(self.marker_ratio * self.square), dic)
+
+    def texture(self, px_per_square: int = 64) -> tuple[np.ndarray, float]:
+        """The board image (8-bit, no margin) and its size in board units per pixel."""
+        w, h = self.squares[0] * px_per_square, self.squares[1] * px_per_square
+        return self.cv_board().generateImage((w, h), marginSize=0), self.square / px_per_square
+
+
+def find_charuco(gray: np.ndarray, target: CharucoTarget) -> tuple[np.ndarray | None, np.ndarray | None, str | None]:
+    """Detect a ChArUco board: ``(corners (N, 2), object_points (N, 3), None)`` or ``(None, None, reason)``."""
+    board = target.cv_board()
+    det = cv2.aruco.CharucoDetector(board)
+    cc, ids, marker_corners, _ = det.detectBoard(gray)
+    if cc is None or ids is None or len(ids) == 0:
+        n = 0 if marker_corners is None else len(marker_corners)
+        return None, None, f"no ChArUco board found ({n} markers decoded)"
+    ids = np.ravel(ids)
+    if len(ids) < target.min_corners:
+        return None, None, f"only {len(ids)} ChArUco corners (< {target.min_corners})"
+    obj = np.asarray(board.getChessboardCorners(), dtype=np.float64)[ids]
+    if board.checkCharucoCornersCollinear(ids.reshape(-1, 1).astype(np.int32)):
+        return None, None, "ChArUco corners are collinear"
+    return cc.reshape(-1, 2).astype(np.float64), obj, None
 
 
 def board_points(pattern: tuple[int, int], square: float = 1.0) -> np.ndarray:
@@ -93,10 +162,14 @@ def find_corners(gray: np.ndarray, pattern: tuple[int, int], max_blur_px: float 
 
 
 def detect_views(
-    images: Sequence[str | os.PathLike | np.ndarray], pattern: tuple[int, int], max_blur_px: float = 4.0,
+    images: Sequence[str | os.PathLike | np.ndarray], pattern: "tuple[int, int] | CharucoTarget", max_blur_px: float = 4.0,
     names: Sequence[str] | None = None, progress: Callable[[int], None] | None = None,
 ) -> list[BoardView]:
-    """Detect the board in every view; rejected views carry their reason. Sizes must agree."""
+    """Detect the board in every view; rejected views carry their reason. Sizes must agree.
+
+    ``pattern``: a checkerboard's inner corners ``(cols, rows)`` or a :class:`CharucoTarget`
+    (partial views allowed; a blurred ChArUco view is rejected when its markers cannot be decoded).
+    """
     views: list[BoardView] = []
     for k, img in enumerate(images):
         if isinstance(img, np.ndarray):
@@ -105,8 +178,13 @@ def detect_views(
         else:
             gray = read_gray(img)
             name = names[k] if names else Path(img).name
-        corners, reason, sharp = find_corners(np.ascontiguousarray(gray, dtype=np.uint8), pattern, max_blur_px)
-        views.append(BoardView(name=name, size=(gray.shape[1], gray.shape[0]), corners=corners, reason=reason, sharpness_px=sharp))
+        gray = np.ascontiguousarray(gray, dtype=np.uint8)
+        if isinstance(pattern, CharucoTarget):
+            corners, obj, reason = find_charuco(gray, pattern)
+            views.append(BoardView(name=name, size=(gray.shape[1], gray.shape[0]), corners=corners, reason=reason, object_points=obj))
+        else:
+            corners, reason, sharp = find_corners(gray, pattern, max_blur_px)
+            views.append(BoardView(name=name, size=(gray.shape[1], gray.shape[0]), corners=corners, reason=reason, sharpness_px=sharp))
         if progress:
             progress(k)
     sizes = {v.size for v in views}
@@ -134,6 +212,7 @@ def render_board(
     border: float = 1.0,
     supersample: int = 2,
     background: float = 0.5,
+    texture: tuple[np.ndarray, float] | None = None,
 ) -> np.ndarray:
     """Render a checkerboard (8-bit grey) seen by a central camera.
 
@@ -147,6 +226,9 @@ def render_board(
     pattern, square : the inner-corner count and square side (so the board has
         ``(cols + 1) x (rows + 1)`` squares, the first one black), plus a white ``border``
         of that many squares around it.
+    texture : optional ``(image, units_per_px)`` (e.g. :meth:`CharucoTarget.texture`) drawn with
+        its top-left at board coordinates (0, 0) instead of the procedural checkerboard (whose
+        first inner corner is at (0, 0)); the white border is then ``border · square`` wide.
     supersample : samples per pixel side (box filter anti-aliasing). Keep it even: with an
         odd count one sample sits on the pixel centre, and corners projecting exactly onto
         pixel centres are then biased (measured: −0.16 px with 3, −0.49 px with 1, 0.01 px with 2).
@@ -168,6 +250,17 @@ def render_board(
         hit = np.isfinite(lam) & (lam > 0)
         P = np.where(hit[..., None], lam[..., None] * np.nan_to_num(d), 0.0)
         b = (P - t) @ R  # board coordinates
+        if texture is not None:
+            tex, upp = texture
+            th, tw = tex.shape[:2]
+            ix, iy = np.floor(b[..., 0] / upp).astype(np.int64), np.floor(b[..., 1] / upp).astype(np.int64)
+            inside = hit & (ix >= 0) & (ix < tw) & (iy >= 0) & (iy < th)
+            m = border * square / upp
+            paper = hit & (ix >= -m) & (ix < tw + m) & (iy >= -m) & (iy < th + m)
+            val = np.where(paper, 1.0, background)
+            val = np.where(inside, tex[np.clip(iy, 0, th - 1), np.clip(ix, 0, tw - 1)] / 255.0, val)
+            acc += val
+            continue
         u, v = b[..., 0] / square + 1.0, b[..., 1] / square + 1.0  # square index (first square at -1..0)
         inside = hit & (u >= 0) & (u < cols + 1) & (v >= 0) & (v < rows + 1)
         paper = hit & (u >= -border) & (u < cols + 1 + border) & (v >= -border) & (v < rows + 1 + border)

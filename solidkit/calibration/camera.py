@@ -27,7 +27,7 @@ import cv2
 import numpy as np
 from pydantic import Field
 
-from solidkit.calibration.boards import BoardView, board_points, detect_views
+from solidkit.calibration.boards import BoardView, detect_views
 from solidkit.calibration.exif import ExifInfo, read_exif
 from solidkit.calibration.profile import Profile, make_provenance
 from solidkit.errors import InputError, SolidkitError
@@ -75,7 +75,7 @@ class CameraProfile(Profile):
     """Photo-camera intrinsics at the native size and at the model's input size."""
 
     KIND = "camera"
-    source: str = Field(description="checkerboard | exif-focal-plane | exif-sensor-table | exif-35mm | fov")
+    source: str = Field(description="checkerboard | charuco | exif-focal-plane | exif-sensor-width | exif-sensor-table | exif-35mm | fov")
     image_size: tuple[int, int] = Field(description="width, height of the native image (px)")
     K: list[list[float]] = Field(description="3x3 intrinsics at image_size (OpenCV pixel centres)")
     dist: list[float] = Field(default_factory=list, description="OpenCV distortion (k1, k2, p1, p2, k3) if calibrated")
@@ -221,13 +221,12 @@ def calibrate_checkerboard(
             f"checkerboard calibration needs >= 3 usable views, got {len(good)}; rejected: "
             + "; ".join(f"{k}: {r}" for k, r in rejected.items())
         )
-    obj = board_points(pattern, square).astype(np.float32)
-    objs = [obj] * len(good)
+    objs = [v.points(pattern, square).astype(np.float32).reshape(-1, 1, 3) for v in good]
     imgs = [v.corners.astype(np.float32).reshape(-1, 1, 2) for v in good]
     w, h = good[0].size
     rms, K, dist, rvecs, tvecs = cv2.calibrateCamera(objs, imgs, (w, h), None, None)
     per_view = {}
-    for v, rv, tv in zip(good, rvecs, tvecs):
+    for v, obj, rv, tv in zip(good, objs, rvecs, tvecs):
         proj, _ = cv2.projectPoints(obj, rv, tv, K, dist)
         per_view[v.name] = float(np.sqrt(np.mean(np.sum((proj.reshape(-1, 2) - v.corners) ** 2, 1))))
     residuals = {"rms_px": float(rms), "per_view_rms_px": per_view, "rejected_views": rejected, "views_used": len(good)}
@@ -266,9 +265,12 @@ def calibrate_camera_from_photo(
 
 
 def calibrate_camera_from_board(
-    images: Sequence[str | os.PathLike], pattern: tuple[int, int], square: float = 1.0, max_blur_px: float = 4.0,
+    images: Sequence[str | os.PathLike], pattern, square: float = 1.0, max_blur_px: float = 4.0,
 ) -> CameraProfile:
-    """Camera profile from checkerboard views (``cv2.calibrateCamera``)."""
+    """Camera profile from checkerboard (``pattern = (cols, rows)`` inner corners) or ChArUco
+    (a :class:`~solidkit.calibration.boards.CharucoTarget`) views (``cv2.calibrateCamera``)."""
     views = detect_views(images, pattern, max_blur_px)
-    K, dist, res = calibrate_checkerboard(views, pattern, square)
-    return _profile(K, views[0].size, "checkerboard", list(images), res, dist=dist, pattern=list(pattern), square=square)
+    grid = pattern if isinstance(pattern, tuple) else pattern.pattern
+    K, dist, res = calibrate_checkerboard(views, grid, square)
+    kind = "checkerboard" if isinstance(pattern, tuple) else "charuco"
+    return _profile(K, views[0].size, kind, list(images), res, dist=dist, pattern=list(grid), square=square)

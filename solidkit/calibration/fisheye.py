@@ -33,7 +33,7 @@ import numpy as np
 from pydantic import Field
 from scipy.optimize import least_squares
 
-from solidkit.calibration.boards import BoardView, board_points
+from solidkit.calibration.boards import BoardView
 from solidkit.calibration.profile import Profile, make_provenance
 from solidkit.errors import SolidkitError
 
@@ -79,6 +79,7 @@ class FisheyeFit:
     rejected: dict[str, str]
     rvecs: list[np.ndarray] = field(default_factory=list)
     tvecs: list[np.ndarray] = field(default_factory=list)
+    used: list[BoardView] = field(default_factory=list)  # the views of rvecs/tvecs, in order
 
     # -- the model as functions -------------------------------------------------------------
     def project(self, obj: np.ndarray, rvec: np.ndarray, tvec: np.ndarray) -> np.ndarray:
@@ -140,9 +141,10 @@ def _need(good: list[BoardView], rejected: dict[str, str], what: str) -> None:
         )
 
 
-def _per_view(fit: FisheyeFit, used: list[BoardView], obj: np.ndarray) -> None:
+def _per_view(fit: FisheyeFit, used: list[BoardView], pattern, square) -> None:
+    fit.used = list(used)
     for v, rv, tv in zip(used, fit.rvecs, fit.tvecs):
-        e = fit.project(obj, rv, tv) - v.corners
+        e = fit.project(v.points(pattern, square), rv, tv) - v.corners
         fit.per_view_rms_px[v.name] = float(np.sqrt(np.mean(np.sum(e**2, 1))))
 
 
@@ -153,11 +155,10 @@ def fit_kb(views: Sequence[BoardView], pattern: tuple[int, int], square: float =
     with that reason and the fit is retried.
     """
     good, rejected = _usable(views)
-    obj = board_points(pattern, square)
     base = cv2.CALIB_RECOMPUTE_EXTRINSIC | cv2.CALIB_FIX_SKEW
 
     def run(views_, flags):
-        O = [obj.reshape(1, -1, 3).copy() for _ in views_]
+        O = [v.points(pattern, square).reshape(1, -1, 3).copy() for v in views_]
         I = [v.corners.reshape(1, -1, 2).astype(np.float64) for v in views_]
         return cv2.fisheye.calibrate(O, I, views_[0].size, None, None, flags=flags, criteria=_CRITERIA)
 
@@ -183,7 +184,7 @@ def fit_kb(views: Sequence[BoardView], pattern: tuple[int, int], square: float =
         bad = good.pop(int(m.group(1)))
         rejected[bad.name] = "ill-conditioned board pose (cv2.fisheye CALIB_CHECK_COND)"
     fit = FisheyeFit("kb", good[0].size, K, D.reshape(-1), None, float(rms), {}, rejected, list(rvecs), list(tvecs))
-    _per_view(fit, good, obj)
+    _per_view(fit, good, pattern, square)
     return fit
 
 
@@ -195,8 +196,7 @@ def fit_mei(views: Sequence[BoardView], pattern: tuple[int, int], square: float 
     """
     good, rejected = _usable(views)
     _need(good, rejected, "the Mei (omnidir) fit")
-    obj = board_points(pattern, square)
-    O = [obj.reshape(-1, 1, 3).astype(np.float64) for _ in good]  # trap: float64, (N, 1, 3)
+    O = [v.points(pattern, square).reshape(-1, 1, 3).astype(np.float64) for v in good]  # trap: float64, (N, 1, 3)
     I = [v.corners.reshape(-1, 1, 2).astype(np.float64) for v in good]
     why = "rejected by cv2.omnidir's initialisation (no consistent initial focal length/pose from the board's lines)"
     try:
@@ -222,7 +222,7 @@ def fit_mei(views: Sequence[BoardView], pattern: tuple[int, int], square: float 
         )
     fit = FisheyeFit("mei", good[0].size, K, D.reshape(-1), float(np.ravel(xi)[0]), float(rms), {}, rejected,
                      [np.asarray(r) for r in rvecs], [np.asarray(t) for t in tvecs])
-    _per_view(fit, used, obj)
+    _per_view(fit, used, pattern, square)
     return fit
 
 
@@ -333,7 +333,6 @@ def held_out_error(
         return {"k": 0, "rms_px": None, "per_view_rms_px": {}, "note": "too few views to hold any out"}
     k = k or max(1, math.ceil(n / 5))
     k = min(k, n - _MIN_VIEWS)
-    obj = board_points(pattern, square)
     per: dict[str, float] = {}
     failed: dict[str, str] = {}
     for start in range(0, n, k):
@@ -346,7 +345,7 @@ def held_out_error(
                 failed[v.name] = f"fold fit failed: {exc}"
             continue
         for v in held:
-            per[v.name] = fit_pose(fit, obj, v.corners)[2]
+            per[v.name] = fit_pose(fit, v.points(pattern, square), v.corners)[2]
     vals = np.array(list(per.values()))
     return {
         "k": k, "folds": math.ceil(n / k),
@@ -357,11 +356,10 @@ def held_out_error(
 
 def _observed_max_angle(fit: FisheyeFit, views: Sequence[BoardView], pattern, square) -> float:
     """Largest incidence angle (deg) of any board corner under the fitted poses."""
-    obj = board_points(pattern, square)
     best = 0.0
-    for rv, tv in zip(fit.rvecs, fit.tvecs):
+    for v, rv, tv in zip(fit.used, fit.rvecs, fit.tvecs):
         R, _ = cv2.Rodrigues(np.asarray(rv, np.float64).reshape(3, 1))
-        X = obj @ R.T + np.ravel(tv)
+        X = v.points(pattern, square) @ R.T + np.ravel(tv)
         th = np.degrees(np.arccos(np.clip(X[:, 2] / np.linalg.norm(X, axis=1), -1, 1)))
         best = max(best, float(th.max()))
     return best
