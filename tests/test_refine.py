@@ -82,6 +82,7 @@ def test_refinement_recovers_perturbation(city):
     assert all(abs(s - 1) < 0.005 for s in res.scale)
 
 
+@pytest.mark.slow
 def test_cli_calibrate_overlap(tmp_path, city, monkeypatch, capsys):
     import json
     import sys
@@ -114,7 +115,31 @@ def test_cli_calibrate_overlap(tmp_path, city, monkeypatch, capsys):
     assert data["residuals"]["seam_mad_linear_after"] < data["residuals"]["seam_mad_linear_before"]
     # 768 px wide, 8-bit: one pixel at the ring is ~0.74 deg; the 1 deg error must drop below half of that
     assert rotation_error_deg(unit.lenses[1].rotation, true.lenses[1].rotation) < 0.45
-    other = tmp_path / "other.png"
-    write_ldr(other, np.zeros((200, 400, 3), np.float32))
-    code, err = run("calibrate", "overlap", str(src), str(other), "--base", "theta-v", "-o", str(tmp_path / "x.json"))
+
+
+def _run_cli(monkeypatch, capsys, *args: str) -> tuple[int, str]:
+    import sys
+
+    from solidkit.cli import main
+
+    monkeypatch.setattr(sys, "argv", ["solidkit", *args])
+    try:
+        main()
+        code = 0
+    except SystemExit as exc:
+        code = int(exc.code or 0)
+    return code, capsys.readouterr().err
+
+
+def test_cli_calibrate_overlap_bad_input(tmp_path, monkeypatch, capsys):
+    from solidkit.envmap.io import write_ldr
+
+    a, b = tmp_path / "a.png", tmp_path / "b.png"
+    write_ldr(a, np.zeros((384, 768, 3), np.float32))
+    write_ldr(b, np.zeros((200, 400, 3), np.float32))
+    code, err = _run_cli(monkeypatch, capsys, "calibrate", "overlap", str(a), str(b), "--base", "theta-v", "-o", str(tmp_path / "x.json"))
     assert code == 2 and "same size" in err and not (tmp_path / "x.json").exists()
+    code, err = _run_cli(monkeypatch, capsys, "calibrate", "overlap", str(a), "--base", "theta-nope", "-o", str(tmp_path / "x.json"))
+    assert code == 2 and "unknown lens profile" in err
+    code, err = _run_cli(monkeypatch, capsys, "calibrate", "overlap", str(tmp_path / "missing.png"), "--base", "theta-v", "-o", str(tmp_path / "x.json"))
+    assert code == 2 and "no such file" in err
