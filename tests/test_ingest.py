@@ -309,3 +309,16 @@ def test_real_dng_ingests(real_data, tmp_path):
     (shot,) = load_manifest(tmp_path / "camp").shots
     assert shot.file_format == "dng" and shot.original.endswith(".dng") and shot.kind == "probe"
     assert (shot.metadata["width"], shot.metadata["height"]) != (0, 0)
+
+
+def test_grouping_parameters_are_remembered(card, tmp_path):
+    from solidkit.cli import app
+
+    camp = tmp_path / "camp"
+    runner = CliRunner()
+    runner.invoke(app, ["ingest", str(card), str(camp), "--probe-gap", "3600", "--no-products"])
+    m = load_manifest(camp)
+    assert m.grouping.probe_gap_s == 3600 and [p.id for p in m.scenes[0].probes] == ["p01"]  # one probe now
+    before = tree_digest(camp)
+    r = runner.invoke(app, ["ingest", str(card), str(camp), "--no-products"])  # no option: the stored value holds
+    assert "nothing to do" in r.output and tree_digest(camp) == before

@@ -762,7 +762,7 @@ def ingest(
     campaign_dir: str | os.PathLike,
     *,
     jobs: int = 1,
-    grouping: GroupingParams | None = None,
+    grouping: GroupingParams | dict[str, float] | None = None,
     response_path: str | os.PathLike | None = None,
     products: bool = True,
     progress: Any = None,
@@ -794,8 +794,10 @@ def ingest(
         manifest = load_manifest(campaign)
         before = manifest.model_dump_json()
         manifest.solidkit_version, manifest.conventions_version = __version__, CONVENTIONS_VERSION
-        if grouping is not None:
+        if isinstance(grouping, GroupingParams):
             manifest.grouping = grouping
+        elif grouping:  # overrides of the campaign's stored parameters
+            manifest.grouping = GroupingParams.model_validate({**manifest.grouping.model_dump(), **grouping})
         if response_path is not None:
             rp = Path(response_path)
             from solidkit.capture.merge import load_response
@@ -961,10 +963,10 @@ def ingest_command(
     jobs: int = 1,
     response: Path | None = None,
     products: bool = True,
-    scene_gap: float = 600.0,
-    probe_gap: float = 45.0,
-    bracket_gap: float = 10.0,
-    low_exposure_max: float = 1.0 / 4000.0,
+    scene_gap: float | None = None,
+    probe_gap: float | None = None,
+    bracket_gap: float | None = None,
+    low_exposure_max: float | None = None,
 ) -> IngestReport:
     """Run :func:`ingest` with a rich progress bar and print the summary (the CLI's body)."""
     from rich.console import Console
@@ -973,8 +975,9 @@ def ingest_command(
     from rich.table import Table
 
     console = Console(stderr=True)
-    grouping = GroupingParams(scene_gap_s=scene_gap, probe_gap_s=probe_gap, bracket_gap_s=bracket_gap,
-                              low_exposure_max_s=low_exposure_max)
+    given = {"scene_gap_s": scene_gap, "probe_gap_s": probe_gap, "bracket_gap_s": bracket_gap,
+             "low_exposure_max_s": low_exposure_max}
+    grouping = {k: v for k, v in given.items() if v is not None}  # others: the campaign's stored values
     with Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeRemainingColumn(),
                   console=console, transient=True) as bar:
         ids: dict[str, Any] = {}
@@ -1026,10 +1029,10 @@ def ingest_cli(
     jobs: int = typer.Option(1, "--jobs", "-j", min=1, help="Worker processes."),
     response: Path | None = typer.Option(None, "--response", help="Inverse response curve for HDR products (default sRGB inverse)."),
     products: bool = typer.Option(True, "--products/--no-products", help="Build the derived products (HDR merges, sun frames)."),
-    scene_gap: float = typer.Option(600.0, help="Seconds between shots that start a new scene (automatic layout)."),
-    probe_gap: float = typer.Option(45.0, help="Seconds between Theta shots that start a new probe position."),
-    bracket_gap: float = typer.Option(10.0, help="Seconds between shots that end a bracket."),
-    low_exposure_max: float = typer.Option(1.0 / 4000.0, help="Longest exposure (s) of a sun frame."),
+    scene_gap: float | None = typer.Option(None, help="Seconds between shots that start a new scene (automatic layout; default 600, then the campaign's value)."),
+    probe_gap: float | None = typer.Option(None, help="Seconds between Theta shots that start a new probe position (default 45)."),
+    bracket_gap: float | None = typer.Option(None, help="Seconds between shots that end a bracket (default 10)."),
+    low_exposure_max: float | None = typer.Option(None, help="Longest exposure (s) of a sun frame (default 1/4000)."),
 ) -> None:
     """Copy a card's captures into a checksummed campaign, group scenes/probes/brackets, build products.
 
