@@ -14,7 +14,7 @@ least ``min_categories`` object categories (each on >= 1% of the pixels) is kept
 Deviations (coverage alone rewards staring at a wall or a parked car from 1 m): a candidate
 whose largest single object (all parts of a car, tree, building... together) fills more than
 ``max_object_share`` of the frame (default 0.35), or that shows less than ``min_sky`` sky
-(default 5%), is also rejected; cameras keep 0.8 m from street furniture and 1.5 m from cars.
+(default 5%), is also rejected; cameras keep 1.2 m from trees and street furniture and 1.5 m from cars.
 """
 
 from __future__ import annotations

@@ -9,7 +9,9 @@
     DIR/truth/<scene>/photo.exr, <probe>.exr   HDR photo and HDR local probes (256x128, photo pano frame)
 
 (the card follows the *explicit* layout of :mod:`solidkit.capture.campaign`, so ``solidkit
-ingest DIR/card CAMPAIGN`` reads it). Every Theta position gets a normal exposure (1/2500 s,
+ingest DIR/card CAMPAIGN`` reads it). Lightings are redrawn (up to ``sun_attempts``) until the
+sun reaches the photo camera's position, as a field team would pick a sunny spot; the truth
+says for every capture whether the sun is visible from it. Every Theta position gets a normal exposure (1/2500 s,
 f/2, ISO 100) and, 20 s later, a low-exposure sun frame (1/25000 s, ISO 64); ``brackets`` adds a
 bracket before them. A Theta shot is a dual-fisheye JPEG (Ricoh THETA V layout, EXIF + Ricoh
 maker note: image type 2, ``[roll, pitch]`` as its accelerometer would record them, with
@@ -89,6 +91,7 @@ class CampaignConfig(BaseModel):
     candidates: int = 8
     p_sunsky: float = 0.7
     block_length: float = 60.0
+    sun_attempts: int = 8
 
 
 class Shot(BaseModel):
@@ -124,6 +127,7 @@ class CaptureTruth(BaseModel):
     recorded_roll_deg: float
     recorded_heading_deg: float
     sun_body: list[float] | None
+    sun_visible: bool = Field(description="the sun's centre is unoccluded from the capture position")
     shots: list[Shot]
     probe: ProbeTruth | None = None
 
@@ -216,6 +220,13 @@ def fisheye_image(pano_scene: np.ndarray, R_scene_from_body: np.ndarray, profile
     return out
 
 
+def _occluded(mi: Any, scene: Any, position: np.ndarray, direction: np.ndarray) -> bool:
+    """Does scene geometry block the ray from ``position`` toward ``direction``?"""
+    ray = mi.Ray3f(mi.Point3f(*[float(v) for v in position]), mi.Vector3f(*[float(v) for v in direction]))
+    hit = scene.ray_test(ray)
+    return bool(hit if isinstance(hit, bool) else np.asarray(hit).ravel()[0])
+
+
 def _split(total: int, parts: int) -> list[int]:
     return [total // parts + (1 if i < total % parts else 0) for i in range(parts)]
 
@@ -247,7 +258,12 @@ def generate_campaign(out: str | os.PathLike, scenes: int, probes: int, *, seed:
         sid = f"scene{s + 1:02d}"
         sector = int(rng.integers(6))
         block, (cam, _) = gen.block_and_view(s, sector)
-        light = gen.lighting(s * 6 + sector)
+        geometry = to_mitsuba(block, None, tex_size=4)
+        # a field team shoots in the sun: retry lightings until the sun reaches the camera (or give up)
+        for attempt in range(cfg.sun_attempts):
+            light = gen.lighting(derive_seed(seed, s, 300 + attempt))
+            if light.sun is None or not _occluded(mi, geometry, cam.position, light.sun):
+                break
         scene = to_mitsuba(block, light.emitter())
         t0 = BASE_TIME + dt.timedelta(minutes=15 * s)
         gps = (BASE_GPS[0] + rng.uniform(-0.004, 0.004), BASE_GPS[1] + rng.uniform(-0.006, 0.006), BASE_GPS[2])
@@ -323,12 +339,13 @@ def generate_campaign(out: str | os.PathLike, scenes: int, probes: int, *, seed:
                 write_exr(truth_dir / sid / f"{cid}.exr", local, {"scene": sid, "probe": cid, "frame": "photo panorama frame"})
                 probe = ProbeTruth(**info, hdr_file=f"truth/{sid}/{cid}.exr")
             sun_body = None if light.sun is None else (Rb.T @ light.sun).tolist()
+            sun_visible = light.sun is not None and not _occluded(mi, geometry, pos, light.sun)
             captures.append(CaptureTruth(
                 id=cid, kind="probe" if info is not None else "camera_position", position=pos.tolist(),
                 yaw_deg=math.degrees(yaw), pitch_deg=math.degrees(pitch), roll_deg=math.degrees(roll),
                 R_scene_from_body=Rb.tolist(), R_pano_from_body=(cam.pano_rotation.T @ Rb).tolist(),
                 recorded_pitch_deg=rec_pitch, recorded_roll_deg=rec_roll, recorded_heading_deg=rec_heading,
-                sun_body=sun_body, shots=shots, probe=probe))
+                sun_body=sun_body, sun_visible=sun_visible, shots=shots, probe=probe))
             if progress:
                 progress(sid, cid)
         sun_az = sun_el = None

@@ -253,7 +253,7 @@ def city_block(seed: int, *, length: float = 60.0) -> CityBlock:
             building(xa, xb, cz - chw - sw - 10, cz + chw + sw + 10)
 
     # street furniture
-    def obstacle(x0: float, x1: float, z0: float, z1: float, margin: float = 0.8) -> None:
+    def obstacle(x0: float, x1: float, z0: float, z1: float, margin: float = 1.2) -> None:
         blk.obstacles.append((x0 - margin, x1 + margin, z0 - margin, z1 + margin))
 
     def on_cross(z: float, pad: float = 1.0) -> bool:
