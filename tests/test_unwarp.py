@@ -8,6 +8,8 @@ sphere, rendered analytically (no resampling) into the fisheye image.
 from __future__ import annotations
 
 import math
+import shutil
+import subprocess
 import sys
 
 import cv2
@@ -236,3 +238,33 @@ def test_real_stitched_equirect(real_data, tmp_path):
     s = unwarp_file(src, tmp_path / "level.png", size="512x256")
     assert s["resampled"] is True and s["level_pitch_roll_deg"] == [-0.5, 0.7]
     assert cv2.imread(str(tmp_path / "level.png")).shape == (256, 512, 3)
+
+
+@pytest.mark.real
+@pytest.mark.skipif(shutil.which("ffmpeg") is None, reason="ffmpeg not installed (apt-get install ffmpeg)")
+def test_real_theta_s_seam_vs_ffmpeg_v360(real_data, tmp_path):
+    """Same frame, same output size, both hard-cut at the lens boundary: our profile's seam step is
+    smaller than ffmpeg v360's (dfisheye, circles cropped to its layout, best FOV of a scan)."""
+    from solidkit.capture.unwarp import cut_columns, seam_step
+    from solidkit.envmap.io import read_ldr, srgb_encode
+
+    src = real_data / "theta_s_dualfisheye" / "thetaS_dualfisheye_raw_1920x1080.jpg"
+    prof = load_profile("theta-s-video")
+    W, H = 1024, 512
+    bgr = cv2.imread(str(src))
+    circles = prof.residuals["image_circles_px"]
+    R = int(round(max(c[2] for c in circles)))
+    cv2.imwrite(str(tmp_path / "ff_in.png"), np.concatenate([cv2.getRectSubPix(bgr, (2 * R, 2 * R), (c[0], c[1])) for c in circles], 1))
+    ff = {}
+    for fov in (190, 195, 200, 205, 210):
+        out = tmp_path / f"ff_{fov}.png"
+        subprocess.run(["ffmpeg", "-y", "-loglevel", "error", "-i", str(tmp_path / "ff_in.png"), "-vf",
+                        f"v360=input=dfisheye:output=equirect:ih_fov={fov}:iv_fov={fov}:w={W}:h={H}", str(out)], check=True)
+        gray = cv2.cvtColor(cv2.imread(str(out)), cv2.COLOR_BGR2GRAY)
+        ff[fov] = seam_step(gray, [[W // 4, 3 * W // 4]] * H)["step"]
+    pano = unwarp(read_ldr(src, linear=True), prof, H, feather_deg=0.0, saturation=0.98)
+    ours8 = np.round(np.clip(srgb_encode(np.clip(pano, 0, 1)), 0, 1) * 255).astype(np.uint8)
+    maps, _ = get_maps(prof, (1920, 1080), H, None, 0.0)
+    ours = seam_step(cv2.cvtColor(ours8, cv2.COLOR_RGB2GRAY), cut_columns(maps))["step"]
+    print(f"seam step (8-bit grey levels): solidkit theta-s-video {ours:.2f}; ffmpeg v360 by FOV {ff}")
+    assert ours < min(ff.values())

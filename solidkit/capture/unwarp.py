@@ -52,6 +52,8 @@ __all__ = [
     "seam_disagreement",
     "clear_cache",
     "render_fisheye",
+    "cut_columns",
+    "seam_step",
 ]
 
 CACHE_SIZE = 4
@@ -420,3 +422,32 @@ def unwarp_file(
     summary.update(mode="dual-fisheye unwarped", profile=prof.model, size=[2 * out_h, out_h], resampled=True,
                    unwarp_seconds=t2 - t1, seconds=time.perf_counter() - t0, **stats)
     return summary
+
+
+def cut_columns(maps: UnwarpMaps) -> list[np.ndarray]:
+    """Per output row, the columns where the dominant lens changes (the cut of a hard-cut unwarp)."""
+    lab = np.argmax(maps.weight, axis=0)
+    return [np.nonzero(row != np.roll(row, 1))[0] for row in lab]
+
+
+def seam_step(gray: np.ndarray, cols_per_row: list, max_elevation_deg: float = 60.0) -> dict[str, float]:
+    """How visible a hard cut between lenses is in an equirect image ``gray (H, W)``.
+
+    ``step``: mean ``|g[r, c] - g[r, c - 1]|`` over the cut columns ``c`` of rows within
+    ``max_elevation_deg`` of the horizon; ``baseline``: the same for columns 6-15 px beside the
+    cut (the image's own texture). Tool-independent: works on any unwarper's output given
+    where it cuts (ffmpeg's ``v360`` dfisheye cuts at azimuth ±90°: columns ``W/4`` and ``3W/4``).
+    """
+    g = np.asarray(gray, dtype=np.float64)
+    H, W = g.shape
+    el = 90.0 - (np.arange(H) + 0.5) * 180.0 / H
+    steps, base = [], []
+    for r in np.nonzero(np.abs(el) < max_elevation_deg)[0]:
+        for c in cols_per_row[r]:
+            steps.append(abs(g[r, c % W] - g[r, (c - 1) % W]))
+            for o in (6, 9, 12, 15):
+                base.append(abs(g[r, (c + o) % W] - g[r, (c + o - 1) % W]))
+                base.append(abs(g[r, (c - o) % W] - g[r, (c - o - 1) % W]))
+    if not steps:
+        return {"step": math.nan, "baseline": math.nan}
+    return {"step": float(np.mean(steps)), "baseline": float(np.mean(base))}
