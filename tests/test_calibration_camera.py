@@ -150,6 +150,19 @@ def test_checkerboard_recovers_pinhole_K():
     assert res["rms_px"] < 0.1 and set(res["rejected_views"]) == {"view6", "view7"}
 
 
+def test_board_files_profile(tmp_path):
+    K = np.array([[480.0, 0, 319.5], [0, 480.0, 239.5], [0, 0, 1]])
+    paths = []
+    for i, (R, t) in enumerate(_poses(5, (7, 5), seed=4)):
+        cv2.imwrite(str(tmp_path / f"b{i}.png"), render_board(_pinhole_rays(K), (640, 480), R, t, (7, 5)))
+        paths.append(tmp_path / f"b{i}.png")
+    prof = calibrate_camera_from_board(paths, (7, 5))
+    assert prof.source == "checkerboard" and len(prof.dist) == 5 and prof.residuals["views_used"] == 5
+    assert abs(prof.matrix()[0, 0] / 480 - 1) < 0.005 and len(prof.provenance.inputs) == 5
+    # the 320x240 K is the native K scaled by 0.5 (640x480 needs no crop)
+    np.testing.assert_allclose(prof.matrix(True), scale_intrinsics(prof.matrix(), 0.5))
+
+
 def test_too_few_views_says_which_and_why():
     views = [BoardView("a.jpg", (10, 10), reason="no 7x5 board found"), BoardView("b.jpg", (10, 10), reason="blurred: edge width 6 px")]
     with pytest.raises(IntrinsicsError, match="a.jpg: no 7x5 board found; b.jpg: blurred"):
