@@ -5,7 +5,7 @@ PY     := $(VENV)/bin/python
 TORCH  ?= torch==2.13.0
 STAMP  := $(VENV)/.solidkit-installed
 
-.PHONY: demo test test-slow test-real bench clean-venv system-deps
+.PHONY: demo test test-slow bench clean-venv system-deps
 
 $(STAMP): pyproject.toml constraints.txt
 	test -x $(PY) || python3 -m venv $(VENV)
@@ -23,6 +23,7 @@ test-slow: $(STAMP)
 	$(PY) -m pytest -q -n 2 -p no:cacheprovider -m slow
 
 bench: $(STAMP)
+	$(PY) -m pip install -q -c constraints.txt -e ".[test,bench]"
 	$(PY) benchmarks/run.py
 
 clean-venv:

@@ -102,3 +102,11 @@ def test_azimuth_of_back_direction_is_minus_pi():
         assert -math.pi <= float(phi) < math.pi
     phi_t, _ = C.angles_from_direction(torch.tensor([1e-17, 0.0, -1.0], dtype=torch.float64))
     assert float(phi_t) == pytest.approx(-math.pi)
+
+
+def test_rotation_mixes_tensor_and_float_angles():
+    yaw = torch.tensor([0.3, -0.2], dtype=torch.float64)
+    R = C.rotation_from_ypr(yaw, 0.1)
+    assert isinstance(R, torch.Tensor) and R.shape == (2, 3, 3) and R.dtype == torch.float64
+    np.testing.assert_allclose(R[0].numpy(), C.rotation_from_ypr(0.3, 0.1), atol=1e-12)
+    assert C.rotation_from_ypr(np.float32(0.3), 0.1, 0.0).dtype == np.float32

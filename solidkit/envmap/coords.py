@@ -92,7 +92,7 @@ def direction_from_angles(phi: Any, theta: Any) -> Any:
 def angles_from_direction(d: Any) -> tuple[Any, Any]:
     """Azimuth ``atan2(dx, dz)`` and elevation ``asin(-dy)`` of (not necessarily unit) ``d (..., 3)``."""
     xp = namespace(d)
-    norm = xp.sqrt(xp.sum(d * d, axis=-1))
+    norm = xp.sqrt(d[..., 0] ** 2 + d[..., 1] ** 2 + d[..., 2] ** 2)
     phi = xp.atan2(d[..., 0], d[..., 2])
     phi = xp.where(phi >= math.pi, phi - 2 * math.pi, phi)  # atan2(+0, -1) = +pi; keep [-pi, pi)
     theta = xp.asin(xp.clip(-d[..., 1] / norm, -1.0, 1.0))
@@ -179,6 +179,14 @@ def rotation_from_ypr(yaw: Any, pitch: Any = 0.0, roll: Any = 0.0) -> Any:
     ``R`` maps camera-frame vectors to panorama-frame vectors: a camera with this orientation
     looks at azimuth ``yaw`` and elevation ``pitch``, and ``roll > 0`` turns its right axis down.
     """
+    arrays = [a for a in (yaw, pitch, roll) if not isinstance(a, (int, float))]
+    if arrays:  # Python floats follow the array arguments' backend, dtype and device
+        xp = namespace(*arrays)
+        like = arrays[0]
+        yaw, pitch, roll = (
+            xp.asarray(a, dtype=like.dtype, device=array_api_compat.device(like)) if isinstance(a, (int, float)) else a
+            for a in (yaw, pitch, roll)
+        )
     return rotation_y(yaw) @ rotation_x(pitch) @ rotation_z(roll)
 
 
