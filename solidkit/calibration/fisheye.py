@@ -310,9 +310,16 @@ def fit_pose(fit: FisheyeFit, obj: np.ndarray, corners: np.ndarray) -> tuple[np.
     Levenberg-Marquardt on the model's reprojection error.
     """
     norm = fit.normalise(corners)
-    ok, rv, tv = cv2.solvePnP(obj.astype(np.float64), norm, np.eye(3), None, flags=cv2.SOLVEPNP_IPPE)
+    good = np.all(np.isfinite(norm), axis=1) & (np.abs(norm).max(axis=1) < 50)  # drop points near/behind 90°
+    if good.sum() < 4:
+        raise FisheyeCalibrationError("a held-out view has fewer than 4 corners in front of the lens")
+    o, n = np.ascontiguousarray(obj[good], dtype=np.float64), np.ascontiguousarray(norm[good])
+    try:
+        ok, rv, tv = cv2.solvePnP(o, n, np.eye(3), None, flags=cv2.SOLVEPNP_IPPE)
+    except cv2.error:
+        ok = False
     if not ok:
-        ok, rv, tv = cv2.solvePnP(obj.astype(np.float64), norm, np.eye(3), None)
+        ok, rv, tv = cv2.solvePnP(o, n, np.eye(3), None)
 
     def resid(p):
         return (fit.project(obj, p[:3], p[3:]) - corners).ravel()
@@ -345,7 +352,10 @@ def held_out_error(
                 failed[v.name] = f"fold fit failed: {exc}"
             continue
         for v in held:
-            per[v.name] = fit_pose(fit, v.points(pattern, square), v.corners)[2]
+            try:
+                per[v.name] = fit_pose(fit, v.points(pattern, square), v.corners)[2]
+            except (FisheyeCalibrationError, cv2.error) as exc:
+                failed[v.name] = f"pose fit failed: {exc}"
     vals = np.array(list(per.values()))
     return {
         "k": k, "folds": math.ceil(n / k),
