@@ -206,6 +206,10 @@ def test_bracket_grouping():
     # without timestamps: consecutive sequence numbers
     noclock = [ShotInfo(k, None, n, e) for k, n, e in [("x", 10, 0.1), ("y", 11, 1.0), ("z", 14, 0.1)]]
     assert [[s.key for s in g] for g in group_brackets(noclock)] == [["x", "y"], ["z"]]
+    # an ISO bracket at a fixed shutter is one bracket; a repeated (time, ISO) is not
+    iso = [ShotInfo(k, t0 + timedelta(seconds=i), None, 0.01, gain=g) for i, (k, g) in
+           enumerate([("i1", 1.0), ("i2", 4.0), ("i3", 16.0), ("i4", 16.0)])]
+    assert [[s.key for s in g] for g in group_brackets(iso)] == [["i1", "i2", "i3"], ["i4"]]
     assert sequence_from_name("DCIM/100RICOH/R0010123.JPG") == 10123
     assert format_exposure(1 / 25000) == "1/25000 s" and format_exposure(8) == "8 s"
 

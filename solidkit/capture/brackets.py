@@ -9,7 +9,7 @@ name):
    its exposure time) and the next timestamp exceeds ``max_gap_s`` (default 10 s: the Theta SC2
    needs ~8 s per bracket shot; EXIF timestamps have 1-s resolution). Without timestamps, a new
    bracket starts when sequence numbers are not consecutive.
-3. A new bracket starts when the exposure (effective: time x ISO / f-number²) repeats one
+3. A new bracket starts when the exposure (effective: time x ISO / f-number², ``ShotInfo.gain``) repeats one
    already in the current bracket (within 2 %): the camera began the next bracket.
 
 Groups of one shot are single shots, not brackets; :func:`group_brackets` returns them too
@@ -24,7 +24,7 @@ from dataclasses import dataclass
 from datetime import datetime, timedelta
 from typing import Sequence
 
-__all__ = ["ShotInfo", "group_brackets", "sequence_from_name", "format_exposure"]
+__all__ = ["ShotInfo", "group_brackets", "sequence_from_name", "format_exposure", "gain_from"]
 
 _DIGITS = re.compile(r"(\d+)$")
 
@@ -34,8 +34,10 @@ class ShotInfo:
     """What grouping needs to know about one shot.
 
     ``key`` identifies the shot (path or sha256); ``time`` is the capture time (naive local or
-    aware), ``exposure`` the effective exposure in seconds (``None`` if unknown), ``camera``
-    any string identifying the body, ``size`` (width, height).
+    aware), ``exposure`` the exposure time in seconds (``None`` if unknown; it also extends the
+    shot in time), ``camera`` any string identifying the body, ``size`` (width, height), and
+    ``gain`` the relative sensitivity ``(ISO/100) / N²`` (brackets varying ISO or aperture at a
+    fixed shutter are brackets too: rule 3 compares ``exposure · gain``).
     """
 
     key: str
@@ -45,6 +47,12 @@ class ShotInfo:
     camera: str = ""
     size: tuple[int, int] | None = None
     name: str = ""
+    gain: float = 1.0
+
+    @property
+    def effective(self) -> float | None:
+        """``exposure · gain`` (``None`` without an exposure time)."""
+        return None if self.exposure is None else self.exposure * self.gain
 
 
 def sequence_from_name(name: str) -> int | None:
@@ -110,6 +118,11 @@ def _starts_new(current: list[ShotInfo], s: ShotInfo, max_gap_s: float) -> bool:
             return True
     elif (prev.time is None) != (s.time is None):
         return True
-    if s.exposure is not None and any(c.exposure is not None and _same_exposure(c.exposure, s.exposure) for c in current):
+    if s.effective is not None and any(c.effective is not None and _same_exposure(c.effective, s.effective) for c in current):
         return True
     return False
+
+
+def gain_from(iso: float | None, f_number: float | None) -> float:
+    """Relative sensitivity ``(ISO/100) / N²`` (missing values count as ISO 100, f/1)."""
+    return (float(iso) / 100.0 if iso else 1.0) / (float(f_number) ** 2 if f_number else 1.0)

@@ -421,7 +421,7 @@ def _order(shot: Shot) -> tuple:
 
 def group_shots(manifest: Manifest) -> None:
     """(Re)compute scenes, probes, brackets and shot kinds from the shots (deterministic)."""
-    from solidkit.capture.brackets import ShotInfo, group_brackets, sequence_from_name
+    from solidkit.capture.brackets import ShotInfo, gain_from, group_brackets, sequence_from_name
 
     g = manifest.grouping
     shots = sorted(manifest.shots, key=_order)
@@ -492,7 +492,8 @@ def group_shots(manifest: Manifest) -> None:
             name = min(src.path for src in s.sources)
             seq = md.get("sequence") if md.get("sequence") is not None else sequence_from_name(name)
             infos.append(ShotInfo(key=str(i), time=_time(s), sequence=seq, exposure=_exposure(s), camera=cam,
-                                  size=(md.get("width"), md.get("height")), name=name))
+                                  size=(md.get("width"), md.get("height")), name=name,
+                                  gain=gain_from(md.get("iso"), md.get("f_number"))))
         groups = group_brackets(infos, max_gap_s=g.bracket_gap_s)
         nb = 0
         prev_group: list[Shot] | None = None
@@ -525,8 +526,13 @@ def _repeat_warning(prev: list[Shot], cur: list[Shot], gap_s: float, probe: Prob
     a, b = _end(prev[-1]), _time(cur[0])
     if a is None or b is None or (b - a).total_seconds() > gap_s:
         return
-    ea = {_exposure(s) for s in prev}
-    if _exposure(cur[0]) in ea:
+    from solidkit.capture.brackets import gain_from
+
+    def eff(s: Shot) -> float | None:
+        t = _exposure(s)
+        return None if t is None else round(t * gain_from(s.metadata.get("iso"), s.metadata.get("f_number")), 12)
+
+    if eff(cur[0]) is not None and eff(cur[0]) in {eff(s) for s in prev}:
         from solidkit.capture.brackets import format_exposure
 
         name = min(src.path for src in cur[0].sources)

@@ -658,7 +658,7 @@ def merge_files(
     merge statistics). Returns one summary dict per written file.
     """
     from solidkit import __version__
-    from solidkit.capture.brackets import ShotInfo, group_brackets, sequence_from_name
+    from solidkit.capture.brackets import ShotInfo, gain_from, group_brackets, sequence_from_name
     from solidkit.envmap.io import write_exr, write_ldr
     from solidkit.fsutil import sha256_file
 
@@ -683,6 +683,7 @@ def merge_files(
             ShotInfo(
                 key=str(i), time=m.datetime_original, sequence=m.sequence if m.sequence is not None else sequence_from_name(p.name),
                 exposure=t, camera=" ".join(x for x in (m.make, m.model, m.serial) if x), size=(m.width, m.height), name=p.name,
+                gain=gain_from(m.iso, m.f_number),
             )
             for i, (p, m, t) in enumerate(infos)
         ]
