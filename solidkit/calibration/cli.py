@@ -80,7 +80,15 @@ def response(
     table = Table(title=f"response curve ({prof.method})", show_header=False)
     table.add_row("frames / exposure times", f"{len(frames)} / " + ", ".join(f"{x:g}" for x in prof.exposure_times_s) + " s")
     san = prof.sanity
-    table.add_row("monotonic (smoothed)", "yes" if san["monotonic"] else f"[red]no[/] at codes {san['non_monotonic_codes']}")
+    bad = san["non_monotonic_codes"]
+    table.add_row(
+        "monotonic (smoothed)",
+        "yes" if san["monotonic"] else "[red]no[/]: " + ", ".join(
+            f"{ch} {len(b)} codes ({b[0]}..{b[-1]})" for ch, b in zip("RGB", bad) if b
+        ),
+    )
+    if "monotonic_fix_max_stops" in san and san["monotonic_fix_max_stops"] > 1e-3:
+        table.add_row("saved curve", f"made strictly increasing (moved by up to {san['monotonic_fix_max_stops']:.3f} stops)")
     table.add_row("codes observed (R, G, B)", ", ".join(f"{c:.0%}" for c in san.get("coverage_fraction", [])))
     table.add_row("dynamic range codes 1..254", ", ".join(f"{d:.1f}" for d in san["dynamic_range_stops"]) + " stops")
     table.add_row("radiance disagreement (RMS)", ", ".join(f"{r:.3f}" for r in prof.residuals["rms_stops_per_channel"]) + " stops")

@@ -38,6 +38,7 @@ __all__ = [
     "response_sanity",
     "radiance_consistency",
     "plot_response",
+    "make_monotonic",
     "calibrate_response_files",
 ]
 
@@ -256,25 +257,60 @@ def plot_response(curve: np.ndarray, path: str | os.PathLike, title: str = "inve
     return path
 
 
+def make_monotonic(curve: np.ndarray, min_step_stops: float = 1e-4) -> np.ndarray:
+    """Nearest strictly increasing curve per channel (least squares in log2, pool-adjacent-violators).
+
+    Applied after the fit so that every code maps to a distinct exposure (the HDR merge requires
+    a non-decreasing curve); codes 128 keeps its value 1 up to the re-normalisation.
+    """
+    curve = np.asarray(curve, dtype=np.float64)
+    out = np.empty_like(curve)
+    ramp = min_step_stops * np.arange(curve.shape[0])
+    for c in range(curve.shape[1]):
+        y = np.log2(np.maximum(curve[:, c], 1e-30)) - ramp  # strict increase = non-decrease after the ramp
+        vals, wts, lens = [], [], []
+        for v in y:
+            vals.append(v), wts.append(1.0), lens.append(1)
+            while len(vals) > 1 and vals[-2] > vals[-1]:
+                w = wts[-2] + wts[-1]
+                v2 = (vals[-2] * wts[-2] + vals[-1] * wts[-1]) / w
+                n = lens[-2] + lens[-1]
+                del vals[-1], wts[-1], lens[-1]
+                vals[-1], wts[-1], lens[-1] = v2, w, n
+        out[:, c] = 2.0 ** (np.repeat(vals, lens) + ramp)
+    return out / out[NORMALISATION_CODE]
+
+
 def calibrate_response_files(
     paths: Sequence[str | os.PathLike],
     times: Sequence[float] | None = None,
     method: Method = "debevec",
     samples: int = 400,
     smoothness: float = 10.0,
+    enforce_monotonic: bool = True,
 ) -> ResponseProfile:
-    """Read a bracket, fit the inverse response and return the profile with sanity and residuals."""
+    """Read a bracket, fit the inverse response and return the profile with sanity and residuals.
+
+    ``sanity`` describes the raw fit; with ``enforce_monotonic`` the saved curve is its nearest
+    strictly increasing version (:func:`make_monotonic`) and ``sanity["monotonic_fix_max_stops"]``
+    says how far that moved it.
+    """
     images, ts = read_brackets(paths, times)
-    curve = calibrate_response(images, ts, method=method, samples=samples, smoothness=smoothness)
+    raw = calibrate_response(images, ts, method=method, samples=samples, smoothness=smoothness)
+    sanity = response_sanity(raw, images)
+    curve = raw
+    if enforce_monotonic:
+        curve = make_monotonic(raw)
+        sanity["monotonic_fix_max_stops"] = float(np.abs(np.log2(curve / raw)).max())
     prov = make_provenance(
-        list(paths), tool="solidkit.calibration.response.calibrate_response",
-        method=method, samples=samples, smoothness=smoothness, times_from="cli" if times is not None else "exif",
+        list(paths), tool="solidkit.calibration.response.calibrate_response", method=method, samples=samples,
+        smoothness=smoothness, enforce_monotonic=enforce_monotonic, times_from="cli" if times is not None else "exif",
     )
     return ResponseProfile(
         provenance=prov,
         method=method,
         curve=curve.tolist(),
         exposure_times_s=ts.tolist(),
-        sanity=response_sanity(curve, images),
+        sanity=sanity,
         residuals=radiance_consistency(curve, images, ts),
     )
