@@ -91,6 +91,25 @@ def test_lens_command_writes_lens_profile(tmp_path):
     assert abs(lp.lenses[0].poly[0] / 110 - 1) < 0.01 and abs(lp.lenses[0].center[0] - 161.2) < 1
     rec = load_profile(tmp_path / "lens.front.calibration.json")
     assert rec.kind == "fisheye" and len(rec.provenance.inputs) == 6
+    # a dual-fisheye layout: the same view in both halves of 640x320 frames -> front and back lenses
+    wide = []
+    for p in paths:
+        g = cv2.imread(str(p), cv2.IMREAD_GRAYSCALE)
+        cv2.imwrite(str(p.with_name("w" + p.name)), np.hstack([g, g]))
+        wide.append(p.with_name("w" + p.name))
+    common = ["--pattern", "6x4", "--model", "kb"]
+    _ok(["lens", *wide, *common, "-o", tmp_path / "dual.json", "--crop", "0,0,320,320", "--profile-name", "dual"])
+    _ok(["lens", *wide, *common, "-o", tmp_path / "dual.json", "--crop", "320,0,320,320", "--name", "back",
+         "--ypr", "180,0,0", "--add-to", tmp_path / "dual.json", "--profile-name", "dual"])
+    dual = load_lens(tmp_path / "dual.json")
+    assert dual.reference_size == (640, 320) and [l.name for l in dual.lenses] == ["front", "back"]
+    front, back = dual.lenses
+    assert back.ypr_deg == (180.0, 0.0, 0.0) and back.poly == front.poly
+    assert abs(back.center[0] - front.center[0] - 320) < 1e-6 and abs(back.center[1] - front.center[1]) < 1e-6
+    assert abs(front.center[0] - lp.lenses[0].center[0]) < 1e-6  # same fit as the single-lens run
+    r = runner.invoke(app, ["calibrate", "lens", *map(str, paths), *common, "-o", str(tmp_path / "x.json"),
+                            "--add-to", str(tmp_path / "dual.json")])
+    assert r.exit_code != 0 and "640x320" in str(r.exception)  # other image size than the profile
 
 
 def test_vignetting_command_flat(tmp_path):
