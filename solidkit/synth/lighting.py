@@ -29,6 +29,7 @@ Exposure: every lighting is scaled so that the irradiance on an upward-facing su
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -177,5 +178,25 @@ def random_lighting(rng: np.random.Generator, *, p_sunsky: float = 0.5, height: 
         az = rng.uniform(-math.pi, math.pi)
         el = math.radians(rng.uniform(5.0, 75.0))
         sun = np.asarray(direction_from_angles(np.float64(az), np.float64(el)))
-        return sunsky(sun, float(rng.uniform(2.0, 6.0)), height=height, rng=rng)
+        turbidity = float(rng.uniform(2.0, 6.0))
+        if _has_sunsky() or not files:
+            return sunsky(sun, turbidity, height=height, rng=rng)
     return hdr(files[int(rng.integers(len(files)))], float(rng.uniform(0.0, 60.0)), rng=rng)
+
+
+def _has_sunsky() -> bool:
+    """Whether the installed Mitsuba has the ``sunsky`` emitter (3.6 and later)."""
+    from solidkit.synth.renderer import variant
+
+    return _has_sunsky_in(variant())
+
+
+@functools.lru_cache(maxsize=None)
+def _has_sunsky_in(name: str) -> bool:
+    from solidkit.synth.renderer import mitsuba
+
+    try:
+        mitsuba().load_dict({"type": "sunsky"})
+    except Exception:  # older Mitsuba: unknown plugin
+        return False
+    return True

@@ -8,9 +8,10 @@ Buffers (all ``(H, W)`` or ``(H, W, 3)`` float32, 0 on sky pixels; paper §3.1):
 - ``plane_distance``: Im2Pano3D's distance of the pixel's tangent plane to the camera,
   ``p = -n . P = -depth (n . v)`` (>= 0 for camera-facing normals), so that the paper's
   reprojection ``P = -p / (v . n) v`` (§4.2) recovers the point;
-- ``shadow``: ratio of the direct irradiance of a white Lambertian surface with and without
-  shadow rays, from the same emitter samples (paper: "render twice with shadows on and off"),
-  in [0, 1]; 1 = unshadowed.
+- ``shadow``: ratio of the direct irradiance of a white Lambertian surface from the environment
+  with and without shadow rays, from the same sample directions (paper: "render twice with
+  shadows on and off"), in [0, 1]; 1 = unshadowed. Directions below the horizon are left out of
+  both (the infinite ground hides them everywhere); see :mod:`solidkit.synth.plugins`.
 
 Geometric buffers use one ray through each pixel centre (exact per pixel); the shadow
 estimate uses ``buffer_spp`` emitter samples at that same point. The photo is path traced with
