@@ -106,8 +106,8 @@ def main() -> None:
         dt = time.perf_counter() - t0
         b = render_buffers(scene, cam, spp=spp, seed=2)
         hit = a["hit"]
-        shadow_noise.append({"buffer_spp": spp, "seconds": dt,
-                             "shadow_rms_noise": float(np.sqrt(np.mean((a["shadow"][hit] - b["shadow"][hit]) ** 2)) / np.sqrt(2))})
+        rms = float(np.sqrt(np.mean((a["shadow"][hit] - b["shadow"][hit]) ** 2)) / np.sqrt(2))
+        shadow_noise.append({"buffer_spp": spp, "seconds": dt, "shadow_rms_noise": rms})
         print(shadow_noise[-1], flush=True)
 
     ours = peer(used)

@@ -124,7 +124,8 @@ def equirect_sensor(position: np.ndarray, rotation: np.ndarray, height: int, *, 
     from solidkit.synth.renderer import mitsuba
 
     mi = mitsuba()
-    return mi.load_dict({"type": "sk_equirect", "jitter": jitter, "to_world": _to_world(mi, np.asarray(rotation), np.asarray(position)),
+    to_world = _to_world(mi, np.asarray(rotation), np.asarray(position))
+    return mi.load_dict({"type": "sk_equirect", "jitter": jitter, "to_world": to_world,
                          "film": _film(2 * height, height),
                          "sampler": {"type": "independent", "sample_count": int(spp), "seed": int(seed)}})
 

@@ -282,7 +282,8 @@ def generate_campaign(out: str | os.PathLike, scenes: int, probes: int, *, seed:
         atomic_write_bytes(out / photo_file, insert_app1(jpg, app))
         write_exr(truth_dir / sid / "photo.exr", hdr, {"scene": sid})
         photo = PhotoTruth(shot=Shot(file=photo_file, exposure_time=t_photo, f_number=f_number, iso=iso, time=t0, role="photo"),
-                           camera=cam.to_json(), focal_length_mm=f_mm, sensor_width_mm=sensor_w, hdr_file=f"truth/{sid}/photo.exr")
+                           camera=cam.to_json(), focal_length_mm=f_mm, sensor_width_mm=sensor_w,
+                           hdr_file=f"truth/{sid}/photo.exr")
         # --- probe points (one per quadrant first, then anywhere valid)
         buf = render_buffers(scene, cam, spp=1, shadows=False)
         picks = pick_probe_pixels(buf["hit"], rng, 0.05)

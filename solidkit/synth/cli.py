@@ -110,7 +110,8 @@ def campaign(
     pano_height: int = typer.Option(512, "--pano-height", min=8, help="Height of the HDR panorama behind each Theta shot."),
     pano_spp: int = typer.Option(16, "--pano-spp", min=1),
     fisheye_width: int = typer.Option(1920, "--fisheye-width", min=64, help="Width of the dual-fisheye JPEGs."),
-    brackets: Optional[str] = typer.Option(None, "--brackets", help="Extra bracket exposures in seconds, e.g. '1/640,1/160,1/40'."),
+    brackets: Optional[str] = typer.Option(None, "--brackets",
+                                           help="Extra bracket exposures in seconds, e.g. '1/640,1/160,1/40'."),
     variant: Optional[str] = typer.Option(None, "--variant", help="Force a Mitsuba variant."),
 ) -> None:
     """A virtual field campaign: photos, Theta dual-fisheye shots (card layout) and a separate truth file."""

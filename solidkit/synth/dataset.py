@@ -66,8 +66,12 @@ def open_dataset(root: str | os.PathLike, n: int, seed: int, config: SampleConfi
     path = root / MANIFEST
     if path.is_file():
         old = json.loads(path.read_text())
-        if old.get("seed") != manifest["seed"] or old.get("config") != manifest["config"]:
-            raise InputError(f"{root}: holds a dataset with another seed or renderer settings; use a new --out")
+        if old.get("seed") != manifest["seed"]:
+            raise InputError(f"{root}: holds a dataset with seed {old.get('seed')}, not {seed}; use a new --out")
+        if old.get("config") != manifest["config"]:
+            oc, nc = old.get("config") or {}, manifest["config"]
+            diff = sorted(k for k in set(oc) | set(nc) if oc.get(k) != nc.get(k))
+            raise InputError(f"{root}: holds a dataset rendered with other settings ({', '.join(diff)}); use a new --out")
         if int(old.get("n", 0)) < n:
             old["n"] = int(n)
             atomic_write_text(path, json.dumps(old, indent=1))
@@ -185,7 +189,8 @@ class SynthDataset(torch.utils.data.Dataset):
         d = self.root / e["dir"]
         rec = json.loads((d / FILES["meta"]).read_text())
         item: dict[str, Any] = {"index": rec["index"]}
-        files = {"hdr": FILES["image"], **{k: FILES[k] for k in ("albedo", "normal", "plane_distance", "depth", "shadow", "global")}}
+        files = {"hdr": FILES["image"],
+                 **{k: FILES[k] for k in ("albedo", "normal", "plane_distance", "depth", "shadow", "global")}}
         for f in self.fields:
             if f == "image":
                 item["image"] = _chw(read_ldr(d / FILES["ldr"]))

@@ -104,7 +104,8 @@ def exif_app1(*, make: str, model: str, when: dt.datetime, exposure_time: float,
         placeholder = _ricoh_makernote(0, theta["image_type"], theta["roll_deg"], theta["pitch_deg"], theta.get("heading_deg"))
         exif_probe = exif + [_entry(0x927C, UNDEFINED, placeholder)]
         _, where = _ifd(exif_probe, exif_off)
-        mn = _ricoh_makernote(where[0x927C], theta["image_type"], theta["roll_deg"], theta["pitch_deg"], theta.get("heading_deg"))
+        mn = _ricoh_makernote(where[0x927C], theta["image_type"], theta["roll_deg"], theta["pitch_deg"],
+                              theta.get("heading_deg"))
         exif = exif + [_entry(0x927C, UNDEFINED, mn)]
     exif_bytes, _ = _ifd(exif, exif_off)
     gps_off = exif_off + len(exif_bytes)

@@ -38,7 +38,8 @@ from typing import Any
 import cv2
 import numpy as np
 
-from solidkit.envmap import angles_from_direction, coords_from_direction, direction_from_angles, direction_grid, read_exr, rotation_y, solid_angle
+from solidkit.envmap import (angles_from_direction, coords_from_direction, direction_from_angles, direction_grid, read_exr,
+                             rotation_y, solid_angle)
 from solidkit.errors import InputError
 
 __all__ = ["M0", "HDR_DIR", "Lighting", "sunsky", "hdr", "random_lighting", "horizontal_irradiance", "find_sun"]
@@ -153,7 +154,8 @@ def sunsky(sun: np.ndarray, turbidity: float = 3.0, *, height: int = 512, rng: n
     return Lighting(pano, np.eye(3), sun, meta)
 
 
-def hdr(path: str | Path, rotation_deg: float = 0.0, *, rng: np.random.Generator | None = None, normalise: bool = True) -> Lighting:
+def hdr(path: str | Path, rotation_deg: float = 0.0, *, rng: np.random.Generator | None = None,
+        normalise: bool = True) -> Lighting:
     """A real HDR panorama turned about the vertical by ``rotation_deg`` (moves the sun to the right)."""
     pano, _ = read_exr(path)
     pano = np.clip(pano[..., :3], 0.0, None)

@@ -205,7 +205,8 @@ class Generator:
             K = intrinsics(cfg.width, cfg.height, cfg.hfov_deg)
             rng = np.random.default_rng(derive_seed(self.seed, block_id, 2, sector))
             views[sector] = best_views(block, geometry, rng, K, cfg.width, cfg.height, candidates=cfg.candidates,
-                                       min_categories=cfg.min_categories, max_object_share=cfg.max_object_share, min_sky=cfg.min_sky,
+                                       min_categories=cfg.min_categories, max_object_share=cfg.max_object_share,
+                                       min_sky=cfg.min_sky,
                                        item_size=cfg.item_size, sectors=(sector,))[0]
         return block, views[sector]
 

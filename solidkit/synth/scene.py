@@ -162,7 +162,8 @@ def blob(centre: Any, radii: Any, material: str, category: str) -> Part:
     pos = np.asarray(centre, float) + unit * np.asarray(radii, float)
     fa = _orient_outward(pos, np.array(faces), np.asarray(centre, float))
     tile = MATERIALS[material].tile_m
-    uv = np.stack([np.arctan2(unit[:, 0], unit[:, 2]) * np.asarray(radii)[0] / tile, unit[:, 1] * np.asarray(radii)[1] / tile], 1)
+    rx, ry = float(np.asarray(radii)[0]), float(np.asarray(radii)[1])
+    uv = np.stack([np.arctan2(unit[:, 0], unit[:, 2]) * rx / tile, unit[:, 1] * ry / tile], 1)
     return Part(pos.astype(np.float32), fa.astype(np.uint32), uv.astype(np.float32), material, category)
 
 
@@ -308,7 +309,8 @@ def city_block(seed: int, *, length: float = 60.0) -> CityBlock:
             else:  # sign
                 blk.begin_object()
                 blk.add(box((x - 0.04, fy - 2.6, z - 0.04), (x + 0.04, fy, z + 0.04), "metal_galvanized", "sign"))
-                blk.add(box((x - 0.03, fy - 2.8, z - 0.35), (x + 0.03, fy - 2.1, z + 0.35), _pick(rng, materials_of("plastic")), "sign"))
+                plate = _pick(rng, materials_of("plastic"))
+                blk.add(box((x - 0.03, fy - 2.8, z - 0.35), (x + 0.03, fy - 2.1, z + 0.35), plate, "sign"))
                 blk.end_object()
                 obstacle(x - 0.04, x + 0.04, z - 0.04, z + 0.04)
         for _ in range(int(rng.integers(0, 4))):  # bollards near the curb
@@ -341,9 +343,11 @@ def _bsdf(mi: ModuleType, name: str, rng: np.random.Generator, *, white: bool = 
     if white:
         return mi.load_dict({"type": "diffuse", "reflectance": {"type": "rgb", "value": [0.8, 0.8, 0.8]}})
     albedo, rough = texture(mat, rng, tex_size)
-    tex = {"type": "bitmap", "bitmap": mi.Bitmap(albedo), "raw": True, "filter_type": "bilinear", "wrap_mode": "repeat"}
-    rtex = {"type": "bitmap", "bitmap": mi.Bitmap(rough[..., None]), "raw": True, "filter_type": "bilinear", "wrap_mode": "repeat"}
-    return mi.load_dict({"type": "principled", "base_color": tex, "roughness": rtex, "metallic": float(mat.metallic), "specular": 0.5})
+    common = {"type": "bitmap", "raw": True, "filter_type": "bilinear", "wrap_mode": "repeat"}
+    tex = {**common, "bitmap": mi.Bitmap(albedo)}
+    rtex = {**common, "bitmap": mi.Bitmap(rough[..., None])}
+    return mi.load_dict({"type": "principled", "base_color": tex, "roughness": rtex, "metallic": float(mat.metallic),
+                         "specular": 0.5})
 
 
 def _mesh(mi: ModuleType, part: Part, bsdf: Any, name: str) -> Any:
