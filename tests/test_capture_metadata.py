@@ -145,3 +145,21 @@ def test_fuzz_mutated_real_header(real_data, edits, cut, hot):
         assert v is None or (math.isfinite(v) and v > 0)
     assert m.gravity is None or abs(np.linalg.norm(m.gravity) - 1) < 1e-6
     assert all(isinstance(w, str) and ":" in w for w in m.warnings)
+
+
+@pytest.mark.real
+@settings(max_examples=150, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(
+    edits=st.lists(st.tuples(st.integers(0, 4095), st.integers(0, 255)), min_size=1, max_size=12),
+    cut=st.one_of(st.none(), st.integers(1, 8192)),
+)
+def test_fuzz_mutated_dng_header(real_data, edits, cut):
+    """Bytes flipped in the real DNG's TIFF header and IFDs (first 4 KiB), or the file cut short."""
+    data = (real_data / "raw_dng/colorchart.dng").read_bytes()
+    mutated = _mutate(data, edits, cut)
+    try:
+        m = _read_metadata_bytes(mutated, "fuzz.dng")
+    except InputError:
+        return
+    assert m.width > 0 and m.height > 0
+    assert all(isinstance(w, str) and ":" in w for w in m.warnings)

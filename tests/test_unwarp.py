@@ -164,7 +164,7 @@ def test_remap_cache_memory_and_disk(tmp_path, rendered):
     assert (s1, s2) == ("built", "memory") and m2 is m1
     clear_cache()
     m3, s3 = get_maps(prof, (512, 256), 64, cache_dir=tmp_path)
-    assert s3 == "disk" and np.array_equal(m3.map_x, m1.map_x) and np.array_equal(m3.weight, m1.weight)
+    assert s3 == "disk" and np.array_equal(m3.map1, m1.map1) and np.array_equal(m3.map2, m1.map2) and np.array_equal(m3.weight, m1.weight)
     _, s4 = get_maps(prof, (512, 256), 32, cache_dir=tmp_path)  # another output size: other tables
     assert s4 == "built" and len(list(tmp_path.glob("unwarp-*.npz"))) == 2
     w = m1.weight.sum(0)
@@ -268,3 +268,22 @@ def test_real_theta_s_seam_vs_ffmpeg_v360(real_data, tmp_path):
     ours = seam_step(cv2.cvtColor(ours8, cv2.COLOR_RGB2GRAY), cut_columns(maps))["step"]
     print(f"seam step (8-bit grey levels): solidkit theta-s-video {ours:.2f}; ffmpeg v360 by FOV {ff}")
     assert ours < min(ff.values())
+
+
+def test_srgb8_fast_path_matches_linear_path(rendered):
+    """JPEG -> PNG fast path: same panorama as the float path (within 1 code), gains matched too."""
+    from solidkit.capture.unwarp import encode_srgb8, unwarp_srgb8
+
+    prof, fish = rendered
+    lin = cv2.resize(np.clip(fish[..., :3], 0, 1), (1024, 512), interpolation=cv2.INTER_AREA)
+    lin[:, 512:] *= np.array([0.8, 0.85, 0.9], np.float32)  # back lens darker
+    img8 = encode_srgb8(lin)
+    st_fast: dict = {}
+    st_lin: dict = {}
+    fast = unwarp_srgb8(img8, prof, 256, stats=st_fast)
+    ref = encode_srgb8(unwarp(img8, prof, 256, stats=st_lin))
+    assert fast.dtype == np.uint8 and fast.shape == (256, 512, 3)
+    assert np.abs(fast.astype(int) - ref.astype(int)).max() <= 1
+    assert np.allclose(st_fast["gains"], st_lin["gains"], rtol=0.02)
+    g = np.array(st_fast["gains"])
+    assert g[1] / g[0] == pytest.approx(1 / np.array([0.8, 0.85, 0.9]), rel=0.02)

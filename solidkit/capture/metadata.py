@@ -423,7 +423,7 @@ def _ricoh_makernote(tiff: _Tiff, warnings: list[str]) -> tuple[dict[int, Any], 
                 except (struct.error, KeyError, UnicodeDecodeError):
                     warnings.append(f"makernote_bad_tag: theta 0x{tag:04x}")
     else:
-        warnings.append("makernote_no_theta_ifd")
+        warnings.append("makernote_no_theta_ifd: the Ricoh maker note has no RICOH THETA IFD (tag 0x4001)")
     return main_vals, theta
 
 
@@ -465,7 +465,7 @@ def _dng_size(tiff: _Tiff, warnings: list[str]) -> tuple[int, int] | None:
         except (struct.error, IndexError, TypeError, ValueError):
             continue
     if best is None:
-        warnings.append("dng_no_main_image")
+        warnings.append("dng_no_main_image: no full-resolution IFD (NewSubFileType 0) found")
     return best
 
 

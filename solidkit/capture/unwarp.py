@@ -30,7 +30,7 @@ import hashlib
 import math
 import os
 from collections import OrderedDict
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -54,6 +54,8 @@ __all__ = [
     "render_fisheye",
     "cut_columns",
     "seam_step",
+    "unwarp_srgb8",
+    "encode_srgb8",
 ]
 
 CACHE_SIZE = 4
@@ -65,15 +67,25 @@ _cache: "OrderedDict[str, UnwarpMaps]" = OrderedDict()
 class UnwarpMaps:
     """Per-lens remap tables for one (profile, input size, output size, orientation).
 
-    ``map_x``, ``map_y``: ``(L, H, 2H)`` float32 fisheye pixel coordinates (OpenCV convention);
-    ``weight``: ``(L, H, 2H)`` float32 feather weights summing to 1 where any lens sees;
-    ``margin``: ``(L, H, 2H)`` float32 ``max_angle - theta`` in radians (negative outside a lens).
+    ``map1`` ``(L, H, 2H, 2)`` int16 and ``map2`` ``(L, H, 2H)`` uint16: OpenCV's fixed-point
+    maps (``cv2.convertMaps(..., CV_16SC2)``; 1/32-px sub-pixel positions, the precision
+    ``cv2.remap`` uses internally for bilinear interpolation anyway) of the fisheye pixel
+    coordinates; ``weight``: ``(L, H, 2H)`` float32 feather weights summing to 1 where any lens
+    sees (0 where a lens does not).
     """
 
-    map_x: np.ndarray
-    map_y: np.ndarray
+    map1: np.ndarray
+    map2: np.ndarray
     weight: np.ndarray
-    margin: np.ndarray
+    _derived: dict = field(default_factory=dict, repr=False, compare=False)
+
+    def band(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Two lenses: ``(lens0_dominant (H, 2H) bool, band flat indices, lens-0 weight there)``."""
+        if "band" not in self._derived:
+            w0 = self.weight[0]
+            idx = np.flatnonzero((w0 > 0) & (self.weight[1] > 0))
+            self._derived["band"] = (w0 >= 0.5, idx, w0.reshape(-1)[idx].astype(np.float32))
+        return self._derived["band"]
 
     @property
     def coverage(self) -> np.ndarray:
@@ -82,8 +94,8 @@ class UnwarpMaps:
 
     @property
     def overlap(self) -> np.ndarray:
-        """``(H, 2H)`` bool: at least two lenses see this output pixel."""
-        return (self.margin > 0).sum(axis=0) >= 2
+        """``(H, 2H)`` bool: blended pixels (at least two lenses with weight > 0)."""
+        return (self.weight > 0).sum(axis=0) >= 2
 
 
 def feather_weights(margin: np.ndarray, feather_deg: float) -> np.ndarray:
@@ -110,25 +122,25 @@ def build_maps(
     prof = profile.scaled(*in_size)
     R = np.eye(3) if R_level is None else np.asarray(R_level, dtype=np.float64)
     H, W, L = out_height, 2 * out_height, len(prof.lenses)
-    map_x = np.empty((L, H, W), np.float32)
-    map_y = np.empty((L, H, W), np.float32)
+    map1 = np.empty((L, H, W, 2), np.int16)
+    map2 = np.empty((L, H, W), np.uint16)
     margin = np.empty((L, H, W), np.float32)
     xs = np.arange(W, dtype=np.float64) + 0.5
+    w_in, h_in = in_size
     for r0 in range(0, H, _ROWS):
         r1 = min(H, r0 + _ROWS)
         yy, xx = np.meshgrid(np.arange(r0, r1, dtype=np.float64) + 0.5, xs, indexing="ij")
         d_cam = direction_from_coords(xx, yy, H) @ R  # row vectors: (R^T d)^T
         for i, lens in enumerate(prof.lenses):
             x, y, theta = project(lens, d_cam)
-            map_x[i, r0:r1] = x
-            map_y[i, r0:r1] = y
-            margin[i, r0:r1] = math.radians(lens.max_angle_deg) - theta
-    # never sample outside the image frame
-    for i in range(L):
-        inside = (map_x[i] >= -0.5) & (map_x[i] <= in_size[0] - 0.5) & (map_y[i] >= -0.5) & (map_y[i] <= in_size[1] - 0.5)
-        margin[i][~inside] = np.minimum(margin[i][~inside], -1e-6)
+            m = math.radians(lens.max_angle_deg) - theta
+            inside = (x >= -0.5) & (x <= w_in - 0.5) & (y >= -0.5) & (y <= h_in - 0.5)  # never sample outside the frame
+            margin[i, r0:r1] = np.where(inside, m, np.minimum(m, -1e-6))
+            x = np.clip(x, -2.0, w_in + 1.0).astype(np.float32)
+            y = np.clip(y, -2.0, h_in + 1.0).astype(np.float32)
+            map1[i, r0:r1], map2[i, r0:r1] = cv2.convertMaps(x, y, cv2.CV_16SC2)
     weight = feather_weights(margin, feather_deg)
-    return UnwarpMaps(map_x, map_y, weight, margin)
+    return UnwarpMaps(map1, map2, weight)
 
 
 def _key(profile: LensProfile, in_size: tuple[int, int], out_height: int, R: np.ndarray, feather_deg: float) -> str:
@@ -163,7 +175,7 @@ def get_maps(
     if path is not None and path.is_file():
         try:
             with np.load(path) as z:
-                maps = UnwarpMaps(z["map_x"], z["map_y"], z["weight"], z["margin"])
+                maps = UnwarpMaps(z["map1"], z["map2"], z["weight"])
             source = "disk"
         except (OSError, ValueError, KeyError):
             maps = None  # unreadable cache file: rebuild and overwrite
@@ -175,37 +187,74 @@ def get_maps(
             path.parent.mkdir(parents=True, exist_ok=True)
             with atomic_path(path, suffix=".npz") as tmp:
                 with open(tmp, "wb") as f:
-                    np.savez(f, map_x=maps.map_x, map_y=maps.map_y, weight=maps.weight, margin=maps.margin)
+                    np.savez(f, map1=maps.map1, map2=maps.map2, weight=maps.weight)
     _cache[key] = maps
     while len(_cache) > CACHE_SIZE:
         _cache.popitem(last=False)
     return maps, source
 
 
-def _warp(image: np.ndarray, maps: UnwarpMaps, interp: int = cv2.INTER_LINEAR) -> np.ndarray:
-    """``(L, H, 2H, C)`` float32: each lens' image sampled at its map (zeros outside)."""
-    img = image.astype(np.float32, copy=False)
-    out = []
-    for i in range(maps.map_x.shape[0]):
-        w = cv2.remap(img, maps.map_x[i], maps.map_y[i], interp, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
-        out.append(w.reshape(*w.shape[:2], -1))
-    return np.stack(out)
+# sRGB 8-bit -> linear float32 (exact per code value) and linear -> sRGB 8-bit through a 16-bit index
+_DECODE_LUT: np.ndarray | None = None
+_ENCODE_LUT: np.ndarray | None = None
 
 
-def match_gains(warped: np.ndarray, maps: UnwarpMaps, saturation: float | None = 0.98, floor: float = 1e-3) -> np.ndarray:
+def _luts() -> tuple[np.ndarray, np.ndarray]:
+    global _DECODE_LUT, _ENCODE_LUT
+    if _DECODE_LUT is None:
+        from solidkit.envmap.io import srgb_decode, srgb_encode
+
+        _DECODE_LUT = np.asarray(srgb_decode(np.arange(256, dtype=np.float64) / 255.0), np.float32)
+        enc = np.asarray(srgb_encode(np.arange(65536, dtype=np.float64) / 65535.0))
+        _ENCODE_LUT = np.round(np.clip(enc, 0, 1) * 255.0).astype(np.uint8)
+    return _DECODE_LUT, _ENCODE_LUT
+
+
+def encode_srgb8(linear: np.ndarray) -> np.ndarray:
+    """Linear ``[0, 1]`` float -> sRGB uint8 (IEC 61966-2-1) through a 65536-entry table."""
+    _, enc = _luts()
+    x = np.clip(linear, 0.0, 1.0).astype(np.float32, copy=False)
+    x *= 65535.0
+    np.rint(x, out=x)
+    return enc[x.astype(np.uint16)]
+
+
+def _warp(image: np.ndarray, maps: UnwarpMaps, i: int) -> np.ndarray:
+    """Lens ``i``'s image sampled at its map, ``(H, 2H, C)`` float32 *linear* (zeros outside).
+
+    uint8 input is taken as sRGB-encoded: it is interpolated in that encoding (as cameras and
+    ffmpeg do) and then decoded to linear exactly per code value.
+    """
+    w = cv2.remap(image, maps.map1[i], maps.map2[i], cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
+    if w.ndim == 2:
+        w = w[..., None]
+    if image.dtype == np.uint8:
+        dec, _ = _luts()
+        return dec[w]
+    return w.astype(np.float32, copy=False)
+
+
+def _stride(shape: tuple[int, ...], target: int = 1024) -> int:
+    return max(1, shape[0] // target)
+
+
+def match_gains(warped: list[np.ndarray], maps: UnwarpMaps, saturation: float | None = 0.98, floor: float = 1e-3) -> np.ndarray:
     """Per-lens, per-channel linear gains ``(L, C)`` equalising the lenses on their overlap.
 
-    For two lenses: ``ratio_c = exp(median(log I_0 - log I_1))`` over feather-band pixels that are
-    neither black (``< floor``) nor saturated (``>= saturation`` in any channel, for LDR input);
-    lens 0 gets ``ratio^-1/2``, lens 1 ``ratio^+1/2``. More lenses are matched pairwise to lens 0
-    and renormalised to a geometric mean of 1. Returns ones when the overlap has < 100 usable pixels.
+    ``warped``: each lens' linear view ``(H, 2H, C)``. For two lenses: ``ratio_c = exp(median(log
+    I_0 - log I_1))`` over feather-band pixels (both weights > 0; every k-th row and column for
+    outputs above 1024 rows) that are neither black (``< floor``) nor saturated (``>= saturation``
+    in any channel, for LDR input); lens 0 gets ``ratio^-1/2``, lens 1 ``ratio^+1/2``. More lenses
+    are matched to lens 0 and renormalised to a geometric mean of 1. Returns ones when the overlap
+    has < 100 usable pixels.
     """
-    L, C = warped.shape[0], warped.shape[-1]
+    L, C = len(warped), warped[0].shape[-1]
+    k = _stride(warped[0].shape)
     gains = np.ones((L, C), np.float64)
-    valid = maps.weight > 0
+    valid = maps.weight[:, ::k, ::k] > 0
     for i in range(1, L):
         both = valid[0] & valid[i]
-        a, b = warped[0][both], warped[i][both]
+        a, b = warped[0][::k, ::k][both], warped[i][::k, ::k][both]
         ok = np.all((a > floor) & (b > floor), axis=-1)
         if saturation is not None:
             ok &= np.all((a < saturation) & (b < saturation), axis=-1)
@@ -216,20 +265,24 @@ def match_gains(warped: np.ndarray, maps: UnwarpMaps, saturation: float | None =
     return gains
 
 
-def seam_disagreement(warped: np.ndarray, maps: UnwarpMaps, gains: np.ndarray | None = None) -> dict[str, float]:
-    """Photometric disagreement of the lenses on their overlap (after ``gains``).
+def seam_disagreement(warped: list[np.ndarray], maps: UnwarpMaps, gains: np.ndarray | None = None) -> dict[str, float]:
+    """Photometric disagreement of lenses 0 and 1 on their overlap (after ``gains``).
 
     Returns ``{"seam_mad": median |I_0 - I_1|, "seam_rmse": ..., "overlap_px": n}`` over the
-    feather band (pixels where both lenses have weight > 0; channel-averaged, image units).
+    feather band (pixels where both lenses have weight > 0; channel-averaged, image units; every
+    k-th row and column for outputs above 1024 rows, ``overlap_px`` counts the full band).
     """
-    if warped.shape[0] < 2:
-        return {"seam_mad": math.nan, "seam_rmse": math.nan, "overlap_px": 0}
-    g = np.ones((warped.shape[0], warped.shape[-1])) if gains is None else gains
-    both = (maps.weight[0] > 0) & (maps.weight[1] > 0)
-    diff = (warped[0][both] * g[0] - warped[1][both] * g[1]).mean(axis=-1)
+    nan = {"seam_mad": math.nan, "seam_rmse": math.nan, "overlap_px": 0}
+    if len(warped) < 2:
+        return nan
+    k = _stride(warped[0].shape)
+    g = np.ones((len(warped), warped[0].shape[-1])) if gains is None else gains
+    both = (maps.weight[0, ::k, ::k] > 0) & (maps.weight[1, ::k, ::k] > 0)
+    diff = (warped[0][::k, ::k][both] * g[0] - warped[1][::k, ::k][both] * g[1]).mean(axis=-1)
     if diff.size == 0:
-        return {"seam_mad": math.nan, "seam_rmse": math.nan, "overlap_px": 0}
-    return {"seam_mad": float(np.median(np.abs(diff))), "seam_rmse": float(np.sqrt(np.mean(diff**2))), "overlap_px": int(diff.size)}
+        return nan
+    return {"seam_mad": float(np.median(np.abs(diff))), "seam_rmse": float(np.sqrt(np.mean(diff**2))),
+            "overlap_px": int(((maps.weight[0] > 0) & (maps.weight[1] > 0)).sum())}
 
 
 def unwarp(
@@ -244,31 +297,107 @@ def unwarp(
     cache_dir: str | os.PathLike | None = None,
     stats: dict | None = None,
 ) -> np.ndarray:
-    """Unwarp a linear dual-fisheye image ``(h, w, C)`` to an equirect panorama ``(out_height, 2 out_height, C)``.
+    """Unwarp a dual-fisheye image ``(h, w, C)`` to a *linear* equirect ``(out_height, 2 out_height, C)`` float32.
 
-    ``image`` must be *linear* (decode sRGB first) so that gains and blending are physical.
-    ``saturation``: pixel value at/above which a pixel is treated as clipped when estimating gains
-    (``None``: no clipping, e.g. HDR). ``stats`` (if given) receives the gains, the seam
-    disagreement before/after gain matching, coverage and the remap-cache source.
+    ``image``: linear float (e.g. DNG, EXR, or decoded sRGB) or uint8 sRGB-encoded (interpolated
+    in its encoding, then decoded to linear per code value: the fast path for JPEGs). Gains and
+    blending are in linear light. ``saturation``: linear value at/above which a pixel counts as
+    clipped when estimating gains (``None``: no clipping, e.g. HDR; uint8 input defaults to the
+    linear value of code 250). ``stats`` (if given) receives the gains, the seam disagreement
+    before/after gain matching, coverage and the remap-cache source.
     """
     if image.ndim == 2:
         image = image[..., None]
     if image.ndim != 3:
         raise InputError(f"expected an (H, W, C) image, got shape {image.shape}")
+    if image.dtype not in (np.uint8, np.float32):
+        image = image.astype(np.float32)
+    if image.dtype == np.uint8 and saturation is None:
+        saturation = float(_luts()[0][250])
     h, w = image.shape[:2]
     maps, source = get_maps(profile, (w, h), out_height, R_level, feather_deg, cache_dir)
-    warped = _warp(image, maps)
-    gains = match_gains(warped, maps, saturation) if gain_match and len(profile.lenses) > 1 else np.ones((warped.shape[0], warped.shape[-1]))
-    out = np.einsum("lhw,lhwc,lc->hwc", maps.weight, warped, gains.astype(np.float32), optimize=True)
+    L = maps.weight.shape[0]
+    warped = [_warp(image, maps, i) for i in range(L)]
+    C = warped[0].shape[-1]
+    gains = match_gains(warped, maps, saturation) if gain_match and L > 1 else np.ones((L, C))
     if stats is not None:
         stats["gains"] = gains.tolist()
         stats["cache"] = source
         stats["coverage"] = float(maps.coverage.mean())
-        before = seam_disagreement(warped, maps)
-        after = seam_disagreement(warped, maps, gains)
-        stats["seam_mad_before_gain"] = before["seam_mad"]
-        stats.update(after)
-    return out.astype(np.float32)
+        stats["seam_mad_before_gain"] = seam_disagreement(warped, maps)["seam_mad"]
+        stats.update(seam_disagreement(warped, maps, gains))
+    out = None
+    for i in range(L):
+        v = warped[i]
+        v *= gains[i].astype(np.float32)
+        v *= maps.weight[i][..., None]
+        if out is None:
+            out = v
+        else:
+            out += v
+        warped[i] = None
+    return out
+
+
+def unwarp_srgb8(
+    image: np.ndarray,
+    profile: LensProfile,
+    out_height: int,
+    R_level: Any = None,
+    *,
+    feather_deg: float = 10.0,
+    gain_match: bool = True,
+    cache_dir: str | os.PathLike | None = None,
+    stats: dict | None = None,
+) -> np.ndarray:
+    """Fast path of :func:`unwarp` for 8-bit sRGB in and out (JPEG -> PNG/JPEG), two lenses.
+
+    Same geometry, gains and feathering as :func:`unwarp`, evaluated where it matters: outside
+    the feather band each output pixel is one lens' sample with its gain applied exactly in
+    linear light through a per-channel 8-bit table ``enc(g_c dec(v))``; inside the band the two
+    samples are decoded to linear, gain-matched, blended and re-encoded. Returns uint8 sRGB.
+    """
+    if image.dtype != np.uint8 or image.ndim != 3:
+        raise InputError("unwarp_srgb8 needs an (H, W, C) uint8 image")
+    h, w = image.shape[:2]
+    maps, source = get_maps(profile, (w, h), out_height, R_level, feather_deg, cache_dir)
+    if maps.weight.shape[0] != 2:
+        lin = unwarp(image, profile, out_height, R_level, feather_deg=feather_deg, gain_match=gain_match,
+                     cache_dir=cache_dir, stats=stats)
+        return encode_srgb8(lin)
+    dec, enc16 = _luts()
+    raw = [cv2.remap(image, maps.map1[i], maps.map2[i], cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
+           for i in range(2)]
+    C = image.shape[2]
+    lead, idx, w0 = maps.band()
+    band = [r.reshape(-1, C)[idx] for r in raw]  # (n, C) uint8 samples in the feather band
+    lin = [dec[b] for b in band]
+    gains = np.ones((2, C))
+    if gain_match and idx.size:
+        sat = float(dec[250])
+        ok = np.all((lin[0] > 1e-3) & (lin[1] > 1e-3) & (lin[0] < sat) & (lin[1] < sat), axis=-1)
+        if ok.sum() >= 100:
+            ratio = np.exp(np.median(np.log(lin[0][ok]) - np.log(lin[1][ok]), axis=0))
+            gains = np.stack([ratio**-0.5, ratio**0.5])
+    if stats is not None:
+        d0 = (lin[0] - lin[1]).mean(-1)
+        d1 = (lin[0] * gains[0] - lin[1] * gains[1]).mean(-1)
+        stats.update(gains=gains.tolist(), cache=source, coverage=float(maps.coverage.mean()), overlap_px=int(idx.size),
+                     seam_mad_before_gain=float(np.median(np.abs(d0))) if d0.size else math.nan,
+                     seam_mad=float(np.median(np.abs(d1))) if d1.size else math.nan,
+                     seam_rmse=float(np.sqrt(np.mean(d1**2))) if d1.size else math.nan)
+    if not np.allclose(gains, 1.0):
+        for i in range(2):
+            table = encode_srgb8(dec[:, None] * gains[i].astype(np.float32)[None, :])  # (256, C): enc(g dec(v))
+            raw[i] = cv2.LUT(raw[i], table.reshape(256, 1, C) if C > 1 else table.reshape(256, 1))
+            if raw[i].ndim == 2:
+                raw[i] = raw[i][..., None]
+    out = raw[1]
+    cv2.copyTo(raw[0], lead.astype(np.uint8), out)
+    if idx.size:
+        blended = (lin[0] * gains[0].astype(np.float32)) * w0[:, None] + (lin[1] * gains[1].astype(np.float32)) * (1 - w0)[:, None]
+        out.reshape(-1, C)[idx] = encode_srgb8(blended)
+    return out
 
 
 def render_fisheye(
@@ -317,8 +446,13 @@ def parse_size(text: str | None) -> int | None:
     return h
 
 
-def _read_linear(path: Path) -> tuple[np.ndarray, float | None]:
-    """Linear image and the clipping level used for gain estimation (None for HDR)."""
+def _read_input(path: Path) -> tuple[np.ndarray, float | None]:
+    """Image for :func:`unwarp` and its linear clipping level (None for HDR/raw).
+
+    EXR: linear float; raw/DNG: linear float (:func:`solidkit.capture.raw.read_raw`); 8-bit LDR:
+    uint8 RGB as stored (sRGB-encoded; :func:`unwarp` decodes per code value). 16-bit LDR is
+    decoded to linear float.
+    """
     from solidkit.capture.raw import is_raw_file, read_raw
     from solidkit.envmap.io import read_exr, read_ldr
 
@@ -326,18 +460,47 @@ def _read_linear(path: Path) -> tuple[np.ndarray, float | None]:
         img, _ = read_exr(path)
         return img[..., :3], None
     if is_raw_file(path):
-        raw = read_raw(path)
-        return raw.linear, None
-    return read_ldr(path, linear=True), 0.98
+        return read_raw(path).linear, None
+    if not path.is_file():
+        raise InputError(f"{path}: no such file")
+    raw = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    if raw is None:
+        raise InputError(f"{path}: not a readable image")
+    if raw.dtype != np.uint8:
+        return read_ldr(path, linear=True), 0.98
+    if raw.ndim == 2:
+        raw = np.repeat(raw[..., None], 3, axis=2)
+    return cv2.cvtColor(np.ascontiguousarray(raw[..., :3]), cv2.COLOR_BGR2RGB), float(_luts()[0][250])
+
+
+def _read_linear(path: Path) -> tuple[np.ndarray, float | None]:
+    """:func:`_read_input` with 8-bit images decoded to linear float32."""
+    img, sat = _read_input(path)
+    if img.dtype == np.uint8:
+        img = _luts()[0][img]
+    return img, sat
+
+
+def _write_srgb8(path: Path, enc: np.ndarray) -> None:
+    """8-bit sRGB RGB image -> PNG (fast compression) / JPEG (q95) / other LDR, atomically."""
+    from solidkit.fsutil import atomic_path
+
+    params = {".png": [cv2.IMWRITE_PNG_COMPRESSION, 1], ".jpg": [cv2.IMWRITE_JPEG_QUALITY, 95],
+              ".jpeg": [cv2.IMWRITE_JPEG_QUALITY, 95]}.get(path.suffix.lower(), [])
+    with atomic_path(path) as tmp:
+        if not cv2.imwrite(str(tmp), cv2.cvtColor(enc, cv2.COLOR_RGB2BGR), params):
+            raise InputError(f"{path}: OpenCV cannot write this image format")
 
 
 def _write(path: Path, linear: np.ndarray, meta: dict) -> None:
-    from solidkit.envmap.io import write_exr, write_ldr
+    """EXR (linear float, with ``meta``) or 8-bit sRGB LDR (PNG fast compression, JPEG q95), atomically."""
+    from solidkit.envmap.io import write_exr
+    from solidkit.fsutil import atomic_path
 
     if path.suffix.lower() == ".exr":
         write_exr(path, linear, meta)
-    else:
-        write_ldr(path, np.clip(linear, 0.0, 1.0), encode_srgb=True)
+        return
+    _write_srgb8(path, encode_srgb8(linear))
 
 
 def unwarp_file(
@@ -402,7 +565,7 @@ def unwarp_file(
             summary.update(mode="stitched: levelled from metadata" if not identity else "stitched: re-encoded", resampled=not identity or out_h is not None)
         summary["seconds"] = time.perf_counter() - t0
         return summary
-    img, saturation = _read_linear(src)
+    img, saturation = _read_input(src)
     h, w = img.shape[:2]
     if profile is not None:
         prof = load_profile(profile)
@@ -414,11 +577,19 @@ def unwarp_file(
     out_h = out_h or max(2, w // 4 * 2 // 2)
     stats: dict[str, Any] = {}
     t1 = time.perf_counter()
-    pano = unwarp(img, prof, out_h, R, feather_deg=feather_deg, gain_match=gain_match, saturation=saturation,
-                  cache_dir=cache_dir, stats=stats)
+    fast = img.dtype == np.uint8 and dst.suffix.lower() != ".exr" and len(prof.lenses) == 2
+    if fast:  # 8-bit in and out: blend in linear light only where two lenses overlap
+        pano = unwarp_srgb8(img, prof, out_h, R, feather_deg=feather_deg, gain_match=gain_match, cache_dir=cache_dir, stats=stats)
+    else:
+        pano = unwarp(img, prof, out_h, R, feather_deg=feather_deg, gain_match=gain_match, saturation=saturation,
+                      cache_dir=cache_dir, stats=stats)
     t2 = time.perf_counter()
-    _write(dst, pano, {"source": str(src), "source_sha256": sha256_file(src), "profile": prof.model,
-                       "profile_key": prof.key(), "rotation": R.tolist(), "gains": stats["gains"]})
+    meta_out = {"source": str(src), "source_sha256": sha256_file(src), "profile": prof.model,
+                "profile_key": prof.key(), "rotation": R.tolist(), "gains": stats["gains"]}
+    if fast:
+        _write_srgb8(dst, pano)
+    else:
+        _write(dst, pano, meta_out)
     summary.update(mode="dual-fisheye unwarped", profile=prof.model, size=[2 * out_h, out_h], resampled=True,
                    unwarp_seconds=t2 - t1, seconds=time.perf_counter() - t0, **stats)
     return summary
