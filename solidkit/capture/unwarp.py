@@ -574,7 +574,7 @@ def unwarp_file(
     if meta is not None and meta.image_type == "dual_fisheye_upright":
         summary["warnings"].append("upright_dual_fisheye: the camera already rotated the circles upright; no gravity applied")
         R = np.eye(3)
-    out_h = out_h or max(2, w // 4 * 2 // 2)
+    out_h = out_h or max(2, w // 2)  # default: as wide as the input (5792 -> 5792x2896)
     stats: dict[str, Any] = {}
     t1 = time.perf_counter()
     fast = img.dtype == np.uint8 and dst.suffix.lower() != ".exr" and len(prof.lenses) == 2
