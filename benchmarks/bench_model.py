@@ -123,7 +123,24 @@ def main() -> None:
     }
     args.out.parent.mkdir(parents=True, exist_ok=True)
     args.out.write_text(json.dumps(result, indent=2) + "\n")
-    print(f"wrote {args.out}")
+    lines = [
+        "# SOLID-Net forward pass (CPU, 320x240 input, batch 1)",
+        "",
+        f"Shared {os.cpu_count()}-core machine (load average {os.getloadavg()[0]:.1f} at the end); "
+        "medians of the repeats; peer = LENet_reg of the same config, same process.",
+        "",
+        "| config | threads | params (M) | I-Net ms | SolidNet + 1 probe ms | LENet_reg ms | SolidNet / LENet_reg | peak RSS growth MB |",
+        "|---|---|---|---|---|---|---|---|",
+    ]
+    for r in runs:
+        lat = r["latency"]
+        lines.append(
+            f"| {r['config']} | {r['threads']} | {r['parameters']['solidnet'] / 1e6:.2f} | {lat['inet']['median_ms']:.0f} | "
+            f"{lat['solidnet_1_probe']['median_ms']:.0f} | {lat['lenet_reg']['median_ms']:.0f} | "
+            f"{r['ratio_vs_lenet_reg']['solidnet_1_probe']:.1f}x | {r['peak_rss_growth_mb_solidnet']:.0f} |"
+        )
+    args.out.with_suffix(".md").write_text("\n".join(lines) + "\n")
+    print(f"wrote {args.out} and {args.out.with_suffix('.md')}")
 
 
 if __name__ == "__main__":

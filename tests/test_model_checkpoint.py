@@ -149,3 +149,20 @@ def test_cli_bad_input_is_one_line_error(tiny_ckpt, tmp_path):
     res = subprocess.run(cmd, capture_output=True, text=True, timeout=120)
     assert res.returncode == 2
     assert res.stderr.strip().count("\n") == 0 and "X,Y" in res.stderr
+
+
+def test_shipped_checkpoint_predicts_out_of_the_box():
+    from solidkit.model.solidnet import DEFAULT_CHECKPOINT
+    from solidkit.fsutil import sha256_file
+
+    card = json.loads(DEFAULT_CHECKPOINT.with_suffix(".card.json").read_text())
+    assert card["sha256"] == sha256_file(DEFAULT_CHECKPOINT)
+    assert DEFAULT_CHECKPOINT.stat().st_size < 5_000_000
+    model = SolidNet.from_checkpoint()
+    assert model.config.to_dict() == card["config"] and model.num_parameters == card["parameters"]
+    for key in ("data", "steps", "hardware", "seed"):
+        assert key in model.card
+    img = toy_batch(model.config, 1, 1, 6)["image"][0].permute(1, 2, 0).numpy()
+    pred = model.predict(img, [(160.0, 200.0)])
+    assert pred.sky.shape == (128, 256, 3) and np.isfinite(pred.sky).all() and (pred.sky >= 0).all()
+    assert pred.local[0].shape == (128, 256, 3) and np.isfinite(pred.local[0]).all()

@@ -28,6 +28,7 @@ conventions version (docs/conventions.md) and a free-form ``card`` (data, steps,
 from __future__ import annotations
 
 import io
+import json
 import math
 import os
 from dataclasses import dataclass, field
@@ -280,7 +281,8 @@ def save_checkpoint(
         "conventions_version": CONVENTIONS_VERSION,
         "model": type(model).__name__,
         "config": model.config.to_dict(),
-        "card": dict(card or {}),
+        # plain JSON types only, so that torch.load(weights_only=True) accepts the file
+        "card": json.loads(json.dumps(card or {}, default=str)),
         "state_dict": state,
     }
     buf = io.BytesIO()

@@ -208,11 +208,13 @@ def train_on_synth(
     seed: int = 0,
     threads: int = 1,
     half: bool = True,
+    holdout: int = 0,
 ) -> dict[str, Any]:
     """Briefly train ``config`` (default ``small``) on a ``solidkit synth dataset`` folder and save a
     checkpoint with its card (data size, steps, time, hardware, seed, final losses).
 
-    Each step draws ``batch_size`` samples and ``probes`` of their 4 probes at random (seeded).
+    Each step draws ``batch_size`` samples and ``probes`` of their 4 probes at random (seeded); the
+    last ``holdout`` samples of the dataset are not trained on (their indices go into the card).
     Returns the card.
     """
     import os
@@ -228,7 +230,11 @@ def train_on_synth(
     ds = SynthDataset(data)
     if len(ds) == 0:
         raise ValueError(f"{data}: no kept samples")
-    items = [ds[i] for i in range(len(ds))]  # a small dataset: keep it in memory
+    n_train = len(ds) - holdout
+    if n_train < 1:
+        raise ValueError(f"{data}: {len(ds)} samples leave none to train on with holdout={holdout}")
+    items = [ds[i] for i in range(n_train)]  # a small dataset: keep it in memory
+    held = [int(e["index"]) for e in ds.entries[n_train:]]
     g = torch.Generator().manual_seed(seed)
 
     def batches() -> Iterator[dict[str, torch.Tensor]]:
@@ -247,7 +253,7 @@ def train_on_synth(
     card = {
         "what": "first small SOLID-Net checkpoint, trained briefly: a smoke-level model, not an accurate one",
         "config": cfg.name,
-        "data": {"path": str(data), "samples": len(items), "generator": "solidkit synth dataset"},
+        "data": {"path": str(data), "samples": len(items), "held_out_indices": held, "generator": "solidkit synth dataset"},
         "steps": len(history),
         "batch_size": batch_size,
         "probes_per_sample": probes,
@@ -255,7 +261,7 @@ def train_on_synth(
         "teacher_geometry": True,
         "seconds": round(seconds, 1),
         "hardware": f"{platform.processor() or platform.machine()}, {os.cpu_count()} CPU cores (shared), {threads} torch thread(s)",
-        "torch": torch.__version__,
+        "torch": str(torch.__version__),
         "seed": seed,
         "loss_first": {k: round(v, 4) for k, v in history[0].items()},
         "loss_last10_mean": {k: round(sum(h[k] for h in last) / len(last), 4) for k in last[0]},
@@ -283,10 +289,11 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--lr", type=float, default=1e-3)
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--threads", type=int, default=1)
+    ap.add_argument("--holdout", type=int, default=0)
     a = ap.parse_args(argv)
     card = train_on_synth(
         a.data, a.out, preset(a.config), steps=a.steps, max_seconds=a.seconds, batch_size=a.batch_size,
-        probes=a.probes, lr=a.lr, seed=a.seed, threads=a.threads,
+        probes=a.probes, lr=a.lr, seed=a.seed, threads=a.threads, holdout=a.holdout,
     )
     print(json.dumps(card, indent=1))
 
