@@ -163,3 +163,32 @@ def test_fuzz_mutated_dng_header(real_data, edits, cut):
         return
     assert m.width > 0 and m.height > 0
     assert all(isinstance(w, str) and ":" in w for w in m.warnings)
+
+
+@pytest.mark.real
+def test_cli_capture_info(real_data, tmp_path, monkeypatch, capsys):
+    import json
+    import sys
+
+    from solidkit.cli import main
+
+    def run(*args: str) -> tuple[int, str, str]:
+        monkeypatch.setattr(sys, "argv", ["solidkit", *args])
+        try:
+            main()
+            code = 0
+        except SystemExit as exc:
+            code = int(exc.code or 0)
+        out = capsys.readouterr()
+        return code, out.out, out.err
+
+    code, out, _ = run("capture", "info", str(real_data / JOBSITE), "--json")
+    assert code == 0
+    data = json.loads(out.strip().splitlines()[-1])
+    assert data["image_type"] == "equirect" and data["pitch_deg"] == -0.5 and data["roll_deg"] == 0.7
+    code, out, _ = run("capture", "info", str(real_data / JOBSITE))
+    assert code == 0 and "RICOH THETA S" in out and "[roll, pitch]" in out
+    bad = tmp_path / "zero.jpg"
+    bad.write_bytes(b"")
+    code, _, err = run("capture", "info", str(bad))
+    assert code == 2 and "empty file" in err and "Traceback" not in err
