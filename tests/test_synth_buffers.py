@@ -171,3 +171,20 @@ def test_hdr_assets_present() -> None:
     assert len(files) >= 3
     img, _ = read_exr(files[0])
     assert img.shape[1] == 2 * img.shape[0]
+
+
+def test_firefly_suppression_keeps_the_sun() -> None:
+    from solidkit.synth.sample import sun_mask_panorama, suppress_fireflies
+
+    rng = np.random.default_rng(0)
+    img = (0.5 + 0.05 * rng.random((32, 64, 3))).astype(np.float32)
+    img[5, 7] = 500.0  # a firefly
+    img[0, 63] = 300.0  # another, on the seam
+    sun = np.asarray(direction_from_coords(np.float64(40.5), np.float64(10.5), 32))
+    img[10, 40] = 1e4  # the sun
+    out, n = suppress_fireflies(img, sun_mask_panorama(sun, np.eye(3), 32), 10.0, wrap=True)
+    assert n == 2 and out[10, 40, 0] == 1e4
+    assert np.all(out[5, 7] < 0.6) and np.all(out[0, 63] < 0.6)
+    untouched = np.ones((32, 64), bool)
+    untouched[5, 7] = untouched[0, 63] = False
+    assert np.array_equal(out[untouched], img[untouched])

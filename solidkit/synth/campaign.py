@@ -26,7 +26,9 @@ Radiometry: scene radiance ``L`` (relative units of :mod:`solidkit.synth.lightin
 sensor value ``x = K_SENSOR L t (ISO/100) / N^2`` (``K_SENSOR = 3500``: radiance 1 at 1/2500 s,
 f/2, ISO 100 gives 0.35), plus shot and read noise (``var = 1e-3 x + 2e-3^2``), clipped to [0, 1]
 (the sun saturates even at 1/25000 s, as on a real Theta), through the sRGB response,
-quantised to 8 bits and JPEG-compressed. The photo uses f/2.8, ISO 100 and an automatic
+quantised to 8 bits and JPEG-compressed. Renders go through
+:func:`solidkit.synth.sample.suppress_fireflies` first (the sun's own pixels protected): an
+isolated caustic would otherwise saturate even the 1/25000 s frame and pass for the sun. The photo uses f/2.8, ISO 100 and an automatic
 exposure putting the mean at 0.18.
 
 Frames (truth): the scene frame of :mod:`solidkit.synth.scene` (x east, y down, z north); a
@@ -56,7 +58,7 @@ from solidkit.fsutil import atomic_write_bytes, atomic_write_text
 from solidkit.synth.cameras import Camera, pinhole_sensor
 from solidkit.synth.exif import exif_app1, insert_app1
 from solidkit.synth.sample import (Generator, SampleConfig, derive_seed, pick_probe_pixels, render_buffers,
-                                   render_panorama, render_rgb)
+                                   render_panorama, render_rgb, sun_mask_image, sun_mask_panorama, suppress_fireflies)
 from solidkit.synth.scene import CATEGORIES, to_mitsuba
 
 __all__ = ["K_SENSOR", "CampaignConfig", "Shot", "ProbeTruth", "CaptureTruth", "PhotoTruth", "SceneTruth",
@@ -92,6 +94,7 @@ class CampaignConfig(BaseModel):
     p_sunsky: float = 0.7
     block_length: float = 60.0
     sun_attempts: int = 8
+    firefly_k: float = 10.0
 
 
 class Shot(BaseModel):
@@ -270,6 +273,7 @@ def generate_campaign(out: str | os.PathLike, scenes: int, probes: int, *, seed:
         # --- the photo
         hdr = render_rgb(scene, pinhole_sensor(cam, spp=cfg.photo_spp, seed=derive_seed(seed, s, 1)), cfg.photo_spp,
                          seed=derive_seed(seed, s, 1))
+        hdr, _ = suppress_fireflies(hdr, sun_mask_image(light.sun, cam, 6.0), cfg.firefly_k)
         f_number, iso = 2.8, 100
         mean = float(np.mean(hdr))
         t_photo = 0.18 * f_number**2 / (K_SENSOR * max(mean, 1e-9) * iso / 100.0)
@@ -316,6 +320,8 @@ def generate_campaign(out: str | os.PathLike, scenes: int, probes: int, *, seed:
             rec_heading = (math.degrees(yaw) + rng.normal(0.0, cfg.compass_noise_deg)) % 360.0
             pano = render_panorama(scene, pos, np.eye(3), cfg.pano_height, cfg.pano_spp,
                                    seed=derive_seed(seed, s, 100 + c))
+            pano, _ = suppress_fireflies(pano, sun_mask_panorama(light.sun, np.eye(3), cfg.pano_height, 2.0),
+                                         cfg.firefly_k, wrap=True)
             fish = fisheye_image(pano, Rb, profile)
             shots = []
             plan: list[tuple[float, int, str, float]] = []
@@ -337,6 +343,8 @@ def generate_campaign(out: str | os.PathLike, scenes: int, probes: int, *, seed:
             if info is not None:
                 local = render_panorama(scene, pos, cam.pano_rotation, cfg.probe_height, cfg.probe_spp,
                                         seed=derive_seed(seed, s, 200 + c))
+                local, _ = suppress_fireflies(local, sun_mask_panorama(light.sun, cam.pano_rotation, cfg.probe_height),
+                                              cfg.firefly_k, wrap=True)
                 write_exr(truth_dir / sid / f"{cid}.exr", local, {"scene": sid, "probe": cid, "frame": "photo panorama frame"})
                 probe = ProbeTruth(**info, hdr_file=f"truth/{sid}/{cid}.exr")
             sun_body = None if light.sun is None else (Rb.T @ light.sun).tolist()

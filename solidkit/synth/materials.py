@@ -58,7 +58,7 @@ _SPEC: list[tuple[str, str, float, float, float, bool, dict[str, str]]] = [
         "slate": "4e5258", "travertine": "c8b89a"}),
     ("panel", "facade", 0.4, 0.6, 3.2, True, {
         "white": "d8d8d8", "grey": "909498", "darkgrey": "4a4c50", "blue": "4a6a8a", "red": "8a3a32", "green": "4a6a50"}),
-    ("curtainglass", "facade", 0.08, 0.2, 3.2, True, {
+    ("curtainglass", "facade", 0.12, 0.2, 3.2, True, {
         "blue": "3a5068", "green": "3e5a50", "grey": "4a4e52", "bronze": "5a4a3a", "silver": "8a9098"}),
     ("woodclad", "facade", 0.7, 0.0, 3.2, True, {"light": "b89a70", "dark": "6a4a30", "cedar": "9a5a3a"}),
     ("tilefacade", "facade", 0.3, 0.0, 3.2, True, {"white": "e0e0dc", "beige": "d0c0a0", "blue": "6a8aaa", "green": "7a9a80"}),
@@ -157,5 +157,5 @@ def texture(mat: Material, rng: np.random.Generator, size: int = 64) -> tuple[np
         glass = rng.uniform(0.02, 0.08) * np.array([0.9, 1.0, 1.1])
         albedo = np.where((wx & wy)[..., None], glass[None, None, :], albedo)
         albedo = np.where(frame[..., None], 0.6 * albedo + 0.1, albedo)
-        rough = np.where(wx & wy, 0.03, rough)
+        rough = np.where(wx & wy, 0.1, rough)  # glossy, not mirror-like: mirror caustics of the sun are fireflies
     return np.clip(albedo, 0.0, 0.95).astype(np.float32), np.clip(rough, 0.02, 1.0).astype(np.float32)

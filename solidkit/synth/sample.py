@@ -64,6 +64,7 @@ class SampleConfig:
     probe_height: int = 128
     probe_spp: int = 32
     probe_offset_m: float = 0.10
+    firefly_k: float = 10.0
     border: float = 0.05
     candidates: int = 12
     min_categories: int = 3
@@ -144,6 +145,63 @@ def render_panorama(scene: Any, position: np.ndarray, rotation: np.ndarray, heig
     """HDR equirect ``(height, 2 height, 3)`` seen from ``position`` in the frame ``rotation`` (conventions §3)."""
     sensor = equirect_sensor(position, rotation, height, jitter=True, spp=spp, seed=seed)
     return render_rgb(scene, sensor, spp, max_depth=max_depth, seed=seed)
+
+
+def suppress_fireflies(img: np.ndarray, protect: np.ndarray | None = None, k: float = 10.0, *,
+                       wrap: bool = False) -> tuple[np.ndarray, int]:
+    """Replace isolated path-tracing outliers ("fireflies") by their 3x3 median; returns (image, count).
+
+    A pixel is an outlier when its luminance exceeds ``k`` times the median luminance of its
+    3x3 neighbourhood and 4 times the image mean. ``protect`` (bool ``(H, W)``) marks pixels
+    that may legitimately be isolated peaks (the directly seen sun). Plays the role of Cycles'
+    "clamp indirect" (Blender's default 10), which the paper's renderer had and Mitsuba's path
+    tracer lacks; rare near-specular caustics from the sun otherwise saturate even at 1/25000 s.
+    ``wrap`` treats the columns as periodic (panoramas). ``k <= 0`` disables.
+    """
+    from scipy.ndimage import median_filter
+
+    def median3(a: np.ndarray) -> np.ndarray:
+        if not wrap:
+            return median_filter(a, size=3, mode="nearest")
+        padded = np.concatenate([a[:, -1:], a, a[:, :1]], axis=1)  # periodic columns, clamped rows
+        return median_filter(padded, size=3, mode="nearest")[:, 1:-1]
+
+    if k <= 0:
+        return img, 0
+    lum = img[..., :3] @ np.array([0.2126, 0.7152, 0.0722], dtype=np.float32)
+    med_l = median3(lum)
+    bad = (lum > k * np.maximum(med_l, 1e-12)) & (lum > 4.0 * float(lum.mean()))
+    if protect is not None:
+        bad &= ~protect
+    n = int(bad.sum())
+    if n:
+        img = img.copy()
+        for c in range(img.shape[-1]):
+            med_c = median3(img[..., c])
+            img[..., c] = np.where(bad, med_c, img[..., c])
+    return img, n
+
+
+def sun_mask_panorama(sun: np.ndarray | None, rotation: np.ndarray, height: int, radius_deg: float = 3.0) -> np.ndarray | None:
+    """Pixels of a ``(height, 2 height)`` panorama in frame ``rotation`` within ``radius_deg`` of the sun."""
+    if sun is None:
+        return None
+    from solidkit.envmap import direction_grid
+
+    d = rotation.T @ np.asarray(sun, float)
+    return direction_grid(height) @ d > math.cos(math.radians(radius_deg))
+
+
+def sun_mask_image(sun: np.ndarray | None, cam: Camera, radius_px: float = 4.0) -> np.ndarray | None:
+    """Pixels of ``cam``'s image within ``radius_px`` of the projected sun (None when not in front)."""
+    if sun is None:
+        return None
+    d = cam.rotation.T @ np.asarray(sun, float)
+    if d[2] <= 0:
+        return None
+    u, v = (cam.K @ (d / d[2]))[:2]
+    y, x = np.mgrid[0 : cam.height, 0 : cam.width]
+    return (x - u) ** 2 + (y - v) ** 2 <= radius_px**2
 
 
 def pick_probe_pixels(hit: np.ndarray, rng: np.random.Generator, border: float = 0.05) -> list[dict[str, Any]]:
@@ -241,6 +299,7 @@ class Generator:
 
         t0 = time.perf_counter()
         hdr = render_rgb(scene, pinhole_sensor(cam, spp=cfg.spp, seed=sseed), cfg.spp, max_depth=cfg.max_depth, seed=sseed)
+        hdr, fireflies = suppress_fireflies(hdr, sun_mask_image(light.sun, cam), cfg.firefly_k)
         tm["image"] = time.perf_counter() - t0
         t0 = time.perf_counter()
         buf = render_buffers(scene, cam, spp=cfg.buffer_spp, seed=sseed + 1)
@@ -264,8 +323,12 @@ class Generator:
             p.update(point_scene=point.tolist(), normal_scene=n.tolist(), centre_scene=centre.tolist(),
                      point_camera=((point - cam.position) @ R).tolist(), depth=float(buf["depth"][y, x]),
                      category=CATEGORIES[block.category_of(np.array([buf["label"][y, x]]))[0]])
-            probe_imgs.append(render_panorama(scene, centre, cam.pano_rotation, cfg.probe_height, cfg.probe_spp,
-                                              max_depth=cfg.max_depth, seed=sseed + 10 + k))
+            img = render_panorama(scene, centre, cam.pano_rotation, cfg.probe_height, cfg.probe_spp,
+                                  max_depth=cfg.max_depth, seed=sseed + 10 + k)
+            img, n_ff = suppress_fireflies(img, sun_mask_panorama(light.sun, cam.pano_rotation, cfg.probe_height),
+                                           cfg.firefly_k, wrap=True)
+            fireflies += n_ff
+            probe_imgs.append(img)
         tm["probes"] = time.perf_counter() - t0
 
         t0 = time.perf_counter()
@@ -287,7 +350,7 @@ class Generator:
             "index": int(index), "seed": int(self.seed), "sample_seed": int(sseed), "block_seed": int(block.seed),
             "block_id": block_id, "sector": sector, "conventions_version": CONVENTIONS_VERSION,
             "camera": cam.to_json(), "view_selection": view_stats, "lighting": light.meta,
-            "sun": _sun_json(light.sun, cam), "probes": probes,
+            "sun": _sun_json(light.sun, cam), "probes": probes, "fireflies_suppressed": fireflies,
             "categories": list(CATEGORIES),
             "files": {k: v for k, v in FILES.items() if k != "meta"},
             "renderer": {"mitsuba": mi.__version__, "variant": variant(), **cfg.to_json()},
