@@ -109,7 +109,8 @@ def feather_weights(margin: np.ndarray, feather_deg: float) -> np.ndarray:
     w = np.empty_like(margin, dtype=np.float32)
     for i in range(L):
         others = np.max(np.delete(m, i, axis=0), axis=0)
-        diff = np.where(np.isfinite(others), m[i] - others, np.inf)
+        with np.errstate(invalid="ignore"):  # -inf - -inf where no lens sees: masked below
+            diff = np.where(np.isfinite(others), m[i] - others, np.inf)
         w[i] = np.where(valid[i], np.clip(0.5 + diff / (2 * f), 0.0, 1.0), 0.0)
     s = w.sum(axis=0)
     return np.where(s > 0, w / np.where(s > 0, s, 1), 0).astype(np.float32)
