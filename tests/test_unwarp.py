@@ -21,7 +21,6 @@ from solidkit.capture.metadata import CaptureMetadata, level_rotation
 from solidkit.capture.unwarp import clear_cache, get_maps, render_fisheye, unwarp
 from solidkit.envmap.coords import (
     angular_distance,
-    coords_from_direction,
     direction_from_angles,
     direction_grid,
     rotation_from_ypr,
