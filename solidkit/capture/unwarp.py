@@ -21,7 +21,13 @@ is rotated by ``R_level`` (:func:`solidkit.envmap.resample.rotate`); when no rot
 the pixels are passed through untouched (no resampling).
 
 Remap tables are cached per (profile, input size, output size, orientation): in memory (LRU of
-:data:`CACHE_SIZE` entries) and optionally on disk (``.npz`` named by a SHA-256 of the key).
+:data:`CACHE_SIZE` entries) and optionally on disk (``.npz`` named by a SHA-256 of the key), as
+OpenCV fixed-point maps (1/32 px, what ``cv2.remap`` uses internally for bilinear sampling).
+
+8-bit sRGB in and out (JPEG -> PNG/JPEG) takes :func:`unwarp_srgb8`: the same geometry, gains and
+feathering, but only the feather band is decoded to linear light and blended; elsewhere the one
+lens' sample gets its gain through an exact 8-bit table ``enc(g dec(v))``. It matches the float
+path within one code value (``tests/test_unwarp.py``) at a fraction of the memory traffic.
 """
 
 from __future__ import annotations
