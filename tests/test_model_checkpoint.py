@@ -136,6 +136,7 @@ def test_cli_predict_writes_exr_png_json(tiny_ckpt, tmp_path):
     report = json.loads((out / "prediction.json").read_text())
     assert set(report["sun"]) == {"found", "azimuth_deg", "elevation_deg", "confidence"}
     assert [p["pixel"] for p in report["probes"]] == [[100.0, 200.0], [250.0, 190.0]]
+    assert all(isinstance(p["geometry_valid"], bool) for p in report["probes"])
     sky, meta = read_exr(out / "sky.exr")
     assert sky.shape == (128, 256, 3) and meta["conventions_version"] == 1
 

@@ -46,13 +46,14 @@ def test_solidnet_shapes_and_dtypes(b):
         "warped_shadow": (b, 2, 1, 128, 256),
         "warped_mask": (b, 2, 1, 128, 256),
         "centres": (b, 2, 3),
+        "probe_valid": (b, 2),
         "local_log": (b, 2, 3, 128, 256),
         "local": (b, 2, 3, 128, 256),
     }
     assert set(out) == set(expect)
     for k, shape in expect.items():
         assert tuple(out[k].shape) == shape, k
-        assert out[k].dtype == torch.float32, k
+        assert out[k].dtype == (torch.bool if k == "probe_valid" else torch.float32), k
         assert torch.isfinite(out[k]).all(), k
     assert ((out["albedo"] >= 0) & (out["albedo"] <= 1)).all()
     assert torch.allclose(out["normal"].norm(dim=1), torch.ones(b, 240, 320), atol=1e-4)

@@ -79,13 +79,13 @@ def predict_command(
     write_exr(out / "sky.exr", pred.sky, {**meta, "kind": "global sky H_g"})
     write_ldr(out / "sky.png", tonemap(pred.sky))
     probes = []
-    for i, (local, px, centre) in enumerate(zip(pred.local, pred.pixels, pred.centres)):
+    for i, (local, px, centre, ok) in enumerate(zip(pred.local, pred.pixels, pred.centres, pred.extra["probe_valid"])):
         name = f"local_{i:02d}"
         write_exr(out / f"{name}.exr", local, {**meta, "kind": "local H_l", "pixel": px.tolist()})
         write_ldr(out / f"{name}.png", tonemap(local))
         probes.append(
             {"pixel": [float(px[0]), float(px[1])], "centre_m": [round(float(c), 4) for c in centre],
-             "exr": f"{name}.exr", "png": f"{name}.png"}
+             "geometry_valid": bool(ok), "exr": f"{name}.exr", "png": f"{name}.png"}
         )
     report = {
         "image": str(image),

@@ -46,7 +46,7 @@ from solidkit.fsutil import atomic_write_bytes
 from solidkit.model.config import ConfigError, SolidNetConfig, preset
 from solidkit.model.inet import INet
 from solidkit.model.pnet import PNet, pnet_input
-from solidkit.model.warp import camera_rotation, warp_to_probes
+from solidkit.model.warp import camera_rotation, points_from_plane_distance, sample_at_pixels, warp_to_probes
 
 __all__ = [
     "CHECKPOINT_FORMAT",
@@ -108,7 +108,9 @@ class SolidNet(nn.Module):
 
         Returns I-Net's outputs (see :class:`INet`) plus ``rotation (B, 3, 3)`` and, with pixels,
         ``warped_image (B, N, 3, H, 2H)``, ``warped_mask``, ``warped_shadow`` (``(B, N, 1, H, 2H)``),
-        ``centres (B, N, 3)`` (metres, panorama frame), ``local_log`` and ``local`` (``(B, N, 3, H, 2H)``).
+        ``centres (B, N, 3)`` (metres, panorama frame), ``probe_valid (B, N)`` bool (the geometry at the
+        probe pixel faces the camera; otherwise the centre is only ``offset`` from the camera), ``local_log``
+        and ``local`` (``(B, N, 3, H, 2H)``).
         """
         b = image.shape[0]
         zeros = image.new_zeros(b)
@@ -126,6 +128,7 @@ class SolidNet(nn.Module):
         warped, mask, centres = warp_to_probes(
             values, geo["normal"], geo["distance"], K.to(image), pixels, pitch, roll, h, self.config.probe_offset
         )
+        _, valid = points_from_plane_distance(geo["normal"], geo["distance"], K.to(image))
         n = pixels.shape[1]
         flat = warped.reshape(b * n, 4, h, 2 * h)
         x = pnet_input(
@@ -142,6 +145,7 @@ class SolidNet(nn.Module):
             warped_shadow=warped[:, :, 3:],
             warped_mask=mask,
             centres=centres,
+            probe_valid=sample_at_pixels(valid.to(image.dtype), pixels)[..., 0] > 0.5,
             local_log=local["local_log"].view(b, n, 3, h, 2 * h),
             local=local["local"].view(b, n, 3, h, 2 * h),
         )
@@ -198,7 +202,8 @@ class SolidNet(nn.Module):
         -------
         Prediction with ``sky (Hp, 2Hp, 3)`` and ``local`` (list of ``(Hp, 2Hp, 3)``) as float32
         linear radiance (channels last), ``sun`` (a SunDetection in the panorama frame) and the
-        probe ``centres (N, 3)`` in metres.
+        probe ``centres (N, 3)`` in metres; ``extra["probe_valid"]`` flags probes whose predicted
+        geometry was usable (a pixel on the sky is not).
         """
         from solidkit.envmap.io import read_ldr
         from solidkit.envmap.sun import detect_sun
@@ -246,6 +251,7 @@ class SolidNet(nn.Module):
             local=local,
             pixels=pix,
             centres=out["centres"][0].cpu().numpy(),
+            extra={"probe_valid": out["probe_valid"][0].cpu().numpy().tolist()},
         )
 
 
