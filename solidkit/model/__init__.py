@@ -8,37 +8,43 @@ Quick use::
 
 HDR outputs are parameterised as ``y = log1p(H)`` (radiance ``H = expm1(y)``); see
 :data:`solidkit.model.blocks.HDR_PARAMETERISATION`.
+
+The names below are imported lazily (on first access), so that ``solidkit --help`` and the
+``predict`` command's option parsing do not pay for importing torch and kornia.
 """
 
-from solidkit.model.blocks import HDR_PARAMETERISATION, log_from_radiance, radiance_from_log
-from solidkit.model.config import PNET_INPUTS, ConfigError, SolidNetConfig, preset
-from solidkit.model.inet import INet
-from solidkit.model.pnet import PNet
-from solidkit.model.solidnet import (
-    DEFAULT_CHECKPOINT,
-    CheckpointError,
-    Prediction,
-    SolidNet,
-    default_intrinsics,
-    load_checkpoint,
-    save_checkpoint,
-)
+from __future__ import annotations
 
-__all__ = [
-    "HDR_PARAMETERISATION",
-    "PNET_INPUTS",
-    "ConfigError",
-    "CheckpointError",
-    "DEFAULT_CHECKPOINT",
-    "INet",
-    "PNet",
-    "Prediction",
-    "SolidNet",
-    "SolidNetConfig",
-    "default_intrinsics",
-    "load_checkpoint",
-    "log_from_radiance",
-    "preset",
-    "radiance_from_log",
-    "save_checkpoint",
-]
+import importlib
+from typing import Any
+
+_EXPORTS = {
+    "HDR_PARAMETERISATION": "blocks",
+    "log_from_radiance": "blocks",
+    "radiance_from_log": "blocks",
+    "PNET_INPUTS": "config",
+    "ConfigError": "config",
+    "SolidNetConfig": "config",
+    "preset": "config",
+    "INet": "inet",
+    "PNet": "pnet",
+    "DEFAULT_CHECKPOINT": "solidnet",
+    "CheckpointError": "solidnet",
+    "Prediction": "solidnet",
+    "SolidNet": "solidnet",
+    "default_intrinsics": "solidnet",
+    "load_checkpoint": "solidnet",
+    "save_checkpoint": "solidnet",
+}
+
+__all__ = sorted(_EXPORTS)
+
+
+def __getattr__(name: str) -> Any:
+    if name in _EXPORTS:
+        return getattr(importlib.import_module(f"solidkit.model.{_EXPORTS[name]}"), name)
+    raise AttributeError(f"module 'solidkit.model' has no attribute {name!r}")
+
+
+def __dir__() -> list[str]:
+    return sorted(set(globals()) | set(_EXPORTS))

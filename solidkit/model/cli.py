@@ -21,7 +21,6 @@ from solidkit.envmap.coords import CONVENTIONS_VERSION
 from solidkit.envmap.io import read_ldr, tonemap, write_exr, write_ldr
 from solidkit.errors import InputError
 from solidkit.fsutil import atomic_write_text
-from solidkit.model.blocks import HDR_PARAMETERISATION
 
 __all__ = ["predict_command", "parse_pixel"]
 
@@ -63,6 +62,7 @@ def predict_command(
     roll: float = typer.Option(0.0, help="Camera roll in degrees (positive = right side down)."),
 ) -> None:
     """Predict the global HDR sky, its sun direction and a local HDR panorama at each --at pixel."""
+    from solidkit.model.blocks import HDR_PARAMETERISATION
     from solidkit.model.solidnet import SolidNet, default_intrinsics
 
     pixels = [parse_pixel(a) for a in at]
