@@ -9,7 +9,10 @@ Steps (each writes its product into ``OUT`` and a line into ``summary.json``):
 4. resize to the model's 256x128 with the energy-preserving resampler (integral kept);
 5. project onto the paper's second-order SH basis and compare the diffuse convolution D(H)
    with the SH prediction (the quantity the paper's L_dif ties together);
-6. a report figure (``report.png``) with the tonemapped panorama, sun markers, photo and D(H).
+6. run the shipped SOLID-Net checkpoint on the virtual photo (its LDR = the paper's tonemap) at
+   two ground pixels: predicted global sky, its sun and two local probes, with the sun's angular
+   error against the panorama's own sun (the shipped checkpoint is smoke-level: see its card);
+7. a report figure (``report.png``) with the tonemapped panorama, sun markers, photo and D(H).
 """
 
 from __future__ import annotations
@@ -83,21 +86,49 @@ def run_demo(out: Path, pano_path: Path = DEFAULT_PANORAMA, log: Any = print) ->
     summary["sh"] = {"coefficients": np.asarray(L).tolist(), "D_vs_sh_mean_rel_error": rel}
     log(f"diffuse convolution D(H) vs order-2 SH prediction: mean rel. error {rel:.3f}")
 
-    _figure(out / "report.png", small, core, paper, photo, D)
+    summary["model"] = _predict(out, tonemap(photo), K, yaw, core, log)
+    predicted_sky, _ = read_image(out / "predicted_sky.exr")
+
+    _figure(out / "report.png", small, core, paper, photo, D, predicted_sky)
     summary["outputs"] = sorted(p.name for p in out.iterdir() if not p.name.startswith("."))
     atomic_write_text(out / "summary.json", json.dumps(summary, indent=2))
     log(f"wrote {len(summary['outputs']) + 1} files to {out}")
     return summary
 
 
-def _figure(path: Path, pano: np.ndarray, core: Any, paper: Any, photo: np.ndarray, D: np.ndarray) -> None:
+def _predict(out: Path, ldr: np.ndarray, K: np.ndarray, yaw: float, sun: Any, log: Any) -> dict[str, Any]:
+    from solidkit.model import SolidNet
+
+    net = SolidNet.from_checkpoint()
+    w, h = PHOTO_SIZE
+    pixels = [(w * 0.3, h * 0.85), (w * 0.7, h * 0.85)]
+    pred = net.predict(ldr, pixels, K=K, pitch=math.radians(PHOTO_PITCH_DEG))
+    write_exr(out / "predicted_sky.exr", pred.sky)
+    write_ldr(out / "predicted_sky.png", tonemap(pred.sky))
+    for i, local in enumerate(pred.local):
+        write_exr(out / f"predicted_local_{i}.exr", local)
+        write_ldr(out / f"predicted_local_{i}.png", tonemap(local))
+    result: dict[str, Any] = {"pixels": [list(p) for p in pixels], "sun": pred.sun.to_json()}
+    if sun.found and pred.sun.found:
+        # the photo's panorama frame is the original one turned by the photo's yaw
+        truth = rotation_from_ypr(yaw).T @ sun.direction
+        result["sun_error_deg"] = math.degrees(float(angular_distance(truth, pred.sun.direction)))
+    log(f"SOLID-Net (shipped smoke-level checkpoint): sun {json.dumps(pred.sun.to_json())}"
+        + (f", error {result['sun_error_deg']:.1f}°" if "sun_error_deg" in result else ""))
+    return result
+
+
+def _figure(
+    path: Path, pano: np.ndarray, core: Any, paper: Any, photo: np.ndarray, D: np.ndarray, sky: np.ndarray
+) -> None:
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
     h = pano.shape[0]
-    fig, axes = plt.subplots(1, 3, figsize=(15, 3.4), gridspec_kw={"width_ratios": [2, 1.33, 2]})
+    fig, axes = plt.subplots(2, 2, figsize=(12, 6.4))
+    axes = axes.ravel()
     axes[0].imshow(tonemap(pano), extent=(-180, 180, -90, 90))
     for det, colour, name in ((core, "lime", "core"), (paper, "magenta", "paper")):
         if det.found:
@@ -108,6 +139,8 @@ def _figure(path: Path, pano: np.ndarray, core: Any, paper: Any, photo: np.ndarr
     axes[1].set(title="virtual 320x240 photo", xticks=[], yticks=[])
     axes[2].imshow(tonemap(D / max(float(D.max()), 1e-12)), extent=(-180, 180, -90, 90))
     axes[2].set(title="diffuse convolution D(H) (normalised)", xlabel="azimuth [°]")
+    axes[3].imshow(tonemap(sky), extent=(-180, 180, -90, 90))
+    axes[3].set(title="SOLID-Net sky from the photo (shipped smoke-level checkpoint)", xlabel="azimuth [°]")
     fig.tight_layout()
     with atomic_path(path) as tmp:
         fig.savefig(tmp, dpi=90)

@@ -14,5 +14,6 @@ def test_demo_end_to_end(tmp_path):
     assert summary["resize"]["max_rel_error"] < 1e-6
     assert 0 < summary["photo"]["panorama_coverage"] < 0.1
     assert summary["sh"]["D_vs_sh_mean_rel_error"] < 0.1
-    for name in ("report.png", "photo.png", "photo.exr", "panorama_256x128.exr", "diffuse_convolution.exr"):
+    assert len(summary["model"]["pixels"]) == 2 and "found" in summary["model"]["sun"]
+    for name in ("predicted_sky.exr", "predicted_local_0.exr", "predicted_local_1.png", "report.png", "photo.png", "photo.exr", "panorama_256x128.exr", "diffuse_convolution.exr"):
         assert (tmp_path / name).stat().st_size > 0
