@@ -24,8 +24,9 @@ from solidkit.calibration.camera import (
     resize_crop,
     scale_intrinsics,
 )
-from solidkit.calibration.exif import ExifInfo, read_exif
 from solidkit.calibration.profile import load_profile
+from solidkit.capture.metadata import CaptureMetadata, read_metadata
+from solidkit.errors import InputError
 
 
 def test_scale_keeps_ideal_centre_and_composes():
@@ -76,23 +77,27 @@ def test_projected_point_stays_on_same_pixel_after_resize_crop(size):
     assert box3 == box
 
 
+def _meta(**fields) -> CaptureMetadata:
+    return CaptureMetadata(path="photo.jpg", **fields)
+
+
 def test_fov_and_exif_routes(tmp_path):
     K = intrinsics_from_fov(640, 480, math.radians(90))
     assert K[0, 0] == pytest.approx(320) and K[0, 2] == pytest.approx(319.5)
     with pytest.raises(IntrinsicsError):
         intrinsics_from_fov(640, 480, math.radians(180))
     # focal-plane resolution (px/inch) recorded for a 4000-px-wide image, file resized to 2000
-    info = ExifInfo(width=2000, height=1500, focal_length_mm=4.0, focal_plane_px_per_mm=(800.0, 800.0), exif_width=4000)
+    info = _meta(width=2000, height=1500, focal_length_mm=4.0, focal_plane_px_per_mm=(800.0, 800.0), exif_width=4000)
     K, src = intrinsics_from_exif(info)
     assert src == "exif-focal-plane" and K[0, 0] == pytest.approx(4.0 * 800 / 2)
-    info = ExifInfo(model="Canon EOS 5D Mark II", width=640, height=426, focal_length_mm=16.0)
+    info = _meta(model="Canon EOS 5D Mark II", width=640, height=426, focal_length_mm=16.0)
     K, src = intrinsics_from_exif(info)
     assert src == "exif-sensor-table" and K[0, 0] == pytest.approx(16 * 640 / 36)
-    info = ExifInfo(model="unknown phone", width=4000, height=3000, focal_length_mm=4.0, focal_length_35mm=26.0)
+    info = _meta(model="unknown phone", width=4000, height=3000, focal_length_mm=4.0, focal_length_35mm=26.0)
     K, src = intrinsics_from_exif(info)
     assert src == "exif-35mm" and K[0, 0] == pytest.approx(26 * 5000 / math.hypot(36, 24))
     with pytest.raises(IntrinsicsError, match="sensor size"):
-        intrinsics_from_exif(ExifInfo(model="unknown", width=10, height=10, focal_length_mm=4.0))
+        intrinsics_from_exif(_meta(model="unknown", width=10, height=10, focal_length_mm=4.0))
 
 
 def test_exif_photo_profile_written_by_pillow(tmp_path):
@@ -105,8 +110,9 @@ def test_exif_photo_profile_written_by_pillow(tmp_path):
     sub[0xA20F] = 2540.0
     sub[0xA210] = 2  # inches
     Image.new("RGB", (400, 300)).save(p, exif=exif)
-    info = read_exif(p)
+    info = read_metadata(p)
     assert info.model == "Test Cam" and info.focal_plane_px_per_mm == pytest.approx((100.0, 100.0))
+    assert info.focal_length_mm == pytest.approx(5.0) and not any("focal" in w for w in info.warnings)
     prof = calibrate_camera_from_photo(p)
     assert prof.source == "exif-focal-plane" and prof.matrix()[0, 0] == pytest.approx(500.0)
     assert prof.model_input_size == (320, 240) and prof.matrix(True)[0, 0] == pytest.approx(400.0)
@@ -114,6 +120,12 @@ def test_exif_photo_profile_written_by_pillow(tmp_path):
     back = load_profile(prof.save(tmp_path / "camera.json"))
     assert isinstance(back, CameraProfile) and back.K == prof.K
     assert calibrate_camera_from_photo(p, fov_deg=60).source == "fov"
+    png = tmp_path / "crop.png"  # no EXIF container: only the FOV route applies
+    Image.new("RGB", (320, 240)).save(png)
+    prof = calibrate_camera_from_photo(png, fov_deg=90)
+    assert prof.image_size == (320, 240) and prof.matrix()[0, 0] == pytest.approx(160.0)
+    with pytest.raises(InputError, match="not a JPEG"):
+        calibrate_camera_from_photo(png)
 
 
 def _pinhole_rays(K):

@@ -82,6 +82,36 @@ def test_bad_files(tmp_path, real_data):
         read_metadata(trunc)
 
 
+def _pillow_jpeg(path, **sub_tags) -> None:
+    from PIL import Image
+
+    exif = Image.Exif()
+    exif[0x0110] = "Test Cam"  # Model
+    sub = exif.get_ifd(0x8769)
+    for tag, val in sub_tags.items():
+        sub[int(tag[1:], 16)] = val
+    Image.new("RGB", (400, 300)).save(path, exif=exif)
+
+
+def test_focal_geometry(tmp_path):
+    """FocalLength, FocalLengthIn35mmFilm, FocalPlaneX/YResolution (per unit) and PixelX/YDimension."""
+    p = tmp_path / "a.jpg"
+    # 5 mm lens; 2540 px/inch = 100 px/mm; (floats are written by Pillow as DOUBLE: exifread 1-tuples)
+    _pillow_jpeg(p, x920A=5.0, xA405=26, xA20E=2540.0, xA20F=1270.0, xA210=2, xA002=4000, xA003=3000, x829A=0.01)
+    m = read_metadata(p)
+    assert m.focal_length_mm == pytest.approx(5.0) and m.focal_length_35mm == pytest.approx(26.0)
+    assert m.focal_plane_px_per_mm == pytest.approx((100.0, 50.0))
+    assert (m.exif_width, m.exif_height) == (4000, 3000) and m.exposure_time == pytest.approx(0.01)
+    assert m.warnings == []
+    _pillow_jpeg(p, x920A=5.0, xA20E=300.0, xA210=3)  # px per cm; Y resolution absent -> X
+    assert read_metadata(p).focal_plane_px_per_mm == pytest.approx((30.0, 30.0))
+    _pillow_jpeg(p, x920A=0.0, xA20E=300.0, xA210=1)  # zero focal length; unit "none"
+    m = read_metadata(p)
+    assert m.focal_length_mm is None and m.focal_plane_px_per_mm is None
+    assert any(w.startswith("bad_focal_length") for w in m.warnings)
+    assert any(w.startswith("bad_focal_plane_unit") for w in m.warnings)
+
+
 @pytest.mark.real
 def test_dng_renamed_jpg_and_non_ricoh(tmp_path, real_data):
     dng = tmp_path / "shot.jpg"
@@ -141,8 +171,9 @@ def test_fuzz_mutated_real_header(real_data, edits, cut, hot):
     except InputError:
         return
     assert isinstance(m, CaptureMetadata) and m.width > 0 and m.height > 0
-    for v in (m.exposure_time, m.f_number, m.iso):
+    for v in (m.exposure_time, m.f_number, m.iso, m.focal_length_mm, m.focal_length_35mm, m.exif_width, m.exif_height):
         assert v is None or (math.isfinite(v) and v > 0)
+    assert m.focal_plane_px_per_mm is None or all(math.isfinite(v) and v > 0 for v in m.focal_plane_px_per_mm)
     assert m.gravity is None or abs(np.linalg.norm(m.gravity) - 1) < 1e-6
     assert all(isinstance(w, str) and ":" in w for w in m.warnings)
 

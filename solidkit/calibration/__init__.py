@@ -9,6 +9,8 @@ Modules (imported on demand; each profile is a versioned JSON file with provenan
 - :mod:`~solidkit.calibration.fisheye` — fisheye intrinsics (Kannala-Brandt, Mei), exported to the
   lens-profile format of :mod:`solidkit.capture.lens`;
 - :mod:`~solidkit.calibration.vignetting` — radial falloff per lens (flat field or lens overlap);
-- :mod:`~solidkit.calibration.boards` — checkerboard detection with view rejection, synthetic rendering;
-- :mod:`~solidkit.calibration.exif` — the EXIF fields calibration needs.
+- :mod:`~solidkit.calibration.boards` — checkerboard detection with view rejection, synthetic rendering.
+
+EXIF (exposure times, focal geometry) is read by :func:`solidkit.capture.metadata.read_metadata`,
+the package's one EXIF reader.
 """

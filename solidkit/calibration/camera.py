@@ -28,8 +28,8 @@ import numpy as np
 from pydantic import Field
 
 from solidkit.calibration.boards import BoardView, detect_views
-from solidkit.calibration.exif import ExifInfo, read_exif
 from solidkit.calibration.profile import Profile, make_provenance
+from solidkit.capture.metadata import CaptureMetadata, read_metadata
 from solidkit.errors import InputError, SolidkitError
 
 __all__ = [
@@ -106,8 +106,12 @@ def intrinsics_from_fov(width: int, height: int, hfov: float) -> np.ndarray:
     return ideal_intrinsics(width, height, (width / 2.0) / math.tan(hfov / 2.0))
 
 
-def intrinsics_from_exif(info: ExifInfo, sensor_width_mm: float | None = None) -> tuple[np.ndarray, str]:
+def intrinsics_from_exif(info: CaptureMetadata, sensor_width_mm: float | None = None) -> tuple[np.ndarray, str]:
     """K from EXIF focal geometry (square pixels, centred principal point); returns ``(K, source)``.
+
+    ``info``: the photo's metadata (:func:`solidkit.capture.metadata.read_metadata`; its
+    ``focal_length_mm``, ``focal_plane_px_per_mm``, ``exif_width``, ``focal_length_35mm``,
+    ``make``/``model`` and image size).
 
     ``sensor_width_mm`` overrides the table lookup. Raises :class:`IntrinsicsError` when no
     route applies (no focal length, no focal-plane resolution, unknown model, no 35 mm value).
@@ -245,12 +249,30 @@ def _profile(K, size, source, inputs, residuals, dist=(), model=None, **params) 
     )
 
 
+_EXIF_USED = {"make", "model", "width", "height", "exposure_time", "f_number", "iso", "focal_length_mm",
+              "focal_length_35mm", "focal_plane_px_per_mm", "exif_width", "exif_height"}
+
+
+def _size_only(photo: Path) -> CaptureMetadata:
+    """Metadata with only the image size, for a non-JPEG/TIFF photo whose K comes from a FOV."""
+    img = cv2.imread(str(photo), cv2.IMREAD_UNCHANGED)
+    if img is None:
+        raise InputError(f"{photo}: not a readable image")
+    return CaptureMetadata(path=str(photo), width=img.shape[1], height=img.shape[0],
+                           warnings=["no_exif: not a JPEG or TIFF/DNG file"])
+
+
 def calibrate_camera_from_photo(
     photo: str | os.PathLike, sensor_width_mm: float | None = None, fov_deg: float | None = None,
 ) -> CameraProfile:
     """Camera profile of one photo from its EXIF (or a given horizontal FOV in degrees)."""
     photo = Path(photo)
-    info = read_exif(photo)
+    try:
+        info = read_metadata(photo)
+    except InputError:
+        if fov_deg is None or not photo.is_file():
+            raise
+        info = _size_only(photo)  # e.g. a PNG perspective crop: no EXIF, K from the given FOV
     if fov_deg is None and info.width == 2 * info.height and "THETA" in (info.model or "").upper():
         raise IntrinsicsError(
             f"{photo}: a {info.model} equirectangular panorama has no pinhole K; for a perspective crop of it give --fov-deg"
@@ -259,7 +281,7 @@ def calibrate_camera_from_photo(
         K, source = intrinsics_from_fov(info.width, info.height, math.radians(fov_deg)), "fov"
     else:
         K, source = intrinsics_from_exif(info, sensor_width_mm)
-    exif_used = {k: v for k, v in info.to_dict().items() if v is not None}
+    exif_used = {k: v for k, v in info.model_dump(include=_EXIF_USED).items() if v is not None}
     return _profile(K, (info.width, info.height), source, [photo], {"exif": exif_used}, model=info.model,
                     sensor_width_mm=sensor_width_mm, fov_deg=fov_deg)
 

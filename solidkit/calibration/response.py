@@ -26,8 +26,8 @@ import cv2
 import numpy as np
 from pydantic import Field
 
-from solidkit.calibration.exif import read_exif
 from solidkit.calibration.profile import Profile, make_provenance
+from solidkit.capture.metadata import read_metadata
 from solidkit.errors import InputError, SolidkitError
 
 __all__ = [
@@ -86,7 +86,10 @@ def read_brackets(paths: Sequence[str | os.PathLike], times: Sequence[float] | N
             raise InputError(f"{p}: not a readable 8-bit image")
         images.append(np.ascontiguousarray(img[..., ::-1]))
         if times is None:
-            t = read_exif(p).exposure_time_s
+            try:
+                t = read_metadata(p).exposure_time
+            except InputError:  # readable by OpenCV but not a JPEG/TIFF (e.g. PNG): no EXIF
+                t = None
             if t is None:
                 raise ResponseError(f"{p}: no EXIF ExposureTime; pass the exposure times explicitly")
             ts.append(t)

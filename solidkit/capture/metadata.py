@@ -1,5 +1,9 @@
 """Capture metadata of Ricoh Theta (and other) JPEG and DNG files: EXIF, GPS, GPano XMP, Ricoh maker note.
 
+This is solidkit's one EXIF reader: capture (grouping, merging, levelling) and calibration
+(exposure times of response brackets, a photo's focal geometry for its intrinsics K) both use
+:func:`read_metadata`.
+
 Standard EXIF and GPS fields are read with ``exifread``; the GPano XMP packet is parsed with
 the standard library's XML parser; the Ricoh maker note ("RICOH THETA IFD", which no Python
 library decodes) is read by the small bounds-checked TIFF-IFD reader in this module.
@@ -95,6 +99,13 @@ class CaptureMetadata(BaseModel):
     exposure_time: float | None = Field(None, description="seconds")
     f_number: float | None = None
     iso: float | None = None
+    focal_length_mm: float | None = Field(None, description="EXIF FocalLength (actual, not 35 mm-equivalent), mm")
+    focal_length_35mm: float | None = Field(None, description="EXIF FocalLengthIn35mmFilm, mm")
+    focal_plane_px_per_mm: tuple[float, float] | None = Field(
+        None, description="EXIF FocalPlaneX/YResolution in pixels per mm on the sensor (for exif_width/height)"
+    )
+    exif_width: int | None = Field(None, description="EXIF PixelXDimension: the width the camera recorded")
+    exif_height: int | None = Field(None, description="EXIF PixelYDimension")
     datetime_original: _dt.datetime | None = Field(None, description="naive, camera clock")
     utc_offset: str | None = Field(None, description="e.g. '+09:00', as recorded")
     gps: dict | None = Field(None, description="lat_deg, lon_deg (signed), alt_m (may be None)")
@@ -306,10 +317,41 @@ def _exifread_tags(data: bytes, warnings: list[str]) -> dict[str, Any]:
 def _ratio(tag: Any) -> list[float]:
     out = []
     for v in getattr(tag, "values", []) or []:
+        if isinstance(v, tuple):  # exifread returns FLOAT/DOUBLE values as 1-tuples (e.g. Pillow-written EXIF)
+            v = v[0] if len(v) == 1 else math.nan
         if hasattr(v, "num"):
             out.append(v.num / v.den if v.den else math.nan)
         else:
             out.append(float(v))
+    return out
+
+
+#: EXIF FocalPlaneResolutionUnit -> millimetres per unit (1: no unit; 2: inch, the EXIF default;
+#: 3: cm; 4: mm and 5: µm as some writers use).
+_FOCAL_PLANE_UNIT_MM = {2: 25.4, 3: 10.0, 4: 1.0, 5: 0.001}
+
+
+def _focal_geometry(tags: dict, warnings: list[str]) -> dict[str, Any]:
+    """Focal length (mm), its 35 mm equivalent, focal-plane resolution (px/mm) and the recorded size."""
+    out: dict[str, Any] = {
+        "focal_length_mm": _first_number(tags, ("EXIF FocalLength",), "focal_length", warnings),
+        "focal_length_35mm": _first_number(tags, ("EXIF FocalLengthIn35mmFilm",), "focal_length_35mm", warnings),
+    }
+    for key, name in (("EXIF ExifImageWidth", "exif_width"), ("EXIF ExifImageLength", "exif_height")):
+        v = _first_number(tags, (key,), name, warnings)
+        out[name] = int(v) if v is not None and v < 2**31 and v == int(v) else None
+        if v is not None and out[name] is None:
+            warnings.append(f"bad_{name}: {v!r}")
+    xres = _first_number(tags, ("EXIF FocalPlaneXResolution",), "focal_plane_resolution", warnings)
+    yres = _first_number(tags, ("EXIF FocalPlaneYResolution",), "focal_plane_resolution", warnings)
+    unit = _first_number(tags, ("EXIF FocalPlaneResolutionUnit",), "focal_plane_unit", warnings) or 2.0
+    mm = _FOCAL_PLANE_UNIT_MM.get(int(unit)) if unit == int(unit) else None
+    out["focal_plane_px_per_mm"] = None
+    if xres is not None:
+        if mm is None:
+            warnings.append(f"bad_focal_plane_unit: {unit!r} (no physical unit; focal-plane resolution ignored)")
+        else:
+            out["focal_plane_px_per_mm"] = (xres / mm, (yres or xres) / mm)
     return out
 
 
@@ -557,6 +599,7 @@ def _read_metadata_bytes(data: bytes, name: str) -> CaptureMetadata:
             warnings.append("exposure_from_apex: ExposureTime missing, used ShutterSpeedValue")
     meta["f_number"] = _first_number(tags, ("EXIF FNumber",), "f_number", warnings)
     meta["iso"] = _first_number(tags, ("EXIF ISOSpeedRatings", "EXIF PhotographicSensitivity"), "iso", warnings)
+    meta.update(_focal_geometry(tags, warnings))
     if tiff is not None and meta["exposure_time"] is None:
         warnings.append("no_exposure_time: EXIF ExposureTime absent or invalid")
     dt_text = _text(tags, "EXIF DateTimeOriginal") or _text(tags, "Image DateTime")
