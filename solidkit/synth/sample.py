@@ -1,6 +1,6 @@
 """One SOLID-Img-style sample: HDR/LDR image, intrinsic buffers, global map and 4 local probes.
 
-Buffers (all ``(H, W)`` or ``(H, W, 3)`` float32, 0 on sky pixels; paper §3.1):
+Buffers (all ``(H, W)`` or ``(H, W, 3)`` float32, 0 on sky pixels except ``shadow`` = 1; paper §3.1):
 
 - ``albedo``: diffuse albedo (``BSDF.eval_diffuse_reflectance``), linear RGB;
 - ``normal``: unit surface normal facing the camera, **camera frame** (x right, y down, z forward);
