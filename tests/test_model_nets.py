@@ -13,12 +13,7 @@ from solidkit.model.solidnet import SolidNet
 from solidkit.model.train import fit, toy_batch
 
 
-@pytest.fixture(autouse=True)
-def _one_thread():
-    n = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(n)
+pytestmark = pytest.mark.usefixtures("torch_one_thread")
 
 
 def _batch(cfg, b, n=2, seed=0):

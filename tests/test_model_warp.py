@@ -21,12 +21,7 @@ from solidkit.model.warp import (
 )
 
 
-@pytest.fixture(autouse=True)
-def _one_thread():
-    n = torch.get_num_threads()
-    torch.set_num_threads(1)
-    yield
-    torch.set_num_threads(n)
+pytestmark = pytest.mark.usefixtures("torch_one_thread")
 
 
 def _analytic_pixel(d: np.ndarray, height: int) -> tuple[float, float]:
