@@ -110,12 +110,14 @@ def unwarp(
     level: bool = typer.Option(True, "--level/--no-level", help="Apply the metadata's gravity (pitch/roll) so the horizon is level."),
     gain: bool = typer.Option(True, "--gain/--no-gain", help="Match the lenses' gains on the overlap (linear light)."),
     cache_dir: Path | None = typer.Option(None, "--cache-dir", help="Also cache remap tables on disk here."),
+    vignetting: Path | None = typer.Option(None, "--vignetting", help="Vignetting profile (solidkit calibrate vignetting): each lens divided by its falloff before gain matching and blending."),
     as_json: bool = typer.Option(False, "--json", help="Print the summary as JSON."),
 ) -> None:
     """Dual-fisheye -> equirectangular panorama in the panorama frame (docs/conventions.md)."""
     from solidkit.capture.unwarp import unwarp_file
 
-    s = unwarp_file(src, out, profile=profile, size=size, feather_deg=feather, level=level, gain_match=gain, cache_dir=cache_dir)
+    s = unwarp_file(src, out, profile=profile, size=size, feather_deg=feather, level=level, gain_match=gain,
+                    cache_dir=cache_dir, vignetting=vignetting)
     if as_json:
         typer.echo(json.dumps(s, indent=1, default=str))
         return
@@ -123,6 +125,7 @@ def unwarp(
     table.add_row("mode", escape(s["mode"]))
     if "profile" in s:
         table.add_row("profile / size", f"{escape(s['profile'])} -> {s['size'][0]} x {s['size'][1]}")
+        table.add_row("vignetting", "corrected before blending" if s.get("vignetting") else "not corrected (no --vignetting)")
         table.add_row("lens gains (R,G,B)", "; ".join(", ".join(f"{g:.3f}" for g in lg) for lg in s["gains"]))
         table.add_row("seam disagreement", f"median |diff| {s['seam_mad']:.4g} (before gain match {s['seam_mad_before_gain']:.4g}), rmse {s['seam_rmse']:.4g}")
         table.add_row("coverage", f"{100 * s['coverage']:.2f} % of output pixels")

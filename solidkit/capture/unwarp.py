@@ -10,7 +10,10 @@ are sampled with ``cv2.remap``. The lenses are blended by *feathering* across th
 over a band of ``feather_deg`` of incidence angle centred where the margins are equal (90° for
 two opposite lenses of equal field). Per-lens, per-channel gains are matched in *linear* light on
 the overlap (median log ratio of unsaturated pixels, split symmetrically between the lenses)
-before blending.
+before blending. An optional vignetting profile (:mod:`solidkit.calibration.vignetting`) divides
+each lens' linear samples by that lens' radial falloff ``V(ρ)`` first (:func:`vignetting_gains`),
+so gain matching and blending see falloff-free radiance: without it the two lenses disagree on
+the overlap by ``V(ρ_0)/V(ρ_1)``, which a single gain cannot remove where the circles' radii vary.
 
 Orientation (docs/conventions.md §2): the output panorama is gravity-aligned with forward = the
 front lens' axis projected onto the horizontal plane. ``R_level = R(0, pitch, roll)`` comes from
@@ -62,11 +65,23 @@ __all__ = [
     "seam_step",
     "unwarp_srgb8",
     "encode_srgb8",
+    "vignetting_gains",
+    "load_vignetting",
+    "default_out_height",
 ]
 
 CACHE_SIZE = 4
 _ROWS = 256
 _cache: "OrderedDict[str, UnwarpMaps]" = OrderedDict()
+
+
+def default_out_height(in_width: int) -> int:
+    """Default equirect height for a dual-fisheye input ``in_width`` px wide: the panorama is as wide
+    as the input (``2 H = in_width``: 5792x2896 -> 5792x2896), keeping the lenses' centre resolution.
+
+    Used by ``solidkit capture unwarp`` (no ``--size``) and by the campaign's products.
+    """
+    return max(2, int(in_width) // 2)
 
 
 @dataclass
@@ -245,7 +260,10 @@ def _stride(shape: tuple[int, ...], target: int = 1024) -> int:
     return max(1, shape[0] // target)
 
 
-def match_gains(warped: list[np.ndarray], maps: UnwarpMaps, saturation: float | None = 0.98, floor: float = 1e-3) -> np.ndarray:
+def match_gains(
+    warped: list[np.ndarray], maps: UnwarpMaps, saturation: float | None = 0.98, floor: float = 1e-3,
+    scale: np.ndarray | None = None,
+) -> np.ndarray:
     """Per-lens, per-channel linear gains ``(L, C)`` equalising the lenses on their overlap.
 
     ``warped``: each lens' linear view ``(H, 2H, C)``. For two lenses: ``ratio_c = exp(median(log
@@ -253,7 +271,9 @@ def match_gains(warped: list[np.ndarray], maps: UnwarpMaps, saturation: float | 
     outputs above 1024 rows) that are neither black (``< floor``) nor saturated (``>= saturation``
     in any channel, for LDR input); lens 0 gets ``ratio^-1/2``, lens 1 ``ratio^+1/2``. More lenses
     are matched to lens 0 and renormalised to a geometric mean of 1. Returns ones when the overlap
-    has < 100 usable pixels.
+    has < 100 usable pixels. ``scale`` ``(L, H, 2H)`` (optional): per-pixel factors already applied
+    to ``warped`` (vignetting correction); the black/clipped tests use the values as captured,
+    ``warped / scale``.
     """
     L, C = len(warped), warped[0].shape[-1]
     k = _stride(warped[0].shape)
@@ -262,9 +282,13 @@ def match_gains(warped: list[np.ndarray], maps: UnwarpMaps, saturation: float | 
     for i in range(1, L):
         both = valid[0] & valid[i]
         a, b = warped[0][::k, ::k][both], warped[i][::k, ::k][both]
-        ok = np.all((a > floor) & (b > floor), axis=-1)
+        a_cap, b_cap = a, b
+        if scale is not None:
+            a_cap = a / scale[0, ::k, ::k][both][:, None]
+            b_cap = b / scale[i, ::k, ::k][both][:, None]
+        ok = np.all((a_cap > floor) & (b_cap > floor), axis=-1)
         if saturation is not None:
-            ok &= np.all((a < saturation) & (b < saturation), axis=-1)
+            ok &= np.all((a_cap < saturation) & (b_cap < saturation), axis=-1)
         if ok.sum() < 100:
             continue
         gains[i] = np.exp(np.median(np.log(a[ok]) - np.log(b[ok]), axis=0))
@@ -292,6 +316,55 @@ def seam_disagreement(warped: list[np.ndarray], maps: UnwarpMaps, gains: np.ndar
             "overlap_px": int(((maps.weight[0] > 0) & (maps.weight[1] > 0)).sum())}
 
 
+def load_vignetting(path: str | os.PathLike) -> Any:
+    """A :class:`~solidkit.calibration.vignetting.VignettingProfile` from its JSON file (``solidkit calibrate vignetting``)."""
+    from solidkit.calibration.vignetting import VignettingProfile
+
+    return VignettingProfile.load(path)
+
+
+def vignetting_gains(maps: UnwarpMaps, vignetting: Any, profile: LensProfile, in_size: tuple[int, int]) -> np.ndarray:
+    """Per-lens inverse falloff ``1 / V_i(ρ_i)`` at every output pixel, ``(L, H, 2H)`` float32.
+
+    ``ρ_i`` is the distance of the sample position of lens ``i`` (the remap table, in pixels of
+    the ``in_size = (W, H)`` input) from that lens' optical centre over its ``r_norm`` in the
+    vignetting profile (:meth:`~solidkit.calibration.vignetting.VignettingProfile.scaled`), and
+    ``V`` the profile's radial polynomial (:func:`~solidkit.calibration.vignetting.falloff`):
+    the same correction as :func:`~solidkit.calibration.vignetting.correct_vignetting` applied
+    to each lens' own samples. The profile's lenses are matched to the lens profile's by name
+    (by order when the names differ). 1 where the lens does not contribute.
+
+    Raises :class:`~solidkit.calibration.vignetting.VignettingError` when the profile is for
+    another layout, has another number of lenses, or its falloff drops below 5 % where a lens
+    is used.
+    """
+    from solidkit.calibration.vignetting import VignettingError, falloff
+
+    L = maps.weight.shape[0]
+    vl = vignetting.scaled(*in_size)
+    if len(vl) != L:
+        raise VignettingError(f"vignetting profile has {len(vl)} lenses, lens profile {profile.model!r} has {L}")
+    names = [lens.name for lens in profile.lenses]
+    by_name = {v.name: v for v in vl}
+    if sorted(by_name) == sorted(names):
+        vl = [by_name[n] for n in names]
+    key = ("vignetting", vignetting.model_dump_json(), tuple(in_size))
+    cached = maps._derived.get("vignetting")
+    if cached is not None and cached[0] == key:
+        return cached[1]
+    out = np.ones(maps.weight.shape, np.float32)
+    for i, v in enumerate(vl):
+        used = maps.weight[i] > 0
+        xy = cv2.convertMaps(maps.map1[i], maps.map2[i], cv2.CV_32FC2)[0]  # (H, 2H, 2) sample positions
+        rho = np.hypot(xy[..., 0][used] - v.center[0], xy[..., 1][used] - v.center[1]) / v.r_norm_px
+        V = falloff(v.coeffs, rho)
+        if V.size and (not np.all(np.isfinite(V)) or V.min() <= 0.05):
+            raise VignettingError(f"lens {v.name}: the falloff drops below 5 % inside the image circle: the profile is unusable")
+        out[i][used] = (1.0 / V).astype(np.float32)
+    maps._derived["vignetting"] = (key, out)
+    return out
+
+
 def unwarp(
     image: np.ndarray,
     profile: LensProfile,
@@ -303,6 +376,7 @@ def unwarp(
     saturation: float | None = None,
     cache_dir: str | os.PathLike | None = None,
     stats: dict | None = None,
+    vignetting: Any = None,
 ) -> np.ndarray:
     """Unwarp a dual-fisheye image ``(h, w, C)`` to a *linear* equirect ``(out_height, 2 out_height, C)`` float32.
 
@@ -311,7 +385,9 @@ def unwarp(
     blending are in linear light. ``saturation``: linear value at/above which a pixel counts as
     clipped when estimating gains (``None``: no clipping, e.g. HDR; uint8 input defaults to the
     linear value of code 250). ``stats`` (if given) receives the gains, the seam disagreement
-    before/after gain matching, coverage and the remap-cache source.
+    before/after gain matching, coverage and the remap-cache source. ``vignetting``
+    (a :class:`~solidkit.calibration.vignetting.VignettingProfile`, optional): each lens' linear
+    samples are divided by its falloff before gain matching and blending (:func:`vignetting_gains`).
     """
     if image.ndim == 2:
         image = image[..., None]
@@ -326,12 +402,18 @@ def unwarp(
     L = maps.weight.shape[0]
     warped = [_warp(image, maps, i) for i in range(L)]
     C = warped[0].shape[-1]
-    gains = match_gains(warped, maps, saturation) if gain_match and L > 1 else np.ones((L, C))
+    inv_v = None
+    if vignetting is not None:
+        inv_v = vignetting_gains(maps, vignetting, profile, (w, h))
+        for i in range(L):
+            warped[i] *= inv_v[i][..., None]
+    gains = match_gains(warped, maps, saturation, scale=inv_v) if gain_match and L > 1 else np.ones((L, C))
     if stats is not None:
         stats["gains"] = gains.tolist()
         stats["cache"] = source
         stats["coverage"] = float(maps.coverage.mean())
         stats["seam_mad_before_gain"] = seam_disagreement(warped, maps)["seam_mad"]
+        stats["vignetting"] = vignetting is not None
         stats.update(seam_disagreement(warped, maps, gains))
     out = None
     for i in range(L):
@@ -356,6 +438,7 @@ def unwarp_srgb8(
     gain_match: bool = True,
     cache_dir: str | os.PathLike | None = None,
     stats: dict | None = None,
+    vignetting: Any = None,
 ) -> np.ndarray:
     """Fast path of :func:`unwarp` for 8-bit sRGB in and out (JPEG -> PNG/JPEG), two lenses.
 
@@ -363,14 +446,16 @@ def unwarp_srgb8(
     the feather band each output pixel is one lens' sample with its gain applied exactly in
     linear light through a per-channel 8-bit table ``enc(g_c dec(v))``; inside the band the two
     samples are decoded to linear, gain-matched, blended and re-encoded. Returns uint8 sRGB.
+    With a ``vignetting`` profile (a per-pixel correction no 8-bit table can carry) or other than
+    two lenses it is :func:`unwarp` followed by :func:`encode_srgb8`.
     """
     if image.dtype != np.uint8 or image.ndim != 3:
         raise InputError("unwarp_srgb8 needs an (H, W, C) uint8 image")
     h, w = image.shape[:2]
     maps, source = get_maps(profile, (w, h), out_height, R_level, feather_deg, cache_dir)
-    if maps.weight.shape[0] != 2:
+    if maps.weight.shape[0] != 2 or vignetting is not None:
         lin = unwarp(image, profile, out_height, R_level, feather_deg=feather_deg, gain_match=gain_match,
-                     cache_dir=cache_dir, stats=stats)
+                     cache_dir=cache_dir, stats=stats, vignetting=vignetting)
         return encode_srgb8(lin)
     dec, enc16 = _luts()
     raw = [cv2.remap(image, maps.map1[i], maps.map2[i], cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
@@ -520,12 +605,16 @@ def unwarp_file(
     level: bool = True,
     gain_match: bool = True,
     cache_dir: str | os.PathLike | None = None,
+    vignetting: str | os.PathLike | None = None,
 ) -> dict:
     """``solidkit capture unwarp``: a capture file -> an equirect panorama in the panorama frame.
 
     Dual-fisheye input goes through the lens profile (``profile``: a shipped name or a unit JSON;
-    default: the shipped profile of the EXIF camera model). Stitched equirect input is levelled
-    from its metadata, or copied byte for byte when no rotation (and no resize) is needed.
+    default: the shipped profile of the EXIF camera model), after dividing each lens by its
+    falloff when a ``vignetting`` profile JSON is given; the output is ``size`` or, by default,
+    as wide as the input (:func:`default_out_height`). Stitched equirect input is levelled
+    from its metadata, or copied byte for byte when no rotation (and no resize) is needed
+    (a vignetting profile does not apply to it: a warning says so).
     Returns a summary dict (what was done, gains, seam disagreement, timings).
     """
     import shutil
@@ -546,12 +635,15 @@ def unwarp_file(
     meta = read_metadata(src) if has_exif else None  # PNG/EXR inputs carry no camera metadata
     summary: dict[str, Any] = {"input": str(src), "output": str(dst), "warnings": list(meta.warnings) if meta else []}
     out_h = parse_size(size)
+    vprof = load_vignetting(vignetting) if vignetting is not None else None
     R = level_rotation(meta) if (meta is not None and level) else np.eye(3)
     summary["level_pitch_roll_deg"] = (
         [meta.pitch_deg, meta.roll_deg] if meta is not None and level and not np.allclose(R, np.eye(3)) else None
     )
     stitched = meta is not None and meta.image_type == "equirect" and profile is None
     if stitched:
+        if vprof is not None:
+            summary["warnings"].append("vignetting_ignored: stitched input; the camera applied its own lens corrections")
         w, h = meta.width, meta.height
         if w != 2 * h:
             raise InputError(f"{src}: marked equirectangular but {w}x{h} is not 2:1")
@@ -581,18 +673,20 @@ def unwarp_file(
     if meta is not None and meta.image_type == "dual_fisheye_upright":
         summary["warnings"].append("upright_dual_fisheye: the camera already rotated the circles upright; no gravity applied")
         R = np.eye(3)
-    out_h = out_h or max(2, w // 2)  # default: as wide as the input (5792 -> 5792x2896)
+    out_h = out_h or default_out_height(w)
     stats: dict[str, Any] = {}
     t1 = time.perf_counter()
     fast = img.dtype == np.uint8 and dst.suffix.lower() != ".exr" and len(prof.lenses) == 2
     if fast:  # 8-bit in and out: blend in linear light only where two lenses overlap
-        pano = unwarp_srgb8(img, prof, out_h, R, feather_deg=feather_deg, gain_match=gain_match, cache_dir=cache_dir, stats=stats)
+        pano = unwarp_srgb8(img, prof, out_h, R, feather_deg=feather_deg, gain_match=gain_match, cache_dir=cache_dir,
+                            stats=stats, vignetting=vprof)
     else:
         pano = unwarp(img, prof, out_h, R, feather_deg=feather_deg, gain_match=gain_match, saturation=saturation,
-                      cache_dir=cache_dir, stats=stats)
+                      cache_dir=cache_dir, stats=stats, vignetting=vprof)
     t2 = time.perf_counter()
     meta_out = {"source": str(src), "source_sha256": sha256_file(src), "profile": prof.model,
-                "profile_key": prof.key(), "rotation": R.tolist(), "gains": stats["gains"]}
+                "profile_key": prof.key(), "rotation": R.tolist(), "gains": stats["gains"],
+                "vignetting": None if vignetting is None else {"path": str(vignetting), "sha256": sha256_file(vignetting)}}
     if fast:
         _write_srgb8(dst, pano)
     else:
