@@ -42,19 +42,24 @@ Products (``CAMPAIGN_DIR/products/<scene>/<probe>/``)
 - ``hdr``: each bracket merged to linear HDR EXR (:func:`solidkit.capture.merge.merge_frames`,
   response curve from ``--response`` or the sRGB inverse) in the capture's layout, then made a
   panorama in the panorama frame (:func:`to_panorama`: dual-fisheye unwarped through the shipped
-  lens profile of the camera model; stitched input levelled from its gravity when the camera did
-  not; untouched otherwise). Without a fitting profile the EXR keeps the capture layout
-  (``layout``) and says why in ``stats["panorama"]``.
+  lens profile of the camera model, or the per-unit profile given with ``--profile``, each lens
+  first divided by its falloff when a ``--vignetting`` profile is given, to a panorama as wide as
+  the capture like ``solidkit capture unwarp``; stitched input levelled from its gravity when the
+  camera did not; untouched otherwise). Without a fitting profile the EXR keeps the capture
+  layout (``layout``) and says why in ``stats["panorama"]``.
 - ``sun_frame``: the probe's shortest exposure at or below ``low_exposure_max_s`` (a low-exposure
   shot, else the shortest bracket member), kept as an LDR panorama plus its exposure (time,
   f-number, ISO): the original JPEG itself when it is a level equirect image (no resampling; the
   sun disk saturates anyway: it gives a position, not an intensity), else an 8-bit sRGB PNG of
   :func:`to_panorama`.
 
-Each product records its inputs (sha256), a recipe (tool, parameters, response-curve sha256),
-the solidkit version and the output's sha256: it is reproducible from originals + profiles +
-that version; a product whose recipe changed (other parameters, response or solidkit version)
-is rebuilt on the next run.
+Each product records its inputs (sha256), a recipe (tool, parameters, response-curve sha256;
+for dual-fisheye products also the lens and vignetting profiles and the panorama size), the
+solidkit version and the output's sha256: it is reproducible from originals + profiles + that
+version; a product whose recipe changed (other parameters, profiles or solidkit version) is
+rebuilt on the next run. Profiles given with ``--response``, ``--profile`` or ``--vignetting``
+are copied into ``CAMPAIGN_DIR/profiles/`` under their content hash and recorded in the
+manifest; later runs keep using them until another one is given.
 
 Robustness
 ----------
@@ -227,6 +232,10 @@ class Manifest(BaseModel):
     conventions_version: int = 0
     grouping: GroupingParams = Field(default_factory=GroupingParams)
     response: dict[str, Any] = Field(default_factory=lambda: {"kind": "srgb_inverse"})
+    lens_profile: dict[str, Any] | None = Field(
+        None, description="per-unit lens profile overriding the model default: {kind: file, path, sha256} or {kind: shipped, name}"
+    )
+    vignetting: dict[str, Any] | None = Field(None, description="vignetting profile {kind: file, path, sha256}")
     cards: list[str] = Field(default_factory=list)
     shots: list[Shot] = Field(default_factory=list)
     scenes: list[Scene] = Field(default_factory=list)
@@ -557,7 +566,8 @@ def planned_products(manifest: Manifest) -> list[Product]:
             for b in pr.brackets:
                 first = manifest.shot(b.shots[0]).metadata
                 recipe = {"tool": "solidkit.capture.merge.merge_frames", "response": manifest.response,
-                          "ghost_k": 6.0, "deghost": False, "wb": "camera", "solidkit_version": __version__}
+                          "ghost_k": 6.0, "deghost": False, "wb": "camera", "solidkit_version": __version__,
+                          **_unwarp_recipe(manifest, first)}
                 out.append(Product(
                     id=f"{sc.id}/{pr.id}/hdr-{b.id}", kind="hdr", scene=sc.id, probe=pr.id, inputs=list(b.shots),
                     layout=first.get("image_type") or "unknown", exposure_time=first.get("exposure_time"),
@@ -565,13 +575,65 @@ def planned_products(manifest: Manifest) -> list[Product]:
                     recipe_hash=_recipe_hash(recipe, list(b.shots)), solidkit_version=__version__))
             if pr.sun_frame:
                 md = manifest.shot(pr.sun_frame).metadata
-                recipe = {"tool": "solidkit.capture.campaign.sun_frame", "solidkit_version": __version__}
+                recipe = {"tool": "solidkit.capture.campaign.sun_frame", "solidkit_version": __version__,
+                          **_unwarp_recipe(manifest, md)}
                 out.append(Product(
                     id=f"{sc.id}/{pr.id}/sun", kind="sun_frame", scene=sc.id, probe=pr.id, inputs=[pr.sun_frame],
                     layout=md.get("image_type") or "unknown", exposure_time=md.get("exposure_time"),
                     f_number=md.get("f_number"), iso=md.get("iso"), recipe=recipe,
                     recipe_hash=_recipe_hash(recipe, [pr.sun_frame]), solidkit_version=__version__))
     return out
+
+
+def _unwarp_recipe(manifest: Manifest, md: dict[str, Any]) -> dict[str, Any]:
+    """Recipe entries of a dual-fisheye product's unwarp: panorama height, lens/vignetting profiles
+    (only those given; none for stitched captures, which they do not affect)."""
+    if md.get("image_type") not in ("dual_fisheye", "dual_fisheye_upright"):
+        return {}
+    from solidkit.capture.unwarp import default_out_height
+
+    out: dict[str, Any] = {"pano_height": default_out_height(int(md.get("width") or 0))}
+    if manifest.lens_profile is not None:
+        out["lens_profile"] = manifest.lens_profile
+    if manifest.vignetting is not None:
+        out["vignetting"] = manifest.vignetting
+    return out
+
+
+def _record_profile(campaign: Path, path: str | os.PathLike, prefix: str) -> dict[str, Any]:
+    """Copy a profile file into ``CAMPAIGN_DIR/profiles/<prefix>-<sha16><suffix>`` (once); its record."""
+    src = Path(path)
+    sha = sha256_file(src)
+    rel = Path("profiles") / f"{prefix}-{sha[:16]}{src.suffix.lower()}"
+    if not (campaign / rel).exists():
+        with atomic_path(campaign / rel) as tmp:
+            shutil.copyfile(src, tmp)
+    return {"kind": "file", "path": rel.as_posix(), "sha256": sha}
+
+
+def _recorded_file(campaign: Path, record: dict[str, Any], what: str) -> Path:
+    """The campaign's copy of a recorded profile, checked against its recorded sha256."""
+    path = campaign / record["path"]
+    if not path.is_file():
+        raise InputError(f"{what} {record['path']} is missing from the campaign")
+    if sha256_file(path) != record["sha256"]:
+        raise InputError(f"{what} {record['path']} was modified (sha256 differs from the manifest)")
+    return path
+
+
+def _load_optics(campaign: Path, recipe: dict[str, Any]) -> tuple[Any, Any]:
+    """``(lens profile or None, vignetting profile or None)`` of a product's recipe."""
+    from solidkit.capture.lens import load_profile
+    from solidkit.capture.unwarp import load_vignetting
+
+    lens = vig = None
+    rec = recipe.get("lens_profile")
+    if rec is not None:
+        lens = load_profile(rec["name"] if rec["kind"] == "shipped" else _recorded_file(campaign, rec, "lens profile"))
+    rec = recipe.get("vignetting")
+    if rec is not None:
+        vig = load_vignetting(_recorded_file(campaign, rec, "vignetting profile"))
+    return lens, vig
 
 
 def _product_path(p: Product, suffix: str) -> Path:
@@ -590,14 +652,17 @@ def _level_rotation(md: dict[str, Any]):
     return np.asarray(level_rotation(meta))
 
 
-def to_panorama(image, md: dict[str, Any]) -> tuple[Any, dict[str, Any]]:
+def to_panorama(image, md: dict[str, Any], lens_profile: Any = None, vignetting: Any = None) -> tuple[Any, dict[str, Any]]:
     """A linear capture-layout image -> an equirect panorama in the panorama frame (conventions §2).
 
     Equirect: levelled by the metadata's gravity when the camera did not correct it (returned
-    unchanged otherwise); dual-fisheye: unwarped through the shipped lens profile of the camera
-    model (:func:`solidkit.capture.unwarp.unwarp`, output height = input width / 4 like
-    ``solidkit capture unwarp``). Returns ``(panorama, info)``; raises :class:`InputError` when
-    no profile fits or the layout is unknown.
+    unchanged otherwise). Dual-fisheye: unwarped (:func:`solidkit.capture.unwarp.unwarp`) through
+    ``lens_profile`` (a :class:`~solidkit.capture.lens.LensProfile`, e.g. a per-unit one) or else
+    the shipped profile of the camera model, each lens divided by its falloff first when a
+    ``vignetting`` profile is given, to the same size as ``solidkit capture unwarp`` makes by
+    default (:func:`solidkit.capture.unwarp.default_out_height`: as wide as the input).
+    Returns ``(panorama, info)``; raises :class:`InputError` when no profile fits or the layout
+    is unknown.
     """
     import numpy as np
 
@@ -612,14 +677,14 @@ def to_panorama(image, md: dict[str, Any]) -> tuple[Any, dict[str, Any]]:
         return rotate(image, R, "linear"), {"resampled": True, "levelled": True}
     if layout in ("dual_fisheye", "dual_fisheye_upright"):
         from solidkit.capture.lens import profile_for_metadata
-        from solidkit.capture.unwarp import unwarp
+        from solidkit.capture.unwarp import default_out_height, unwarp
 
         h, w = image.shape[:2]
-        prof = profile_for_metadata(md.get("model"), w, h)
+        prof = lens_profile if lens_profile is not None else profile_for_metadata(md.get("model"), w, h)
         stats: dict[str, Any] = {}
-        pano = unwarp(image, prof, max(2, w // 4), R, stats=stats)
+        pano = unwarp(image, prof, default_out_height(w), R, stats=stats, vignetting=vignetting)
         return pano, {"resampled": True, "levelled": not identity, "profile": prof.model, "profile_key": prof.key(),
-                      "seam_mad": stats.get("seam_mad")}
+                      "vignetting": vignetting is not None, "seam_mad": stats.get("seam_mad")}
     raise InputError(f"image type {layout!r} is not a panorama layout (equirect or dual-fisheye)")
 
 
@@ -646,8 +711,9 @@ def _make_product(product: dict[str, Any], shots: list[dict[str, Any]], campaign
             result = merge_frames(frames, ghost_k=p.recipe["ghost_k"], deghost=p.recipe["deghost"])
             stats = result.stats()
             hdr, layout = result.hdr, p.layout
+            lens, vig = _load_optics(camp, p.recipe)
             try:
-                hdr, pano_info = to_panorama(hdr, ref)
+                hdr, pano_info = to_panorama(hdr, ref, lens, vig)
                 layout = "equirect"
             except SolidkitError as exc:  # no lens profile for this camera: keep the capture layout
                 pano_info = {"panorama": f"not made: {exc}"}
@@ -677,7 +743,7 @@ def _make_product(product: dict[str, Any], shots: list[dict[str, Any]], campaign
                 from solidkit.envmap.io import write_ldr
 
                 frame = load_frame(camp / s["original"], float(md.get("exposure_time") or 1.0))
-                pano, info = to_panorama(frame.linear, md)
+                pano, info = to_panorama(frame.linear, md, *_load_optics(camp, p.recipe))
                 rel = _product_path(p, ".png")
                 write_ldr(camp / rel, np.clip(pano, 0.0, 1.0), encode_srgb=True)  # lossless 8-bit sRGB
                 p.path, p.sha256, p.stats, p.layout = rel.as_posix(), sha256_file(camp / rel), info, "equirect"
@@ -772,8 +838,15 @@ def ingest(
     response_path: str | os.PathLike | None = None,
     products: bool = True,
     progress: Any = None,
+    lens_profile: str | os.PathLike | None = None,
+    vignetting_path: str | os.PathLike | None = None,
 ) -> IngestReport:
     """Ingest one card into a campaign (see the module docstring). Returns what was done.
+
+    ``response_path``, ``lens_profile`` (a per-unit lens profile JSON, or a shipped profile
+    name, overriding the camera model's default) and ``vignetting_path`` (a vignetting profile
+    JSON) are validated, recorded in the manifest (files copied into ``profiles/``) and used
+    by this and later runs until replaced.
 
     ``progress(phase, done, total)`` (optional) is called as files and products complete.
     Raises :class:`InputError` for a missing card or an unreadable manifest; per-file problems
@@ -809,12 +882,20 @@ def ingest(
             from solidkit.capture.merge import load_response
 
             load_response(rp)  # validate before anything is built with it
-            rsha = sha256_file(rp)
-            rel = Path("profiles") / f"response-{rsha[:16]}{rp.suffix.lower()}"
-            if not (campaign / rel).exists():
-                with atomic_path(campaign / rel) as tmp:
-                    shutil.copyfile(rp, tmp)
-            manifest.response = {"kind": "file", "path": rel.as_posix(), "sha256": rsha}
+            manifest.response = _record_profile(campaign, rp, "response")
+        if lens_profile is not None:
+            from solidkit.capture.lens import load_profile
+
+            lp = load_profile(lens_profile)  # validate (a file, or a shipped name)
+            if Path(lens_profile).is_file():
+                manifest.lens_profile = {**_record_profile(campaign, lens_profile, "lens"), "model": lp.model}
+            else:
+                manifest.lens_profile = {"kind": "shipped", "name": str(lens_profile), "key": lp.key()}
+        if vignetting_path is not None:
+            from solidkit.capture.unwarp import load_vignetting
+
+            load_vignetting(vignetting_path)
+            manifest.vignetting = _record_profile(campaign, vignetting_path, "vignetting")
         cstr = str(card)
         if cstr not in manifest.cards:
             manifest.cards = sorted([*manifest.cards, cstr])
@@ -960,7 +1041,16 @@ def summary_rows(manifest: Manifest) -> list[tuple[str, str]]:
         ("shots", f"{len(manifest.shots)} ({', '.join(f'{v} {k}' for k, v in sorted(kinds.items()))})"),
         ("scenes / probes / brackets", f"{len(manifest.scenes)} / {n_probes} / {n_brackets}"),
         ("products", f"{len(manifest.products)} ({sum(1 for p in manifest.products if p.error)} with errors)"),
+        ("profiles", "; ".join(f"{name} {_describe(rec, default)}" for name, rec, default in (
+            ("response", manifest.response, "sRGB inverse"), ("lens", manifest.lens_profile, "model default"),
+            ("vignetting", manifest.vignetting, "none")))),
     ]
+
+
+def _describe(record: dict[str, Any] | None, default: str) -> str:
+    if not record or record.get("kind") not in ("file", "shipped"):
+        return default
+    return record["name"] if record["kind"] == "shipped" else record["path"]
 
 
 def ingest_command(
@@ -973,6 +1063,8 @@ def ingest_command(
     probe_gap: float | None = None,
     bracket_gap: float | None = None,
     low_exposure_max: float | None = None,
+    lens_profile: str | None = None,
+    vignetting: Path | None = None,
 ) -> IngestReport:
     """Run :func:`ingest` with a rich progress bar and print the summary (the CLI's body)."""
     from rich.console import Console
@@ -994,7 +1086,7 @@ def ingest_command(
             bar.update(ids[phase], completed=done, total=total)
 
         report = ingest(card_dir, campaign_dir, jobs=jobs, grouping=grouping, response_path=response,
-                        products=products, progress=progress)
+                        products=products, progress=progress, lens_profile=lens_profile, vignetting_path=vignetting)
     manifest = load_manifest(campaign_dir)
     out = Console()
     if report.nothing_done:
@@ -1039,6 +1131,8 @@ def ingest_cli(
     probe_gap: float | None = typer.Option(None, help="Seconds between Theta shots that start a new probe position (default 45)."),
     bracket_gap: float | None = typer.Option(None, help="Seconds between shots that end a bracket (default 10)."),
     low_exposure_max: float | None = typer.Option(None, help="Longest exposure (s) of a sun frame (default 1/4000)."),
+    profile: str | None = typer.Option(None, "--profile", help="Per-unit lens profile (unit.json from 'solidkit calibrate overlap', or a shipped name) overriding the camera model's default; recorded in the campaign."),
+    vignetting: Path | None = typer.Option(None, "--vignetting", help="Vignetting profile ('solidkit calibrate vignetting'): each lens divided by its falloff before the lenses are blended; recorded in the campaign."),
 ) -> None:
     """Copy a card's captures into a checksummed campaign, group scenes/probes/brackets, build products.
 
@@ -1046,7 +1140,7 @@ def ingest_cli(
     ingested they are listed, everything else is processed, and the exit code is 2.
     """
     report = ingest_command(card_dir, campaign_dir, jobs, response, products, scene_gap, probe_gap, bracket_gap,
-                            low_exposure_max)
+                            low_exposure_max, lens_profile=profile, vignetting=vignetting)
     if report.errors or report.known_errors:
         n = len(report.errors) + report.known_errors
         raise InputError(f"{n} file(s) on {card_dir} could not be ingested (listed above); everything else was")
