@@ -105,7 +105,7 @@ def unwarp(
     src: Path = typer.Argument(..., help="Dual-fisheye (JPEG, DNG, EXR) or stitched equirect capture."),
     out: Path = typer.Argument(..., help="Output panorama: .exr (linear HDR) or .png/.jpg (sRGB)."),
     profile: str | None = typer.Option(None, "--profile", help="Lens profile: a shipped name (theta-v, theta-z1, theta-s, theta-s-video) or a unit.json; default from the EXIF model."),
-    size: str | None = typer.Option(None, "--size", help="Output WxH (W = 2H); default: width of the input."),
+    size: str | None = typer.Option(None, "--size", help="Output WxH (W = 2H); default: as wide as the input (the size ingest products get too)."),
     feather: float = typer.Option(10.0, "--feather", help="Seam cross-fade band, degrees of incidence angle."),
     level: bool = typer.Option(True, "--level/--no-level", help="Apply the metadata's gravity (pitch/roll) so the horizon is level."),
     gain: bool = typer.Option(True, "--gain/--no-gain", help="Match the lenses' gains on the overlap (linear light)."),
