@@ -466,6 +466,12 @@ def test_ingest_unit_profile_and_vignetting(tmp_path):
     assert report.products_built == 1
     (a,) = [p for p in load_manifest(tmp_path / "no-vig").products if p.kind == "hdr"]
     assert a.sha256 == hdr.sha256
+    # a shipped profile by name is recorded by name (and gives the model default's result)
+    ingest(card, tmp_path / "shipped", lens_profile="theta-v", vignetting_path=vig_file)
+    m = load_manifest(tmp_path / "shipped")
+    assert m.lens_profile == {"kind": "shipped", "name": "theta-v", "key": base.key()}
+    err_shipped, stats_shipped = _hdr_error(tmp_path / "shipped", truth)
+    assert stats_shipped["profile_key"] == base.key() and err_shipped == pytest.approx(err_no_unit)
     # a lens profile given as the vignetting profile: a clear error, nothing recorded
     with pytest.raises(InputError, match="expected 'vignetting'"):
         ingest(card, tmp_path / "bad", vignetting_path=unit_file)
