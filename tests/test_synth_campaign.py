@@ -14,7 +14,8 @@ pytest.importorskip("mitsuba")
 
 from solidkit.capture.lens import load_profile, project  # noqa: E402
 from solidkit.capture.metadata import read_metadata  # noqa: E402
-from solidkit.envmap import coords_from_direction, direction_from_coords, rotation_from_ypr, rotation_y  # noqa: E402
+from solidkit.envmap import (angular_distance, coords_from_direction, direction_from_angles,  # noqa: E402
+                             direction_from_coords, rotation_from_ypr, rotation_y)
 from solidkit.synth.campaign import (CampaignConfig, CampaignTruth, expose, fisheye_image, generate_campaign,  # noqa: E402
                                      load_truth)
 from solidkit.synth.cameras import Camera  # noqa: E402
@@ -61,6 +62,42 @@ def test_exif_reads_back_through_capture_metadata(tmp_path: Path) -> None:
     (tmp_path / "b.jpg").write_bytes(insert_app1(buf.tobytes(), app))
     m = read_metadata(tmp_path / "b.jpg")
     assert m.image_type == "perspective" and m.exposure_time == pytest.approx(1 / 500)
+    assert m.utc_offset is None
+    # an aware time: local clock + OffsetTime + UTC GPS stamps; the true heading in GPSImgDirection
+    local = dt.datetime(2024, 12, 31, 19, 30, 5, tzinfo=dt.timezone(dt.timedelta(hours=-5, minutes=-30)))
+    app = exif_app1(make="SOLIDKIT", model="Virtual Photo Camera", when=local, exposure_time=1 / 500, f_number=2.8,
+                    iso=100, gps=(-33.5, 151.25, 12.0), img_direction_deg=359.123456)
+    (tmp_path / "c.jpg").write_bytes(insert_app1(buf.tobytes(), app))
+    m = read_metadata(tmp_path / "c.jpg")
+    assert m.datetime_original == local.replace(tzinfo=None) and m.utc_offset == "-05:30" and not m.warnings
+    tags = _exif_tags(tmp_path / "c.jpg")
+    assert str(tags["GPS GPSDate"]) == "2025:01:01" and str(tags["GPS GPSImgDirectionRef"]) == "T"
+    assert [float(v) for v in tags["GPS GPSTimeStamp"].values] == [1.0, 0.0, 5.0]
+    assert float(tags["GPS GPSImgDirection"].values[0]) == pytest.approx(359.123456, abs=1e-6)
+
+
+def _exif_tags(path: Path) -> dict:
+    import exifread
+
+    with open(path, "rb") as f:
+        return exifread.process_file(f, details=False)
+
+
+def _photo_sun_from_exif(path: Path) -> tuple[np.ndarray, float]:
+    """The sun a user recomputes from the photo's EXIF (time + offset, GPS) with pvlib, and the EXIF true heading."""
+    import pandas as pd
+    import pvlib
+
+    m = read_metadata(path)
+    sign = -1 if m.utc_offset.startswith("-") else 1
+    hh, mm = m.utc_offset[1:].split(":")
+    tz = dt.timezone(sign * dt.timedelta(hours=int(hh), minutes=int(mm)))
+    when = m.datetime_original.replace(tzinfo=tz)
+    sp = pvlib.solarposition.get_solarposition(pd.DatetimeIndex([when]), m.gps["lat_deg"], m.gps["lon_deg"],
+                                               altitude=m.gps["alt_m"])
+    heading = float(_exif_tags(path)["GPS GPSImgDirection"].values[0])
+    az, el = float(sp["azimuth"].iloc[0]), float(sp["apparent_elevation"].iloc[0])
+    return np.array([az, el]), heading
 
 
 def test_sensor_model_saturates_the_sun_and_scales_with_exposure() -> None:
@@ -103,6 +140,10 @@ def test_campaign_truth_round_trips(tmp_path: Path) -> None:
             assert (tmp_path / c.probe.hdr_file).is_file()
     photo = read_metadata(tmp_path / sc.photo.shot.file)
     assert photo.image_type == "perspective" and photo.gps is not None
+    assert sc.heading_deg == pytest.approx(math.degrees(cam.yaw) % 360.0)
+    (az, el), heading = _photo_sun_from_exif(tmp_path / sc.photo.shot.file)
+    assert heading == pytest.approx(sc.heading_deg, abs=1e-5)
+    assert az == pytest.approx(sc.solar.azimuth_deg, abs=0.1) and el == pytest.approx(sc.solar.elevation_deg, abs=0.1)
     # the schema refuses a damaged file with a one-line error
     bad = json.loads((tmp_path / "truth" / "truth.json").read_text())
     del bad["scenes"][0]["photo"]
@@ -111,6 +152,65 @@ def test_campaign_truth_round_trips(tmp_path: Path) -> None:
 
     with pytest.raises(InputError):
         load_truth(tmp_path / "bad.json")
+
+
+def _tiny(**kw: object) -> CampaignConfig:
+    base = dict(photo_width=32, photo_height=24, photo_spp=1, pano_height=16, pano_spp=1, probe_height=8, probe_spp=1,
+                fisheye_width=64, candidates=2, block_length=25.0, p_sunsky=1.0)
+    return CampaignConfig(**{**base, **kw})
+
+
+def test_campaign_resumes_idempotently_and_ties_time_gps_heading_to_the_sun(tmp_path: Path, caplog) -> None:
+    import logging
+
+    from solidkit.errors import InputError
+
+    out = tmp_path / "sim"
+    truth = generate_campaign(out, 2, 2, seed=11, config=_tiny())
+    # --- the sun a user recomputes from each photo's EXIF (pvlib) and heading equals the rendered sun
+    for sc in truth.scenes:
+        assert sc.sun_found and sc.solar.rendered
+        (az, el), heading = _photo_sun_from_exif(out / sc.photo.shot.file)
+        d_pano = np.asarray(direction_from_angles(np.float64(math.radians(az - heading)), np.float64(math.radians(el))))
+        d_truth = np.asarray(direction_from_angles(np.float64(math.radians(sc.sun_azimuth_deg)),
+                                                   np.float64(math.radians(sc.sun_elevation_deg))))
+        assert math.degrees(float(angular_distance(d_pano, d_truth))) < 0.1
+        # ... and in the world frame (scene frame x east, z north), from pvlib's azimuth alone
+        d_world = np.array([math.cos(math.radians(el)) * math.sin(math.radians(az)), -math.sin(math.radians(el)),
+                            math.cos(math.radians(el)) * math.cos(math.radians(az))])
+        assert math.degrees(math.acos(min(1.0, float(d_world @ np.asarray(sc.sun_scene))))) < 0.1
+        for c in sc.captures:  # Theta shots 1-2 min later: the real sun has moved a little, and the truth says how much
+            assert c.sun_drift_deg is not None and c.sun_drift_deg < 0.25 * (1 + 2 * len(sc.captures)) + 0.1
+    markers = sorted(out.glob("truth/*/scene.json"))
+    assert [m.parent.name for m in markers] == ["scene01", "scene02"]
+    first = (out / "truth" / "truth.json").read_bytes()
+    files = sorted(p for p in out.rglob("*") if p.is_file() and p.name not in ("truth.json",))
+    stamps = {p: p.stat().st_mtime_ns for p in files}
+    # --- killed mid-scene: scene02's marker is gone (its files stay as leftovers)
+    (out / "truth" / "scene02" / "scene.json").unlink()
+    seen: list[tuple[str, str]] = []
+    with caplog.at_level(logging.INFO, logger="solidkit.synth.campaign"):
+        again = generate_campaign(out, 2, 2, seed=11, config=_tiny(), progress=lambda s, c: seen.append((s, c)))
+    assert "scene01: complete" in caplog.text and "1 scene(s) rendered, 1 complete scene(s) skipped" in caplog.text
+    assert [s for s, _ in seen].count("scene01") == len(truth.scenes[0].captures)  # progress counts skipped captures
+    assert (out / "truth" / "truth.json").read_bytes() == first and again == truth
+    for p, t in stamps.items():
+        rerendered = "scene02" in p.parts
+        assert p.is_file() and (p.stat().st_mtime_ns != t) == rerendered, p
+    # --- a complete campaign re-runs to a no-op
+    stamps = {p: p.stat().st_mtime_ns for p in files}
+    generate_campaign(out, 2, 2, seed=11, config=_tiny())
+    assert all(p.stat().st_mtime_ns == t for p, t in stamps.items())
+    assert (out / "truth" / "truth.json").read_bytes() == first
+    # --- other settings are refused, naming them
+    with pytest.raises(InputError) as err:
+        generate_campaign(out, 2, 3, seed=12, config=_tiny(photo_spp=2))
+    msg = str(err.value)
+    assert "config.photo_spp: 1 here, 2 asked" in msg and "seed: 11 here, 12 asked" in msg and "probes" in msg
+    assert "scenes:" not in msg
+    (tmp_path / "other" / "card").mkdir(parents=True)
+    with pytest.raises(InputError, match="no campaign.json"):
+        generate_campaign(tmp_path / "other", 1, 0, seed=11, config=_tiny())
 
 
 @pytest.mark.slow

@@ -34,16 +34,38 @@ exposure putting the mean at 0.18.
 Frames (truth): the scene frame of :mod:`solidkit.synth.scene` (x east, y down, z north); a
 Theta body frame is our camera frame with z = front lens; ``R_scene_from_body =
 R(yaw, pitch, roll)``; ``R_pano_from_body = R_y(photo yaw)^T R_scene_from_body`` is what aligning
-a capture to the photo's panorama frame must recover. Time and GPS are plausible (scenes 15
-minutes apart near one base location) but not tied to the sun direction.
+a capture to the photo's panorama frame must recover.
+
+Time, GPS and heading are tied to the sun (:mod:`solidkit.synth.solar`): the scene frame is
+x east, z north, so the photo camera's **true heading** (clockwise from true north) is its yaw,
+written to the photo's EXIF ``GPSImgDirection`` (ref ``T``) and to the truth
+(``SceneTruth.heading_deg``). For each scene :func:`solidkit.synth.solar.place_sun` picks a day,
+a whole-second UTC time, a latitude, longitude and altitude at which pvlib's solar azimuth
+(clockwise from north) and apparent elevation equal the rendered sun's (scene frame; equivalently
+``solar azimuth = heading + sun azimuth in the photo's panorama frame``, which is positive to the
+right of forward). The photo's EXIF carries the local clock time (nominal zone ``round(lon/15)``
+h), ``OffsetTime(Original)`` and the UTC ``GPSDateStamp``/``GPSTimeStamp``. Overcast scenes get
+a sun direction drawn for the place and time (elevation 15-60°), hidden by the clouds. Theta
+shots follow the photo by 1-2 min per position, so the real sun would have moved by
+``CaptureTruth.sun_drift_deg`` (≤ 0.25°/min) from the rendered one; the photo is exact.
+
+Resuming: ``truth/campaign.json`` fixes the settings (seed, scenes, probes, config, Mitsuba
+variant) when the folder is created; a re-run with other settings is refused, naming them.
+``truth/<scene>/scene.json`` (that scene's :class:`SceneTruth`, written atomically last) marks
+a complete scene: a re-run skips complete scenes (and logs it), and renders an incomplete one
+again from scratch (its card and truth folders are cleared first). Every scene depends only on
+``(seed, scene index)`` and the shot numbers of the scenes before it, so an interrupted and
+resumed campaign writes the same truth as an uninterrupted one.
 """
 
 from __future__ import annotations
 
 import datetime as dt
 import json
+import logging
 import math
 import os
+import shutil
 from pathlib import Path
 from typing import Any, Literal
 
@@ -60,14 +82,16 @@ from solidkit.synth.exif import exif_app1, insert_app1
 from solidkit.synth.sample import (Generator, SampleConfig, derive_seed, pick_probe_pixels, render_buffers,
                                    render_panorama, render_rgb, sun_mask_image, sun_mask_panorama, suppress_fireflies)
 from solidkit.synth.scene import CATEGORIES, to_mitsuba
+from solidkit.synth.solar import TEMPERATURE_C, direction_angles, place_sun, solar_direction, solar_position, utc_offset_text
 
 __all__ = ["K_SENSOR", "CampaignConfig", "Shot", "ProbeTruth", "CaptureTruth", "PhotoTruth", "SceneTruth",
-           "CampaignTruth", "expose", "fisheye_image", "generate_campaign", "load_truth"]
+           "SolarTruth", "CampaignTruth", "expose", "fisheye_image", "generate_campaign", "load_truth", "open_campaign"]
 
 K_SENSOR = 3500.0
-SCHEMA_VERSION = 1
-BASE_TIME = dt.datetime(2024, 6, 1, 10, 0, 0)
-BASE_GPS = (48.8566, 2.3522, 35.0)
+SCHEMA_VERSION = 2
+SETTINGS_FILE = "campaign.json"
+SCENE_FILE = "scene.json"
+log = logging.getLogger(__name__)
 
 
 class CampaignConfig(BaseModel):
@@ -102,7 +126,7 @@ class Shot(BaseModel):
     exposure_time: float
     f_number: float
     iso: int
-    time: dt.datetime
+    time: dt.datetime = Field(description="aware local civil time (the EXIF clock time with its UTC offset)")
     role: Literal["photo", "normal", "low_exposure", "bracket"]
 
 
@@ -131,6 +155,8 @@ class CaptureTruth(BaseModel):
     recorded_heading_deg: float
     sun_body: list[float] | None
     sun_visible: bool = Field(description="the sun's centre is unoccluded from the capture position")
+    sun_drift_deg: float | None = Field(None, description="angle between the rendered sun and pvlib's sun at the "
+                                                           "time of the capture's normal shot")
     shots: list[Shot]
     probe: ProbeTruth | None = None
 
@@ -143,15 +169,34 @@ class PhotoTruth(BaseModel):
     hdr_file: str
 
 
+class SolarTruth(BaseModel):
+    """Where and when the photo was taken, and pvlib's sun there and then (module doc)."""
+
+    time_utc: dt.datetime
+    utc_offset: str = Field(description="local civil offset, as in EXIF OffsetTimeOriginal")
+    latitude_deg: float
+    longitude_deg: float
+    altitude_m: float
+    azimuth_deg: float = Field(description="pvlib solar azimuth, clockwise from true north")
+    elevation_deg: float = Field(description="pvlib apparent (refracted) solar elevation")
+    error_deg: float = Field(description="angle between pvlib's sun and the scene's sun direction")
+    temperature_c: float = TEMPERATURE_C
+    model: str = "pvlib.solarposition.get_solarposition (NREL SPA), apparent elevation, pressure from altitude"
+    rendered: bool = Field(description="false for overcast lightings: the sun is there but hidden")
+
+
 class SceneTruth(BaseModel):
     id: str
     block_seed: int
     sector: int
     lighting: dict[str, Any]
     sun_found: bool
-    sun_scene: list[float] | None
+    sun_scene: list[float] | None = Field(description="scene frame: x east, y down, z north")
     sun_azimuth_deg: float | None = Field(None, description="in the photo's panorama frame")
     sun_elevation_deg: float | None = None
+    heading_deg: float = Field(description="true heading of the photo camera (its panorama frame's forward), "
+                                           "clockwise from true north; EXIF GPSImgDirection")
+    solar: SolarTruth
     gps: list[float]
     photo: PhotoTruth
     captures: list[CaptureTruth]
@@ -234,9 +279,69 @@ def _split(total: int, parts: int) -> list[int]:
     return [total // parts + (1 if i < total % parts else 0) for i in range(parts)]
 
 
+def open_campaign(out: Path, scenes: int, probes: int, seed: int, config: CampaignConfig, variant: str) -> dict[str, Any]:
+    """Create ``truth/campaign.json`` or check that the existing one has the same settings.
+
+    Raises :class:`InputError` naming every differing setting, or when ``out`` holds files but
+    no campaign settings.
+    """
+    settings = {"kind": "solidkit-synth-campaign-settings", "schema_version": SCHEMA_VERSION,
+                "conventions_version": CONVENTIONS_VERSION, "seed": int(seed), "scenes": int(scenes),
+                "probes": int(probes), "variant": variant, "config": config.model_dump(mode="json")}
+    path = out / "truth" / SETTINGS_FILE
+    if path.is_file():
+        try:
+            old = json.loads(path.read_text())
+        except (OSError, ValueError):
+            raise InputError(f"{path}: unreadable campaign settings; use a new --out") from None
+        flat_old, flat_new = _flatten(old), _flatten(settings)
+        diff = [f"{k}: {flat_old.get(k, '-')} here, {flat_new.get(k, '-')} asked"
+                for k in sorted(set(flat_old) | set(flat_new)) if flat_old.get(k) != flat_new.get(k)]
+        if diff:
+            raise InputError(f"{out}: holds a campaign made with other settings ({'; '.join(diff)}); "
+                             "re-run with the same settings to resume, or use a new --out")
+        return old
+    if out.exists() and any((out / d).exists() for d in ("card", "truth")):
+        raise InputError(f"{out}: holds card/ or truth/ but no {SETTINGS_FILE}; use a new --out")
+    atomic_write_text(path, json.dumps(settings, indent=1))
+    return settings
+
+
+def _flatten(d: dict[str, Any], prefix: str = "") -> dict[str, Any]:
+    out: dict[str, Any] = {}
+    for k, v in d.items():
+        if isinstance(v, dict):
+            out.update(_flatten(v, f"{prefix}{k}."))
+        else:
+            out[f"{prefix}{k}"] = v
+    return out
+
+
+def _load_scene(path: Path) -> SceneTruth | None:
+    """A complete scene's truth, or None (absent or unreadable: the scene is rendered again)."""
+    if not path.is_file():
+        return None
+    try:
+        return SceneTruth.model_validate_json(path.read_text())
+    except (OSError, ValueError) as exc:
+        log.warning("%s: unreadable (%s); rendering the scene again", path, str(exc).splitlines()[0])
+        return None
+
+
+def _last_shot_no(scene: SceneTruth) -> int:
+    """Highest Theta file number ``R001xxxx`` used by a scene (0 if none)."""
+    nos = [int(Path(sh.file).stem[1:]) - 10000 for c in scene.captures for sh in c.shots]
+    return max(nos, default=0)
+
+
 def generate_campaign(out: str | os.PathLike, scenes: int, probes: int, *, seed: int = 0,
                       config: CampaignConfig | None = None, progress: Any = None) -> CampaignTruth:
-    """Render the campaign (see module doc) into ``out``; returns the truth (also written to truth/truth.json)."""
+    """Render the campaign (see module doc) into ``out``; returns the truth (also written to truth/truth.json).
+
+    Resumable and idempotent: complete scenes (``truth/<scene>/scene.json``) are skipped; other
+    settings than those ``out`` was created with raise :class:`InputError`. ``progress(scene_id,
+    capture_id)`` is called once per capture, skipped ones included.
+    """
     from solidkit.capture.lens import load_profile
     from solidkit.synth.renderer import mitsuba, variant
 
@@ -245,126 +350,41 @@ def generate_campaign(out: str | os.PathLike, scenes: int, probes: int, *, seed:
     mi = mitsuba()
     cfg = config or CampaignConfig()
     out = Path(out)
-    card, truth_dir = out / "card", out / "truth"
+    truth_dir = out / "truth"
+    open_campaign(out, scenes, probes, seed, cfg, variant())
     profile = load_profile(cfg.lens_profile)
     rw, rh = profile.reference_size
     profile = profile.scaled(cfg.fisheye_width, int(round(cfg.fisheye_width * rh / rw)))
-    model = profile.camera_models[0] if profile.camera_models else "RICOH THETA V"
     scfg = SampleConfig(width=cfg.photo_width, height=cfg.photo_height, hfov_deg=cfg.hfov_deg, candidates=cfg.candidates,
                         p_sunsky=cfg.p_sunsky, probe_height=cfg.probe_height, block_length=cfg.block_length)
     gen = Generator(seed, scfg)
     per_scene = _split(probes, scenes)
     shot_no = 1
     scenes_truth = []
+    rendered = skipped = 0
     for s in range(scenes):
-        rng = np.random.default_rng(derive_seed(seed, s, 77))
         sid = f"scene{s + 1:02d}"
-        sector = int(rng.integers(6))
-        block, (cam, _) = gen.block_and_view(s, sector)
-        geometry = to_mitsuba(block, None, tex_size=4)
-        # a field team shoots in the sun: retry lightings until the sun reaches the camera (or give up)
-        for attempt in range(cfg.sun_attempts):
-            light = gen.lighting(derive_seed(seed, s, 300 + attempt))
-            if light.sun is None or not _occluded(mi, geometry, cam.position, light.sun):
-                break
-        scene = to_mitsuba(block, light.emitter())
-        t0 = BASE_TIME + dt.timedelta(minutes=15 * s)
-        gps = (BASE_GPS[0] + rng.uniform(-0.004, 0.004), BASE_GPS[1] + rng.uniform(-0.006, 0.006), BASE_GPS[2])
-        # --- the photo
-        hdr = render_rgb(scene, pinhole_sensor(cam, spp=cfg.photo_spp, seed=derive_seed(seed, s, 1)), cfg.photo_spp,
-                         seed=derive_seed(seed, s, 1))
-        hdr, _ = suppress_fireflies(hdr, sun_mask_image(light.sun, cam, 6.0), cfg.firefly_k)
-        f_number, iso = 2.8, 100
-        mean = float(np.mean(hdr))
-        t_photo = 0.18 * f_number**2 / (K_SENSOR * max(mean, 1e-9) * iso / 100.0)
-        _, jpg = expose(hdr, t_photo, f_number, iso, rng, quality=cfg.jpeg_quality)
-        sensor_w = 6.17
-        f_mm = cam.K[0, 0] * sensor_w / cam.width
-        app = exif_app1(make="SOLIDKIT", model="Virtual Photo Camera", when=t0, exposure_time=t_photo, f_number=f_number,
-                        iso=iso, gps=gps, focal_length_mm=f_mm, focal_35mm=cam.K[0, 0] * 36.0 / cam.width)
-        photo_file = f"card/{sid}/photo/IMG_{s + 1:04d}.JPG"
-        atomic_write_bytes(out / photo_file, insert_app1(jpg, app))
-        write_exr(truth_dir / sid / "photo.exr", hdr, {"scene": sid})
-        photo = PhotoTruth(shot=Shot(file=photo_file, exposure_time=t_photo, f_number=f_number, iso=iso, time=t0, role="photo"),
-                           camera=cam.to_json(), focal_length_mm=f_mm, sensor_width_mm=sensor_w,
-                           hdr_file=f"truth/{sid}/photo.exr")
-        # --- probe points (one per quadrant first, then anywhere valid)
-        buf = render_buffers(scene, cam, spp=1, shadows=False)
-        picks = pick_probe_pixels(buf["hit"], rng, 0.05)
-        rng.shuffle(picks)
-        while len(picks) < per_scene[s] and picks:
-            extra = pick_probe_pixels(buf["hit"], rng, 0.05)
-            picks += [dict(p, quadrant=-1) for p in extra]
-        picks = picks[: per_scene[s]]
-        captures = []
-        positions: list[tuple[str, np.ndarray, dict[str, Any] | None]] = [("cam", cam.position.copy(), None)]
-        R = cam.rotation
-        for k, p in enumerate(picks):
-            x, y = p["pixel"]
-            v = cam.rays()[y, x]
-            point = cam.position + float(buf["t"][y, x]) * (R @ (v / np.linalg.norm(v)))
-            n = buf["normal_world"][y, x].astype(np.float64)
-            lab = block.category_of(np.array([buf["label"][y, x]]))[0]
-            info = {"pixel": [int(x), int(y)], "quadrant": int(p["quadrant"]), "point_scene": point.tolist(),
-                    "normal_scene": n.tolist(), "point_camera": ((point - cam.position) @ R).tolist(),
-                    "depth": float(buf["depth"][y, x]), "category": CATEGORIES[lab]}
-            positions.append((f"p{k + 1:02d}", point + 0.10 * n, info))
-        for c, (cid, pos, info) in enumerate(positions):
-            tc = t0 + dt.timedelta(seconds=60 + 120 * c)
-            yaw = rng.uniform(-math.pi, math.pi)
-            tilt = math.radians(cfg.max_tilt_deg)
-            pitch, roll = rng.uniform(-tilt, tilt), rng.uniform(-tilt, tilt)
-            Rb = np.asarray(rotation_from_ypr(yaw, pitch, roll))
-            rec_pitch = math.degrees(pitch) + rng.normal(0.0, cfg.gravity_noise_deg)
-            rec_roll = math.degrees(roll) + rng.normal(0.0, cfg.gravity_noise_deg)
-            rec_heading = (math.degrees(yaw) + rng.normal(0.0, cfg.compass_noise_deg)) % 360.0
-            pano = render_panorama(scene, pos, np.eye(3), cfg.pano_height, cfg.pano_spp,
-                                   seed=derive_seed(seed, s, 100 + c))
-            pano, _ = suppress_fireflies(pano, sun_mask_panorama(light.sun, np.eye(3), cfg.pano_height, 2.0),
-                                         cfg.firefly_k, wrap=True)
-            fish = fisheye_image(pano, Rb, profile)
-            shots = []
-            plan: list[tuple[float, int, str, float]] = []
-            for b, t_b in enumerate(cfg.brackets_s):
-                plan.append((t_b, 100, "bracket", 3.0 * b))
-            off = 3.0 * len(cfg.brackets_s) + (15.0 if cfg.brackets_s else 0.0)
-            plan += [(cfg.normal_exposure_s, 100, "normal", off), (cfg.low_exposure_s, 64, "low_exposure", off + 20.0)]
-            for t_exp, iso_c, role, dtime in plan:
-                when = tc + dt.timedelta(seconds=dtime)
-                _, jpg = expose(fish, t_exp, 2.0, iso_c, rng, quality=cfg.jpeg_quality)
-                app = exif_app1(make="RICOH", model=model, when=when, exposure_time=t_exp, f_number=2.0, iso=iso_c,
-                                gps=gps, theta={"image_type": 2, "roll_deg": rec_roll, "pitch_deg": rec_pitch,
-                                                "heading_deg": rec_heading})
-                f = f"card/{sid}/{cid}/R{10000 + shot_no:07d}.JPG"
-                shot_no += 1
-                atomic_write_bytes(out / f, insert_app1(jpg, app))
-                shots.append(Shot(file=f, exposure_time=t_exp, f_number=2.0, iso=iso_c, time=when, role=role))
-            probe = None
-            if info is not None:
-                local = render_panorama(scene, pos, cam.pano_rotation, cfg.probe_height, cfg.probe_spp,
-                                        seed=derive_seed(seed, s, 200 + c))
-                local, _ = suppress_fireflies(local, sun_mask_panorama(light.sun, cam.pano_rotation, cfg.probe_height),
-                                              cfg.firefly_k, wrap=True)
-                write_exr(truth_dir / sid / f"{cid}.exr", local, {"scene": sid, "probe": cid, "frame": "photo panorama frame"})
-                probe = ProbeTruth(**info, hdr_file=f"truth/{sid}/{cid}.exr")
-            sun_body = None if light.sun is None else (Rb.T @ light.sun).tolist()
-            sun_visible = light.sun is not None and not _occluded(mi, geometry, pos, light.sun)
-            captures.append(CaptureTruth(
-                id=cid, kind="probe" if info is not None else "camera_position", position=pos.tolist(),
-                yaw_deg=math.degrees(yaw), pitch_deg=math.degrees(pitch), roll_deg=math.degrees(roll),
-                R_scene_from_body=Rb.tolist(), R_pano_from_body=(cam.pano_rotation.T @ Rb).tolist(),
-                recorded_pitch_deg=rec_pitch, recorded_roll_deg=rec_roll, recorded_heading_deg=rec_heading,
-                sun_body=sun_body, sun_visible=sun_visible, shots=shots, probe=probe))
+        marker = truth_dir / sid / SCENE_FILE
+        st = _load_scene(marker)
+        if st is not None:
+            skipped += 1
+            log.info("%s: complete (%s), skipped", sid, marker.relative_to(out))
             if progress:
-                progress(sid, cid)
-        sun_az = sun_el = None
-        if light.sun is not None:
-            az, el = angles_from_direction(cam.pano_rotation.T @ light.sun)
-            sun_az, sun_el = math.degrees(float(az)), math.degrees(float(el))
-        scenes_truth.append(SceneTruth(
-            id=sid, block_seed=block.seed, sector=sector, lighting=light.meta, sun_found=light.sun is not None,
-            sun_scene=None if light.sun is None else [float(v) for v in light.sun], sun_azimuth_deg=sun_az,
-            sun_elevation_deg=sun_el, gps=list(gps), photo=photo, captures=captures))
+                for c in st.captures:
+                    progress(sid, c.id)
+        else:
+            for d in (out / "card" / sid, truth_dir / sid):  # leftovers of an interrupted run
+                if d.is_dir():
+                    shutil.rmtree(d)
+            st = _render_scene(out, s, sid, seed, cfg, gen, per_scene[s], shot_no, profile, mi, progress)
+            text = st.model_dump_json(indent=1)
+            atomic_write_text(marker, text)  # last: marks the scene complete
+            st = SceneTruth.model_validate_json(text)  # as a resumed run would read it
+            rendered += 1
+        shot_no = max(shot_no, _last_shot_no(st) + 1)
+        scenes_truth.append(st)
+    if skipped:
+        log.info("campaign %s: %d scene(s) rendered, %d complete scene(s) skipped", out, rendered, skipped)
     truth = CampaignTruth(seed=seed, scenes_requested=scenes, probes_requested=probes, config=cfg,
                           renderer={"mitsuba": mi.__version__, "variant": variant()},
                           radiometry={"K_SENSOR": K_SENSOR, "response": "sRGB (IEC 61966-2-1)",
@@ -373,3 +393,133 @@ def generate_campaign(out: str | os.PathLike, scenes: int, probes: int, *, seed:
                           scenes=scenes_truth)
     atomic_write_text(truth_dir / "truth.json", truth.model_dump_json(indent=1))
     return truth
+
+
+def _render_scene(out: Path, s: int, sid: str, seed: int, cfg: CampaignConfig, gen: Generator, n_probes: int,
+                  shot_no: int, profile: Any, mi: Any, progress: Any) -> SceneTruth:
+    """Render scene ``s`` (photo, probes, Theta captures) into ``out``; returns its truth (not yet written)."""
+    truth_dir = out / "truth"
+    model = profile.camera_models[0] if profile.camera_models else "RICOH THETA V"
+    rng = np.random.default_rng(derive_seed(seed, s, 77))
+    sector = int(rng.integers(6))
+    block, (cam, _) = gen.block_and_view(s, sector)
+    geometry = to_mitsuba(block, None, tex_size=4)
+    # a field team shoots in the sun: retry lightings until the sun reaches the camera (or give up)
+    for attempt in range(cfg.sun_attempts):
+        light = gen.lighting(derive_seed(seed, s, 300 + attempt))
+        if light.sun is not None and direction_angles(light.sun)[1] < -0.5:
+            continue  # a sun below the horizon (an odd HDR map) has no place and time
+        if light.sun is None or not _occluded(mi, geometry, cam.position, light.sun):
+            break
+    scene = to_mitsuba(block, light.emitter())
+    # place and time: pvlib's sun = the rendered sun (overcast: a daytime sun hidden by the clouds)
+    srng = np.random.default_rng(derive_seed(seed, s, 79))
+    sun_dir = light.sun if light.sun is not None else solar_direction(srng.uniform(0.0, 360.0), srng.uniform(15.0, 60.0))
+    fix = place_sun(sun_dir, srng)
+    heading = math.degrees(cam.yaw) % 360.0
+    t0 = fix.when_local
+    gps = (fix.lat_deg, fix.lon_deg, fix.alt_m)
+    # --- the photo
+    hdr = render_rgb(scene, pinhole_sensor(cam, spp=cfg.photo_spp, seed=derive_seed(seed, s, 1)), cfg.photo_spp,
+                     seed=derive_seed(seed, s, 1))
+    hdr, _ = suppress_fireflies(hdr, sun_mask_image(light.sun, cam, 6.0), cfg.firefly_k)
+    f_number, iso = 2.8, 100
+    mean = float(np.mean(hdr))
+    t_photo = 0.18 * f_number**2 / (K_SENSOR * max(mean, 1e-9) * iso / 100.0)
+    _, jpg = expose(hdr, t_photo, f_number, iso, rng, quality=cfg.jpeg_quality)
+    sensor_w = 6.17
+    f_mm = cam.K[0, 0] * sensor_w / cam.width
+    app = exif_app1(make="SOLIDKIT", model="Virtual Photo Camera", when=t0, exposure_time=t_photo, f_number=f_number,
+                    iso=iso, gps=gps, focal_length_mm=f_mm, focal_35mm=cam.K[0, 0] * 36.0 / cam.width,
+                    img_direction_deg=heading)
+    photo_file = f"card/{sid}/photo/IMG_{s + 1:04d}.JPG"
+    atomic_write_bytes(out / photo_file, insert_app1(jpg, app))
+    write_exr(truth_dir / sid / "photo.exr", hdr, {"scene": sid})
+    photo = PhotoTruth(shot=Shot(file=photo_file, exposure_time=t_photo, f_number=f_number, iso=iso, time=t0, role="photo"),
+                       camera=cam.to_json(), focal_length_mm=f_mm, sensor_width_mm=sensor_w,
+                       hdr_file=f"truth/{sid}/photo.exr")
+    # --- probe points (one per quadrant first, then anywhere valid)
+    buf = render_buffers(scene, cam, spp=1, shadows=False)
+    picks = pick_probe_pixels(buf["hit"], rng, 0.05)
+    rng.shuffle(picks)
+    while len(picks) < n_probes and picks:
+        extra = pick_probe_pixels(buf["hit"], rng, 0.05)
+        picks += [dict(p, quadrant=-1) for p in extra]
+    picks = picks[:n_probes]
+    captures = []
+    positions: list[tuple[str, np.ndarray, dict[str, Any] | None]] = [("cam", cam.position.copy(), None)]
+    R = cam.rotation
+    for k, p in enumerate(picks):
+        x, y = p["pixel"]
+        v = cam.rays()[y, x]
+        point = cam.position + float(buf["t"][y, x]) * (R @ (v / np.linalg.norm(v)))
+        n = buf["normal_world"][y, x].astype(np.float64)
+        lab = block.category_of(np.array([buf["label"][y, x]]))[0]
+        info = {"pixel": [int(x), int(y)], "quadrant": int(p["quadrant"]), "point_scene": point.tolist(),
+                "normal_scene": n.tolist(), "point_camera": ((point - cam.position) @ R).tolist(),
+                "depth": float(buf["depth"][y, x]), "category": CATEGORIES[lab]}
+        positions.append((f"p{k + 1:02d}", point + 0.10 * n, info))
+    for c, (cid, pos, info) in enumerate(positions):
+        tc = t0 + dt.timedelta(seconds=60 + 120 * c)
+        yaw = rng.uniform(-math.pi, math.pi)
+        tilt = math.radians(cfg.max_tilt_deg)
+        pitch, roll = rng.uniform(-tilt, tilt), rng.uniform(-tilt, tilt)
+        Rb = np.asarray(rotation_from_ypr(yaw, pitch, roll))
+        rec_pitch = math.degrees(pitch) + rng.normal(0.0, cfg.gravity_noise_deg)
+        rec_roll = math.degrees(roll) + rng.normal(0.0, cfg.gravity_noise_deg)
+        rec_heading = (math.degrees(yaw) + rng.normal(0.0, cfg.compass_noise_deg)) % 360.0
+        pano = render_panorama(scene, pos, np.eye(3), cfg.pano_height, cfg.pano_spp,
+                               seed=derive_seed(seed, s, 100 + c))
+        pano, _ = suppress_fireflies(pano, sun_mask_panorama(light.sun, np.eye(3), cfg.pano_height, 2.0),
+                                     cfg.firefly_k, wrap=True)
+        fish = fisheye_image(pano, Rb, profile)
+        shots = []
+        plan: list[tuple[float, int, str, float]] = []
+        for b, t_b in enumerate(cfg.brackets_s):
+            plan.append((t_b, 100, "bracket", 3.0 * b))
+        off = 3.0 * len(cfg.brackets_s) + (15.0 if cfg.brackets_s else 0.0)
+        plan += [(cfg.normal_exposure_s, 100, "normal", off), (cfg.low_exposure_s, 64, "low_exposure", off + 20.0)]
+        for t_exp, iso_c, role, dtime in plan:
+            when = tc + dt.timedelta(seconds=dtime)
+            _, jpg = expose(fish, t_exp, 2.0, iso_c, rng, quality=cfg.jpeg_quality)
+            app = exif_app1(make="RICOH", model=model, when=when, exposure_time=t_exp, f_number=2.0, iso=iso_c,
+                            gps=gps, theta={"image_type": 2, "roll_deg": rec_roll, "pitch_deg": rec_pitch,
+                                            "heading_deg": rec_heading})
+            f = f"card/{sid}/{cid}/R{10000 + shot_no:07d}.JPG"
+            shot_no += 1
+            atomic_write_bytes(out / f, insert_app1(jpg, app))
+            shots.append(Shot(file=f, exposure_time=t_exp, f_number=2.0, iso=iso_c, time=when, role=role))
+        probe = None
+        if info is not None:
+            local = render_panorama(scene, pos, cam.pano_rotation, cfg.probe_height, cfg.probe_spp,
+                                    seed=derive_seed(seed, s, 200 + c))
+            local, _ = suppress_fireflies(local, sun_mask_panorama(light.sun, cam.pano_rotation, cfg.probe_height),
+                                          cfg.firefly_k, wrap=True)
+            write_exr(truth_dir / sid / f"{cid}.exr", local, {"scene": sid, "probe": cid, "frame": "photo panorama frame"})
+            probe = ProbeTruth(**info, hdr_file=f"truth/{sid}/{cid}.exr")
+        sun_body = sun_drift = None
+        if light.sun is not None:
+            sun_body = (Rb.T @ light.sun).tolist()
+            normal_time = next(sh.time for sh in shots if sh.role == "normal")
+            real = solar_direction(*solar_position(normal_time, fix.lat_deg, fix.lon_deg, fix.alt_m))
+            sun_drift = math.degrees(math.acos(float(np.clip(real @ light.sun, -1.0, 1.0))))
+        sun_visible = light.sun is not None and not _occluded(mi, geometry, pos, light.sun)
+        captures.append(CaptureTruth(
+            id=cid, kind="probe" if info is not None else "camera_position", position=pos.tolist(),
+            yaw_deg=math.degrees(yaw), pitch_deg=math.degrees(pitch), roll_deg=math.degrees(roll),
+            R_scene_from_body=Rb.tolist(), R_pano_from_body=(cam.pano_rotation.T @ Rb).tolist(),
+            recorded_pitch_deg=rec_pitch, recorded_roll_deg=rec_roll, recorded_heading_deg=rec_heading,
+            sun_body=sun_body, sun_visible=sun_visible, sun_drift_deg=sun_drift, shots=shots, probe=probe))
+        if progress:
+            progress(sid, cid)
+    sun_az = sun_el = None
+    if light.sun is not None:
+        az, el = angles_from_direction(cam.pano_rotation.T @ light.sun)
+        sun_az, sun_el = math.degrees(float(az)), math.degrees(float(el))
+    solar = SolarTruth(time_utc=fix.when_utc, utc_offset=utc_offset_text(fix.utc_offset_min), latitude_deg=fix.lat_deg,
+                       longitude_deg=fix.lon_deg, altitude_m=fix.alt_m, azimuth_deg=fix.azimuth_deg,
+                       elevation_deg=fix.elevation_deg, error_deg=fix.error_deg, rendered=light.sun is not None)
+    return SceneTruth(
+        id=sid, block_seed=block.seed, sector=sector, lighting=light.meta, sun_found=light.sun is not None,
+        sun_scene=None if light.sun is None else [float(v) for v in light.sun], sun_azimuth_deg=sun_az,
+        sun_elevation_deg=sun_el, heading_deg=heading, solar=solar, gps=list(gps), photo=photo, captures=captures)

@@ -1,4 +1,4 @@
-"""A minimal EXIF writer for the virtual campaign: camera, exposure, time, GPS, Ricoh THETA maker note.
+"""A minimal EXIF writer for the virtual campaign: camera, exposure, time (+ UTC offset), GPS (+ heading), Ricoh maker note.
 
 Writes a little-endian TIFF structure (IFD0 -> Exif IFD -> MakerNote, GPS IFD) into a JPEG's
 APP1 segment. The Ricoh maker note follows Ricoh's *THETA Metadata Spec*
@@ -80,11 +80,17 @@ def _ricoh_makernote(base: int, image_type: int, roll_deg: float, pitch_deg: flo
 
 def exif_app1(*, make: str, model: str, when: dt.datetime, exposure_time: float, f_number: float, iso: int,
               gps: tuple[float, float, float] | None = None, focal_length_mm: float | None = None,
-              focal_35mm: float | None = None, theta: dict[str, Any] | None = None, software: str = "solidkit synth") -> bytes:
+              focal_35mm: float | None = None, theta: dict[str, Any] | None = None, software: str = "solidkit synth",
+              img_direction_deg: float | None = None) -> bytes:
     """APP1 payload (``b"Exif\\0\\0"`` + TIFF) with the given fields.
 
-    ``gps``: (latitude, longitude, altitude m); ``theta``: ``{"image_type", "roll_deg",
-    "pitch_deg", "heading_deg"}`` adds the Ricoh maker note.
+    ``when``: naive (camera clock, no offset written) or aware: ``DateTime(Original)`` is then its
+    local clock time, ``OffsetTime``/``OffsetTimeOriginal`` its UTC offset (``+HH:MM``) and, with
+    ``gps``, ``GPSDateStamp``/``GPSTimeStamp`` the UTC date and time, as a phone writes them.
+    ``gps``: (latitude, longitude, altitude m); ``img_direction_deg``: the true heading of the
+    camera (``GPSImgDirectionRef = "T"``, ``GPSImgDirection``, degrees clockwise from true north;
+    needs ``gps``); ``theta``: ``{"image_type", "roll_deg", "pitch_deg", "heading_deg"}`` adds
+    the Ricoh maker note.
     """
     stamp = when.strftime("%Y:%m:%d %H:%M:%S")
     ifd0 = [_entry(0x010F, ASCII, make), _entry(0x0110, ASCII, model), _entry(0x0131, ASCII, software),
@@ -93,6 +99,12 @@ def exif_app1(*, make: str, model: str, when: dt.datetime, exposure_time: float,
         ifd0.append(_entry(0x8825, LONG, 0))
     exif = [_entry(0x829A, RATIONAL, exposure_time), _entry(0x829D, RATIONAL, f_number), _entry(0x8827, SHORT, iso),
             _entry(0x9003, ASCII, stamp)]
+    utc = None
+    if when.tzinfo is not None and when.utcoffset() is not None:
+        minutes = int(when.utcoffset().total_seconds() // 60)
+        offset = f"{'+' if minutes >= 0 else '-'}{abs(minutes) // 60:02d}:{abs(minutes) % 60:02d}"
+        exif += [_entry(0x9010, ASCII, offset), _entry(0x9011, ASCII, offset)]
+        utc = when.astimezone(dt.timezone.utc)
     if focal_length_mm is not None:
         exif.append(_entry(0x920A, RATIONAL, focal_length_mm))
     if focal_35mm is not None:
@@ -119,10 +131,16 @@ def exif_app1(*, make: str, model: str, when: dt.datetime, exposure_time: float,
             m = int((v - d) * 60)
             return [d, m, round(((v - d) * 60 - m) * 60, 4)]
 
+        gps_extra = []
+        if utc is not None:
+            gps_extra += [_entry(0x0007, RATIONAL, [utc.hour, utc.minute, utc.second + utc.microsecond / 1e6]),
+                          _entry(0x001D, ASCII, utc.strftime("%Y:%m:%d"))]
+        if img_direction_deg is not None:
+            gps_extra += [_entry(0x0010, ASCII, "T"), _entry(0x0011, RATIONAL, float(img_direction_deg) % 360.0)]
         gps_bytes, _ = _ifd([_entry(0x0000, BYTE, [2, 3, 0, 0]), _entry(0x0001, ASCII, "N" if lat >= 0 else "S"),
                              _entry(0x0002, RATIONAL, dms(lat)), _entry(0x0003, ASCII, "E" if lon >= 0 else "W"),
                              _entry(0x0004, RATIONAL, dms(lon)), _entry(0x0005, BYTE, 0 if alt >= 0 else 1),
-                             _entry(0x0006, RATIONAL, abs(alt))], gps_off)
+                             _entry(0x0006, RATIONAL, abs(alt))] + gps_extra, gps_off)
     # now fill in the pointers
     ifd0 = [e for e in ifd0 if e[0] not in (0x8769, 0x8825)] + [_entry(0x8769, LONG, exif_off)]
     if gps is not None:
