@@ -42,26 +42,40 @@ def demo(
     run_demo(out, pano or DEFAULT_PANORAMA, log=typer.echo)
 
 
+def _fail(message: str, code: int) -> None:
+    typer.secho(f"error: {message}", err=True, fg="red")
+    sys.exit(code)
+
+
 def main() -> None:
     """Entry point: user errors become one line on stderr and exit code 2, never a traceback."""
+    from typer._click.exceptions import ClickException, NoArgsIsHelpError, UsageError  # typer >= 0.16 vendors click
+
     try:
         app(standalone_mode=False)
     except SolidkitError as exc:
-        typer.secho(f"error: {exc}", err=True, fg="red")
-        sys.exit(2)
+        _fail(str(exc), 2)
     except (typer.Abort, KeyboardInterrupt):
         typer.secho("aborted", err=True)
         sys.exit(130)
     except typer.Exit as exc:
         sys.exit(exc.exit_code)
-    except Exception as exc:  # usage errors and anything unforeseen: still one line
-        from typer._click.exceptions import ClickException  # typer >= 0.16 vendors click
-
-        if isinstance(exc, ClickException):
-            exc.show()
-            sys.exit(exc.exit_code)
-        typer.secho(f"error: {type(exc).__name__}: {exc}", err=True, fg="red")
-        sys.exit(1)
+    except NoArgsIsHelpError as exc:  # a bare group: its help
+        exc.show()
+        sys.exit(exc.exit_code)
+    except UsageError as exc:  # bad option or argument: one line, naming where help is
+        hint = f" (see '{exc.ctx.command_path} --help')" if exc.ctx is not None else ""
+        _fail(f"{exc.format_message()}{hint}", exc.exit_code)
+    except ClickException as exc:
+        _fail(exc.format_message(), exc.exit_code)
+    except OSError as exc:  # the file system said no: a file where a folder must be, permissions, disk full
+        where = f"{exc.filename}: " if exc.filename else ""
+        reason = exc.strerror or str(exc)
+        if isinstance(exc, FileExistsError):
+            reason += " (a file is where a folder is needed)"
+        _fail(f"{where}{reason}", 2)
+    except Exception as exc:  # anything unforeseen: still one line
+        _fail(f"{type(exc).__name__}: {exc}", 1)
 
 
 if __name__ == "__main__":

@@ -45,9 +45,9 @@ def _integral(pano: np.ndarray) -> np.ndarray:
 
 def run_demo(out: Path, pano_path: Path = DEFAULT_PANORAMA, log: Any = print) -> dict[str, Any]:
     """Run the demo into ``out``; returns the summary (also written to ``out/summary.json``)."""
-    out.mkdir(parents=True, exist_ok=True)
     pano, _ = read_image(pano_path)
     validate_panorama(pano, str(pano_path))
+    out.mkdir(parents=True, exist_ok=True)  # only once the input is known to be good
     summary: dict[str, Any] = {"panorama": str(pano_path), "size": [pano.shape[1], pano.shape[0]]}
     log(f"panorama {pano_path.name}: {pano.shape[1]}x{pano.shape[0]}, max {pano.max():.4g}")
 

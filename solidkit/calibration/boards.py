@@ -24,6 +24,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from solidkit.envmap.io import imread
 from solidkit.errors import InputError
 
 __all__ = [
@@ -123,10 +124,7 @@ def board_points(pattern: tuple[int, int], square: float = 1.0) -> np.ndarray:
 
 def read_gray(path: str | os.PathLike) -> np.ndarray:
     """An image file as 8-bit grey; :class:`InputError` when unreadable."""
-    img = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
-    if img is None:
-        raise InputError(f"{path}: not a readable image")
-    return img
+    return imread(path, cv2.IMREAD_GRAYSCALE)
 
 
 def find_corners(gray: np.ndarray, pattern: tuple[int, int], max_blur_px: float = 4.0) -> tuple[np.ndarray | None, str | None, float | None]:

@@ -30,6 +30,7 @@ from pydantic import Field
 from solidkit.calibration.boards import BoardView, detect_views
 from solidkit.calibration.profile import Profile, make_provenance
 from solidkit.capture.metadata import CaptureMetadata, read_metadata
+from solidkit.envmap.io import imread
 from solidkit.errors import InputError, SolidkitError
 
 __all__ = [
@@ -255,9 +256,7 @@ _EXIF_USED = {"make", "model", "width", "height", "exposure_time", "f_number", "
 
 def _size_only(photo: Path) -> CaptureMetadata:
     """Metadata with only the image size, for a non-JPEG/TIFF photo whose K comes from a FOV."""
-    img = cv2.imread(str(photo), cv2.IMREAD_UNCHANGED)
-    if img is None:
-        raise InputError(f"{photo}: not a readable image")
+    img = imread(photo)
     return CaptureMetadata(path=str(photo), width=img.shape[1], height=img.shape[0],
                            warnings=["no_exif: not a JPEG or TIFF/DNG file"])
 

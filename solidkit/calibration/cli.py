@@ -66,7 +66,7 @@ def response(
     out: Path = typer.Option(..., "-o", "--out", help="Profile JSON to write (a plot is written beside it as .png)."),
     times: Optional[str] = typer.Option(None, "--times", help="Exposure times in seconds, comma-separated (default: EXIF)."),
     method: str = typer.Option("debevec", "--method", help="debevec (default) or robertson."),
-    samples: int = typer.Option(400, help="Debevec: pixel samples."),
+    samples: int = typer.Option(400, min=1, help="Debevec: pixel samples."),
     smoothness: float = typer.Option(10.0, help="Debevec: smoothness weight lambda."),
     plot: bool = typer.Option(True, "--plot/--no-plot", help="Save the curve plot beside the profile."),
 ) -> None:

@@ -286,10 +286,13 @@ def read_linear_image(path: str | os.PathLike, response: np.ndarray | None = Non
     if suffix == ".exr":
         from solidkit.envmap.io import read_exr
 
-        return read_exr(path)[0][..., :3]
-    img = cv2.imread(str(path), cv2.IMREAD_COLOR)
-    if img is None:
-        raise InputError(f"{path}: not a readable image")
+        img = read_exr(path)[0][..., :3]
+        if not np.isfinite(img).all():
+            raise InputError(f"{path}: {int((~np.isfinite(img)).any(-1).sum())} pixel(s) are NaN or Inf")
+        return img
+    from solidkit.envmap.io import imread
+
+    img = imread(path, cv2.IMREAD_COLOR)
     rgb8 = img[..., ::-1]
     if response is not None:
         resp = np.asarray(response, dtype=np.float32)

@@ -28,6 +28,7 @@ from pydantic import Field
 
 from solidkit.calibration.profile import Profile, make_provenance
 from solidkit.capture.metadata import read_metadata
+from solidkit.envmap.io import imread
 from solidkit.errors import InputError, SolidkitError
 
 __all__ = [
@@ -81,9 +82,7 @@ def read_brackets(paths: Sequence[str | os.PathLike], times: Sequence[float] | N
     ts: list[float] = []
     for i, p in enumerate(paths):
         p = Path(p)
-        img = cv2.imread(str(p), cv2.IMREAD_COLOR)
-        if img is None:
-            raise InputError(f"{p}: not a readable 8-bit image")
+        img = imread(p, cv2.IMREAD_COLOR)
         images.append(np.ascontiguousarray(img[..., ::-1]))
         if times is None:
             try:
@@ -134,6 +133,9 @@ def calibrate_response(
         raise ResponseError("response calibration needs 8-bit 3-channel images")
     t = np.asarray(times, dtype=np.float32)
     if method == "debevec":
+        n_px = imgs[0].shape[0] * imgs[0].shape[1]
+        if not 1 <= samples <= n_px:
+            raise ResponseError(f"Debevec samples must be in 1..{n_px} (the pixels of one image), got {samples}")
         cal = cv2.createCalibrateDebevec(samples=int(samples), lambda_=float(smoothness))
     elif method == "robertson":
         cal = cv2.createCalibrateRobertson()

@@ -82,6 +82,7 @@ import contextlib
 import fcntl
 import hashlib
 import json
+import math
 import os
 import re
 import shutil
@@ -863,6 +864,27 @@ def ingest(
         raise InputError("the campaign directory must not be inside the card")
     if card.is_relative_to(campaign):
         raise InputError("the card must not be inside the campaign directory")
+    if campaign.exists() and not campaign.is_dir():
+        raise InputError(f"{campaign_dir}: exists and is not a directory")
+    # validate everything before the campaign directory is created or touched
+    for key, value in (grouping.model_dump() if isinstance(grouping, GroupingParams) else grouping or {}).items():
+        if not (math.isfinite(value) and value > 0):
+            raise InputError(f"--{key.removesuffix('_s').replace('_', '-')} must be a positive number of seconds, got {value}")
+    if response_path is not None:
+        from solidkit.capture.merge import load_response
+
+        load_response(Path(response_path))
+    if lens_profile is not None:
+        from solidkit.capture.lens import load_profile
+
+        lp = load_profile(lens_profile)  # a file, or a shipped name
+    if vignetting_path is not None:
+        from solidkit.capture.unwarp import load_vignetting
+
+        load_vignetting(vignetting_path)
+    captures, unrelated = scan_card(card)
+    if not captures:
+        raise InputError(f"{card_dir}: no captures (.jpg/.jpeg/.dng) on this card")
     throttle = float(os.environ.get("SOLIDKIT_INGEST_THROTTLE_S", "0") or 0)  # testing aid: slow each file down
     report = IngestReport()
     with _lock(campaign), contextlib.ExitStack() as stack:
@@ -878,29 +900,18 @@ def ingest(
         elif grouping:  # overrides of the campaign's stored parameters
             manifest.grouping = GroupingParams.model_validate({**manifest.grouping.model_dump(), **grouping})
         if response_path is not None:
-            rp = Path(response_path)
-            from solidkit.capture.merge import load_response
-
-            load_response(rp)  # validate before anything is built with it
-            manifest.response = _record_profile(campaign, rp, "response")
+            manifest.response = _record_profile(campaign, Path(response_path), "response")
         if lens_profile is not None:
-            from solidkit.capture.lens import load_profile
-
-            lp = load_profile(lens_profile)  # validate (a file, or a shipped name)
             if Path(lens_profile).is_file():
                 manifest.lens_profile = {**_record_profile(campaign, lens_profile, "lens"), "model": lp.model}
             else:
                 manifest.lens_profile = {"kind": "shipped", "name": str(lens_profile), "key": lp.key()}
         if vignetting_path is not None:
-            from solidkit.capture.unwarp import load_vignetting
-
-            load_vignetting(vignetting_path)
             manifest.vignetting = _record_profile(campaign, vignetting_path, "vignetting")
         cstr = str(card)
         if cstr not in manifest.cards:
             manifest.cards = sorted([*manifest.cards, cstr])
 
-        captures, unrelated = scan_card(card)
         report.files_seen = len(captures)
         report.unrelated = [p.as_posix() for p in unrelated]
         # forget errors and skips of files that are no longer on this card

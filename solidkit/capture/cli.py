@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import math
 from pathlib import Path
 
 import typer
@@ -72,6 +73,10 @@ def merge(
         wb_arg: object = tuple(float(x) for x in wb.split(",")) if "," in wb else wb
     except ValueError as exc:
         raise InputError(f"--times/--wb: {exc}") from None
+    if isinstance(wb_arg, str) and wb_arg not in ("camera", "daylight", "none"):
+        raise InputError(f"--wb: unknown white balance '{wb}' (camera, daylight, none or r,g,b)")
+    if isinstance(wb_arg, tuple) and (len(wb_arg) != 3 or not all(math.isfinite(x) and x > 0 for x in wb_arg)):
+        raise InputError(f"--wb: expected three positive numbers r,g,b, got '{wb}'")
     summaries = merge_files(frames, out, times=t, response_path=response, group=group, deghost=deghost,
                             ghost_mask_path=ghost_mask, wb=wb_arg)
     if as_json:

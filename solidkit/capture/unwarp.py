@@ -546,18 +546,16 @@ def _read_input(path: Path) -> tuple[np.ndarray, float | None]:
     decoded to linear float.
     """
     from solidkit.capture.raw import is_raw_file, read_raw
-    from solidkit.envmap.io import read_exr, read_ldr
+    from solidkit.envmap.io import imread, read_exr, read_ldr
 
     if path.suffix.lower() == ".exr":
         img, _ = read_exr(path)
+        if not np.isfinite(img[..., :3]).all():
+            raise InputError(f"{path}: {int((~np.isfinite(img[..., :3])).any(-1).sum())} pixel(s) are NaN or Inf")
         return img[..., :3], None
     if is_raw_file(path):
         return read_raw(path).linear, None
-    if not path.is_file():
-        raise InputError(f"{path}: no such file")
-    raw = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
-    if raw is None:
-        raise InputError(f"{path}: not a readable image")
+    raw = imread(path)
     if raw.dtype != np.uint8:
         return read_ldr(path, linear=True), 0.98
     if raw.ndim == 2:
@@ -625,9 +623,15 @@ def unwarp_file(
     from solidkit.envmap.resample import resize, rotate
     from solidkit.fsutil import atomic_path, sha256_file
 
+    from solidkit.envmap.io import LDR_SUFFIXES
+
     src, dst = Path(src), Path(dst)
     if src.resolve() == dst.resolve():
         raise InputError(f"{dst}: refusing to overwrite the input (originals are never modified)")
+    if dst.suffix.lower() != ".exr" and dst.suffix.lower() not in LDR_SUFFIXES:
+        raise InputError(f"{dst}: unknown output type '{dst.suffix}' (use .exr, or .png/.jpg for sRGB)")
+    if not (math.isfinite(feather_deg) and feather_deg >= 0):
+        raise InputError(f"--feather must be a finite angle >= 0 degrees, got {feather_deg}")
     t0 = time.perf_counter()
     from solidkit.capture.raw import is_raw_file
 

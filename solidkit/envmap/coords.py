@@ -18,6 +18,8 @@ from typing import Any
 import array_api_compat
 import numpy as np
 
+from solidkit.errors import InputError
+
 CONVENTIONS_VERSION = 1
 
 __all__ = [
@@ -178,6 +180,7 @@ def rotation_from_ypr(yaw: Any, pitch: Any = 0.0, roll: Any = 0.0) -> Any:
 
     ``R`` maps camera-frame vectors to panorama-frame vectors: a camera with this orientation
     looks at azimuth ``yaw`` and elevation ``pitch``, and ``roll > 0`` turns its right axis down.
+    Non-finite Python-number angles raise :class:`~solidkit.errors.InputError`.
     """
     arrays = [a for a in (yaw, pitch, roll) if not isinstance(a, (int, float))]
     if arrays:  # Python floats follow the array arguments' backend, dtype and device
@@ -187,6 +190,8 @@ def rotation_from_ypr(yaw: Any, pitch: Any = 0.0, roll: Any = 0.0) -> Any:
             xp.asarray(a, dtype=like.dtype, device=array_api_compat.device(like)) if isinstance(a, (int, float)) else a
             for a in (yaw, pitch, roll)
         )
+    elif not all(math.isfinite(a) for a in (yaw, pitch, roll)):
+        raise InputError(f"rotation angles must be finite numbers, got yaw, pitch, roll = {yaw}, {pitch}, {roll}")
     return rotation_y(yaw) @ rotation_x(pitch) @ rotation_z(roll)
 
 

@@ -139,14 +139,30 @@ def tonemap(hdr: Any, exposure: float = PAPER_EXPOSURE, gamma: float = PAPER_GAM
     return xp.clip(scaled ** (1.0 / gamma), 0.0, 1.0) * (hdr > 0)
 
 
-def read_ldr(path: str | os.PathLike, *, linear: bool = False) -> np.ndarray:
-    """Read an 8/16-bit image as RGB float32 in [0, 1]; ``linear=True`` undoes sRGB."""
+def imread(path: str | os.PathLike, flags: int = cv2.IMREAD_UNCHANGED) -> np.ndarray:
+    """``cv2.imread`` that refuses missing, undecodable and truncated files with an :class:`InputError`.
+
+    OpenCV decodes a truncated JPEG without complaint (the missing rows come out grey); a JPEG must
+    therefore end with its EOI marker ``FF D9`` (trailing zero padding allowed).
+    """
     path = Path(path)
     if not path.is_file():
         raise InputError(f"{path}: no such file")
-    img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    with open(path, "rb") as f:
+        head = f.read(3)
+        if head == b"\xff\xd8\xff":  # JPEG
+            f.seek(max(0, path.stat().st_size - 4096))
+            if not f.read().rstrip(b"\0").endswith(b"\xff\xd9"):
+                raise InputError(f"{path}: truncated JPEG (no end-of-image marker)")
+    img = cv2.imread(str(path), flags)
     if img is None:
         raise InputError(f"{path}: not a readable image")
+    return img
+
+
+def read_ldr(path: str | os.PathLike, *, linear: bool = False) -> np.ndarray:
+    """Read an 8/16-bit image as RGB float32 in [0, 1]; ``linear=True`` undoes sRGB."""
+    img = imread(path)
     scale = float(np.iinfo(img.dtype).max) if np.issubdtype(img.dtype, np.integer) else 1.0
     if img.ndim == 2:
         img = np.repeat(img[..., None], 3, axis=2)

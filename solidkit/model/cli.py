@@ -66,6 +66,8 @@ def predict_command(
     from solidkit.model.solidnet import SolidNet, default_intrinsics
 
     pixels = [parse_pixel(a) for a in at]
+    if not (math.isfinite(pitch) and math.isfinite(roll)):
+        raise InputError(f"--pitch/--roll must be finite degrees, got {pitch}, {roll}")
     photo = read_ldr(image)
     model = SolidNet.from_checkpoint(checkpoint)
     K = _intrinsics(intrinsics)
