@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import functools
 import sys
 from pathlib import Path
 from typing import Optional
@@ -12,7 +13,7 @@ from solidkit.calibration.cli import app as calibrate_app
 from solidkit.capture.campaign import ingest_cli
 from solidkit.capture.cli import app as capture_app
 from solidkit.envmap.cli import app as envmap_app
-from solidkit.errors import SolidkitError
+from solidkit.errors import InputError, SolidkitError
 from solidkit.model.cli import predict_command
 from solidkit.synth.cli import app as synth_app
 
@@ -40,6 +41,49 @@ def demo(
     from solidkit.demo import DEFAULT_PANORAMA, run_demo
 
     run_demo(out, pano or DEFAULT_PANORAMA, log=typer.echo)
+
+
+_OUTPUTS = ("out", "ghost_mask")  # the parameters naming what a command writes
+_IN_PLACE = ("add_to",)  # inputs a command updates on purpose (calibrate lens --add-to)
+
+
+def _is_file(value: object) -> bool:
+    try:
+        return isinstance(value, (str, Path)) and bool(str(value)) and Path(value).is_file()
+    except OSError:  # e.g. a name too long to be a path
+        return False
+
+
+def refuse_overwriting_inputs(callback):
+    """Wrap a command callback: an output that names one of the command's input files is refused
+    (:class:`InputError`) before any work, so originals are never overwritten."""
+
+    @functools.wraps(callback)
+    def guarded(**kwargs):
+        inputs = {
+            Path(v).resolve()
+            for name, value in kwargs.items()
+            if name not in _OUTPUTS and name not in _IN_PLACE
+            for v in (value if isinstance(value, (list, tuple)) else [value])
+            if _is_file(v)
+        }
+        for name in _OUTPUTS:
+            out = kwargs.get(name)
+            if _is_file(out) and Path(out).resolve() in inputs:
+                raise InputError(f"{out}: is an input of this command; refusing to overwrite it")
+        return callback(**kwargs)
+
+    return guarded
+
+
+def _guard(typer_app: typer.Typer) -> None:
+    for info in typer_app.registered_commands:
+        info.callback = refuse_overwriting_inputs(info.callback)
+    for group in typer_app.registered_groups:
+        _guard(group.typer_instance)
+
+
+_guard(app)
 
 
 def _fail(message: str, code: int) -> None:
