@@ -44,6 +44,17 @@ def atomic_write_text(path: str | os.PathLike, text: str) -> None:
     atomic_write_bytes(path, text.encode("utf-8"))
 
 
+def jpeg_truncated(path: str | os.PathLike) -> bool:
+    """True for a JPEG file (``FF D8 FF``) that does not end with its end-of-image marker ``FF D9``
+    (trailing zero padding allowed): cut short by a failed copy or card error. Decoders such as
+    OpenCV's fill the missing rows with grey instead of failing."""
+    with open(path, "rb") as f:
+        if f.read(3) != b"\xff\xd8\xff":
+            return False
+        f.seek(max(0, os.fstat(f.fileno()).st_size - 4096))
+        return not f.read().rstrip(b"\0").endswith(b"\xff\xd9")
+
+
 def sha256_file(path: str | os.PathLike, chunk: int = 1 << 20) -> str:
     """Hex SHA-256 of a file's content."""
     h = hashlib.sha256()

@@ -61,6 +61,7 @@ CASES: list[tuple[str, list[str], tuple]] = [
     ("capture-info-missing", ["capture", "info", "{d}/missing.jpg"], SLOW),
     ("capture-info-empty", ["capture", "info", "{d}/empty.jpg"], ()),
     ("capture-info-text-jpg", ["capture", "info", "{d}/text.jpg"], ()),
+    ("capture-info-trunc-jpg", ["capture", "info", "{d}/trunc.jpg"], ()),
     ("merge-missing", ["capture", "merge", "{d}/missing.jpg", "{d}/photo.jpg", "-o", "{d}/m.exr"], SLOW),
     ("merge-text-jpg", ["capture", "merge", "{d}/text.jpg", "{d}/photo.jpg", "-o", "{d}/m.exr", "--times", "1,2"], SLOW),
     ("merge-trunc-jpg", ["capture", "merge", "{d}/trunc.jpg", "{d}/photo.jpg", "-o", "{d}/m.exr", "--times", "1,2"], ()),

@@ -12,6 +12,8 @@ from rich.markup import escape
 from rich.table import Table
 
 from solidkit.capture.metadata import read_metadata
+from solidkit.errors import InputError
+from solidkit.fsutil import jpeg_truncated
 
 app = typer.Typer(no_args_is_help=True)
 console = Console()
@@ -25,6 +27,8 @@ def info(
     """Metadata of captures: EXIF exposure, GPS, GPano, Ricoh image type, zenith correction, gravity."""
     for path in files:
         meta = read_metadata(path)
+        if meta.file_format == "jpeg" and jpeg_truncated(path):  # read_metadata reads the header only
+            raise InputError(f"{path}: truncated JPEG (no end-of-image marker)")
         if as_json:
             typer.echo(meta.model_dump_json())
             continue
@@ -66,7 +70,6 @@ def merge(
 ) -> None:
     """Merge exposure brackets into linear HDR EXR (weights, saturation/black exclusion, ghost report)."""
     from solidkit.capture.merge import merge_files
-    from solidkit.errors import InputError
 
     try:
         t = [float(eval_fraction(x)) for x in times.split(",")] if times else None

@@ -17,7 +17,7 @@ import OpenEXR
 
 from solidkit.envmap.coords import CONVENTIONS_VERSION, namespace
 from solidkit.errors import InputError, PanoramaError
-from solidkit.fsutil import atomic_path
+from solidkit.fsutil import atomic_path, jpeg_truncated
 
 __all__ = [
     "PAPER_EXPOSURE",
@@ -142,18 +142,14 @@ def tonemap(hdr: Any, exposure: float = PAPER_EXPOSURE, gamma: float = PAPER_GAM
 def imread(path: str | os.PathLike, flags: int = cv2.IMREAD_UNCHANGED) -> np.ndarray:
     """``cv2.imread`` that refuses missing, undecodable and truncated files with an :class:`InputError`.
 
-    OpenCV decodes a truncated JPEG without complaint (the missing rows come out grey); a JPEG must
-    therefore end with its EOI marker ``FF D9`` (trailing zero padding allowed).
+    OpenCV decodes a truncated JPEG without complaint (the missing rows come out grey), hence
+    :func:`solidkit.fsutil.jpeg_truncated` first.
     """
     path = Path(path)
     if not path.is_file():
         raise InputError(f"{path}: no such file")
-    with open(path, "rb") as f:
-        head = f.read(3)
-        if head == b"\xff\xd8\xff":  # JPEG
-            f.seek(max(0, path.stat().st_size - 4096))
-            if not f.read().rstrip(b"\0").endswith(b"\xff\xd9"):
-                raise InputError(f"{path}: truncated JPEG (no end-of-image marker)")
+    if jpeg_truncated(path):
+        raise InputError(f"{path}: truncated JPEG (no end-of-image marker)")
     img = cv2.imread(str(path), flags)
     if img is None:
         raise InputError(f"{path}: not a readable image")
