@@ -267,3 +267,33 @@ def test_bad_input_is_one_clear_line(bad_dir: Path, argv: list[str]) -> None:
     assert "Warning" not in res.stderr, res.stderr
     after = snapshot(bad_dir)
     assert after == before, f"files changed: {sorted(set(after.items()) ^ set(before.items()))}"
+
+
+def test_jpeg_truncated(tmp_path: Path) -> None:
+    from solidkit.fsutil import jpeg_truncated
+
+    jpg = _jpeg(np.zeros((16, 16, 3), np.uint8))
+    cases = {"ok.jpg": jpg, "padded.jpg": jpg + b"\0" * 100, "cut.jpg": jpg[:-10], "text.jpg": b"hello", "empty.jpg": b""}
+    for name, data in cases.items():
+        (tmp_path / name).write_bytes(data)
+    assert {n: jpeg_truncated(tmp_path / n) for n in cases} == {
+        "ok.jpg": False, "padded.jpg": False, "cut.jpg": True, "text.jpg": False, "empty.jpg": False
+    }
+
+
+def test_output_naming_an_input_is_refused_except_in_place_updates(tmp_path: Path) -> None:
+    from solidkit.cli import refuse_overwriting_inputs
+    from solidkit.errors import InputError
+
+    src, other = tmp_path / "a.jpg", tmp_path / "b.json"
+    src.write_bytes(b"x")
+    other.write_text("{}")
+    calls = []
+    cmd = refuse_overwriting_inputs(lambda **kw: calls.append(kw))
+    with pytest.raises(InputError, match="refusing to overwrite"):
+        cmd(frames=[src], out=src)
+    with pytest.raises(InputError, match="refusing to overwrite"):
+        cmd(image=src, out=tmp_path / "new.json", ghost_mask=src)
+    cmd(frames=[src], out=other)  # an existing non-input output is simply replaced
+    cmd(views=[src], out=other, add_to=other)  # calibrate lens --add-to P -o P updates P
+    assert len(calls) == 2 and src.read_bytes() == b"x"
