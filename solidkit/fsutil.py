@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import contextlib
 import hashlib
+import mmap
 import os
 import tempfile
 from collections.abc import Iterator
@@ -45,14 +46,31 @@ def atomic_write_text(path: str | os.PathLike, text: str) -> None:
 
 
 def jpeg_truncated(path: str | os.PathLike) -> bool:
-    """True for a JPEG file (``FF D8 FF``) that does not end with its end-of-image marker ``FF D9``
-    (trailing zero padding allowed): cut short by a failed copy or card error. Decoders such as
-    OpenCV's fill the missing rows with grey instead of failing."""
+    """True for a JPEG file (``FF D8 FF``) whose scan data has no end-of-image marker ``FF D9``:
+    cut short by a failed copy or card error (decoders such as OpenCV's fill the missing rows
+    with grey instead of failing).
+
+    The marker segments before the first scan (``FF DA``) are skipped by their lengths, so an
+    embedded EXIF thumbnail's own ``FF D9`` does not count; data after the end marker (phone
+    trailers, motion-photo videos) is allowed. Entropy-coded data cannot contain ``FF D9``
+    (ITU-T T.81 B.1.1.5: ``FF`` is stuffed as ``FF 00``).
+    """
     with open(path, "rb") as f:
         if f.read(3) != b"\xff\xd8\xff":
             return False
-        f.seek(max(0, os.fstat(f.fileno()).st_size - 4096))
-        return not f.read().rstrip(b"\0").endswith(b"\xff\xd9")
+        if os.fstat(f.fileno()).st_size < 4:
+            return True
+        with mmap.mmap(f.fileno(), 0, access=mmap.ACCESS_READ) as data:
+            pos = 2
+            while pos + 4 <= len(data) and data[pos] == 0xFF:
+                marker = data[pos + 1]
+                if marker == 0xFF:  # fill byte
+                    pos += 1
+                    continue
+                if marker == 0xDA:
+                    return data.find(b"\xff\xd9", pos) < 0
+                pos += 2 + int.from_bytes(data[pos + 2 : pos + 4], "big")
+            return True  # no scan reached: headers cut short or corrupt
 
 
 def sha256_file(path: str | os.PathLike, chunk: int = 1 << 20) -> str:

@@ -273,11 +273,19 @@ def test_jpeg_truncated(tmp_path: Path) -> None:
     from solidkit.fsutil import jpeg_truncated
 
     jpg = _jpeg(np.zeros((16, 16, 3), np.uint8))
-    cases = {"ok.jpg": jpg, "padded.jpg": jpg + b"\0" * 100, "cut.jpg": jpg[:-10], "text.jpg": b"hello", "empty.jpg": b""}
+    cases = {
+        "ok.jpg": jpg,
+        "padded.jpg": jpg + b"\0" * 100,
+        "trailer.jpg": jpg + b"motion-photo video" * 500,  # data after the end marker is legal
+        "cut.jpg": jpg[:-10],
+        "text.jpg": b"hello",
+        "empty.jpg": b"",
+    }
     for name, data in cases.items():
         (tmp_path / name).write_bytes(data)
     assert {n: jpeg_truncated(tmp_path / n) for n in cases} == {
-        "ok.jpg": False, "padded.jpg": False, "cut.jpg": True, "text.jpg": False, "empty.jpg": False
+        "ok.jpg": False, "padded.jpg": False, "trailer.jpg": False, "cut.jpg": True, "text.jpg": False,
+        "empty.jpg": False,
     }
 
 
