@@ -15,3 +15,12 @@ class PanoramaError(InputError):
 
 class ConventionsError(SolidkitError):
     """A file or checkpoint was written under another conventions version."""
+
+
+def validation_message(exc: Exception) -> str:
+    """One line ``field.path: message`` for the first error of a pydantic ``ValidationError``."""
+    errors = getattr(exc, "errors", None)
+    if not callable(errors) or not errors():
+        return str(exc).splitlines()[0]
+    first = errors()[0]
+    return f"{'.'.join(str(p) for p in first['loc'])}: {first['msg']}"

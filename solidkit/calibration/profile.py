@@ -25,7 +25,7 @@ from typing import Any, ClassVar, TypeVar
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
 from solidkit.envmap.coords import CONVENTIONS_VERSION
-from solidkit.errors import ConventionsError, InputError
+from solidkit.errors import ConventionsError, InputError, validation_message
 from solidkit.fsutil import atomic_write_text, sha256_file
 
 __all__ = ["ProfileError", "InputFile", "Provenance", "Profile", "make_provenance", "load_profile"]
@@ -123,9 +123,7 @@ class Profile(BaseModel):
         try:
             return cls.model_validate(data)
         except ValidationError as exc:
-            first = exc.errors()[0]
-            where = ".".join(str(p) for p in first["loc"])
-            raise ProfileError(f"{name}: invalid {cls.KIND} profile: {where}: {first['msg']}") from None
+            raise ProfileError(f"{name}: invalid {cls.KIND} profile: {validation_message(exc)}") from None
 
 
 _KIND_MODULES = {

@@ -59,7 +59,7 @@ import numpy as np
 from pydantic import BaseModel, Field, ValidationError, field_validator, model_validator
 
 from solidkit.envmap.coords import rotation_from_ypr, ypr_from_rotation
-from solidkit.errors import InputError
+from solidkit.errors import InputError, validation_message
 from solidkit.fsutil import atomic_write_text
 
 __all__ = [
@@ -273,9 +273,7 @@ def _parse(text: str, where: str) -> LensProfile:
     try:
         return LensProfile.model_validate(data)
     except ValidationError as exc:
-        first = exc.errors()[0]
-        loc = ".".join(str(x) for x in first["loc"])
-        raise LensProfileError(f"{where}: invalid lens profile: {loc}: {first['msg']}") from exc
+        raise LensProfileError(f"{where}: invalid lens profile: {validation_message(exc)}") from exc
 
 
 def load_profile(name_or_path: str | os.PathLike) -> LensProfile:
