@@ -31,6 +31,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from solidkit.envmap.coords import angles_from_direction, angular_distance, direction_from_angles
 from solidkit.errors import InputError
 
 __all__ = ["SolarFix", "solar_position", "solar_direction", "direction_angles", "place_sun", "utc_offset_text"]
@@ -41,14 +42,13 @@ OBLIQUITY_DEG = 23.44
 
 def direction_angles(d: np.ndarray) -> tuple[float, float]:
     """Scene-frame unit direction ``(3,)`` -> (solar azimuth clockwise from north, elevation), degrees."""
-    d = np.asarray(d, np.float64) / np.linalg.norm(d)
-    return math.degrees(math.atan2(d[0], d[2])) % 360.0, math.degrees(math.asin(float(np.clip(-d[1], -1.0, 1.0))))
+    phi, theta = angles_from_direction(np.asarray(d, np.float64))  # the scene frame is laid out like §2
+    return math.degrees(float(phi)) % 360.0, math.degrees(float(theta))
 
 
 def solar_direction(azimuth_deg: float, elevation_deg: float) -> np.ndarray:
     """(azimuth clockwise from north, elevation) in degrees -> unit direction ``(3,)`` in the scene frame."""
-    a, e = math.radians(azimuth_deg), math.radians(elevation_deg)
-    return np.array([math.cos(e) * math.sin(a), -math.sin(e), math.cos(e) * math.cos(a)])
+    return direction_from_angles(np.radians(float(azimuth_deg)), np.radians(float(elevation_deg)))
 
 
 def solar_position(when: dt.datetime, lat_deg: float, lon_deg: float, alt_m: float = 0.0) -> tuple[float, float]:
@@ -95,7 +95,7 @@ class SolarFix:
 
 
 def _angle(a: np.ndarray, b: np.ndarray) -> float:
-    return math.degrees(math.atan2(float(np.linalg.norm(np.cross(a, b))), float(np.dot(a, b))))
+    return math.degrees(float(angular_distance(np.asarray(a, np.float64), np.asarray(b, np.float64))))
 
 
 def _latitudes(sin_el: float, cos_el: float, cos_az: float, decl: np.ndarray) -> np.ndarray:
