@@ -130,8 +130,20 @@ def angles_grid(height: int, xp: Any = np, **kw: Any) -> tuple[Any, Any]:
 
 
 def direction_grid(height: int, xp: Any = np, **kw: Any) -> Any:
-    """Unit direction of every pixel centre, ``(H, 2H, 3)``, in the panorama frame."""
-    return direction_from_angles(*angles_grid(height, xp, **kw))
+    """Unit direction of every pixel centre, ``(H, 2H, 3)``, in the panorama frame.
+
+    The same formula as :func:`direction_from_angles`, evaluated on one row of azimuths and one
+    column of elevations (the grid is separable), so the trigonometry costs O(H + W), not O(HW).
+    """
+    kw.setdefault("dtype", xp.float64 if xp is np else xp.float32)
+    ns = module_namespace(xp)
+    phi, _ = angles_from_coords(ns.arange(2 * height, **kw) + 0.5, 0.0, height)
+    _, theta = angles_from_coords(0.0, ns.arange(height, **kw) + 0.5, height)
+    row = direction_from_angles(phi, ns.zeros_like(phi))  # (W, 3) at elevation 0
+    ct, st = ns.cos(theta)[:, None], ns.sin(theta)[:, None]  # (H, 1)
+    return ns.stack(
+        [ct * row[None, :, 0], ns.broadcast_to(-st, (height, 2 * height)), ct * row[None, :, 2]], axis=-1
+    )
 
 
 def solid_angle(height: int, xp: Any = np, **kw: Any) -> Any:
