@@ -188,6 +188,8 @@ class _Tiff:
     def ifd(self, offset: int) -> dict[int, tuple[int, int, int]]:
         """Entries ``tag -> (type, count, value_offset_or_inline_pos)`` of the IFD at ``offset``."""
         buf, bo = self.buf, self.bo
+        if not isinstance(offset, int):  # a pointer tag whose type byte was mangled into RATIONAL/ASCII
+            raise _TiffError(f"IFD pointer is a {type(offset).__name__}, not an offset")
         if offset <= 0 or offset + 2 > len(buf):
             raise _TiffError(f"IFD offset {offset} out of range")
         n = struct.unpack(bo + "H", buf[offset : offset + 2])[0]
