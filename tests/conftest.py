@@ -28,3 +28,24 @@ def torch_one_thread():
     torch.set_num_threads(1)
     yield
     torch.set_num_threads(n)
+
+
+@pytest.fixture
+def cli(monkeypatch, capsys):
+    """Run ``solidkit ARGS`` in-process through the real entry point (``solidkit.cli.main``, with
+    its error handling, without a subprocess's start-up cost): returns ``(exit code, stdout, stderr)``."""
+    import sys
+
+    from solidkit.cli import main
+
+    def run(*args) -> tuple[int, str, str]:
+        monkeypatch.setattr(sys, "argv", ["solidkit", *map(str, args)])
+        try:
+            main()
+            code = 0
+        except SystemExit as exc:
+            code = int(exc.code or 0)
+        out = capsys.readouterr()
+        return code, out.out, out.err
+
+    return run

@@ -83,11 +83,9 @@ def test_refinement_recovers_perturbation(city):
 
 
 @pytest.mark.slow
-def test_cli_calibrate_overlap(tmp_path, city, monkeypatch, capsys):
+def test_cli_calibrate_overlap(tmp_path, city, cli):
     import json
-    import sys
 
-    from solidkit.cli import main
     from solidkit.envmap.io import write_ldr
 
     base = load_profile("theta-v")
@@ -98,16 +96,7 @@ def test_cli_calibrate_overlap(tmp_path, city, monkeypatch, capsys):
     write_ldr(src, render_fisheye(city, true, (768, 384)), encode_srgb=False)
     out = tmp_path / "unit.json"
 
-    def run(*args: str) -> tuple[int, str]:
-        monkeypatch.setattr(sys, "argv", ["solidkit", *args])
-        try:
-            main()
-            code = 0
-        except SystemExit as exc:
-            code = int(exc.code or 0)
-        return code, capsys.readouterr().err
-
-    code, err = run("calibrate", "overlap", str(src), "--base", "theta-v", "-o", str(out))
+    code, _, err = cli("calibrate", "overlap", str(src), "--base", "theta-v", "-o", str(out))
     assert code == 0, err
     unit = load_profile(out)
     data = json.loads(out.read_text())
@@ -118,29 +107,15 @@ def test_cli_calibrate_overlap(tmp_path, city, monkeypatch, capsys):
     assert rotation_error_deg(unit.lenses[1].rotation, true.lenses[1].rotation) < 0.6
 
 
-def _run_cli(monkeypatch, capsys, *args: str) -> tuple[int, str]:
-    import sys
-
-    from solidkit.cli import main
-
-    monkeypatch.setattr(sys, "argv", ["solidkit", *args])
-    try:
-        main()
-        code = 0
-    except SystemExit as exc:
-        code = int(exc.code or 0)
-    return code, capsys.readouterr().err
-
-
-def test_cli_calibrate_overlap_bad_input(tmp_path, monkeypatch, capsys):
+def test_cli_calibrate_overlap_bad_input(tmp_path, cli):
     from solidkit.envmap.io import write_ldr
 
     a, b = tmp_path / "a.png", tmp_path / "b.png"
     write_ldr(a, np.zeros((384, 768, 3), np.float32))
     write_ldr(b, np.zeros((200, 400, 3), np.float32))
-    code, err = _run_cli(monkeypatch, capsys, "calibrate", "overlap", str(a), str(b), "--base", "theta-v", "-o", str(tmp_path / "x.json"))
+    code, _, err = cli("calibrate", "overlap", str(a), str(b), "--base", "theta-v", "-o", str(tmp_path / "x.json"))
     assert code == 2 and "same size" in err and not (tmp_path / "x.json").exists()
-    code, err = _run_cli(monkeypatch, capsys, "calibrate", "overlap", str(a), "--base", "theta-nope", "-o", str(tmp_path / "x.json"))
+    code, _, err = cli("calibrate", "overlap", str(a), "--base", "theta-nope", "-o", str(tmp_path / "x.json"))
     assert code == 2 and "unknown lens profile" in err
-    code, err = _run_cli(monkeypatch, capsys, "calibrate", "overlap", str(tmp_path / "missing.png"), "--base", "theta-v", "-o", str(tmp_path / "x.json"))
+    code, _, err = cli("calibrate", "overlap", str(tmp_path / "missing.png"), "--base", "theta-v", "-o", str(tmp_path / "x.json"))
     assert code == 2 and "no such file" in err

@@ -348,21 +348,6 @@ def _run(*args):
     return subprocess.run([str(SOLIDKIT), "envmap", "sun", *map(str, args)], capture_output=True, text=True)
 
 
-def _main(capsys, monkeypatch, *args):
-    """``solidkit.cli.main`` in-process (same error handling as the entry point, without the
-    start-up cost): returns ``(exit code, stdout, stderr)``."""
-    from solidkit.cli import main
-
-    monkeypatch.setattr(sys, "argv", ["solidkit", "envmap", "sun", *map(str, args)])
-    try:
-        main()
-        code = 0
-    except SystemExit as exc:
-        code = exc.code
-    out = capsys.readouterr()
-    return code, out.out, out.err
-
-
 @pytest.fixture(scope="module")
 def sun_exr(tmp_path_factory):
     h = 128
@@ -384,29 +369,29 @@ def test_cli_json_entry_point(sun_exr):
     assert len(bad.stderr.strip().splitlines()) == 1
 
 
-def test_cli_summary_and_paper_method(sun_exr, capsys, monkeypatch):
+def test_cli_summary_and_paper_method(sun_exr, cli):
     path, img = sun_exr
-    code, out, _ = _main(capsys, monkeypatch, path)
+    code, out, _ = cli("envmap", "sun", path)
     assert code == 0 and len(out.strip().splitlines()) == 1
     assert "azimuth" in out and "elevation" in out
     expected = detect_sun(img)
     assert f"{expected.azimuth_deg:.2f}" in out and f"{expected.elevation_deg:.2f}" in out
-    code, out, _ = _main(capsys, monkeypatch, path, "--json", "--method", "paper")
+    code, out, _ = cli("envmap", "sun", path, "--json", "--method", "paper")
     assert code == 0
     assert json.loads(out) == pytest.approx(detect_sun(img, method="paper").to_json())
 
 
-def test_cli_no_sun(tmp_path, capsys, monkeypatch):
+def test_cli_no_sun(tmp_path, cli):
     path = write_exr(tmp_path / "overcast.exr", sky(32))
-    code, out, _ = _main(capsys, monkeypatch, path, "--json")
+    code, out, _ = cli("envmap", "sun", path, "--json")
     assert code == 0
     assert json.loads(out) == {"found": False, "azimuth_deg": None, "elevation_deg": None, "confidence": 0.0}
-    code, out, _ = _main(capsys, monkeypatch, path)
+    code, out, _ = cli("envmap", "sun", path)
     assert code == 0 and out.startswith("no sun")
 
 
 @pytest.mark.parametrize("kind", ["missing", "not_image", "not_exr", "wrong_shape", "nan"])
-def test_cli_bad_input_is_one_line(tmp_path, capsys, monkeypatch, kind):
+def test_cli_bad_input_is_one_line(tmp_path, cli, kind):
     if kind == "missing":
         path = tmp_path / "missing.exr"
     elif kind == "not_image":
@@ -422,7 +407,7 @@ def test_cli_bad_input_is_one_line(tmp_path, capsys, monkeypatch, kind):
         img[3, 4, 0] = np.inf
         img[5, 6, 2] = np.nan
         path = write_exr(tmp_path / "nan.exr", img)
-    code, out, err = _main(capsys, monkeypatch, path, "--json")
+    code, out, err = cli("envmap", "sun", path, "--json")
     assert code != 0
     assert out == ""
     lines = err.strip().splitlines()

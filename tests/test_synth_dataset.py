@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import json
 import math
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -130,17 +129,8 @@ def test_histogram_intersection(tmp_path: Path) -> None:
         ReferenceSet.from_dir(tmp_path / "nothing")
 
 
-def run_cli(args: list[str], monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]) -> tuple[int, str]:
-    from solidkit.cli import main
-
-    monkeypatch.setattr(sys, "argv", ["solidkit", *args])
-    with pytest.raises(SystemExit) as exc:
-        main()
-    return int(exc.value.code or 0), capsys.readouterr().err
-
-
-def test_cli_errors_are_one_line(tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]) -> None:
-    code, err = run_cli(["synth", "dataset", "--n", "2", "--out", str(tmp_path), "--shard", "3/2"], monkeypatch, capsys)
+def test_cli_errors_are_one_line(tmp_path: Path, cli) -> None:
+    code, _, err = cli("synth", "dataset", "--n", "2", "--out", str(tmp_path), "--shard", "3/2")
     assert code == 2 and "need 0 <= i < N" in err and "Traceback" not in err
-    code, err = run_cli(["synth", "filter", "--out", str(tmp_path), "--reference", str(tmp_path / "none")], monkeypatch, capsys)
+    code, _, err = cli("synth", "filter", "--out", str(tmp_path), "--reference", str(tmp_path / "none"))
     assert code == 2 and "no LDR reference images" in err and len(err.strip().splitlines()) == 1

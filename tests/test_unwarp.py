@@ -10,7 +10,6 @@ from __future__ import annotations
 import math
 import shutil
 import subprocess
-import sys
 
 import cv2
 import numpy as np
@@ -170,36 +169,23 @@ def test_remap_cache_memory_and_disk(tmp_path, rendered):
     assert np.allclose(w[m1.coverage], 1.0)
 
 
-def _cli(monkeypatch, capsys, *args: str) -> tuple[int, str]:
-    """Run ``solidkit ARGS`` in-process through the real entry point; (exit code, stderr)."""
-    from solidkit.cli import main
-
-    monkeypatch.setattr(sys, "argv", ["solidkit", *args])
-    code = 0
-    try:
-        main()
-    except SystemExit as exc:
-        code = int(exc.code or 0)
-    return code, capsys.readouterr().err
-
-
-def test_cli_unwarp_and_bad_input(tmp_path, rendered, monkeypatch, capsys):
+def test_cli_unwarp_and_bad_input(tmp_path, rendered, cli):
     prof, fish = rendered
     src = tmp_path / "dual.png"
     write_ldr(src, cv2.resize(np.clip(fish[..., :3], 0, 1), (1024, 512), interpolation=cv2.INTER_AREA), encode_srgb=False)
     out = tmp_path / "pano.png"
-    code, err = _cli(monkeypatch, capsys, "capture", "unwarp", str(src), str(out), "--profile", "theta-v", "--size", "512x256")
+    code, _, err = cli("capture", "unwarp", str(src), str(out), "--profile", "theta-v", "--size", "512x256")
     assert code == 0, err
     assert cv2.imread(str(out)).shape == (256, 512, 3)
-    code, err = _cli(monkeypatch, capsys, "capture", "unwarp", str(src), str(tmp_path / "x.png"))  # no EXIF, no --profile
+    code, _, err = cli("capture", "unwarp", str(src), str(tmp_path / "x.png"))  # no EXIF, no --profile
     assert code == 2 and "no shipped lens profile" in err and "Traceback" not in err
-    code, err = _cli(monkeypatch, capsys, "capture", "unwarp", str(src), str(tmp_path / "x.png"), "--profile", "theta-v", "--size", "500x300")
+    code, _, err = cli("capture", "unwarp", str(src), str(tmp_path / "x.png"), "--profile", "theta-v", "--size", "500x300")
     assert code == 2 and "W = 2 H" in err
-    code, err = _cli(monkeypatch, capsys, "capture", "unwarp", str(src), str(tmp_path / "x.png"), "--profile", "theta-s-video")
+    code, _, err = cli("capture", "unwarp", str(src), str(tmp_path / "x.png"), "--profile", "theta-s-video")
     assert code == 2 and "aspect" in err
     empty = tmp_path / "empty.jpg"
     empty.write_bytes(b"")
-    code, err = _cli(monkeypatch, capsys, "capture", "unwarp", str(empty), str(tmp_path / "x.png"))
+    code, _, err = cli("capture", "unwarp", str(empty), str(tmp_path / "x.png"))
     assert code == 2 and "empty file" in err
     assert not (tmp_path / "x.png").exists()
 
@@ -373,7 +359,7 @@ def test_vignetting_profile_must_fit(vignetted):
         unwarp(fish, prof, 64, vignetting=_falloff_profile(prof, ([-1.2], [-1.2])))
 
 
-def test_cli_unwarp_vignetting(tmp_path, vignetted, monkeypatch, capsys):
+def test_cli_unwarp_vignetting(tmp_path, vignetted, cli):
     """``capture unwarp --vignetting FILE``: the EXR written is the falloff-free panorama."""
     from solidkit.envmap.io import write_exr
 
@@ -383,13 +369,13 @@ def test_cli_unwarp_vignetting(tmp_path, vignetted, monkeypatch, capsys):
     vfile = vprof.save(tmp_path / "vignetting.json")
     size = f"{2 * V_OUT}x{V_OUT}"
     for name, extra in (("off", []), ("on", ["--vignetting", str(vfile)])):
-        code, err = _cli(monkeypatch, capsys, "capture", "unwarp", str(src), str(tmp_path / f"{name}.exr"),
+        code, _, err = cli("capture", "unwarp", str(src), str(tmp_path / f"{name}.exr"),
                          "--profile", "theta-v", "--size", size, *extra)
         assert code == 0, err
     on, meta = read_exr(tmp_path / "on.exr")
     off, _ = read_exr(tmp_path / "off.exr")
     assert _median_rel_error(on, truth) < 0.005 < 0.1 < _median_rel_error(off, truth)
     assert meta["vignetting"]["sha256"] and meta["vignetting"]["path"] == str(vfile)
-    code, err = _cli(monkeypatch, capsys, "capture", "unwarp", str(src), str(tmp_path / "x.exr"), "--profile", "theta-v",
+    code, _, err = cli("capture", "unwarp", str(src), str(tmp_path / "x.exr"), "--profile", "theta-v",
                      "--vignetting", str(tmp_path / "missing.json"))
     assert code == 2 and "missing.json" in err and "Traceback" not in err

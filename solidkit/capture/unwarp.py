@@ -585,7 +585,6 @@ def _write_srgb8(path: Path, enc: np.ndarray) -> None:
 def _write(path: Path, linear: np.ndarray, meta: dict) -> None:
     """EXR (linear float, with ``meta``) or 8-bit sRGB LDR (PNG fast compression, JPEG q95), atomically."""
     from solidkit.envmap.io import write_exr
-    from solidkit.fsutil import atomic_path
 
     if path.suffix.lower() == ".exr":
         write_exr(path, linear, meta)

@@ -77,7 +77,7 @@ from solidkit.envmap import CONVENTIONS_VERSION, angles_from_direction, rotation
 from solidkit.envmap.resample import sample_panorama
 from solidkit.errors import InputError
 from solidkit.fsutil import atomic_write_bytes, atomic_write_text
-from solidkit.synth.cameras import Camera, pinhole_sensor
+from solidkit.synth.cameras import pinhole_sensor
 from solidkit.synth.exif import exif_app1, insert_app1
 from solidkit.synth.sample import (Generator, SampleConfig, derive_seed, pick_probe_pixels, render_buffers,
                                    render_panorama, render_rgb, sun_mask_image, sun_mask_panorama, suppress_fireflies)
