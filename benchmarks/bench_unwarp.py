@@ -57,7 +57,7 @@ print(json.dumps({"wall_s": wall, "import_s": t_import, "cache": s["cache"]}))
 def make_input(folder: Path) -> tuple[Path, np.ndarray]:
     import cv2
 
-    from solidkit.capture.lens import load_profile
+    from solidkit.camera.lens import load_profile
     from solidkit.capture.unwarp import render_fisheye
     from solidkit.envmap.coords import direction_grid
     from solidkit.envmap.io import read_exr, srgb_encode, tonemap
@@ -119,7 +119,7 @@ def best_psnr(img: np.ndarray, truth8: np.ndarray) -> float:
 def main() -> int:
     import cv2
 
-    from solidkit.capture.lens import load_profile
+    from solidkit.camera.lens import load_profile
     from solidkit.capture.unwarp import cut_columns, get_maps, seam_step
 
     OUT.mkdir(exist_ok=True)

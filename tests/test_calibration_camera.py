@@ -25,7 +25,7 @@ from solidkit.calibration.camera import (
     scale_intrinsics,
 )
 from solidkit.calibration.profile import load_profile
-from solidkit.capture.metadata import CaptureMetadata, read_metadata
+from solidkit.camera.metadata import CaptureMetadata, read_metadata
 from solidkit.errors import InputError
 
 

@@ -69,9 +69,9 @@ def test_camera_command(tmp_path):
 
 def test_lens_command_writes_lens_profile(tmp_path):
     from solidkit.calibration.boards import pixel_rays, render_board
-    from solidkit.capture.lens import LensModel
-    from solidkit.capture.lens import load_profile as load_lens
-    from solidkit.capture.lens import unproject
+    from solidkit.camera.lens import LensModel
+    from solidkit.camera.lens import load_profile as load_lens
+    from solidkit.camera.lens import unproject
 
     truth = LensModel(name="t", center=(161.2, 158.7), poly=[110.0, -2.0, 1.0], max_angle_deg=95)
     rays = pixel_rays(lambda x, y: unproject(truth, x, y)[0], (320, 320))
@@ -114,7 +114,7 @@ def test_lens_command_writes_lens_profile(tmp_path):
 
 def test_vignetting_command_flat(tmp_path):
     from solidkit.calibration.vignetting import falloff
-    from solidkit.capture.lens import load_profile as load_lens
+    from solidkit.camera.lens import load_profile as load_lens
 
     lp = load_lens("theta-s").scaled(512, 256)
     yy, xx = np.mgrid[0:256, 0:512].astype(np.float64)

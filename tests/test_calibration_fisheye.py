@@ -20,9 +20,9 @@ from solidkit.calibration.fisheye import (
     lens_profile_from_calibrations,
 )
 from solidkit.calibration.profile import load_profile
-from solidkit.capture.lens import LensModel
-from solidkit.capture.lens import load_profile as load_lens_profile
-from solidkit.capture.lens import project, unproject
+from solidkit.camera.lens import LensModel
+from solidkit.camera.lens import load_profile as load_lens_profile
+from solidkit.camera.lens import project, unproject
 
 SIZE = (512, 512)
 F = 240.0
@@ -104,7 +104,7 @@ def test_exported_lens_matches_truth(calibrated, tmp_path):
     err = np.hypot(x1 - x0, y1 - y0)[inside]
     # measured: median 0.35 px, max 0.60 px (mostly the 0.34 px principal-point error)
     assert inside.sum() > 300 and err.max() < 0.8 and np.median(err) < 0.5
-    # a one-lens profile in the shared lens-profile format, loadable by capture.lens
+    # a one-lens profile in the shared lens-profile format, loadable by camera.lens
     prof = lens_profile_from_calibrations([calibrated], "unit-test", SIZE)
     back = load_lens_profile(prof.save(tmp_path / "lens.json"))
     assert back.lenses[0].name == "front" and back.reference_size == SIZE

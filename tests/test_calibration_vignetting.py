@@ -17,7 +17,7 @@ from solidkit.calibration.vignetting import (
     make_profile,
     vignetting_map,
 )
-from solidkit.capture.lens import load_profile as load_lens_profile
+from solidkit.camera.lens import load_profile as load_lens_profile
 from solidkit.capture.unwarp import render_fisheye
 
 SIZE = (768, 384)

@@ -10,7 +10,7 @@ import pytest
 from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 
-from solidkit.capture.metadata import (
+from solidkit.camera.metadata import (
     RICOH_TO_OURS,
     CaptureMetadata,
     _read_metadata_bytes,

@@ -265,7 +265,7 @@ def test_real_theta_jpeg_ingests_with_metadata(real_data, tmp_path):
 def test_dual_fisheye_products_become_panoramas():
     """A dual-fisheye capture (Theta V layout) goes through the shipped lens profile."""
     from solidkit.capture.campaign import to_panorama
-    from solidkit.capture.lens import load_profile
+    from solidkit.camera.lens import load_profile
     from solidkit.capture.unwarp import render_fisheye
     from solidkit.envmap.coords import direction_grid
 
@@ -417,7 +417,7 @@ def test_ingest_unit_profile_and_vignetting(tmp_path):
     """`ingest --profile unit.json --vignetting v.json`: both recorded in the campaign and used for the
     dual-fisheye HDR product, which then matches the true radiance; without them it does not."""
     from solidkit.calibration.vignetting import lenses_from_profile, make_profile
-    from solidkit.capture.lens import load_profile
+    from solidkit.camera.lens import load_profile
     from solidkit.cli import app
 
     base = load_profile("theta-v")

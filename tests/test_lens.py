@@ -9,7 +9,7 @@ import cv2
 import numpy as np
 import pytest
 
-from solidkit.capture.lens import (
+from solidkit.camera.lens import (
     LensModel,
     LensProfile,
     LensProfileError,

@@ -23,7 +23,7 @@ from solidkit.capture.merge import (
     srgb_response,
     validate_response,
 )
-from solidkit.capture.raw import RawImage
+from solidkit.camera.raw import RawImage
 from solidkit.envmap.io import read_exr
 from solidkit.errors import InputError
 

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from solidkit.capture.merge import load_frame
-from solidkit.capture.raw import read_raw
+from solidkit.camera.raw import read_raw
 from solidkit.errors import InputError
 
 

@@ -11,7 +11,7 @@ import cv2
 import numpy as np
 import pytest
 
-from solidkit.capture.lens import load_profile, project
+from solidkit.camera.lens import load_profile, project
 from solidkit.capture.refine import apply_params, fit_image_circle, refine_overlap, ring_directions, rotvec_to_matrix
 from solidkit.capture.unwarp import render_fisheye
 from solidkit.envmap.io import read_exr, tonemap

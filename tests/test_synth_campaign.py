@@ -12,8 +12,8 @@ import pytest
 
 pytest.importorskip("mitsuba")
 
-from solidkit.capture.lens import load_profile, project  # noqa: E402
-from solidkit.capture.metadata import read_metadata  # noqa: E402
+from solidkit.camera.lens import load_profile, project  # noqa: E402
+from solidkit.camera.metadata import read_metadata  # noqa: E402
 from solidkit.envmap import (angular_distance, coords_from_direction, direction_from_angles,  # noqa: E402
                              direction_from_coords, rotation_from_ypr, rotation_y)
 from solidkit.synth.campaign import (CampaignConfig, CampaignTruth, expose, fisheye_image, generate_campaign,  # noqa: E402

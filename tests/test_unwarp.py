@@ -15,8 +15,8 @@ import cv2
 import numpy as np
 import pytest
 
-from solidkit.capture.lens import load_profile
-from solidkit.capture.metadata import CaptureMetadata, level_rotation
+from solidkit.camera.lens import load_profile
+from solidkit.camera.metadata import CaptureMetadata, level_rotation
 from solidkit.capture.unwarp import clear_cache, get_maps, render_fisheye, unwarp
 from solidkit.envmap.coords import (
     angular_distance,

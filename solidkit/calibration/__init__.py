@@ -7,10 +7,10 @@ Modules (imported on demand; each profile is a versioned JSON file with provenan
 - :mod:`~solidkit.calibration.colour` — white balance + 3x3 CCM from a ColorChecker, CIEDE2000;
 - :mod:`~solidkit.calibration.camera` — photo-camera K (EXIF / FOV / checkerboard), resize/crop to 320x240;
 - :mod:`~solidkit.calibration.fisheye` — fisheye intrinsics (Kannala-Brandt, Mei), exported to the
-  lens-profile format of :mod:`solidkit.capture.lens`;
+  lens-profile format of :mod:`solidkit.camera.lens`;
 - :mod:`~solidkit.calibration.vignetting` — radial falloff per lens (flat field or lens overlap);
 - :mod:`~solidkit.calibration.boards` — checkerboard detection with view rejection, synthetic rendering.
 
-EXIF (exposure times, focal geometry) is read by :func:`solidkit.capture.metadata.read_metadata`,
+EXIF (exposure times, focal geometry) is read by :func:`solidkit.camera.metadata.read_metadata`,
 the package's one EXIF reader.
 """

@@ -29,7 +29,7 @@ from pydantic import Field
 
 from solidkit.calibration.boards import BoardView, detect_views
 from solidkit.calibration.profile import Profile, make_provenance
-from solidkit.capture.metadata import CaptureMetadata, read_metadata
+from solidkit.camera.metadata import CaptureMetadata, read_metadata
 from solidkit.envmap.io import imread
 from solidkit.errors import InputError, SolidkitError
 
@@ -110,7 +110,7 @@ def intrinsics_from_fov(width: int, height: int, hfov: float) -> np.ndarray:
 def intrinsics_from_exif(info: CaptureMetadata, sensor_width_mm: float | None = None) -> tuple[np.ndarray, str]:
     """K from EXIF focal geometry (square pixels, centred principal point); returns ``(K, source)``.
 
-    ``info``: the photo's metadata (:func:`solidkit.capture.metadata.read_metadata`; its
+    ``info``: the photo's metadata (:func:`solidkit.camera.metadata.read_metadata`; its
     ``focal_length_mm``, ``focal_plane_px_per_mm``, ``exif_width``, ``focal_length_35mm``,
     ``make``/``model`` and image size).
 

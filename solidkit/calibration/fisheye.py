@@ -8,7 +8,7 @@ view's pose with the intrinsics fixed) is chosen:
 - ``mei``: Mei & Rives 2007 unified model, ``cv2.omnidir`` — projection on the unit sphere,
   then a pinhole shifted by ``xi`` with radial-tangential distortion (k1, k2, p1, p2).
 
-The result is exported into the shared lens-profile format (:mod:`solidkit.capture.lens`,
+The result is exported into the shared lens-profile format (:mod:`solidkit.camera.lens`,
 ``r(θ)`` as an odd polynomial): a KB fit maps exactly to ``poly = [f, f k1, f k2, f k3, f k4]``
 (with ``f = (fx + fy)/2``; the aspect ``fy/fx`` is reported), a Mei fit is tabulated along 16
 azimuths and fitted with :meth:`LensModel.from_table`.
@@ -396,9 +396,9 @@ def lens_model_from_fit(
     fit: FisheyeFit, name: str = "front", offset: tuple[float, float] = (0.0, 0.0),
     ypr_deg: tuple[float, float, float] = (0.0, 0.0, 0.0), max_angle_deg: float | None = None,
 ):
-    """Export a fit as a :class:`solidkit.capture.lens.LensModel` (centre shifted by ``offset``,
+    """Export a fit as a :class:`solidkit.camera.lens.LensModel` (centre shifted by ``offset``,
     e.g. the crop origin of this lens' half in a dual-fisheye frame)."""
-    from solidkit.capture.lens import LensModel
+    from solidkit.camera.lens import LensModel
 
     cx, cy = float(fit.K[0, 2]) + offset[0], float(fit.K[1, 2]) + offset[1]
     top = _max_angle_deg(fit, max_angle_deg)
@@ -423,12 +423,12 @@ class FisheyeProfile(Profile):
     chosen_model: str
     choice_reason: str
     models: dict[str, dict] = Field(default_factory=dict, description="per model: parameters, residuals, held-out")
-    lens: dict = Field(description="the chosen model as a capture.lens LensModel (lens-profile format)")
+    lens: dict = Field(description="the chosen model as a camera.lens LensModel (lens-profile format)")
     observed_max_angle_deg: float
     views: dict[str, str] = Field(default_factory=dict, description="view -> 'used' or the rejection reason")
 
     def lens_model(self):
-        from solidkit.capture.lens import LensModel
+        from solidkit.camera.lens import LensModel
 
         return LensModel.model_validate(self.lens)
 
@@ -499,11 +499,11 @@ def lens_profile_from_calibrations(
     calibrations: Sequence[FisheyeProfile], name: str, reference_size: tuple[int, int], camera_models: Sequence[str] = (),
     base=None,
 ):
-    """Assemble (or update) a :class:`solidkit.capture.lens.LensProfile` from calibrated lenses.
+    """Assemble (or update) a :class:`solidkit.camera.lens.LensProfile` from calibrated lenses.
 
     ``base`` (an existing LensProfile) keeps its other lenses; a lens with the same name is replaced.
     """
-    from solidkit.capture.lens import LensProfile
+    from solidkit.camera.lens import LensProfile
 
     lenses = {l.name: l for l in (base.lenses if base is not None else [])}
     res = dict(base.residuals) if base is not None else {}

@@ -27,7 +27,7 @@ import numpy as np
 from pydantic import Field
 
 from solidkit.calibration.profile import Profile, make_provenance
-from solidkit.capture.metadata import read_metadata
+from solidkit.camera.metadata import read_metadata
 from solidkit.envmap.io import imread
 from solidkit.errors import InputError, SolidkitError
 

@@ -195,7 +195,7 @@ def fit_overlap(
     Parameters
     ----------
     image : (H, W, C) linear image (response-linearised), original layout of ``lens_profile``.
-    lens_profile : :class:`solidkit.capture.lens.LensProfile` with 2 lenses (geometry).
+    lens_profile : :class:`solidkit.camera.lens.LensProfile` with 2 lenses (geometry).
     degree : number of coefficients (1 = ``a1`` only; see module doc on identifiability).
     n_directions : random directions drawn on the sphere (those seen by both lenses are used).
     saturation, floor : pixel values outside ``(floor, saturation)`` in any channel are ignored.
@@ -205,7 +205,7 @@ def fit_overlap(
     Returns the lenses (sharing the coefficients) and residuals: robust RMS of the log ratio
     before and after (stops), parameter standard errors, sample count.
     """
-    from solidkit.capture.lens import project
+    from solidkit.camera.lens import project
 
     img = np.asarray(image, dtype=np.float32)
     _check_size(img)

@@ -94,7 +94,6 @@ from datetime import datetime, timedelta
 from pathlib import Path
 from typing import Any, Literal
 
-import typer
 from pydantic import BaseModel, Field
 
 from solidkit.errors import InputError, SolidkitError
@@ -117,7 +116,6 @@ __all__ = [
     "scan_card",
     "group_shots",
     "planned_products",
-    "ingest_cli",
     "to_panorama",
 ]
 
@@ -156,7 +154,7 @@ class Shot(BaseModel):
     size: int
     file_format: str
     sources: list[SourceRef]
-    metadata: dict[str, Any] = Field(description="solidkit.capture.metadata.CaptureMetadata, as JSON")
+    metadata: dict[str, Any] = Field(description="solidkit.camera.metadata.CaptureMetadata, as JSON")
     layout_scene: str | None = Field(None, description="scene id given by the card's folder layout")
     layout_probe: str | None = Field(None, description="probe id (or 'photo') given by the folder layout")
     kind: ShotKind | None = None
@@ -355,7 +353,7 @@ def _copy_original(src: Path, dest: Path, sha: str) -> bool:
 def _ingest_one(card: str, rel: str, campaign: str, throttle_s: float = 0.0) -> dict[str, Any]:
     """Worker: hash, validate, read metadata, copy. Returns ``{"shot": ...}`` or ``{"error": ...}``."""
     from solidkit.capture.merge import sniff_format
-    from solidkit.capture.metadata import read_metadata
+    from solidkit.camera.metadata import read_metadata
 
     src = Path(card) / rel
     st = src.stat()
@@ -624,7 +622,7 @@ def _recorded_file(campaign: Path, record: dict[str, Any], what: str) -> Path:
 
 def _load_optics(campaign: Path, recipe: dict[str, Any]) -> tuple[Any, Any]:
     """``(lens profile or None, vignetting profile or None)`` of a product's recipe."""
-    from solidkit.capture.lens import load_profile
+    from solidkit.camera.lens import load_profile
     from solidkit.capture.unwarp import load_vignetting
 
     lens = vig = None
@@ -643,7 +641,7 @@ def _product_path(p: Product, suffix: str) -> Path:
 
 def _level_rotation(md: dict[str, Any]):
     """The metadata's levelling rotation (identity for upright dual-fisheye / corrected equirect)."""
-    from solidkit.capture.metadata import CaptureMetadata, level_rotation
+    from solidkit.camera.metadata import CaptureMetadata, level_rotation
 
     meta = CaptureMetadata.model_validate(md)
     import numpy as np
@@ -658,7 +656,7 @@ def to_panorama(image, md: dict[str, Any], lens_profile: Any = None, vignetting:
 
     Equirect: levelled by the metadata's gravity when the camera did not correct it (returned
     unchanged otherwise). Dual-fisheye: unwarped (:func:`solidkit.capture.unwarp.unwarp`) through
-    ``lens_profile`` (a :class:`~solidkit.capture.lens.LensProfile`, e.g. a per-unit one) or else
+    ``lens_profile`` (a :class:`~solidkit.camera.lens.LensProfile`, e.g. a per-unit one) or else
     the shipped profile of the camera model, each lens divided by its falloff first when a
     ``vignetting`` profile is given, to the same size as ``solidkit capture unwarp`` makes by
     default (:func:`solidkit.capture.unwarp.default_out_height`: as wide as the input).
@@ -677,7 +675,7 @@ def to_panorama(image, md: dict[str, Any], lens_profile: Any = None, vignetting:
 
         return rotate(image, R, "linear"), {"resampled": True, "levelled": True}
     if layout in ("dual_fisheye", "dual_fisheye_upright"):
-        from solidkit.capture.lens import profile_for_metadata
+        from solidkit.camera.lens import profile_for_metadata
         from solidkit.capture.unwarp import default_out_height, unwarp
 
         h, w = image.shape[:2]
@@ -875,7 +873,7 @@ def ingest(
 
         load_response(Path(response_path))
     if lens_profile is not None:
-        from solidkit.capture.lens import load_profile
+        from solidkit.camera.lens import load_profile
 
         lp = load_profile(lens_profile)  # a file, or a shipped name
     if vignetting_path is not None:
@@ -1062,96 +1060,3 @@ def _describe(record: dict[str, Any] | None, default: str) -> str:
     if not record or record.get("kind") not in ("file", "shipped"):
         return default
     return record["name"] if record["kind"] == "shipped" else record["path"]
-
-
-def ingest_command(
-    card_dir: Path,
-    campaign_dir: Path,
-    jobs: int = 1,
-    response: Path | None = None,
-    products: bool = True,
-    scene_gap: float | None = None,
-    probe_gap: float | None = None,
-    bracket_gap: float | None = None,
-    low_exposure_max: float | None = None,
-    lens_profile: str | None = None,
-    vignetting: Path | None = None,
-) -> IngestReport:
-    """Run :func:`ingest` with a rich progress bar and print the summary (the CLI's body)."""
-    from rich.console import Console
-    from rich.markup import escape
-    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
-    from rich.table import Table
-
-    console = Console(stderr=True)
-    given = {"scene_gap_s": scene_gap, "probe_gap_s": probe_gap, "bracket_gap_s": bracket_gap,
-             "low_exposure_max_s": low_exposure_max}
-    grouping = {k: v for k, v in given.items() if v is not None}  # others: the campaign's stored values
-    with Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeRemainingColumn(),
-                  console=console, transient=True) as bar:
-        ids: dict[str, Any] = {}
-
-        def progress(phase: str, done: int, total: int) -> None:
-            if phase not in ids:
-                ids[phase] = bar.add_task("copying originals" if phase == "files" else "building products", total=total)
-            bar.update(ids[phase], completed=done, total=total)
-
-        report = ingest(card_dir, campaign_dir, jobs=jobs, grouping=grouping, response_path=response,
-                        products=products, progress=progress, lens_profile=lens_profile, vignetting_path=vignetting)
-    manifest = load_manifest(campaign_dir)
-    out = Console()
-    if report.nothing_done:
-        out.print(f"[green]nothing to do:[/] {escape(str(campaign_dir))} is up to date with {escape(str(card_dir))} "
-                  f"({report.unchanged} captures already ingested, {report.products_up_to_date} products up to date)")
-    table = Table(title=f"ingest {escape(str(card_dir))} -> {escape(str(campaign_dir))}", show_header=False)
-    table.add_row("captures on the card", str(report.files_seen))
-    table.add_row("copied / already present / unchanged", f"{report.copied} / {report.already_present} / {report.unchanged}")
-    table.add_row("unrelated files skipped", str(len(report.unrelated)))
-    for label, value in summary_rows(manifest):
-        table.add_row(label, value)
-    table.add_row("products built / up to date / removed",
-                  f"{report.products_built} / {report.products_up_to_date} / {report.products_removed}")
-    out.print(table)
-    for sc in manifest.scenes:
-        for pr in sc.probes:
-            for w in pr.warnings:
-                out.print(f"[yellow]warning[/] {escape(sc.id)}/{escape(pr.id)}: {escape(w)}")
-    for i, name in enumerate(report.unrelated):
-        if i == 20:
-            out.print(f"  ... and {len(report.unrelated) - 20} more unrelated file(s) (listed in the manifest's 'skipped')")
-            break
-        why = "hidden file" if Path(name).name.startswith(".") else "not a capture (.jpg/.jpeg/.dng)"
-        out.print(f"[dim]skipped[/] {escape(name)}: {why}")
-    for msg in report.product_errors:
-        out.print(f"[yellow]product not built[/] {escape(msg)}")
-    errors = [e for e in manifest.errors if e.card == str(Path(card_dir).resolve())]
-    if errors:
-        out.print(f"[red]{len(errors)} file(s) could not be ingested[/] (the rest was):")
-        for e in errors:
-            out.print(f"  [red]error[/] {escape(e.path)}: {escape(e.message)}")
-    return report
-
-
-def ingest_cli(
-    card_dir: Path = typer.Argument(..., help="The card (or a copy of it): DCIM/... or <scene>/<probe>/... folders."),
-    campaign_dir: Path = typer.Argument(..., help="The campaign directory (created; ingest more cards into it later)."),
-    jobs: int = typer.Option(1, "--jobs", "-j", min=1, help="Worker processes."),
-    response: Path | None = typer.Option(None, "--response", help="Inverse response curve for HDR products (default sRGB inverse)."),
-    products: bool = typer.Option(True, "--products/--no-products", help="Build the derived products (HDR merges, sun frames)."),
-    scene_gap: float | None = typer.Option(None, help="Seconds between shots that start a new scene (automatic layout; default 600, then the campaign's value)."),
-    probe_gap: float | None = typer.Option(None, help="Seconds between Theta shots that start a new probe position (default 45)."),
-    bracket_gap: float | None = typer.Option(None, help="Seconds between shots that end a bracket (default 10)."),
-    low_exposure_max: float | None = typer.Option(None, help="Longest exposure (s) of a sun frame (default 1/4000)."),
-    profile: str | None = typer.Option(None, "--profile", help="Per-unit lens profile (unit.json from 'solidkit calibrate overlap', or a shipped name) overriding the camera model's default; recorded in the campaign."),
-    vignetting: Path | None = typer.Option(None, "--vignetting", help="Vignetting profile ('solidkit calibrate vignetting'): each lens divided by its falloff before the lenses are blended; recorded in the campaign."),
-) -> None:
-    """Copy a card's captures into a checksummed campaign, group scenes/probes/brackets, build products.
-
-    Idempotent and resumable (re-run after an interruption); when some files could not be
-    ingested they are listed, everything else is processed, and the exit code is 2.
-    """
-    report = ingest_command(card_dir, campaign_dir, jobs, response, products, scene_gap, probe_gap, bracket_gap,
-                            low_exposure_max, lens_profile=profile, vignetting=vignetting)
-    if report.errors or report.known_errors:
-        n = len(report.errors) + report.known_errors
-        raise InputError(f"{n} file(s) on {card_dir} could not be ingested (listed above); everything else was")

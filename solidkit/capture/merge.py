@@ -327,7 +327,7 @@ def frame_from_ldr(
 
 
 def frame_from_raw(raw: Any, exposure: float, *, name: str = "", black: float = 0.0) -> Frame:
-    """Build a :class:`Frame` from a :class:`solidkit.capture.raw.RawImage` (linear)."""
+    """Build a :class:`Frame` from a :class:`solidkit.camera.raw.RawImage` (linear)."""
     if not (np.isfinite(exposure) and exposure > 0):
         raise InputError(f"{name or 'frame'}: exposure time must be positive, got {exposure}")
     linear = np.asarray(raw.linear, dtype=np.float32)
@@ -390,7 +390,7 @@ def effective_exposure(
 
 def load_frame(path: str | os.PathLike, exposure: float, response: np.ndarray | None = None, *, wb: Any = "camera") -> Frame:
     """Read one bracket frame from disk (JPEG/PNG/TIFF via the response, DNG/raw linearly)."""
-    from solidkit.capture.raw import is_raw_file, read_raw
+    from solidkit.camera.raw import is_raw_file, read_raw
 
     path = Path(path)
     if not path.is_file():
@@ -601,7 +601,7 @@ def detect_ghosts(frames: Sequence[Frame], hdr: np.ndarray, *, k: float = 6.0, m
 # --------------------------------------------------------------------------- files -> EXR
 def _bracket_infos(paths: Sequence[Path], times: Sequence[float] | None) -> list[tuple[Path, Any, float]]:
     """(path, metadata, exposure time in s) per file; times from ``times`` or EXIF."""
-    from solidkit.capture.metadata import read_metadata
+    from solidkit.camera.metadata import read_metadata
 
     if times is not None and len(times) != len(paths):
         raise InputError(f"--times has {len(times)} value(s) for {len(paths)} frame(s)")
@@ -614,7 +614,7 @@ def _bracket_infos(paths: Sequence[Path], times: Sequence[float] | None) -> list
         if sniff_format(p) == "png":  # no EXIF in PNG: size only
             from PIL import Image
 
-            from solidkit.capture.metadata import CaptureMetadata
+            from solidkit.camera.metadata import CaptureMetadata
 
             with Image.open(p) as im:
                 meta = CaptureMetadata(path=str(p), width=im.width, height=im.height, warnings=["no_exif: PNG file"])

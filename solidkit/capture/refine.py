@@ -7,7 +7,7 @@ profile is refined by minimising the *photometric disagreement* of the lenses on
     r_k = log(g_n I_0(P_0(d_k)) + e) - log(I_1(P_1(d_k)) + e)
 
 for ring directions ``d_k`` (a Fibonacci lattice in the camera frame) of every image ``n``,
-where ``P_i`` is lens ``i``'s projection (:func:`solidkit.capture.lens.project`), ``I_i`` the
+where ``P_i`` is lens ``i``'s projection (:func:`solidkit.camera.lens.project`), ``I_i`` the
 blurred luminance at the current pyramid level, ``g_n`` a per-image gain and ``e`` a small
 floor. Parameters: each lens' centre offset ``(dx, dy)`` (px, full resolution) and log scale
 of ``r(theta)``, and the back lens' 3-DoF rotation (a rotation vector ``w``, applied in the
@@ -33,7 +33,7 @@ import cv2
 import numpy as np
 from scipy.optimize import least_squares
 
-from solidkit.capture.lens import LensProfile, project
+from solidkit.camera.lens import LensProfile, project
 from solidkit.errors import InputError
 
 __all__ = ["RefineResult", "ring_directions", "apply_params", "refine_overlap", "rotvec_to_matrix", "fit_image_circle", "refine_files"]
@@ -62,7 +62,7 @@ def ring_directions(n: int, lo_deg: float, hi_deg: float) -> np.ndarray:
 
 def apply_params(base: LensProfile, p: np.ndarray) -> LensProfile:
     """Profile with the parameter vector applied (layout: module docstring; px at base size)."""
-    from solidkit.capture.lens import rotation_to_ypr_deg
+    from solidkit.camera.lens import rotation_to_ypr_deg
 
     lenses = []
     L = len(base.lenses)
@@ -355,7 +355,7 @@ def refine_files(
     from pathlib import Path
 
     import solidkit
-    from solidkit.capture.lens import load_profile
+    from solidkit.camera.lens import load_profile
     from solidkit.capture.unwarp import _read_linear, unwarp
     from solidkit.fsutil import sha256_file
 

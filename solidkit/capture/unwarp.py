@@ -3,7 +3,7 @@
 For every output pixel (direction from :func:`solidkit.envmap.coords.direction_from_coords`,
 i.e. the :func:`~solidkit.envmap.coords.direction_grid` formula, evaluated in row blocks to bound
 memory) the direction is taken into the camera frame (``d_cam = R_levelᵀ d_pano``), projected
-into each lens through the profile (:func:`solidkit.capture.lens.project`) and the lens images
+into each lens through the profile (:func:`solidkit.camera.lens.project`) and the lens images
 are sampled with ``cv2.remap``. The lenses are blended by *feathering* across their overlap: with
 ``m_i = max_angle_i - theta_i`` the angular margin of lens ``i``, the weights are
 ``w_i = clip(0.5 + (m_i - max_{j != i} m_j) / (2 f), 0, 1)`` (normalised), a linear cross-fade
@@ -17,7 +17,7 @@ the overlap by ``V(ρ_0)/V(ρ_1)``, which a single gain cannot remove where the 
 
 Orientation (docs/conventions.md §2): the output panorama is gravity-aligned with forward = the
 front lens' axis projected onto the horizontal plane. ``R_level = R(0, pitch, roll)`` comes from
-the metadata (:func:`solidkit.capture.metadata.level_rotation`); Ricoh's camera axes (Z up, +Y
+the metadata (:func:`solidkit.camera.metadata.level_rotation`); Ricoh's camera axes (Z up, +Y
 toward the front lens, X right) map to ours by ``RICOH_TO_OURS`` (x = X, y = -Z, z = Y).
 Stitched equirectangular input (e.g. Theta SC2 stills) that the camera did not zenith-correct
 is rotated by ``R_level`` (:func:`solidkit.envmap.resample.rotate`); when no rotation is needed
@@ -46,7 +46,7 @@ from typing import Any
 import cv2
 import numpy as np
 
-from solidkit.capture.lens import LensProfile, project
+from solidkit.camera.lens import LensProfile, project
 from solidkit.envmap.coords import direction_from_coords
 from solidkit.errors import InputError
 
@@ -502,7 +502,7 @@ def render_fisheye(
     Each pixel within ``r(max_angle)`` of a lens centre shows that lens' view of the scene
     (``d_pano = R_level d_cam``); other pixels are 0. Used to make ground truth for tests.
     """
-    from solidkit.capture.lens import unproject
+    from solidkit.camera.lens import unproject
     from solidkit.envmap.resample import sample_panorama
 
     W, H = size
@@ -541,11 +541,11 @@ def parse_size(text: str | None) -> int | None:
 def _read_input(path: Path) -> tuple[np.ndarray, float | None]:
     """Image for :func:`unwarp` and its linear clipping level (None for HDR/raw).
 
-    EXR: linear float; raw/DNG: linear float (:func:`solidkit.capture.raw.read_raw`); 8-bit LDR:
+    EXR: linear float; raw/DNG: linear float (:func:`solidkit.camera.raw.read_raw`); 8-bit LDR:
     uint8 RGB as stored (sRGB-encoded; :func:`unwarp` decodes per code value). 16-bit LDR is
     decoded to linear float.
     """
-    from solidkit.capture.raw import is_raw_file, read_raw
+    from solidkit.camera.raw import is_raw_file, read_raw
     from solidkit.envmap.io import imread, read_exr, read_ldr
 
     if path.suffix.lower() == ".exr":
@@ -617,8 +617,8 @@ def unwarp_file(
     import shutil
     import time
 
-    from solidkit.capture.lens import load_profile, profile_for_metadata
-    from solidkit.capture.metadata import level_rotation, read_metadata
+    from solidkit.camera.lens import load_profile, profile_for_metadata
+    from solidkit.camera.metadata import level_rotation, read_metadata
     from solidkit.envmap.resample import resize, rotate
     from solidkit.fsutil import atomic_path, sha256_file
 
@@ -632,7 +632,7 @@ def unwarp_file(
     if not (math.isfinite(feather_deg) and feather_deg >= 0):
         raise InputError(f"--feather must be a finite angle >= 0 degrees, got {feather_deg}")
     t0 = time.perf_counter()
-    from solidkit.capture.raw import is_raw_file
+    from solidkit.camera.raw import is_raw_file
 
     has_exif = src.suffix.lower() in (".jpg", ".jpeg", ".dng", ".tif", ".tiff") or is_raw_file(src)
     meta = read_metadata(src) if has_exif else None  # PNG/EXR inputs carry no camera metadata

@@ -7,6 +7,6 @@ frame), :mod:`~solidkit.synth.lighting` (sunsky and HDR maps; Mitsuba's envmap a
 :mod:`~solidkit.synth.cameras` (cameras, best view per sector), :mod:`~solidkit.synth.sample`
 (one sample), :mod:`~solidkit.synth.dataset` (sharded generation, index, torch Dataset),
 :mod:`~solidkit.synth.filter` (colour-histogram filter), :mod:`~solidkit.synth.campaign` and
-:mod:`~solidkit.synth.exif` (the virtual field campaign), :mod:`~solidkit.synth.cli`.
+:mod:`~solidkit.synth.exif` (the virtual field campaign), :mod:`~solidkit.cli.synth`.
 Mitsuba is imported lazily (on first render), so importing this package is cheap.
 """

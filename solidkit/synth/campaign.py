@@ -16,8 +16,8 @@ f/2, ISO 100) and, 20 s later, a low-exposure sun frame (1/25000 s, ISO 64); ``b
 bracket before them. A Theta shot is a dual-fisheye JPEG (Ricoh THETA V layout, EXIF + Ricoh
 maker note: image type 2, ``[roll, pitch]`` as its accelerometer would record them, with
 ``gravity_noise_deg`` noise; compass heading with ``compass_noise_deg`` noise) made through the
-lens profile of :mod:`solidkit.capture.lens` (``theta-v`` scaled to ``fisheye_width``): each
-fisheye pixel's direction (:func:`~solidkit.capture.lens.unproject`) is turned into the scene
+lens profile of :mod:`solidkit.camera.lens` (``theta-v`` scaled to ``fisheye_width``): each
+fisheye pixel's direction (:func:`~solidkit.camera.lens.unproject`) is turned into the scene
 by the body's true rotation ``R(heading, pitch, roll)`` and looked up in an HDR panorama
 rendered at the position (scene frame, :func:`solidkit.envmap.resample.sample_panorama`). Both
 lenses share one centre (the ~2 cm baseline is ignored).
@@ -251,7 +251,7 @@ def fisheye_image(pano_scene: np.ndarray, R_scene_from_body: np.ndarray, profile
 
     Pixels outside both image circles (``theta > max_angle``) are 0.
     """
-    from solidkit.capture.lens import unproject
+    from solidkit.camera.lens import unproject
 
     w, h = profile.reference_size
     ys, xs = np.mgrid[0:h, 0:w].astype(np.float64)
@@ -342,7 +342,7 @@ def generate_campaign(out: str | os.PathLike, scenes: int, probes: int, *, seed:
     settings than those ``out`` was created with raise :class:`InputError`. ``progress(scene_id,
     capture_id)`` is called once per capture, skipped ones included.
     """
-    from solidkit.capture.lens import load_profile
+    from solidkit.camera.lens import load_profile
     from solidkit.synth.renderer import mitsuba, variant
 
     if scenes < 1 or probes < 0:

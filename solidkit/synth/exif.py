@@ -2,7 +2,7 @@
 
 Writes a little-endian TIFF structure (IFD0 -> Exif IFD -> MakerNote, GPS IFD) into a JPEG's
 APP1 segment. The Ricoh maker note follows Ricoh's *THETA Metadata Spec*
-(``ricohapi/theta-api-specs``, ``theta-metadata``) as read by :mod:`solidkit.capture.metadata`:
+(``ricohapi/theta-api-specs``, ``theta-metadata``) as read by :mod:`solidkit.camera.metadata`:
 ``b"Ricoh\\0\\0\\0"``, an IFD whose tag ``0x4001`` (LONG) holds the TIFF-relative offset of the
 RICOH THETA IFD with ``0x0001`` image type (2 = dual-fisheye), ``0x0003`` ``[roll, pitch]``
 degrees (SRATIONAL[2]), ``0x0004`` compass heading (RATIONAL), ``0x0007`` zenith correction (0).

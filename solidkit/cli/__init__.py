@@ -9,13 +9,13 @@ from typing import Optional
 
 import typer
 
-from solidkit.calibration.cli import app as calibrate_app
-from solidkit.capture.campaign import ingest_cli
-from solidkit.capture.cli import app as capture_app
-from solidkit.envmap.cli import app as envmap_app
+from solidkit.cli.calibrate import app as calibrate_app
+from solidkit.cli.ingest import ingest_cli
+from solidkit.cli.capture import app as capture_app
+from solidkit.cli.envmap import app as envmap_app
 from solidkit.errors import InputError, SolidkitError
-from solidkit.model.cli import predict_command
-from solidkit.synth.cli import app as synth_app
+from solidkit.cli.predict import predict_command
+from solidkit.cli.synth import app as synth_app
 
 app = typer.Typer(
     name="solidkit",

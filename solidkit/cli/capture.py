@@ -11,7 +11,7 @@ from rich.console import Console
 from rich.markup import escape
 from rich.table import Table
 
-from solidkit.capture.metadata import read_metadata
+from solidkit.camera.metadata import read_metadata
 from solidkit.errors import InputError
 from solidkit.fsutil import jpeg_truncated
 

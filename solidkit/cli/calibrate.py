@@ -199,7 +199,7 @@ def lens(
     """Fisheye intrinsics (Kannala-Brandt and Mei) from checkerboard views, exported as a lens profile."""
     from solidkit.calibration.boards import detect_views, read_gray
     from solidkit.calibration.fisheye import calibrate_fisheye, lens_profile_from_calibrations
-    from solidkit.capture.lens import load_profile as load_lens_profile
+    from solidkit.camera.lens import load_profile as load_lens_profile
 
     target = _target(pattern, charuco, square, marker_ratio, dictionary)
     pat = target if isinstance(target, tuple) else target.pattern
@@ -277,7 +277,7 @@ def vignetting(
     from solidkit.calibration.colour import read_linear_image
     from solidkit.calibration.response import ResponseProfile
     from solidkit.calibration.vignetting import falloff, fit_flat_field, fit_overlap, lenses_from_profile, make_profile
-    from solidkit.capture.lens import load_profile as load_lens_profile
+    from solidkit.camera.lens import load_profile as load_lens_profile
 
     resp = ResponseProfile.load(response_path).array() if response_path else None
     img = read_linear_image(image, resp)

@@ -29,7 +29,7 @@ Geometry
 ~~~~~~~~
 - **Camera frame** = our axes (docs/conventions.md §1-2) attached to the body: x right, y down,
   z = the front lens axis. Ricoh's own axes (X right, Y front lens, Z up) map to it by
-  :data:`solidkit.capture.metadata.RICOH_TO_OURS`.
+  :data:`solidkit.camera.metadata.RICOH_TO_OURS`.
 - **Lens frame** = OpenCV's camera frame for that lens' image: x toward increasing image
   column, y toward increasing image row, z along the optical axis (outward). ``R_lens =
   rotation_from_ypr(*ypr_deg)`` maps lens-frame vectors to camera-frame vectors. The front
@@ -255,7 +255,7 @@ class LensProfile(BaseModel):
 
 
 def _builtin_dir() -> Any:
-    return resources.files("solidkit.capture").joinpath(_PROFILE_DIR)
+    return resources.files("solidkit.camera").joinpath(_PROFILE_DIR)
 
 
 def list_profiles() -> list[str]:

@@ -1,0 +1,3 @@
+from solidkit.cli import main
+
+main()
