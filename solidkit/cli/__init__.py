@@ -16,6 +16,7 @@ from solidkit.cli.envmap import app as envmap_app
 from solidkit.errors import InputError, SolidkitError
 from solidkit.cli.predict import predict_command
 from solidkit.cli.synth import app as synth_app
+from solidkit.cli.testset import app as testset_app
 
 app = typer.Typer(
     name="solidkit",
@@ -28,6 +29,7 @@ app.add_typer(envmap_app, name="envmap", help="Inspect, rotate, crop panoramas a
 app.add_typer(capture_app, name="capture", help="Theta captures: metadata, dual-fisheye unwarping.")
 app.add_typer(calibrate_app, name="calibrate", help="Lens, response-curve, colour, vignetting and photo-camera profiles.")
 app.add_typer(synth_app, name="synth", help="Synthetic SOLID-Img-style data and a virtual campaign (Mitsuba 3).")
+app.add_typer(testset_app, name="testset", help="Build, validate, inspect and export a real test set.")
 app.command("ingest")(ingest_cli)
 app.command("predict")(predict_command)
 
