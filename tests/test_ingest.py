@@ -18,7 +18,7 @@ import pytest
 from PIL import Image, TiffImagePlugin
 from typer.testing import CliRunner
 
-from solidkit.capture.campaign import MANIFEST_NAME, ingest, load_manifest
+from solidkit.capture.campaign import MANIFEST_NAME, SCHEMA_VERSION, ingest, load_manifest
 from solidkit.envmap.io import read_exr
 from solidkit.errors import InputError
 
@@ -99,7 +99,7 @@ def test_ingest_builds_campaign(card, tmp_path):
     report = ingest(card, camp)
     assert tree_digest(card) == before  # the card is never modified
     m = load_manifest(camp)
-    assert m.schema_version == 1 and m.solidkit_version
+    assert m.schema_version == SCHEMA_VERSION and m.solidkit_version
 
     # originals: content-addressed, byte-identical, read-only
     assert len(m.shots) == 11 and report.copied == 11

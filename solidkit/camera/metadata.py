@@ -108,7 +108,8 @@ class CaptureMetadata(BaseModel):
     exif_height: int | None = Field(None, description="EXIF PixelYDimension")
     datetime_original: _dt.datetime | None = Field(None, description="naive, camera clock")
     utc_offset: str | None = Field(None, description="e.g. '+09:00', as recorded")
-    gps: dict | None = Field(None, description="lat_deg, lon_deg (signed), alt_m (may be None)")
+    gps: dict | None = Field(None, description="lat_deg, lon_deg (signed), alt_m (may be None); img_direction_deg, "
+                                               "img_direction_ref ('T' true / 'M' magnetic north) when recorded")
     image_type: ImageType = "unknown"
     zenith_corrected: bool | None = None
     gravity: list[float] | None = Field(
@@ -415,10 +416,21 @@ def _gps(tags: dict, warnings: list[str]) -> dict | None:
             a = _ratio(tags["GPS GPSAltitude"])
             if a and math.isfinite(a[0]):
                 alt = -a[0] if str(tags.get("GPS GPSAltitudeRef", "0")).strip() in ("1", "Below Sea Level") else a[0]
-        return {"lat_deg": lat, "lon_deg": lon, "alt_m": alt}
+        out = {"lat_deg": lat, "lon_deg": lon, "alt_m": alt}
     except (ValueError, TypeError, ZeroDivisionError, IndexError) as exc:
         warnings.append(f"bad_gps: {exc}"[:80])
         return None
+    # GPSImgDirection: the direction the camera points, degrees clockwise from true ("T") or magnetic ("M") north
+    if "GPS GPSImgDirection" in tags:
+        try:
+            d = _ratio(tags["GPS GPSImgDirection"])[0]
+            if not (math.isfinite(d) and 0.0 <= d <= 360.0):
+                raise ValueError(d)
+            out["img_direction_deg"] = d % 360.0
+            out["img_direction_ref"] = "M" if _text(tags, "GPS GPSImgDirectionRef") in ("M", "m") else "T"
+        except (ValueError, TypeError, ZeroDivisionError, IndexError) as exc:
+            warnings.append(f"bad_gps_direction: {exc}"[:80])
+    return out
 
 
 def _ricoh_makernote(tiff: _Tiff, warnings: list[str]) -> tuple[dict[int, Any], dict[int, Any]] | None:

@@ -59,7 +59,11 @@ def ingest_command(
     table.add_row("products built / up to date / removed",
                   f"{report.products_built} / {report.products_up_to_date} / {report.products_removed}")
     out.print(table)
+    for msg in report.notes_errors:
+        out.print(f"[red]field notes refused[/] {escape(msg)}")
     for sc in manifest.scenes:
+        for w in sc.warnings:
+            out.print(f"[yellow]warning[/] {escape(sc.id)}: {escape(w)}")
         for pr in sc.probes:
             for w in pr.warnings:
                 out.print(f"[yellow]warning[/] {escape(sc.id)}/{escape(pr.id)}: {escape(w)}")
@@ -102,3 +106,6 @@ def ingest_cli(
     if report.errors or report.known_errors:
         n = len(report.errors) + report.known_errors
         raise InputError(f"{n} file(s) on {card_dir} could not be ingested (listed above); everything else was")
+    if report.notes_errors:
+        raise InputError(f"{len(report.notes_errors)} field notes file(s) on {card_dir} refused (listed above); "
+                         "everything else was ingested")

@@ -1,0 +1,183 @@
+"""Reading a card: which files are captures, field notes or unrelated, and the per-file ingest worker.
+
+Files are found recursively below the card directory in sorted order. Hidden entries (``.*``,
+macOS ``._*``) and files not ending in ``.jpg``/``.jpeg``/``.dng`` (any case; e.g. ``.MP4``,
+``.THM``, ``.txt``) are *unrelated*: listed as skipped, never copied. Field notes files
+(``fieldnotes.toml``/``.json``, :mod:`solidkit.capture.fieldnotes`) are read apart.
+:func:`folder_layout` gives the scene/probe ids of the explicit folder layout
+(:mod:`solidkit.capture.campaign`).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import os
+import re
+import stat
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from solidkit.capture.fieldnotes import is_notes_file
+from solidkit.errors import InputError, SolidkitError
+from solidkit.fsutil import atomic_path, sha256_file
+
+__all__ = ["IMAGE_SUFFIXES", "CardScan", "scan_card", "folder_layout", "ingest_file", "copy_original"]
+
+IMAGE_SUFFIXES = {".jpg": ".jpg", ".jpeg": ".jpg", ".dng": ".dng"}
+_DCF = re.compile(r"^\d{3}[A-Za-z0-9_]{5}$")
+
+
+@dataclass
+class CardScan:
+    """What :func:`scan_card` found: paths relative to the card, sorted."""
+
+    captures: list[Path] = field(default_factory=list)
+    notes: list[Path] = field(default_factory=list)
+    unrelated: list[Path] = field(default_factory=list)
+
+
+def scan_card(card: str | os.PathLike) -> CardScan:
+    """Captures, field notes and unrelated files below ``card`` (module docstring)."""
+    card = Path(card)
+    if not card.is_dir():
+        raise InputError(f"{card}: not a directory")
+    out = CardScan()
+    for root, dirs, files in os.walk(card):
+        dirs[:] = sorted(d for d in dirs if not d.startswith("."))
+        for name in sorted(files):
+            rel = Path(root, name).relative_to(card)
+            if name.startswith(".") or Path(root, name).is_symlink():
+                out.unrelated.append(rel)
+            elif Path(name).suffix.lower() in IMAGE_SUFFIXES:
+                out.captures.append(rel)
+            elif is_notes_file(name) and len(rel.parts) <= 2:
+                out.notes.append(rel)
+            else:
+                out.unrelated.append(rel)
+    return out
+
+
+def folder_layout(rel: Path) -> tuple[str | None, str | None]:
+    """(scene, probe-or-'photo') from the explicit folder layout, or (None, None)."""
+    parts = rel.parts[:-1]
+    if not parts or parts[0].upper() == "DCIM" or _DCF.match(parts[0]):
+        return None, None
+    scene = parts[0]
+    if len(parts) == 1 or parts[1].upper() == "DCIM" or _DCF.match(parts[1]):
+        return scene, None
+    return scene, ("photo" if parts[1].lower() == "photo" else parts[1])
+
+
+def _check_decodable(path: Path, fmt: str) -> None:
+    """Decode the whole image (a truncated JPEG is an error, not a grey tail)."""
+    if fmt == "jpeg":
+        from PIL import Image
+
+        try:
+            with Image.open(path) as im:
+                # DCT-domain 1/8 scaling: every entropy-coded byte is still decoded (truncation
+                # and corrupt data are caught), at a fraction of the full decode's cost
+                im.draft("RGB", (max(1, im.width // 8), max(1, im.height // 8)))
+                im.load()
+        except Exception as exc:
+            raise InputError(f"cannot decode JPEG: truncated or corrupt ({type(exc).__name__}: {exc})") from None
+    else:
+        import rawpy
+
+        try:
+            with rawpy.imread(str(path)) as raw:
+                raw.raw_image_visible.sum()
+        except Exception as exc:
+            raise InputError(f"cannot decode raw data ({type(exc).__name__}: {exc})") from None
+
+
+def copy_original(src: Path, dest: Path, sha: str) -> bool:
+    """Copy ``src`` to ``dest`` atomically, verify its sha256, make it read-only. False if present."""
+    if dest.exists():
+        if dest.stat().st_size == src.stat().st_size:
+            return False
+        dest.chmod(stat.S_IWUSR | stat.S_IRUSR)  # a wrong-size file under a content name: replace it
+        dest.unlink()
+    with atomic_path(dest) as tmp:
+        h = hashlib.sha256()
+        with open(src, "rb") as fi, open(tmp, "wb") as fo:
+            while block := fi.read(1 << 20):  # hash exactly the bytes written
+                h.update(block)
+                fo.write(block)
+            fo.flush()
+            os.fsync(fo.fileno())
+        if h.hexdigest() != sha:
+            raise InputError("copy verification failed: the file changed while it was being ingested")
+        tmp.chmod(stat.S_IRUSR | stat.S_IRGRP | stat.S_IROTH)
+    return True
+
+
+def ingest_file(card: str, rel: str, campaign: str, throttle_s: float = 0.0) -> dict[str, Any]:
+    """Worker: hash, validate, read metadata, copy. Returns ``{"shot": ...}`` or ``{"error": ...}``."""
+    from solidkit.capture.merge import sniff_format
+    from solidkit.camera.metadata import read_metadata
+
+    src = Path(card) / rel
+    st = src.stat()
+    ref = {"card": card, "path": rel, "size": st.st_size, "mtime_ns": st.st_mtime_ns}
+    try:
+        if throttle_s:
+            time.sleep(throttle_s)
+        if st.st_size == 0:
+            raise InputError("empty file (0 bytes)")
+        kind = sniff_format(src)
+        suffix = IMAGE_SUFFIXES[src.suffix.lower()]
+        if suffix == ".jpg" and kind == "tiff":
+            raise InputError(f"content is TIFF/DNG (raw) but the name ends in {src.suffix}; rename it to .dng")
+        if suffix == ".jpg" and kind != "jpeg":
+            raise InputError("not a JPEG file (bad signature)")
+        if suffix == ".dng" and kind != "tiff":
+            raise InputError("not a DNG file (no TIFF signature)")
+        sha = sha256_file(src)
+        meta = read_metadata(src)
+        _check_decodable(src, "jpeg" if suffix == ".jpg" else "raw")
+        original = Path("originals") / sha[:2] / f"{sha}{suffix}"
+        copied = copy_original(src, Path(campaign) / original, sha)
+        md = meta.model_dump(mode="json")
+        md["path"] = original.as_posix()
+        return {
+            "shot": {
+                "sha256": sha, "original": original.as_posix(), "size": st.st_size, "file_format": md.get("file_format", "jpeg"),
+                "sources": [ref], "metadata": md,
+            },
+            "copied": copied,
+        }
+    except SolidkitError as exc:
+        return {"error": {**ref, "message": str(exc).replace(str(src) + ": ", "")}}
+    except OSError as exc:
+        return {"error": {**ref, "message": f"I/O error: {exc.strerror or exc}"}}
+
+
+
+def ingest_notes(card: str, rel: str, campaign: str) -> dict[str, Any]:
+    """Read one field notes file: copy it read-only beside the originals and validate it.
+
+    Returns a :class:`~solidkit.capture.manifest.FieldNotesRecord` as a dict; a file that does
+    not parse or validate gets ``error`` (one line) and no ``notes``. A notes file at the card's
+    top level is a card-level file (``[scenes.<id>]`` tables), one in a scene folder belongs to
+    that scene.
+    """
+    from solidkit.capture.fieldnotes import read_notes
+
+    src = Path(card) / rel
+    parts = Path(rel).parts
+    scene = parts[0] if len(parts) == 2 else None
+    record: dict[str, Any] = {"card": card, "path": rel, "sha256": "", "scene": scene}
+    try:
+        record["sha256"] = sha = sha256_file(src)
+        original = Path("originals") / sha[:2] / f"{sha}{src.suffix.lower()}"
+        copy_original(src, Path(campaign) / original, sha)
+        record["original"] = original.as_posix()
+        record["notes"] = read_notes(src, card_level=scene is None).model_dump(mode="json")
+    except SolidkitError as exc:
+        record["error"] = f"{rel}: {str(exc).split(': ', 1)[-1]}"
+    except OSError as exc:
+        record["error"] = f"{rel}: I/O error: {exc.strerror or exc}"
+    return record
