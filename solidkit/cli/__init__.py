@@ -13,6 +13,7 @@ from solidkit.cli.calibrate import app as calibrate_app
 from solidkit.cli.ingest import ingest_cli
 from solidkit.cli.capture import app as capture_app
 from solidkit.cli.envmap import app as envmap_app
+from solidkit.cli.eval import eval_command
 from solidkit.errors import InputError, SolidkitError
 from solidkit.cli.predict import predict_command
 from solidkit.cli.synth import app as synth_app
@@ -32,6 +33,7 @@ app.add_typer(synth_app, name="synth", help="Synthetic SOLID-Img-style data and 
 app.add_typer(testset_app, name="testset", help="Build, validate, inspect and export a real test set.")
 app.command("ingest")(ingest_cli)
 app.command("predict")(predict_command)
+app.command("eval")(eval_command)
 
 
 @app.command()

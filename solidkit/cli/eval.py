@@ -1,0 +1,52 @@
+"""``solidkit eval``: the paper's metrics for a checkpoint and baselines, with an HTML/Markdown report."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import typer
+
+from solidkit.errors import InputError
+
+__all__ = ["eval_command", "parse_named_paths"]
+
+
+def parse_named_paths(values: list[str] | None, option: str) -> dict[str, Path]:
+    """``["NAME=PATH", ...]`` -> ``{NAME: PATH}``; a clear InputError otherwise."""
+    out: dict[str, Path] = {}
+    for v in values or []:
+        name, sep, path = v.partition("=")
+        if not sep or not name.strip() or not path.strip():
+            raise InputError(f"{option} expects NAME=CHECKPOINT (e.g. {option} col=ablation_col.pt), got {v!r}")
+        if name in out:
+            raise InputError(f"{option} {name!r} given twice")
+        out[name.strip()] = Path(path.strip())
+    return out
+
+
+def eval_command(
+    model: Path | None = typer.Option(None, "--model", help="SOLID-Net checkpoint (default: the shipped one)."),
+    testset: Path | None = typer.Option(None, "--testset", help="Real test set folder (testset.json)."),
+    synthetic: Path | None = typer.Option(None, "--synthetic", help="Synthetic split (solidkit synth dataset folder)."),
+    out: Path = typer.Option(Path("eval_report"), "-o", "--out", help="Report folder (report.html, report.md, figures/, results.json)."),
+    baseline: list[str] | None = typer.Option(None, "--baseline", help="Extra checkpoint NAME=CKPT evaluated side by side (ablations; repeatable)."),
+    limit: int | None = typer.Option(None, min=1, help="Evaluate only the first N photos of each dataset."),
+    grids: int = typer.Option(6, min=0, help="Qualitative grids per dataset."),
+    as_json: bool = typer.Option(False, "--json", help="Print the summaries as JSON on stdout."),
+) -> None:
+    """Sun azimuth/elevation error, global MAE and local SSIM/MAE for the model and baselines; a report."""
+    from solidkit.finetune.report import evaluation_report
+
+    extra = parse_named_paths(baseline, "--baseline")
+    for p in [model, *extra.values()]:
+        if p is not None and not p.is_file():
+            raise InputError(f"{p}: no such checkpoint")
+    for p, opt in ((testset, "--testset"), (synthetic, "--synthetic")):
+        if p is not None and not p.is_dir():
+            raise InputError(f"{opt} {p}: not a folder")
+    res = evaluation_report(out, model, testset, synthetic, extra, limit=limit, max_grids=grids,
+                            log=lambda s: typer.echo(s, err=True))
+    if as_json:
+        typer.echo(json.dumps({ds: r["summary"] for ds, r in res["results"].items()}, indent=1, default=float))
+    typer.echo(f"report: {res['report']}", err=True)
