@@ -5,7 +5,7 @@ frame (:mod:`solidkit.synth.scene`), oriented by ``R = rotation_from_ypr(yaw, pi
 (camera -> scene frame, conventions §4). Its *panorama frame* is ``R_y(yaw)``: the scene frame
 turned to the camera's heading, with pitch and roll removed (conventions §2).
 
-View selection (paper §3.1 and supplementary §2): for each of the six 60° heading sectors,
+View selection (paper §3.1 and supplementary §2; :func:`solidkit.synth.views.best_views`): for each of the six 60° heading sectors,
 candidate cameras are drawn at random walkable positions (sidewalks and road, away from
 obstacles), heading uniform in the sector, height ``1.55 ± 0.05`` m above the floor, pitch
 uniform within ±10° (roll within ±``max_roll``), an item buffer is rendered at low resolution
@@ -26,9 +26,10 @@ from typing import Any
 import numpy as np
 
 from solidkit.envmap import rotation_from_ypr, rotation_y
+from solidkit.synth.renderer import mitsuba
 from solidkit.synth.scene import CityBlock
 
-__all__ = ["Camera", "intrinsics", "pinhole_sensor", "equirect_sensor", "sample_candidate", "best_views"]
+__all__ = ["Camera", "intrinsics", "pinhole_sensor", "equirect_sensor", "sample_candidate"]
 
 
 def intrinsics(width: int, height: int, hfov_deg: float) -> np.ndarray:
@@ -108,8 +109,6 @@ def _film(width: int, height: int) -> dict[str, Any]:
 
 def pinhole_sensor(cam: Camera, *, jitter: bool = True, seed: int = 0, spp: int = 1) -> Any:
     """A Mitsuba ``sk_pinhole`` sensor for ``cam`` (box filter, independent sampler)."""
-    from solidkit.synth.renderer import mitsuba
-
     mi = mitsuba()
     K = cam.K
     return mi.load_dict({"type": "sk_pinhole", "fx": float(K[0, 0]), "fy": float(K[1, 1]), "cx": float(K[0, 2]),
@@ -121,8 +120,6 @@ def pinhole_sensor(cam: Camera, *, jitter: bool = True, seed: int = 0, spp: int 
 def equirect_sensor(position: np.ndarray, rotation: np.ndarray, height: int, *, jitter: bool = True,
                     seed: int = 0, spp: int = 1) -> Any:
     """A Mitsuba ``sk_equirect`` sensor: a ``(height, 2 height)`` panorama at ``position`` whose frame is ``rotation``."""
-    from solidkit.synth.renderer import mitsuba
-
     mi = mitsuba()
     to_world = _to_world(mi, np.asarray(rotation), np.asarray(position))
     return mi.load_dict({"type": "sk_equirect", "jitter": jitter, "to_world": to_world,
@@ -148,38 +145,3 @@ def sample_candidate(block: CityBlock, rng: np.random.Generator, sector: int, K:
     pitch = math.radians(rng.uniform(-10.0, 10.0))
     roll = math.radians(rng.uniform(-max_roll_deg, max_roll_deg))
     return Camera(K.copy(), width, height, np.array([x, r[4] - h, z]), yaw, pitch, roll)
-
-
-def best_views(block: CityBlock, scene: Any, rng: np.random.Generator, K: np.ndarray, width: int, height: int, *,
-               candidates: int = 16, min_categories: int = 3, max_object_share: float = 0.35,
-               min_sky: float = 0.05, item_size: tuple[int, int] = (64, 48),
-               sectors: tuple[int, ...] = (0, 1, 2, 3, 4, 5)) -> list[tuple[Camera, dict[str, Any]]]:
-    """The best camera of each sector and its selection stats (coverage, categories, tries).
-
-    When no candidate of a sector qualifies, the one with the most categories (less its largest
-    object share) is kept and ``stats["accepted"]`` is False.
-    """
-    from solidkit.synth.sample import render_buffers
-
-    out = []
-    for s in sectors:
-        best: tuple[tuple[bool, float, int], Camera, dict[str, Any]] | None = None
-        for _ in range(candidates):
-            cam = sample_candidate(block, rng, s, K, width, height)
-            buf = render_buffers(scene, cam.scaled(*item_size), spp=1, shadows=False)
-            cats = block.category_of(buf["label"])
-            hit = cats >= 0
-            counts = np.bincount(cats[hit].ravel(), minlength=1)
-            ncat = int(np.sum(counts >= 0.01 * cats.size))
-            cov = float(hit.mean())
-            groups = block.group_of(buf["label"])
-            largest = float(np.bincount(groups[hit].ravel()).max() / cats.size) if hit.any() else 0.0
-            ok = ncat >= min_categories and largest <= max_object_share and 1.0 - cov >= min_sky
-            key = (ok, cov if ok else float(ncat) - largest, ncat)
-            if best is None or key > best[0]:
-                best = (key, cam, {"coverage": cov, "categories": ncat, "largest_object_share": largest,
-                                   "accepted": ok})
-        assert best is not None
-        best[2]["candidates"] = candidates
-        out.append((best[1], best[2]))
-    return out

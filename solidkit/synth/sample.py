@@ -33,10 +33,11 @@ import numpy as np
 
 from solidkit.envmap import CONVENTIONS_VERSION, angles_from_direction, tonemap, write_exr, write_ldr
 from solidkit.fsutil import atomic_write_text
-from solidkit.synth.cameras import Camera, best_views, equirect_sensor, intrinsics, pinhole_sensor
+from solidkit.synth.cameras import Camera, equirect_sensor, intrinsics, pinhole_sensor
 from solidkit.synth.lighting import Lighting, random_lighting
-from solidkit.synth.plugins import BUFFER_AOVS
+from solidkit.synth.render import render_buffers, render_rgb
 from solidkit.synth.scene import CATEGORIES, CityBlock, city_block, to_mitsuba
+from solidkit.synth.views import best_views
 
 __all__ = ["SampleConfig", "render_rgb", "render_buffers", "render_panorama", "pick_probe_pixels", "Generator",
            "derive_seed", "FILES"]
@@ -91,53 +92,6 @@ class SampleConfig:
 def derive_seed(*parts: int) -> int:
     """A 31-bit seed derived from integers (stable across runs and platforms; fits Mitsuba's samplers)."""
     return int(np.random.SeedSequence([int(p) & 0xFFFFFFFF for p in parts]).generate_state(1, np.uint32)[0] & 0x7FFFFFFF)
-
-
-def _integrator(kind: str, **props: Any) -> Any:
-    from solidkit.synth.renderer import mitsuba
-
-    mi = mitsuba()
-    return mi.load_dict({"type": kind, **props})
-
-
-def render_rgb(scene: Any, sensor: Any, spp: int, *, max_depth: int = 6, seed: int = 0) -> np.ndarray:
-    """Path-traced linear RGB ``(H, W, 3)`` float32."""
-    from solidkit.synth.renderer import mitsuba
-
-    mi = mitsuba()
-    img = mi.render(scene, sensor=sensor, integrator=_integrator("path", max_depth=int(max_depth)), spp=int(spp),
-                    seed=int(seed) & 0x7FFFFFFF)
-    return np.array(img, dtype=np.float32)[..., :3]
-
-
-def render_buffers(scene: Any, cam: Camera, *, spp: int = 16, shadows: bool = True, seed: int = 0) -> dict[str, np.ndarray]:
-    """Intrinsic buffers of ``cam`` (see module doc): raw AOVs plus derived camera-frame quantities.
-
-    Returns ``t`` (ray distance), ``normal_world``, ``normal`` (camera frame), ``albedo``,
-    ``label`` (object id, -1 = sky), ``depth``, ``plane_distance``, ``shadow`` and ``hit`` (bool).
-    """
-    from solidkit.synth.renderer import mitsuba
-
-    mi = mitsuba()
-    sensor = pinhole_sensor(cam, jitter=False, spp=spp, seed=seed)
-    raw = np.array(mi.render(scene, sensor=sensor, integrator=_integrator("sk_buffers", shadows=shadows), spp=int(spp),
-                             seed=int(seed) & 0x7FFFFFFF), dtype=np.float64)
-    aov = {name: raw[..., raw.shape[-1] - len(BUFFER_AOVS) + i] for i, name in enumerate(BUFFER_AOVS)}
-    hit = aov["label"] > -0.5
-    nw = np.stack([aov["nx"], aov["ny"], aov["nz"]], -1)
-    nw /= np.maximum(np.linalg.norm(nw, axis=-1, keepdims=True), 1e-12)
-    nw[~hit] = 0.0
-    ncam = nw @ cam.rotation  # R^T n for row vectors
-    v = cam.rays()
-    depth = np.where(hit, aov["t"] / np.linalg.norm(v, axis=-1), 0.0)
-    plane = np.where(hit, -depth * np.sum(ncam * v, axis=-1), 0.0)
-    off = aov["shadow_off"]
-    shadow = np.where(hit & (off > 0), np.clip(aov["shadow_on"] / np.maximum(off, 1e-20), 0.0, 1.0), np.where(hit, 0.0, 1.0))
-    albedo = np.stack([aov["albedo_r"], aov["albedo_g"], aov["albedo_b"]], -1)
-    return {"t": aov["t"].astype(np.float32), "normal_world": nw.astype(np.float32), "normal": ncam.astype(np.float32),
-            "albedo": albedo.astype(np.float32), "label": np.where(hit, np.round(aov["label"]), -1).astype(np.int32),
-            "depth": depth.astype(np.float32), "plane_distance": plane.astype(np.float32),
-            "shadow": shadow.astype(np.float32), "hit": hit}
 
 
 def render_panorama(scene: Any, position: np.ndarray, rotation: np.ndarray, height: int, spp: int, *,
