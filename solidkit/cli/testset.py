@@ -24,3 +24,69 @@ def schema_command(
     else:
         atomic_write_text(out, text)
         typer.echo(f"wrote {out}", err=True)
+
+
+@app.command("build")
+def build_command(
+    campaign: Path = typer.Argument(..., help="Campaign folder (ingested, aligned; its label store is used when present)."),
+    out: Path = typer.Argument(..., help="Test set folder to create (absent, empty, or an earlier test set)."),
+    json_out: bool = typer.Option(False, "--json", help="Print the build report as JSON on stdout."),
+) -> None:
+    """Assemble a versioned test set (photos, probes, sun, metadata) from an aligned campaign."""
+    import json
+    import time
+
+    from rich.console import Console
+    from rich.markup import escape
+    from rich.table import Table
+
+    from solidkit.testset.build import build_testset
+
+    console = Console(stderr=True)
+    t0 = time.perf_counter()
+    report = build_testset(campaign, out, log=lambda m: console.print(f"[dim]{escape(m)}[/dim]"))
+    seconds = time.perf_counter() - t0
+    if json_out:
+        typer.echo(json.dumps({**report.to_json(), "seconds": round(seconds, 2)}, indent=1))
+        return
+    table = Table(title=f"solidkit testset build -> {escape(str(out))}", show_header=False)
+    table.add_row("dataset version", report.dataset_version + ("" if report.changed else "  (unchanged: nothing written)"))
+    table.add_row("scenes / probes (HDR)", f"{report.scenes} / {report.probes} ({report.hdr_probes})")
+    table.add_row("scenes with a sun", str(report.sun_found))
+    table.add_row("labels used", str(report.labels_used))
+    table.add_row("seconds", f"{seconds:.1f}")
+    console.print(table)
+    for line in report.overrides:
+        console.print(f"override: {escape(line)}")
+    for line in report.excluded:
+        console.print(f"[yellow]excluded[/yellow]: {escape(line)}")
+
+
+@app.command("validate")
+def validate_command(
+    root: Path = typer.Argument(..., help="Test set folder (holding testset.json)."),
+    allow_flagged: bool = typer.Option(False, "--allow-flagged", help="Do not count labels still flagged for review as problems."),
+    json_out: bool = typer.Option(False, "--json", help="Print the problems as JSON on stdout."),
+) -> None:
+    """Check schema, files, checksums, geometry, exposures and flags; exit 1 when any problem is found."""
+    import json
+
+    from rich.console import Console
+    from rich.markup import escape
+
+    from solidkit.testset.validate import validate_testset
+
+    if not root.is_dir():
+        from solidkit.errors import InputError
+
+        raise InputError(f"{root}: not a folder")
+    problems = validate_testset(root, allow_flagged=allow_flagged)
+    if json_out:
+        typer.echo(json.dumps({"valid": not problems, "problems": [p.to_json() for p in problems]}, indent=1))
+    else:
+        console = Console(stderr=True)
+        for p in problems:
+            console.print(f"[red]problem[/red] {escape(str(p))}")
+        console.print(f"{root}: " + ("[green]valid[/green]" if not problems else f"[red]{len(problems)} problem(s)[/red]"))
+    if problems:
+        raise typer.Exit(1)
