@@ -1,0 +1,201 @@
+"""solidkit testset build / validate on an analytic campaign with a known truth (tests/testset_campaign.py)."""
+
+from __future__ import annotations
+
+import json
+import math
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from solidkit.align.schema import body_to_pano, level_to_pano
+from solidkit.envmap.io import read_exr, read_ldr
+from solidkit.envmap.resample import resize, rotate
+from solidkit.errors import InputError
+from solidkit.finetune.metrics import exposure_scale, ldr_from_hdr
+from solidkit.labeling.store import LabelStore
+from solidkit.testset.build import build_testset, load_testset
+from solidkit.testset.schema import content_version
+from solidkit.testset.validate import validate_testset
+
+from testset_campaign import make_campaign
+
+PSNR_MIN_DB = 30.0
+
+
+@pytest.fixture(scope="module")
+def campaign(tmp_path_factory) -> tuple[Path, dict]:
+    root = tmp_path_factory.mktemp("campaign") / "camp"
+    return root, make_campaign(root)
+
+
+@pytest.fixture(scope="module")
+def built(campaign, tmp_path_factory) -> Path:
+    out = tmp_path_factory.mktemp("ts") / "testset"
+    build_testset(campaign[0], out)
+    return out
+
+
+def _tree(root: Path) -> dict[str, bytes]:
+    return {p.relative_to(root).as_posix(): p.read_bytes() for p in sorted(root.rglob("*")) if p.is_file()}
+
+
+def psnr_ldr(ldr: np.ndarray, truth_hdr: np.ndarray, saturated: np.ndarray) -> float:
+    """PSNR (dB, sRGB [0, 1]) of an LDR probe against the truth HDR exposed like it, unsaturated pixels."""
+    s = exposure_scale(truth_hdr, ldr, saturated)
+    ref = ldr_from_hdr(truth_hdr, s)
+    mse = float(np.mean((ldr[~saturated] - ref[~saturated]) ** 2))
+    return 10 * math.log10(1.0 / max(mse, 1e-12))
+
+
+def test_build_against_truth(campaign, built):
+    camp, truth = campaign
+    ts = load_testset(built)
+    assert [s.id for s in ts.scenes] == sorted(truth)
+    for s in ts.scenes:
+        t = truth[s.id]
+        assert (s.pitch_deg, s.roll_deg) == (t["pitch"], t["roll"])
+        assert s.photo_size == (320, 240) and s.photo_full_size == (640, 480)
+        for p in s.probes:
+            # probe pixels exactly the field notes'; 640 -> 320 is a plain /2 resize (conventions §1)
+            assert p.pixel_full == t["pixels"][p.id] and p.pixel_source == "field_notes"
+            x, y = t["pixels"][p.id]
+            assert p.pixel == pytest.approx(((x + 0.5) / 2 - 0.5, (y + 0.5) / 2 - 0.5), abs=1e-9)
+            # rotation: body -> photo panorama of the capture's yaw and levelling
+            np.testing.assert_allclose(np.asarray(p.rotation)[:, 2], body_to_pano(t["yaws"][p.id], 0, 0)[:, 2], atol=0.05)
+            # the aligned probe equals the environment (distant world): LDR and HDR
+            truth_small = resize(t["panorama"], 128)
+            ldr = read_ldr(built / p.ldr)
+            sat = read_ldr(built / p.images.saturation)[..., 0] > 0.5
+            assert psnr_ldr(ldr, truth_small, sat) > PSNR_MIN_DB
+            hdr = read_exr(built / p.hdr)[0]
+            rel = np.median(np.abs(hdr - truth_small) / np.maximum(truth_small, 1e-3))
+            assert rel < 0.05
+        if t["sun"] is None:
+            assert not s.sun.found and s.sun.azimuth_deg is None
+        else:
+            assert s.sun.found and (s.sun.azimuth_deg, s.sun.elevation_deg) == pytest.approx(t["sun"], abs=1e-9)
+            assert s.sun.source == "auto"
+            # the sun panorama is in the photo's panorama frame: its brightest spot is the sun
+            pano = read_ldr(built / s.sun.panorama)
+            h = pano.shape[0]
+            v, u = np.unravel_index(np.argmax(pano.sum(-1)), pano.shape[:2])
+            az, el = (u + 0.5) / (2 * h) * 360 - 180, 90 - (v + 0.5) / h * 180
+            assert abs(az - t["sun"][0]) < 2.0 and abs(el - t["sun"][1]) < 2.0
+    assert validate_testset(built) == []
+
+
+def test_two_builds_byte_identical_and_rebuild_is_a_no_op(campaign, built, tmp_path):
+    other = tmp_path / "again"
+    report = build_testset(campaign[0], other)
+    assert _tree(other) == _tree(built)
+    before = {p: p.stat().st_mtime_ns for p in built.rglob("*")}
+    report = build_testset(campaign[0], built)
+    assert not report.changed and {p: p.stat().st_mtime_ns for p in built.rglob("*")} == before
+    assert load_testset(built).dataset_version == content_version(load_testset(built))
+
+
+def test_refuses_unrelated_and_overlapping_folders(campaign, tmp_path):
+    camp = campaign[0]
+    unrelated = tmp_path / "photos"
+    unrelated.mkdir()
+    (unrelated / "holiday.jpg").write_bytes(b"x")
+    with pytest.raises(InputError, match="not a solidkit test set"):
+        build_testset(camp, unrelated)
+    assert (unrelated / "holiday.jpg").read_bytes() == b"x"
+    with pytest.raises(InputError, match="outside the campaign"):
+        build_testset(camp, camp / "testset")
+    with pytest.raises(InputError, match="not a campaign"):
+        build_testset(tmp_path, tmp_path / "out")
+
+
+def test_human_labels_win_with_provenance(campaign, tmp_path):
+    camp = tmp_path / "camp"
+    shutil.copytree(campaign[0], camp)
+    truth = campaign[1]
+    store = LabelStore(camp)
+    store.put("probe_pixel", "sA/p01", {"x": 210.0, "y": 430.0}, source="annotator", annotator="ann")
+    store.put("probe_pixel", "sA/p02", {"x": 1.0, "y": 1.0}, source="auto", annotator="align")  # loses to field notes
+    store.put("sun_scene", "sA", {"found": True, "azimuth_deg": 36.0, "elevation_deg": 41.0, "uncertainty_deg": 0.3},
+              source="reviewed", annotator="rev")
+    yaw = truth["sA"]["yaws"]["p02"] + 10.0
+    store.put("heading", "sA/p02", {"yaw_deg": yaw}, source="annotator", annotator="ann", flags=["check"])
+    out = tmp_path / "ts"
+    report = build_testset(camp, out)
+    ts = load_testset(out)
+    s = ts.scenes[0]
+    p1, p2 = s.probes
+    assert (p1.pixel_full, p1.pixel_source, p1.pixel_annotator) == ((210.0, 430.0), "annotator", "ann")
+    assert (p2.pixel_full, p2.pixel_source) == (truth["sA"]["pixels"]["p02"], "field_notes")
+    assert (s.sun.azimuth_deg, s.sun.elevation_deg, s.sun.source, s.sun.annotator) == (36.0, 41.0, "reviewed", "rev")
+    assert s.sun.label_version == 1
+    assert p2.alignment.source == "annotator" and p2.alignment.yaw_deg == pytest.approx(yaw)
+    assert "check" in p2.flags and report.overrides
+    np.testing.assert_allclose(p2.rotation, body_to_pano(yaw, -1.5 + 3.0, -1.4), atol=1e-9)  # levelling of capture #2
+    # the probe was re-rotated by the 10 degree correction: it now shows the world turned by 10 degrees
+    turned = resize(rotate(truth["sA"]["panorama"], level_to_pano(10.0)), 128)
+    sat = read_ldr(out / p2.images.saturation)[..., 0] > 0.5
+    assert psnr_ldr(read_ldr(out / p2.ldr), turned, sat) > PSNR_MIN_DB
+    assert ts.inputs.labels_used >= 4 and ts.inputs.labels_sha256
+    problems = validate_testset(out)
+    assert [p.check for p in problems] == ["flags"] and "check" in problems[0].message
+    assert validate_testset(out, allow_flagged=True) == []
+
+
+def _edit(root: Path, edit) -> None:
+    p = root / "testset.json"
+    data = json.loads(p.read_text())
+    edit(data)
+    p.write_text(json.dumps(data))
+
+
+def _sky_pixel(data):
+    p = data["scenes"][0]["probes"][0]
+    p["pixel_full"] = [320.0, 30.0]
+    p["pixel"] = [159.75, 14.75]
+
+
+def _below_horizon(data):
+    data["scenes"][0]["sun"].update(elevation_deg=-5.0, direction=None)
+
+
+def _skew(data):
+    data["scenes"][0]["probes"][1]["rotation"][0][1] += 0.05
+
+
+FAULTS = {
+    "missing file": (lambda r: (r / "scenes/sA/probes/p01/hdr.exr").unlink(), "files", "scenes/sA/probes/p01/hdr.exr", "missing"),
+    "flipped checksum": (lambda r: _flip(r / "scenes/sA/photo.png"), "files", "scenes/sA/photo.png", "checksum"),
+    "probe on the sky": (lambda r: _edit(r, _sky_pixel), "geometry", "scenes/sA/photo_full.jpg", "on the sky"),
+    "sun below the horizon": (lambda r: _edit(r, _below_horizon), "geometry", "testset.json", "not above the horizon"),
+    "non-orthonormal rotation": (lambda r: _edit(r, _skew), "geometry", "testset.json", "not orthonormal"),
+}
+
+
+def _flip(path: Path) -> None:
+    data = bytearray(path.read_bytes())
+    data[len(data) // 2] ^= 0x01
+    path.write_bytes(bytes(data))
+
+
+@pytest.mark.parametrize("fault", sorted(FAULTS))
+def test_validate_catches_each_fault(fault, built, tmp_path, cli):
+    root = tmp_path / "ts"
+    shutil.copytree(built, root)
+    inject, check, file, words = FAULTS[fault]
+    inject(root)
+    problems = validate_testset(root)
+    hits = [p for p in problems if p.check == check and p.file == file and words in p.message]
+    assert hits and hits[0].scene == "sA", problems
+    code, out, _ = cli("testset", "validate", root, "--json")
+    assert code == 1 and not json.loads(out)["valid"]
+
+
+def test_validate_clean_cli_and_bad_input(built, tmp_path, cli):
+    assert cli("testset", "validate", built)[0] == 0
+    code, _, err = cli("testset", "validate", tmp_path)
+    assert code == 1 and "not a test set" in err
+    (tmp_path / "testset.json").write_text("{")
+    assert "[schema]" in cli("testset", "validate", tmp_path)[2]
