@@ -14,6 +14,7 @@ from solidkit.cli.ingest import ingest_cli
 from solidkit.cli.capture import app as capture_app
 from solidkit.cli.envmap import app as envmap_app
 from solidkit.cli.eval import eval_command
+from solidkit.cli.finetune import finetune_command
 from solidkit.errors import InputError, SolidkitError
 from solidkit.cli.predict import predict_command
 from solidkit.cli.synth import app as synth_app
@@ -34,6 +35,7 @@ app.add_typer(testset_app, name="testset", help="Build, validate, inspect and ex
 app.command("ingest")(ingest_cli)
 app.command("predict")(predict_command)
 app.command("eval")(eval_command)
+app.command("finetune")(finetune_command)
 
 
 @app.command()

@@ -349,3 +349,66 @@ def evaluation_report(
     save_json(out / "results.json", {"model": str(model) if model else "shipped", "results": results})
     md, page = write_report(out, "SOLID-Net evaluation", sections)
     return {"results": results, "report": str(page), "markdown": str(md)}
+
+
+def loss_curves(result: dict[str, Any], path: Path) -> Path:
+    """Training and validation loss per epoch, one colour per fold."""
+    plt = _plt()
+    fig, ax = plt.subplots(figsize=(6.4, 3.6))
+    cm = plt.get_cmap("tab10")
+    for f in result["folds"]:
+        h = f["history"]
+        e = [r["epoch"] for r in h]
+        ax.plot(e, [r["train"] for r in h], "-o", ms=3, color=cm(f["fold"]), label=f"fold {f['fold'] + 1} train")
+        if f["early_stopping"]:
+            ax.plot(e, [r["val"] for r in h], "--s", ms=3, color=cm(f["fold"]), label=f"fold {f['fold'] + 1} validation")
+            ax.axvline(f["best_epoch"], color=cm(f["fold"]), alpha=0.3, lw=3)
+    ax.set(xlabel="epoch (0 = before fine-tuning)", ylabel="real-label loss", title="fine-tuning loss (bars: kept epoch)")
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=7, ncol=2)
+    fig.tight_layout()
+    return _save(fig, path)
+
+
+def finetune_sections(result: dict[str, Any], folder: Path, prefix: str = "finetune_") -> list[tuple[str, str]]:
+    """Report sections of :func:`solidkit.finetune.finetune.run_finetune`'s result."""
+    cfg = result["config"]
+    figs = folder / "figures"
+    n_par = result["folds"][0]["trainable_parameters"] if result["folds"] else 0
+    mix = (f"one synthetic batch after every {cfg['synthetic_every']} real steps" if cfg["synthetic_every"]
+           else "none (real labels only)")
+    proto = (
+        f"Scene-level {len(result['folds'])}-fold cross-validation (seed {cfg['seed']}): each fold tests on its scenes "
+        "and trains on the others; one training scene per fold (20 % of them for larger sets) is held out for early "
+        f"stopping (patience {cfg['patience']}, at most {cfg['epochs']} epochs), so test scenes never choose the epoch. "
+        f"Trainable: `{cfg['trainable']}` ({n_par / 1e3:.0f} k parameters), Adam lr {cfg['lr']:g}. Loss: LDR local probes "
+        "(exposure-invariant log-L1 + 1-SSIM on unsaturated pixels) + the labelled sun direction "
+        f"(weight {cfg['sun_weight']:g}). Synthetic mixing: {mix}.\n\n"
+    )
+    rows = []
+    for f in result["folds"]:
+        b, a = f["before"], f["after"]
+        cell = lambda s, k: fmt((s.get(k) or {}).get("median"))  # noqa: E731
+        rows.append([str(f["fold"] + 1), ", ".join(f["split"]["train"]), ", ".join(f["split"]["val"]) or "—",
+                     ", ".join(f["split"]["test"]), f"{f['best_epoch']}/{f['epochs_run']}", fmt(f["seconds"]),
+                     f"{cell(b, 'local_ssim')} → {cell(a, 'local_ssim')}", f"{cell(b, 'local_mae')} → {cell(a, 'local_mae')}",
+                     f"{cell(b, 'angle_deg/paper')} → {cell(a, 'angle_deg/paper')}",
+                     f"{cell(b, 'angle_deg/core')} → {cell(a, 'angle_deg/core')}"])
+    table = markdown_table(["fold", "train scenes", "validation", "test scenes", "kept epoch", "s",
+                            "local SSIM (median)", "local MAE (median)", "sun angle paper (°)", "sun angle default (°)"], rows)
+    eff_rows = [[k, str(v["n"]), fmt(v.get("mean")), f"[{fmt((v.get('mean_ci') or [None])[0])}, "
+                 f"{fmt((v.get('mean_ci') or [None, None])[1])}]", f"**{v['verdict']}**"] for k, v in result["effect"].items()]
+    effect = markdown_table(["paired difference (after - before)", "n", "mean", "95% CI (scene bootstrap)", "verdict"], eff_rows)
+    curves = loss_curves(result, figs / f"{prefix}loss.png")
+    sections = [("Fine-tuning: protocol and folds", proto + table + f"\n![loss]({curves.relative_to(folder).as_posix()})\n"),
+                ("Fine-tuning: does it help?", effect + "\nPooled over the folds' test scenes (every scene once):\n\n"
+                 + metric_tables({"pooled": result["pooled"]}))]
+    body = [f"![{p.stem}]({p.relative_to(folder).as_posix()})" for p in
+            sun_figures(result["pooled"], figs, prefix=prefix, title="before / after fine-tuning")]
+    if body:
+        sections.append(("Fine-tuning: sun position before / after", "\n\n".join(body)))
+    if "synthetic" in result:
+        sections.append(("Fine-tuning: forgetting (synthetic split)",
+                         "Each fold's fine-tuned model on the synthetic split, against the synthetic-only model.\n\n"
+                         + metric_tables({"synthetic": result["synthetic"]})))
+    return sections
