@@ -12,8 +12,9 @@ import numpy as np
 import pytest
 
 from solidkit.camera.lens import load_profile, project
-from solidkit.capture.refine import apply_params, fit_image_circle, refine_overlap, ring_directions, rotvec_to_matrix
+from solidkit.calibration.overlap import apply_params, fit_image_circle, refine_overlap, ring_directions
 from solidkit.capture.unwarp import render_fisheye
+from solidkit.envmap.coords import rotation_from_rotvec
 from solidkit.envmap.io import read_exr, tonemap
 from tests.conftest import ASSETS
 
@@ -35,7 +36,7 @@ def test_helpers():
     theta = np.degrees(np.arccos(d[:, 2]))
     assert theta.min() >= 80 - 1e-9 and theta.max() <= 100 + 1e-9 and np.allclose(np.linalg.norm(d, axis=1), 1)
     w = np.array([0.01, -0.02, 0.03])
-    R = rotvec_to_matrix(w)
+    R = rotation_from_rotvec(w)
     assert np.allclose(R @ R.T, np.eye(3)) and rotation_error_deg(R, np.eye(3)) == pytest.approx(math.degrees(np.linalg.norm(w)))
     base = load_profile("theta-v")
     p = np.zeros(10)

@@ -25,29 +25,24 @@ their difference only; their common scale is determined by the data).
 
 from __future__ import annotations
 
+import datetime as _dt
 import math
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
 
 import cv2
 import numpy as np
 from scipy.optimize import least_squares
 
-from solidkit.camera.lens import LensProfile, project
+import solidkit
+from solidkit.camera.dualfisheye import get_maps, match_gains, read_linear, seam_disagreement, warp_lens
+from solidkit.camera.lens import LensProfile, load_profile, project, rotation_to_ypr_deg
+from solidkit.envmap.coords import rotation_from_rotvec
 from solidkit.errors import InputError
+from solidkit.fsutil import sha256_file
 
-__all__ = ["RefineResult", "ring_directions", "apply_params", "refine_overlap", "rotvec_to_matrix", "fit_image_circle", "refine_files"]
-
-
-def rotvec_to_matrix(w: Any) -> np.ndarray:
-    """Rodrigues: rotation vector (radians) -> 3x3 matrix."""
-    w = np.asarray(w, dtype=np.float64)
-    a = float(np.linalg.norm(w))
-    if a < 1e-15:
-        return np.eye(3)
-    k = w / a
-    K = np.array([[0, -k[2], k[1]], [k[2], 0, -k[0]], [-k[1], k[0], 0]])
-    return np.eye(3) + math.sin(a) * K + (1 - math.cos(a)) * (K @ K)
+__all__ = ["RefineResult", "ring_directions", "apply_params", "refine_overlap", "fit_image_circle", "refine_files"]
 
 
 def ring_directions(n: int, lo_deg: float, hi_deg: float) -> np.ndarray:
@@ -62,8 +57,6 @@ def ring_directions(n: int, lo_deg: float, hi_deg: float) -> np.ndarray:
 
 def apply_params(base: LensProfile, p: np.ndarray) -> LensProfile:
     """Profile with the parameter vector applied (layout: module docstring; px at base size)."""
-    from solidkit.camera.lens import rotation_to_ypr_deg
-
     lenses = []
     L = len(base.lenses)
     for i, lens in enumerate(base.lenses):
@@ -74,7 +67,7 @@ def apply_params(base: LensProfile, p: np.ndarray) -> LensProfile:
         }
         if i > 0:
             w = p[3 * L + 3 * (i - 1) : 3 * L + 3 * i]
-            upd["ypr_deg"] = rotation_to_ypr_deg(rotvec_to_matrix(w) @ lens.rotation)
+            upd["ypr_deg"] = rotation_to_ypr_deg(np.asarray(rotation_from_rotvec(w)) @ lens.rotation)
         lenses.append(lens.model_copy(update=upd))
     return base.model_copy(update={"lenses": lenses})
 
@@ -351,20 +344,12 @@ def refine_files(
     (median |difference| of the two lenses on the feather band, linear) before and after,
     averaged over the images.
     """
-    import datetime as _dt
-    from pathlib import Path
-
-    import solidkit
-    from solidkit.camera.lens import load_profile
-    from solidkit.capture.unwarp import _read_linear, unwarp
-    from solidkit.fsutil import sha256_file
-
     if not paths:
         raise InputError("no images given")
     prof = load_profile(base)
     images, sat = [], None
     for p in paths:
-        img, s = _read_linear(Path(p))
+        img, s = read_linear(Path(p))
         images.append(img)
         sat = s if sat is None else sat
     res = refine_overlap(images, prof, saturation=sat, circle_sigma_px=circle_sigma_px, scale_sigma=scale_sigma,
@@ -372,12 +357,12 @@ def refine_files(
     h, w = images[0].shape[:2]
     out_h = max(64, min(512, w // 4))
 
-    def seam(profile: LensProfile) -> float:
+    def seam(profile: LensProfile) -> float:  # what `capture unwarp` reports as seam_mad (after gain matching)
         vals = []
         for img in images:
-            st: dict = {}
-            unwarp(img, profile, out_h, stats=st, saturation=sat)
-            vals.append(st["seam_mad"])
+            maps, _ = get_maps(profile, (w, h), out_h)
+            warped = [warp_lens(img.astype(np.float32, copy=False), maps, i) for i in range(len(profile.lenses))]
+            vals.append(seam_disagreement(warped, maps, match_gains(warped, maps, sat))["seam_mad"])
         return float(np.mean(vals))
 
     before, after = seam(prof), seam(res.profile)

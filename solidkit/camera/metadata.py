@@ -61,6 +61,7 @@ from typing import Any, Literal
 import numpy as np
 from pydantic import BaseModel, Field
 
+from solidkit.envmap.coords import rotation_from_rotvec
 from solidkit.errors import InputError
 
 __all__ = [
@@ -483,15 +484,6 @@ def _ricoh_makernote(tiff: _Tiff, warnings: list[str]) -> tuple[dict[int, Any], 
     return main_vals, theta
 
 
-def _rotvec_to_matrix(r: np.ndarray) -> np.ndarray:
-    angle = float(np.linalg.norm(r))
-    if angle < 1e-12:
-        return np.eye(3)
-    k = r / angle
-    K = np.array([[0, -k[2], k[1]], [k[2], 0, -k[0]], [-k[1], k[0], 0]])
-    return np.eye(3) + math.sin(angle) * K + (1 - math.cos(angle)) * K @ K
-
-
 def _dng_size(tiff: _Tiff, warnings: list[str]) -> tuple[int, int] | None:
     """Size of the full-resolution image of a TIFF/DNG (DefaultCropSize when present)."""
     seen: set[int] = set()
@@ -676,7 +668,7 @@ def _read_metadata_bytes(data: bytes, name: str) -> CaptureMetadata:
     elif isinstance(rvec, list) and len(rvec) == 3 and all(math.isfinite(a) for a in rvec) and np.linalg.norm(rvec) < 2 * math.pi:
         # Ricoh: "Zenith Direction (= Rotation Vector)" in camera axes. We read it as the rotation
         # taking the level frame's up (Z) to the camera's measured zenith: zenith_cam = R e_z.
-        R = _rotvec_to_matrix(np.asarray(rvec, dtype=np.float64))
+        R = rotation_from_rotvec(np.asarray(rvec, dtype=np.float64))
         g = -(R @ np.array([0.0, 0.0, 1.0]))
         p_rad, r_rad = pitch_roll_from_gravity(g)
         pitch, roll = math.degrees(p_rad), math.degrees(r_rad)

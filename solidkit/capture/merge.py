@@ -39,9 +39,17 @@ from typing import Any, Sequence
 
 import cv2
 import numpy as np
+from PIL import Image, ImageOps
 
-from solidkit.envmap.io import srgb_decode
+from solidkit import __version__
+from solidkit.calibration.response import ResponseProfile
+from solidkit.camera.metadata import CaptureMetadata, read_metadata
+from solidkit.camera.raw import is_raw_file, read_raw
+from solidkit.capture.brackets import ShotInfo, gain_from, group_brackets, sequence_from_name
+from solidkit.envmap.io import srgb_decode, write_exr, write_ldr
+from solidkit.envmap.sun import LUMINANCE_WEIGHTS
 from solidkit.errors import InputError, SolidkitError
+from solidkit.fsutil import sha256_file
 
 __all__ = [
     "Frame",
@@ -65,7 +73,7 @@ __all__ = [
 
 DEFAULT_SATURATION = 0.97  # code fraction (≈ 247/255): JPEG ringing sits just below 255
 DEFAULT_BLACK = 0.02  # code fraction (≈ 5/255)
-_LUMA = np.array([0.2126, 0.7152, 0.0722], dtype=np.float32)
+_LUMA = LUMINANCE_WEIGHTS
 
 
 # --------------------------------------------------------------------------- response curves
@@ -123,8 +131,6 @@ def load_response(path: str | os.PathLike) -> np.ndarray:
             if isinstance(data, list):
                 arr = np.asarray(data, dtype=np.float64)
             elif isinstance(data, dict) and data.get("kind") == "response":
-                from solidkit.calibration.response import ResponseProfile  # the Calibration issue's profile
-
                 arr = ResponseProfile.from_dict(data, str(path)).array()
             elif isinstance(data, dict):
                 for key in ("response", "inverse_response", "curve"):
@@ -355,8 +361,6 @@ def read_ldr_codes(path: str | os.PathLike) -> np.ndarray:
 
     EXIF orientation is applied so that all frames of a bracket share one geometry.
     """
-    from PIL import Image, ImageOps
-
     path = Path(path)
     try:
         with Image.open(path) as im:
@@ -390,8 +394,6 @@ def effective_exposure(
 
 def load_frame(path: str | os.PathLike, exposure: float, response: np.ndarray | None = None, *, wb: Any = "camera") -> Frame:
     """Read one bracket frame from disk (JPEG/PNG/TIFF via the response, DNG/raw linearly)."""
-    from solidkit.camera.raw import is_raw_file, read_raw
-
     path = Path(path)
     if not path.is_file():
         raise InputError(f"{path}: no such file")
@@ -601,8 +603,6 @@ def detect_ghosts(frames: Sequence[Frame], hdr: np.ndarray, *, k: float = 6.0, m
 # --------------------------------------------------------------------------- files -> EXR
 def _bracket_infos(paths: Sequence[Path], times: Sequence[float] | None) -> list[tuple[Path, Any, float]]:
     """(path, metadata, exposure time in s) per file; times from ``times`` or EXIF."""
-    from solidkit.camera.metadata import read_metadata
-
     if times is not None and len(times) != len(paths):
         raise InputError(f"--times has {len(times)} value(s) for {len(paths)} frame(s)")
     out = []
@@ -612,10 +612,6 @@ def _bracket_infos(paths: Sequence[Path], times: Sequence[float] | None) -> list
         if p.stat().st_size == 0:
             raise InputError(f"{p}: empty file (0 bytes)")
         if sniff_format(p) == "png":  # no EXIF in PNG: size only
-            from PIL import Image
-
-            from solidkit.camera.metadata import CaptureMetadata
-
             with Image.open(p) as im:
                 meta = CaptureMetadata(path=str(p), width=im.width, height=im.height, warnings=["no_exif: PNG file"])
         else:
@@ -657,11 +653,6 @@ def merge_files(
     ``provenance`` (inputs with sha256, times, response, parameters, solidkit version,
     merge statistics). Returns one summary dict per written file.
     """
-    from solidkit import __version__
-    from solidkit.capture.brackets import ShotInfo, gain_from, group_brackets, sequence_from_name
-    from solidkit.envmap.io import write_exr, write_ldr
-    from solidkit.fsutil import sha256_file
-
     paths = [Path(p) for p in paths]
     if not paths:
         raise InputError("no frames given")

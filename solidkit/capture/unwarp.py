@@ -23,9 +23,9 @@ Stitched equirectangular input (e.g. Theta SC2 stills) that the camera did not z
 is rotated by ``R_level`` (:func:`solidkit.envmap.resample.rotate`); when no rotation is needed
 the pixels are passed through untouched (no resampling).
 
-Remap tables are cached per (profile, input size, output size, orientation): in memory (LRU of
-:data:`CACHE_SIZE` entries) and optionally on disk (``.npz`` named by a SHA-256 of the key), as
-OpenCV fixed-point maps (1/32 px, what ``cv2.remap`` uses internally for bilinear sampling).
+The remap tables, their cache, per-lens sampling, gain matching and the seam metric are the camera
+model's (:mod:`solidkit.camera.dualfisheye`, re-exported here); this module blends, applies
+vignetting profiles and writes files.
 
 8-bit sRGB in and out (JPEG -> PNG/JPEG) takes :func:`unwarp_srgb8`: the same geometry, gains and
 feathering, but only the feather band is decoded to linear light and blended; elsewhere the one
@@ -35,20 +35,39 @@ path within one code value (``tests/test_unwarp.py``) at a fraction of the memor
 
 from __future__ import annotations
 
-import hashlib
 import math
 import os
-from collections import OrderedDict
-from dataclasses import dataclass, field
+import shutil
+import time
 from pathlib import Path
 from typing import Any
 
 import cv2
 import numpy as np
 
-from solidkit.camera.lens import LensProfile, project
-from solidkit.envmap.coords import direction_from_coords
+from solidkit.calibration.vignetting import VignettingError, VignettingProfile, falloff
+from solidkit.camera.dualfisheye import (  # noqa: F401  (re-exported: the remap tables are the camera model's)
+    CACHE_SIZE,
+    UnwarpMaps,
+    build_maps,
+    clear_cache,
+    encode_srgb8,
+    feather_weights,
+    get_maps,
+    match_gains,
+    read_input,
+    read_linear,
+    seam_disagreement,
+    srgb8_luts,
+    warp_lens,
+)
+from solidkit.camera.lens import LensProfile, load_profile, profile_for_metadata, unproject
+from solidkit.camera.metadata import level_rotation, read_metadata
+from solidkit.camera.raw import is_raw_file
+from solidkit.envmap.io import LDR_SUFFIXES, write_exr
+from solidkit.envmap.resample import resize, rotate, sample_panorama
 from solidkit.errors import InputError
+from solidkit.fsutil import atomic_path, sha256_file
 
 __all__ = [
     "CACHE_SIZE",
@@ -70,11 +89,6 @@ __all__ = [
     "default_out_height",
 ]
 
-CACHE_SIZE = 4
-_ROWS = 256
-_cache: "OrderedDict[str, UnwarpMaps]" = OrderedDict()
-
-
 def default_out_height(in_width: int) -> int:
     """Default equirect height for a dual-fisheye input ``in_width`` px wide: the panorama is as wide
     as the input (``2 H = in_width``: 5792x2896 -> 5792x2896), keeping the lenses' centre resolution.
@@ -84,242 +98,8 @@ def default_out_height(in_width: int) -> int:
     return max(2, int(in_width) // 2)
 
 
-@dataclass
-class UnwarpMaps:
-    """Per-lens remap tables for one (profile, input size, output size, orientation).
-
-    ``map1`` ``(L, H, 2H, 2)`` int16 and ``map2`` ``(L, H, 2H)`` uint16: OpenCV's fixed-point
-    maps (``cv2.convertMaps(..., CV_16SC2)``; 1/32-px sub-pixel positions, the precision
-    ``cv2.remap`` uses internally for bilinear interpolation anyway) of the fisheye pixel
-    coordinates; ``weight``: ``(L, H, 2H)`` float32 feather weights summing to 1 where any lens
-    sees (0 where a lens does not).
-    """
-
-    map1: np.ndarray
-    map2: np.ndarray
-    weight: np.ndarray
-    _derived: dict = field(default_factory=dict, repr=False, compare=False)
-
-    def band(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Two lenses: ``(lens0_dominant (H, 2H) bool, band flat indices, lens-0 weight there)``."""
-        if "band" not in self._derived:
-            w0 = self.weight[0]
-            idx = np.flatnonzero((w0 > 0) & (self.weight[1] > 0))
-            self._derived["band"] = (w0 >= 0.5, idx, w0.reshape(-1)[idx].astype(np.float32))
-        return self._derived["band"]
-
-    @property
-    def coverage(self) -> np.ndarray:
-        """``(H, 2H)`` bool: some lens sees this output pixel."""
-        return self.weight.sum(axis=0) > 0
-
-    @property
-    def overlap(self) -> np.ndarray:
-        """``(H, 2H)`` bool: blended pixels (at least two lenses with weight > 0)."""
-        return (self.weight > 0).sum(axis=0) >= 2
-
-
-def feather_weights(margin: np.ndarray, feather_deg: float) -> np.ndarray:
-    """Cross-fade weights ``(L, ...)`` from angular margins ``(L, ...)`` (radians); see module doc."""
-    L = margin.shape[0]
-    f = max(math.radians(feather_deg), 1e-6)
-    valid = margin > 0
-    m = np.where(valid, margin, -np.inf)
-    if L == 1:
-        return valid.astype(np.float32)
-    w = np.empty_like(margin, dtype=np.float32)
-    for i in range(L):
-        others = np.max(np.delete(m, i, axis=0), axis=0)
-        with np.errstate(invalid="ignore"):  # -inf - -inf where no lens sees: masked below
-            diff = np.where(np.isfinite(others), m[i] - others, np.inf)
-        w[i] = np.where(valid[i], np.clip(0.5 + diff / (2 * f), 0.0, 1.0), 0.0)
-    s = w.sum(axis=0)
-    return np.where(s > 0, w / np.where(s > 0, s, 1), 0).astype(np.float32)
-
-
-def build_maps(
-    profile: LensProfile, in_size: tuple[int, int], out_height: int, R_level: Any = None, feather_deg: float = 10.0
-) -> UnwarpMaps:
-    """Remap tables for unwarping a ``in_size = (W, H)`` dual-fisheye image to a ``(out_height, 2 out_height)`` panorama."""
-    prof = profile.scaled(*in_size)
-    R = np.eye(3) if R_level is None else np.asarray(R_level, dtype=np.float64)
-    H, W, L = out_height, 2 * out_height, len(prof.lenses)
-    map1 = np.empty((L, H, W, 2), np.int16)
-    map2 = np.empty((L, H, W), np.uint16)
-    margin = np.empty((L, H, W), np.float32)
-    xs = np.arange(W, dtype=np.float64) + 0.5
-    w_in, h_in = in_size
-    for r0 in range(0, H, _ROWS):
-        r1 = min(H, r0 + _ROWS)
-        yy, xx = np.meshgrid(np.arange(r0, r1, dtype=np.float64) + 0.5, xs, indexing="ij")
-        d_cam = direction_from_coords(xx, yy, H) @ R  # row vectors: (R^T d)^T
-        for i, lens in enumerate(prof.lenses):
-            x, y, theta = project(lens, d_cam)
-            m = math.radians(lens.max_angle_deg) - theta
-            inside = (x >= -0.5) & (x <= w_in - 0.5) & (y >= -0.5) & (y <= h_in - 0.5)  # never sample outside the frame
-            margin[i, r0:r1] = np.where(inside, m, np.minimum(m, -1e-6))
-            x = np.clip(x, -2.0, w_in + 1.0).astype(np.float32)
-            y = np.clip(y, -2.0, h_in + 1.0).astype(np.float32)
-            map1[i, r0:r1], map2[i, r0:r1] = cv2.convertMaps(x, y, cv2.CV_16SC2)
-    weight = feather_weights(margin, feather_deg)
-    return UnwarpMaps(map1, map2, weight)
-
-
-def _key(profile: LensProfile, in_size: tuple[int, int], out_height: int, R: np.ndarray, feather_deg: float) -> str:
-    h = hashlib.sha256()
-    h.update(profile.key().encode())
-    h.update(repr((tuple(in_size), int(out_height), float(feather_deg))).encode())
-    h.update(np.round(np.asarray(R, dtype=np.float64), 12).tobytes())
-    return h.hexdigest()[:24]
-
-
-def clear_cache() -> None:
-    """Empty the in-memory remap cache."""
-    _cache.clear()
-
-
-def get_maps(
-    profile: LensProfile, in_size: tuple[int, int], out_height: int, R_level: Any = None, feather_deg: float = 10.0,
-    cache_dir: str | os.PathLike | None = None,
-) -> tuple[UnwarpMaps, str]:
-    """:func:`build_maps` through the in-memory LRU and the optional on-disk cache.
-
-    Returns ``(maps, source)`` with ``source`` one of ``"memory"``, ``"disk"``, ``"built"``.
-    """
-    R = np.eye(3) if R_level is None else np.asarray(R_level, dtype=np.float64)
-    key = _key(profile, in_size, out_height, R, feather_deg)
-    if key in _cache:
-        _cache.move_to_end(key)
-        return _cache[key], "memory"
-    path = Path(cache_dir) / f"unwarp-{key}.npz" if cache_dir is not None else None
-    maps = None
-    source = "built"
-    if path is not None and path.is_file():
-        try:
-            with np.load(path) as z:
-                maps = UnwarpMaps(z["map1"], z["map2"], z["weight"])
-            source = "disk"
-        except (OSError, ValueError, KeyError):
-            maps = None  # unreadable cache file: rebuild and overwrite
-    if maps is None:
-        maps = build_maps(profile, in_size, out_height, R, feather_deg)
-        if path is not None:
-            from solidkit.fsutil import atomic_path
-
-            path.parent.mkdir(parents=True, exist_ok=True)
-            with atomic_path(path, suffix=".npz") as tmp:
-                with open(tmp, "wb") as f:
-                    np.savez(f, map1=maps.map1, map2=maps.map2, weight=maps.weight)
-    _cache[key] = maps
-    while len(_cache) > CACHE_SIZE:
-        _cache.popitem(last=False)
-    return maps, source
-
-
-# sRGB 8-bit -> linear float32 (exact per code value) and linear -> sRGB 8-bit through a 16-bit index
-_DECODE_LUT: np.ndarray | None = None
-_ENCODE_LUT: np.ndarray | None = None
-
-
-def _luts() -> tuple[np.ndarray, np.ndarray]:
-    global _DECODE_LUT, _ENCODE_LUT
-    if _DECODE_LUT is None:
-        from solidkit.envmap.io import srgb_decode, srgb_encode
-
-        _DECODE_LUT = np.asarray(srgb_decode(np.arange(256, dtype=np.float64) / 255.0), np.float32)
-        enc = np.asarray(srgb_encode(np.arange(65536, dtype=np.float64) / 65535.0))
-        _ENCODE_LUT = np.round(np.clip(enc, 0, 1) * 255.0).astype(np.uint8)
-    return _DECODE_LUT, _ENCODE_LUT
-
-
-def encode_srgb8(linear: np.ndarray) -> np.ndarray:
-    """Linear ``[0, 1]`` float -> sRGB uint8 (IEC 61966-2-1) through a 65536-entry table."""
-    _, enc = _luts()
-    x = np.clip(linear, 0.0, 1.0).astype(np.float32, copy=False)
-    x *= 65535.0
-    np.rint(x, out=x)
-    return enc[x.astype(np.uint16)]
-
-
-def _warp(image: np.ndarray, maps: UnwarpMaps, i: int) -> np.ndarray:
-    """Lens ``i``'s image sampled at its map, ``(H, 2H, C)`` float32 *linear* (zeros outside).
-
-    uint8 input is taken as sRGB-encoded: it is interpolated in that encoding (as cameras and
-    ffmpeg do) and then decoded to linear exactly per code value.
-    """
-    w = cv2.remap(image, maps.map1[i], maps.map2[i], cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
-    if w.ndim == 2:
-        w = w[..., None]
-    if image.dtype == np.uint8:
-        dec, _ = _luts()
-        return dec[w]
-    return w.astype(np.float32, copy=False)
-
-
-def _stride(shape: tuple[int, ...], target: int = 1024) -> int:
-    return max(1, shape[0] // target)
-
-
-def match_gains(
-    warped: list[np.ndarray], maps: UnwarpMaps, saturation: float | None = 0.98, floor: float = 1e-3,
-    scale: np.ndarray | None = None,
-) -> np.ndarray:
-    """Per-lens, per-channel linear gains ``(L, C)`` equalising the lenses on their overlap.
-
-    ``warped``: each lens' linear view ``(H, 2H, C)``. For two lenses: ``ratio_c = exp(median(log
-    I_0 - log I_1))`` over feather-band pixels (both weights > 0; every k-th row and column for
-    outputs above 1024 rows) that are neither black (``< floor``) nor saturated (``>= saturation``
-    in any channel, for LDR input); lens 0 gets ``ratio^-1/2``, lens 1 ``ratio^+1/2``. More lenses
-    are matched to lens 0 and renormalised to a geometric mean of 1. Returns ones when the overlap
-    has < 100 usable pixels. ``scale`` ``(L, H, 2H)`` (optional): per-pixel factors already applied
-    to ``warped`` (vignetting correction); the black/clipped tests use the values as captured,
-    ``warped / scale``.
-    """
-    L, C = len(warped), warped[0].shape[-1]
-    k = _stride(warped[0].shape)
-    gains = np.ones((L, C), np.float64)
-    valid = maps.weight[:, ::k, ::k] > 0
-    for i in range(1, L):
-        both = valid[0] & valid[i]
-        a, b = warped[0][::k, ::k][both], warped[i][::k, ::k][both]
-        a_cap, b_cap = a, b
-        if scale is not None:
-            a_cap = a / scale[0, ::k, ::k][both][:, None]
-            b_cap = b / scale[i, ::k, ::k][both][:, None]
-        ok = np.all((a_cap > floor) & (b_cap > floor), axis=-1)
-        if saturation is not None:
-            ok &= np.all((a_cap < saturation) & (b_cap < saturation), axis=-1)
-        if ok.sum() < 100:
-            continue
-        gains[i] = np.exp(np.median(np.log(a[ok]) - np.log(b[ok]), axis=0))
-    gains /= np.exp(np.mean(np.log(gains), axis=0, keepdims=True))
-    return gains
-
-
-def seam_disagreement(warped: list[np.ndarray], maps: UnwarpMaps, gains: np.ndarray | None = None) -> dict[str, float]:
-    """Photometric disagreement of lenses 0 and 1 on their overlap (after ``gains``).
-
-    Returns ``{"seam_mad": median |I_0 - I_1|, "seam_rmse": ..., "overlap_px": n}`` over the
-    feather band (pixels where both lenses have weight > 0; channel-averaged, image units; every
-    k-th row and column for outputs above 1024 rows, ``overlap_px`` counts the full band).
-    """
-    nan = {"seam_mad": math.nan, "seam_rmse": math.nan, "overlap_px": 0}
-    if len(warped) < 2:
-        return nan
-    k = _stride(warped[0].shape)
-    g = np.ones((len(warped), warped[0].shape[-1])) if gains is None else gains
-    both = (maps.weight[0, ::k, ::k] > 0) & (maps.weight[1, ::k, ::k] > 0)
-    diff = (warped[0][::k, ::k][both] * g[0] - warped[1][::k, ::k][both] * g[1]).mean(axis=-1)
-    if diff.size == 0:
-        return nan
-    return {"seam_mad": float(np.median(np.abs(diff))), "seam_rmse": float(np.sqrt(np.mean(diff**2))),
-            "overlap_px": int(((maps.weight[0] > 0) & (maps.weight[1] > 0)).sum())}
-
-
 def load_vignetting(path: str | os.PathLike) -> Any:
     """A :class:`~solidkit.calibration.vignetting.VignettingProfile` from its JSON file (``solidkit calibrate vignetting``)."""
-    from solidkit.calibration.vignetting import VignettingProfile
-
     return VignettingProfile.load(path)
 
 
@@ -338,8 +118,6 @@ def vignetting_gains(maps: UnwarpMaps, vignetting: Any, profile: LensProfile, in
     another layout, has another number of lenses, or its falloff drops below 5 % where a lens
     is used.
     """
-    from solidkit.calibration.vignetting import VignettingError, falloff
-
     L = maps.weight.shape[0]
     vl = vignetting.scaled(*in_size)
     if len(vl) != L:
@@ -396,11 +174,11 @@ def unwarp(
     if image.dtype not in (np.uint8, np.float32):
         image = image.astype(np.float32)
     if image.dtype == np.uint8 and saturation is None:
-        saturation = float(_luts()[0][250])
+        saturation = float(srgb8_luts()[0][250])
     h, w = image.shape[:2]
     maps, source = get_maps(profile, (w, h), out_height, R_level, feather_deg, cache_dir)
     L = maps.weight.shape[0]
-    warped = [_warp(image, maps, i) for i in range(L)]
+    warped = [warp_lens(image, maps, i) for i in range(L)]
     C = warped[0].shape[-1]
     inv_v = None
     if vignetting is not None:
@@ -457,7 +235,7 @@ def unwarp_srgb8(
         lin = unwarp(image, profile, out_height, R_level, feather_deg=feather_deg, gain_match=gain_match,
                      cache_dir=cache_dir, stats=stats, vignetting=vignetting)
         return encode_srgb8(lin)
-    dec, enc16 = _luts()
+    dec, enc16 = srgb8_luts()
     raw = [cv2.remap(image, maps.map1[i], maps.map2[i], cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
            for i in range(2)]
     C = image.shape[2]
@@ -502,9 +280,6 @@ def render_fisheye(
     Each pixel within ``r(max_angle)`` of a lens centre shows that lens' view of the scene
     (``d_pano = R_level d_cam``); other pixels are 0. Used to make ground truth for tests.
     """
-    from solidkit.camera.lens import unproject
-    from solidkit.envmap.resample import sample_panorama
-
     W, H = size
     prof = profile.scaled(W, H)
     R = np.eye(3) if R_level is None else np.asarray(R_level, dtype=np.float64)
@@ -538,43 +313,8 @@ def parse_size(text: str | None) -> int | None:
     return h
 
 
-def _read_input(path: Path) -> tuple[np.ndarray, float | None]:
-    """Image for :func:`unwarp` and its linear clipping level (None for HDR/raw).
-
-    EXR: linear float; raw/DNG: linear float (:func:`solidkit.camera.raw.read_raw`); 8-bit LDR:
-    uint8 RGB as stored (sRGB-encoded; :func:`unwarp` decodes per code value). 16-bit LDR is
-    decoded to linear float.
-    """
-    from solidkit.camera.raw import is_raw_file, read_raw
-    from solidkit.envmap.io import imread, read_exr, read_ldr
-
-    if path.suffix.lower() == ".exr":
-        img, _ = read_exr(path)
-        if not np.isfinite(img[..., :3]).all():
-            raise InputError(f"{path}: {int((~np.isfinite(img[..., :3])).any(-1).sum())} pixel(s) are NaN or Inf")
-        return img[..., :3], None
-    if is_raw_file(path):
-        return read_raw(path).linear, None
-    raw = imread(path)
-    if raw.dtype != np.uint8:
-        return read_ldr(path, linear=True), 0.98
-    if raw.ndim == 2:
-        raw = np.repeat(raw[..., None], 3, axis=2)
-    return cv2.cvtColor(np.ascontiguousarray(raw[..., :3]), cv2.COLOR_BGR2RGB), float(_luts()[0][250])
-
-
-def _read_linear(path: Path) -> tuple[np.ndarray, float | None]:
-    """:func:`_read_input` with 8-bit images decoded to linear float32."""
-    img, sat = _read_input(path)
-    if img.dtype == np.uint8:
-        img = _luts()[0][img]
-    return img, sat
-
-
 def _write_srgb8(path: Path, enc: np.ndarray) -> None:
     """8-bit sRGB RGB image -> PNG (fast compression) / JPEG (q95) / other LDR, atomically."""
-    from solidkit.fsutil import atomic_path
-
     params = {".png": [cv2.IMWRITE_PNG_COMPRESSION, 1], ".jpg": [cv2.IMWRITE_JPEG_QUALITY, 95],
               ".jpeg": [cv2.IMWRITE_JPEG_QUALITY, 95]}.get(path.suffix.lower(), [])
     with atomic_path(path) as tmp:
@@ -584,8 +324,6 @@ def _write_srgb8(path: Path, enc: np.ndarray) -> None:
 
 def _write(path: Path, linear: np.ndarray, meta: dict) -> None:
     """EXR (linear float, with ``meta``) or 8-bit sRGB LDR (PNG fast compression, JPEG q95), atomically."""
-    from solidkit.envmap.io import write_exr
-
     if path.suffix.lower() == ".exr":
         write_exr(path, linear, meta)
         return
@@ -614,16 +352,6 @@ def unwarp_file(
     (a vignetting profile does not apply to it: a warning says so).
     Returns a summary dict (what was done, gains, seam disagreement, timings).
     """
-    import shutil
-    import time
-
-    from solidkit.camera.lens import load_profile, profile_for_metadata
-    from solidkit.camera.metadata import level_rotation, read_metadata
-    from solidkit.envmap.resample import resize, rotate
-    from solidkit.fsutil import atomic_path, sha256_file
-
-    from solidkit.envmap.io import LDR_SUFFIXES
-
     src, dst = Path(src), Path(dst)
     if src.resolve() == dst.resolve():
         raise InputError(f"{dst}: refusing to overwrite the input (originals are never modified)")
@@ -632,8 +360,6 @@ def unwarp_file(
     if not (math.isfinite(feather_deg) and feather_deg >= 0):
         raise InputError(f"--feather must be a finite angle >= 0 degrees, got {feather_deg}")
     t0 = time.perf_counter()
-    from solidkit.camera.raw import is_raw_file
-
     has_exif = src.suffix.lower() in (".jpg", ".jpeg", ".dng", ".tif", ".tiff") or is_raw_file(src)
     meta = read_metadata(src) if has_exif else None  # PNG/EXR inputs carry no camera metadata
     summary: dict[str, Any] = {"input": str(src), "output": str(dst), "warnings": list(meta.warnings) if meta else []}
@@ -656,7 +382,7 @@ def unwarp_file(
                 shutil.copyfile(src, tmp)
             summary.update(mode="stitched: copied unchanged (no rotation needed)", resampled=False)
         else:
-            img, _ = _read_linear(src)
+            img, _ = read_linear(src)
             if out_h is not None and out_h < img.shape[0]:
                 img = resize(img, out_h)  # energy-preserving downsampling first, then one rotation
             if not identity:
@@ -667,7 +393,7 @@ def unwarp_file(
             summary.update(mode="stitched: levelled from metadata" if not identity else "stitched: re-encoded", resampled=not identity or out_h is not None)
         summary["seconds"] = time.perf_counter() - t0
         return summary
-    img, saturation = _read_input(src)
+    img, saturation = read_input(src)
     h, w = img.shape[:2]
     if profile is not None:
         prof = load_profile(profile)

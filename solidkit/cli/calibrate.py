@@ -322,7 +322,7 @@ def overlap(
     fix_scale: bool = typer.Option(False, "--fix-scale", help="Keep r(theta) as in the base profile."),
 ) -> None:
     """Refine lens centres, scales and the inter-lens rotation on the overlap ring (robust photometric fit)."""
-    from solidkit.capture.refine import refine_files
+    from solidkit.calibration.overlap import refine_files
 
     s = refine_files(images, base, out, circle_sigma_px=circle_sigma or None, scale_sigma=scale_sigma, fix_scale=fix_scale)
     table = Table(title=escape(str(out)), show_header=False)

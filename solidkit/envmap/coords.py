@@ -40,6 +40,7 @@ __all__ = [
     "rotation_z",
     "rotation_from_ypr",
     "ypr_from_rotation",
+    "rotation_from_rotvec",
     "angular_distance",
 ]
 
@@ -218,6 +219,33 @@ def ypr_from_rotation(R: Any) -> tuple[Any, Any, Any]:
     yaw, pitch = angles_from_direction(fwd)
     roll = xp.atan2(R[..., 1, 0], R[..., 1, 1])
     return yaw, pitch, roll
+
+
+def rotation_from_rotvec(w: Any) -> Any:
+    """Rotation matrix of a rotation vector (Rodrigues' formula), ``(..., 3)`` radians -> ``(..., 3, 3)``.
+
+    ``R = I + sin(a) [k]x + (1 - cos(a)) [k]x²`` with ``a = |w|`` the angle and ``k = w / a`` the
+    axis (right-handed); ``w = 0`` gives the identity. Lists are taken as NumPy arrays.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> R = rotation_from_rotvec(np.array([0.0, np.pi / 2, 0.0]))  # 90° about y (down)
+    >>> np.round(R @ [0.0, 0.0, 1.0], 12) + 0.0  # forward turns to the right, like rotation_y
+    array([1., 0., 0.])
+    """
+    if isinstance(w, (list, tuple)):
+        w = np.asarray(w, dtype=np.float64)
+    xp = namespace(w)
+    a = xp.sqrt(xp.sum(w * w, axis=-1))
+    k = w / xp.where(a > 1e-12, a, xp.ones_like(a))[..., None]
+    zero = xp.zeros_like(a)
+    K = xp.stack([xp.stack([zero, -k[..., 2], k[..., 1]], axis=-1),
+                  xp.stack([k[..., 2], zero, -k[..., 0]], axis=-1),
+                  xp.stack([-k[..., 1], k[..., 0], zero], axis=-1)], axis=-2)
+    eye = xp.eye(3, dtype=w.dtype, device=array_api_compat.device(w))
+    s, c = xp.sin(a)[..., None, None], xp.cos(a)[..., None, None]
+    return eye + s * K + (1 - c) * (K @ K)
 
 
 def angular_distance(a: Any, b: Any) -> Any:
