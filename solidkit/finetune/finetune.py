@@ -257,7 +257,7 @@ def finetune_fold(
             opt.zero_grad(set_to_none=True)
             terms["total"].backward()
             opt.step()
-            losses.append(float(terms["total"]))
+            losses.append(float(terms["total"].detach()))
             steps += 1
             if synthetic is not None and cfg.synthetic_every and steps % cfg.synthetic_every == 0:
                 if syn is None:

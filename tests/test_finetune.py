@@ -1,0 +1,121 @@
+"""Evaluation and k-fold fine-tuning on hand-made items (solidkit.finetune.evaluate / finetune)."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+import torch
+
+from solidkit.envmap.coords import direction_from_angles, direction_grid
+from solidkit.envmap.io import srgb_decode, srgb_encode
+from solidkit.errors import InputError
+from solidkit.finetune import metrics as M
+from solidkit.finetune.evaluate import EvalItem, MeanBaseline, Method, Prediction, evaluate
+from solidkit.finetune.finetune import FineTuneConfig, local_ldr_loss, run_finetune, scene_folds
+from solidkit.model.config import preset
+from solidkit.model.solidnet import SolidNet, default_intrinsics
+
+H = 128
+
+
+def _world(az: float, el: float, seed: int) -> np.ndarray:
+    d = direction_grid(H)
+    sun = np.asarray(direction_from_angles(math.radians(az), math.radians(el)))
+    up = -d[..., 1]
+    rng = np.random.default_rng(seed)
+    ground = 0.05 + 0.03 * np.sin(7 * np.arctan2(d[..., 0], d[..., 2]) + rng.uniform(0, 6))
+    sky = np.where(up > 0, 0.3 + 0.4 * up, ground) + 2e3 * (d @ sun > math.cos(math.radians(2.0)))
+    return (sky[..., None] * np.array([0.85, 0.9, 1.0])).astype(np.float32)
+
+
+def _item(scene: str, az: float = 30.0, el: float = 40.0, n: int = 2, seed: int = 0) -> EvalItem:
+    rng = np.random.default_rng(seed)
+    world = _world(az, el, seed)
+    probes = [M.simulate_ldr_probe(world * (1 + 0.1 * k)) for k in range(n)]
+    return EvalItem(
+        scene=scene, id=scene, image=rng.uniform(0, 1, (240, 320, 3)).astype(np.float32),
+        K=default_intrinsics(240, 320, 60.0), pitch=0.0, roll=0.0,
+        pixels=np.array([[80.0 + 100 * k, 200.0] for k in range(n)]), probe_ids=[f"p{k}" for k in range(n)],
+        sun=np.asarray(direction_from_angles(math.radians(az), math.radians(el))), global_hdr=world,
+        probes_ldr=[p[0] for p in probes], probes_saturated=[p[1] for p in probes], probes_hdr=[None] * n, source="real",
+    )
+
+
+class Oracle(Method):
+    """Predicts the truth (the probe linearised, the true global map): what a perfect model scores."""
+
+    name = "oracle"
+
+    def predict(self, item):
+        return Prediction(item.global_hdr, [srgb_decode(p) * 3.0 for p in item.probes_ldr])
+
+
+def test_scene_folds_never_leak_a_scene_and_test_each_once():
+    scenes = [f"s{i}" for i in range(11)] + ["s3", "s3"]  # repeated ids: one scene, several items
+    folds = scene_folds(scenes, 4, seed=5)
+    assert len(folds) == 4
+    tested = [s for f in folds for s in f["test"]]
+    assert sorted(tested) == sorted(set(scenes))
+    for f in folds:
+        assert not set(f["test"]) & (set(f["train"]) | set(f["val"]))
+        assert not set(f["train"]) & set(f["val"])
+        assert set(f["train"]) | set(f["val"]) | set(f["test"]) == set(scenes)
+        assert f["val"]
+    assert scene_folds(scenes, 4, seed=5) == folds
+    assert scene_folds(scenes, 4, seed=6) != folds
+    assert len(scene_folds(["a", "b"], 5)) == 2  # k capped at the number of scenes
+    with pytest.raises(InputError):
+        scene_folds(["a", "a"], 2)
+
+
+def test_oracle_scores_perfectly_and_mean_probe_is_leave_one_scene_out():
+    items = [_item("a", 30, 40, seed=1), _item("b", -100, 20, seed=2), _item("c", 150, 60, seed=3)]
+    mean = MeanBaseline("probe")
+    res = evaluate(items, [Oracle(), mean])
+    s = res["summary"]["oracle"]
+    assert s["local_ssim"]["median"] > 0.999 and s["local_mae"]["median"] < 2e-3
+    assert s["angle_deg/core"]["median"] < 1.0 and s["no_sun_rate/core"]["rate"] == 0.0
+    assert s["global_mae"]["median"] == pytest.approx(0.0, abs=1e-6)
+    # the mean probe predicted for "a" is made of "b" and "c" only
+    only_bc = MeanBaseline("probe")
+    only_bc.prepare(items[1:])
+    assert np.allclose(mean.predict(items[0]).local[0], only_bc._mean_without("none"), atol=1e-6)
+    assert res["summary"]["mean-probe"]["local_ssim"]["median"] < s["local_ssim"]["median"] - 0.05
+
+
+def test_local_loss_is_exposure_invariant_ignores_saturation_and_vanishes_on_the_truth():
+    it = _item("a", seed=4)
+    probe = torch.as_tensor(np.stack(it.probes_ldr)).permute(0, 3, 1, 2)
+    sat = torch.as_tensor(np.stack([M.saturation_mask(p, s) for p, s in zip(it.probes_ldr, it.probes_saturated)]))
+    truth = srgb_decode(probe)
+    assert float(local_ldr_loss(truth * 7.0, probe, sat)) < 0.02
+    other = truth * torch.linspace(0.5, 2.0, truth.shape[-1])  # a wrong prediction
+    base = float(local_ldr_loss(other, probe, sat))
+    assert base > 0.1
+    assert float(local_ldr_loss(other * 50.0, probe, sat)) == pytest.approx(base, rel=1e-3)
+    hot = other.clone()
+    hot[sat[:, None].expand_as(hot)] = 1e4  # anything where the probe is clipped
+    assert float(local_ldr_loss(hot, probe, sat)) == pytest.approx(base, rel=1e-4)
+
+
+def test_kfold_finetuning_runs_records_the_split_and_lowers_the_training_loss(torch_one_thread):
+    torch.manual_seed(0)
+    net = SolidNet(preset("tiny")).eval()
+    items = [_item(s, az, 35, seed=i) for i, (s, az) in enumerate([("a", 20), ("b", -60), ("c", 100), ("d", 170)])]
+    cfg = FineTuneConfig(folds=2, epochs=2, patience=5, lr=3e-3, seed=0)
+    res = run_finetune(net, items, cfg)
+    assert len(res["folds"]) == 2 and len(res["models"]) == 2
+    for f in res["folds"]:
+        split = f["split"]
+        assert not set(split["test"]) & (set(split["train"]) | set(split["val"]))
+        h = f["history"]
+        assert min(r["train"] for r in h[1:]) < h[0]["train"]  # it learns on the training scenes
+        assert f["trainable_parameters"] < sum(p.numel() for p in net.parameters())
+    # the fold's model never saw its test scenes: before/after records cover exactly them
+    tested = sorted({r["scene"] for r in res["pooled"]["records"]})
+    assert tested == ["a", "b", "c", "d"]
+    assert set(res["effect"]) == {"local_ssim", "local_mae", "sun_angle/paper", "sun_angle/core"}
+    # the original model is untouched (fine-tuning works on copies)
+    assert all(p.requires_grad for p in net.parameters())
