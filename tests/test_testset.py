@@ -199,3 +199,76 @@ def test_validate_clean_cli_and_bad_input(built, tmp_path, cli):
     assert code == 1 and "not a test set" in err
     (tmp_path / "testset.json").write_text("{")
     assert "[schema]" in cli("testset", "validate", tmp_path)[2]
+
+
+def test_show_writes_sheets_with_outline_and_sun(built, tmp_path, cli):
+    import cv2
+
+    from solidkit.testset.show import fov_outline
+
+    code, out, _ = cli("testset", "show", built, "-o", tmp_path / "sheets")
+    assert code == 0 and Path(out.strip()).name == "index.html"
+    html = (tmp_path / "sheets" / "index.html").read_text()
+    ts = load_testset(built)
+    for s in ts.scenes:
+        sheet = cv2.imread(str(tmp_path / "sheets" / f"{s.id}.png"))
+        assert sheet is not None and sheet.shape[1] > 1000 and f"{s.id}.png" in html
+    assert validate_testset(built) == []  # nothing written into the test set
+    # the outline of a level camera with a 60 degree FOV spans +-30 degrees of azimuth about the centre
+    s = ts.scenes[0]
+    lines = fov_outline(np.asarray(s.K), (320, 240), 0.0, 0.0, 128)
+    u = np.concatenate([ln[:, 0] for ln in lines])
+    assert (u.min() + 0.5) == pytest.approx(128 - 128 * 30 / 180, abs=0.5) and (u.max() + 0.5) == pytest.approx(128 + 128 * 30 / 180, abs=0.5)
+    code, _, err = cli("testset", "show", built, "-o", built / "sheets")
+    assert code == 2 and "outside the test set" in err
+
+
+def test_sold_net_export_round_trips(built, tmp_path, cli):
+    from solidkit.testset.sold_net import read_sold_net
+
+    dest = tmp_path / "sold"
+    code, _, err = cli("testset", "export", built, "--format", "sold-net", dest)
+    assert code == 0 and "fewer than 2 probes: 002" in err
+    items = read_sold_net(dest)
+    ts = load_testset(built)
+    assert [it.id for it in items] == ["001", "002"] and [it.loadable for it in items] == [True, False]
+    for it, s in zip(items, ts.scenes):
+        photo = read_ldr(built / s.photo)
+        assert it.persp.shape == (240, 320, 3)
+        assert 10 * math.log10(1 / np.mean((it.persp - photo) ** 2)) > 35  # JPEG q95
+        assert it.local_pos.tolist() == [[round(p.pixel[1]), round(p.pixel[0])] for p in s.probes]
+        for k, p in enumerate(s.probes):
+            ref = resize(read_exr(built / p.hdr)[0], 64)
+            rel = np.abs(it.local_pano[k] - ref) / np.maximum(ref, 1e-4)
+            assert it.local_pano[k].shape == (64, 128, 3) and np.median(rel) < 0.01  # RGBE: 8-bit mantissa
+        if s.sun.found:
+            assert it.is_sunny and it.sun_deg == pytest.approx((s.sun.azimuth_deg, s.sun.elevation_deg), abs=1e-4)
+        else:
+            assert not it.is_sunny and it.sun_deg is None
+    assert cli("testset", "export", built, "--format", "sold-net", dest)[0] == 0  # re-export over an earlier one
+    assert cli("testset", "export", built, "--format", "laval", tmp_path / "x")[0] == 2
+    assert cli("testset", "export", built, "--format", "sold-net", built / "scenes")[0] == 2
+
+
+def test_torch_dataset_keys_match_synth(built):
+    import torch
+
+    from solidkit.testset.dataset import TestsetDataset
+
+    ds = TestsetDataset(built)
+    ts = load_testset(built)
+    assert len(ds) == len(ts.scenes) and ds.max_probes == 2
+    batch = next(iter(torch.utils.data.DataLoader(ds, batch_size=2)))
+    assert batch["image"].shape == (2, 3, 240, 320) and batch["probes"].shape == (2, 2, 3, 128, 256)
+    assert batch["probe_valid"].tolist() == [[1.0, 1.0], [1.0, 0.0]]
+    s = ts.scenes[0]
+    assert batch["probe_pixels"][0].tolist() == [list(p.pixel) for p in s.probes]
+    np.testing.assert_allclose(batch["sun"][0].numpy(), s.sun.direction, atol=1e-6)
+    assert batch["sun_found"].tolist() == [1.0, 0.0] and batch["sun"][1].abs().sum() == 0
+    assert batch["pitch"][0].item() == pytest.approx(math.radians(s.pitch_deg))
+    shared = {"image", "probes", "probe_pixels", "probe_valid", "global", "sun", "sun_found", "K", "pitch", "roll", "index"}
+    assert shared <= set(batch)
+    only = TestsetDataset(built, fields=["image"], scenes=["sB"])
+    assert len(only) == 1 and "probes" not in only[0] and only[0]["scene"] == "sB"
+    with pytest.raises(InputError):
+        TestsetDataset(built, scenes=["nope"])

@@ -90,3 +90,35 @@ def validate_command(
         console.print(f"{root}: " + ("[green]valid[/green]" if not problems else f"[red]{len(problems)} problem(s)[/red]"))
     if problems:
         raise SystemExit(1)  # typer.Exit's code is dropped by solidkit.cli.main (standalone_mode=False)
+
+
+@app.command("show")
+def show_command(
+    root: Path = typer.Argument(..., help="Test set folder (holding testset.json)."),
+    out: Optional[Path] = typer.Option(None, "-o", "--out", help="Folder for the sheets and index.html (default: ROOT-sheets beside it)."),
+) -> None:
+    """Contact sheets per scene (PNG) and an HTML index: probe pixels, aligned probes with the photo's FOV, the sun."""
+    from solidkit.testset.show import show_testset
+
+    out = out or root.with_name(root.name + "-sheets")
+    index = show_testset(root, out, log=lambda m: typer.echo(f"wrote {m}", err=True))
+    typer.echo(str(index))
+
+
+@app.command("export")
+def export_command(
+    root: Path = typer.Argument(..., help="Test set folder (holding testset.json)."),
+    dest: Path = typer.Argument(..., help="Folder to write (absent, empty, or an earlier export)."),
+    fmt: str = typer.Option(..., "--format", help="Target layout: sold-net (SOLD-Net's real-set folder)."),
+) -> None:
+    """Export a test set in another project's layout (sold-net: <XXX>_persp.JPG, _local.npy, _local_<i>.hdr, _sun_pos.txt)."""
+    from solidkit.errors import InputError
+
+    if fmt != "sold-net":
+        raise InputError(f"--format {fmt!r}: supported formats: sold-net")
+    from solidkit.testset.sold_net import export_sold_net
+
+    doc = export_sold_net(root, dest)
+    typer.echo(f"wrote {len(doc['items'])} items to {dest}", err=True)
+    if doc["skipped_by_sold_net_loader"]:
+        typer.echo(f"note: SOLD-Net's loader skips items with fewer than 2 probes: {', '.join(doc['skipped_by_sold_net_loader'])}", err=True)
