@@ -196,7 +196,7 @@ def test_validate_catches_each_fault(fault, built, tmp_path, cli):
 def test_validate_clean_cli_and_bad_input(built, tmp_path, cli):
     assert cli("testset", "validate", built)[0] == 0
     code, _, err = cli("testset", "validate", tmp_path)
-    assert code == 1 and "not a test set" in err
+    assert code == 2 and "not a test set" in err
     (tmp_path / "testset.json").write_text("{")
     assert "[schema]" in cli("testset", "validate", tmp_path)[2]
 

@@ -261,8 +261,14 @@ def _scene_of(rel: str) -> str | None:
 
 
 def validate_testset(root: str | os.PathLike, *, allow_flagged: bool = False) -> list[Problem]:
-    """All problems of the test set at ``root`` (empty list: valid). See the module docstring."""
+    """All problems of the test set at ``root`` (empty list: valid). See the module docstring.
+
+    Raises :class:`InputError` when ``root`` holds no ``testset.json`` at all (not a test set);
+    a manifest that does not parse is a ``schema`` problem.
+    """
     root = Path(root)
+    if not (root / MANIFEST_FILE).is_file():
+        raise InputError(f"{root}: not a test set (no {MANIFEST_FILE})")
     try:
         ts = load_testset(root)
     except InputError as exc:
