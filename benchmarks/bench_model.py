@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import os
 import platform
 import resource
@@ -46,7 +47,8 @@ def run_one(config: str, threads: int, repeats: int) -> dict:
 
     from solidkit.model.baselines import LENetReg
     from solidkit.model.config import preset
-    from solidkit.model.solidnet import SolidNet, default_intrinsics
+    from solidkit.envmap.perspective import intrinsics_from_fov
+    from solidkit.model.solidnet import SolidNet
 
     torch.set_num_threads(threads)
     torch.manual_seed(0)
@@ -54,7 +56,7 @@ def run_one(config: str, threads: int, repeats: int) -> dict:
     model = SolidNet(cfg).eval()
     peer = LENetReg(cfg).eval()
     image = torch.rand(1, 3, 240, 320)
-    K = torch.tensor(default_intrinsics(240, 320, cfg.hfov_deg), dtype=torch.float32)[None]
+    K = torch.tensor(intrinsics_from_fov(math.radians(cfg.hfov_deg), 320, 240), dtype=torch.float32)[None]
     pixels = torch.tensor([[[160.0, 200.0]]])
     rss0 = _rss_mb()
     with torch.inference_mode():

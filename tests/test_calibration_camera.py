@@ -18,14 +18,12 @@ from solidkit.calibration.camera import (
     calibrate_checkerboard,
     center_crop_box,
     crop_intrinsics,
-    ideal_intrinsics,
     intrinsics_from_exif,
-    intrinsics_from_fov,
     resize_crop,
-    scale_intrinsics,
 )
 from solidkit.calibration.profile import load_profile
 from solidkit.camera.metadata import CaptureMetadata, read_metadata
+from solidkit.envmap.perspective import ideal_intrinsics, intrinsics_from_fov, scale_intrinsics
 from solidkit.errors import InputError
 
 
@@ -82,10 +80,10 @@ def _meta(**fields) -> CaptureMetadata:
 
 
 def test_fov_and_exif_routes(tmp_path):
-    K = intrinsics_from_fov(640, 480, math.radians(90))
+    K = intrinsics_from_fov(math.radians(90), 640, 480)
     assert K[0, 0] == pytest.approx(320) and K[0, 2] == pytest.approx(319.5)
-    with pytest.raises(IntrinsicsError):
-        intrinsics_from_fov(640, 480, math.radians(180))
+    with pytest.raises(InputError):
+        intrinsics_from_fov(math.radians(180), 640, 480)
     # focal-plane resolution (px/inch) recorded for a 4000-px-wide image, file resized to 2000
     info = _meta(width=2000, height=1500, focal_length_mm=4.0, focal_plane_px_per_mm=(800.0, 800.0), exif_width=4000)
     K, src = intrinsics_from_exif(info)

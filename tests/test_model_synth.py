@@ -26,7 +26,8 @@ def synth_root(tmp_path_factory):
 
 def test_reprojection_and_probe_centres_match_the_generator(synth_root):
     from solidkit.model.train import batch_from_synth
-    from solidkit.model.warp import camera_rays, camera_rotation, points_from_plane_distance, warp_to_probes
+    from solidkit.envmap.perspective import pixel_rays
+    from solidkit.model.warp import camera_rotation, points_from_plane_distance, warp_to_probes
     from solidkit.synth.dataset import SynthDataset
 
     torch.set_num_threads(1)
@@ -36,7 +37,7 @@ def test_reprojection_and_probe_centres_match_the_generator(synth_root):
     P, valid = points_from_plane_distance(b["normal"], b["distance"], b["K"])
     geo = b["geometry_mask"]
     assert (valid | ~geo).all()
-    depth_points = item["depth"][None] * camera_rays(b["K"], 60, 80)
+    depth_points = item["depth"][None] * pixel_rays(b["K"], 80, 60, torch, dtype=b["K"].dtype).movedim(-1, -3)
     err = (P - depth_points).norm(dim=1, keepdim=True)[geo]
     assert err.max() < 1e-3 * max(1.0, float(item["depth"].max()))
     _, mask, centres = warp_to_probes(item["hdr"][None], b["normal"], b["distance"], b["K"], b["pixels"],

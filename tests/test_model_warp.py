@@ -10,9 +10,8 @@ import torch
 
 from solidkit.envmap.coords import rotation_from_ypr
 from solidkit.errors import InputError
-from solidkit.model.solidnet import default_intrinsics
+from solidkit.envmap.perspective import intrinsics_from_fov, pixel_rays
 from solidkit.model.warp import (
-    camera_rays,
     camera_rotation,
     forward_warp,
     points_from_plane_distance,
@@ -34,12 +33,12 @@ def _analytic_pixel(d: np.ndarray, height: int) -> tuple[float, float]:
 
 
 def _K(h=240, w=320, fov=60.0):
-    return torch.tensor(default_intrinsics(h, w, fov), dtype=torch.float64)[None]
+    return torch.tensor(intrinsics_from_fov(math.radians(fov), w, h), dtype=torch.float64)[None]
 
 
-def test_camera_rays_match_opencv_formula():
+def test_pixel_rays_batched_torch_match_opencv_formula():
     K = _K()
-    v = camera_rays(K, 240, 320)[0]
+    v = pixel_rays(K, 320, 240, torch, dtype=K.dtype).movedim(-1, -3)[0]  # as model.warp uses it: (B, 3, H, W)
     fx, cx, cy = K[0, 0, 0], K[0, 0, 2], K[0, 1, 2]
     for x, y in [(0, 0), (319, 239), (17, 200)]:
         expect = torch.tensor([(x - cx) / fx, (y - cy) / fx, 1.0], dtype=torch.float64)

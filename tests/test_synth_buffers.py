@@ -10,7 +10,8 @@ import pytest
 pytest.importorskip("mitsuba")
 
 from solidkit.envmap import coords_from_direction, direction_from_angles, direction_from_coords, read_exr  # noqa: E402
-from solidkit.synth.cameras import Camera, intrinsics  # noqa: E402
+from solidkit.envmap.perspective import intrinsics_from_fov  # noqa: E402
+from solidkit.synth.cameras import Camera  # noqa: E402
 from solidkit.synth.lighting import HDR_DIR, Lighting, hdr, sunsky  # noqa: E402
 from solidkit.synth.sample import pick_probe_pixels, render_buffers, render_panorama  # noqa: E402
 from solidkit.synth.scene import CityBlock, box, city_block, quad, to_mitsuba  # noqa: E402
@@ -27,7 +28,7 @@ def street() -> CityBlock:
 
 
 def camera(pitch: float = -12.0, roll: float = 3.0, yaw: float = 4.0) -> Camera:
-    return Camera(intrinsics(W, H, 70.0), W, H, np.array([0.3, -1.55, 0.0]), math.radians(yaw), math.radians(pitch),
+    return Camera(intrinsics_from_fov(math.radians(70.0), W, H), W, H, np.array([0.3, -1.55, 0.0]), math.radians(yaw), math.radians(pitch),
                   math.radians(roll))
 
 

@@ -17,7 +17,8 @@ import pytest
 pytest.importorskip("mitsuba")
 
 from solidkit.envmap import coords_from_direction, direction_from_angles, rotation_from_ypr, rotation_y  # noqa: E402
-from solidkit.synth.cameras import Camera, intrinsics  # noqa: E402
+from solidkit.envmap.perspective import intrinsics_from_fov  # noqa: E402
+from solidkit.synth.cameras import Camera  # noqa: E402
 from solidkit.synth.lighting import Lighting, find_sun, horizontal_irradiance, sunsky  # noqa: E402
 from solidkit.synth.sample import render_buffers, render_panorama  # noqa: E402
 from solidkit.synth.scene import CityBlock, box, quad, to_mitsuba  # noqa: E402
@@ -64,7 +65,7 @@ def test_pinhole_projects_like_opencv() -> None:
     blk = CityBlock(seed=0)
     target = np.array([1.2, -2.0, 8.0])
     blk.add(box(target - 0.1, target + 0.1, "plastic_orange", "bin"))
-    K = intrinsics(64, 48, 60.0)
+    K = intrinsics_from_fov(math.radians(60.0), 64, 48)
     cam = Camera(K, 64, 48, np.array([0.0, -1.5, 0.0]), math.radians(8.0), math.radians(-5.0), math.radians(4.0))
     light = Lighting(np.ones((8, 16, 3), np.float32))
     buf = render_buffers(to_mitsuba(blk, light.emitter()), cam, spp=1, shadows=False)

@@ -31,6 +31,7 @@ from solidkit.calibration.boards import BoardView, detect_views
 from solidkit.calibration.profile import Profile, make_provenance
 from solidkit.camera.metadata import CaptureMetadata, read_metadata
 from solidkit.envmap.io import imread
+from solidkit.envmap.perspective import ideal_intrinsics, intrinsics_from_fov, scale_intrinsics
 from solidkit.errors import InputError, SolidkitError
 
 __all__ = [
@@ -38,10 +39,7 @@ __all__ = [
     "SENSOR_WIDTH_MM",
     "CameraProfile",
     "IntrinsicsError",
-    "ideal_intrinsics",
-    "intrinsics_from_fov",
     "intrinsics_from_exif",
-    "scale_intrinsics",
     "sensor_width_from_table",
     "crop_intrinsics",
     "center_crop_box",
@@ -91,22 +89,6 @@ class CameraProfile(Profile):
         return np.asarray(self.model_input_K if model_input else self.K, dtype=np.float64)
 
 
-def ideal_intrinsics(width: int, height: int, fx: float, fy: float | None = None) -> np.ndarray:
-    """K with the principal point at the image centre ``((W − 1)/2, (H − 1)/2)``."""
-    fy = fx if fy is None else fy
-    return np.array([[fx, 0.0, (width - 1) / 2.0], [0.0, fy, (height - 1) / 2.0], [0.0, 0.0, 1.0]])
-
-
-def intrinsics_from_fov(width: int, height: int, hfov: float) -> np.ndarray:
-    """K of an ideal pinhole with horizontal field of view ``hfov`` (radians) over ``width`` px.
-
-    The FOV spans the image's outer edges: ``fx = (W/2) / tan(hfov/2)``.
-    """
-    if not 0 < hfov < math.pi:
-        raise IntrinsicsError(f"horizontal field of view must be in (0, 180) degrees, got {math.degrees(hfov):.4g}")
-    return ideal_intrinsics(width, height, (width / 2.0) / math.tan(hfov / 2.0))
-
-
 def intrinsics_from_exif(info: CaptureMetadata, sensor_width_mm: float | None = None) -> tuple[np.ndarray, str]:
     """K from EXIF focal geometry (square pixels, centred principal point); returns ``(K, source)``.
 
@@ -147,18 +129,6 @@ def sensor_width_from_table(make: str | None, model: str | None) -> float | None
         if v:
             return v
     return None
-
-
-def scale_intrinsics(K: np.ndarray, sx: float, sy: float | None = None) -> np.ndarray:
-    """K after resizing the image by ``(sx, sy)``: ``f' = f·s``, ``c' = (c + 0.5)·s − 0.5``."""
-    sy = sx if sy is None else sy
-    K2 = np.array(K, dtype=np.float64, copy=True)
-    K2[0, 0] *= sx
-    K2[0, 1] *= sx
-    K2[1, 1] *= sy
-    K2[0, 2] = (K[0, 2] + 0.5) * sx - 0.5
-    K2[1, 2] = (K[1, 2] + 0.5) * sy - 0.5
-    return K2
 
 
 def crop_intrinsics(K: np.ndarray, x0: float, y0: float) -> np.ndarray:
@@ -277,7 +247,7 @@ def calibrate_camera_from_photo(
             f"{photo}: a {info.model} equirectangular panorama has no pinhole K; for a perspective crop of it give --fov-deg"
         )
     if fov_deg is not None:
-        K, source = intrinsics_from_fov(info.width, info.height, math.radians(fov_deg)), "fov"
+        K, source = intrinsics_from_fov(math.radians(fov_deg), info.width, info.height), "fov"
     else:
         K, source = intrinsics_from_exif(info, sensor_width_mm)
     exif_used = {k: v for k, v in info.model_dump(include=_EXIF_USED).items() if v is not None}

@@ -63,7 +63,8 @@ def predict_command(
 ) -> None:
     """Predict the global HDR sky, its sun direction and a local HDR panorama at each --at pixel."""
     from solidkit.model.blocks import HDR_PARAMETERISATION
-    from solidkit.model.solidnet import SolidNet, default_intrinsics
+    from solidkit.envmap.perspective import intrinsics_from_fov
+    from solidkit.model.solidnet import SolidNet
 
     pixels = [parse_pixel(a) for a in at]
     if not (math.isfinite(pitch) and math.isfinite(roll)):
@@ -74,7 +75,7 @@ def predict_command(
     if K is None and fov is not None:
         if not 1.0 < fov < 179.0:
             raise InputError(f"--fov must be in (1, 179) degrees, got {fov}")
-        K = default_intrinsics(photo.shape[0], photo.shape[1], fov)
+        K = intrinsics_from_fov(math.radians(fov), photo.shape[1], photo.shape[0])
     pred = model.predict(photo, pixels, K=K, pitch=math.radians(pitch), roll=math.radians(roll))
     out.mkdir(parents=True, exist_ok=True)
     meta = {"source": str(image), "hdr_parameterisation": HDR_PARAMETERISATION, "model": model.config.name}

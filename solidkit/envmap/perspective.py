@@ -3,7 +3,10 @@
 Camera model (conventions §1): OpenCV frame (x right, y down, z forward), intrinsics
 ``K = [[fx, s, cx], [0, fy, cy], [0, 0, 1]]``, pixel centres at *integer* coordinates (an ideal
 ``w x h`` camera has ``cx = (w - 1)/2``); the ray through pixel ``(x, y)`` is
-``K⁻¹ (x, y, 1)``. A camera orientation ``R`` maps camera-frame vectors to panorama-frame
+``K⁻¹ (x, y, 1)``, evaluated as ``y' = (y - cy)/fy``, ``x' = (x - cx - s y')/fx`` (the form
+kornia's ``unproject_points`` and OpenCV use). This module is the one home of the ideal ``K``
+(:func:`ideal_intrinsics`, :func:`intrinsics_from_fov`), its rescaling (:func:`scale_intrinsics`)
+and the pixel rays (:func:`pixel_rays`), for NumPy and torch alike. A camera orientation ``R`` maps camera-frame vectors to panorama-frame
 vectors (conventions §4): ``R = rotation_from_ypr(yaw, pitch, roll)`` looks at azimuth ``yaw``
 and elevation ``pitch``.
 
@@ -31,7 +34,9 @@ from solidkit.envmap.resample import (
 from solidkit.errors import InputError
 
 __all__ = [
+    "ideal_intrinsics",
     "intrinsics_from_fov",
+    "scale_intrinsics",
     "pixel_rays",
     "project_to_pixels",
     "perspective_crop",
@@ -39,18 +44,61 @@ __all__ = [
 ]
 
 
+def ideal_intrinsics(width: int, height: int, fx: float, fy: float | None = None) -> np.ndarray:
+    """``K`` (3, 3) with focal lengths ``fx``, ``fy`` (px; ``fy = fx`` by default) and the principal point
+    at the image centre ``((width - 1)/2, (height - 1)/2)`` (pixel centres at integers; conventions §1).
+
+    Examples
+    --------
+    >>> ideal_intrinsics(640, 480, 500.0)
+    array([[500. ,   0. , 319.5],
+           [  0. , 500. , 239.5],
+           [  0. ,   0. ,   1. ]])
+    """
+    fy = fx if fy is None else fy
+    return np.array([[fx, 0.0, (width - 1) / 2.0], [0.0, fy, (height - 1) / 2.0], [0.0, 0.0, 1.0]])
+
+
 def intrinsics_from_fov(fov: float, width: int, height: int) -> np.ndarray:
     """``K`` of an ideal ``width x height`` pinhole camera with horizontal field of view ``fov``.
 
     ``fov`` (radians, in ``(0, pi)``) spans the image edge to edge: ``fx = fy = (width / 2) / tan(fov / 2)``,
     ``cx = (width - 1) / 2``, ``cy = (height - 1) / 2`` (square pixels; conventions §1).
+    Raises :class:`~solidkit.errors.InputError` for a field of view outside ``(0, pi)`` or an empty image.
+
+    Examples
+    --------
+    >>> K = intrinsics_from_fov(math.radians(90.0), 320, 240)
+    >>> float(K[0, 0]), float(K[0, 2]), float(K[1, 2])  # fx = 160 / tan(45°)
+    (160.00000000000003, 159.5, 119.5)
     """
     if not 0.0 < float(fov) < math.pi:
         raise InputError(f"field of view must be in (0, 180) degrees, got {math.degrees(float(fov)):.4g}")
     if int(width) < 1 or int(height) < 1:
         raise InputError(f"image size must be positive, got {width}x{height}")
-    f = (width / 2.0) / math.tan(float(fov) / 2.0)
-    return np.array([[f, 0.0, (width - 1) / 2.0], [0.0, f, (height - 1) / 2.0], [0.0, 0.0, 1.0]])
+    return ideal_intrinsics(width, height, (width / 2.0) / math.tan(float(fov) / 2.0))
+
+
+def scale_intrinsics(K: Any, sx: float, sy: float | None = None) -> np.ndarray:
+    """``K`` after resizing the image by ``(sx, sy)`` (``sy = sx`` by default).
+
+    With pixel centres at integers the image edge is at ``-0.5``: ``f' = f s``, ``s' = s_skew sx``,
+    ``c' = (c + 0.5) s - 0.5``, so that the same physical ray hits the same relative image position.
+
+    Examples
+    --------
+    >>> scale_intrinsics(ideal_intrinsics(640, 480, 500.0), 0.5)[:2]  # the 320x240 camera
+    array([[250. ,   0. , 159.5],
+           [  0. , 250. , 119.5]])
+    """
+    sy = sx if sy is None else sy
+    K2 = np.array(K, dtype=np.float64, copy=True)
+    K2[0, 0] *= sx
+    K2[0, 1] *= sx
+    K2[1, 1] *= sy
+    K2[0, 2] = (K2[0, 2] + 0.5) * sx - 0.5
+    K2[1, 2] = (K2[1, 2] + 0.5) * sy - 0.5
+    return K2
 
 
 def _check_K(K: Any) -> None:
@@ -59,18 +107,29 @@ def _check_K(K: Any) -> None:
 
 
 def pixel_rays(K: Any, width: int, height: int, xp: Any = np, **kw: Any) -> Any:
-    """Camera-frame rays ``K⁻¹ (x, y, 1)`` through every pixel centre, ``(height, width, 3)`` (z = 1).
+    """Camera-frame rays ``K⁻¹ (x, y, 1)`` through every pixel centre, ``(..., height, width, 3)`` (z = 1).
 
-    ``xp`` is ``numpy`` (default, float64) or ``torch`` (``kw``: ``dtype``, ``device``).
+    ``K`` is ``(3, 3)`` or a batch ``(..., 3, 3)`` (any skew ``K[0, 1]``); ``xp`` is ``numpy``
+    (default, float64) or ``torch`` (``kw``: ``dtype``, ``device``; differentiable w.r.t. ``K``).
+    Evaluated as ``y' = (y - cy) / fy``, ``x' = (x - cx - s y') / fx``.
+
+    Examples
+    --------
+    >>> K = ideal_intrinsics(4, 2, 2.0)
+    >>> pixel_rays(K, 4, 2)[1, 3]  # pixel (x=3, y=1): ((3 - 1.5)/2, (1 - 0.5)/2, 1)
+    array([0.75, 0.25, 1.  ])
     """
     ns = module_namespace(xp)
     kw.setdefault("dtype", xp.float64 if xp is np else xp.float32)
     K = ns.asarray(K, **kw)
-    _check_K(K)
-    Kinv = ns.linalg.inv(K)
+    if tuple(K.shape[-2:]) != (3, 3):
+        raise InputError(f"K must be a 3x3 intrinsics matrix (or a batch of them), got shape {tuple(K.shape)}")
     ys, xs = ns.meshgrid(ns.arange(height, **kw), ns.arange(width, **kw), indexing="ij")
-    pix = ns.stack([xs, ys, ns.ones_like(xs)], axis=-1)
-    return _vecmat(pix, Kinv.T)
+    fx, s, cx = (K[..., 0, j][..., None, None] for j in range(3))
+    fy, cy = K[..., 1, 1][..., None, None], K[..., 1, 2][..., None, None]
+    y = (ys - cy) / fy
+    x = (xs - cx - s * y) / fx
+    return ns.stack([x, ns.broadcast_to(y, x.shape), ns.ones_like(x)], axis=-1)
 
 
 def project_to_pixels(K: Any, c: Any) -> tuple[Any, Any, Any]:

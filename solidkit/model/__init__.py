@@ -32,7 +32,6 @@ _EXPORTS = {
     "CheckpointError": "solidnet",
     "Prediction": "solidnet",
     "SolidNet": "solidnet",
-    "default_intrinsics": "solidnet",
     "load_checkpoint": "solidnet",
     "save_checkpoint": "solidnet",
 }

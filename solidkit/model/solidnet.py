@@ -41,6 +41,7 @@ import torch
 from torch import nn
 
 from solidkit.envmap.coords import CONVENTIONS_VERSION
+from solidkit.envmap.perspective import intrinsics_from_fov
 from solidkit.errors import ConventionsError, InputError, SolidkitError
 from solidkit.fsutil import atomic_write_bytes
 from solidkit.model.config import ConfigError, SolidNetConfig, preset
@@ -54,7 +55,6 @@ __all__ = [
     "CheckpointError",
     "SolidNet",
     "Prediction",
-    "default_intrinsics",
     "save_checkpoint",
     "load_checkpoint",
     "DEFAULT_CHECKPOINT",
@@ -67,12 +67,6 @@ DEFAULT_CHECKPOINT = Path(__file__).resolve().parent / "checkpoints" / "solidnet
 
 class CheckpointError(SolidkitError):
     """A checkpoint is missing, corrupt, of another format, or does not fit its configuration."""
-
-
-def default_intrinsics(height: int, width: int, hfov_deg: float) -> np.ndarray:
-    """An ideal pinhole ``K`` (3, 3) for a ``width x height`` image with horizontal FOV ``hfov_deg``."""
-    f = (width / 2.0) / math.tan(math.radians(hfov_deg) / 2.0)
-    return np.array([[f, 0.0, (width - 1) / 2.0], [0.0, f, (height - 1) / 2.0], [0.0, 0.0, 1.0]])
 
 
 class SolidNet(nn.Module):
@@ -224,7 +218,7 @@ class SolidNet(nn.Module):
         outside = (pix[:, 0] < -0.5) | (pix[:, 0] > w0 - 0.5) | (pix[:, 1] < -0.5) | (pix[:, 1] > h0 - 0.5)
         if outside.any():
             raise InputError(f"probe pixel {pix[outside][0].tolist()} lies outside the {w0}x{h0} image")
-        K = default_intrinsics(h0, w0, self.config.hfov_deg) if K is None else np.asarray(K, dtype=np.float64)
+        K = intrinsics_from_fov(math.radians(self.config.hfov_deg), w0, h0) if K is None else np.asarray(K, dtype=np.float64)
         if K.shape != (3, 3):
             raise InputError(f"K must be 3x3, got {K.shape}")
         H, W = self.config.image_size

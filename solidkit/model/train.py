@@ -22,8 +22,8 @@ import torch
 from solidkit.envmap.coords import direction_from_angles, direction_grid, rotation_from_ypr
 from solidkit.model.config import SolidNetConfig
 from solidkit.model.losses import solidnet_losses
-from solidkit.model.solidnet import SolidNet, default_intrinsics
-from solidkit.model.warp import camera_rays
+from solidkit.envmap.perspective import intrinsics_from_fov, pixel_rays
+from solidkit.model.solidnet import SolidNet
 
 __all__ = ["toy_batch", "fit", "batch_to", "batch_from_synth"]
 
@@ -52,8 +52,8 @@ def toy_batch(
     g = torch.Generator().manual_seed(seed)
     H, W = config.image_size
     hp = config.pano_height
-    K = torch.tensor(default_intrinsics(H, W, config.hfov_deg), dtype=torch.float32)
-    rays = camera_rays(K[None], H, W)[0].permute(1, 2, 0)  # (H, W, 3), z = 1
+    K = torch.tensor(intrinsics_from_fov(math.radians(config.hfov_deg), W, H), dtype=torch.float32)
+    rays = pixel_rays(K, W, H, torch, dtype=K.dtype)  # (H, W, 3), z = 1
     pano_dirs = direction_grid(hp, torch)
     out: dict[str, list[torch.Tensor]] = {k: [] for k in (
         "image", "K", "pitch", "roll", "pixels", "albedo", "normal", "distance", "shadow", "geometry_mask", "sky", "local"

@@ -17,18 +17,12 @@ panorama frame is the gravity-aligned one, ``d_pano = R_cam d_cam`` with
 from __future__ import annotations
 
 import torch
-from kornia.geometry.camera import unproject_points
-
-try:  # kornia >= 0.8.3
-    from kornia.geometry import create_meshgrid
-except ImportError:  # pragma: no cover - kornia 0.8.2
-    from kornia.utils import create_meshgrid
 
 from solidkit.envmap.coords import coords_from_direction, rotation_from_ypr
+from solidkit.envmap.perspective import pixel_rays
 from solidkit.errors import InputError
 
 __all__ = [
-    "camera_rays",
     "points_from_plane_distance",
     "camera_rotation",
     "sample_at_pixels",
@@ -42,18 +36,6 @@ DEPTH_QUANTUM = 1e-4
 """Metres per z-buffer depth step (depths up to 2^31 steps, about 214 km, are distinguished)."""
 
 _MAX_DEPTH_STEPS = (1 << 31) - 1
-
-
-def camera_rays(K: torch.Tensor, height: int, width: int) -> torch.Tensor:
-    """Rays ``v = ((x - cx)/fx, (y - cy)/fy, 1)`` of every pixel centre (OpenCV), ``(B, 3, H, W)``.
-
-    ``K (B, 3, 3)`` intrinsics in pixels; pixel ``(x, y)`` has its centre at integer ``(x, y)``.
-    """
-    grid = create_meshgrid(height, width, normalized_coordinates=False, device=K.device, dtype=K.dtype)  # (1,H,W,2)
-    grid = grid.expand(K.shape[0], -1, -1, -1).reshape(K.shape[0], -1, 2)
-    depth = torch.ones_like(grid[..., :1])
-    rays = unproject_points(grid, depth, K[:, None])  # (B, HW, 3) with z = 1
-    return rays.transpose(1, 2).reshape(K.shape[0], 3, height, width)
 
 
 def points_from_plane_distance(
@@ -73,7 +55,7 @@ def points_from_plane_distance(
     points (B, 3, H, W) metres (invalid pixels hold 0) and valid (B, 1, H, W) bool.
     """
     b, _, h, w = normal.shape
-    v = camera_rays(K.to(normal.dtype), h, w)
+    v = pixel_rays(K.to(normal.dtype), w, h, torch, dtype=normal.dtype, device=normal.device).movedim(-1, -3)  # (B,3,H,W)
     vn = (v * normal).sum(1, keepdim=True)
     cos = vn / v.norm(dim=1, keepdim=True)
     valid = (cos < -min_cos) & (distance > 0)

@@ -26,16 +26,11 @@ from typing import Any
 import numpy as np
 
 from solidkit.envmap import rotation_from_ypr, rotation_y
+from solidkit.envmap.perspective import pixel_rays, scale_intrinsics
 from solidkit.synth.renderer import mitsuba
 from solidkit.synth.scene import CityBlock
 
-__all__ = ["Camera", "intrinsics", "pinhole_sensor", "equirect_sensor", "sample_candidate"]
-
-
-def intrinsics(width: int, height: int, hfov_deg: float) -> np.ndarray:
-    """Ideal ``K`` with square pixels, horizontal FOV ``hfov_deg`` and ``c = ((W-1)/2, (H-1)/2)``."""
-    f = 0.5 * width / math.tan(math.radians(hfov_deg) / 2)
-    return np.array([[f, 0.0, (width - 1) / 2], [0.0, f, (height - 1) / 2], [0.0, 0.0, 1.0]])
+__all__ = ["Camera", "pinhole_sensor", "equirect_sensor", "sample_candidate"]
 
 
 @dataclass
@@ -62,19 +57,15 @@ class Camera:
 
     def scaled(self, width: int, height: int) -> "Camera":
         """The same camera at another resolution (same FOV, principal point scaled about pixel centres)."""
-        sx, sy = width / self.width, height / self.height
-        K = self.K.copy()
-        K[0, 0] *= sx
-        K[1, 1] *= sy
-        K[0, 2] = (K[0, 2] + 0.5) * sx - 0.5
-        K[1, 2] = (K[1, 2] + 0.5) * sy - 0.5
+        K = scale_intrinsics(self.K, width / self.width, height / self.height)
         return Camera(K, width, height, self.position.copy(), self.yaw, self.pitch, self.roll)
 
     def rays(self) -> np.ndarray:
-        """Camera-frame rays ``v = ((x - cx)/fx, (y - cy)/fy, 1)`` of every pixel, ``(H, W, 3)``."""
-        y, x = np.mgrid[0 : self.height, 0 : self.width].astype(np.float64)
-        K = self.K
-        return np.stack([(x - K[0, 2]) / K[0, 0], (y - K[1, 2]) / K[1, 1], np.ones_like(x)], axis=-1)
+        """Camera-frame rays ``v = ((x - cx)/fx, (y - cy)/fy, 1)`` of every pixel, ``(H, W, 3)``.
+
+        :func:`solidkit.envmap.perspective.pixel_rays` of ``K``.
+        """
+        return pixel_rays(self.K, self.width, self.height)
 
     def project(self, points: np.ndarray) -> np.ndarray:
         """Pixel coordinates ``(..., 2)`` (OpenCV) of scene-frame points ``(..., 3)``."""

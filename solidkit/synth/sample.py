@@ -32,8 +32,9 @@ from typing import Any
 import numpy as np
 
 from solidkit.envmap import CONVENTIONS_VERSION, angles_from_direction, tonemap, write_exr, write_ldr
+from solidkit.envmap.perspective import intrinsics_from_fov
 from solidkit.fsutil import atomic_write_text
-from solidkit.synth.cameras import Camera, equirect_sensor, intrinsics, pinhole_sensor
+from solidkit.synth.cameras import Camera, equirect_sensor, pinhole_sensor
 from solidkit.synth.lighting import Lighting, random_lighting
 from solidkit.synth.render import render_buffers, render_rgb
 from solidkit.synth.scene import CATEGORIES, CityBlock, city_block, to_mitsuba
@@ -214,7 +215,7 @@ class Generator:
             self._cache[block_id] = (block, to_mitsuba(block, None, tex_size=4), {})
         block, geometry, views = self._cache[block_id]
         if sector not in views:
-            K = intrinsics(cfg.width, cfg.height, cfg.hfov_deg)
+            K = intrinsics_from_fov(math.radians(cfg.hfov_deg), cfg.width, cfg.height)
             rng = np.random.default_rng(derive_seed(self.seed, block_id, 2, sector))
             views[sector] = best_views(block, geometry, rng, K, cfg.width, cfg.height, candidates=cfg.candidates,
                                        min_categories=cfg.min_categories, max_object_share=cfg.max_object_share,
