@@ -11,6 +11,7 @@ import typer
 
 from solidkit.cli.calibrate import app as calibrate_app
 from solidkit.cli.ingest import ingest_cli
+from solidkit.cli.label import app as label_app
 from solidkit.cli.capture import app as capture_app
 from solidkit.cli.envmap import app as envmap_app
 from solidkit.cli.eval import eval_command
@@ -32,6 +33,7 @@ app.add_typer(capture_app, name="capture", help="Theta captures: metadata, dual-
 app.add_typer(calibrate_app, name="calibrate", help="Lens, response-curve, colour, vignetting and photo-camera profiles.")
 app.add_typer(synth_app, name="synth", help="Synthetic SOLID-Img-style data and a virtual campaign (Mitsuba 3).")
 app.add_typer(testset_app, name="testset", help="Build, validate, inspect and export a real test set.")
+app.add_typer(label_app, name="label", help="Browser labeling app (sun, probe pixels, headings, review) and label export.")
 app.command("ingest")(ingest_cli)
 app.command("predict")(predict_command)
 app.command("eval")(eval_command)

@@ -402,22 +402,29 @@ class LabelStore:
             rows = con.execute(self._LABEL_SQL + where + " ORDER BY l.kind, l.key", args).fetchall()
         return [lab for lab in map(self._label, rows) if lab is not None]
 
+    _CHANGE_SQL = "SELECT id, kind, key, op, applied, version, actor, time, value, source, annotator, flags FROM events"
+
+    @staticmethod
+    def _change(r: tuple) -> Change:
+        return Change(
+            id=r[0], kind=r[1], key=r[2], op=r[3], applied=bool(r[4]), version=r[5], actor=r[6],
+            time=datetime.fromisoformat(r[7]), value=None if r[8] is None else json.loads(r[8]),
+            source=r[9], annotator=r[10], flags=json.loads(r[11]),
+        )  # fmt: skip
+
     def history(self, kind: str, key: str) -> builtins.list[Change]:
         """Every change of one label, oldest first (including automatic proposals not applied)."""
         with self._connect() as con:
-            rows = con.execute(
-                "SELECT id, kind, key, op, applied, version, actor, time, value, source, annotator, flags "
-                "FROM events WHERE kind = ? AND key = ? ORDER BY id",
-                (kind, key),
-            ).fetchall()
-        return [
-            Change(
-                id=r[0], kind=r[1], key=r[2], op=r[3], applied=bool(r[4]), version=r[5], actor=r[6],
-                time=datetime.fromisoformat(r[7]), value=None if r[8] is None else json.loads(r[8]),
-                source=r[9], annotator=r[10], flags=json.loads(r[11]),
-            )  # fmt: skip
-            for r in rows
-        ]
+            rows = con.execute(self._CHANGE_SQL + " WHERE kind = ? AND key = ? ORDER BY id", (kind, key)).fetchall()
+        return [self._change(r) for r in rows]
+
+    def histories(self, kind: str) -> dict[str, builtins.list[Change]]:
+        """:meth:`history` of every label of one kind at once: ``{key: [Change, ...]}``."""
+        out: dict[str, builtins.list[Change]] = {}
+        with self._connect() as con:
+            for r in con.execute(self._CHANGE_SQL + " WHERE kind = ? ORDER BY id", (kind,)):
+                out.setdefault(r[2], []).append(self._change(r))
+        return out
 
     def opinions(self, kind: str, key: str) -> dict[str, Change]:
         """Each human annotator's latest applied value for one label (review: compare them).

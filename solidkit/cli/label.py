@@ -1,0 +1,94 @@
+"""``solidkit label ...``: the labeling app and the label store's export."""
+
+from __future__ import annotations
+
+import ipaddress
+import json
+import secrets
+from pathlib import Path
+from typing import Optional
+
+import typer
+from rich.console import Console
+from rich.table import Table
+
+from solidkit.errors import InputError
+from solidkit.fsutil import atomic_write_text
+from solidkit.labeling.store import LabelStore, store_path
+
+app = typer.Typer(no_args_is_help=True)
+console = Console(stderr=True)
+
+
+def _is_loopback(host: str) -> bool:
+    if host == "localhost":
+        return True
+    try:
+        return ipaddress.ip_address(host.strip("[]")).is_loopback
+    except ValueError:
+        return False
+
+
+def _alignment(campaign: Path) -> dict | None:
+    from solidkit.align.schema import ALIGNMENT_FILE, load_alignment
+
+    if not (campaign / ALIGNMENT_FILE).is_file():
+        return None
+    return load_alignment(campaign).model_dump(mode="json")
+
+
+@app.command()
+def serve(
+    campaign: Path = typer.Argument(..., help="Campaign folder (manifest.json; labels go to CAMPAIGN/labels/)."),
+    host: str = typer.Option("127.0.0.1", help="Address to bind. Anything but loopback requires a token."),
+    port: int = typer.Option(8765, min=1, max=65535, help="TCP port."),
+    token: Optional[str] = typer.Option(
+        None, envvar="SOLIDKIT_LABEL_TOKEN",
+        help="Access token (also from $SOLIDKIT_LABEL_TOKEN). Generated and printed when binding beyond loopback.",
+    ),  # fmt: skip
+) -> None:
+    """Start the browser labeling app: sun centroids, probe pixels, headings, review."""
+    # fastapi/uvicorn load here, not at import: `solidkit --help` and every other command stay fast.
+    import uvicorn
+
+    from solidkit.labeling.app import LOOPBACK_HOSTS, create_app
+
+    if not (campaign / "manifest.json").is_file():
+        raise InputError(f"{campaign}: no manifest.json (run `solidkit ingest CARD {campaign}` first)")
+    if token is not None and len(token) < 16:
+        raise InputError("--token: use at least 16 characters")
+    local = _is_loopback(host)
+    if not local and token is None:
+        token = secrets.token_urlsafe(24)
+        console.print(f"token (give it to the annotators; it is not shown again): [bold]{token}[/]")
+    wildcard = host in ("0.0.0.0", "::", "[::]")
+    allowed = ["*"] if wildcard else [host.strip("[]"), host, *LOOPBACK_HOSTS]
+    app_ = create_app(campaign, alignment=_alignment(campaign), token=token, allowed_hosts=allowed)
+    shown = "127.0.0.1" if wildcard else host
+    console.print(f"labeling {campaign} at http://{shown}:{port}/  (Ctrl+C to stop)")
+    uvicorn.run(app_, host=host.strip("[]"), port=port, log_level="warning", server_header=False)
+
+
+@app.command()
+def export(
+    campaign: Path = typer.Argument(..., help="Campaign folder."),
+    as_json: bool = typer.Option(False, "--json", help="Print the export (JSON) on stdout."),
+    out: Optional[Path] = typer.Option(None, "-o", "--out", help="Write the export (JSON) to this file."),
+) -> None:
+    """Export the current labels (for the test-set builder); without --json/-o, a summary."""
+    if not store_path(campaign).is_file():
+        raise InputError(f"{campaign}: no label store ({store_path(campaign)}); nothing labelled yet")
+    doc = LabelStore(campaign, readonly=True).export()
+    text = json.dumps(doc, indent=1)
+    if out is not None:
+        atomic_write_text(out, text + "\n")
+        console.print(f"wrote {len(doc['labels'])} labels to {out}")
+    if as_json:
+        typer.echo(text)
+    elif out is None:
+        table = Table(title=f"labels in {campaign}")
+        for col in ("kind", "auto", "annotator", "reviewed"):
+            table.add_column(col)
+        for kind, counts in doc["counts"].items():
+            table.add_row(kind, *(str(counts.get(s, 0)) for s in ("auto", "annotator", "reviewed")))
+        Console().print(table)

@@ -1,0 +1,137 @@
+"""Review: how far two labels are apart, which items need a second look, and the queue status.
+
+Distances are in the label's own unit: degrees of arc between two sun directions
+(``envmap.coords.angular_distance``), pixels between two probe pixels, degrees of wrapped yaw
+between two headings. "Found" against "no sun visible" is a disagreement of unbounded size
+(``inf``).
+
+An item's status:
+
+- ``done``: a human label (annotator or reviewed) and no open disagreement;
+- ``flagged``: not done, and align/ flagged it, or annotators disagree by more than
+  :data:`THRESHOLDS` (unless a reviewer settled it after their labels);
+- ``left``: everything else.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from solidkit.envmap.coords import angular_distance, direction_from_angles
+from solidkit.labeling.store import HUMAN_SOURCES, Change, Label, LabelStore
+from solidkit.labeling.tasks import CampaignIndex, Item
+
+__all__ = ["THRESHOLDS", "UNITS", "distance", "Review", "review_item", "review_all"]
+
+#: disagreement worth a reviewer's look (label units)
+THRESHOLDS = {"sun": 1.0, "sun_scene": 1.0, "probe_pixel": 12.0, "heading": 2.0}
+UNITS = {"sun": "deg", "sun_scene": "deg", "probe_pixel": "px", "heading": "deg"}
+
+
+def distance(kind: str, a: dict[str, Any] | None, b: dict[str, Any] | None) -> float | None:
+    """Distance between two label values of ``kind`` in :data:`UNITS`; None if either is missing."""
+    if not a or not b:
+        return None
+    if kind in ("sun", "sun_scene"):
+        if bool(a.get("found")) != bool(b.get("found")):
+            return math.inf
+        if not a.get("found"):
+            return 0.0
+        da, db = (
+            np.asarray(direction_from_angles(math.radians(v["azimuth_deg"]), math.radians(v["elevation_deg"])))
+            for v in (a, b)
+        )
+        return math.degrees(float(angular_distance(da, db)))
+    if kind == "probe_pixel":
+        return math.hypot(a["x"] - b["x"], a["y"] - b["y"])
+    if kind == "heading":
+        return abs((a["yaw_deg"] - b["yaw_deg"] + 180.0) % 360.0 - 180.0)
+    raise KeyError(kind)
+
+
+@dataclass
+class Review:
+    """Review state of one item (JSON-able through :meth:`as_dict`)."""
+
+    kind: str
+    key: str
+    status: str
+    flags: list[str]
+    label: Label | None
+    opinions: dict[str, dict[str, Any]] = field(default_factory=dict)
+    disagreement: float | None = None
+    vs_auto: float | None = None
+    open_disagreement: bool = False
+
+    def as_dict(self) -> dict[str, Any]:
+        def num(x: float | None) -> float | str | None:
+            return None if x is None else ("inf" if math.isinf(x) else round(x, 3))
+
+        return {
+            "kind": self.kind, "key": self.key, "status": self.status, "flags": self.flags,
+            "label": self.label.model_dump(mode="json") if self.label else None,
+            "opinions": self.opinions, "disagreement": num(self.disagreement), "vs_auto": num(self.vs_auto),
+            "unit": UNITS[self.kind], "open_disagreement": self.open_disagreement,
+        }  # fmt: skip
+
+
+def _opinions(history: list[Change]) -> dict[str, Change]:
+    """Latest applied human value per annotator since the last reviewed change."""
+    latest: dict[str, Change] = {}
+    for ch in history:
+        if not ch.applied:
+            continue
+        if ch.op == "put" and ch.source == "reviewed":
+            latest = {}
+        elif ch.op == "put" and ch.source in HUMAN_SOURCES and ch.annotator:
+            latest[ch.annotator] = ch
+        elif ch.op == "undo" and ch.actor in latest and latest[ch.actor].version == ch.version - 1:
+            del latest[ch.actor]
+    return latest
+
+
+def review_item(item: Item, label: Label | None, history: list[Change]) -> Review:
+    """Status, flags and disagreements of one item (``history``: its store history)."""
+    ops = _opinions(history)
+    values = {who: ch.value for who, ch in ops.items() if ch.value is not None}
+    pair = [distance(item.kind, a, b) for i, a in enumerate(values.values()) for b in list(values.values())[i + 1 :]]
+    pair = [p for p in pair if p is not None]
+    dis = max(pair) if pair else None
+    human = label is not None and label.source in HUMAN_SOURCES
+    auto = item.proposal if item.proposal and (item.kind != "heading" or item.proposal.get("yaw_deg") is not None) else None
+    if auto is None:
+        auto = next((c.value for c in reversed(history) if c.source == "auto" and c.value), None)
+    vs_auto = distance(item.kind, label.value, auto) if human and auto else None
+    flags = list(dict.fromkeys([*item.flags, *(label.flags if label else [])]))
+    open_dis = dis is not None and dis > THRESHOLDS[item.kind]
+    if open_dis:
+        flags.append("annotators disagree")
+    if vs_auto is not None and vs_auto > THRESHOLDS[item.kind]:
+        flags.append("differs from auto")
+    if human and not open_dis:
+        status = "done"
+    elif open_dis or item.flags:
+        status = "flagged"
+    else:
+        status = "left"
+    return Review(
+        item.kind, item.key, status, flags, label,
+        {who: {"value": ch.value, "source": ch.source, "time": ch.time.isoformat()} for who, ch in ops.items()},
+        dis, vs_auto, open_dis,
+    )  # fmt: skip
+
+
+def review_all(index: CampaignIndex, store: LabelStore, kinds: tuple[str, ...] | None = None) -> list[Review]:
+    """Reviews of every item of ``kinds`` (all tasks by default), in queue order."""
+    kinds = kinds or tuple(index.items)
+    out = []
+    for kind in kinds:
+        labels = {lab.key: lab for lab in store.list(kind)}
+        histories = store.histories(kind)
+        for key, item in index.items[kind].items():
+            out.append(review_item(item, labels.get(key), histories.get(key, [])))
+    return out
