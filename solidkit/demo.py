@@ -1,147 +1,329 @@
-"""``solidkit demo``: the end-to-end path that works today, on a shipped real HDR panorama.
+"""``solidkit demo``: the main job, the whole chain on a small virtual field campaign.
 
-Steps (each writes its product into ``OUT`` and a line into ``summary.json``):
+From an SD card to a report, with the steps a field team runs (docs/walkthrough.md):
 
-1. read a real outdoor HDR panorama (Poly Haven ``city.exr``, CC0, shipped in ``solidkit/assets``);
-2. find the sun with the default (``core``) and the paper's method, and their disagreement;
-3. shoot a virtual limited-FOV photo (320x240, 60° horizontal FOV, pitch 5°) facing away from
-   the sun, as SOLID-Net's input would be, and embed it back into the panorama frame;
-4. resize to the model's 256x128 with the energy-preserving resampler (integral kept);
-5. project onto the paper's second-order SH basis and compare the diffuse convolution D(H)
-   with the SH prediction (the quantity the paper's L_dif ties together);
-6. run the shipped SOLID-Net checkpoint on the virtual photo (its LDR = the paper's tonemap) at
-   two ground pixels: predicted global sky, its sun and two local probes, with the sun's angular
-   error against the panorama's own sun (the shipped checkpoint is smoke-level: see its card);
-7. a report figure (``report.png``) with the tonemapped panorama, sun markers, photo and D(H).
+1. **card**: the mini campaign shipped with the package (``solidkit/assets/mini_campaign``:
+   what a team brings home, rendered by ``solidkit synth campaign``) or ``card=DIR``;
+2. **ingest**: originals copied read-only, manifest, unwarped panoramas and merged HDR brackets
+   (:func:`solidkit.capture.campaign.ingest`);
+3. **label sun**: automatic sun labels into the campaign's label store (ALIGN);
+4. **align**: every probe rotated into the photo's panorama frame (ALIGN);
+5. **test set**: build and validate a versioned test set (:mod:`solidkit.testset`);
+6. **evaluate**: the shipped checkpoint and the baselines with the paper's metrics
+   (:mod:`solidkit.finetune.evaluate`);
+7. **fine-tune**: brief scene-level k-fold fine-tuning (:mod:`solidkit.finetune.finetune`);
+8. **truth check**: the chain held against the campaign's hidden truth (sun labels, probe pixels,
+   probe rotations), read only here, after every step above has run;
+9. **report**: ``OUT/report.html`` and ``OUT/report.md`` (summary table, truth check,
+   evaluation, fine-tuning), with ``summary.json``.
+
+Every step logs its progress and time; the summary table lists them at the end. Re-running
+resumes (ingest, labels and alignment are idempotent; the test set is rebuilt byte-identically).
 """
 
 from __future__ import annotations
 
 import json
 import math
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from solidkit.envmap.coords import angular_distance, rotation_from_ypr, solid_angle
-from solidkit.envmap.io import read_image, tonemap, validate_panorama, write_exr, write_ldr
-from solidkit.envmap.perspective import embed_perspective, intrinsics_from_fov, perspective_crop
-from solidkit.envmap.resample import resize
-from solidkit.envmap.sh import diffuse_convolution, lambertian_sphere, sh_irradiance, sh_project
-from solidkit.envmap.sun import detect_sun
-from solidkit.fsutil import atomic_path, atomic_write_text
+from solidkit.errors import InputError
+from solidkit.fsutil import atomic_write_text
 
-DEFAULT_PANORAMA = Path(__file__).parent / "assets" / "hdr_panoramas" / "city.exr"
-PHOTO_SIZE = (320, 240)
-PHOTO_FOV_DEG = 60.0
-PHOTO_PITCH_DEG = 5.0
-MODEL_HEIGHT = 128
+__all__ = ["MINI_CAMPAIGN", "DemoConfig", "run_demo", "truth_check"]
+
+MINI_CAMPAIGN = Path(__file__).parent / "assets" / "mini_campaign"
+"""The shipped mini campaign: ``card/`` (what the field team brings home) and ``truth/``."""
 
 
-def _integral(pano: np.ndarray) -> np.ndarray:
-    return (pano * solid_angle(pano.shape[0])[..., None]).sum(axis=(0, 1))
+@dataclass
+class DemoConfig:
+    """What the demo runs on and how long it fine-tunes (the defaults fit 10 minutes on 2 CPU cores)."""
+
+    card: Path | None = None
+    truth: Path | None = None
+    model: Path | None = None
+    folds: int = 3
+    epochs: int = 3
+    grids: int = 4
+    jobs: int = 1
+    seed: int = 0
 
 
-def run_demo(out: Path, pano_path: Path = DEFAULT_PANORAMA, log: Any = print) -> dict[str, Any]:
-    """Run the demo into ``out``; returns the summary (also written to ``out/summary.json``)."""
-    pano, _ = read_image(pano_path)
-    validate_panorama(pano, str(pano_path))
-    out.mkdir(parents=True, exist_ok=True)  # only once the input is known to be good
-    summary: dict[str, Any] = {"panorama": str(pano_path), "size": [pano.shape[1], pano.shape[0]]}
-    log(f"panorama {pano_path.name}: {pano.shape[1]}x{pano.shape[0]}, max {pano.max():.4g}")
+@dataclass
+class StepRecord:
+    name: str
+    status: str = "pending"
+    seconds: float = 0.0
+    note: str = ""
+    data: dict[str, Any] = field(default_factory=dict)
 
-    core, paper = detect_sun(pano, "core"), detect_sun(pano, "paper")
-    summary["sun"] = {"core": core.to_json(), "paper": paper.to_json()}
-    if core.found and paper.found:
-        summary["sun"]["paper_vs_core_deg"] = math.degrees(float(angular_distance(core.direction, paper.direction)))
-    log(f"sun (core): {json.dumps(core.to_json())}")
-    log(f"sun (paper): {json.dumps(paper.to_json())}")
 
-    yaw = (core.azimuth + math.pi) if core.found else 0.0
-    R = rotation_from_ypr(yaw, math.radians(PHOTO_PITCH_DEG), 0.0)
-    K = intrinsics_from_fov(math.radians(PHOTO_FOV_DEG), *PHOTO_SIZE)
-    photo = perspective_crop(pano, R, PHOTO_SIZE, K=K)
-    write_exr(out / "photo.exr", photo, {"K": K.tolist(), "yaw_deg": math.degrees(yaw), "pitch_deg": PHOTO_PITCH_DEG})
-    write_ldr(out / "photo.png", tonemap(photo))
-    embedded, mask = embed_perspective(photo, K, R, MODEL_HEIGHT * 2)
-    write_ldr(out / "photo_in_panorama.png", tonemap(embedded))
-    summary["photo"] = {"size": list(PHOTO_SIZE), "fov_deg": PHOTO_FOV_DEG, "yaw_deg": math.degrees(yaw),
-                        "pitch_deg": PHOTO_PITCH_DEG, "panorama_coverage": float(np.mean(mask))}
-    log(f"photo 320x240 facing azimuth {math.degrees(yaw):.1f}°, covers {100 * np.mean(mask):.1f}% of the sphere")
+def _locate_card(cfg: DemoConfig) -> tuple[Path, Path | None]:
+    if cfg.card is not None:
+        card = Path(cfg.card)
+        if not card.is_dir():
+            raise InputError(f"{card}: card folder not found")
+        truth = Path(cfg.truth) if cfg.truth is not None else None
+        if truth is None and (card.parent / "truth" / "campaign.json").is_file():
+            truth = card.parent / "truth"
+        return card, truth
+    card = MINI_CAMPAIGN / "card"
+    if not card.is_dir():
+        raise InputError(f"{MINI_CAMPAIGN}: the shipped mini campaign is missing (reinstall solidkit, or pass --card DIR)")
+    return card, MINI_CAMPAIGN / "truth"
 
-    small = resize(pano, MODEL_HEIGHT)
-    write_exr(out / "panorama_256x128.exr", small)
-    write_ldr(out / "panorama_256x128.png", tonemap(small))
-    i_full, i_small = _integral(pano), _integral(small)
-    summary["resize"] = {"integral_full": i_full.tolist(), "integral_256x128": i_small.tolist(),
-                         "max_rel_error": float(np.max(np.abs(i_small / i_full - 1)))}
-    log(f"energy-preserving resize to 256x128: integral rel. error {summary['resize']['max_rel_error']:.2e}")
 
-    L = sh_project(small)
-    D = diffuse_convolution(small)
-    D_sh = lambertian_sphere(sh_irradiance(L), MODEL_HEIGHT)
-    write_exr(out / "diffuse_convolution.exr", D)
-    rel = float(np.mean(np.abs(D_sh - D)) / np.mean(np.abs(D)))
-    summary["sh"] = {"coefficients": np.asarray(L).tolist(), "D_vs_sh_mean_rel_error": rel}
-    log(f"diffuse convolution D(H) vs order-2 SH prediction: mean rel. error {rel:.3f}")
+# ----------------------------------------------------------------------------------------- steps
 
-    summary["model"] = _predict(out, tonemap(photo), K, yaw, core, log)
-    predicted_sky, _ = read_image(out / "predicted_sky.exr")
 
-    _figure(out / "report.png", small, core, paper, photo, D, predicted_sky)
-    summary["outputs"] = sorted(p.name for p in out.iterdir() if not p.name.startswith("."))
-    atomic_write_text(out / "summary.json", json.dumps(summary, indent=2))
-    log(f"wrote {len(summary['outputs']) + 1} files to {out}")
+def _ingest(card: Path, campaign: Path, cfg: DemoConfig, log: Callable[[str], Any]) -> dict[str, Any]:
+    from solidkit.capture.campaign import ingest
+
+    rep = ingest(card, campaign, jobs=cfg.jobs)
+    manifest = json.loads((campaign / "manifest.json").read_text())
+    scenes = manifest.get("scenes", [])
+    n_probes = sum(len(s.get("probes", [])) for s in scenes)
+    problems = getattr(rep, "problems", None) or getattr(rep, "errors", None) or []
+    return {"scenes": len(scenes), "positions": n_probes, "problems": len(problems),
+            "note": f"{len(scenes)} scenes, {n_probes} Theta positions, {len(problems)} bad files"}
+
+
+def _label_sun(campaign: Path, cfg: DemoConfig, log: Callable[[str], Any]) -> dict[str, Any]:
+    from solidkit.align.run import label_sun
+
+    res = label_sun(campaign, log=log)
+    return _as_dict(res, "sun labels")
+
+
+def _align(campaign: Path, cfg: DemoConfig, log: Callable[[str], Any]) -> dict[str, Any]:
+    from solidkit.align.run import align_campaign
+
+    res = align_campaign(campaign, log=log)
+    return _as_dict(res, "alignment")
+
+
+def _as_dict(res: Any, what: str) -> dict[str, Any]:
+    if isinstance(res, dict):
+        return {**res, "note": res.get("note", what)}
+    data = getattr(res, "__dict__", {})
+    return {k: v for k, v in data.items() if isinstance(v, (int, float, str, bool))} | {"note": str(getattr(res, "summary", what))}
+
+
+def _testset(campaign: Path, out: Path, log: Callable[[str], Any]) -> dict[str, Any]:
+    from solidkit.testset.build import build_testset
+    from solidkit.testset.validate import validate_testset
+
+    build_testset(campaign, out)
+    problems = validate_testset(out, allow_flagged=True)
+    ts = json.loads((out / "testset.json").read_text())
+    n_probes = sum(len(s["probes"]) for s in ts["scenes"])
+    for p in problems:
+        log(f"    validate: {p}")
+    return {"scenes": len(ts["scenes"]), "probes": n_probes, "problems": len(problems),
+            "version": ts.get("dataset_version"),
+            "note": f"{len(ts['scenes'])} scenes, {n_probes} probes, version {ts.get('dataset_version')}, "
+                    f"{len(problems)} validation problems"}
+
+
+# ----------------------------------------------------------------------------------- truth check
+
+
+def _angle_deg(a: np.ndarray, b: np.ndarray) -> float:
+    from solidkit.envmap.coords import angular_distance
+
+    return math.degrees(float(angular_distance(np.asarray(a, float), np.asarray(b, float))))
+
+
+def truth_check(testset: Path, truth_dir: Path) -> dict[str, Any]:
+    """The test set against the campaign truth: sun label, probe pixels and probe rotations.
+
+    Per scene: the angle between the test set's sun and the true sun (photo panorama frame); per
+    probe: the full-resolution pixel error (px) and the rotation error (degrees, the angle of
+    ``R_est^T R_true``). The truth is read here only, after the chain has run.
+    """
+    from solidkit.envmap.coords import direction_from_angles
+    from solidkit.synth.campaign import load_truth
+    from solidkit.testset.schema import TestSet
+
+    truth = load_truth(Path(truth_dir) / "campaign.json")
+    ts = TestSet.model_validate_json((Path(testset) / "testset.json").read_text())
+    by_id = {s.id: s for s in truth.scenes}
+    rows, sun_err, pix_err, rot_err = [], [], [], []
+    for sc in ts.scenes:
+        st = by_id.get(sc.id)
+        if st is None:
+            continue
+        row: dict[str, Any] = {"scene": sc.id, "truth_sun": st.sun_found and st.sun_azimuth_deg is not None,
+                               "label_sun": sc.sun.found}
+        if row["truth_sun"] and sc.sun.found:
+            e = _angle_deg(direction_from_angles(math.radians(sc.sun.azimuth_deg), math.radians(sc.sun.elevation_deg)),
+                           direction_from_angles(math.radians(st.sun_azimuth_deg), math.radians(st.sun_elevation_deg)))
+            row["sun_error_deg"] = e
+            sun_err.append(e)
+        caps = {c.id: c for c in st.captures}
+        probes = []
+        for p in sc.probes:
+            c = caps.get(p.id)
+            if c is None or c.probe is None:
+                continue
+            pe = float(np.hypot(*(np.asarray(p.pixel_full) - np.asarray(c.probe.pixel))))
+            Rt = np.asarray(c.R_pano_from_body)
+            re = math.degrees(math.acos(np.clip((np.trace(np.asarray(p.rotation).T @ Rt) - 1) / 2, -1, 1)))
+            probes.append({"probe": p.id, "pixel_error_px": pe, "rotation_error_deg": re})
+            pix_err.append(pe)
+            rot_err.append(re)
+        row["probes"] = probes
+        rows.append(row)
+    stat = lambda v: {"n": len(v), "median": float(np.median(v)) if v else None,  # noqa: E731
+                      "p95": float(np.percentile(v, 95)) if v else None, "max": float(max(v)) if v else None}
+    missed = sum(1 for r in rows if r["truth_sun"] and not r["label_sun"])
+    false = sum(1 for r in rows if not r["truth_sun"] and r["label_sun"])
+    return {"scenes": rows, "sun_error_deg": stat(sun_err), "pixel_error_px": stat(pix_err),
+            "rotation_error_deg": stat(rot_err), "sun_missed": missed, "sun_false": false}
+
+
+def _truth_section(tc: dict[str, Any]) -> str:
+    from solidkit.finetune.report import fmt, markdown_table
+
+    rows = [[name, str(s["n"]), fmt(s["median"]), fmt(s["p95"]), fmt(s["max"])] for name, s in
+            (("sun label error (°)", tc["sun_error_deg"]), ("probe pixel error (full-res px)", tc["pixel_error_px"]),
+             ("probe rotation error (°)", tc["rotation_error_deg"]))]
+    text = ("The campaign's hidden truth, read only now: how far the automatic chain (ingest, sun labels, alignment, "
+            "test set) is from it.\n\n" + markdown_table(["quantity", "n", "median", "95th percentile", "max"], rows)
+            + f"\nSuns missed (truth has a sun, label says none): {tc['sun_missed']}; "
+              f"false suns (label where the truth has none): {tc['sun_false']}.\n")
+    per = [[r["scene"], fmt(r.get("sun_error_deg")) if r["truth_sun"] else "no sun in truth",
+            ", ".join(f"{p['probe']}: {p['rotation_error_deg']:.2f}° / {p['pixel_error_px']:.1f} px" for p in r["probes"])]
+           for r in tc["scenes"]]
+    return text + "\n" + markdown_table(["scene", "sun error (°)", "probes: rotation error / pixel error"], per)
+
+
+# -------------------------------------------------------------------------------------------- run
+
+
+def run_demo(out: str | Path, cfg: DemoConfig | None = None, log: Callable[[str], Any] = print) -> dict[str, Any]:
+    """Run the whole chain into ``out``; returns the summary (also ``out/summary.json``)."""
+    from solidkit.finetune.report import finetune_sections, markdown_table, write_report, fmt
+
+    cfg = cfg or DemoConfig()
+    out = Path(out)
+    card, truth = _locate_card(cfg)
+    if out.exists() and not out.is_dir():
+        raise InputError(f"{out}: exists and is not a folder")
+    out.mkdir(parents=True, exist_ok=True)
+    campaign, testset = out / "campaign", out / "testset"
+    steps: list[StepRecord] = []
+    sections: list[tuple[str, str]] = []
+    state: dict[str, Any] = {}
+    t_start = time.perf_counter()
+
+    def step(name: str, fn: Callable[[], dict[str, Any]]) -> dict[str, Any] | None:
+        rec = StepRecord(name)
+        steps.append(rec)
+        log(f"[{len(steps)}/{len(plan)}] {name} ...")
+        t0 = time.perf_counter()
+        try:
+            data = fn() or {}
+        except Exception as exc:  # a failed step is reported; later steps that need it are skipped
+            rec.status, rec.note = "failed", f"{type(exc).__name__}: {exc}".splitlines()[0][:300]
+            rec.seconds = time.perf_counter() - t0
+            log(f"    FAILED after {rec.seconds:.1f} s: {rec.note}")
+            return None
+        rec.status, rec.seconds = "ok", time.perf_counter() - t0
+        rec.note = str(data.pop("note", ""))
+        rec.data = data
+        log(f"    done in {rec.seconds:.1f} s: {rec.note}")
+        return data
+
+    def evaluate_step() -> dict[str, Any]:
+        from solidkit.finetune.evaluate import default_methods, evaluate, items_from_testset, load_model, save_json
+        from solidkit.finetune.report import evaluation_sections
+
+        items = items_from_testset(testset)
+        state["items"] = items
+        net = load_model(cfg.model)
+        state["net"] = net
+        methods = default_methods(net)
+        res = evaluate(items, methods, log=log)
+        (out / "eval").mkdir(exist_ok=True)
+        save_json(out / "eval" / "results.json", res)
+        sections.extend(evaluation_sections({"real (virtual campaign)": res}, out, {"real (virtual campaign)": (items, methods[0])},
+                                            max_grids=cfg.grids))
+        s = res["summary"]["solidnet"]
+        med = lambda k: (s.get(k) or {}).get("median")  # noqa: E731
+        state["eval"] = s
+        return {"note": f"{len(items)} photos: sun azimuth/elevation {fmt(med('azimuth_deg/paper'))}°/"
+                        f"{fmt(med('elevation_deg/paper'))}° (paper recipe), local SSIM {fmt(med('local_ssim'))}, "
+                        f"MAE {fmt(med('local_mae'))}; {fmt(res['timing']['seconds_per_scene_median'])} s/scene",
+                "seconds_per_scene": res["timing"]["seconds_per_scene_median"]}
+
+    def finetune_step() -> dict[str, Any]:
+        from solidkit.finetune.evaluate import save_json
+        from solidkit.finetune.finetune import FineTuneConfig, run_finetune
+
+        items = state["items"]
+        n_scenes = len({i.scene for i in items})
+        if n_scenes < 2:
+            raise InputError(f"k-fold fine-tuning needs 2 scenes or more, the test set has {n_scenes}")
+        ftc = FineTuneConfig(folds=min(cfg.folds, n_scenes), epochs=cfg.epochs, seed=cfg.seed)
+        res = run_finetune(state["net"], items, ftc, log=log)
+        models = res.pop("models")
+        (out / "finetune").mkdir(exist_ok=True)
+        for i, m in enumerate(models):
+            m.save(out / "finetune" / f"fold_{i + 1}.pt", {"what": f"demo: fine-tuned on real scenes, fold {i + 1}",
+                                                          "split": res["folds"][i]["split"], "config": ftc.to_json()})
+        save_json(out / "finetune" / "finetune.json", res)
+        sections.extend(finetune_sections(res, out))
+        eff = res["effect"]
+        return {"note": f"{len(res['folds'])} folds, {fmt(float(np.mean(res['seconds_per_fold'])))} s/fold; local SSIM "
+                        f"{eff['local_ssim']['verdict']}, sun (paper) {eff['sun_angle/paper']['verdict']}",
+                "seconds_per_fold": res["seconds_per_fold"], "effect": eff}
+
+    def truth_step() -> dict[str, Any]:
+        if truth is None or not (truth / "campaign.json").is_file():
+            raise InputError("no truth for this card (a real campaign): nothing to check against")
+        tc = truth_check(testset, truth)
+        state["truth"] = tc
+        return {"note": f"sun label median {fmt(tc['sun_error_deg']['median'])}°, probe rotation median "
+                        f"{fmt(tc['rotation_error_deg']['median'])}° (p95 {fmt(tc['rotation_error_deg']['p95'])}°), "
+                        f"pixel median {fmt(tc['pixel_error_px']['median'])} px", **tc}
+
+    plan = [
+        ("ingest (copy, unwarp, merge brackets)", lambda: _ingest(card, campaign, cfg, log)),
+        ("label sun", lambda: _label_sun(campaign, cfg, log)),
+        ("align probes", lambda: _align(campaign, cfg, log)),
+        ("build + validate test set", lambda: _testset(campaign, testset, log)),
+        ("evaluate shipped checkpoint", evaluate_step),
+        ("fine-tune (k-fold)", finetune_step),
+        ("truth check", truth_step),
+    ]
+    log(f"solidkit demo: card {card} -> {out}")
+    for i, (name, fn) in enumerate(plan):
+        needs = {1: 0, 2: 0, 3: 2, 4: 3, 5: 4, 6: 3}.get(i)  # the step whose product this one reads
+        if needs is not None and steps[needs].status != "ok":
+            steps.append(StepRecord(name, "skipped", 0.0, f"needs '{plan[needs][0]}'"))
+            log(f"[{len(steps)}/{len(plan)}] {name}: skipped (needs '{plan[needs][0]}')")
+            continue
+        step(name, fn)
+    total = time.perf_counter() - t_start
+    rows = [[s.name, s.status, f"{s.seconds:.1f}", s.note.replace("|", "/")] for s in steps]
+    head = (f"Card: `{card}`. Total {total:.0f} s. Outputs: `campaign/` (ingested campaign, labels, alignment), "
+            "`testset/` (the versioned test set), `eval/results.json`, `finetune/` (per-fold checkpoints and results), "
+            "`figures/`.\n\n" + markdown_table(["step", "status", "s", "result"], rows))
+    report_sections = [("Pipeline", head)]
+    if "truth" in state:
+        report_sections.append(("The chain against the truth", _truth_section(state["truth"])))
+    report_sections += sections
+    md, page = write_report(out, "solidkit demo: SD card to report", report_sections)
+    summary = {"card": str(card), "out": str(out), "seconds": total, "report": str(page),
+               "steps": [{"name": s.name, "status": s.status, "seconds": s.seconds, "note": s.note, **s.data} for s in steps]}
+    atomic_write_text(out / "summary.json", json.dumps(summary, indent=1, default=float))
+    log(f"report: {page}")
     return summary
-
-
-def _predict(out: Path, ldr: np.ndarray, K: np.ndarray, yaw: float, sun: Any, log: Any) -> dict[str, Any]:
-    from solidkit.model import SolidNet
-
-    net = SolidNet.from_checkpoint()
-    w, h = PHOTO_SIZE
-    pixels = [(w * 0.3, h * 0.85), (w * 0.7, h * 0.85)]
-    pred = net.predict(ldr, pixels, K=K, pitch=math.radians(PHOTO_PITCH_DEG))
-    write_exr(out / "predicted_sky.exr", pred.sky)
-    write_ldr(out / "predicted_sky.png", tonemap(pred.sky))
-    for i, local in enumerate(pred.local):
-        write_exr(out / f"predicted_local_{i}.exr", local)
-        write_ldr(out / f"predicted_local_{i}.png", tonemap(local))
-    result: dict[str, Any] = {"pixels": [list(p) for p in pixels], "sun": pred.sun.to_json()}
-    if sun.found and pred.sun.found:
-        # the photo's panorama frame is the original one turned by the photo's yaw
-        truth = rotation_from_ypr(yaw).T @ sun.direction
-        result["sun_error_deg"] = math.degrees(float(angular_distance(truth, pred.sun.direction)))
-    log(f"SOLID-Net (shipped smoke-level checkpoint): sun {json.dumps(pred.sun.to_json())}"
-        + (f", error {result['sun_error_deg']:.1f}°" if "sun_error_deg" in result else ""))
-    return result
-
-
-def _figure(
-    path: Path, pano: np.ndarray, core: Any, paper: Any, photo: np.ndarray, D: np.ndarray, sky: np.ndarray
-) -> None:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    h = pano.shape[0]
-    fig, axes = plt.subplots(2, 2, figsize=(12, 6.4))
-    axes = axes.ravel()
-    axes[0].imshow(tonemap(pano), extent=(-180, 180, -90, 90))
-    for det, colour, name in ((core, "lime", "core"), (paper, "magenta", "paper")):
-        if det.found:
-            axes[0].plot(det.azimuth_deg, det.elevation_deg, "*", ms=14, mfc="none", mec=colour, label=f"sun ({name})")
-    axes[0].set(title=f"panorama {2 * h}x{h} (tonemap e=-0.3)", xlabel="azimuth [°]", ylabel="elevation [°]")
-    axes[0].legend(loc="lower left", fontsize=8)
-    axes[1].imshow(tonemap(photo))
-    axes[1].set(title="virtual 320x240 photo", xticks=[], yticks=[])
-    axes[2].imshow(tonemap(D / max(float(D.max()), 1e-12)), extent=(-180, 180, -90, 90))
-    axes[2].set(title="diffuse convolution D(H) (normalised)", xlabel="azimuth [°]")
-    axes[3].imshow(tonemap(sky), extent=(-180, 180, -90, 90))
-    axes[3].set(title="SOLID-Net sky from the photo (shipped smoke-level checkpoint)", xlabel="azimuth [°]")
-    fig.tight_layout()
-    with atomic_path(path) as tmp:
-        fig.savefig(tmp, dpi=90)
-    plt.close(fig)

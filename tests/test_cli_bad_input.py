@@ -182,11 +182,18 @@ CASES: list[tuple[str, list[str], tuple]] = [
     ("predict-checkpoint-text", ["predict", "{d}/photo.jpg", "--at", "4,4", "--out", "{d}/p", "--checkpoint", "{d}/notes.txt"], SLOW),
     ("predict-out-is-file", ["predict", "{d}/photo.jpg", "--at", "4,4", "--out", "{d}/notes.txt"], SLOW),
     # ---- demo
-    ("demo-pano-missing", ["demo", "--out", "{d}/demo", "--pano", "{d}/missing.exr"], SLOW),
-    ("demo-pano-text", ["demo", "--out", "{d}/demo", "--pano", "{d}/text.exr"], SLOW),
-    ("demo-pano-nan", ["demo", "--out", "{d}/demo", "--pano", "{d}/nan.exr"], ()),
-    ("demo-pano-not-pano", ["demo", "--out", "{d}/demo", "--pano", "{d}/notpano.exr"], SLOW),
-    ("demo-out-is-file", ["demo", "--out", "{d}/notes.txt", "--pano", GOOD_PANO], ()),
+    ("demo-card-missing", ["demo", "--out", "{d}/demo", "--card", "{d}/missing"], ()),
+    ("demo-card-is-file", ["demo", "--out", "{d}/demo", "--card", "{d}/notes.txt"], SLOW),
+    ("demo-out-is-file", ["demo", "--out", "{d}/notes.txt", "--card", "{d}/sub"], ()),
+    # ---- eval / finetune
+    ("eval-no-data", ["eval", "-o", "{d}/ev"], ()),
+    ("eval-testset-missing", ["eval", "--testset", "{d}/missing", "-o", "{d}/ev"], SLOW),
+    ("eval-testset-not-a-testset", ["eval", "--testset", "{d}/sub", "-o", "{d}/ev"], ()),
+    ("eval-baseline-no-name", ["eval", "--testset", "{d}/sub", "--baseline", "{d}/notes.txt", "-o", "{d}/ev"], SLOW),
+    ("eval-model-missing", ["eval", "--testset", "{d}/sub", "--model", "{d}/missing.pt", "-o", "{d}/ev"], SLOW),
+    ("finetune-testset-not-a-testset", ["finetune", "--testset", "{d}/sub", "-o", "{d}/ft"], ()),
+    ("finetune-trainable-bad", ["finetune", "--testset", "{d}/sub", "--trainable", "head", "-o", "{d}/ft"], SLOW),
+    ("finetune-folds-1", ["finetune", "--testset", "{d}/sub", "--folds", "1", "-o", "{d}/ft"], SLOW),
 ]
 
 

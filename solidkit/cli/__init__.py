@@ -14,6 +14,7 @@ from solidkit.cli.ingest import ingest_cli
 from solidkit.cli.label import app as label_app
 from solidkit.cli.capture import app as capture_app
 from solidkit.cli.envmap import app as envmap_app
+from solidkit.cli.demo import demo_command
 from solidkit.cli.eval import eval_command
 from solidkit.cli.finetune import finetune_command
 from solidkit.errors import InputError, SolidkitError
@@ -38,17 +39,7 @@ app.command("ingest")(ingest_cli)
 app.command("predict")(predict_command)
 app.command("eval")(eval_command)
 app.command("finetune")(finetune_command)
-
-
-@app.command()
-def demo(
-    out: Path = typer.Option(Path("demo_out"), help="Output folder."),
-    pano: Optional[Path] = typer.Option(None, help="HDR panorama to use (default: the shipped city.exr)."),
-) -> None:
-    """End-to-end demo on a real HDR panorama: sun, virtual photo, 256x128, SH, report."""
-    from solidkit.demo import DEFAULT_PANORAMA, run_demo
-
-    run_demo(out, pano or DEFAULT_PANORAMA, log=typer.echo)
+app.command("demo")(demo_command)
 
 
 _OUTPUTS = ("out", "ghost_mask")  # the parameters naming what a command writes

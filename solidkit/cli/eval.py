@@ -36,15 +36,20 @@ def eval_command(
     as_json: bool = typer.Option(False, "--json", help="Print the summaries as JSON on stdout."),
 ) -> None:
     """Sun azimuth/elevation error, global MAE and local SSIM/MAE for the model and baselines; a report."""
-    from solidkit.finetune.report import evaluation_report
-
     extra = parse_named_paths(baseline, "--baseline")
+    if testset is None and synthetic is None:
+        raise InputError("give a real test set (--testset DIR) and/or a synthetic split (--synthetic DIR)")
     for p in [model, *extra.values()]:
         if p is not None and not p.is_file():
             raise InputError(f"{p}: no such checkpoint")
     for p, opt in ((testset, "--testset"), (synthetic, "--synthetic")):
         if p is not None and not p.is_dir():
             raise InputError(f"{opt} {p}: not a folder")
+    if testset is not None and not (testset / "testset.json").is_file():
+        raise InputError(f"--testset {testset}: not a test set (no testset.json; run 'solidkit testset build')")
+    # torch is imported only once the arguments are known to be good (a bad call answers at once)
+    from solidkit.finetune.report import evaluation_report
+
     res = evaluation_report(out, model, testset, synthetic, extra, limit=limit, max_grids=grids,
                             log=lambda s: typer.echo(s, err=True))
     if as_json:

@@ -11,6 +11,8 @@ from solidkit.errors import InputError
 
 __all__ = ["finetune_command"]
 
+TRAINABLE_CHOICES = ("pnet+sky", "pnet", "sky", "all")  # solidkit.finetune.finetune.TRAINABLE
+
 
 def finetune_command(
     model: Path | None = typer.Option(None, "--model", help="SOLID-Net checkpoint (default: the shipped one)."),
@@ -28,15 +30,17 @@ def finetune_command(
     as_json: bool = typer.Option(False, "--json", help="Print the per-fold and pooled summary as JSON on stdout."),
 ) -> None:
     """Fine-tune per fold on the other scenes' LDR probes and sun labels; before/after per fold and pooled."""
-    from solidkit.finetune.finetune import FineTuneConfig, TRAINABLE, finetune_report
-
-    if trainable not in TRAINABLE:
-        raise InputError(f"--trainable must be one of {sorted(TRAINABLE)}, got {trainable!r}")
+    if trainable not in TRAINABLE_CHOICES:
+        raise InputError(f"--trainable must be one of {', '.join(TRAINABLE_CHOICES)}, got {trainable!r}")
     if model is not None and not model.is_file():
         raise InputError(f"{model}: no such checkpoint")
     for p, opt in ((testset, "--testset"), (mix_synthetic, "--mix-synthetic"), (synthetic, "--synthetic")):
         if p is not None and not p.is_dir():
             raise InputError(f"{opt} {p}: not a folder")
+    if not (testset / "testset.json").is_file():
+        raise InputError(f"--testset {testset}: not a test set (no testset.json; run 'solidkit testset build')")
+    # torch is imported only once the arguments are known to be good (a bad call answers at once)
+    from solidkit.finetune.finetune import FineTuneConfig, finetune_report
     cfg = FineTuneConfig(folds=folds, epochs=epochs, patience=patience, lr=lr, trainable=trainable,
                          sun_weight=sun_weight, seed=seed)
     res = finetune_report(out, model, testset, cfg, mix_synthetic, synthetic, log=lambda s: typer.echo(s, err=True))
