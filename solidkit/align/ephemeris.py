@@ -1,0 +1,65 @@
+"""When and where a capture was taken, and pvlib's sun there and then.
+
+Time: EXIF ``DateTimeOriginal`` (camera clock) with ``OffsetTimeOriginal`` (its UTC offset) as
+read by :mod:`solidkit.camera.metadata`; a capture without an offset is not placed in time
+(``None``): guessing a zone would turn a clock question into a wrong sun. Place: EXIF GPS.
+The solar position is :func:`solidkit.synth.solar.solar_position` (pvlib, NREL SPA, apparent
+elevation; azimuth clockwise from true north).
+"""
+
+from __future__ import annotations
+
+import datetime as dt
+import re
+from typing import Any
+
+from solidkit.align.schema import Ephemeris
+from solidkit.synth.solar import solar_position
+
+__all__ = ["capture_time", "capture_place", "ephemeris_for"]
+
+_OFFSET = re.compile(r"^([+-])(\d{2}):?(\d{2})$")
+
+
+def capture_time(metadata: dict[str, Any]) -> tuple[dt.datetime | None, str]:
+    """Aware capture time from a shot's metadata (manifest ``Shot.metadata``) and what gave it."""
+    raw = metadata.get("datetime_original")
+    off = metadata.get("utc_offset")
+    if not raw:
+        return None, "no DateTimeOriginal"
+    try:
+        when = dt.datetime.fromisoformat(str(raw))
+    except ValueError:
+        return None, f"unreadable DateTimeOriginal {raw!r}"
+    if when.tzinfo is not None:
+        return when, "DateTimeOriginal (aware)"
+    m = _OFFSET.match(str(off or "").strip())
+    if not m:
+        return None, "DateTimeOriginal without OffsetTimeOriginal (UTC offset unknown)"
+    sign = 1 if m.group(1) == "+" else -1
+    tz = dt.timezone(sign * dt.timedelta(hours=int(m.group(2)), minutes=int(m.group(3))))
+    return when.replace(tzinfo=tz), "DateTimeOriginal + OffsetTimeOriginal"
+
+
+def capture_place(metadata: dict[str, Any]) -> tuple[float, float, float | None] | None:
+    """``(lat_deg, lon_deg, alt_m)`` from the metadata's GPS, or ``None``."""
+    gps = metadata.get("gps") or {}
+    lat, lon = gps.get("lat_deg"), gps.get("lon_deg")
+    if lat is None or lon is None:
+        return None
+    return float(lat), float(lon), (None if gps.get("alt_m") is None else float(gps["alt_m"]))
+
+
+def ephemeris_for(metadata: dict[str, Any], fallback_place: tuple[float, float, float | None] | None = None) -> Ephemeris | None:
+    """pvlib's sun at a shot's time and GPS place (``fallback_place`` when the shot has no GPS).
+
+    ``None`` when the time (with its UTC offset) or the place is unknown.
+    """
+    when, source = capture_time(metadata)
+    place = capture_place(metadata) or fallback_place
+    if when is None or place is None:
+        return None
+    lat, lon, alt = place
+    az, el = solar_position(when, lat, lon, alt or 0.0)
+    return Ephemeris(time_utc=when.astimezone(dt.timezone.utc).isoformat(), latitude_deg=lat, longitude_deg=lon,
+                     altitude_m=alt, azimuth_deg=az, elevation_deg=el, time_source=source)

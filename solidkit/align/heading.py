@@ -1,0 +1,141 @@
+"""Each capture's yaw in the photo's panorama frame, from independent cues (conventions §8).
+
+Cues (degrees; ``yaw_c``: capture level frame -> photo panorama frame, ``d_P = R_y(yaw_c) d_L``):
+
+- ``photo_features`` (camera-position capture only): SIFT between the photo and perspective
+  crops of the capture's level panorama; both were taken from one place, so the matched rays
+  are related by a rotation ``b = R a`` (:func:`solidkit.align.geometry.estimate_rotation`) and
+  ``R = R_y(-yaw_cam) R(0, pitch_photo, roll_photo)``: its yaw gives ``yaw_cam``, its pitch and
+  roll check the photo's own.
+- ``features``: SIFT between the capture's level panorama and the camera-position capture's,
+  related by ``x_c = R_y(yaw_cam - yaw_c) x_cam + t``
+  (:func:`solidkit.align.geometry.estimate_level_pose`): ``yaw_c = yaw_cam - psi``.
+- ``sun``: the scene's sun (consensus of the other captures, photo panorama frame) minus the
+  capture's own sun azimuth (after the ephemeris drift between their times).
+- ``compass``: ``heading_c - photo_heading`` (weak: a compass is good to several degrees).
+- ``label``: a human ``heading`` label; it overrides every cue and is recorded as such.
+
+:func:`fuse_cues` forms the consensus: the weighted circular mean of the cues that agree with
+the most precise one within three sigmas (iterated), their RMS residual, and flags for every
+disagreeing cue. A cue is never averaged in once it disagrees.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from solidkit.align.features import Features, match_features
+from solidkit.align.geometry import estimate_level_pose, estimate_rotation
+from solidkit.align.schema import Cue, wrap_deg
+from solidkit.envmap.coords import ypr_from_rotation
+
+__all__ = ["PhotoMatch", "match_photo", "feature_cue", "fuse_cues", "Fused"]
+
+
+@dataclass(frozen=True)
+class PhotoMatch:
+    """Photo <-> camera-position capture: ``yaw_cam`` and the photo's pitch/roll (degrees)."""
+
+    yaw_deg: float
+    pitch_deg: float
+    roll_deg: float
+    sigma_deg: float
+    n_matches: int
+    n_inliers: int
+    rms_deg: float
+    R: np.ndarray
+
+
+def match_photo(photo: Features, pano: Features, *, threshold_deg: float = 0.5, min_inliers: int = 8) -> tuple[PhotoMatch | None, str]:
+    """Rotation between a photo's rays (camera frame) and a level panorama's directions."""
+    m = match_features(photo, pano)
+    if len(m) < min_inliers:
+        return None, f"{len(m)} SIFT matches between the photo and the panorama (< {min_inliers})"
+    fit = estimate_rotation(photo.directions[m[:, 0]], pano.directions[m[:, 1]],
+                            threshold=math.radians(threshold_deg), min_inliers=min_inliers)
+    if fit is None:
+        return None, f"{len(m)} matches, no rotation with {min_inliers}+ inliers"
+    yaw, pitch, roll = (math.degrees(float(v)) for v in ypr_from_rotation(fit.R))
+    # yaw precision: the RMS ray residual over the inliers' count, floored at a tenth of the threshold
+    sigma = max(math.degrees(fit.rms) / math.sqrt(fit.n_inliers), 0.02)
+    return PhotoMatch(wrap_deg(-yaw), pitch, roll, sigma, len(m), fit.n_inliers, math.degrees(fit.rms), fit.R), \
+        f"{fit.n_inliers}/{len(m)} matches agree on one rotation (RMS {math.degrees(fit.rms):.2f} deg)"
+
+
+def feature_cue(cam: Features, other: Features, yaw_cam_deg: float | None, yaw_cam_sigma: float,
+                *, min_inliers: int = 10, level_sigma_deg: float = 0.3) -> tuple[Cue, object | None]:
+    """The ``features`` cue of a capture against the camera-position capture; also returns the fit.
+
+    The cue's sigma adds the levelling uncertainty (a tilt error of either panorama biases the
+    yaw of off-horizon matches) to the fit's own.
+    """
+    m = match_features(cam, other)
+    if len(m) < min_inliers:
+        return Cue(yaw_deg=None, ok=False, detail=f"features failed: {len(m)} SIFT matches (< {min_inliers})"), None
+    fit = estimate_level_pose(cam.directions[m[:, 0]], other.directions[m[:, 1]], min_inliers=min_inliers)
+    if fit is None:
+        return Cue(yaw_deg=None, ok=False,
+                   detail=f"features failed: {len(m)} matches, no relative pose with {min_inliers}+ inliers"), None
+    psi = math.degrees(fit.yaw)
+    sigma = math.hypot(max(math.degrees(fit.sigma), 0.05), level_sigma_deg * 0.5, yaw_cam_sigma)
+    yaw = None if yaw_cam_deg is None else wrap_deg(yaw_cam_deg - psi)
+    detail = (f"{fit.n_inliers}/{len(m)} matches on a level relative pose (RMS {math.degrees(fit.rms):.2f} deg); "
+              f"relative yaw to the camera position {wrap_deg(-psi):+.2f} deg")
+    return Cue(yaw_deg=yaw, sigma_deg=sigma, ok=yaw is not None, detail=detail), fit
+
+
+@dataclass(frozen=True)
+class Fused:
+    yaw_deg: float | None
+    sigma_deg: float | None
+    residual_deg: float | None
+    flags: list[str]
+
+
+def fuse_cues(cues: dict[str, Cue], *, n_sigma: float = 3.0, floor_deg: float = 0.3) -> Fused:
+    """Consensus of the cues (updated in place: ``ok``, ``weight``, ``residual_deg``); see module doc.
+
+    Two cues agree when they differ by at most ``n_sigma`` times their combined sigma (each
+    sigma floored at ``floor_deg``). The seed is the most precise cue that another agrees with
+    (else the most precise cue); the consensus is the inverse-variance weighted circular mean of
+    the agreeing cues.
+    """
+    flags: list[str] = []
+    usable = {k: c for k, c in cues.items() if c.yaw_deg is not None and c.sigma_deg is not None}
+    for k, c in cues.items():
+        if k not in usable:
+            c.ok, c.weight = False, 0.0
+    if not usable:
+        return Fused(None, None, None, ["no_yaw: no cue gave a yaw"])
+
+    def sig(c: Cue) -> float:
+        return max(float(c.sigma_deg), floor_deg)
+
+    def agree(a: Cue, b: Cue) -> bool:
+        return abs(wrap_deg(a.yaw_deg - b.yaw_deg)) <= n_sigma * math.hypot(sig(a), sig(b))
+
+    order = sorted(usable, key=lambda k: sig(usable[k]))
+    seed = next((k for k in order if any(agree(usable[k], usable[j]) for j in order if j != k)), order[0])
+    members = [k for k in order if k == seed or agree(usable[seed], usable[k])]
+    yaw = usable[seed].yaw_deg
+    for _ in range(3):
+        w = np.array([1.0 / sig(usable[k]) ** 2 for k in members])
+        ang = np.radians([usable[k].yaw_deg for k in members])
+        yaw = math.degrees(math.atan2(float(np.sum(w * np.sin(ang))), float(np.sum(w * np.cos(ang)))))
+        members = [k for k in order if abs(wrap_deg(usable[k].yaw_deg - yaw)) <= n_sigma * sig(usable[k])] or [seed]
+    w = np.array([1.0 / sig(usable[k]) ** 2 for k in members])
+    sigma = 1.0 / math.sqrt(float(w.sum()))
+    res = [wrap_deg(usable[k].yaw_deg - yaw) for k in members]
+    for k, c in usable.items():
+        c.residual_deg = wrap_deg(c.yaw_deg - yaw)
+        c.ok = k in members
+        c.weight = float(1.0 / sig(c) ** 2 / w.sum()) if c.ok else 0.0
+        if not c.ok:
+            flags.append(f"{k}_disagrees: {c.residual_deg:+.1f} deg from the consensus")
+    if len(members) == 1 and len(usable) == 1:
+        flags.append(f"single_cue: yaw from {members[0]} only")
+    rms = float(np.sqrt(np.mean(np.square(res)))) if len(res) > 1 else None
+    return Fused(wrap_deg(yaw), sigma, rms, flags)

@@ -1,0 +1,495 @@
+"""``solidkit align CAMPAIGN``: sun labels, yaws, probe pixels and aligned products for every scene.
+
+Order per scene (truth is never read; only the manifest, the originals, ingest's products and the
+label store):
+
+1. The photo: its intrinsics from EXIF (:func:`solidkit.calibration.camera.intrinsics_from_exif`),
+   heading, time and GPS.
+2. Features (:mod:`solidkit.align.features`) of the photo and of every capture's level panorama
+   (the merged HDR, else the normal shot), cached under ``CAMPAIGN/align/cache`` by input hash.
+3. Yaw cues without the sun: photo <-> camera position (rotation), capture <-> camera position
+   (level relative pose), compass; a first consensus per capture (:func:`~solidkit.align.heading.fuse_cues`).
+4. The sun (:func:`solidkit.align.sun.scene_sun`) with those yaws; then the ``sun`` cue of
+   every capture that saw it (leave-one-out: the scene's sun from the *other* captures), and the
+   final consensus. A human ``heading`` label overrides it; human ``sun`` labels replace the
+   automatic choice of their capture.
+5. Probe pixels (field notes, else a human label, else the geometry) checked against the
+   geometry: the direction from the camera position to the probe capture (relative pose),
+   projected into the photo.
+6. Products (:mod:`solidkit.align.products`), ``align/alignment.json`` (C3), auto labels in the
+   label store (C2, ``source="auto"``, annotator ``align``), the report (:mod:`solidkit.align.report`).
+
+Re-runs are idempotent: unchanged inputs reuse cached features and existing products (recipe
+hash), and the label store ignores identical puts.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import math
+import os
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any, Callable
+
+import numpy as np
+
+from solidkit.align.captures import (Capture, camera_probe_of, captures_of, levelling_of, load_normal_panorama,
+                                     photo_shot_of, read_hdr, read_sun_frame)
+from solidkit.align.ephemeris import capture_place, ephemeris_for
+from solidkit.align.features import Features, panorama_features, photo_features
+from solidkit.align.heading import PhotoMatch, feature_cue, fuse_cues, match_photo
+from solidkit.align.schema import (ALIGNMENT_FILE, CampaignAlignment, CaptureSun, Cue, Levelling, PhotoInfo,
+                                   ProbeAlignment, SceneAlignment, SceneSun, body_to_pano, load_alignment,
+                                   save_alignment, wrap_deg)
+from solidkit.align.sun import Blob, CaptureSunInput, SunSettings, find_candidates, scene_sun, sky_fraction
+from solidkit.capture.manifest import Manifest, Scene, load_manifest
+from solidkit.envmap.io import srgb_decode
+from solidkit.errors import InputError, SolidkitError
+from solidkit.fsutil import atomic_path, sha256_file
+
+__all__ = ["AlignSettings", "align_campaign", "align_scene"]
+
+ANNOTATOR = "align"
+
+
+@dataclass(frozen=True)
+class AlignSettings:
+    """Settings of a run (recorded in ``alignment.json``)."""
+
+    sun: SunSettings = field(default_factory=SunSettings)
+    compass_sigma_deg: float = 8.0
+    photo_compass_sigma_deg: float = 5.0
+    feature_fov_deg: float = 75.0
+    feature_pitches_deg: tuple[float, ...] = (0.0, 45.0, -45.0)
+    photo_scale: float | None = None
+    level_sigma_deg: float = 0.4
+    pixel_tolerance_frac: float = 0.05
+    products: bool = True
+    probe_height: int = 128
+
+    def to_json(self) -> dict[str, Any]:
+        d = asdict(self)
+        d["feature_pitches_deg"] = list(self.feature_pitches_deg)
+        return d
+
+
+# --------------------------------------------------------------------------- features (cached)
+def _cache_key(*parts: Any) -> str:
+    return hashlib.sha256(json.dumps(parts, sort_keys=True, default=str).encode()).hexdigest()[:24]
+
+
+def _cached(campaign: Path, key: str, make: Callable[[], Features]) -> Features:
+    path = campaign / "align" / "cache" / f"features-{key}.npz"
+    if path.is_file():
+        try:
+            with np.load(path) as z:
+                return Features(z["directions"], z["descriptors"], z["pixels"], z["sizes"])
+        except (OSError, ValueError, KeyError):
+            path.unlink(missing_ok=True)
+    f = make()
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with atomic_path(path, suffix=".npz") as tmp:
+        np.savez_compressed(tmp, directions=f.directions, descriptors=f.descriptors, pixels=f.pixels, sizes=f.sizes)
+    return f
+
+
+def _feature_panorama(campaign: Path, manifest: Manifest, cap: Capture) -> tuple[np.ndarray | None, bool, str, list[str]]:
+    """(level panorama for features, is_linear, description, input hashes)."""
+    if cap.hdr_path:
+        return read_hdr(campaign, cap.hdr_path), True, cap.hdr_path, cap.hdr_inputs
+    if cap.normal is not None:
+        return load_normal_panorama(campaign, manifest, cap.normal), False, cap.normal.original, [cap.normal.sha256]
+    return None, False, "", []
+
+
+# --------------------------------------------------------------------------- photo
+def _photo_info(campaign: Path, manifest: Manifest, scene: Scene) -> tuple[PhotoInfo | None, list[str]]:
+    from solidkit.calibration.camera import IntrinsicsError, intrinsics_from_exif, intrinsics_from_fov
+    from solidkit.camera.metadata import CaptureMetadata
+
+    flags: list[str] = []
+    shot = photo_shot_of(manifest, scene)
+    if shot is None:
+        return None, ["no_photo: the scene has no photo"]
+    meta = CaptureMetadata.model_validate(shot.metadata)
+    try:
+        K, source = intrinsics_from_exif(meta)
+    except IntrinsicsError as exc:
+        K, source = intrinsics_from_fov(meta.width, meta.height, math.radians(60.0)), "assumed-hfov-60"
+        flags.append(f"no_intrinsics: {exc}; a 60 deg field of view is assumed")
+    heading = getattr(scene, "photo_heading_deg", None)
+    if heading is None:
+        heading = (shot.metadata.get("gps") or {}).get("img_direction_deg")
+    pitch, roll = getattr(scene, "photo_pitch_deg", None), getattr(scene, "photo_roll_deg", None)
+    from solidkit.align.ephemeris import capture_time
+
+    when, _ = capture_time(shot.metadata)
+    info = PhotoInfo(path=shot.original, sha256=shot.sha256, size=[meta.width, meta.height], K_full=np.asarray(K).tolist(),
+                     K_source=source, pitch_deg=pitch, roll_deg=roll, heading_deg=heading,
+                     pitch_roll_source="exif" if pitch is not None and roll is not None else "",
+                     time=None if when is None else when.isoformat())
+    if heading is None:
+        flags.append("no_photo_heading: no compass heading for the photo (GPSImgDirection); world azimuths unknown")
+    return info, flags
+
+
+# --------------------------------------------------------------------------- the scene
+@dataclass
+class _CapState:
+    cap: Capture
+    pitch: float = 0.0
+    roll: float = 0.0
+    heading: float | None = None
+    features: Features | None = None
+    feature_src: str = ""
+    normal_lin: np.ndarray | None = None
+    blobs: list[Blob] = field(default_factory=list)
+    cues: dict[str, Cue] = field(default_factory=dict)
+    fit: Any = None
+    flags: list[str] = field(default_factory=list)
+    ephemeris: Any = None
+
+
+def align_scene(campaign: Path, manifest: Manifest, scene: Scene, settings: AlignSettings, store: Any = None,
+                log: Callable[[str], None] = lambda s: None) -> tuple[SceneAlignment, dict[str, Any]]:
+    """Align one scene (module doc). Returns the scene's alignment and per-capture working data
+    (``{"yaw_sigma": {probe: deg}}``) for the products and report."""
+    photo, scene_flags = _photo_info(campaign, manifest, scene)
+    caps = [_CapState(c) for c in captures_of(manifest, scene)]
+    cam_id = camera_probe_of(scene)
+    if cam_id is None:
+        scene_flags.append("no_camera_position: no capture is marked as taken at the photo camera's position")
+    photo_shot = photo_shot_of(manifest, scene)
+    photo_place = capture_place(photo_shot.metadata) if photo_shot is not None else None
+    photo_eph = ephemeris_for(photo_shot.metadata) if photo_shot is not None else None
+    heading_p = photo.heading_deg if photo is not None else None
+
+    # features
+    s = settings
+    for st in caps:
+        ref = st.cap.normal
+        if ref is not None:
+            st.pitch, st.roll, _ = levelling_of(ref)
+            st.heading = ref.metadata.get("heading_deg")
+            st.ephemeris = ephemeris_for(ref.metadata, photo_place)
+        else:
+            st.flags.append("no_normal_shot: no single exposure to make the LDR probe from")
+        pano, linear, src, inputs = _feature_panorama(campaign, manifest, st.cap)
+        if pano is None:
+            st.flags.append("no_panorama: neither an HDR product nor a normal shot")
+            continue
+        key = _cache_key("pano", inputs, src, s.feature_fov_deg, list(s.feature_pitches_deg), linear, 2)
+        st.features = _cached(campaign, key, lambda: panorama_features(
+            pano, fov_deg=s.feature_fov_deg, pitches_deg=s.feature_pitches_deg, linear=linear))
+        st.feature_src = src
+        st.normal_lin = pano if linear else srgb_decode(pano.astype(np.float32) / 255.0)
+        log(f"{scene.id}/{st.cap.id}: {len(st.features)} features")
+
+    by_id = {st.cap.id: st for st in caps}
+    cam = by_id.get(cam_id) if cam_id else None
+    photo_match: PhotoMatch | None = None
+    if cam is not None and cam.features is not None and photo is not None:
+        from solidkit.envmap.io import read_ldr
+
+        img = read_ldr(campaign / photo.path)
+        K = np.asarray(photo.K_full)
+        # SIFT at the panorama's angular resolution: photo pixels per radian -> panorama's (H / pi)
+        scale = s.photo_scale or min(1.0, (_pano_height(cam) / math.pi) / K[0, 0] * 1.1)
+        pf = _cached(campaign, _cache_key("photo", photo.sha256, photo.K_full, scale, 2),
+                     lambda: photo_features(img, K, scale=scale))
+        photo_match, detail = match_photo(pf, cam.features)
+        if photo_match is not None:
+            cam.cues["photo_features"] = Cue(yaw_deg=photo_match.yaw_deg, sigma_deg=photo_match.sigma_deg, ok=True,
+                                             detail=detail + f"; photo pitch {photo_match.pitch_deg:+.2f}, "
+                                                             f"roll {photo_match.roll_deg:+.2f} deg")
+            if photo.pitch_deg is None or photo.roll_deg is None:
+                photo.pitch_deg, photo.roll_deg = photo_match.pitch_deg, photo_match.roll_deg
+                photo.pitch_roll_source = "features"
+            else:
+                d = max(abs(photo.pitch_deg - photo_match.pitch_deg), abs(photo.roll_deg - photo_match.roll_deg))
+                if d > 1.0:
+                    scene_flags.append(f"photo_pose_disagrees: recorded pitch/roll {photo.pitch_deg:+.2f}/{photo.roll_deg:+.2f},"
+                                       f" features {photo_match.pitch_deg:+.2f}/{photo_match.roll_deg:+.2f} deg")
+        else:
+            cam.cues["photo_features"] = Cue(yaw_deg=None, ok=False, detail=detail)
+            scene_flags.append(f"photo_match_failed: {detail}")
+    if photo is not None and (photo.pitch_deg is None or photo.roll_deg is None):
+        photo.pitch_deg, photo.roll_deg, photo.pitch_roll_source = 0.0, 0.0, "assumed_zero"
+        scene_flags.append("photo_pose_unknown: pitch and roll assumed zero")
+
+    # compass cues
+    for st in caps:
+        if st.heading is not None and heading_p is not None:
+            st.cues["compass"] = Cue(yaw_deg=wrap_deg(float(st.heading) - float(heading_p)), sigma_deg=s.compass_sigma_deg,
+                                     ok=True, detail=f"Theta heading {float(st.heading):.1f} deg - photo heading "
+                                                     f"{float(heading_p):.1f} deg")
+        else:
+            st.cues["compass"] = Cue(yaw_deg=None, ok=False, detail="no compass heading")
+
+    # features vs the camera position
+    pre = fuse_cues({k: c.model_copy() for k, c in cam.cues.items()}) if cam is not None else None
+    yaw_cam = pre.yaw_deg if pre is not None else None
+    yaw_cam_sigma = pre.sigma_deg if pre is not None and pre.sigma_deg is not None else 0.0
+    for st in caps:
+        if st is cam or cam is None or cam.features is None:
+            continue
+        if st.features is None:
+            st.cues["features"] = Cue(yaw_deg=None, ok=False, detail="features failed: no panorama")
+            continue
+        cue, fit = feature_cue(cam.features, st.features, yaw_cam, yaw_cam_sigma, level_sigma_deg=s.level_sigma_deg)
+        st.cues["features"], st.fit = cue, fit
+
+    # the sun
+    pre_yaw = {}
+    for st in caps:
+        f = fuse_cues({k: c.model_copy() for k, c in st.cues.items()})
+        pre_yaw[st.cap.id] = (f.yaw_deg, f.sigma_deg)
+    inputs = []
+    for st in caps:
+        human = _human_sun(store, scene.id, st.cap.id)
+        if st.cap.sun_frame_path:
+            frame = read_sun_frame(campaign, st.cap.sun_frame_path)
+            st.blobs = find_candidates(frame, saturation=s.sun.saturation, max_candidates=s.sun.max_candidates)
+            if st.normal_lin is not None:
+                dirs = [b.direction for b in st.blobs]
+                st.blobs = [Blob(**{**b.__dict__, "sky_fraction": sky_fraction(
+                    st.normal_lin, b.direction, exclude=[d for d in dirs if d is not b.direction])}) for b in st.blobs]
+            note = ""
+        else:
+            note = "no sun frame (no low-exposure shot at this position)"
+        y, ys = pre_yaw[st.cap.id]
+        inputs.append(CaptureSunInput(st.cap.id, st.blobs, st.ephemeris, y, ys, st.heading, note, human))
+    sun = scene_sun(inputs, photo_ephemeris=photo_eph, photo_heading_deg=heading_p, settings=s.sun)
+    _sun_cues(caps, sun, photo_eph, s, heading_p)
+
+    # final yaws, probe pixels
+    probes: list[ProbeAlignment] = []
+    yaw_sigma: dict[str, float | None] = {}
+    for st in caps:
+        fused = fuse_cues(st.cues)
+        flags = list(st.flags) + fused.flags
+        yaw, source = fused.yaw_deg, "auto"
+        label = _human(store, "heading", f"{scene.id}/{st.cap.id}")
+        if label is not None:
+            lyaw = float(label.value["yaw_deg"])
+            st.cues["label"] = Cue(yaw_deg=lyaw, ok=True, weight=1.0, detail=f"{label.source} label by {label.annotator}",
+                                   residual_deg=None if yaw is None else wrap_deg(lyaw - yaw))
+            if yaw is not None and abs(wrap_deg(lyaw - yaw)) > 2.0:
+                flags.append(f"label_differs: the {label.source} heading is {wrap_deg(lyaw - yaw):+.1f} deg from the cues")
+            yaw, source = lyaw, label.source
+        if "features" in st.cues and not st.cues["features"].ok and st.cues["features"].yaw_deg is None and yaw is not None:
+            used = [k for k, c in st.cues.items() if c.ok and k != "features"]
+            flags.append(f"features_failed: yaw from {', '.join(used) or 'nothing'}")
+        yaw_sigma[st.cap.id] = fused.sigma_deg
+        role = "camera" if st.cap.id == cam_id else "probe"
+        pa = ProbeAlignment(
+            id=st.cap.id, role=role,
+            levelling=Levelling(pitch_deg=st.pitch, roll_deg=st.roll, source="metadata" if st.cap.normal else "none"),
+            rotation=body_to_pano(yaw if yaw is not None else 0.0, st.pitch, st.roll).tolist(),
+            yaw_deg=yaw, yaw_source=source, residual_deg=fused.residual_deg, cues=st.cues, flags=flags)
+        if role == "probe" and photo is not None:
+            _probe_pixel(pa, st, scene, store, photo, cam, yaw_cam if yaw_cam is not None else None, s)
+        probes.append(pa)
+    sa = SceneAlignment(id=scene.id, photo=photo, camera_probe=cam_id, sun=sun, probes=probes, flags=scene_flags)
+    return sa, {"yaw_sigma": yaw_sigma}
+
+
+def _pano_height(st: _CapState) -> int:
+    return int(st.normal_lin.shape[0]) if st.normal_lin is not None else 960
+
+
+def _sun_cues(caps: list[_CapState], sun: SceneSun, photo_eph: Any, s: AlignSettings, heading_p: float | None) -> None:
+    """The ``sun`` cue: the scene's sun seen by the other captures (leave-one-out), minus this capture's."""
+    from solidkit.align.sun import _sun_in_photo_time
+
+    pts = {}
+    for st, cs in zip(caps, sun.captures):
+        if not cs.found:
+            continue
+        fake = Blob(np.zeros(3), cs.azimuth_deg, cs.elevation_deg, 0.0, 0, 0.0)
+        inp = CaptureSunInput(st.cap.id, [], st.ephemeris)
+        az, el = _sun_in_photo_time(fake, inp, photo_eph, s.sun)
+        pts[st.cap.id] = (az, el, cs.uncertainty_deg or 0.1)
+    for st, cs in zip(caps, sun.captures):
+        if st.cap.id not in pts:
+            st.cues["sun"] = Cue(yaw_deg=None, ok=False, detail=f"no sun here: {cs.reason}")
+            continue
+        az_c, el_c, unc_c = pts[st.cap.id]
+        tilt = s.level_sigma_deg * math.tan(math.radians(min(abs(el_c), 80.0)))
+        own = math.hypot(unc_c / max(math.cos(math.radians(el_c)), 0.1), tilt)
+        others = []
+        for other in caps:
+            if other is st or other.cap.id not in pts:
+                continue
+            y_other = other.cues and fuse_cues({k: c.model_copy() for k, c in other.cues.items() if k != "sun"})
+            if y_other is None or y_other.yaw_deg is None:
+                continue
+            az_o, el_o, unc_o = pts[other.cap.id]
+            sig_o = math.hypot(y_other.sigma_deg or 0.0, unc_o / max(math.cos(math.radians(el_o)), 0.1),
+                               s.level_sigma_deg * math.tan(math.radians(min(abs(el_o), 80.0))))
+            others.append((wrap_deg(az_o + y_other.yaw_deg), sig_o, other.cap.id))
+        if others:
+            w = np.array([1.0 / max(o[1], 0.05) ** 2 for o in others])
+            ang = np.radians([o[0] for o in others])
+            az_p = math.degrees(math.atan2(float(np.sum(w * np.sin(ang))), float(np.sum(w * np.cos(ang)))))
+            sig = math.hypot(1.0 / math.sqrt(w.sum()), own)
+            st.cues["sun"] = Cue(yaw_deg=wrap_deg(az_p - az_c), sigma_deg=sig, ok=True,
+                                 detail=f"sun azimuth {az_c:.2f} deg here vs {az_p:.2f} deg in the photo frame "
+                                        f"(from {', '.join(o[2] for o in others)})")
+        elif photo_eph is not None and heading_p is not None:
+            az_p = wrap_deg(photo_eph.azimuth_deg - heading_p)
+            st.cues["sun"] = Cue(yaw_deg=wrap_deg(az_p - az_c), sigma_deg=math.hypot(s.photo_compass_sigma_deg, own), ok=True,
+                                 detail=f"sun azimuth {az_c:.2f} deg here vs the ephemeris {az_p:.2f} deg in the photo frame "
+                                        "(through the photo's compass heading)")
+        else:
+            st.cues["sun"] = Cue(yaw_deg=None, ok=False, detail="the sun is seen here only, and there is no ephemeris")
+
+
+def _human(store: Any, kind: str, key: str) -> Any:
+    if store is None:
+        return None
+    lab = store.get(kind, key)
+    return lab if lab is not None and lab.source in ("annotator", "reviewed") else None
+
+
+def _human_sun(store: Any, sid: str, pid: str) -> CaptureSun | None:
+    lab = _human(store, "sun", f"{sid}/{pid}")
+    if lab is None:
+        return None
+    v = lab.value
+    return CaptureSun(probe=pid, found=bool(v["found"]), azimuth_deg=v.get("azimuth_deg"), elevation_deg=v.get("elevation_deg"),
+                      uncertainty_deg=v.get("uncertainty_deg"), reason=f"{lab.source} label by {lab.annotator}",
+                      source=lab.source)
+
+
+def _probe_pixel(pa: ProbeAlignment, st: _CapState, scene: Scene, store: Any, photo: PhotoInfo, cam: _CapState | None,
+                 yaw_cam: float | None, s: AlignSettings) -> None:
+    """Pixel of the probe in the photo (field notes > human label > geometry) and its geometric check."""
+    from solidkit.envmap.coords import rotation_from_ypr
+
+    geom = None
+    if st.fit is not None and yaw_cam is not None and cam is not None:
+        d_lcam = st.fit.centre2_in_1
+        d_p = np.asarray(rotation_from_ypr(math.radians(yaw_cam), 0.0, 0.0)) @ d_lcam
+        R_cam = np.asarray(rotation_from_ypr(0.0, math.radians(photo.pitch_deg or 0.0), math.radians(photo.roll_deg or 0.0)))
+        c = R_cam.T @ d_p
+        if c[2] > 1e-6:
+            p = np.asarray(photo.K_full) @ (c / c[2])
+            geom = [float(p[0]), float(p[1])]
+    pa.pixel_geometry = geom
+    label = _human(store, "probe_pixel", f"{scene.id}/{pa.id}")
+    if st.cap.probe.photo_pixel is not None:
+        pa.pixel_full, pa.pixel_source = [float(v) for v in st.cap.probe.photo_pixel], "field_notes"
+        if label is not None:
+            pa.pixel_full, pa.pixel_source = [float(label.value["x"]), float(label.value["y"])], "label"
+    elif label is not None:
+        pa.pixel_full, pa.pixel_source = [float(label.value["x"]), float(label.value["y"])], "label"
+    elif geom is not None:
+        pa.pixel_full, pa.pixel_source = geom, "geometry"
+        pa.flags.append("pixel_from_geometry: no marked pixel; the relative pose's direction is used (review)")
+    else:
+        pa.flags.append("no_pixel: no marked pixel and no relative pose to the camera position")
+    w, h = photo.size
+    if geom is not None and pa.pixel_full is not None and pa.pixel_source != "geometry":
+        err = math.dist(geom, pa.pixel_full)
+        pa.pixel_error_px = err
+        if err > s.pixel_tolerance_frac * math.hypot(w, h):
+            pa.flags.append(f"pixel_disagrees: the marked pixel is {err:.0f} px from the geometry's ({geom[0]:.0f}, {geom[1]:.0f})")
+    if pa.pixel_full is not None and not (-0.5 <= pa.pixel_full[0] <= w - 0.5 and -0.5 <= pa.pixel_full[1] <= h - 0.5):
+        pa.flags.append("pixel_outside_photo")
+
+
+# --------------------------------------------------------------------------- the campaign
+def align_campaign(campaign_dir: str | os.PathLike, *, settings: AlignSettings | None = None, scenes: list[str] | None = None,
+                   labels: bool = True, report: bool = True, log: Callable[[str], None] = lambda s: None) -> CampaignAlignment:
+    """Align every scene of an ingested campaign (module doc); returns and writes ``align/alignment.json``."""
+    from solidkit import __version__
+
+    campaign = Path(campaign_dir)
+    if not (campaign / "manifest.json").is_file():
+        raise InputError(f"{campaign}: not an ingested campaign (no manifest.json)")
+    manifest = load_manifest(campaign)
+    if not manifest.scenes:
+        raise InputError(f"{campaign}: the manifest has no scenes")
+    wanted = set(scenes or [sc.id for sc in manifest.scenes])
+    unknown = wanted - {sc.id for sc in manifest.scenes}
+    if unknown:
+        raise InputError(f"unknown scene(s): {', '.join(sorted(unknown))}")
+    s = settings or AlignSettings()
+    store = None
+    if labels:
+        from solidkit.labeling.store import LabelStore
+
+        store = LabelStore(campaign)
+    previous = None
+    if (campaign / ALIGNMENT_FILE).is_file():
+        try:
+            previous = load_alignment(campaign)
+        except SolidkitError:
+            previous = None
+    out = CampaignAlignment(solidkit_version=__version__, manifest_sha256=sha256_file(campaign / "manifest.json"),
+                            settings=s.to_json())
+    extras = {}
+    for sc in manifest.scenes:
+        if sc.id not in wanted:
+            if previous is not None:
+                try:
+                    out.scenes.append(previous.scene(sc.id))
+                except KeyError:
+                    pass
+            continue
+        log(f"{sc.id}: aligning")
+        sa, extra = align_scene(campaign, manifest, sc, s, store, log)
+        if s.products:
+            from solidkit.align.products import write_products
+
+            write_products(campaign, manifest, sc, sa, s, previous, log)
+        out.scenes.append(sa)
+        extras[sc.id] = extra
+        if store is not None:
+            _write_labels(store, sa)
+    save_alignment(out, campaign)
+    if report:
+        from solidkit.align.report import write_report
+
+        write_report(campaign, manifest, out)
+    return out
+
+
+def _write_labels(store: Any, sa: SceneAlignment) -> None:
+    """Auto labels (C2): sun per capture, sun_scene, heading per capture, probe_pixel from geometry."""
+    for cs in sa.sun.captures:
+        if cs.source != "auto":
+            continue
+        value: dict[str, Any] = {"found": cs.found, "azimuth_deg": cs.azimuth_deg, "elevation_deg": cs.elevation_deg,
+                                 "uncertainty_deg": cs.uncertainty_deg,
+                                 "candidates": [c.model_dump(include={"azimuth_deg", "elevation_deg", "size_deg", "chosen", "reasons"})
+                                                for c in cs.candidates]}
+        store.put("sun", f"{sa.id}/{cs.probe}", value, source="auto", annotator=ANNOTATOR, flags=_flag_names(cs.flags))
+    sun = sa.sun
+    store.put("sun_scene", sa.id, {"found": sun.found and sun.azimuth_deg is not None,
+                                   "azimuth_deg": sun.azimuth_deg if sun.found else None,
+                                   "elevation_deg": sun.elevation_deg if sun.found and sun.azimuth_deg is not None else None,
+                                   "uncertainty_deg": sun.uncertainty_deg},
+              source="auto", annotator=ANNOTATOR, flags=_flag_names(sun.flags))
+    for pa in sa.probes:
+        if pa.yaw_deg is not None and pa.yaw_source == "auto":
+            store.put("heading", f"{sa.id}/{pa.id}", {"yaw_deg": pa.yaw_deg, "residual_deg": pa.residual_deg},
+                      source="auto", annotator=ANNOTATOR, flags=_flag_names(pa.flags))
+        if pa.pixel_source == "geometry" and pa.pixel_full is not None:
+            store.put("probe_pixel", f"{sa.id}/{pa.id}", {"x": max(pa.pixel_full[0], -0.5), "y": max(pa.pixel_full[1], -0.5)},
+                      source="auto", annotator=ANNOTATOR, flags=_flag_names(pa.flags))
+
+
+def _flag_names(flags: list[str]) -> list[str]:
+    """Store flags are names: the part before the colon of each message."""
+    import re
+
+    names = []
+    for f in flags:
+        n = re.sub(r"[^A-Za-z0-9_.-]", "_", f.split(":", 1)[0].strip())[:64]
+        if n and n not in names:
+            names.append(n)
+    return names

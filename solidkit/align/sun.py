@@ -1,0 +1,406 @@
+"""Sun labels that reject glints: every saturated blob is a candidate, physics chooses.
+
+Per capture (:func:`find_candidates`): the low-exposure sun frame (LDR, that capture's level
+frame) is thresholded at ``saturation`` on its smallest channel; blobs closer than a couple of
+pixels are one candidate (JPEG noise splits a saturated disk); each candidate's direction is the
+spherical centroid (:func:`solidkit.envmap.sun.spherical_centroid`) of its saturated core and
+its partially covered rim, weighted by how far each pixel rises above the rim level.
+
+Per scene (:func:`scene_sun`), the tests a glint fails (a mirror image of the sun in glass is
+as bright and as small as the sun, so brightness and confidence cannot tell them apart):
+
+1. **Size**: the sun's disk is 0.53° wide; a saturated core wider than ``max_size_deg`` is a
+   bright surface or cloud.
+2. **Sky, not facade**: in the capture's normal exposure (HDR or LDR panorama) the ring 1.5-6°
+   around the candidate must be mostly sky-bright (a glint sits on a dark facade).
+3. **Same world direction everywhere**: the sun is at infinity, so once each capture is turned
+   into the photo's panorama frame by its yaw (features, compass), all positions see it in one
+   direction (after the ephemeris drift between their times, when the sun moves); a glint
+   moves with the viewpoint and is seen from few positions. Elevations agree without any yaw.
+4. **Ephemeris**: pvlib's apparent elevation at each capture's own time and GPS must match the
+   candidate's elevation (exactly, up to levelling); its azimuth minus the compass heading
+   must match within the compass's error.
+
+Hypotheses are the candidates' directions in the photo's panorama frame; each is scored by the
+captures that have a candidate agreeing with it and by the ephemeris; the best wins, and every
+other candidate is rejected with the reasons it failed. A scene whose images agree with each
+other but not with the ephemeris is flagged (clock or GPS wrong), never averaged with it.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import cv2
+import numpy as np
+
+from solidkit.align.schema import CaptureSun, Ephemeris, SceneSun, SunCandidate, wrap_deg
+from solidkit.envmap.coords import angles_from_direction, direction_from_angles, direction_grid, solid_angle
+from solidkit.envmap.sun import SUN_ANGULAR_DIAMETER, label_spherical, luminance, spherical_centroid
+
+__all__ = ["Blob", "SunSettings", "CaptureSunInput", "find_candidates", "sky_fraction", "scene_sun"]
+
+
+@dataclass(frozen=True)
+class Blob:
+    """A saturated blob of a sun frame; angles in degrees in the capture's level frame."""
+
+    direction: np.ndarray
+    azimuth_deg: float
+    elevation_deg: float
+    size_deg: float
+    n_pixels: int
+    contrast: float
+    sky_fraction: float | None = None
+
+
+@dataclass(frozen=True)
+class SunSettings:
+    """Tolerances of the sun choice (degrees unless named otherwise)."""
+
+    saturation: float = 0.9
+    max_size_deg: float = 3.0
+    min_sky_fraction: float = 0.35
+    level_sigma_deg: float = 0.4
+    centroid_sigma_deg: float = 0.1
+    compass_sigma_deg: float = 8.0
+    sun_moves: bool = True
+    ephemeris_tolerance_deg: float = 1.5
+    max_candidates: int = 12
+
+
+@dataclass
+class CaptureSunInput:
+    """What the scene-level choice knows about one capture."""
+
+    probe: str
+    blobs: list[Blob]
+    ephemeris: Ephemeris | None = None
+    yaw_deg: float | None = None
+    yaw_sigma_deg: float | None = None
+    heading_deg: float | None = None
+    note: str = ""
+    human: CaptureSun | None = None
+    extra_flags: list[str] = field(default_factory=list)
+
+
+# --------------------------------------------------------------------------- per capture
+def find_candidates(sun_frame: np.ndarray, *, saturation: float = 0.9, merge_px: int = 2,
+                    max_candidates: int = 12) -> list[Blob]:
+    """Saturated blobs of an LDR sun frame ``(H, 2H, 3)`` (encoded values in ``[0, 1]``), largest first.
+
+    The rim level is ``saturation - 0.4``: rim pixels between it and ``saturation`` weigh
+    linearly less. ``contrast`` is the core level over the median of the ring 2-6° around it.
+    """
+    img = np.asarray(sun_frame, np.float32)
+    if img.dtype == np.uint8:
+        img = img / 255.0
+    lo = img[..., :3].min(axis=2) if img.ndim == 3 else img
+    h = lo.shape[0]
+    sat = lo >= saturation
+    if not sat.any():
+        return []
+    kernel = np.ones((2 * merge_px + 1, 2 * merge_px + 1), np.uint8)
+    grown = cv2.dilate(sat.astype(np.uint8), kernel) > 0
+    labels, n = label_spherical(grown)
+    rim_level = saturation - 0.4
+    weights = np.clip((lo - rim_level) / (saturation - rim_level), 0.0, 1.0)
+    omega = solid_angle(h)
+    areas = np.bincount(labels[sat], weights=omega[sat], minlength=n + 1)
+    order = np.argsort(-areas[1:])[:max_candidates] + 1
+    blobs = []
+    px = math.degrees(math.pi / h)
+    for k in order:
+        comp = labels == k
+        core = comp & sat
+        if not core.any():
+            continue
+        d = spherical_centroid(weights, comp & (lo > rim_level))
+        if d is None:
+            continue
+        az, el = (math.degrees(float(v)) for v in angles_from_direction(d))
+        size = math.degrees(2.0 * math.sqrt(float(areas[k]) / math.pi))
+        ring = _ring(h, d, max(2.0, 3 * px), 6.0)
+        bg = float(np.median(lo[ring])) if ring.any() else 0.0
+        blobs.append(Blob(d, wrap_deg(az), el, size, int(core.sum()), float(saturation / max(bg, 1e-3))))
+    return blobs
+
+
+def _ring(h: int, d: np.ndarray, inner_deg: float, outer_deg: float) -> np.ndarray:
+    """Pixels whose direction is ``inner..outer`` degrees from ``d`` (``(H, 2H)`` bool), computed in a window."""
+    from solidkit.envmap.coords import coords_from_direction
+
+    x, y = (float(v) for v in coords_from_direction(d, h))
+    r_px = outer_deg / (180.0 / h) + 2
+    el = math.asin(max(-1.0, min(1.0, -float(d[1]))))
+    span_x = r_px / max(math.cos(el), 0.05)
+    y0, y1 = max(0, int(y - r_px)), min(h, int(y + r_px) + 1)
+    mask = np.zeros((h, 2 * h), bool)
+    grid = direction_grid(h)
+    if span_x >= h:
+        cols = np.arange(2 * h)
+    else:
+        cols = np.arange(int(x - span_x), int(x + span_x) + 1) % (2 * h)
+    sub = grid[y0:y1][:, cols] @ d
+    sel = (sub <= math.cos(math.radians(inner_deg))) & (sub >= math.cos(math.radians(outer_deg)))
+    block = np.zeros((y1 - y0, len(cols)), bool) | sel
+    mask[y0:y1, cols] = block
+    return mask
+
+
+def sky_fraction(normal_pano: np.ndarray, direction: np.ndarray, *, inner_deg: float = 1.5, outer_deg: float = 6.0,
+                 exclude: list[np.ndarray] | None = None) -> float:
+    """Fraction of the ring around ``direction`` that is sky-bright in a normal-exposure panorama.
+
+    ``normal_pano``: linear ``(H, 2H, 3)`` (HDR or decoded LDR), same level frame as the sun
+    frame. The sky level is the 90th percentile (solid-angle weighted) of the luminance above
+    10° elevation outside 8° caps about ``direction`` and ``exclude``; a ring pixel is sky-bright
+    at half that level or above.
+    """
+    lum = luminance(np.asarray(normal_pano, np.float32))
+    h = lum.shape[0]
+    if h > 512:  # a smooth statistic: area-averaged copy
+        lum = cv2.resize(lum, (1024, 512), interpolation=cv2.INTER_AREA)
+        h = 512
+    grid = direction_grid(h)
+    upper = -grid[..., 1] >= math.sin(math.radians(10.0))
+    for e in [direction, *(exclude or [])]:
+        upper &= grid @ e < math.cos(math.radians(8.0))
+    if not upper.any():
+        return 0.0
+    w = np.broadcast_to(solid_angle(h), lum.shape)[upper]
+    vals = lum[upper]
+    order = np.argsort(vals)
+    cdf = np.cumsum(w[order]) / w.sum()
+    sky = float(vals[order][min(np.searchsorted(cdf, 0.9), len(vals) - 1)])
+    ring = _ring(h, direction, inner_deg, outer_deg)
+    if not ring.any() or sky <= 0:
+        return 0.0
+    return float(np.mean(lum[ring] >= 0.5 * sky))
+
+
+# --------------------------------------------------------------------------- per scene
+def _sun_in_photo_time(blob: Blob, cap: CaptureSunInput, photo_eph: Ephemeris | None, s: SunSettings) -> tuple[float, float]:
+    """(azimuth, elevation) of a blob in the capture's level frame, moved to the photo's time by the
+    ephemeris when the sun moves (the drift between the two times)."""
+    az, el = blob.azimuth_deg, blob.elevation_deg
+    if s.sun_moves and photo_eph is not None and cap.ephemeris is not None:
+        az += wrap_deg(photo_eph.azimuth_deg - cap.ephemeris.azimuth_deg)
+        el += photo_eph.elevation_deg - cap.ephemeris.elevation_deg
+    return az, el
+
+
+def _angle_deg(az1: float, el1: float, az2: float, el2: float) -> float:
+    a = direction_from_angles(np.radians(az1), np.radians(el1))
+    b = direction_from_angles(np.radians(az2), np.radians(el2))
+    return math.degrees(math.acos(max(-1.0, min(1.0, float(np.dot(a, b))))))
+
+
+def scene_sun(captures: list[CaptureSunInput], *, photo_ephemeris: Ephemeris | None, photo_heading_deg: float | None,
+              settings: SunSettings | None = None) -> SceneSun:
+    """Choose the sun in every capture of a scene and form the scene's consensus (module doc).
+
+    ``captures[i].yaw_deg``/``yaw_sigma_deg``: that capture's yaw (level -> photo panorama frame)
+    from cues other than the sun (features, compass), or ``None``. Returns the :class:`SceneSun`
+    with one :class:`CaptureSun` per capture (chosen and rejected candidates with reasons).
+    """
+    s = settings or SunSettings()
+    el_tol = 3.0 * math.hypot(s.level_sigma_deg, s.centroid_sigma_deg) + 0.1
+    scene_flags: list[str] = []
+
+    # 1. hard tests on each blob
+    hard: dict[tuple[int, int], list[str]] = {}
+    for ci, cap in enumerate(captures):
+        for bi, b in enumerate(cap.blobs):
+            r = []
+            if b.size_deg > s.max_size_deg:
+                r.append(f"too large for the sun: {b.size_deg:.2f} deg > {s.max_size_deg:g} deg (a bright surface or cloud)")
+            if b.sky_fraction is not None and b.sky_fraction < s.min_sky_fraction:
+                r.append(f"not in the sky: only {100 * b.sky_fraction:.0f}% of the ring around it is sky-bright "
+                         "(a glint on a facade?)")
+            if b.elevation_deg < -2.0:
+                r.append(f"below the horizon ({b.elevation_deg:.1f} deg)")
+            hard[ci, bi] = r
+
+    # 2. hypotheses: every surviving blob, in the photo's panorama frame at the photo's time
+    def p_frame(ci: int, bi: int) -> tuple[float | None, float]:
+        cap = captures[ci]
+        az, el = _sun_in_photo_time(cap.blobs[bi], cap, photo_ephemeris, s)
+        return (None if cap.yaw_deg is None else wrap_deg(az + cap.yaw_deg)), el
+
+    eph_p = None
+    if photo_ephemeris is not None:
+        eph_p = (None if photo_heading_deg is None else wrap_deg(photo_ephemeris.azimuth_deg - photo_heading_deg),
+                 photo_ephemeris.elevation_deg)
+
+    def agrees(h_az: float | None, h_el: float, h_sig: float, ci: int, bi: int) -> tuple[bool, str]:
+        cap = captures[ci]
+        az, el = p_frame(ci, bi)
+        if abs(el - h_el) > el_tol:
+            return False, f"elevation {el:.2f} deg vs {h_el:.2f} deg"
+        if h_az is None or az is None:
+            return True, "elevation only (yaw unknown)"
+        tol = 3.0 * math.hypot(h_sig, cap.yaw_sigma_deg or 0.0) + el_tol / max(math.cos(math.radians(h_el)), 0.2)
+        d = abs(wrap_deg(az - h_az))
+        return d <= tol, f"azimuth {az:.2f} deg vs {h_az:.2f} deg (tolerance {tol:.1f})"
+
+    best = None
+    for ci, cap in enumerate(captures):
+        for bi, _ in enumerate(cap.blobs):
+            if hard[ci, bi]:
+                continue
+            h_az, h_el = p_frame(ci, bi)
+            h_sig = cap.yaw_sigma_deg or 0.0
+            support, members = 1.0, {ci: bi}
+            for cj, other in enumerate(captures):
+                if cj == ci:
+                    continue
+                fits = [(bj, agrees(h_az, h_el, h_sig, cj, bj)) for bj in range(len(other.blobs)) if not hard[cj, bj]]
+                fits = [(bj, why) for bj, (ok, why) in fits if ok]
+                if fits:
+                    full = any("only" not in why for _, why in fits)
+                    support += 1.0 if full else 0.5
+                    members[cj] = fits[0][0]
+            eph_el_ok = eph_p is not None and abs(h_el - eph_p[1]) <= s.ephemeris_tolerance_deg
+            eph_az_ok = (eph_p is not None and eph_p[0] is not None and h_az is not None
+                         and abs(wrap_deg(h_az - eph_p[0])) <= 3.0 * s.compass_sigma_deg)
+            score = support + 1.5 * eph_el_ok + 0.5 * eph_az_ok + 0.01 * min(cap.blobs[bi].contrast, 50) / 50
+            if best is None or score > best[0]:
+                best = (score, ci, bi, h_az, h_el, members, eph_el_ok, eph_az_ok)
+
+    # 3. per capture: chosen candidate, rejected ones with reasons
+    results: list[CaptureSun] = []
+    chosen: dict[int, int] = {}
+    if best is not None:
+        _, ci0, bi0, h_az, h_el, members, eph_el_ok, eph_az_ok = best
+        h_sig = captures[ci0].yaw_sigma_deg or 0.0
+        for ci, cap in enumerate(captures):
+            pick = None
+            cands = sorted((bi for bi in range(len(cap.blobs)) if not hard[ci, bi]),
+                           key=lambda bi: abs(p_frame(ci, bi)[1] - h_el))
+            for bi in cands:
+                ok, _ = agrees(h_az, h_el, h_sig, ci, bi)
+                if ok:
+                    pick = bi
+                    break
+            if pick is not None:
+                chosen[ci] = pick
+    for ci, cap in enumerate(captures):
+        cands = []
+        for bi, b in enumerate(cap.blobs):
+            reasons = list(hard[ci, bi])
+            scores: dict[str, float] = {}
+            if cap.ephemeris is not None:
+                scores["ephemeris_elevation_deg"] = cap.ephemeris.elevation_deg
+                scores["elevation_error_deg"] = b.elevation_deg - cap.ephemeris.elevation_deg
+            if b.sky_fraction is not None:
+                scores["sky_fraction"] = b.sky_fraction
+            if not reasons and chosen.get(ci) != bi:
+                if best is None:
+                    reasons.append("no consistent sun in the scene")
+                else:
+                    ok, why = agrees(best[3], best[4], captures[best[1]].yaw_sigma_deg or 0.0, ci, bi)
+                    reasons.append(f"disagrees with the scene's sun: {why}" if not ok else "another candidate fits better")
+            cands.append(SunCandidate(azimuth_deg=b.azimuth_deg, elevation_deg=b.elevation_deg, size_deg=b.size_deg,
+                                      n_pixels=b.n_pixels, contrast=b.contrast, chosen=chosen.get(ci) == bi,
+                                      reasons=reasons, scores=scores))
+        flags = list(cap.extra_flags)
+        if ci in chosen:
+            b = cap.blobs[chosen[ci]]
+            unc = math.hypot(s.centroid_sigma_deg, 0.15 * b.size_deg)
+            reason = f"sun: {b.n_pixels} saturated px, {b.size_deg:.2f} deg wide"
+            if cap.ephemeris is not None:
+                reason += f"; elevation {b.elevation_deg - cap.ephemeris.elevation_deg:+.2f} deg from the ephemeris"
+            results.append(CaptureSun(probe=cap.probe, found=True, azimuth_deg=b.azimuth_deg, elevation_deg=b.elevation_deg,
+                                      uncertainty_deg=unc, reason=reason, candidates=cands, ephemeris=cap.ephemeris,
+                                      flags=flags))
+        else:
+            if not cap.blobs:
+                reason = cap.note or "no saturated pixel: sun occluded or overcast"
+            elif best is None:
+                reason = "no candidate passes the size and sky tests"
+            else:
+                reason = "no candidate agrees with the scene's sun: occluded here (the others are glints or surfaces)"
+            if cap.blobs and best is not None:
+                flags.append("sun_candidates_rejected")
+            results.append(CaptureSun(probe=cap.probe, found=False, reason=reason, candidates=cands,
+                                      ephemeris=cap.ephemeris, flags=flags))
+
+    # 4. human sun labels replace the automatic choice of their capture
+    for ci, cap in enumerate(captures):
+        if cap.human is not None:
+            auto = results[ci]
+            human = cap.human.model_copy(update={"candidates": auto.candidates, "ephemeris": cap.ephemeris})
+            if auto.found and human.found:
+                d = _angle_deg(auto.azimuth_deg, auto.elevation_deg, human.azimuth_deg, human.elevation_deg)
+                if d > 1.0:
+                    human.flags = [*human.flags, f"auto_differs: {d:.2f} deg from the automatic choice"]
+            results[ci] = human
+
+    # 5. consensus in the photo's panorama frame at the photo's time (yaws from non-sun cues)
+    pts = []
+    for ci, (cap, res) in enumerate(zip(captures, results)):
+        if not res.found:
+            continue
+        b_az, b_el = res.azimuth_deg, res.elevation_deg
+        fake = Blob(np.zeros(3), b_az, b_el, 0.0, 0, 0.0)
+        az, el = _sun_in_photo_time(fake, cap, photo_ephemeris, s)
+        sig_dir = math.hypot(res.uncertainty_deg or s.centroid_sigma_deg, s.level_sigma_deg)
+        pts.append((ci, None if cap.yaw_deg is None else wrap_deg(az + cap.yaw_deg), el,
+                    cap.yaw_sigma_deg, sig_dir))
+    sun = SceneSun(found=False, captures=results, ephemeris=photo_ephemeris)
+    if not pts:
+        sun.flags = scene_flags + (["no_sun_found"] if any(c.blobs for c in captures) else [])
+        _ephemeris_only(sun, eph_p, photo_heading_deg)
+        return sun
+    w_el = np.array([1.0 / p[4] ** 2 for p in pts])
+    el = float(np.sum(w_el * np.array([p[2] for p in pts])) / w_el.sum())
+    with_az = [p for p in pts if p[1] is not None]
+    az = None
+    az_sig = None
+    if with_az:
+        ww = np.array([1.0 / (p[3] ** 2 + (p[4] / max(math.cos(math.radians(el)), 0.2)) ** 2) for p in with_az])
+        ang = np.radians([p[1] for p in with_az])
+        az = math.degrees(math.atan2(float(np.sum(ww * np.sin(ang))), float(np.sum(ww * np.cos(ang)))))
+        az_sig = 1.0 / math.sqrt(ww.sum())
+    unc = math.hypot(1.0 / math.sqrt(w_el.sum()), 0.0 if az_sig is None else az_sig * math.cos(math.radians(el)))
+    for ci, p_az, p_el, _, _ in pts:
+        r = results[ci]
+        dev_el = p_el - el
+        dev_az = None if (p_az is None or az is None) else wrap_deg(p_az - az)
+        if abs(dev_el) > el_tol or (dev_az is not None and abs(dev_az) * math.cos(math.radians(el)) > 3.0 * max(unc, 0.5)):
+            r.flags = [*r.flags, f"disagrees_with_scene: d_el {dev_el:+.2f} deg" + ("" if dev_az is None else f", d_az {dev_az:+.2f} deg")]
+            scene_flags.append(f"position_disagrees: {r.probe}")
+    sun.found, sun.azimuth_deg, sun.elevation_deg, sun.uncertainty_deg = True, az, el, unc
+    sun.n_captures = len(pts)
+    if az is not None and photo_heading_deg is not None:
+        sun.world_azimuth_deg = (az + photo_heading_deg) % 360.0
+        sun.world_elevation_deg = el
+        for ci, p_az, *_ in pts:
+            if p_az is not None:
+                results[ci].world_azimuth_deg = (p_az + photo_heading_deg) % 360.0
+    if photo_ephemeris is not None:
+        d_el = el - photo_ephemeris.elevation_deg
+        if abs(d_el) > s.ephemeris_tolerance_deg:
+            scene_flags.append(f"ephemeris_disagrees: image elevation {el:.2f} deg, ephemeris {photo_ephemeris.elevation_deg:.2f} deg "
+                               "(camera clock, UTC offset or GPS wrong?)")
+        if eph_p is not None and eph_p[0] is not None and az is not None:
+            d_az = wrap_deg(az - eph_p[0])
+            if abs(d_az) > 3.0 * s.compass_sigma_deg:
+                scene_flags.append(f"ephemeris_azimuth_disagrees: {d_az:+.1f} deg (clock, GPS or the photo's compass heading)")
+    else:
+        scene_flags.append("no_ephemeris: the photo has no time with UTC offset or no GPS")
+    if sun.n_captures == 1 and len(captures) > 1:
+        scene_flags.append("single_position: the sun was confirmed at one position only")
+    sun.flags = scene_flags
+    return sun
+
+
+def _ephemeris_only(sun: SceneSun, eph_p: tuple[float | None, float] | None, photo_heading_deg: float | None) -> None:
+    """A scene whose images show no sun keeps the ephemeris direction as information (found stays False)."""
+    if eph_p is None:
+        return
+    sun.world_elevation_deg = eph_p[1]
+    if sun.ephemeris is not None:
+        sun.world_azimuth_deg = sun.ephemeris.azimuth_deg
