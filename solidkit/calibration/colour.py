@@ -28,6 +28,7 @@ from pydantic import Field
 from scipy.optimize import least_squares
 
 from solidkit.calibration.profile import Profile, make_provenance
+from solidkit.envmap.sun import REC709_LUMINANCE
 from solidkit.errors import InputError, SolidkitError
 
 __all__ = [
@@ -157,7 +158,7 @@ def detect_chart(image_bgr8: np.ndarray) -> np.ndarray | None:
 
 def _orient(H: np.ndarray, samples: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Flip the chart by 180° when the neutral row runs black->white (white must be patch 19)."""
-    y = samples @ np.array([0.2126, 0.7152, 0.0722])
+    y = samples @ np.asarray(REC709_LUMINANCE)
     if y[18] >= y[23]:
         return H, samples
     R = np.array([[-1, 0, COLS - 1], [0, -1, ROWS - 1], [0, 0, 1]], dtype=np.float64)
@@ -362,7 +363,8 @@ def calibrate_colour(
         M_i = fit_ccm(cam_wb[rest], ref[rest], white_preserving=white_preserving, white_index=int(np.nonzero(rest == 18)[0][0]))
         loo.append(float(delta_e2000(M_i @ cam_wb[i], ref[i])))
     grey = cam_wb[18]
-    gain = float((ccm @ grey) @ np.array([0.2126, 0.7152, 0.0722]) / (grey @ np.array([0.2126, 0.7152, 0.0722])))
+    y = np.asarray(REC709_LUMINANCE)
+    gain = float((ccm @ grey) @ y / (grey @ y))
     residuals = {
         "ciede2000_mean": {k: float(v[use].mean()) for k, v in de.items()},
         "ciede2000_max": {k: float(v[use].max()) for k, v in de.items()},

@@ -35,6 +35,7 @@ from scipy.optimize import least_squares
 
 from solidkit.calibration.boards import BoardView
 from solidkit.calibration.profile import Profile, make_provenance
+from solidkit.envmap.coords import rotation_from_rotvec
 from solidkit.errors import SolidkitError
 
 __all__ = [
@@ -368,7 +369,7 @@ def _observed_max_angle(fit: FisheyeFit, views: Sequence[BoardView], pattern, sq
     """Largest incidence angle (deg) of any board corner under the fitted poses."""
     best = 0.0
     for v, rv, tv in zip(fit.used, fit.rvecs, fit.tvecs):
-        R, _ = cv2.Rodrigues(np.asarray(rv, np.float64).reshape(3, 1))
+        R = rotation_from_rotvec(np.asarray(rv, np.float64).ravel())
         X = v.points(pattern, square) @ R.T + np.ravel(tv)
         th = np.degrees(np.arccos(np.clip(X[:, 2] / np.linalg.norm(X, axis=1), -1, 1)))
         best = max(best, float(th.max()))

@@ -39,6 +39,7 @@ import solidkit
 from solidkit.camera.dualfisheye import get_maps, match_gains, read_linear, seam_disagreement, warp_lens
 from solidkit.camera.lens import LensProfile, load_profile, project, rotation_to_ypr_deg
 from solidkit.envmap.coords import rotation_from_rotvec
+from solidkit.envmap.sun import luminance
 from solidkit.errors import InputError
 from solidkit.fsutil import sha256_file
 
@@ -146,10 +147,8 @@ class RefineResult:
 
 
 def _luminance(img: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    if img.ndim == 2:
-        img = img[..., None]
-    lum = (img[..., :3] @ np.array([0.2126, 0.7152, 0.0722], np.float32)) if img.shape[-1] >= 3 else img[..., 0]
-    return lum.astype(np.float32), np.zeros(lum.shape, bool)
+    lum = luminance(img)
+    return lum, np.zeros(lum.shape, bool)
 
 
 def refine_overlap(

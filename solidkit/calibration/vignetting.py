@@ -30,6 +30,8 @@ from pydantic import BaseModel, Field
 from scipy.optimize import least_squares
 
 from solidkit.calibration.profile import Profile, make_provenance
+from solidkit.envmap.perspective import scale_pixel_coordinates
+from solidkit.envmap.sun import luminance
 from solidkit.errors import InputError, SolidkitError
 
 __all__ = [
@@ -75,7 +77,7 @@ class VignettingProfile(Profile):
         if abs(height - H * s) > 1.0:
             raise VignettingError(f"vignetting profile is for {W}x{H} images; got {width}x{height}")
         return [
-            l.model_copy(update={"center": ((l.center[0] + 0.5) * s - 0.5, (l.center[1] + 0.5) * s - 0.5), "r_norm_px": l.r_norm_px * s})
+            l.model_copy(update={"center": tuple(scale_pixel_coordinates(c, s) for c in l.center), "r_norm_px": l.r_norm_px * s})
             for l in self.lenses
         ]
 
@@ -124,13 +126,6 @@ def correct_vignetting(image: np.ndarray, profile: VignettingProfile) -> np.ndar
     return img / (V[..., None] if img.ndim == 3 else V)
 
 
-def _luminance(img: np.ndarray) -> np.ndarray:
-    img = np.asarray(img, dtype=np.float64)
-    if img.ndim == 3 and img.shape[2] >= 3:
-        return img[..., :3] @ np.array([0.2126, 0.7152, 0.0722])
-    return img.reshape(img.shape[0], img.shape[1])
-
-
 def fit_flat_field(
     image: np.ndarray, lenses: Sequence[LensVignetting], degree: int = 3, bins: int = 64,
     saturation: float = 0.98, rho_max: float = 0.98,
@@ -143,7 +138,7 @@ def fit_flat_field(
     the fit, per lens).
     """
     _check_size(np.asarray(image))
-    lum = _luminance(image)
+    lum = luminance(image, np.float64)
     size = (lum.shape[1], lum.shape[0])
     idx, rho = _lens_rho(lenses, size)
     out, res = [], {}
@@ -230,7 +225,7 @@ def fit_overlap(
     Ia, Ib = _sample(img, xa, ya), _sample(img, xb, yb)
     ok = np.all((Ia > floor) & (Ia < saturation) & (Ib > floor) & (Ib < saturation), axis=1)
     # reject edges: log-gradient at each sample
-    logimg = np.log(np.maximum(_luminance(img), floor)).astype(np.float32)
+    logimg = np.log(np.maximum(luminance(img, np.float64), floor)).astype(np.float32)
     gx = cv2.Sobel(logimg, cv2.CV_32F, 1, 0, ksize=3) / 8
     gy = cv2.Sobel(logimg, cv2.CV_32F, 0, 1, ksize=3) / 8
     grad = np.hypot(gx, gy)[..., None]

@@ -59,6 +59,7 @@ import numpy as np
 from pydantic import BaseModel, Field, ValidationError, field_validator, model_validator
 
 from solidkit.envmap.coords import rotation_from_ypr, ypr_from_rotation
+from solidkit.envmap.perspective import scale_pixel_coordinates
 from solidkit.errors import InputError, validation_message
 from solidkit.fsutil import atomic_write_text
 
@@ -238,7 +239,7 @@ class LensProfile(BaseModel):
             if lens.table is not None:
                 table = LensTable(theta_deg=lens.table.theta_deg, r_px=[r * s for r in lens.table.r_px])
             lenses.append(lens.model_copy(update={
-                "center": ((cx + 0.5) * s - 0.5, (cy + 0.5) * s - 0.5), "poly": [k * s for k in lens.poly], "table": table,
+                "center": (scale_pixel_coordinates(cx, s), scale_pixel_coordinates(cy, s)), "poly": [k * s for k in lens.poly], "table": table,
             }))
         return self.model_copy(update={"reference_size": (width, height), "lenses": lenses})
 

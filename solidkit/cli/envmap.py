@@ -13,6 +13,7 @@ from rich.table import Table
 
 from solidkit.envmap.coords import solid_angle
 from solidkit.envmap.io import read_image, validate_panorama
+from solidkit.envmap.sun import luminance
 
 app = typer.Typer(no_args_is_help=True)
 console = Console()
@@ -29,7 +30,7 @@ def info(pano: Path = typer.Argument(..., help="Equirectangular panorama (EXR or
     """Size, dynamic range and radiometric summary of a panorama."""
     img, meta = load_panorama(pano)
     h, w = img.shape[:2]
-    lum = img @ np.array([0.2126, 0.7152, 0.0722], dtype=np.float32)
+    lum = luminance(img)
     omega = solid_angle(h)
     positive = lum[lum > 0]
     table = Table(title=str(pano), show_header=False)

@@ -37,6 +37,7 @@ __all__ = [
     "ideal_intrinsics",
     "intrinsics_from_fov",
     "scale_intrinsics",
+    "scale_pixel_coordinates",
     "pixel_rays",
     "project_to_pixels",
     "perspective_crop",
@@ -79,11 +80,25 @@ def intrinsics_from_fov(fov: float, width: int, height: int) -> np.ndarray:
     return ideal_intrinsics(width, height, (width / 2.0) / math.tan(float(fov) / 2.0))
 
 
+def scale_pixel_coordinates(x: Any, s: float) -> Any:
+    """A pixel coordinate (centres at integers, conventions §1) after resizing the image by ``s``: ``(x + 0.5) s - 0.5``.
+
+    The image edge at ``-0.5`` stays at ``-0.5``; works on scalars and arrays alike.
+
+    Examples
+    --------
+    >>> scale_pixel_coordinates(319.5, 0.5)  # the centre of a 640-px row -> the centre of a 320-px row
+    159.5
+    """
+    return (x + 0.5) * s - 0.5
+
+
 def scale_intrinsics(K: Any, sx: float, sy: float | None = None) -> np.ndarray:
     """``K`` after resizing the image by ``(sx, sy)`` (``sy = sx`` by default).
 
     With pixel centres at integers the image edge is at ``-0.5``: ``f' = f s``, ``s' = s_skew sx``,
-    ``c' = (c + 0.5) s - 0.5``, so that the same physical ray hits the same relative image position.
+    ``c' = (c + 0.5) s - 0.5`` (:func:`scale_pixel_coordinates`), so that the same physical ray hits
+    the same relative image position.
 
     Examples
     --------
@@ -96,8 +111,8 @@ def scale_intrinsics(K: Any, sx: float, sy: float | None = None) -> np.ndarray:
     K2[0, 0] *= sx
     K2[0, 1] *= sx
     K2[1, 1] *= sy
-    K2[0, 2] = (K2[0, 2] + 0.5) * sx - 0.5
-    K2[1, 2] = (K2[1, 2] + 0.5) * sy - 0.5
+    K2[0, 2] = scale_pixel_coordinates(K2[0, 2], sx)
+    K2[1, 2] = scale_pixel_coordinates(K2[1, 2], sy)
     return K2
 
 

@@ -47,6 +47,7 @@ from solidkit.errors import InputError
 
 __all__ = [
     "SUN_ANGULAR_DIAMETER",
+    "REC709_LUMINANCE",
     "LUMINANCE_WEIGHTS",
     "SunDetection",
     "detect_sun",
@@ -60,8 +61,11 @@ __all__ = [
 SUN_ANGULAR_DIAMETER = math.radians(0.53)
 """Mean angular diameter of the sun's disk seen from the Earth, radians."""
 
-LUMINANCE_WEIGHTS = np.array([0.2126, 0.7152, 0.0722], dtype=np.float32)
-"""Rec. 709 / sRGB luminance weights for linear RGB (conventions §5)."""
+REC709_LUMINANCE = (0.2126, 0.7152, 0.0722)
+"""Rec. 709 / sRGB luminance weights of linear R, G, B (conventions §5): the one place these numbers are written."""
+
+LUMINANCE_WEIGHTS = np.array(REC709_LUMINANCE, dtype=np.float32)
+""":data:`REC709_LUMINANCE` as float32, for ``image @ LUMINANCE_WEIGHTS``."""
 
 Method = Literal["core", "paper"]
 
@@ -134,14 +138,23 @@ class SunDetection:
 # small pieces
 
 
-def luminance(image: np.ndarray) -> np.ndarray:
-    """Luminance ``(H, W)`` float32 of linear RGB ``(H, W, 3)`` (Rec. 709 weights); 2-D passes through."""
+def luminance(image: Any, dtype: Any = np.float32) -> np.ndarray:
+    """Luminance ``(H, W)`` of linear RGB ``(H, W, 3)`` with the Rec. 709 weights (:data:`REC709_LUMINANCE`).
+
+    Computed in ``dtype`` (float32 by default; ``np.float64`` for double precision); a 2-D image or
+    a single channel passes through (cast to ``dtype``); channels after the third (alpha) are ignored.
+
+    Examples
+    --------
+    >>> luminance(np.array([[[1.0, 1.0, 1.0], [0.0, 1.0, 0.0]]]))  # white, pure green
+    array([[1.    , 0.7152]], dtype=float32)
+    """
     image = np.asarray(image)
     if image.ndim == 2:
-        return image.astype(np.float32, copy=False)
+        return image.astype(dtype, copy=False)
     if image.shape[2] == 1:
-        return image[..., 0].astype(np.float32, copy=False)
-    return image[..., :3].astype(np.float32, copy=False) @ LUMINANCE_WEIGHTS
+        return image[..., 0].astype(dtype, copy=False)
+    return image[..., :3].astype(dtype, copy=False) @ np.asarray(REC709_LUMINANCE, dtype=dtype)
 
 
 def label_spherical(mask: np.ndarray) -> tuple[np.ndarray, int]:

@@ -39,7 +39,7 @@ import cv2
 import numpy as np
 
 from solidkit.envmap import (angles_from_direction, coords_from_direction, direction_from_angles, direction_grid, read_exr,
-                             rotation_y, solid_angle)
+                             luminance, rotation_y, solid_angle, spherical_centroid)
 from solidkit.errors import InputError
 
 __all__ = ["M0", "HDR_DIR", "Lighting", "sunsky", "hdr", "random_lighting", "horizontal_irradiance", "find_sun"]
@@ -81,20 +81,19 @@ def horizontal_irradiance(pano: np.ndarray) -> float:
     h = pano.shape[0]
     d = direction_grid(h)
     cos = np.clip(d @ UP, 0.0, None)
-    lum = pano[..., :3] @ np.array([0.2126, 0.7152, 0.0722])
+    lum = luminance(pano, np.float64)
     return float(np.sum(lum * cos * solid_angle(h)))
 
 
 def find_sun(pano: np.ndarray, ratio: float = 50.0) -> np.ndarray | None:
-    """Sun direction of a panorama (centroid of pixels above half the peak) or None if no peak."""
-    lum = pano[..., :3] @ np.array([0.2126, 0.7152, 0.0722])
+    """Sun direction of a panorama or None if no peak: the spherical centroid
+    (:func:`solidkit.envmap.sun.spherical_centroid`) of the pixels above half the peak luminance,
+    when the peak exceeds ``ratio`` times the median."""
+    lum = luminance(pano, np.float64)
     peak = float(lum.max())
     if not np.isfinite(peak) or peak <= ratio * max(float(np.median(lum)), 1e-9):
         return None
-    mask = lum >= 0.5 * peak
-    w = (lum * solid_angle(pano.shape[0]))[mask]
-    d = (direction_grid(pano.shape[0])[mask] * w[:, None]).sum(0)
-    return d / np.linalg.norm(d)
+    return spherical_centroid(lum, lum >= 0.5 * peak)
 
 
 def _normalise(pano: np.ndarray, rng: np.random.Generator) -> tuple[np.ndarray, float]:

@@ -33,6 +33,7 @@ import numpy as np
 
 from solidkit.envmap import CONVENTIONS_VERSION, angles_from_direction, tonemap, write_exr, write_ldr
 from solidkit.envmap.perspective import intrinsics_from_fov
+from solidkit.envmap.sun import LUMINANCE_WEIGHTS
 from solidkit.fsutil import atomic_write_text
 from solidkit.synth.cameras import Camera, equirect_sensor, pinhole_sensor
 from solidkit.synth.lighting import Lighting, random_lighting
@@ -123,7 +124,7 @@ def suppress_fireflies(img: np.ndarray, protect: np.ndarray | None = None, k: fl
 
     if k <= 0:
         return img, 0
-    lum = img[..., :3] @ np.array([0.2126, 0.7152, 0.0722], dtype=np.float32)
+    lum = img[..., :3] @ LUMINANCE_WEIGHTS
     med_l = median3(lum)
     bad = (lum > k * np.maximum(med_l, 1e-12)) & (lum > 4.0 * float(lum.mean()))
     if protect is not None:

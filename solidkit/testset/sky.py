@@ -21,6 +21,7 @@ import numpy as np
 
 from solidkit.envmap.coords import rotation_from_ypr
 from solidkit.envmap.perspective import pixel_rays
+from solidkit.envmap.sun import luminance
 
 __all__ = ["sky_mask", "on_sky"]
 
@@ -62,7 +63,7 @@ def sky_mask(
     above = -d[..., 1] > 1e-9
     if not above.any():
         return np.zeros((h, w), bool)
-    lum = (0.2126 * img[..., 0] + 0.7152 * img[..., 1] + 0.0722 * img[..., 2]).astype(np.float32)
+    lum = luminance(img)
     mean = cv2.blur(lum, (5, 5))
     smooth = np.sqrt(np.maximum(cv2.blur(lum * lum, (5, 5)) - mean * mean, 0.0)) < max_std
     bright = lum >= min_brightness * float(np.percentile(lum[above], 95))
