@@ -86,7 +86,7 @@ from solidkit.testset.schema import (
     content_version,
 )
 
-__all__ = ["BuildReport", "build_testset", "load_testset", "pixel_to_model", "Candidate", "choose"]
+__all__ = ["BuildReport", "build_testset", "load_testset", "pixel_to_model", "Candidate", "choose", "merge_flags"]
 
 MANIFEST_FILE = "testset.json"
 SATURATION_LEVEL = 250  # 8-bit code value at or above which an LDR channel counts as clipped
@@ -104,6 +104,22 @@ class Candidate:
     label_version: int | None = None
     flags: tuple[str, ...] = ()
     from_store: bool = False
+
+
+def merge_flags(*lists: Any) -> list[str]:
+    """Union of flag lists, one entry per flag name (the text before ':'), the most descriptive kept."""
+    by_name: dict[str, str] = {}
+    for flags in lists:
+        for f in flags or ():
+            name = f.split(":", 1)[0].strip()
+            if len(f) > len(by_name.get(name, "")):
+                by_name[name] = f
+    return [by_name[k] for k in sorted(by_name)]
+
+
+def _drop(flags: Any, prefixes: tuple[str, ...]) -> list[str]:
+    """``flags`` without those about a value a human has since set (names starting with ``prefixes``)."""
+    return [f for f in flags or () if not f.split(":", 1)[0].strip().startswith(prefixes)]
 
 
 def choose(*candidates: Candidate | None) -> Candidate | None:
@@ -232,7 +248,7 @@ class _Builder:
         self.root.joinpath(d).mkdir(parents=True, exist_ok=True)
         write_ldr(self.root / d / "photo.png", small[..., ::-1] if small.ndim == 3 else small)
         photo_full = self._copy(src, f"{d}/photo_full{src.suffix.lower()}")
-        flags = list(sa.flags)
+        flags = merge_flags(sa.flags)
         if photo.pitch_deg is None or photo.roll_deg is None or photo.pitch_roll_source == "assumed_zero":
             flags.append("photo_pitch_roll_assumed_zero")
 
@@ -304,7 +320,8 @@ class _Builder:
         except InputError as exc:
             self.report.excluded.append(f"{key}: {exc}")
             return None
-        flags = sorted(set(pa.flags) | set(yaw.flags))
+        human_yaw = yaw.from_store and yaw.source in ("annotator", "reviewed")
+        flags = merge_flags(_drop(pa.flags, ("yaw", "heading", "cue", "residual")) if human_yaw else pa.flags, yaw.flags)
         alignment = Alignment(
             yaw_deg=float(yaw.value), residual_deg=pa.residual_deg,
             cues={k: Cue(yaw_deg=c.yaw_deg, weight=c.weight, ok=c.ok) for k, c in sorted(pa.cues.items())},
@@ -328,7 +345,9 @@ class _Builder:
         return Probe(
             id=pa.id, pixel=pixel, pixel_full=px.value, pixel_source=px.source, pixel_annotator=px.annotator,
             ldr=images.ldr, hdr=images.hdr, rotation=rotation.tolist(), alignment=alignment, images=images, capture=cap,
-            flags=sorted(set(flags) | set(px.flags)), note=self._probe_note(sid, pa.id),
+            flags=merge_flags(_drop(flags, ("pixel",)) if px.from_store and px.source in ("annotator", "reviewed") else flags,
+                              px.flags),
+            note=self._probe_note(sid, pa.id),
         )
 
     def _probe_note(self, sid: str, pid: str) -> str | None:
@@ -421,7 +440,7 @@ class _Builder:
                             key=lambda c: (c.probe != sa.camera_probe, c.uncertainty_deg if c.uncertainty_deg is not None else 1e9, c.probe))
         pick = found_caps[0].probe if found_caps else (sa.camera_probe if sa.camera_probe in yaws else None)
         panorama = exposure = None
-        flags = sorted(set(win.flags))
+        flags = list(win.flags) if win.from_store and win.source != "auto" else merge_flags(auto.flags, label.flags if label else ())
         if pick is not None:
             prod = self._product(sa.id, pick, "sun_frame")
             if prod is None:
