@@ -12,6 +12,7 @@ from __future__ import annotations
 import html
 import math
 import os
+import textwrap
 from pathlib import Path
 from typing import Callable
 
@@ -118,8 +119,10 @@ def scene_sheet(root: Path, scene: Scene) -> np.ndarray:
     left = [head, ph]
     flags = sorted(set(scene.flags) | set(sun.flags) | {f for p in scene.probes for f in p.flags})
     if flags:
-        bar = np.zeros((22, PHOTO_W, 3), np.uint8)
-        _label(bar, "flags: " + ", ".join(flags), (4, 16), (80, 80, 255))
+        lines = textwrap.wrap("flags: " + "; ".join(flags), 100)
+        bar = np.zeros((20 * len(lines) + 6, PHOTO_W, 3), np.uint8)
+        for k, line in enumerate(lines):
+            _label(bar, line, (4, 16 + 20 * k), (80, 80, 255), 0.45)
         left.append(bar)
     panels = []
     if sun.panorama:
