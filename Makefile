@@ -12,6 +12,7 @@ $(STAMP): pyproject.toml constraints.txt
 	$(PY) -c "import torch" 2>/dev/null || $(PY) -m pip install -q "$(TORCH)"
 	$(PY) -m pip install -q -c constraints.txt -e ".[test]"
 	@command -v chromium >/dev/null || { [ "$$(id -u)" = 0 ] && command -v apt-get >/dev/null && apt-get update -qq && apt-get install -y -qq chromium >/dev/null; } || echo "note: Debian chromium not installed; the labeling browser tests will skip"
+	@ls /usr/lib/*/libLLVM-19.so* >/dev/null 2>&1 || { [ "$$(id -u)" = 0 ] && command -v apt-get >/dev/null && apt-get update -qq && apt-get install -y -qq libllvm19 >/dev/null; } || echo "note: libLLVM 19 not installed (needs root and apt); Mitsuba (solidkit synth) falls back to its slow scalar_rgb variant; make demo does not render"
 	touch $(STAMP)
 
 demo: $(STAMP)
