@@ -28,6 +28,9 @@ from pydantic import Field
 from scipy.optimize import least_squares
 
 from solidkit.calibration.profile import Profile, make_provenance
+from solidkit.camera.raw import is_raw_file, read_raw
+from solidkit.envmap.io import imread, read_exr, srgb_decode
+from solidkit.envmap.resample import sample_image
 from solidkit.envmap.sun import REC709_LUMINANCE
 from solidkit.errors import InputError, SolidkitError
 
@@ -81,7 +84,7 @@ class ColourProfile(Profile):
 
 def reference_linear_srgb(name: str = CHART_NAME) -> np.ndarray:
     """The chart's 24 reference colours as linear sRGB (D65, Bradford), shape (24, 3), white ≈ 0.9."""
-    import colour
+    import colour  # lazy: colour-science takes seconds to import; only colour calibration needs it
 
     cc = colour.CCS_COLOURCHECKERS[name]
     xyy = np.array(list(cc.data.values()), dtype=np.float64)
@@ -93,7 +96,7 @@ def reference_linear_srgb(name: str = CHART_NAME) -> np.ndarray:
 
 @lru_cache(maxsize=1)
 def _srgb_to_xyz_and_white() -> tuple[np.ndarray, np.ndarray]:
-    import colour
+    import colour  # lazy: colour-science takes seconds to import; only colour calibration needs it
 
     M = np.asarray(colour.RGB_COLOURSPACES["sRGB"].matrix_RGB_to_XYZ, dtype=np.float64)
     xy = colour.CCS_ILLUMINANTS["CIE 1931 2 Degree Standard Observer"]["D65"]
@@ -112,7 +115,7 @@ def lab_from_linear_srgb(rgb: np.ndarray) -> np.ndarray:
 def delta_e2000(rgb_a: np.ndarray, rgb_b: np.ndarray) -> np.ndarray:
     """CIEDE2000 between linear-sRGB colours (…, 3), on CIE Lab with a D65 white (colour-science's
     ``delta_E(method='CIE 2000')``)."""
-    import colour
+    import colour  # lazy: colour-science takes seconds to import; only colour calibration needs it
 
     return np.asarray(colour.delta_E(lab_from_linear_srgb(rgb_a), lab_from_linear_srgb(rgb_b), method="CIE 2000"))
 
@@ -168,7 +171,7 @@ def _orient(H: np.ndarray, samples: np.ndarray) -> tuple[np.ndarray, np.ndarray]
 def sample_patches(image: np.ndarray, H: np.ndarray, radius: float = 0.25, n: int = 9) -> tuple[np.ndarray, np.ndarray]:
     """Mean linear RGB of each patch: an ``n``×``n`` grid within ±``radius`` pitch of its centre.
 
-    Returns ``(means (24, 3), stds (24, 3))``. Bilinear sampling (``cv2.remap``), pixel centres
+    Returns ``(means (24, 3), stds (24, 3))``. Bilinear sampling (:func:`solidkit.envmap.resample.sample_image`), pixel centres
     at integer coordinates (conventions §1).
     """
     off = np.linspace(-radius, radius, n)
@@ -179,7 +182,7 @@ def sample_patches(image: np.ndarray, H: np.ndarray, radius: float = 0.25, n: in
     h, w = image.shape[:2]
     if (xy[:, 0] < 0).any() or (xy[:, 1] < 0).any() or (xy[:, 0] > w - 1).any() or (xy[:, 1] > h - 1).any():
         raise ChartError("chart patches fall outside the image (check the corners)")
-    vals = cv2.remap(np.ascontiguousarray(image, dtype=np.float32), xy[:, :1], xy[:, 1:], cv2.INTER_LINEAR)
+    vals = sample_image(np.asarray(image, dtype=np.float32), xy[:, 0], xy[:, 1])
     vals = vals.reshape(24, n * n, 3).astype(np.float64)
     return vals.mean(1), vals.std(1)
 
@@ -263,8 +266,9 @@ def _display8(linear: np.ndarray) -> np.ndarray:
 def read_linear_image(path: str | os.PathLike, response: np.ndarray | None = None) -> np.ndarray:
     """Camera linear RGB of an image file, float32 (H, W, 3), roughly in [0, 1].
 
-    Raw files (.dng, .cr2, .nef, .arw, ...) are demosaiced with rawpy in the camera's own raw
-    colour space, without white balance or colour matrix (black level subtracted). 8-bit images
+    Raw files (.dng, .cr2, .nef, .arw, ...) are demosaiced in the camera's own raw colour space,
+    without white balance or colour matrix (:func:`solidkit.camera.raw.read_raw` with
+    ``wb="none", color="camera"``: black level subtracted, scaled by the white level). 8-bit images
     are linearised with ``response`` (a (256, 3) inverse response) when given, else sRGB-decoded.
     EXR files are read as they are.
     """
@@ -272,34 +276,18 @@ def read_linear_image(path: str | os.PathLike, response: np.ndarray | None = Non
     if not path.is_file():
         raise InputError(f"{path}: no such file")
     suffix = path.suffix.lower()
-    if suffix in {".dng", ".cr2", ".cr3", ".nef", ".arw", ".raf", ".orf", ".rw2", ".pef"}:
-        import rawpy
-
-        try:
-            with rawpy.imread(str(path)) as raw:
-                rgb = raw.postprocess(
-                    gamma=(1, 1), no_auto_bright=True, output_bps=16, user_wb=[1, 1, 1, 1],
-                    output_color=rawpy.ColorSpace.raw, use_camera_wb=False,
-                )
-        except Exception as exc:  # rawpy raises LibRawError subclasses
-            raise InputError(f"{path}: not a readable raw file ({exc})") from None
-        return rgb.astype(np.float32) / 65535.0
+    if is_raw_file(path):
+        return read_raw(path, wb="none", color="camera").linear
     if suffix == ".exr":
-        from solidkit.envmap.io import read_exr
-
         img = read_exr(path)[0][..., :3]
         if not np.isfinite(img).all():
             raise InputError(f"{path}: {int((~np.isfinite(img)).any(-1).sum())} pixel(s) are NaN or Inf")
         return img
-    from solidkit.envmap.io import imread
-
     img = imread(path, cv2.IMREAD_COLOR)
     rgb8 = img[..., ::-1]
     if response is not None:
         resp = np.asarray(response, dtype=np.float32)
         return np.stack([resp[rgb8[..., c], c] for c in range(3)], -1)
-    from solidkit.envmap.io import srgb_decode
-
     return srgb_decode(rgb8.astype(np.float32) / 255.0).astype(np.float32)
 
 

@@ -39,6 +39,7 @@ import solidkit
 from solidkit.camera.dualfisheye import get_maps, match_gains, read_linear, seam_disagreement, warp_lens
 from solidkit.camera.lens import LensProfile, load_profile, project, rotation_to_ypr_deg
 from solidkit.envmap.coords import rotation_from_rotvec
+from solidkit.envmap.resample import sample_image
 from solidkit.envmap.sun import luminance
 from solidkit.errors import InputError
 from solidkit.fsutil import sha256_file
@@ -73,18 +74,6 @@ def apply_params(base: LensProfile, p: np.ndarray) -> LensProfile:
     return base.model_copy(update={"lenses": lenses})
 
 
-def _sample(img: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
-    """Bilinear samples of a single-channel float32 image at pixel coordinates (NaN outside)."""
-    n = x.size
-    cols = 4096
-    rows = -(-n // cols)
-    pad = rows * cols - n
-    mx = np.concatenate([x.astype(np.float32).ravel(), np.full(pad, -10, np.float32)]).reshape(rows, cols)
-    my = np.concatenate([y.astype(np.float32).ravel(), np.full(pad, -10, np.float32)]).reshape(rows, cols)
-    out = cv2.remap(img, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=np.nan)
-    return out.ravel()[:n]
-
-
 def fit_image_circle(
     lum: np.ndarray, center: tuple[float, float], radius: float, *, n_rays: int = 720, search: float = 0.12,
     rel_threshold: float = 0.1,
@@ -102,7 +91,7 @@ def fit_image_circle(
     rs = np.arange(radius * (1 - search), radius * (1 + search), 0.25)
     X = center[0] + np.cos(ang)[:, None] * rs
     Y = center[1] + np.sin(ang)[:, None] * rs
-    prof = _sample(np.nan_to_num(lum.astype(np.float32)), X.ravel(), Y.ravel()).reshape(X.shape)
+    prof = sample_image(np.nan_to_num(lum.astype(np.float32)), X.ravel(), Y.ravel(), border_value=np.nan).reshape(X.shape)
     inner = np.nanmedian(prof[:, : max(2, len(rs) // 6)], axis=1)
     pts = []
     for i in range(n_rays):
@@ -271,8 +260,8 @@ def refine_overlap(
             out = []
             xy = [project(lens, dk) for lens in cur.lenses]
             for n in range(n_img):
-                a = _sample(pyr[n], xy[0][0], xy[0][1])
-                b = _sample(pyr[n], xy[1][0], xy[1][1])
+                a = sample_image(pyr[n], xy[0][0], xy[0][1], border_value=np.nan)
+                b = sample_image(pyr[n], xy[1][0], xy[1][1], border_value=np.nan)
                 r = a + full[3 * L + 3 + n] - b
                 out.append(np.where(np.isfinite(r), r, 0.0))
             res = np.concatenate(out)

@@ -31,6 +31,7 @@ from scipy.optimize import least_squares
 
 from solidkit.calibration.profile import Profile, make_provenance
 from solidkit.envmap.perspective import scale_pixel_coordinates
+from solidkit.envmap.resample import sample_image
 from solidkit.envmap.sun import luminance
 from solidkit.errors import InputError, SolidkitError
 
@@ -171,16 +172,6 @@ def fit_flat_field(
     return out, res
 
 
-def _sample(img: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
-    """Bilinear samples (N, C) of an (H, W, C) float32 image at pixel coordinates."""
-    n, w = len(x), 1024  # cv2.remap needs both map dimensions < 32767
-    pad = (-n) % w
-    mx = np.concatenate([x, np.zeros(pad)]).astype(np.float32).reshape(-1, w)
-    my = np.concatenate([y, np.zeros(pad)]).astype(np.float32).reshape(-1, w)
-    m = cv2.remap(img, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
-    return m.reshape(-1, img.shape[2] if img.ndim == 3 else 1)[:n]
-
-
 def fit_overlap(
     image: np.ndarray, lens_profile, degree: int = 1, n_directions: int = 200_000, saturation: float = 0.98,
     floor: float = 1e-3, max_gradient: float = 0.05, seed: int = 0,
@@ -222,14 +213,14 @@ def fit_overlap(
     if both.sum() < 100:
         raise VignettingError(f"only {int(both.sum())} directions seen by both lenses: no usable overlap")
     xa, ya, xb, yb = xa[both], ya[both], xb[both], yb[both]
-    Ia, Ib = _sample(img, xa, ya), _sample(img, xb, yb)
+    Ia, Ib = sample_image(img, xa, ya), sample_image(img, xb, yb)
     ok = np.all((Ia > floor) & (Ia < saturation) & (Ib > floor) & (Ib < saturation), axis=1)
     # reject edges: log-gradient at each sample
     logimg = np.log(np.maximum(luminance(img, np.float64), floor)).astype(np.float32)
     gx = cv2.Sobel(logimg, cv2.CV_32F, 1, 0, ksize=3) / 8
     gy = cv2.Sobel(logimg, cv2.CV_32F, 0, 1, ksize=3) / 8
     grad = np.hypot(gx, gy)[..., None]
-    ok &= (_sample(grad, xa, ya)[:, 0] < max_gradient) & (_sample(grad, xb, yb)[:, 0] < max_gradient)
+    ok &= (sample_image(grad, xa, ya)[:, 0] < max_gradient) & (sample_image(grad, xb, yb)[:, 0] < max_gradient)
     if ok.sum() < 50:
         raise VignettingError(f"only {int(ok.sum())} usable overlap samples (saturated, dark or textured)")
     ra = np.hypot(xa[ok] - la.center[0], ya[ok] - la.center[1]) / la.max_radius()

@@ -64,6 +64,7 @@ from solidkit.camera.dualfisheye import (  # noqa: F401  (re-exported: the remap
 from solidkit.camera.lens import LensProfile, load_profile, profile_for_metadata, unproject
 from solidkit.camera.metadata import level_rotation, read_metadata
 from solidkit.camera.raw import is_raw_file
+from solidkit.envmap.coords import angles_from_coords
 from solidkit.envmap.io import LDR_SUFFIXES, write_exr
 from solidkit.envmap.resample import resize, rotate, sample_panorama
 from solidkit.errors import InputError
@@ -441,9 +442,9 @@ def seam_step(gray: np.ndarray, cols_per_row: list, max_elevation_deg: float = 6
     """
     g = np.asarray(gray, dtype=np.float64)
     H, W = g.shape
-    el = 90.0 - (np.arange(H) + 0.5) * 180.0 / H
+    _, el = angles_from_coords(0.0, np.arange(H) + 0.5, H)  # row centres' elevation, radians
     steps, base = [], []
-    for r in np.nonzero(np.abs(el) < max_elevation_deg)[0]:
+    for r in np.nonzero(np.abs(el) < math.radians(max_elevation_deg))[0]:
         for c in cols_per_row[r]:
             steps.append(abs(g[r, c % W] - g[r, (c - 1) % W]))
             for o in (6, 9, 12, 15):

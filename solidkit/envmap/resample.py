@@ -46,6 +46,7 @@ from solidkit.errors import InputError, PanoramaError
 __all__ = [
     "INTERPOLATIONS",
     "pad_panorama",
+    "sample_image",
     "sample_panorama",
     "rotate",
     "downsample",
@@ -134,11 +135,12 @@ def pad_panorama(pano: Any, pad: int = PAD) -> Any:
     return xp.concat([left, tall, right], axis=cols)
 
 
-def _remap(img: np.ndarray, map_x: np.ndarray, map_y: np.ndarray, interp: str, border: str = "constant") -> np.ndarray:
+def _remap(img: np.ndarray, map_x: np.ndarray, map_y: np.ndarray, interp: str, border: str = "constant",
+           border_value: float = 0.0) -> np.ndarray:
     """``cv2.remap`` for maps of any shape ``(...)``; returns ``(..., [C])``.
 
     Map values are OpenCV pixel coordinates (pixel centres at integers). ``border`` is
-    ``"constant"`` (zeros) or ``"replicate"``.
+    ``"constant"`` (``border_value``) or ``"replicate"``.
     """
     shape = map_x.shape
     if max(img.shape[:2]) >= _CV2_MAX_SIDE:
@@ -157,12 +159,34 @@ def _remap(img: np.ndarray, map_x: np.ndarray, map_y: np.ndarray, interp: str, b
         np.ascontiguousarray(map_y, dtype=np.float32),
         _CV2_INTERP[interp],
         borderMode=cv2.BORDER_REPLICATE if border == "replicate" else cv2.BORDER_CONSTANT,
-        borderValue=0,
+        borderValue=border_value,
     )
     if img.ndim == 3 and out.ndim == 2:  # cv2 drops a trailing channel axis of size 1
         out = out[..., None]
     out = out.reshape(-1, *img.shape[2:])[: int(np.prod(shape))]
     return out.reshape(*shape, *img.shape[2:]).astype(dtype, copy=False)
+
+
+def sample_image(image: np.ndarray, x: Any, y: Any, interp: str = "linear", *, border: str = "constant",
+                 border_value: float = 0.0) -> np.ndarray:
+    """Samples of an image ``(H, W[, C])`` at pixel coordinates ``x, y`` of any (equal) shape ``(...)``.
+
+    Coordinates are OpenCV's (pixel centres at integers; conventions §1); ``interp`` is one of
+    :data:`INTERPOLATIONS`; outside the image the value is ``border_value`` (``border="constant"``,
+    e.g. ``np.nan`` to mark such samples) or the nearest edge pixel (``"replicate"``). Returns
+    ``(..., [C])`` in the image's dtype (``cv2.remap``, any number of points).
+
+    Examples
+    --------
+    >>> img = np.array([[0.0, 1.0], [2.0, 3.0]], dtype=np.float32)
+    >>> sample_image(img, np.array([0.5, 5.0]), np.array([0.5, 0.0]), border_value=np.nan)
+    array([1.5, nan], dtype=float32)
+    """
+    _check_interp(interp)
+    x, y = np.asarray(x, dtype=np.float32), np.asarray(y, dtype=np.float32)
+    if x.shape != y.shape:
+        raise InputError(f"x and y must have one shape, got {x.shape} and {y.shape}")
+    return _remap(np.asarray(image), x, y, interp, border, border_value)
 
 
 def _padded_coords(directions: Any, height: int, pad: int) -> tuple[Any, Any]:

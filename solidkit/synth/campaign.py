@@ -73,7 +73,8 @@ import cv2
 import numpy as np
 from pydantic import BaseModel, Field
 
-from solidkit.envmap import CONVENTIONS_VERSION, angles_from_direction, rotation_from_ypr, srgb_encode, write_exr
+from solidkit.envmap import (CONVENTIONS_VERSION, angles_from_direction, angular_distance, rotation_from_ypr, srgb_encode,
+                             write_exr)
 from solidkit.envmap.resample import sample_panorama
 from solidkit.errors import InputError
 from solidkit.fsutil import atomic_write_bytes, atomic_write_text
@@ -502,7 +503,7 @@ def _render_scene(out: Path, s: int, sid: str, seed: int, cfg: CampaignConfig, g
             sun_body = (Rb.T @ light.sun).tolist()
             normal_time = next(sh.time for sh in shots if sh.role == "normal")
             real = solar_direction(*solar_position(normal_time, fix.lat_deg, fix.lon_deg, fix.alt_m))
-            sun_drift = math.degrees(math.acos(float(np.clip(real @ light.sun, -1.0, 1.0))))
+            sun_drift = math.degrees(float(angular_distance(real, light.sun)))
         sun_visible = light.sun is not None and not _occluded(mi, geometry, pos, light.sun)
         captures.append(CaptureTruth(
             id=cid, kind="probe" if info is not None else "camera_position", position=pos.tolist(),
