@@ -3,12 +3,42 @@
 from __future__ import annotations
 
 import contextlib
+import errno
 import hashlib
 import mmap
 import os
+import stat
 import tempfile
 from collections.abc import Iterator
 from pathlib import Path
+
+
+#: errno values that say something about the machine (space, quota, media, permissions, limits),
+#: not about the file being processed: worth retrying once the environment is fixed.
+ENVIRONMENTAL_ERRNOS = frozenset(
+    getattr(errno, name) for name in ("ENOSPC", "EDQUOT", "EIO", "EROFS", "EACCES", "EPERM", "ENOMEM", "EMFILE",
+                                      "ENFILE", "EAGAIN", "ETIMEDOUT", "ENOTCONN", "ESTALE", "EBUSY", "ENXIO")
+    if hasattr(errno, name))
+
+
+def is_environmental(exc: BaseException) -> bool:
+    """Is ``exc`` an OS error of the environment (disk full, read-only, permissions, I/O) rather
+    than of the data (see :data:`ENVIRONMENTAL_ERRNOS`)?"""
+    return isinstance(exc, OSError) and exc.errno in ENVIRONMENTAL_ERRNOS
+
+
+def _umask() -> int:
+    """The process umask, read without changing it (Linux ``/proc``; else set and restore)."""
+    try:
+        with open("/proc/self/status") as f:
+            for line in f:
+                if line.startswith("Umask:"):
+                    return int(line.split()[1], 8)
+    except (OSError, ValueError):
+        pass
+    mask = os.umask(0o022)
+    os.umask(mask)
+    return mask
 
 
 @contextlib.contextmanager
@@ -16,7 +46,9 @@ def atomic_path(path: str | os.PathLike, suffix: str | None = None) -> Iterator[
     """Yield a temporary path beside ``path``; on success it is renamed onto ``path``.
 
     The temporary file keeps ``path``'s suffix (writers such as OpenCV pick the codec from it).
-    On any exception the temporary file is removed and ``path`` is left untouched.
+    On any exception the temporary file is removed and ``path`` is left untouched. The file gets
+    the permissions a plainly created file would (``0666 & ~umask``) unless the caller changed
+    the temporary's mode (e.g. read-only originals); ``mkstemp``'s private 0600 never leaks out.
     """
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
@@ -25,6 +57,8 @@ def atomic_path(path: str | os.PathLike, suffix: str | None = None) -> Iterator[
     tmp_path = Path(tmp)
     try:
         yield tmp_path
+        if tmp_path.exists() and stat.S_IMODE(tmp_path.stat().st_mode) == 0o600:
+            tmp_path.chmod(0o666 & ~_umask())
         os.replace(tmp_path, path)
     except BaseException:
         tmp_path.unlink(missing_ok=True)

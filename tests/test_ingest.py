@@ -476,3 +476,123 @@ def test_ingest_unit_profile_and_vignetting(tmp_path):
     with pytest.raises(InputError, match="expected 'vignetting'"):
         ingest(card, tmp_path / "bad", vignetting_path=unit_file)
     assert not (tmp_path / "bad" / MANIFEST_NAME).exists()
+
+
+def test_skipped_entries_say_why(tmp_path):
+    """Links, special files and hidden folders are skipped with their true reason (issue 10 §6)."""
+    card = make_card(tmp_path / "card", bad=False)
+    d = card / "DCIM" / "100RICOH"
+    os.symlink(d / "R0010001.JPG", d / "R0010050.JPG")
+    os.mkfifo(d / "R0010051.JPG")
+    elsewhere = tmp_path / "elsewhere"
+    elsewhere.mkdir()
+    shutil.copy(d / "R0010001.JPG", elsewhere / "R0010060.JPG")
+    os.symlink(elsewhere, card / "linked")
+    (card / ".Trashes").mkdir()
+    (card / ".Trashes" / "R0010070.JPG").write_bytes(b"x")
+    camp = tmp_path / "camp"
+    report = ingest(card, camp)
+    why = report.skip_reasons
+    assert why["DCIM/100RICOH/R0010050.JPG"].startswith("symbolic link (not followed")
+    assert why["DCIM/100RICOH/R0010051.JPG"] == "not a regular file (named pipe)"
+    assert why["linked"].startswith("symbolic link to a folder")
+    assert why[".Trashes"] == "hidden folder (not searched)"
+    assert why["notes.txt"] == "not a capture (.jpg/.jpeg/.dng)" and why[".hidden.JPG"] == "hidden file"
+    assert not report.errors  # none of them is a per-file error
+    skipped = {r.path: r.reason for r in load_manifest(camp).skipped}
+    assert skipped == why
+    assert ingest(card, camp).nothing_done
+
+
+def test_products_and_manifest_are_readable_by_all(tmp_path):
+    """Products and manifest.json get normal permissions (0644 under umask 022), originals stay 0444."""
+    old = os.umask(0o022)
+    try:
+        camp = tmp_path / "camp"
+        ingest(make_card(tmp_path / "card", bad=False), camp)
+    finally:
+        os.umask(old)
+    m = load_manifest(camp)
+    assert (camp / MANIFEST_NAME).stat().st_mode & 0o777 == 0o644
+    built = [camp / p.path for p in m.products if p.path and p.path.startswith("products/")]
+    assert built and all(p.stat().st_mode & 0o777 == 0o644 for p in built)
+    assert all((camp / s.original).stat().st_mode & 0o777 == 0o444 for s in m.shots)
+
+
+def _children(pid: int) -> list[int]:
+    out = []
+    for stat_file in Path("/proc").glob("[0-9]*/stat"):
+        try:
+            fields = stat_file.read_text().rsplit(")", 1)[1].split()
+        except OSError:
+            continue
+        if int(fields[1]) == pid:
+            out.append(int(stat_file.parent.name))
+    return out
+
+
+@pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="needs /proc")
+def test_kill9_takes_the_workers_with_it(tmp_path):
+    """``ingest -j 2`` killed with -9: its worker processes end too (issue 10 §6), within seconds."""
+    card = make_card(tmp_path / "card", bad=False, extra_brackets=6)
+    camp = tmp_path / "camp"
+    env = {**os.environ, "SOLIDKIT_INGEST_THROTTLE_S": "0.3"}
+    proc = subprocess.Popen(
+        [sys.executable, "-c", "from solidkit.cli import main; main()", "ingest", "-j", "2", str(card), str(camp)],
+        cwd=REPO, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+    )
+    deadline = time.monotonic() + 60
+    while time.monotonic() < deadline and not ((camp / "originals").is_dir() and any((camp / "originals").rglob("*.jpg"))):
+        time.sleep(0.02)
+    workers = _children(proc.pid)
+    assert proc.poll() is None and len(workers) >= 2, "ingest finished (or had no workers) before it could be killed"
+    proc.send_signal(signal.SIGKILL)
+    proc.wait()
+    deadline = time.monotonic() + 5.0
+    alive = workers
+    while alive and time.monotonic() < deadline:
+        time.sleep(0.1)
+        alive = [w for w in alive if Path(f"/proc/{w}").exists() and "Z" not in Path(f"/proc/{w}/stat").read_text().rsplit(")", 1)[1].split()[0]]
+    assert not alive, f"workers {alive} outlived the killed ingest"
+
+
+def test_disk_full_is_retried_not_remembered(tmp_path, monkeypatch, cli):
+    """ENOSPC while copying or while building products: reported per file/product (exit 2, naming the
+    final file), not remembered: the next run, with space again, completes the campaign (issue 10 §6)."""
+    import errno
+
+    import solidkit.capture.card as card_mod
+    import solidkit.envmap.io as io_mod
+
+    card = make_card(tmp_path / "card", bad=False)
+    camp = tmp_path / "camp"
+    real_copy, real_exr = card_mod.copy_original, io_mod.write_exr
+    calls = [0]
+
+    def full_copy(src, dest, sha):
+        calls[0] += 1
+        if calls[0] % 2 == 0:
+            raise OSError(errno.ENOSPC, "No space left on device", str(dest.parent / f".{dest.name}.tmp123"))
+        return real_copy(src, dest, sha)
+
+    def full_exr(path, *a, **k):
+        raise OSError(errno.ENOSPC, "No space left on device", str(Path(path).parent / ".hidden.exr.tmp"))
+
+    monkeypatch.setattr(card_mod, "copy_original", full_copy)
+    monkeypatch.setattr(io_mod, "write_exr", full_exr)
+    code, out, err = cli("ingest", card, camp)
+    assert code == 2, err
+    flat = " ".join(out.split())
+    assert "could not be copied" in flat and "No space left on device" in flat
+    assert "hdr-b01.exr: could not be built (No space left on device)" in flat and ".hidden.exr" not in flat
+    m = load_manifest(camp)
+    assert not m.errors  # nothing remembered as a bad file
+    assert any(p.kind == "sun_frame" and p.path for p in m.products)  # the other products were still built
+    monkeypatch.setattr(card_mod, "copy_original", real_copy)
+    monkeypatch.setattr(io_mod, "write_exr", real_exr)
+    report = ingest(card, camp)  # space freed
+    assert not report.errors and not report.transient_errors and report.known_errors == 0
+    m = load_manifest(camp)
+    assert len(m.shots) == 11 and all(p.error is None and p.path for p in m.products)
+    ingest(card, tmp_path / "clean")
+    assert (camp / MANIFEST_NAME).read_bytes() == (tmp_path / "clean" / MANIFEST_NAME).read_bytes()

@@ -16,8 +16,8 @@ from solidkit.camera.lens import load_profile, project  # noqa: E402
 from solidkit.camera.metadata import read_metadata  # noqa: E402
 from solidkit.envmap import (angular_distance, coords_from_direction, direction_from_angles,  # noqa: E402
                              direction_from_coords, rotation_from_ypr, rotation_y)
-from solidkit.synth.campaign import (CampaignConfig, CampaignTruth, expose, fisheye_image, generate_campaign,  # noqa: E402
-                                     load_truth)
+from solidkit.capture.unwarp import render_fisheye  # noqa: E402
+from solidkit.synth.campaign import CampaignConfig, CampaignTruth, expose, generate_campaign, load_truth  # noqa: E402
 from solidkit.synth.cameras import Camera  # noqa: E402
 from solidkit.synth.exif import exif_app1, insert_app1  # noqa: E402
 
@@ -33,7 +33,7 @@ def test_fisheye_spot_lands_where_the_lens_model_says(az: float, el: float) -> N
     pano[int(py), int(px)] = 100.0
     profile = load_profile("theta-v").scaled(256, 128)
     Rb = np.asarray(rotation_from_ypr(math.radians(33.0), math.radians(4.0), math.radians(-3.0)))
-    img = fisheye_image(pano, Rb, profile)
+    img = render_fisheye(pano, profile, profile.reference_size, R_level=Rb)
     d_body = Rb.T @ d
     # the lens that sees it best (smallest incidence angle)
     best = min(profile.lenses, key=lambda L: project(L, d_body)[2])
@@ -126,7 +126,7 @@ def test_campaign_truth_round_trips(tmp_path: Path) -> None:
         Rb = np.asarray(c.R_scene_from_body)
         assert np.allclose(Rb, rotation_from_ypr(*(math.radians(a) for a in (c.yaw_deg, c.pitch_deg, c.roll_deg))))
         assert np.allclose(np.asarray(c.R_pano_from_body), np.asarray(rotation_y(cam.yaw)).T @ Rb)
-        assert [s.role for s in c.shots] == ["bracket", "normal", "low_exposure"]
+        assert [s.role for s in c.shots] == ["low_exposure", "normal", "bracket"]
         for s in c.shots:
             m = read_metadata(tmp_path / s.file)
             assert m.image_type == "dual_fisheye" and (m.width, m.height) == (128, 64)

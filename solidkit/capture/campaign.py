@@ -53,7 +53,7 @@ from pydantic import BaseModel, Field
 from solidkit.capture.card import IMAGE_SUFFIXES, CardScan, folder_layout, ingest_file, ingest_notes, scan_card
 from solidkit.capture.grouping import group_shots
 from solidkit.capture.manifest import (MANIFEST_NAME, SCHEMA_VERSION, Bracket, FieldNotesRecord, FileError,
-                                       GroupingParams, Manifest, Probe, Product, Scene, Shot, SourceRef,
+                                       GroupingParams, Manifest, Probe, Product, Scene, Shot, SkippedFile, SourceRef,
                                        load_manifest, save_manifest)
 from solidkit.capture.products import make_product, planned_products, record_profile, to_panorama
 from solidkit.errors import InputError
@@ -95,8 +95,11 @@ class IngestReport(BaseModel):
     unchanged: int = 0
     new_sources: int = 0
     errors: list[FileError] = Field(default_factory=list)
+    transient_errors: list[FileError] = Field(
+        default_factory=list, description="environmental errors (disk full, permissions, I/O): retried next run")
     known_errors: int = 0
     unrelated: list[str] = Field(default_factory=list)
+    skip_reasons: dict[str, str] = Field(default_factory=dict, description="why each unrelated entry was skipped")
     products_built: int = 0
     products_up_to_date: int = 0
     products_removed: int = 0
@@ -107,7 +110,8 @@ class IngestReport(BaseModel):
 
     @property
     def nothing_done(self) -> bool:
-        return not (self.copied or self.new_sources or self.errors or self.notes_errors or self.products_built
+        return not (self.copied or self.new_sources or self.errors or self.transient_errors or self.notes_errors
+                    or self.products_built
                     or self.products_removed or self.regrouped or self.already_present)
 
 
@@ -144,12 +148,39 @@ def _clean_temporaries(campaign: Path) -> int:
     return n
 
 
+def _die_with_parent(parent: int) -> None:
+    """Worker initializer: end this worker when the ingest that started it dies (even by ``kill -9``).
+
+    Linux delivers SIGKILL on the parent's death (``prctl(PR_SET_PDEATHSIG)``); a watchdog thread
+    that checks the parent id twice a second covers other systems and a parent that died before
+    the ``prctl``.
+    """
+    import ctypes
+    import signal
+    import threading
+
+    try:
+        ctypes.CDLL(None, use_errno=True).prctl(1, signal.SIGKILL)  # 1 = PR_SET_PDEATHSIG
+    except (OSError, AttributeError):
+        pass
+
+    def watch() -> None:
+        while os.getppid() == parent:
+            time.sleep(0.5)
+        os._exit(1)
+
+    if os.getppid() != parent:
+        os._exit(1)
+    threading.Thread(target=watch, name="solidkit-parent-watch", daemon=True).start()
+
+
 def _pool(jobs: int):
     if jobs <= 1:
         return None
     import multiprocessing as mp
 
-    return ProcessPoolExecutor(max_workers=jobs, mp_context=mp.get_context("spawn"))
+    return ProcessPoolExecutor(max_workers=jobs, mp_context=mp.get_context("spawn"),
+                               initializer=_die_with_parent, initargs=(os.getpid(),))
 
 
 def _run_tasks(fn: Callable, tasks: list[tuple], pool: ProcessPoolExecutor | None, on_result: Callable[[tuple, dict], None]) -> None:
@@ -248,16 +279,20 @@ def ingest(
 
         report.files_seen = len(captures)
         report.unrelated = [p.as_posix() for p in unrelated]
+        report.skip_reasons = {p.as_posix(): why for p, why in scan.skipped.items()}
         # forget errors and skips of files that are no longer on this card
         present = {p.as_posix() for p in captures}
         manifest.errors = [e for e in manifest.errors if e.card != cstr or e.path in present]
         still_unrelated = {p.as_posix() for p in unrelated}
         manifest.skipped = [r for r in manifest.skipped if r.card != cstr or r.path in still_unrelated]
-        known_skips = {(s.card, s.path) for s in manifest.skipped}
+        known_skips = {(s.card, s.path, s.reason) for s in manifest.skipped}
         for p in unrelated:
-            if (cstr, p.as_posix()) not in known_skips:
+            why = scan.skipped[p]
+            if (cstr, p.as_posix(), why) not in known_skips:
+                manifest.skipped = [r for r in manifest.skipped if (r.card, r.path) != (cstr, p.as_posix())]
                 st = (card / p).lstat()
-                manifest.skipped.append(SourceRef(card=cstr, path=p.as_posix(), size=st.st_size, mtime_ns=st.st_mtime_ns))
+                manifest.skipped.append(SkippedFile(card=cstr, path=p.as_posix(), size=st.st_size,
+                                                    mtime_ns=st.st_mtime_ns, reason=why))
         manifest.skipped.sort(key=lambda r: (r.card, r.path))
 
         by_source = {(r.card, r.path, r.size, r.mtime_ns): s for s in manifest.shots for r in s.sources}
@@ -288,6 +323,8 @@ def ingest(
                 fe = FileError.model_validate(res["error"])
                 manifest.errors.append(fe)
                 report.errors.append(fe)
+            elif "transient" in res:  # not remembered: the next run tries the file again
+                report.transient_errors.append(FileError.model_validate(res["transient"]))
             else:
                 shot = Shot.model_validate(res["shot"])
                 if shot.sha256 in shots_by_sha:
@@ -344,7 +381,7 @@ def _build_products(manifest: Manifest, campaign: Path, pool: ProcessPoolExecuto
     for p in wanted:
         old = existing.get(p.id)
         if old is not None and old.recipe_hash == p.recipe_hash and (
-            old.error is not None or (old.path and (campaign / old.path).is_file()
+            (old.error is not None and not old.error_transient) or (old.path and (campaign / old.path).is_file()
                                       and (old.path.startswith("originals/") or sha256_file(campaign / old.path) == old.sha256))):
             keep.append(old)
             report.products_up_to_date += 1

@@ -21,7 +21,7 @@ from typing import Any
 
 from solidkit.capture.fieldnotes import is_notes_file
 from solidkit.errors import InputError, SolidkitError
-from solidkit.fsutil import atomic_path, sha256_file
+from solidkit.fsutil import atomic_path, is_environmental, sha256_file
 
 __all__ = ["IMAGE_SUFFIXES", "CardScan", "scan_card", "folder_layout", "ingest_file", "copy_original"]
 
@@ -31,31 +31,72 @@ _DCF = re.compile(r"^\d{3}[A-Za-z0-9_]{5}$")
 
 @dataclass
 class CardScan:
-    """What :func:`scan_card` found: paths relative to the card, sorted."""
+    """What :func:`scan_card` found: paths relative to the card, sorted; ``skipped`` maps each
+    unrelated path (file or folder) to the reason it is not ingested."""
 
     captures: list[Path] = field(default_factory=list)
     notes: list[Path] = field(default_factory=list)
-    unrelated: list[Path] = field(default_factory=list)
+    skipped: dict[Path, str] = field(default_factory=dict)
+
+    @property
+    def unrelated(self) -> list[Path]:
+        return sorted(self.skipped)
+
+
+_KINDS = ((stat.S_ISFIFO, "named pipe"), (stat.S_ISSOCK, "socket"), (stat.S_ISCHR, "character device"),
+          (stat.S_ISBLK, "block device"))
+
+
+def _skip_reason(path: Path, name: str, depth: int) -> str | None:
+    """Why a card file is not a capture or notes file (None: it is one)."""
+    st = path.lstat()
+    if name.startswith("."):
+        return "hidden file"
+    if stat.S_ISLNK(st.st_mode):
+        return "symbolic link (not followed: copy the file itself onto the card)"
+    if not stat.S_ISREG(st.st_mode):
+        kind = next((k for test, k in _KINDS if test(st.st_mode)), "special file")
+        return f"not a regular file ({kind})"
+    if Path(name).suffix.lower() in IMAGE_SUFFIXES:
+        return None
+    if is_notes_file(name):
+        return None if depth <= 2 else "field notes below a scene folder (put them in CARD/<scene>/ or CARD/)"
+    return "not a capture (.jpg/.jpeg/.dng)"
 
 
 def scan_card(card: str | os.PathLike) -> CardScan:
-    """Captures, field notes and unrelated files below ``card`` (module docstring)."""
+    """Captures, field notes and skipped files below ``card``, with the reason for each skip.
+
+    Symbolic links (to files or folders) and hidden folders are not followed; special files
+    (named pipes, sockets, devices) are never opened.
+    """
     card = Path(card)
     if not card.is_dir():
         raise InputError(f"{card}: not a directory")
     out = CardScan()
     for root, dirs, files in os.walk(card):
-        dirs[:] = sorted(d for d in dirs if not d.startswith("."))
+        keep = []
+        for d in sorted(dirs):
+            rel = Path(root, d).relative_to(card)
+            if Path(root, d).is_symlink():
+                out.skipped[rel] = "symbolic link to a folder (not followed: copy the folder itself onto the card)"
+            elif d.startswith("."):
+                out.skipped[rel] = "hidden folder (not searched)"
+            else:
+                keep.append(d)
+        dirs[:] = keep
         for name in sorted(files):
             rel = Path(root, name).relative_to(card)
-            if name.startswith(".") or Path(root, name).is_symlink():
-                out.unrelated.append(rel)
-            elif Path(name).suffix.lower() in IMAGE_SUFFIXES:
-                out.captures.append(rel)
-            elif is_notes_file(name) and len(rel.parts) <= 2:
+            try:
+                why = _skip_reason(Path(root, name), name, len(rel.parts))
+            except OSError as exc:
+                why = f"unreadable ({exc.strerror or exc})"
+            if why is not None:
+                out.skipped[rel] = why
+            elif is_notes_file(name):
                 out.notes.append(rel)
             else:
-                out.unrelated.append(rel)
+                out.captures.append(rel)
     return out
 
 
@@ -115,12 +156,20 @@ def copy_original(src: Path, dest: Path, sha: str) -> bool:
 
 
 def ingest_file(card: str, rel: str, campaign: str, throttle_s: float = 0.0) -> dict[str, Any]:
-    """Worker: hash, validate, read metadata, copy. Returns ``{"shot": ...}`` or ``{"error": ...}``."""
+    """Worker: hash, validate, read metadata, copy.
+
+    Returns ``{"shot": ..., "copied": bool}``, ``{"error": ...}`` (a problem of the file itself:
+    remembered) or ``{"transient": ...}`` (an environmental OS error: retried next run).
+    """
     from solidkit.capture.merge import sniff_format
     from solidkit.camera.metadata import read_metadata
 
     src = Path(card) / rel
-    st = src.stat()
+    try:
+        st = src.stat()
+    except OSError as exc:  # vanished or unreadable since the scan: try again next run
+        return {"transient": {"card": card, "path": rel, "size": 0, "mtime_ns": 0,
+                              "message": f"I/O error: {exc.strerror or exc}"}}
     ref = {"card": card, "path": rel, "size": st.st_size, "mtime_ns": st.st_mtime_ns}
     try:
         if throttle_s:
@@ -152,7 +201,10 @@ def ingest_file(card: str, rel: str, campaign: str, throttle_s: float = 0.0) -> 
     except SolidkitError as exc:
         return {"error": {**ref, "message": str(exc).replace(str(src) + ": ", "")}}
     except OSError as exc:
-        return {"error": {**ref, "message": f"I/O error: {exc.strerror or exc}"}}
+        # disk full, read-only campaign, permissions, a failing card reader: retried on the next
+        # run (not remembered); any other OS error belongs to the file and is remembered
+        key = "transient" if is_environmental(exc) else "error"
+        return {key: {**ref, "message": f"I/O error: {exc.strerror or exc}"}}
 
 
 

@@ -13,7 +13,7 @@ originals and records it in the manifest (:class:`solidkit.capture.manifest.Scen
     notes = "square north of the station; light wind"
 
     [photo_pose]                      # optional: read off the tripod's level and a compass
-    pitch_deg = -4.5                  # conventions §4: positive looks down
+    pitch_deg = -4.5                  # conventions §4: positive tilts up (elevation increases)
     roll_deg = 0.0
     heading_deg = 213.0               # clockwise from north
     heading_ref = "true"              # or "magnetic"
@@ -63,7 +63,7 @@ class PhotoPose(_Strict):
 
     heading_deg: float | None = Field(None, ge=0.0, lt=360.0, description="clockwise from north")
     heading_ref: Literal["true", "magnetic"] = "true"
-    pitch_deg: float | None = Field(None, ge=-90.0, le=90.0, description="conventions §4 (positive: looks down)")
+    pitch_deg: float | None = Field(None, ge=-90.0, le=90.0, description="conventions §4 (positive: tilts up)")
     roll_deg: float | None = Field(None, ge=-180.0, le=180.0)
 
 

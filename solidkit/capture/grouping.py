@@ -225,7 +225,7 @@ def _availability_warnings(probe: Probe, members: list[Shot], g: GroupingParams)
             why = f"{len(members)} shots, some without an exposure time in their metadata"
         else:
             times = [shot_time(s) for s in members]
-            gaps = [(b - _end(a)).total_seconds() for a, b, ta, tb in zip(members, members[1:], times, times[1:])
+            gaps = [(tb - _end(a)).total_seconds() for a, ta, tb in zip(members, times, times[1:])
                     if ta is not None and tb is not None]
             gap_text = f"; gaps {', '.join(f'{x:.0f} s' for x in gaps[:8])}" if gaps else ""
             why = (f"{len(members)} shots ({listed}) but no two distinct exposures within bracket_gap_s "

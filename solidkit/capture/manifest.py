@@ -32,6 +32,7 @@ __all__ = [
     "ShotKind",
     "GroupingParams",
     "SourceRef",
+    "SkippedFile",
     "Shot",
     "Bracket",
     "Probe",
@@ -66,6 +67,12 @@ class SourceRef(BaseModel):
     path: str
     size: int
     mtime_ns: int
+
+
+class SkippedFile(SourceRef):
+    """A card entry that is not ingested (unrelated file, link, special file, hidden folder) and why."""
+
+    reason: str = ""
 
 
 class Shot(BaseModel):
@@ -153,6 +160,8 @@ class Product(BaseModel):
     solidkit_version: str = ""
     stats: dict[str, Any] = Field(default_factory=dict)
     error: str | None = None
+    error_transient: bool = Field(False, description="the error came from the environment (disk full, I/O): "
+                                                     "the product is built again on the next run")
 
 
 class FileError(BaseModel):
@@ -195,7 +204,7 @@ class Manifest(BaseModel):
     scenes: list[Scene] = Field(default_factory=list)
     products: list[Product] = Field(default_factory=list)
     errors: list[FileError] = Field(default_factory=list)
-    skipped: list[SourceRef] = Field(default_factory=list, description="unrelated files seen on the cards")
+    skipped: list[SkippedFile] = Field(default_factory=list, description="card entries not ingested, with the reason")
 
     def shot(self, sha: str) -> Shot:
         for s in self.shots:

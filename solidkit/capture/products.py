@@ -36,7 +36,7 @@ import numpy as np
 
 from solidkit.capture.manifest import Manifest, Product
 from solidkit.errors import InputError, SolidkitError
-from solidkit.fsutil import atomic_path, sha256_file
+from solidkit.fsutil import atomic_path, is_environmental, sha256_file
 
 __all__ = ["planned_products", "to_panorama", "make_product", "record_profile"]
 
@@ -236,6 +236,13 @@ def make_product(product: dict[str, Any], shots: list[dict[str, Any]], campaign:
                 p.path, p.sha256, p.stats, p.layout = rel.as_posix(), sha256_file(camp / rel), info, "equirect"
     except SolidkitError as exc:
         p.error = str(exc)
+        p.path = p.sha256 = None
+    except OSError as exc:
+        # disk full, permissions, I/O: a per-product error naming the final file (not a temporary),
+        # retried on the next run when environmental
+        final = _product_path(p, ".exr" if p.kind == "hdr" else ".png").as_posix()
+        p.error = f"{final}: could not be built ({exc.strerror or exc})"
+        p.error_transient = is_environmental(exc)
         p.path = p.sha256 = None
     return p.model_dump(mode="json")
 

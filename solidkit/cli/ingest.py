@@ -71,10 +71,15 @@ def ingest_command(
         if i == 20:
             out.print(f"  ... and {len(report.unrelated) - 20} more unrelated file(s) (listed in the manifest's 'skipped')")
             break
-        why = "hidden file" if Path(name).name.startswith(".") else "not a capture (.jpg/.jpeg/.dng)"
+        why = report.skip_reasons.get(name, "not a capture (.jpg/.jpeg/.dng)")
         out.print(f"[dim]skipped[/] {escape(name)}: {why}")
     for msg in report.product_errors:
         out.print(f"[yellow]product not built[/] {escape(msg)}")
+    if report.transient_errors:
+        out.print(f"[red]{len(report.transient_errors)} file(s) could not be copied[/] (the environment, not the file: "
+                  "fix it and run ingest again, they will be retried):")
+        for e in report.transient_errors:
+            out.print(f"  [red]error[/] {escape(e.path)}: {escape(e.message)}")
     errors = [e for e in manifest.errors if e.card == str(Path(card_dir).resolve())]
     if errors:
         out.print(f"[red]{len(errors)} file(s) could not be ingested[/] (the rest was):")
@@ -103,9 +108,12 @@ def ingest_cli(
     """
     report = ingest_command(card_dir, campaign_dir, jobs, response, products, scene_gap, probe_gap, bracket_gap,
                             low_exposure_max, lens_profile=profile, vignetting=vignetting)
-    if report.errors or report.known_errors:
-        n = len(report.errors) + report.known_errors
+    if report.errors or report.known_errors or report.transient_errors:
+        n = len(report.errors) + report.known_errors + len(report.transient_errors)
         raise InputError(f"{n} file(s) on {card_dir} could not be ingested (listed above); everything else was")
+    if report.product_errors:
+        raise InputError(f"{len(report.product_errors)} product(s) could not be built (listed above); "
+                         "everything else was")
     if report.notes_errors:
         raise InputError(f"{len(report.notes_errors)} field notes file(s) on {card_dir} refused (listed above); "
                          "everything else was ingested")

@@ -7,6 +7,7 @@ import time
 from pathlib import Path
 from typing import Optional
 
+import click
 import typer
 from rich.console import Console
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
@@ -102,6 +103,7 @@ def filter_cmd(
 
 @app.command()
 def campaign(
+    ctx: typer.Context,
     scenes: int = typer.Option(29, "--scenes", min=1, help="Number of scenes (the paper's real set: 29)."),
     probes: int = typer.Option(67, "--probes", min=0, help="Number of probe positions in all (the paper: 67)."),
     out: Path = typer.Option(..., "--out", help="Output folder: card/ (what the field team brings) and truth/."),
@@ -111,25 +113,43 @@ def campaign(
     pano_spp: int = typer.Option(16, "--pano-spp", min=1),
     fisheye_width: int = typer.Option(1920, "--fisheye-width", min=64, help="Width of the dual-fisheye JPEGs."),
     brackets: Optional[str] = typer.Option(None, "--brackets",
-                                           help="Extra bracket exposures in seconds, e.g. '1/640,1/160,1/40'."),
+                                           help="Exposures (s) after the 1/25000 s sun frame and the 1/2500 s probe "
+                                                "shot, same bracket; default '1/640,1/160,1/40'; 'none': no more."),
+    preset: str = typer.Option("default", "--preset", help="Settings preset: 'default' or 'mini' (the small campaign "
+                                                           "shipped in solidkit/assets/campaign_mini); options given override it."),
+    glass_every: Optional[int] = typer.Option(None, "--glass-every", min=0,
+                                              help="Every n-th scene (scene02, scene05, ...) has glass facades that glint; 0: none (default 3)."),
+    photo_width: Optional[int] = typer.Option(None, "--photo-width", min=16, help="Photo width (px); height at 4:3."),
     variant: Optional[str] = typer.Option(None, "--variant", help="Force a Mitsuba variant."),
 ) -> None:
     """A virtual field campaign: photos, Theta dual-fisheye shots (card layout) and a separate truth file."""
     from fractions import Fraction
 
-    from solidkit.synth.campaign import CampaignConfig, generate_campaign
+    from solidkit.synth.campaign import PRESETS, CampaignConfig, generate_campaign
     from solidkit.synth.renderer import select_variant
 
+    if preset not in PRESETS:
+        raise InputError(f"--preset: expected one of {', '.join(PRESETS)}, got '{preset}'")
     logging.basicConfig(level=logging.INFO, format="%(message)s")
     used = select_variant(variant)
-    try:
-        br = [float(Fraction(b.strip())) for b in brackets.split(",")] if brackets else []
-    except (ValueError, ZeroDivisionError):
-        raise InputError(f"--brackets: expected comma-separated exposure times like 1/640,1/160, got '{brackets}'") from None
-    if any(b <= 0 for b in br):
-        raise InputError("--brackets: exposure times must be positive")
-    cfg = CampaignConfig(photo_spp=photo_spp, pano_height=pano_height, pano_spp=pano_spp, fisheye_width=fisheye_width,
-                         brackets_s=br)
+    given: dict[str, object] = {}
+    if brackets is not None:
+        try:
+            br = [] if brackets.strip().lower() == "none" else [float(Fraction(b.strip())) for b in brackets.split(",")]
+        except (ValueError, ZeroDivisionError):
+            raise InputError(f"--brackets: expected comma-separated exposure times like 1/640,1/160, got '{brackets}'") from None
+        if any(b <= 0 for b in br):
+            raise InputError("--brackets: exposure times must be positive")
+        given["brackets_s"] = br
+    for name, value in (("photo_spp", photo_spp), ("pano_height", pano_height), ("pano_spp", pano_spp),
+                        ("fisheye_width", fisheye_width)):
+        if ctx.get_parameter_source(name) != click.core.ParameterSource.DEFAULT:
+            given[name] = value
+    if glass_every is not None:
+        given["glass_every"] = glass_every
+    if photo_width is not None:
+        given.update(photo_width=photo_width, photo_height=photo_width * 3 // 4)
+    cfg = CampaignConfig(**{**PRESETS[preset], **given})
     t0 = time.perf_counter()
     with _progress() as bar:
         task = bar.add_task(f"campaign [{used}]", total=scenes + probes)

@@ -1,25 +1,47 @@
-"""The virtual field campaign: what a field team would bring home from synthetic streets, plus the truth.
+"""The virtual field campaign: what a field team following ``docs/field-protocol.md`` brings home, plus the truth.
 
 ``solidkit synth campaign --scenes 29 --probes 67 --out DIR --seed S`` writes::
 
-    DIR/card/<scene>/photo/IMG_0001.JPG        the limited-FOV photo (EXIF: focal length, time, GPS)
+    DIR/card/<scene>/photo/IMG_0001.JPG        the limited-FOV photo (EXIF: focal length, time, GPS, heading)
     DIR/card/<scene>/cam/R0010001.JPG ...      Theta shots at the photo camera's position
-    DIR/card/<scene>/p01/R0010003.JPG ...      Theta shots at each probe position
+    DIR/card/<scene>/p01/R0010006.JPG ...      Theta shots at each probe position
+    DIR/card/<scene>/fieldnotes.toml           the field notes (:mod:`solidkit.capture.fieldnotes`)
     DIR/truth/truth.json                       :class:`CampaignTruth` (kept apart from the card)
     DIR/truth/<scene>/photo.exr, <probe>.exr   HDR photo and HDR local probes (256x128, photo pano frame)
 
-(the card follows the *explicit* layout of :mod:`solidkit.capture.campaign`, so ``solidkit
-ingest DIR/card CAMPAIGN`` reads it). Lightings are redrawn (up to ``sun_attempts``) until the
-sun reaches the photo camera's position, as a field team would pick a sunny spot; the truth
-says for every capture whether the sun is visible from it. Every Theta position gets a normal exposure (1/2500 s,
-f/2, ISO 100) and, 20 s later, a low-exposure sun frame (1/25000 s, ISO 64); ``brackets`` adds a
-bracket before them. A Theta shot is a dual-fisheye JPEG (Ricoh THETA V layout, EXIF + Ricoh
-maker note: image type 2, ``[roll, pitch]`` as its accelerometer would record them, with
-``gravity_noise_deg`` noise; compass heading with ``compass_noise_deg`` noise) made through the
-lens profile of :mod:`solidkit.camera.lens` (``theta-v`` scaled to ``fisheye_width``): each
-fisheye pixel's direction (:func:`~solidkit.camera.lens.unproject`) is turned into the scene
-by the body's true rotation ``R(heading, pitch, roll)`` and looked up in an HDR panorama
-rendered at the position (scene frame, :func:`solidkit.envmap.resample.sample_panorama`). Both
+(the card follows the *explicit* layout of :mod:`solidkit.capture.grouping`, so ``solidkit
+ingest DIR/card CAMPAIGN`` reads it). The protocol, rule by rule:
+
+- **Probes a person can reach** (:mod:`solidkit.synth.fieldwork`): on the road, sidewalks,
+  markings or bench seats (up-facing, <= ``max_surface_height_m`` high, <= ``max_probe_distance_m``
+  from the photo camera), lens ``lens_height_m`` (10 cm) above the surface, nothing overhead,
+  ``probe_clearance_m`` of free space around the lens; one per photo quadrant first.
+- **The camera position**: the first Theta position stands where the photo camera stood
+  (folder ``cam``; the notes' ``camera_position``).
+- **Exposures**: every position gets one bracket: the sun frame (``low_exposure_s`` 1/25000 s,
+  ISO 64), the paper's probe exposure (``normal_exposure_s`` 1/2500 s, ISO 100) and
+  ``brackets_s`` (default 1/640, 1/160, 1/40 s), ``shot_interval_s`` (3 s) apart, so ingest's
+  10-s bracket gap groups them into one HDR product and the shortest is the sun frame.
+- **Timing**: positions follow the photo every ``position_interval_s`` (60 s).
+- **Field notes** (``fieldnotes.toml``): camera position, photo name, each probe's pixel as
+  marked by hand (the exact pixel + ``mark_noise_px`` rms noise, rounded to half pixels; the
+  truth keeps both), the photo's pitch/roll off the tripod level (``level_noise_deg`` rms).
+- **Photo EXIF**: FocalLength and FocalLengthIn35mmFilm (on the 43.27 mm diagonal, as
+  ``solidkit calibrate camera`` reads it), time + UTC offset, GPS and GPSImgDirection.
+- **Glass facades** (a case the protocol says to avoid, which alignment must survive): every
+  ``glass_every``-th scene (scene02, scene05, ...) has curtain-wall glass along both sides of
+  the street and a lighting whose sun glint at least one position sees
+  (``CaptureTruth.glint_body``).
+
+Lightings are redrawn (up to ``sun_attempts``) until the sun reaches the photo camera's position
+(and, for a glass scene, a glint is visible), as a field team would pick a sunny spot; the truth
+says for every capture whether the sun is visible from it. A Theta shot is a dual-fisheye JPEG
+(Ricoh THETA V layout, EXIF + Ricoh maker note: image type 2, ``[roll, pitch]`` as its
+accelerometer would record them, with ``gravity_noise_deg`` noise; compass heading with
+``compass_noise_deg`` noise) made through the lens profile of :mod:`solidkit.camera.lens`
+(``theta-v`` scaled to ``fisheye_width``) by the capture forward model
+:func:`solidkit.capture.unwarp.render_fisheye` (``R_level`` = the body's true rotation
+``R(heading, pitch, roll)``) from an HDR panorama rendered at the position (scene frame). Both
 lenses share one centre (the ~2 cm baseline is ignored).
 
 Radiometry: scene radiance ``L`` (relative units of :mod:`solidkit.synth.lighting`) becomes the
@@ -46,7 +68,7 @@ a whole-second UTC time, a latitude, longitude and altitude at which pvlib's sol
 right of forward). The photo's EXIF carries the local clock time (nominal zone ``round(lon/15)``
 h), ``OffsetTime(Original)`` and the UTC ``GPSDateStamp``/``GPSTimeStamp``. Overcast scenes get
 a sun direction drawn for the place and time (elevation 15-60°), hidden by the clouds. Theta
-shots follow the photo by 1-2 min per position, so the real sun would have moved by
+shots follow the photo by ``position_interval_s`` per position, so the real sun would have moved by
 ``CaptureTruth.sun_drift_deg`` (≤ 0.25°/min) from the rendered one; the photo is exact.
 
 Resuming: ``truth/campaign.json`` fixes the settings (seed, scenes, probes, config, Mitsuba
@@ -73,23 +95,26 @@ import cv2
 import numpy as np
 from pydantic import BaseModel, Field
 
+from solidkit.calibration.camera import FULL_FRAME_DIAGONAL_MM
+from solidkit.capture.fieldnotes import NOTES_NAMES, FieldNotes, PhotoPose, ProbeNote, notes_text
+from solidkit.capture.unwarp import render_fisheye
 from solidkit.envmap import (CONVENTIONS_VERSION, angles_from_direction, angular_distance, rotation_from_ypr, srgb_encode,
                              write_exr)
-from solidkit.envmap.resample import sample_panorama
 from solidkit.errors import InputError
 from solidkit.fsutil import atomic_write_bytes, atomic_write_text
 from solidkit.synth.cameras import pinhole_sensor
 from solidkit.synth.exif import exif_app1, insert_app1
-from solidkit.synth.sample import (Generator, SampleConfig, derive_seed, pick_probe_pixels, render_buffers,
-                                   render_panorama, render_rgb, sun_mask_image, sun_mask_panorama, suppress_fireflies)
+from solidkit.synth.fieldwork import GlassPanel, add_glass_facades, glint_direction, occluded, pick_reachable_probes
+from solidkit.synth.sample import (Generator, SampleConfig, derive_seed, render_buffers, render_panorama, render_rgb,
+                                   sun_mask_image, sun_mask_panorama, suppress_fireflies)
 from solidkit.synth.scene import CATEGORIES, to_mitsuba
 from solidkit.synth.solar import TEMPERATURE_C, direction_angles, place_sun, solar_direction, solar_position, utc_offset_text
 
-__all__ = ["K_SENSOR", "CampaignConfig", "Shot", "ProbeTruth", "CaptureTruth", "PhotoTruth", "SceneTruth",
-           "SolarTruth", "CampaignTruth", "expose", "fisheye_image", "generate_campaign", "load_truth", "open_campaign"]
+__all__ = ["K_SENSOR", "PRESETS", "CampaignConfig", "Shot", "ProbeTruth", "CaptureTruth", "PhotoTruth", "SceneTruth",
+           "SolarTruth", "CampaignTruth", "expose", "generate_campaign", "load_truth", "open_campaign"]
 
 K_SENSOR = 3500.0
-SCHEMA_VERSION = 2
+SCHEMA_VERSION = 3
 SETTINGS_FILE = "campaign.json"
 SCENE_FILE = "scene.json"
 log = logging.getLogger(__name__)
@@ -110,16 +135,35 @@ class CampaignConfig(BaseModel):
     lens_profile: str = "theta-v"
     normal_exposure_s: float = 1 / 2500
     low_exposure_s: float = 1 / 25000
-    brackets_s: list[float] = Field(default_factory=list)
+    brackets_s: list[float] = Field(default_factory=lambda: [1 / 640, 1 / 160, 1 / 40],
+                                    description="longer exposures after the normal one, same bracket")
+    shot_interval_s: float = Field(3.0, description="between the shots of one position (one bracket: < 10 s)")
+    position_interval_s: float = Field(60.0, description="from one Theta position to the next (the sun moves 0.25°/min)")
     max_tilt_deg: float = 5.0
     gravity_noise_deg: float = 0.3
     compass_noise_deg: float = 5.0
+    lens_height_m: float = Field(0.10, description="Theta lens above the probe's surface")
+    max_surface_height_m: float = Field(1.0, description="highest surface a probe is put on (ground, curbs, benches)")
+    probe_clearance_m: float = Field(0.30, description="free space around the lens at its height")
+    max_probe_distance_m: float = Field(25.0, description="farthest probe from the photo camera (horizontal)")
+    mark_noise_px: float = Field(2.0, description="rms error of the probe pixels the team marks in the field notes")
+    level_noise_deg: float = Field(0.5, description="rms error of the photo pitch/roll read off the tripod level")
+    glass_every: int = Field(3, description="every n-th scene (scene02, scene05, ...) has curtain-wall glass along "
+                                            "the street and a sun whose glint a position sees; 0: none")
     jpeg_quality: int = 92
     candidates: int = 8
     p_sunsky: float = 0.7
     block_length: float = 60.0
     sun_attempts: int = 8
     firefly_k: float = 10.0
+
+
+PRESETS: dict[str, dict[str, Any]] = {
+    "default": {},
+    # the campaign shipped in solidkit/assets/campaign_mini (a few MB): small photo, panoramas and fisheyes
+    "mini": {"photo_width": 320, "photo_height": 240, "photo_spp": 16, "pano_height": 256, "pano_spp": 8,
+             "probe_spp": 16, "fisheye_width": 768, "brackets_s": [1 / 250], "jpeg_quality": 85},
+}
 
 
 class Shot(BaseModel):
@@ -132,7 +176,9 @@ class Shot(BaseModel):
 
 
 class ProbeTruth(BaseModel):
-    pixel: list[int]
+    pixel: list[int] = Field(description="exact photo pixel of the probe's surface point")
+    marked_pixel: list[float] = Field(description="the pixel the field notes give (marked by hand: a few px off)")
+    surface_height_m: float = Field(description="the surface point's height above the ground")
     quadrant: int
     point_scene: list[float]
     normal_scene: list[float]
@@ -158,6 +204,8 @@ class CaptureTruth(BaseModel):
     sun_visible: bool = Field(description="the sun's centre is unoccluded from the capture position")
     sun_drift_deg: float | None = Field(None, description="angle between the rendered sun and pvlib's sun at the "
                                                            "time of the capture's normal shot")
+    glint_body: list[float] | None = Field(None, description="body-frame direction of a sun glint on glass seen from "
+                                                             "the capture (None: none)")
     shots: list[Shot]
     probe: ProbeTruth | None = None
 
@@ -167,6 +215,7 @@ class PhotoTruth(BaseModel):
     camera: dict[str, Any]
     focal_length_mm: float
     sensor_width_mm: float
+    focal_35mm: float | None = Field(None, description="35 mm-equivalent focal length (diagonal), before EXIF rounds it")
     hdr_file: str
 
 
@@ -201,6 +250,9 @@ class SceneTruth(BaseModel):
     gps: list[float]
     photo: PhotoTruth
     captures: list[CaptureTruth]
+    camera_position: str = Field("cam", description="the capture taken at the photo camera's position")
+    fieldnotes_file: str | None = Field(None, description="the field notes on the card (relative to the campaign)")
+    glass_panels: list[dict[str, float]] = Field(default_factory=list, description="curtain-wall glass (fieldwork.GlassPanel)")
 
 
 class CampaignTruth(BaseModel):
@@ -245,35 +297,6 @@ def expose(radiance: np.ndarray, exposure_time: float, f_number: float, iso: flo
     if not ok:
         raise InputError("JPEG encoding failed")
     return img, buf.tobytes()
-
-
-def fisheye_image(pano_scene: np.ndarray, R_scene_from_body: np.ndarray, profile: Any) -> np.ndarray:
-    """Dual-fisheye image ``(h, w, 3)`` of a scene-frame HDR panorama seen by a body with that rotation.
-
-    Pixels outside both image circles (``theta > max_angle``) are 0.
-    """
-    from solidkit.camera.lens import unproject
-
-    w, h = profile.reference_size
-    ys, xs = np.mgrid[0:h, 0:w].astype(np.float64)
-    out = np.zeros((h, w, 3), np.float32)
-    half = w // 2
-    for k, lens in enumerate(profile.lenses):
-        # each lens owns the half of the frame holding its image circle
-        cols = slice(0, half) if lens.center[0] < half else slice(half, w)
-        d_body, theta = unproject(lens, xs[:, cols], ys[:, cols])
-        valid = theta <= math.radians(lens.max_angle_deg)
-        d_scene = d_body @ R_scene_from_body.T
-        vals = np.asarray(sample_panorama(pano_scene, d_scene.astype(np.float32)))
-        out[:, cols] = np.where(valid[..., None], vals, 0.0)
-    return out
-
-
-def _occluded(mi: Any, scene: Any, position: np.ndarray, direction: np.ndarray) -> bool:
-    """Does scene geometry block the ray from ``position`` toward ``direction``?"""
-    ray = mi.Ray3f(mi.Point3f(*[float(v) for v in position]), mi.Vector3f(*[float(v) for v in direction]))
-    hit = scene.ray_test(ray)
-    return bool(hit if isinstance(hit, bool) else np.asarray(hit).ravel()[0])
 
 
 def _split(total: int, parts: int) -> list[int]:
@@ -398,20 +421,50 @@ def generate_campaign(out: str | os.PathLike, scenes: int, probes: int, *, seed:
 
 def _render_scene(out: Path, s: int, sid: str, seed: int, cfg: CampaignConfig, gen: Generator, n_probes: int,
                   shot_no: int, profile: Any, mi: Any, progress: Any) -> SceneTruth:
-    """Render scene ``s`` (photo, probes, Theta captures) into ``out``; returns its truth (not yet written)."""
+    """Render scene ``s`` (photo, probes, Theta captures, field notes) into ``out``; returns its truth (not yet written)."""
     truth_dir = out / "truth"
     model = profile.camera_models[0] if profile.camera_models else "RICOH THETA V"
     rng = np.random.default_rng(derive_seed(seed, s, 77))
     sector = int(rng.integers(6))
     block, (cam, _) = gen.block_and_view(s, sector)
+    glass = cfg.glass_every > 0 and s % cfg.glass_every == min(1, cfg.glass_every - 1)
+    panels: list[GlassPanel] = []
+    if glass:
+        block, panels = add_glass_facades(block, np.random.default_rng(derive_seed(seed, s, 81)))
     geometry = to_mitsuba(block, None, tex_size=4)
-    # a field team shoots in the sun: retry lightings until the sun reaches the camera (or give up)
-    for attempt in range(cfg.sun_attempts):
+    # --- where the team can put the Theta: the photo camera's position, then probes on reachable surfaces
+    buf = render_buffers(geometry, cam, spp=1, shadows=False)
+    picks = pick_reachable_probes(mi, geometry, block, cam, buf, n_probes, rng, lens_height_m=cfg.lens_height_m,
+                                  clearance_m=cfg.probe_clearance_m, max_surface_height_m=cfg.max_surface_height_m,
+                                  max_distance_m=cfg.max_probe_distance_m)
+    if len(picks) < n_probes:
+        log.warning("%s: only %d of %d probe positions are reachable in this view", sid, len(picks), n_probes)
+    R = cam.rotation
+    positions: list[tuple[str, np.ndarray, dict[str, Any] | None]] = [("cam", cam.position.copy(), None)]
+    for k, p in enumerate(picks):
+        x, y = p["pixel"]
+        point = p["point"]
+        info = {"pixel": [int(x), int(y)], "quadrant": p["quadrant"], "point_scene": point.tolist(),
+                "normal_scene": p["normal"].tolist(), "point_camera": ((point - cam.position) @ R).tolist(),
+                "depth": float(buf["depth"][y, x]), "category": CATEGORIES[block.category_of(np.array([p["label"]]))[0]],
+                "surface_height_m": float(-point[1])}
+        positions.append((f"p{k + 1:02d}", p["position"], info))
+    # --- a sunny spot (and, for a glass scene, a sun whose glint some position sees), as a team would pick
+    attempts = cfg.sun_attempts * (4 if glass else 1)  # a glint needs the sun on the glass and at a position
+    for attempt in range(attempts):
         light = gen.lighting(derive_seed(seed, s, 300 + attempt))
         if light.sun is not None and direction_angles(light.sun)[1] < -0.5:
             continue  # a sun below the horizon (an odd HDR map) has no place and time
-        if light.sun is None or not _occluded(mi, geometry, cam.position, light.sun):
-            break
+        if glass and light.sun is None:
+            continue
+        if light.sun is not None and occluded(mi, geometry, cam.position, light.sun):
+            continue
+        if glass and not any(glint_direction(mi, geometry, pos, light.sun, panels) is not None for _, pos, _ in positions):
+            continue
+        break
+    else:
+        log.warning("%s: no lighting in %d attempts met the protocol (sun at the camera%s); kept the last",
+                    sid, attempts, ", a visible glint" if glass else "")
     scene = to_mitsuba(block, light.emitter())
     # place and time: pvlib's sun = the rendered sun (overcast: a daytime sun hidden by the clouds)
     srng = np.random.default_rng(derive_seed(seed, s, 79))
@@ -430,38 +483,21 @@ def _render_scene(out: Path, s: int, sid: str, seed: int, cfg: CampaignConfig, g
     _, jpg = expose(hdr, t_photo, f_number, iso, rng, quality=cfg.jpeg_quality)
     sensor_w = 6.17
     f_mm = cam.K[0, 0] * sensor_w / cam.width
+    # FocalLengthIn35mmFilm is defined on the 43.27 mm diagonal (CIPA DC-008), as calibrate camera reads it
+    f_35 = cam.K[0, 0] * FULL_FRAME_DIAGONAL_MM / math.hypot(cam.width, cam.height)
     app = exif_app1(make="SOLIDKIT", model="Virtual Photo Camera", when=t0, exposure_time=t_photo, f_number=f_number,
-                    iso=iso, gps=gps, focal_length_mm=f_mm, focal_35mm=cam.K[0, 0] * 36.0 / cam.width,
-                    img_direction_deg=heading)
-    photo_file = f"card/{sid}/photo/IMG_{s + 1:04d}.JPG"
+                    iso=iso, gps=gps, focal_length_mm=f_mm, focal_35mm=f_35, img_direction_deg=heading)
+    photo_name = f"IMG_{s + 1:04d}.JPG"
+    photo_file = f"card/{sid}/photo/{photo_name}"
     atomic_write_bytes(out / photo_file, insert_app1(jpg, app))
     write_exr(truth_dir / sid / "photo.exr", hdr, {"scene": sid})
     photo = PhotoTruth(shot=Shot(file=photo_file, exposure_time=t_photo, f_number=f_number, iso=iso, time=t0, role="photo"),
-                       camera=cam.to_json(), focal_length_mm=f_mm, sensor_width_mm=sensor_w,
+                       camera=cam.to_json(), focal_length_mm=f_mm, sensor_width_mm=sensor_w, focal_35mm=f_35,
                        hdr_file=f"truth/{sid}/photo.exr")
-    # --- probe points (one per quadrant first, then anywhere valid)
-    buf = render_buffers(scene, cam, spp=1, shadows=False)
-    picks = pick_probe_pixels(buf["hit"], rng, 0.05)
-    rng.shuffle(picks)
-    while len(picks) < n_probes and picks:
-        extra = pick_probe_pixels(buf["hit"], rng, 0.05)
-        picks += [dict(p, quadrant=-1) for p in extra]
-    picks = picks[:n_probes]
+    # --- the Theta positions: the camera's first, then the probes, one every position_interval_s
     captures = []
-    positions: list[tuple[str, np.ndarray, dict[str, Any] | None]] = [("cam", cam.position.copy(), None)]
-    R = cam.rotation
-    for k, p in enumerate(picks):
-        x, y = p["pixel"]
-        v = cam.rays()[y, x]
-        point = cam.position + float(buf["t"][y, x]) * (R @ (v / np.linalg.norm(v)))
-        n = buf["normal_world"][y, x].astype(np.float64)
-        lab = block.category_of(np.array([buf["label"][y, x]]))[0]
-        info = {"pixel": [int(x), int(y)], "quadrant": int(p["quadrant"]), "point_scene": point.tolist(),
-                "normal_scene": n.tolist(), "point_camera": ((point - cam.position) @ R).tolist(),
-                "depth": float(buf["depth"][y, x]), "category": CATEGORIES[lab]}
-        positions.append((f"p{k + 1:02d}", point + 0.10 * n, info))
     for c, (cid, pos, info) in enumerate(positions):
-        tc = t0 + dt.timedelta(seconds=60 + 120 * c)
+        tc = t0 + dt.timedelta(seconds=cfg.position_interval_s * (c + 1))
         yaw = rng.uniform(-math.pi, math.pi)
         tilt = math.radians(cfg.max_tilt_deg)
         pitch, roll = rng.uniform(-tilt, tilt), rng.uniform(-tilt, tilt)
@@ -471,17 +507,17 @@ def _render_scene(out: Path, s: int, sid: str, seed: int, cfg: CampaignConfig, g
         rec_heading = (math.degrees(yaw) + rng.normal(0.0, cfg.compass_noise_deg)) % 360.0
         pano = render_panorama(scene, pos, np.eye(3), cfg.pano_height, cfg.pano_spp,
                                seed=derive_seed(seed, s, 100 + c))
-        pano, _ = suppress_fireflies(pano, sun_mask_panorama(light.sun, np.eye(3), cfg.pano_height, 2.0),
-                                     cfg.firefly_k, wrap=True)
-        fish = fisheye_image(pano, Rb, profile)
+        keep = sun_mask_panorama(light.sun, np.eye(3), cfg.pano_height, 2.0)
+        glint = glint_direction(mi, geometry, pos, light.sun, panels) if (panels and light.sun is not None) else None
+        if glint is not None:  # a glint is a real, sharp highlight: not a firefly
+            keep = keep | sun_mask_panorama(glint, np.eye(3), cfg.pano_height, 2.0)
+        pano, _ = suppress_fireflies(pano, keep, cfg.firefly_k, wrap=True)
+        fish = render_fisheye(pano, profile, profile.reference_size, R_level=Rb)
         shots = []
-        plan: list[tuple[float, int, str, float]] = []
-        for b, t_b in enumerate(cfg.brackets_s):
-            plan.append((t_b, 100, "bracket", 3.0 * b))
-        off = 3.0 * len(cfg.brackets_s) + (15.0 if cfg.brackets_s else 0.0)
-        plan += [(cfg.normal_exposure_s, 100, "normal", off), (cfg.low_exposure_s, 64, "low_exposure", off + 20.0)]
-        for t_exp, iso_c, role, dtime in plan:
-            when = tc + dt.timedelta(seconds=dtime)
+        plan = [(cfg.low_exposure_s, 64, "low_exposure"), (cfg.normal_exposure_s, 100, "normal")]
+        plan += [(t_b, 100, "bracket") for t_b in cfg.brackets_s]
+        for k, (t_exp, iso_c, role) in enumerate(plan):
+            when = tc + dt.timedelta(seconds=cfg.shot_interval_s * k)
             _, jpg = expose(fish, t_exp, 2.0, iso_c, rng, quality=cfg.jpeg_quality)
             app = exif_app1(make="RICOH", model=model, when=when, exposure_time=t_exp, f_number=2.0, iso=iso_c,
                             gps=gps, theta={"image_type": 2, "roll_deg": rec_roll, "pitch_deg": rec_pitch,
@@ -497,20 +533,23 @@ def _render_scene(out: Path, s: int, sid: str, seed: int, cfg: CampaignConfig, g
             local, _ = suppress_fireflies(local, sun_mask_panorama(light.sun, cam.pano_rotation, cfg.probe_height),
                                           cfg.firefly_k, wrap=True)
             write_exr(truth_dir / sid / f"{cid}.exr", local, {"scene": sid, "probe": cid, "frame": "photo panorama frame"})
-            probe = ProbeTruth(**info, hdr_file=f"truth/{sid}/{cid}.exr")
+            marked = np.asarray(info["pixel"], np.float64) + rng.normal(0.0, cfg.mark_noise_px, 2)
+            marked = np.round(np.clip(marked, 0.0, [cam.width - 1, cam.height - 1]) * 2.0) / 2.0  # a tablet's half pixels
+            probe = ProbeTruth(**info, marked_pixel=marked.tolist(), hdr_file=f"truth/{sid}/{cid}.exr")
         sun_body = sun_drift = None
         if light.sun is not None:
             sun_body = (Rb.T @ light.sun).tolist()
             normal_time = next(sh.time for sh in shots if sh.role == "normal")
             real = solar_direction(*solar_position(normal_time, fix.lat_deg, fix.lon_deg, fix.alt_m))
             sun_drift = math.degrees(float(angular_distance(real, light.sun)))
-        sun_visible = light.sun is not None and not _occluded(mi, geometry, pos, light.sun)
+        sun_visible = light.sun is not None and not occluded(mi, geometry, pos, light.sun)
         captures.append(CaptureTruth(
             id=cid, kind="probe" if info is not None else "camera_position", position=pos.tolist(),
             yaw_deg=math.degrees(yaw), pitch_deg=math.degrees(pitch), roll_deg=math.degrees(roll),
             R_scene_from_body=Rb.tolist(), R_pano_from_body=(cam.pano_rotation.T @ Rb).tolist(),
             recorded_pitch_deg=rec_pitch, recorded_roll_deg=rec_roll, recorded_heading_deg=rec_heading,
-            sun_body=sun_body, sun_visible=sun_visible, sun_drift_deg=sun_drift, shots=shots, probe=probe))
+            sun_body=sun_body, sun_visible=sun_visible, sun_drift_deg=sun_drift,
+            glint_body=None if glint is None else (Rb.T @ glint).tolist(), shots=shots, probe=probe))
         if progress:
             progress(sid, cid)
     sun_az = sun_el = None
@@ -520,7 +559,18 @@ def _render_scene(out: Path, s: int, sid: str, seed: int, cfg: CampaignConfig, g
     solar = SolarTruth(time_utc=fix.when_utc, utc_offset=utc_offset_text(fix.utc_offset_min), latitude_deg=fix.lat_deg,
                        longitude_deg=fix.lon_deg, altitude_m=fix.alt_m, azimuth_deg=fix.azimuth_deg,
                        elevation_deg=fix.elevation_deg, error_deg=fix.error_deg, rendered=light.sun is not None)
+    # --- the field notes, as the team fills them in at the scene (pixels as marked, pose off a level)
+    pose = PhotoPose(pitch_deg=round(math.degrees(cam.pitch) + float(rng.normal(0.0, cfg.level_noise_deg)), 1),
+                     roll_deg=round(math.degrees(cam.roll) + float(rng.normal(0.0, cfg.level_noise_deg)), 1))
+    notes = FieldNotes(
+        camera_position="cam", photo=photo_name, photo_pose=pose,
+        notes=f"{light.meta.get('kind', 'lighting')}; " + ("curtain-wall glass along the street" if glass else "no glass facades"),
+        probes={c.id: ProbeNote(pixel=tuple(c.probe.marked_pixel), note=f"on the {c.probe.category}")
+                for c in captures if c.probe is not None})
+    notes_file = f"card/{sid}/{NOTES_NAMES[0]}"
+    atomic_write_text(out / notes_file, notes_text(notes))
     return SceneTruth(
         id=sid, block_seed=block.seed, sector=sector, lighting=light.meta, sun_found=light.sun is not None,
         sun_scene=None if light.sun is None else [float(v) for v in light.sun], sun_azimuth_deg=sun_az,
-        sun_elevation_deg=sun_el, heading_deg=heading, solar=solar, gps=list(gps), photo=photo, captures=captures)
+        sun_elevation_deg=sun_el, heading_deg=heading, solar=solar, gps=list(gps), photo=photo, captures=captures,
+        camera_position="cam", fieldnotes_file=notes_file, glass_panels=[p.to_json() for p in panels])
