@@ -44,6 +44,13 @@ def test_solidnet_shapes_and_dtypes(b):
         "probe_valid": (b, 2),
         "local_log": (b, 2, 3, 128, 256),
         "local": (b, 2, 3, 128, 256),
+        # the sun head (tiny has it, like the shipped small preset)
+        "sun_logits": (b, 1, 128, 256),
+        "sun_dir": (b, 3),
+        "sun_energy": (b, 3),
+        "sun_log_energy": (b, 3),
+        "sun_sigma": (b,),
+        "sky_np_log": (b, 3, 128, 256),
     }
     assert set(out) == set(expect)
     for k, shape in expect.items():
@@ -110,9 +117,9 @@ def test_flip_pad_mirrors_around_the_placed_copy():
 
 
 def test_small_model_overfits_one_sample():
-    """Tiny widths at reduced resolution; ~80 Adam steps, about 15 s on one shared core."""
+    """Tiny widths at reduced resolution, the paper's losses; ~80 Adam steps, about 15 s on one shared core."""
     torch.manual_seed(0)
-    cfg = preset("tiny", image_size=(60, 80), pano_height=32)
+    cfg = preset("tiny-paper", image_size=(60, 80), pano_height=32)
     model = SolidNet(cfg)
     batch = _batch(cfg, 1)
     history = fit(model, batch, steps=80, lr=2e-2)

@@ -3,8 +3,11 @@
 The paper (Zhu et al., CVPR 2021, §4.2 and supplementary) gives the structure of I-Net and
 P-Net but no layer widths. Two presets are provided:
 
-- ``small``: a CPU-friendly configuration (≈1-2 M parameters) used by the shipped checkpoint;
-- ``paper``: a paper-sized configuration (standard U-Net widths 32..512) for GPU training.
+- ``small``: a CPU-friendly configuration (≈1.5 M parameters) with the sun head and the located
+  losses, used by the shipped checkpoint; ``small-paper``: the same widths with the paper's sky
+  decoder and losses (the ablation);
+- ``paper``: a paper-sized configuration (standard U-Net widths 32..512, paper losses) for GPU training;
+- ``tiny`` / ``tiny-paper``: a few thousand parameters, for tests.
 
 The configuration travels inside every checkpoint (:mod:`solidkit.model.checkpoint`), so a
 model is always rebuilt with the widths it was trained with.
@@ -19,7 +22,12 @@ from typing import Any
 
 from solidkit.errors import SolidkitError
 
-__all__ = ["PNET_INPUTS", "ConfigError", "SolidNetConfig", "preset", "PRESETS"]
+__all__ = ["LOSS_VARIANTS", "PNET_INPUTS", "ConfigError", "SolidNetConfig", "preset", "PRESETS"]
+
+# Sky losses: "paper" = the paper's L1 on log1p(H_g) alone; "located" = a parametric sun (sun head)
+# with location, energy and peak terms, the L1 on the sky away from the sun, and plane distance
+# relative to the scene's median depth (see solidkit.model.losses).
+LOSS_VARIANTS = ("paper", "located")
 
 # Inputs P-Net may receive (paper Table 2): warped colour W_col (+ its observed mask), warped
 # shadow W_sha, the Lambertian sphere relit with P_SH (W_SH) and the global sky H_g (W_sky).
@@ -45,6 +53,10 @@ class SolidNetConfig:
         Channels of the lighting branch (the features behind ``P_SH`` and the sky features).
     sky_widths : tuple of int
         Sky-decoder channels at panorama heights ``pano_height/8, /4, /2, /1``.
+    sky_feature_width : int
+        Channels of the flip-padded sky features concatenated at every sky-decoder stage; 0 means
+        ``light_width`` (the first checkpoints). Fewer channels make the full-resolution stages,
+        the bulk of a lighting-only training step, cheaper.
     pnet_widths : tuple of int
         P-Net (U-Net) channels per level on the ``pano_height x 2 pano_height`` panorama.
     pnet_inputs : tuple of str
@@ -58,20 +70,29 @@ class SolidNetConfig:
         and the footprint of the image in the sky decoder's flip-padded sky features.
     probe_offset : float
         Metres the probe centre is moved along the surface normal (paper §3.1: 0.10 m).
+    sun_head : bool
+        Predict the sun parametrically (:mod:`solidkit.model.sunhead`) and add it to the sky map;
+        False is the paper's purely non-parametric sky decoder.
+    loss_variant : str
+        One of :data:`LOSS_VARIANTS`.
     loss_weights : dict
-        Weights of ``sup1`` terms and of ``dif``, ``rec``, ``sup2``, ``tom`` (paper: all 1).
+        Weights of ``sup1`` terms, of ``dif``, ``rec``, ``sup2``, ``tom`` (paper: all 1) and of the
+        sun terms ``sun_dir``, ``sun_energy``, ``sun_peak`` (used by ``loss_variant="located"``).
     """
 
     name: str = "small"
     widths: tuple[int, ...] = (16, 24, 32, 64, 96)
     light_width: int = 64
     sky_widths: tuple[int, ...] = (32, 24, 16, 16)
+    sky_feature_width: int = 0
     pnet_widths: tuple[int, ...] = (16, 24, 32, 64, 96)
     pnet_inputs: tuple[str, ...] = ("col", "sha", "sky")
     image_size: tuple[int, int] = (240, 320)
     pano_height: int = 128
     hfov_deg: float = 60.0
     probe_offset: float = 0.10
+    sun_head: bool = False
+    loss_variant: str = "paper"
     loss_weights: dict[str, float] = field(
         default_factory=lambda: {
             "albedo": 1.0,
@@ -83,6 +104,9 @@ class SolidNetConfig:
             "rec": 1.0,
             "local": 1.0,
             "tom": 1.0,
+            "sun_dir": 1.0,
+            "sun_energy": 1.0,
+            "sun_peak": 0.2,
         }
     )
 
@@ -110,6 +134,10 @@ class SolidNetConfig:
             )
         if not 1.0 < self.hfov_deg < 179.0:
             raise ConfigError(f"hfov_deg must be in (1, 179), got {self.hfov_deg}")
+        if self.loss_variant not in LOSS_VARIANTS:
+            raise ConfigError(f"loss_variant must be one of {LOSS_VARIANTS}, got {self.loss_variant!r}")
+        if self.loss_variant == "located" and not self.sun_head:
+            raise ConfigError("loss_variant 'located' needs sun_head=True (its sun terms read the sun head)")
         unknown = set(self.loss_weights) - set(SolidNetConfig.__dataclass_fields__["loss_weights"].default_factory())
         if unknown:
             raise ConfigError(f"unknown loss weights {sorted(unknown)}")
@@ -139,8 +167,13 @@ class SolidNetConfig:
         return cls(**{**data, "loss_weights": weights})
 
 
+_SUN = {"sun_head": True, "loss_variant": "located", "sky_feature_width": 16}
+
 PRESETS: dict[str, SolidNetConfig] = {
-    "small": SolidNetConfig(),
+    # the shipped model: small widths, the sun head and the located losses
+    "small": SolidNetConfig(**_SUN),
+    # the paper's sky decoder and losses at the small widths (the ablation of the sun head)
+    "small-paper": SolidNetConfig(name="small-paper", sky_feature_width=16),
     "paper": SolidNetConfig(
         name="paper",
         widths=(32, 64, 128, 256, 512),
@@ -151,6 +184,14 @@ PRESETS: dict[str, SolidNetConfig] = {
     # for unit tests: a few thousand parameters, fast on one CPU core
     "tiny": SolidNetConfig(
         name="tiny",
+        widths=(4, 8, 8, 16),
+        light_width=16,
+        sky_widths=(8, 8, 4, 4),
+        pnet_widths=(4, 8, 8, 16),
+        **_SUN,
+    ),
+    "tiny-paper": SolidNetConfig(
+        name="tiny-paper",
         widths=(4, 8, 8, 16),
         light_width=16,
         sky_widths=(8, 8, 4, 4),

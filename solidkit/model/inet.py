@@ -31,6 +31,7 @@ from solidkit.envmap.coords import angles_grid, direction_grid
 from solidkit.envmap.sh import sh_basis
 from solidkit.model.blocks import ConvBlock, Encoder, UNetDecoder, radiance_from_log, resize_to
 from solidkit.model.config import SolidNetConfig
+from solidkit.model.sunhead import SunHead, render_sun
 
 __all__ = ["INet", "flip_pad", "image_footprint", "sh_panorama"]
 
@@ -78,6 +79,11 @@ class INet(nn.Module):
     - ``shadow`` (B, 1, H, W) in [0, 1], 1 = lit, 0 = fully shadowed (sigmoid)
     - ``sh`` (B, 3, 9) the SH coefficients ``L`` (the paper's ``P_SH`` reshaped)
     - ``sky_log`` (B, 3, Hp, 2Hp) ``log1p(H_g)``; ``sky`` (B, 3, Hp, 2Hp) the radiance ``H_g``
+
+    With ``config.sun_head`` (:mod:`solidkit.model.sunhead`) also ``sun_logits (B, 1, Hp, 2Hp)``,
+    ``sun_dir (B, 3)``, ``sun_energy``, ``sun_log_energy (B, 3)``, ``sun_sigma (B,)`` and
+    ``sky_np_log`` (the non-parametric sky without the sun); ``sky`` is then the non-parametric sky
+    plus the rendered sun.
     """
 
     def __init__(self, config: SolidNetConfig) -> None:
@@ -99,11 +105,13 @@ class INet(nn.Module):
         self.light_fc = nn.Linear(lw * 12, 27)
         mid = min(2, len(w) - 1)  # the 1/8-resolution level provides the sky features
         self._sky_level = mid
-        self.sky_features = ConvBlock(w[mid] + lw, lw)
+        sf = config.sky_feature_width or lw
+        self.sky_features = ConvBlock(w[mid] + lw, sf)
         sw = config.sky_widths
-        self.sky_in = nn.Sequential(ConvBlock(3 + lw + 1, sw[0], panorama=True), ConvBlock(sw[0], sw[0], panorama=True))
-        self.sky_ups = nn.ModuleList(ConvBlock(sw[i] + 3 + lw + 1, sw[i + 1], panorama=True) for i in range(3))
+        self.sky_in = nn.Sequential(ConvBlock(3 + sf + 1, sw[0], panorama=True), ConvBlock(sw[0], sw[0], panorama=True))
+        self.sky_ups = nn.ModuleList(ConvBlock(sw[i] + 3 + sf + 1, sw[i + 1], panorama=True) for i in range(3))
         self.sky_head = nn.Conv2d(sw[-1], 3, 1)
+        self.sun = SunHead(lw * 12, sw[-1]) if config.sun_head else None
         self._footprints = [
             image_footprint(config.pano_height >> (3 - k), config.hfov_deg, config.vfov_deg) for k in range(4)
         ]
@@ -117,17 +125,20 @@ class INet(nn.Module):
         elev = torch.sin(theta).expand(L.shape[0], 1, h, 2 * h)
         return torch.cat([shading, padded, elev], dim=1)
 
-    def forward(self, image: torch.Tensor) -> dict[str, torch.Tensor]:
+    def forward(self, image: torch.Tensor, intrinsics: bool = True) -> dict[str, torch.Tensor]:
+        """``intrinsics=False`` skips the A/N/G/S decoders (lighting outputs only: sky-only training)."""
         size = tuple(image.shape[-2:])
         x = image * 2.0 - 1.0
         feats = self.encoder(x)
         out: dict[str, torch.Tensor] = {}
-        out["albedo"] = torch.sigmoid(self.decoders["albedo"](feats, size, x))
-        out["normal"] = F.normalize(self.decoders["normal"](feats, size, x), dim=1, eps=1e-6)
-        out["distance"] = F.softplus(self.decoders["distance"](feats, size, x))
-        out["shadow"] = torch.sigmoid(self.decoders["shadow"](feats, size, x))
+        if intrinsics:
+            out["albedo"] = torch.sigmoid(self.decoders["albedo"](feats, size, x))
+            out["normal"] = F.normalize(self.decoders["normal"](feats, size, x), dim=1, eps=1e-6)
+            out["distance"] = F.softplus(self.decoders["distance"](feats, size, x))
+            out["shadow"] = torch.sigmoid(self.decoders["shadow"](feats, size, x))
         light = self.light(feats[-1])
-        L = self.light_fc(torch.flatten(self.light_pool(light), 1)).view(-1, 3, 9)
+        pooled = torch.flatten(self.light_pool(light), 1)
+        L = self.light_fc(pooled).view(-1, 3, 9)
         out["sh"] = L
         mid = feats[self._sky_level]
         sky_feats = self.sky_features(torch.cat([mid, resize_to(light, mid.shape[-2:])], dim=1))
@@ -135,8 +146,16 @@ class INet(nn.Module):
         for k, up in enumerate(self.sky_ups, start=1):
             y = F.interpolate(y, scale_factor=2.0, mode="bilinear", align_corners=False)
             y = up(torch.cat([y, self._sky_stage_inputs(L, sky_feats, k)], dim=1))
-        out["sky_log"] = F.softplus(self.sky_head(y))
-        out["sky"] = radiance_from_log(out["sky_log"])
+        sky_log = F.softplus(self.sky_head(y))
+        if self.sun is None:
+            out["sky_log"] = sky_log
+            out["sky"] = radiance_from_log(sky_log)
+            return out
+        out.update(self.sun(pooled, y))
+        sun = render_sun(out["sun_dir"], out["sun_energy"], out["sun_sigma"], y.shape[-2])
+        out["sky_np_log"] = sky_log
+        out["sky"] = radiance_from_log(sky_log) + sun
+        out["sky_log"] = torch.log1p(out["sky"])
         return out
 
     @property

@@ -19,9 +19,29 @@ terms on H_g and H_l compare ``log1p`` values (the model's output ``y`` against 
 ground-truth radiance); L_dif and L_tom use radiance ``H = expm1(y)`` as the paper defines them.
 
 Shadow maps are visibility ratios: 1 = lit, 0 = fully shadowed (the synthetic generator's convention).
+
+Variant ``"located"`` (``config.loss_variant``; needs the sun head, :mod:`solidkit.model.sunhead`).
+The paper's L1 on the whole ``log1p`` sky makes a one-pixel sun ~3e-4 of the loss and is minimised by
+a sunless median whenever the sun's position is uncertain by more than a pixel or so; its plane-distance
+L1 in metres (up to ~90 m) dominates the total. So:
+
+- ``sky``: L1 on ``log1p`` of the *non-parametric* sky outside a ``SUN_CAP`` cap about the true sun;
+- ``sun_dir``: cross-entropy of the sun head's distribution ``p ∝ exp(logit) Omega`` against a
+  Gaussian of ``SUN_TARGET_SIGMA`` at the true sun (skies with a visible sun), divided by
+  ``log(H W)`` so that a uniform guess scores 1;
+- ``sun_energy``: L1 on ``log(E + SUN_ENERGY_EPS)`` (RGB) against the true sun energy
+  (:func:`sun_energy`; 0 for skies without a visible sun);
+- ``sun_peak``: L1 on ``log1p`` of the full predicted sky (sun included) over the target's brightest
+  0.1 % of pixels (the sun's peak, its size);
+- ``distance``: L1 of plane distance divided by the scene's median plane distance (per image).
+
+The truth sun (``batch["sun_dir"] (B, 3)``, ``batch["sun_visible"] (B,)``) is what the default
+detector (:func:`solidkit.envmap.detect_sun`) finds in the target sky.
 """
 
 from __future__ import annotations
+
+import math
 
 import torch
 import torch.nn.functional as F
@@ -29,8 +49,10 @@ from kornia.filters import otsu_threshold
 from kornia.losses import ssim_loss
 
 from solidkit.envmap.io import PAPER_EXPOSURE, PAPER_GAMMA, tonemap
+from solidkit.envmap.coords import direction_grid, solid_angle
 from solidkit.envmap.sh import diffuse_convolution, lambertian_sphere, sh_render
 from solidkit.model.blocks import log_from_radiance
+from solidkit.model.sunhead import log_solid_angle
 
 __all__ = [
     "masked_mean",
@@ -47,7 +69,25 @@ __all__ = [
     "reconstruction_loss",
     "tonemapped_ssim_loss",
     "solidnet_losses",
+    "relative_distance_loss",
+    "sun_energy",
+    "sun_direction_loss",
+    "sun_energy_loss",
+    "sun_peak_loss",
+    "sky_away_from_sun_loss",
+    "SUN_CAP",
+    "SUN_TARGET_SIGMA",
+    "SUN_ENERGY_EPS",
 ]
+
+SUN_CAP = math.radians(3.0)
+"""Radius of the cap about the sun that holds its energy at the model's resolution (radians)."""
+SUN_ANNULUS = (math.radians(4.0), math.radians(8.0))
+"""Ring about the sun whose median radiance is the sky under the sun (radians)."""
+SUN_TARGET_SIGMA = math.radians(2.0)
+"""Standard deviation of the Gaussian target of the sun-direction cross-entropy (radians)."""
+SUN_ENERGY_EPS = 1e-2
+"""Offset of the log in the sun-energy loss (radiance x sr; skies are scaled to irradiance ~pi)."""
 
 
 def masked_mean(x: torch.Tensor, mask: torch.Tensor | None = None) -> torch.Tensor:
@@ -77,6 +117,88 @@ def distance_loss(pred: torch.Tensor, target: torch.Tensor, mask: torch.Tensor |
     return masked_mean((pred - target).abs(), mask)
 
 
+def relative_distance_loss(pred: torch.Tensor, target: torch.Tensor, mask: torch.Tensor | None = None) -> torch.Tensor:
+    """L1 on plane distance ``(B, 1, H, W)`` divided by each image's median target distance (over ``mask``).
+
+    Unitless and scale-free: a 1 m error on a facade 5 m away weighs as much as 10 m on one 50 m
+    away, and no far plane dominates the total loss.
+    """
+    b = target.shape[0]
+    m = torch.ones_like(target, dtype=torch.bool) if mask is None else mask.bool().expand_as(target)
+    scale = []
+    for i in range(b):
+        vals = target[i][m[i]]
+        scale.append(vals.median() if vals.numel() else target.new_tensor(1.0))
+    scale = torch.stack(scale).clamp_min(0.5).detach()[:, None, None, None]
+    return masked_mean((pred - target).abs() / scale, m)
+
+
+def _cos_to(directions: torch.Tensor, height: int) -> torch.Tensor:
+    """``cos`` of the angle between every pixel of a ``(height, 2 height)`` panorama and ``directions (B, 3)``."""
+    grid = direction_grid(height, torch, dtype=directions.dtype, device=directions.device)
+    return torch.einsum("hwk,bk->bhw", grid, directions)
+
+
+def sun_energy(sky: torch.Tensor, direction: torch.Tensor, visible: torch.Tensor | None = None,
+               cap: float = SUN_CAP, annulus: tuple[float, float] = SUN_ANNULUS) -> torch.Tensor:
+    """Energy ``(B, C)`` (radiance x sr) of the sun at ``direction (B, 3)`` in ``sky (B, C, H, 2H)``.
+
+    ``sum over the cap of max(L - L_bg, 0) Omega`` with ``L_bg`` the per-channel median of the
+    ``annulus`` about the sun (the sky under it); 0 where ``visible (B,)`` is false.
+    """
+    b, c, h, w = sky.shape
+    cos = _cos_to(direction, h)
+    omega = solid_angle(h, torch, dtype=sky.dtype, device=sky.device)
+    ring = (cos < math.cos(annulus[0])) & (cos > math.cos(annulus[1]))
+    bg = torch.stack([
+        sky[i][:, ring[i]].median(dim=1).values if ring[i].any() else sky.new_zeros(c) for i in range(b)
+    ])
+    inside = (cos > math.cos(cap)).to(sky.dtype)
+    e = ((sky - bg[:, :, None, None]).clamp_min(0.0) * (inside * omega)[:, None]).sum(dim=(2, 3))
+    if visible is not None:
+        e = e * (visible > 0.5).to(e.dtype)[:, None]
+    return e
+
+
+def sun_direction_loss(logits: torch.Tensor, direction: torch.Tensor, visible: torch.Tensor,
+                       sigma: float = SUN_TARGET_SIGMA) -> torch.Tensor:
+    """Cross-entropy of ``p ∝ exp(logits) Omega`` (``logits (B, 1, H, 2H)``) against a Gaussian of
+    ``sigma`` radians at ``direction (B, 3)``, over skies with ``visible (B,)``, divided by ``log(H W)``."""
+    b, _, h, w = logits.shape
+    keep = visible > 0.5
+    if not keep.any():
+        return logits.sum() * 0.0
+    logp = torch.log_softmax((logits[:, 0] + log_solid_angle(h, logits)).reshape(b, -1), dim=1)
+    cos = _cos_to(direction, h).reshape(b, -1)
+    q = torch.softmax((cos - 1.0) / sigma**2 + log_solid_angle(h, logits).reshape(1, -1), dim=1)
+    ce = -(q * logp).sum(dim=1)
+    return ce[keep].mean() / math.log(h * w)
+
+
+def sun_energy_loss(log_energy: torch.Tensor, energy: torch.Tensor, eps: float = SUN_ENERGY_EPS) -> torch.Tensor:
+    """L1 between ``log(E~ + eps)`` (from the predicted ``log E~ (B, C)``) and ``log(E + eps)``."""
+    pred = torch.logaddexp(log_energy, torch.full_like(log_energy, math.log(eps)))
+    return (pred - torch.log(energy + eps)).abs().mean()
+
+
+def sun_peak_loss(sky_log: torch.Tensor, target: torch.Tensor, fraction: float = 1e-3) -> torch.Tensor:
+    """L1 on ``log1p`` over the target's brightest ``fraction`` of pixels (by mean over channels), per image."""
+    b, c, h, w = target.shape
+    k = max(1, int(round(fraction * h * w)))
+    idx = target.mean(dim=1).reshape(b, -1).topk(k, dim=1).indices  # (B, k)
+    p = sky_log.reshape(b, c, -1).gather(2, idx[:, None].expand(b, c, k))
+    t = log_from_radiance(target.reshape(b, c, -1).gather(2, idx[:, None].expand(b, c, k)))
+    return (p - t).abs().mean()
+
+
+def sky_away_from_sun_loss(sky_log: torch.Tensor, target: torch.Tensor, direction: torch.Tensor,
+                           visible: torch.Tensor, cap: float = SUN_CAP) -> torch.Tensor:
+    """L1 on ``log1p`` over the pixels farther than ``cap`` from the true sun (all pixels without one)."""
+    h = target.shape[-2]
+    near = (_cos_to(direction, h) > math.cos(cap)) & (visible > 0.5)[:, None, None]
+    return masked_mean((sky_log - log_from_radiance(target)).abs(), ~near[:, None])
+
+
 def shadow_loss(pred: torch.Tensor, target: torch.Tensor, mask: torch.Tensor | None = None) -> torch.Tensor:
     """L2 on the shadow map ``(B, 1, H, W)``."""
     return masked_mean((pred - target) ** 2, mask)
@@ -87,14 +209,26 @@ def hdr_l1_loss(pred_log: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
     return (pred_log - log_from_radiance(target)).abs().mean()
 
 
-def sup1_loss(out: dict[str, torch.Tensor], batch: dict[str, torch.Tensor]) -> dict[str, torch.Tensor]:
+def sup1_loss(out: dict[str, torch.Tensor], batch: dict[str, torch.Tensor], variant: str = "paper") -> dict[str, torch.Tensor]:
     """The terms of ``L_sup1`` (keys ``albedo, normal, distance, shadow, sky``) that both the
-    model output and the batch provide (a sky-only baseline gets ``sky`` alone)."""
+    model output and the batch provide (a sky-only baseline gets ``sky`` alone).
+
+    ``variant="located"`` adds the sun terms and uses the relative plane distance (module docstring).
+    """
     mask = batch.get("geometry_mask")
-    pixel_terms = {"albedo": albedo_loss, "normal": normal_loss, "distance": distance_loss, "shadow": shadow_loss}
+    located = variant == "located"
+    pixel_terms = {"albedo": albedo_loss, "normal": normal_loss,
+                   "distance": relative_distance_loss if located else distance_loss, "shadow": shadow_loss}
     terms = {k: f(out[k], batch[k], mask) for k, f in pixel_terms.items() if k in out and k in batch}
     if "sky_log" in out and "sky" in batch:
-        terms["sky"] = hdr_l1_loss(out["sky_log"], batch["sky"])
+        if located and "sun_logits" in out and "sun_dir" in batch:
+            sky, sd, vis = batch["sky"], batch["sun_dir"], batch["sun_visible"]
+            terms["sky"] = sky_away_from_sun_loss(out["sky_np_log"], sky, sd, vis)
+            terms["sun_dir"] = sun_direction_loss(out["sun_logits"], sd, vis)
+            terms["sun_energy"] = sun_energy_loss(out["sun_log_energy"], sun_energy(sky, sd, vis))
+            terms["sun_peak"] = sun_peak_loss(out["sky_log"], sky)
+        else:
+            terms["sky"] = hdr_l1_loss(out["sky_log"], batch["sky"])
     return terms
 
 
@@ -175,6 +309,7 @@ def solidnet_losses(
     out: dict[str, torch.Tensor],
     batch: dict[str, torch.Tensor],
     weights: dict[str, float] | None = None,
+    variant: str = "paper",
 ) -> dict[str, torch.Tensor]:
     """All terms of ``L_I = L_sup1 + L_dif + L_rec`` and ``L_P = L_sup2 + L_tom`` for one batch.
 
@@ -185,10 +320,11 @@ def solidnet_losses(
     """
     w = weights or {}
     terms: dict[str, torch.Tensor] = {}
-    terms.update(sup1_loss(out, batch))
+    terms.update(sup1_loss(out, batch, variant))
     if "sh" in out and "sky" in out:
         terms["dif"] = diffuse_loss(out["sky"], out["sh"])
-    if "sh" in out and "albedo" in out and "image" in batch:
+    if "sh" in out and "albedo" in out and "image" in batch and "geometry_mask" in batch:
+        # sky-only samples (panorama crops, no geometry_mask) have no surfaces to reconstruct
         shadow = batch.get("shadow", out["shadow"])
         mask = non_shadow_mask(shadow, batch.get("geometry_mask"))
         terms["rec"] = reconstruction_loss(

@@ -20,21 +20,30 @@ from typing import Any
 import torch
 
 from solidkit.envmap.coords import direction_from_angles, direction_grid, rotation_from_ypr
+from solidkit.envmap.resample import sample_panorama
+from solidkit.envmap.sun import detect_sun
 from solidkit.model.config import SolidNetConfig
 from solidkit.model.losses import solidnet_losses
 from solidkit.envmap.perspective import intrinsics_from_fov, pixel_rays
 from solidkit.model.solidnet import SolidNet
+from solidkit.model.sunhead import render_sun
 
 __all__ = ["toy_batch", "fit", "batch_to", "batch_from_synth"]
 
 
-def _toy_sky(dirs: torch.Tensor, sun: torch.Tensor, ground: float = 0.3) -> torch.Tensor:
-    """Radiance ``(..., 3)`` of the toy sky: a blue gradient above the horizon, a 50x sun, grey ground."""
+TOY_SUN_ENERGY = (2.2, 2.0, 1.7)
+"""RGB energy of the toy sun (radiance x sr), about the horizontal irradiance of its sky."""
+
+
+def _toy_sky(height: int, sun: torch.Tensor, ground: float = 0.3) -> torch.Tensor:
+    """Radiance ``(height, 2 height, 3)`` of the toy sky: a blue gradient above the horizon, grey
+    ground, and a sun of :data:`TOY_SUN_ENERGY` as a spherical Gaussian of 0.3° (one to two pixels
+    at the model's resolution, like the generator's sun pixel)."""
+    dirs = direction_grid(height, torch)
     up = -dirs[..., 1]
     sky = torch.stack([0.4 + 0.3 * up, 0.6 + 0.4 * up, 1.0 + 0.5 * up], dim=-1).clamp_min(0.0)
-    cos = (dirs * sun).sum(-1)
-    blob = 50.0 * torch.exp(-(1.0 - cos) / (1.0 - math.cos(math.radians(3.0))))
-    out = sky + blob[..., None]
+    disk = render_sun(sun[None].float(), torch.tensor([TOY_SUN_ENERGY]), torch.tensor([math.radians(0.3)]), height)
+    out = sky + disk[0].permute(1, 2, 0)
     return torch.where(up[..., None] > 0, out, torch.full_like(out, ground))
 
 
@@ -56,7 +65,8 @@ def toy_batch(
     rays = pixel_rays(K, W, H, torch, dtype=K.dtype)  # (H, W, 3), z = 1
     pano_dirs = direction_grid(hp, torch)
     out: dict[str, list[torch.Tensor]] = {k: [] for k in (
-        "image", "K", "pitch", "roll", "pixels", "albedo", "normal", "distance", "shadow", "geometry_mask", "sky", "local"
+        "image", "K", "pitch", "roll", "pixels", "albedo", "normal", "distance", "shadow", "geometry_mask", "sky", "local",
+        "sun_dir", "sun_visible",
     )}
     for _ in range(batch):
         r = torch.rand(6, generator=g)
@@ -81,14 +91,16 @@ def toy_batch(
         shadow = torch.where(geo & ~cast & (lit > 0), torch.ones_like(lit), torch.zeros_like(lit))
         albedo = torch.where(on_wall[..., None], torch.tensor([0.6, 0.45, 0.35]), torch.tensor([0.35, 0.35, 0.38]))
         shading = 1.5 * shadow[..., None] * lit[..., None] + 0.25
-        sky_img = _toy_sky(torch.nn.functional.normalize(d, dim=-1), sun)
+        sky_img = torch.from_numpy(
+            sample_panorama(_toy_sky(hp, sun).numpy(), d.numpy()).astype("float32")
+        )
         radiance = torch.where(geo[..., None], albedo * shading, sky_img)
         image = radiance.clamp(0, 1) ** (1 / 2.2)
         n_cam = n_pano @ R  # R^T n, row vectors
         pix = []
         for qx, qy in ((0.25, 0.8), (0.75, 0.8), (0.5, 0.9), (0.3, 0.7))[:n_probes]:
             pix.append([qx * (W - 1), qy * (H - 1)])
-        sky = _toy_sky(pano_dirs, sun).permute(2, 0, 1)
+        sky = _toy_sky(hp, sun).permute(2, 0, 1)
         local = sky.clone()
         lower = pano_dirs[..., 1] > 0
         local[:, lower] = 0.35 * 0.8  # ground seen from the probe
@@ -104,6 +116,8 @@ def toy_batch(
         out["geometry_mask"].append(geo[None])
         out["sky"].append(sky)
         out["local"].append(local[None].expand(n_probes, -1, -1, -1))
+        out["sun_dir"].append(sun.float())
+        out["sun_visible"].append(torch.tensor(1.0))
     return {k: torch.stack(v).to(torch.bool if k == "geometry_mask" else torch.float32) for k, v in out.items()}
 
 
@@ -112,11 +126,13 @@ def batch_from_synth(items: list[dict[str, Any]]) -> dict[str, torch.Tensor]:
 
     Maps ``plane_distance -> distance``, ``global -> sky``, ``probes -> local``,
     ``probe_pixels -> pixels``; ``geometry_mask`` marks pixels with a normal (the generator writes
-    0 on sky). Probes the generator could not place (``probe_valid == 0``) are replaced by the
+    0 on sky); ``sun_dir``/``sun_visible`` are what :func:`solidkit.envmap.detect_sun` finds in the
+    global map (the truth of the sun terms). Probes the generator could not place (``probe_valid == 0``) are replaced by the
     sample's first valid one, so every sample keeps the same number of probes.
     """
     out: dict[str, list[torch.Tensor]] = {k: [] for k in (
-        "image", "K", "pitch", "roll", "pixels", "albedo", "normal", "distance", "shadow", "geometry_mask", "sky", "local"
+        "image", "K", "pitch", "roll", "pixels", "albedo", "normal", "distance", "shadow", "geometry_mask", "sky", "local",
+        "sun_dir", "sun_visible",
     )}
     for it in items:
         valid = it["probe_valid"] > 0
@@ -135,6 +151,9 @@ def batch_from_synth(items: list[dict[str, Any]]) -> dict[str, torch.Tensor]:
         out["geometry_mask"].append(it["normal"][:3].norm(dim=0, keepdim=True) > 0.5)
         out["sky"].append(it["global"][:3])
         out["local"].append(it["probes"][order, :3])
+        sun = detect_sun(it["global"][:3].permute(1, 2, 0).numpy())
+        out["sun_dir"].append(torch.as_tensor(sun.direction if sun.found else [0.0, 0.0, 0.0], dtype=torch.float32))
+        out["sun_visible"].append(torch.tensor(float(sun.found)))
     return {k: torch.stack(v).to(torch.bool if k == "geometry_mask" else torch.float32) for k, v in out.items()}
 
 
@@ -168,7 +187,7 @@ def fit(
         batch = batch_to(next(it), device)
         geometry = {k: batch[k] for k in ("normal", "distance", "shadow") if k in batch} if teacher_geometry else None
         out = model(batch["image"], batch["K"], batch.get("pixels"), batch.get("pitch"), batch.get("roll"), geometry)
-        losses = solidnet_losses(out, batch, model.config.loss_weights)
+        losses = solidnet_losses(out, batch, model.config.loss_weights, model.config.loss_variant)
         opt.zero_grad(set_to_none=True)
         losses["total"].backward()
         opt.step()

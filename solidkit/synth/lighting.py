@@ -172,9 +172,12 @@ def hdr(path: str | Path, rotation_deg: float = 0.0, *, rng: np.random.Generator
 
 
 def random_lighting(rng: np.random.Generator, *, p_sunsky: float = 0.5, height: int = 512,
-                    hdr_dir: Path = HDR_DIR) -> Lighting:
-    """Draw a lighting: sunsky (elevation 5-75°, any azimuth, turbidity 2-6) or an HDR map turned by 0-60°."""
-    files = sorted(Path(hdr_dir).glob("*.exr"))
+                    hdr_dir: Path = HDR_DIR, exclude: tuple[str, ...] = ()) -> Lighting:
+    """Draw a lighting: sunsky (elevation 5-75°, any azimuth, turbidity 2-6) or an HDR map turned by 0-60°.
+
+    ``exclude``: HDR map names (stems) not to draw, e.g. those held out for a real test.
+    """
+    files = [f for f in sorted(Path(hdr_dir).glob("*.exr")) if f.stem not in set(exclude)]
     if rng.random() < p_sunsky or not files:
         az = rng.uniform(-math.pi, math.pi)
         el = math.radians(rng.uniform(5.0, 75.0))

@@ -1,0 +1,276 @@
+"""The cheap sample path of the global branch: limited-FOV crops of HDR panoramas.
+
+Hold-Geoffroy et al. (CVPR 2017, "Deep Outdoor Illumination Estimation") train their sky
+regressor on many perspective crops of each outdoor panorama; here the same idea feeds I-Net's
+lighting branch (the global sky ``H_g`` and its sun). A *source* is one HDR panorama of a scene
+together with the lighting that lit it, both in the scene frame (docs/conventions.md; x right,
+y down, z forward):
+
+- ``render_source``: a city block of :mod:`solidkit.synth.scene` rendered by Mitsuba as one
+  equirect panorama at a random walkable position 1.5-1.6 m above the floor (low spp: the crops
+  are tonemapped to 8 bits and area-resized, where path-tracing noise hardly matters), lit by a
+  random :func:`solidkit.synth.lighting.random_lighting` (Mitsuba's sun-sky with sampled
+  turbidity and sun position, or a real HDR map turned about the vertical). The global target is
+  the lighting itself, area-downsampled (energy preserving) to the probe height.
+- ``real_source``: a real HDR panorama (e.g. ``../shared/data/real/hdr_panoramas``) is both the
+  scene and the global target (its own ground included), exactly as Hold-Geoffroy et al. crop
+  SUN360.
+
+A crop (:class:`CropSampler`) draws a camera ``R = rotation_from_ypr(yaw, pitch, roll)``, a
+horizontal FOV, an exposure and a white balance (applied to the scene *and* the target: a brighter
+scene is a brighter sky, so the HDR scale stays tied to the image) and a horizontal flip (the
+target is mirrored in azimuth, the roll negated). The image is the paper's tonemap of the
+perspective view (:func:`solidkit.envmap.perspective_crop`); the target is the lighting seen from
+the camera's panorama frame ``R_y(yaw)`` (conventions §2). Each crop is a pure function of
+``(seed, index)``, so an epoch is reproducible and resumable.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+from collections import OrderedDict
+from dataclasses import asdict, dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from solidkit.envmap import (detect_sun, downsample, perspective_crop, read_exr, rotate, rotation_from_ypr, rotation_y,
+                             tonemap, write_exr)
+from solidkit.envmap.perspective import intrinsics_from_fov
+from solidkit.errors import InputError
+from solidkit.fsutil import atomic_write_text
+
+__all__ = ["SourceConfig", "render_source", "real_source", "render_sources", "Source", "load_sources", "CropSampler",
+           "CropConfig"]
+
+CACHE_SIZE = 160
+"""Rendered sources kept in memory (least recently used first out; ~7 MB each as float16)."""
+_CACHE: OrderedDict[str, tuple[np.ndarray, np.ndarray]] = OrderedDict()
+
+SOURCE_FILES = {"scene": "scene.exr", "light": "light.exr", "meta": "source.json"}
+
+
+@dataclass
+class SourceConfig:
+    """Renderer settings of rendered sources (recorded in each ``source.json``)."""
+
+    height: int = 512
+    spp: int = 8
+    max_depth: int = 4
+    light_height: int = 512
+    target_height: int = 128
+    p_sunsky: float = 0.6
+    positions_per_block: int = 8
+    block_length: float = 60.0
+    tex_size: int = 64
+    firefly_k: float = 10.0
+    exclude_hdr: tuple[str, ...] = ()
+
+    def to_json(self) -> dict[str, Any]:
+        d = asdict(self)
+        d["exclude_hdr"] = list(self.exclude_hdr)
+        return d
+
+
+def render_source(seed: int, index: int, out_dir: str | os.PathLike, config: SourceConfig | None = None,
+                  *, hdr_dir: Path | None = None) -> dict[str, Any]:
+    """Render source ``index`` of the set ``seed`` into ``out_dir`` (``source.json`` written last).
+
+    Block ``index // positions_per_block`` (the geometry of consecutive indices is shared), a
+    random walkable camera position, a random lighting; returns the JSON record.
+    """
+    import time
+
+    from solidkit.synth.cameras import sample_candidate
+    from solidkit.synth.lighting import HDR_DIR, random_lighting
+    from solidkit.synth.renderer import mitsuba, variant
+    from solidkit.synth.sample import derive_seed, render_panorama, suppress_fireflies, sun_mask_panorama
+    from solidkit.synth.scene import city_block, to_mitsuba
+
+    cfg = config or SourceConfig()
+    t0 = time.perf_counter()
+    mi = mitsuba()
+    block_id = int(index) // cfg.positions_per_block
+    block = city_block(derive_seed(seed, block_id, 1), length=cfg.block_length)
+    rng = np.random.default_rng(derive_seed(seed, index, 2))
+    cam = sample_candidate(block, rng, int(rng.integers(6)), intrinsics_from_fov(math.radians(60.0), 64, 48), 64, 48)
+    light = random_lighting(np.random.default_rng(derive_seed(seed, index, 3)), p_sunsky=cfg.p_sunsky,
+                            height=cfg.light_height, hdr_dir=hdr_dir or HDR_DIR, exclude=cfg.exclude_hdr)
+    scene = to_mitsuba(block, light.emitter(), tex_size=cfg.tex_size)
+    sseed = derive_seed(seed, index, 4)
+    img = render_panorama(scene, cam.position, np.eye(3), cfg.height, cfg.spp, max_depth=cfg.max_depth, seed=sseed)
+    img, fireflies = suppress_fireflies(img, sun_mask_panorama(light.sun, np.eye(3), cfg.height), cfg.firefly_k,
+                                        wrap=True)
+    env = np.asarray(rotate(light.panorama, light.rotation), dtype=np.float32)
+    target = downsample(env, env.shape[0] // cfg.target_height)
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    prov = {"generator": "solidkit.synth.panocrops", "seed": int(seed), "index": int(index)}
+    write_exr(out / SOURCE_FILES["scene"], img, {**prov, "frame": "scene"})
+    write_exr(out / SOURCE_FILES["light"], target, {**prov, "frame": "scene"})
+    record = {"kind": "rendered", "seed": int(seed), "index": int(index), "block_id": block_id,
+              "block_seed": int(block.seed), "position": [float(v) for v in cam.position], "lighting": light.meta,
+              "sun_scene": None if light.sun is None else [float(v) for v in light.sun], "fireflies": fireflies,
+              "renderer": {"mitsuba": mi.__version__, "variant": variant(), **cfg.to_json()},
+              "seconds": round(time.perf_counter() - t0, 2), "files": {k: v for k, v in SOURCE_FILES.items()}}
+    atomic_write_text(out / SOURCE_FILES["meta"], json.dumps(record, indent=1))
+    return record
+
+
+def render_sources(root: str | os.PathLike, n: int, *, seed: int = 0, shard: tuple[int, int] = (0, 1),
+                   config: SourceConfig | None = None, progress: Any = None) -> dict[str, int]:
+    """Render the missing sources ``0 .. n-1`` of shard ``shard`` into ``root/NNNNNN`` (resumable)."""
+    from solidkit.synth.dataset import shard_range
+
+    root = Path(root)
+    cfg = config or SourceConfig()
+    manifest = root / "sources.json"
+    want = {"seed": int(seed), "config": cfg.to_json()}
+    if manifest.is_file():
+        old = json.loads(manifest.read_text())
+        if old.get("seed") != want["seed"] or old.get("config") != want["config"]:
+            raise InputError(f"{root}: holds sources of another seed or settings; use a new --out")
+    else:
+        root.mkdir(parents=True, exist_ok=True)
+        atomic_write_text(manifest, json.dumps(want, indent=1))
+    counts = {"rendered": 0, "skipped": 0}
+    todo = shard_range(n, *shard)
+    for k, i in enumerate(todo):
+        d = root / f"{i:06d}"
+        if (d / SOURCE_FILES["meta"]).is_file():
+            counts["skipped"] += 1
+        else:
+            render_source(seed, i, d, cfg)
+            counts["rendered"] += 1
+        if progress:
+            progress(k + 1, len(todo))
+    return counts
+
+
+@dataclass
+class Source:
+    """One panorama to crop: ``scene (H, 2H, 3)`` and ``light (h, 2h, 3)`` linear, both in the scene frame.
+
+    Rendered sources are read from ``path`` on each :meth:`load` (hundreds do not fit in memory);
+    real ones keep their arrays.
+    """
+
+    name: str
+    kind: str
+    path: Path | None = None
+    scene: np.ndarray | None = None
+    light: np.ndarray | None = None
+
+    def load(self) -> tuple[np.ndarray, np.ndarray]:
+        """``(scene, light)`` float32 arrays."""
+        if self.scene is not None and self.light is not None:
+            return self.scene, self.light
+        assert self.path is not None
+        key = str(self.path)
+        hit = _CACHE.get(key)
+        if hit is None:
+            scene = read_exr(self.path / SOURCE_FILES["scene"])[0][..., :3]
+            # float16 halves the memory; the crop is tonemapped (saturating near 1), so the sun may clip
+            hit = (np.minimum(scene, 6.0e4).astype(np.float16),
+                   read_exr(self.path / SOURCE_FILES["light"])[0][..., :3])
+            _CACHE[key] = hit
+            while len(_CACHE) > CACHE_SIZE:
+                _CACHE.popitem(last=False)
+        else:
+            _CACHE.move_to_end(key)
+        return hit[0].astype(np.float32), hit[1]
+
+
+def real_source(path: str | os.PathLike, target_height: int = 128) -> Source:
+    """A real HDR panorama as its own scene and global target (area-downsampled to ``target_height``)."""
+    pano, _ = read_exr(path)
+    pano = np.clip(np.nan_to_num(pano[..., :3]), 0.0, None).astype(np.float32)
+    if pano.shape[1] != 2 * pano.shape[0] or pano.shape[0] % target_height:
+        raise InputError(f"{path}: need an equirect panorama whose height is a multiple of {target_height}")
+    return Source(Path(path).stem, "real", Path(path), pano, downsample(pano, pano.shape[0] // target_height))
+
+
+def load_sources(root: str | os.PathLike, exclude: tuple[str, ...] = ()) -> list[Source]:
+    """Every complete rendered source under ``root`` (sorted; read lazily), or the real EXR panoramas in it.
+
+    ``exclude``: names (folder names or EXR stems) to leave out, e.g. a held-out real panorama.
+    """
+    root = Path(root)
+    if not root.is_dir():
+        raise InputError(f"{root}: no such folder of panoramas")
+    metas = sorted(root.glob(f"*/{SOURCE_FILES['meta']}"))
+    if metas:
+        return [Source(m.parent.name, "rendered", m.parent) for m in metas if m.parent.name not in exclude]
+    exrs = [p for p in sorted(root.glob("*.exr")) if p.stem not in exclude]
+    if not exrs:
+        raise InputError(f"{root}: no rendered sources (*/source.json) and no EXR panoramas")
+    return [real_source(p) for p in exrs]
+
+
+@dataclass
+class CropConfig:
+    """Ranges of the crop parameters (degrees, stops)."""
+
+    width: int = 320
+    height: int = 240
+    hfov_deg: tuple[float, float] = (50.0, 70.0)
+    pitch_deg: tuple[float, float] = (-10.0, 15.0)
+    roll_deg: tuple[float, float] = (-3.0, 3.0)
+    exposure_stops: tuple[float, float] = (-0.5, 0.5)
+    white_balance: float = 0.08
+    flip: bool = True
+
+
+class CropSampler:
+    """Crops of ``sources``: item ``i`` is a pure function of ``(seed, i)`` (see module docstring).
+
+    ``__call__(i)`` returns a dict of numpy arrays: ``image (240, 320, 3)`` in [0, 1] (tonemapped),
+    ``K (3, 3)``, ``pitch``, ``roll``, ``yaw`` (radians), ``sky (128, 256, 3)`` radiance in the
+    camera's panorama frame, ``sun_dir (3,)`` and ``sun_visible`` (the default detector,
+    :func:`solidkit.envmap.detect_sun`, on the target), ``source`` (name).
+    """
+
+    def __init__(self, sources: list[Source], seed: int = 0, config: CropConfig | None = None) -> None:
+        if not sources:
+            raise InputError("no panoramas to crop")
+        self.sources = sources
+        self.seed = int(seed)
+        self.config = config or CropConfig()
+
+    def __len__(self) -> int:
+        return len(self.sources)
+
+    def __call__(self, index: int) -> dict[str, Any]:
+        from solidkit.synth.sample import derive_seed
+
+        c = self.config
+        rng = np.random.default_rng(derive_seed(self.seed, int(index), 11))
+        src = self.sources[int(index) % len(self.sources)]
+        yaw = rng.uniform(-math.pi, math.pi)
+        pitch = math.radians(rng.uniform(*c.pitch_deg))
+        roll = math.radians(rng.uniform(*c.roll_deg))
+        hfov = math.radians(rng.uniform(*c.hfov_deg))
+        gain = 2.0 ** rng.uniform(*c.exposure_stops) * np.exp(rng.uniform(-c.white_balance, c.white_balance, 3))
+        flip = bool(c.flip and rng.random() < 0.5)
+        # conventions §4: pitch positive = up; R maps camera rays to the scene frame
+        R = np.asarray(rotation_from_ypr(yaw, pitch, roll))
+        K = intrinsics_from_fov(hfov, c.width, c.height)
+        scene, light = src.load()
+        view = perspective_crop(scene, R, (c.width, c.height), K=K, interp="linear")
+        image = np.clip(np.asarray(tonemap(np.clip(view, 0, None) * gain.astype(np.float32))), 0.0, 1.0)
+        sky = np.asarray(rotate(light, np.asarray(rotation_y(yaw)).T), dtype=np.float32) * gain.astype(np.float32)
+        if flip:
+            image = image[:, ::-1]
+            sky = sky[:, ::-1]
+            K = K.copy()
+            K[0, 2] = c.width - 1 - K[0, 2]
+            roll = -roll
+        sun = detect_sun(sky)
+        return {"image": np.ascontiguousarray(image, dtype=np.float32), "K": K.astype(np.float32),
+                "pitch": np.float32(pitch), "roll": np.float32(roll), "yaw": np.float32(yaw),
+                "sky": np.ascontiguousarray(sky, dtype=np.float32),
+                "sun_dir": (sun.direction if sun.found else np.zeros(3)).astype(np.float32),
+                "sun_visible": np.float32(sun.found), "source": src.name}

@@ -1,0 +1,124 @@
+"""``solidkit train``: configuration errors, panorama-crop data, and a resumed run that takes exactly the
+steps an uninterrupted one takes (tiny model, two small rendered-free panorama sources)."""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+from solidkit.envmap import angular_distance, detect_sun, direction_from_angles, write_exr
+from solidkit.errors import InputError
+from solidkit.model.sunhead import render_sun
+from solidkit.model.trainer import Trainer, load_train_config
+from solidkit.synth.panocrops import SOURCE_FILES, CropConfig, CropSampler, load_sources
+
+pytestmark = pytest.mark.usefixtures("torch_one_thread")
+
+
+def _sky(height: int, az_deg: float, el_deg: float, energy: float = 2.0) -> np.ndarray:
+    """A gradient sky over grey ground with a sun (an analytic stand-in for a rendered source)."""
+    from solidkit.envmap import direction_grid
+
+    d = direction_grid(height)
+    up = -d[..., 1]
+    sky = np.stack([0.4 + 0.3 * up, 0.6 + 0.4 * up, 1.0 + 0.5 * up], -1)
+    sky = np.where(up[..., None] > 0, sky, 0.25).astype(np.float32)
+    sun_dir = torch.as_tensor(np.asarray(direction_from_angles(math.radians(az_deg), math.radians(el_deg))), dtype=torch.float32)
+    sun = render_sun(sun_dir[None], torch.full((1, 3), energy), torch.tensor([math.radians(0.3)]), height)[0]
+    return sky + sun.permute(1, 2, 0).numpy()
+
+
+@pytest.fixture
+def sources(tmp_path) -> Path:
+    root = tmp_path / "sources"
+    for i, (az, el) in enumerate(((30.0, 40.0), (-100.0, 20.0))):
+        d = root / f"{i:06d}"
+        d.mkdir(parents=True)
+        write_exr(d / SOURCE_FILES["scene"], _sky(256, az, el))
+        write_exr(d / SOURCE_FILES["light"], _sky(128, az, el))
+        (d / SOURCE_FILES["meta"]).write_text(json.dumps({"kind": "test"}))
+    return root
+
+
+def test_crops_are_reproducible_and_their_sun_follows_the_yaw(sources):
+    srcs = load_sources(sources)
+    s = CropSampler(srcs, seed=4, config=CropConfig(flip=False))
+    a, b = s(7), s(7)
+    assert all(np.array_equal(a[k], b[k]) for k in ("image", "sky", "sun_dir"))
+    assert a["image"].shape == (240, 320, 3) and a["sky"].shape == (128, 256, 3) and a["sun_visible"] == 1.0
+    # the target is the source's lighting turned by -yaw: the sun's azimuth drops by the yaw
+    src_sun = detect_sun(srcs[7 % 2].load()[1])
+    want = np.asarray(direction_from_angles(src_sun.azimuth - float(a["yaw"]), src_sun.elevation))
+    assert math.degrees(float(angular_distance(a["sun_dir"], want))) < 1.5
+
+
+def test_flipped_crop_mirrors_the_sun():
+    sky = _sky(128, 50.0, 30.0)
+    from solidkit.synth.panocrops import Source
+
+    src = Source("x", "real", None, _sky(256, 50.0, 30.0), sky)
+    flips = [CropSampler([src], seed=1)(i) for i in range(12)]
+    noflip = CropSampler([src], seed=1, config=CropConfig(flip=False))
+    for i, it in enumerate(flips):
+        ref = noflip(i)
+        mirrored = ref["sun_dir"] * np.array([-1, 1, 1])
+        assert np.allclose(it["sun_dir"], ref["sun_dir"], atol=1e-3) or np.allclose(it["sun_dir"], mirrored, atol=1e-3)
+    assert any(not np.allclose(it["sun_dir"], noflip(i)["sun_dir"], atol=1e-3) for i, it in enumerate(flips))
+
+
+def _config(tmp_path, sources, out, steps=4, **extra) -> Path:
+    lines = [f'out = "{out}"', 'model = "tiny"', f"seed = {extra.pop('seed', 5)}", f'crops = ["{sources}"]', f'val_crops = ["{sources}"]',
+             "val_samples = 2", "val_every = 2", "log_every = 1", "checkpoint_every = 1",
+             *[f"{k} = {json.dumps(v)}" for k, v in extra.items()], "[inet]", f"steps = {steps}", "batch_size = 2",
+             "lr = 1e-3"]
+    path = tmp_path / f"{Path(out).name}.toml"
+    path.write_text("\n".join(lines) + "\n")
+    return path
+
+
+def test_resumed_run_takes_the_same_steps_as_an_uninterrupted_one(tmp_path, sources):
+    full = Trainer(load_train_config(_config(tmp_path, sources, tmp_path / "full")), progress=False)
+    full.run()
+    cfg = load_train_config(_config(tmp_path, sources, tmp_path / "cut"))
+    part = Trainer(cfg, progress=False)
+    part.cfg.inet.steps = 2  # stop after two steps (as a kill after the step-2 checkpoint would)
+    part.run()
+    assert part.state["step"] == 2 and (tmp_path / "cut" / "last.pt").is_file()
+    resumed = Trainer(load_train_config(_config(tmp_path, sources, tmp_path / "cut")), progress=False)
+    resumed.run()
+    assert resumed.state["step"] == 4
+    a, b = full.model.state_dict(), resumed.model.state_dict()
+    assert all(torch.equal(a[k], b[k]) for k in a), [k for k in a if not torch.equal(a[k], b[k])][:3]
+    rows = (tmp_path / "full" / "metrics.csv").read_text().splitlines()
+    assert rows[0].startswith("time,stage,step") and any(",val," in r for r in rows)
+    for name in ("model.pt", "best_inet.pt", "config.toml"):
+        assert (tmp_path / "full" / name).is_file()
+    from solidkit.model import SolidNet
+
+    card = SolidNet.from_checkpoint(tmp_path / "full" / "model.pt").card
+    assert card["samples_seen"] == 8 and card["seed"] == 5
+
+
+def test_config_errors_are_one_line(tmp_path, sources, cli):
+    bad = tmp_path / "bad.toml"
+    bad.write_text('crops = ["x"]\nlearning_rate = 3\n')
+    with pytest.raises(InputError, match="unknown keys"):
+        load_train_config(bad)
+    bad.write_text("[inet]\nsteps = -1\n")
+    with pytest.raises(InputError, match="steps >= 0"):
+        load_train_config(bad)
+    bad.write_text("not toml = = 1")
+    code, out, err = cli("train", bad)
+    assert code == 2 and "not valid TOML" in err and len(err.strip().splitlines()) == 1
+    code, out, err = cli("train", tmp_path / "missing.toml")
+    assert code == 2 and "no such training configuration" in err
+    other = _config(tmp_path, sources, tmp_path / "run", steps=1)
+    assert cli("train", other, "--no-progress")[0] == 0
+    changed = _config(tmp_path, sources, tmp_path / "run", steps=1, seed=6)
+    code, out, err = cli("train", changed)
+    assert code == 2 and "other settings" in err
