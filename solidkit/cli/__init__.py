@@ -20,6 +20,7 @@ from solidkit.cli.finetune import finetune_command
 from solidkit.errors import InputError, SolidkitError
 from solidkit.cli.predict import predict_command
 from solidkit.cli.synth import app as synth_app
+from solidkit.cli.train import train_command
 from solidkit.cli.testset import app as testset_app
 
 app = typer.Typer(
@@ -37,6 +38,7 @@ app.add_typer(testset_app, name="testset", help="Build, validate, inspect and ex
 app.add_typer(label_app, name="label", help="Browser labeling app (sun, probe pixels, headings, review) and label export.")
 app.command("ingest")(ingest_cli)
 app.command("predict")(predict_command)
+app.command("train")(train_command)
 app.command("eval")(eval_command)
 app.command("finetune")(finetune_command)
 app.command("demo")(demo_command)
