@@ -32,7 +32,7 @@ from solidkit.align.geometry import estimate_level_pose, estimate_rotation
 from solidkit.align.schema import Cue, wrap_deg
 from solidkit.envmap.coords import ypr_from_rotation
 
-__all__ = ["PhotoMatch", "match_photo", "feature_cue", "fuse_cues", "Fused"]
+__all__ = ["PhotoMatch", "match_photo", "refine_focal", "feature_cue", "fuse_cues", "Fused"]
 
 
 @dataclass(frozen=True)
@@ -47,10 +47,46 @@ class PhotoMatch:
     n_inliers: int
     rms_deg: float
     R: np.ndarray
+    focal_scale: float = 1.0
 
 
-def match_photo(photo: Features, pano: Features, *, threshold_deg: float = 0.5, min_inliers: int = 8) -> tuple[PhotoMatch | None, str]:
-    """Rotation between a photo's rays (camera frame) and a level panorama's directions."""
+def _rays(pixels: np.ndarray, K: np.ndarray) -> np.ndarray:
+    r = np.c_[pixels, np.ones(len(pixels))] @ np.linalg.inv(K).T
+    return r / np.linalg.norm(r, axis=1, keepdims=True)
+
+
+def refine_focal(pixels: np.ndarray, targets: np.ndarray, K: np.ndarray, *, lo: float = 0.8, hi: float = 1.25) -> tuple[float, float]:
+    """Focal-length scale ``s`` (``fx, fy -> s fx, s fy``) minimising the rotation residual of inlier matches.
+
+    Rotation-only geometry fixes the focal length when the matches spread over the frame: the
+    angles between rays must equal the angles between their panorama directions. Golden-section
+    search on ``log s`` of the RMS residual after the least-squares rotation
+    (:meth:`scipy.spatial.transform.Rotation.align_vectors`). Returns ``(s, rms_rad)``.
+    """
+    from scipy.optimize import minimize_scalar
+    from scipy.spatial.transform import Rotation
+
+    def rms(log_s: float) -> float:
+        Ks = K.copy()
+        Ks[0, 0] *= math.exp(log_s)
+        Ks[1, 1] *= math.exp(log_s)
+        a = _rays(pixels, Ks)
+        rot, _ = Rotation.align_vectors(targets, a)
+        d = np.arccos(np.clip(np.sum(rot.apply(a) * targets, axis=1), -1.0, 1.0))
+        return float(np.sqrt(np.mean(d**2)))
+
+    res = minimize_scalar(rms, bounds=(math.log(lo), math.log(hi)), method="bounded", options={"xatol": 1e-4})
+    return math.exp(float(res.x)), float(res.fun)
+
+
+def match_photo(photo: Features, pano: Features, *, K: np.ndarray | None = None, threshold_deg: float = 0.5,
+                min_inliers: int = 8, refine_f: bool = True, min_refine_inliers: int = 12) -> tuple[PhotoMatch | None, str]:
+    """Rotation between a photo's rays (camera frame) and a level panorama's directions.
+
+    With ``K`` (the photo's intrinsics, those ``photo``'s rays were made with) and enough inliers,
+    the focal length is refined (:func:`refine_focal`) and the rotation re-estimated with it;
+    ``PhotoMatch.focal_scale`` reports the factor.
+    """
     m = match_features(photo, pano)
     if len(m) < min_inliers:
         return None, f"{len(m)} SIFT matches between the photo and the panorama (< {min_inliers})"
@@ -58,11 +94,29 @@ def match_photo(photo: Features, pano: Features, *, threshold_deg: float = 0.5, 
                             threshold=math.radians(threshold_deg), min_inliers=min_inliers)
     if fit is None:
         return None, f"{len(m)} matches, no rotation with {min_inliers}+ inliers"
+    scale = 1.0
+    loose = estimate_rotation(photo.directions[m[:, 0]], pano.directions[m[:, 1]],
+                              threshold=math.radians(3 * threshold_deg), min_inliers=min_inliers) if refine_f else None
+    if loose is not None and K is not None and loose.n_inliers >= min_refine_inliers:
+        # a focal length a few % off bends the rays by up to ~1 deg at the edges: refine on a loose inlier set
+        px, tg = photo.pixels[m[loose.inliers, 0]], pano.directions[m[loose.inliers, 1]]
+        scale, _ = refine_focal(px, tg, np.asarray(K, np.float64))
+        Ks = np.asarray(K, np.float64).copy()
+        Ks[0, 0] *= scale
+        Ks[1, 1] *= scale
+        refit = estimate_rotation(_rays(photo.pixels[m[:, 0]], Ks), pano.directions[m[:, 1]],
+                                  threshold=math.radians(threshold_deg), min_inliers=min_inliers)
+        if refit is not None and refit.n_inliers >= fit.n_inliers * 0.9:
+            fit = refit
+        else:
+            scale = 1.0
     yaw, pitch, roll = (math.degrees(float(v)) for v in ypr_from_rotation(fit.R))
     # yaw precision: the RMS ray residual over the inliers' count, floored at a tenth of the threshold
     sigma = max(math.degrees(fit.rms) / math.sqrt(fit.n_inliers), 0.02)
-    return PhotoMatch(wrap_deg(-yaw), pitch, roll, sigma, len(m), fit.n_inliers, math.degrees(fit.rms), fit.R), \
-        f"{fit.n_inliers}/{len(m)} matches agree on one rotation (RMS {math.degrees(fit.rms):.2f} deg)"
+    detail = f"{fit.n_inliers}/{len(m)} matches agree on one rotation (RMS {math.degrees(fit.rms):.2f} deg)"
+    if scale != 1.0:
+        detail += f"; focal length x{scale:.4f}"
+    return PhotoMatch(wrap_deg(-yaw), pitch, roll, sigma, len(m), fit.n_inliers, math.degrees(fit.rms), fit.R, scale), detail
 
 
 def feature_cue(cam: Features, other: Features, yaw_cam_deg: float | None, yaw_cam_sigma: float,
@@ -111,8 +165,11 @@ def fuse_cues(cues: dict[str, Cue], *, n_sigma: float = 3.0, floor_deg: float = 
     if not usable:
         return Fused(None, None, None, ["no_yaw: no cue gave a yaw"])
 
-    def sig(c: Cue) -> float:
+    def sig(c: Cue) -> float:  # for agreement: no cue is trusted below floor_deg
         return max(float(c.sigma_deg), floor_deg)
+
+    def wsig(c: Cue) -> float:  # for weighting: the cue's own precision
+        return max(float(c.sigma_deg), 0.02)
 
     def agree(a: Cue, b: Cue) -> bool:
         return abs(wrap_deg(a.yaw_deg - b.yaw_deg)) <= n_sigma * math.hypot(sig(a), sig(b))
@@ -122,17 +179,17 @@ def fuse_cues(cues: dict[str, Cue], *, n_sigma: float = 3.0, floor_deg: float = 
     members = [k for k in order if k == seed or agree(usable[seed], usable[k])]
     yaw = usable[seed].yaw_deg
     for _ in range(3):
-        w = np.array([1.0 / sig(usable[k]) ** 2 for k in members])
+        w = np.array([1.0 / wsig(usable[k]) ** 2 for k in members])
         ang = np.radians([usable[k].yaw_deg for k in members])
         yaw = math.degrees(math.atan2(float(np.sum(w * np.sin(ang))), float(np.sum(w * np.cos(ang)))))
         members = [k for k in order if abs(wrap_deg(usable[k].yaw_deg - yaw)) <= n_sigma * sig(usable[k])] or [seed]
-    w = np.array([1.0 / sig(usable[k]) ** 2 for k in members])
+    w = np.array([1.0 / wsig(usable[k]) ** 2 for k in members])
     sigma = 1.0 / math.sqrt(float(w.sum()))
     res = [wrap_deg(usable[k].yaw_deg - yaw) for k in members]
     for k, c in usable.items():
         c.residual_deg = wrap_deg(c.yaw_deg - yaw)
         c.ok = k in members
-        c.weight = float(1.0 / sig(c) ** 2 / w.sum()) if c.ok else 0.0
+        c.weight = float(1.0 / wsig(c) ** 2 / w.sum()) if c.ok else 0.0
         if not c.ok:
             flags.append(f"{k}_disagrees: {c.residual_deg:+.1f} deg from the consensus")
     if len(members) == 1 and len(usable) == 1:

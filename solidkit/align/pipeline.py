@@ -66,6 +66,9 @@ class AlignSettings:
     photo_scale: float | None = None
     level_sigma_deg: float = 0.4
     pixel_tolerance_frac: float = 0.05
+    refine_focal: bool = True
+    sun_motion: str = "auto"
+    focal_tolerance: float = 0.02
     products: bool = True
     probe_height: int = 128
 
@@ -199,7 +202,15 @@ def align_scene(campaign: Path, manifest: Manifest, scene: Scene, settings: Alig
         scale = s.photo_scale or min(1.0, (_pano_height(cam) / math.pi) / K[0, 0] * 1.1)
         pf = _cached(campaign, _cache_key("photo", photo.sha256, photo.K_full, scale, 2),
                      lambda: photo_features(img, K, scale=scale))
-        photo_match, detail = match_photo(pf, cam.features)
+        photo_match, detail = match_photo(pf, cam.features, K=K, refine_f=s.refine_focal)
+        if photo_match is not None and photo_match.focal_scale != 1.0:
+            Kr = K.copy()
+            Kr[0, 0] *= photo_match.focal_scale
+            Kr[1, 1] *= photo_match.focal_scale
+            if abs(photo_match.focal_scale - 1.0) > s.focal_tolerance:
+                scene_flags.append(f"focal_refined: the EXIF focal length was {100 * (photo_match.focal_scale - 1):+.1f}% off "
+                                   f"({photo.K_source}); K refined from the camera-position panorama")
+            photo.K_full, photo.K_source = Kr.tolist(), f"{photo.K_source}+features"
         if photo_match is not None:
             cam.cues["photo_features"] = Cue(yaw_deg=photo_match.yaw_deg, sigma_deg=photo_match.sigma_deg, ok=True,
                                              detail=detail + f"; photo pitch {photo_match.pitch_deg:+.2f}, "
@@ -261,8 +272,8 @@ def align_scene(campaign: Path, manifest: Manifest, scene: Scene, settings: Alig
             note = "no sun frame (no low-exposure shot at this position)"
         y, ys = pre_yaw[st.cap.id]
         inputs.append(CaptureSunInput(st.cap.id, st.blobs, st.ephemeris, y, ys, st.heading, note, human))
-    sun = scene_sun(inputs, photo_ephemeris=photo_eph, photo_heading_deg=heading_p, settings=s.sun)
-    _sun_cues(caps, sun, photo_eph, s, heading_p)
+    sun, motion_note = _sun_with_motion(caps, inputs, photo_eph, heading_p, s)
+    scene_flags_info = [motion_note]
 
     # final yaws, probe pixels
     probes: list[ProbeAlignment] = []
@@ -293,7 +304,65 @@ def align_scene(campaign: Path, manifest: Manifest, scene: Scene, settings: Alig
             _probe_pixel(pa, st, scene, store, photo, cam, yaw_cam if yaw_cam is not None else None, s)
         probes.append(pa)
     sa = SceneAlignment(id=scene.id, photo=photo, camera_probe=cam_id, sun=sun, probes=probes, flags=scene_flags)
-    return sa, {"yaw_sigma": yaw_sigma}
+    return sa, {"yaw_sigma": yaw_sigma, "notes": scene_flags_info}
+
+
+def _sun_with_motion(caps: list[_CapState], inputs: list[CaptureSunInput], photo_eph: Any, heading_p: float | None,
+                     s: AlignSettings) -> tuple[SceneSun, str]:
+    """The scene's sun and the captures' sun cues, with the sun moving (ephemeris drift between the
+    captures' times) or static, as ``s.sun_motion`` says; ``"auto"`` lets the images decide.
+
+    Evidence for "auto": how well the sun cues agree with the captures' non-sun yaw cues
+    (features), and how well the captures' sun elevations agree, under each hypothesis
+    (chi-square with the cues' sigmas). The physical default (moving) stands without evidence.
+    """
+    from dataclasses import replace
+
+    modes = {"ephemeris": [True], "static": [False], "auto": [True, False]}[s.sun_motion]
+    results = {}
+    for moves in modes:
+        ss = replace(s, sun=replace(s.sun, sun_moves=moves))
+        for st in caps:
+            st.cues.pop("sun", None)
+        sun = scene_sun(inputs, photo_ephemeris=photo_eph, photo_heading_deg=heading_p, settings=ss.sun)
+        _sun_cues(caps, sun, photo_eph, ss, heading_p)
+        chi2, n = 0.0, 0
+        for st in caps:
+            sc = st.cues.get("sun")
+            others = {k: c.model_copy() for k, c in st.cues.items() if k in ("features", "photo_features")}
+            if sc is None or sc.yaw_deg is None or not others:
+                continue
+            f = fuse_cues(others)
+            if f.yaw_deg is None:
+                continue
+            r = wrap_deg(sc.yaw_deg - f.yaw_deg)
+            chi2 += r**2 / ((sc.sigma_deg or 1.0) ** 2 + (f.sigma_deg or 1.0) ** 2)
+            n += 1
+        # the elevations of one sun seen from every position agree (no yaw involved)
+        els = [(cs.elevation_deg, st) for st, cs in zip(caps, sun.captures) if cs.found]
+        if len(els) >= 2:
+            from solidkit.align.sun import _sun_in_photo_time
+
+            moved = [_sun_in_photo_time(Blob(np.zeros(3), 0.0, e, 0.0, 0, 0.0), CaptureSunInput(st.cap.id, [], st.ephemeris),
+                                        photo_eph, ss.sun)[1] for e, st in els]
+            sig_el = math.hypot(s.level_sigma_deg, s.sun.centroid_sigma_deg)
+            chi2 += float(np.sum((np.array(moved) - np.mean(moved)) ** 2)) / sig_el**2
+            n += len(els) - 1
+        results[moves] = (chi2, n, sun, {st.cap.id: st.cues.get("sun") for st in caps})
+    if len(results) == 1 or min(r[1] for r in results.values()) < 2 or photo_eph is None:
+        moves = modes[0]
+        why = f"sun motion: {'ephemeris drift applied' if moves else 'static'} ({s.sun_motion})"
+    else:
+        moves = results[True][0] <= results[False][0]
+        why = (f"sun motion: {'moving (ephemeris drift applied)' if moves else 'static (no drift between captures)'}"
+               f", chosen by the images: chi2 {results[True][0]:.1f} moving vs {results[False][0]:.1f} static "
+               f" ({results[True][1]} comparisons: sun vs feature yaws, sun elevations)")
+    chi2, n, sun, cues = results[moves]
+    for st in caps:
+        if cues[st.cap.id] is not None:
+            st.cues["sun"] = cues[st.cap.id]
+    sun.motion = why
+    return sun, why
 
 
 def _pano_height(st: _CapState) -> int:
@@ -403,8 +472,13 @@ def _probe_pixel(pa: ProbeAlignment, st: _CapState, scene: Scene, store: Any, ph
 
 # --------------------------------------------------------------------------- the campaign
 def align_campaign(campaign_dir: str | os.PathLike, *, settings: AlignSettings | None = None, scenes: list[str] | None = None,
-                   labels: bool = True, report: bool = True, log: Callable[[str], None] = lambda s: None) -> CampaignAlignment:
-    """Align every scene of an ingested campaign (module doc); returns and writes ``align/alignment.json``."""
+                   labels: bool = True, report: bool = True, label_kinds: tuple[str, ...] | None = None, write: bool = True,
+                   log: Callable[[str], None] = lambda s: None) -> CampaignAlignment:
+    """Align every scene of an ingested campaign (module doc); returns and writes ``align/alignment.json``.
+
+    ``label_kinds``: which automatic labels to put into the store (default all: sun, sun_scene,
+    heading, probe_pixel); ``write=False`` writes no alignment file (``solidkit label sun``).
+    """
     from solidkit import __version__
 
     campaign = Path(campaign_dir)
@@ -449,18 +523,20 @@ def align_campaign(campaign_dir: str | os.PathLike, *, settings: AlignSettings |
         out.scenes.append(sa)
         extras[sc.id] = extra
         if store is not None:
-            _write_labels(store, sa)
-    save_alignment(out, campaign)
-    if report:
+            _write_labels(store, sa, label_kinds)
+    if write:
+        save_alignment(out, campaign)
+    if report and write:
         from solidkit.align.report import write_report
 
         write_report(campaign, manifest, out)
     return out
 
 
-def _write_labels(store: Any, sa: SceneAlignment) -> None:
+def _write_labels(store: Any, sa: SceneAlignment, kinds: tuple[str, ...] | None = None) -> None:
     """Auto labels (C2): sun per capture, sun_scene, heading per capture, probe_pixel from geometry."""
-    for cs in sa.sun.captures:
+    kinds = kinds or ("sun", "sun_scene", "heading", "probe_pixel")
+    for cs in sa.sun.captures if "sun" in kinds else []:
         if cs.source != "auto":
             continue
         value: dict[str, Any] = {"found": cs.found, "azimuth_deg": cs.azimuth_deg, "elevation_deg": cs.elevation_deg,
@@ -469,16 +545,17 @@ def _write_labels(store: Any, sa: SceneAlignment) -> None:
                                                 for c in cs.candidates]}
         store.put("sun", f"{sa.id}/{cs.probe}", value, source="auto", annotator=ANNOTATOR, flags=_flag_names(cs.flags))
     sun = sa.sun
-    store.put("sun_scene", sa.id, {"found": sun.found and sun.azimuth_deg is not None,
-                                   "azimuth_deg": sun.azimuth_deg if sun.found else None,
-                                   "elevation_deg": sun.elevation_deg if sun.found and sun.azimuth_deg is not None else None,
-                                   "uncertainty_deg": sun.uncertainty_deg},
-              source="auto", annotator=ANNOTATOR, flags=_flag_names(sun.flags))
+    if "sun_scene" in kinds:
+        store.put("sun_scene", sa.id, {"found": sun.found and sun.azimuth_deg is not None,
+                                       "azimuth_deg": sun.azimuth_deg if sun.found else None,
+                                       "elevation_deg": sun.elevation_deg if sun.found and sun.azimuth_deg is not None else None,
+                                       "uncertainty_deg": sun.uncertainty_deg},
+                  source="auto", annotator=ANNOTATOR, flags=_flag_names(sun.flags))
     for pa in sa.probes:
-        if pa.yaw_deg is not None and pa.yaw_source == "auto":
+        if "heading" in kinds and pa.yaw_deg is not None and pa.yaw_source == "auto":
             store.put("heading", f"{sa.id}/{pa.id}", {"yaw_deg": pa.yaw_deg, "residual_deg": pa.residual_deg},
                       source="auto", annotator=ANNOTATOR, flags=_flag_names(pa.flags))
-        if pa.pixel_source == "geometry" and pa.pixel_full is not None:
+        if "probe_pixel" in kinds and pa.pixel_source == "geometry" and pa.pixel_full is not None:
             store.put("probe_pixel", f"{sa.id}/{pa.id}", {"x": max(pa.pixel_full[0], -0.5), "y": max(pa.pixel_full[1], -0.5)},
                       source="auto", annotator=ANNOTATOR, flags=_flag_names(pa.flags))
 

@@ -147,6 +147,7 @@ class SceneSun(_Model):
     uncertainty_deg: float | None = None
     n_captures: int = Field(0, description="captures that saw the sun and entered the consensus")
     ephemeris: Ephemeris | None = Field(None, description="at the photo's time and place")
+    motion: str = Field("", description="how the sun's motion between the captures' times was treated, and why")
     source: LabelSource = "auto"
     flags: list[str] = Field(default_factory=list)
     captures: list[CaptureSun] = Field(default_factory=list)

@@ -369,7 +369,9 @@ def scene_sun(captures: list[CaptureSunInput], *, photo_ephemeris: Ephemeris | N
         r = results[ci]
         dev_el = p_el - el
         dev_az = None if (p_az is None or az is None) else wrap_deg(p_az - az)
-        if abs(dev_el) > el_tol or (dev_az is not None and abs(dev_az) * math.cos(math.radians(el)) > 3.0 * max(unc, 0.5)):
+        yaw_sig = captures[ci].yaw_sigma_deg or 0.0
+        az_tol = 3.0 * math.hypot(max(unc, 0.5), yaw_sig)
+        if abs(dev_el) > el_tol or (dev_az is not None and abs(dev_az) * math.cos(math.radians(el)) > az_tol):
             r.flags = [*r.flags, f"disagrees_with_scene: d_el {dev_el:+.2f} deg" + ("" if dev_az is None else f", d_az {dev_az:+.2f} deg")]
             scene_flags.append(f"position_disagrees: {r.probe}")
     sun.found, sun.azimuth_deg, sun.elevation_deg, sun.uncertainty_deg = True, az, el, unc

@@ -9,6 +9,7 @@ from typing import Optional
 
 import typer
 
+from solidkit.cli.align import align_cli
 from solidkit.cli.calibrate import app as calibrate_app
 from solidkit.cli.ingest import ingest_cli
 from solidkit.cli.label import app as label_app
@@ -37,6 +38,7 @@ app.add_typer(synth_app, name="synth", help="Synthetic SOLID-Img-style data and 
 app.add_typer(testset_app, name="testset", help="Build, validate, inspect and export a real test set.")
 app.add_typer(label_app, name="label", help="Browser labeling app (sun, probe pixels, headings, review) and label export.")
 app.command("ingest")(ingest_cli)
+app.command("align")(align_cli)
 app.command("predict")(predict_command)
 app.command("train")(train_command)
 app.command("eval")(eval_command)

@@ -1,0 +1,97 @@
+"""``solidkit align CAMPAIGN`` and ``solidkit label sun CAMPAIGN``: the commands around :mod:`solidkit.align.pipeline`."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any
+
+import typer
+
+from solidkit.errors import InputError
+
+
+def _summary(al: Any) -> dict[str, Any]:
+    scenes = []
+    for sa in al.scenes:
+        scenes.append({
+            "scene": sa.id, "flags": sa.flags + sa.sun.flags,
+            "sun": {"found": sa.sun.found, "azimuth_deg": sa.sun.azimuth_deg, "elevation_deg": sa.sun.elevation_deg,
+                    "world_azimuth_deg": sa.sun.world_azimuth_deg, "uncertainty_deg": sa.sun.uncertainty_deg,
+                    "captures": {c.probe: {"found": c.found, "azimuth_deg": c.azimuth_deg, "elevation_deg": c.elevation_deg,
+                                           "rejected": sum(1 for k in c.candidates if not k.chosen)} for c in sa.sun.captures}},
+            "probes": [{"id": p.id, "role": p.role, "yaw_deg": p.yaw_deg, "yaw_source": p.yaw_source,
+                        "residual_deg": p.residual_deg, "cues_ok": sorted(k for k, c in p.cues.items() if c.ok),
+                        "pixel_full": p.pixel_full, "pixel_source": p.pixel_source, "flags": p.flags} for p in sa.probes],
+        })
+    return {"alignment": "align/alignment.json", "scenes": scenes}
+
+
+def _run(campaign: Path, scenes: list[str] | None, products: bool, report: bool, only_sun: bool, as_json: bool) -> None:
+    from rich.console import Console
+    from rich.markup import escape
+    from rich.table import Table
+
+    from solidkit.align.pipeline import AlignSettings, align_campaign
+
+    if not campaign.is_dir():
+        raise InputError(f"{campaign}: campaign directory not found")
+    err = Console(stderr=True)
+    settings = AlignSettings(products=products and not only_sun)
+    al = align_campaign(campaign, settings=settings, scenes=scenes or None, report=report and not only_sun,
+                        label_kinds=("sun", "sun_scene") if only_sun else None, write=not only_sun,
+                        log=lambda s: err.print(f"[dim]{escape(s)}[/]"))
+    if as_json:
+        typer.echo(json.dumps(_summary(al), indent=1))
+        return
+    out = Console()
+    t = Table(title=f"{'label sun' if only_sun else 'align'} {escape(str(campaign))}")
+    for col in ("scene", "capture", "sun (az, el) deg", "yaw deg", "cues agreeing", "flags"):
+        t.add_column(col)
+    for sa in al.scenes:
+        suns = {c.probe: c for c in sa.sun.captures}
+        for p in sa.probes:
+            cs = suns.get(p.id)
+            sun = "-" if cs is None or not cs.found else f"{cs.azimuth_deg:+.2f}, {cs.elevation_deg:.2f}"
+            yaw = "-" if p.yaw_deg is None else f"{p.yaw_deg:+.2f}" + ("" if p.yaw_source == "auto" else f" ({p.yaw_source})")
+            flags = [f.split(":")[0] for f in p.flags + (cs.flags if cs else [])]
+            t.add_row(sa.id, p.id + (" (camera)" if p.role == "camera" else ""), sun, yaw,
+                      ", ".join(sorted(k for k, c in p.cues.items() if c.ok)), escape(", ".join(flags)))
+        s = sa.sun
+        scene_sun = "no sun" if not s.found or s.azimuth_deg is None else f"{s.azimuth_deg:+.2f}, {s.elevation_deg:.2f} (photo frame)"
+        t.add_row(sa.id, "[b]scene[/]", scene_sun, "", "", escape(", ".join(f.split(":")[0] for f in sa.flags + s.flags)))
+    out.print(t)
+    if not only_sun:
+        out.print(f"wrote {escape(str(campaign / 'align' / 'alignment.json'))}"
+                  + (f" and the report {escape(str(campaign / 'align' / 'report.html'))}" if report else ""))
+
+
+def align_cli(
+    campaign: Path = typer.Argument(..., help="An ingested campaign directory (solidkit ingest)."),
+    scene: list[str] = typer.Option(None, "--scene", "-s", help="Align only these scenes (repeatable); the others keep their previous alignment."),
+    products: bool = typer.Option(True, "--products/--no-products", help="Write the aligned probes (LDR, HDR, saturation masks)."),
+    report: bool = typer.Option(True, "--report/--no-report", help="Write align/report.md, report.html and a PNG per scene."),
+    as_json: bool = typer.Option(False, "--json", help="Print a JSON summary on stdout (logs on stderr)."),
+) -> None:
+    """Sun labels, every capture's yaw in the photo's view frame, probe pixels and aligned probes.
+
+    Writes CAMPAIGN/align/alignment.json, the aligned products under CAMPAIGN/align/<scene>/<probe>/,
+    automatic labels (source "auto") into the campaign's label store, and a report. Idempotent:
+    human labels in the store win and are recorded as such.
+    """
+    _run(campaign, scene, products, report, False, as_json)
+
+
+def label_sun(
+    campaign: Path = typer.Argument(..., help="An ingested campaign directory (solidkit ingest)."),
+    scene: list[str] = typer.Option(None, "--scene", "-s", help="Only these scenes (repeatable)."),
+    as_json: bool = typer.Option(False, "--json", help="Print a JSON summary on stdout (logs on stderr)."),
+) -> None:
+    """Automatic sun labels: every saturated blob of each sun frame is a candidate; physics chooses.
+
+    Writes `sun` (per capture, its level frame) and `sun_scene` (photo panorama frame) labels with
+    source "auto" into the campaign's label store, with the rejected candidates and their reasons;
+    human labels are never replaced. Uses the features between the captures for the
+    cross-position test; writes no products and no alignment.json.
+    """
+    _run(campaign, scene, False, False, True, as_json)
