@@ -241,12 +241,12 @@ class _Builder:
         src = self._src(photo.path, f"{sid}: photo")
         if sha256_file(src) != photo.sha256:
             raise InputError(f"{src}: photo content differs from the alignment's sha256 (re-run solidkit align)")
-        image = imread(src)
+        image = read_ldr(src)  # RGB float in [0, 1], whatever the file's bit depth and channels
         K_full = np.asarray(photo.K_full, np.float64)
         small, K_model, box = resize_crop(image, K_full, MODEL_INPUT_SIZE)
         d = f"scenes/{sid}"
         self.root.joinpath(d).mkdir(parents=True, exist_ok=True)
-        write_ldr(self.root / d / "photo.png", small[..., ::-1] if small.ndim == 3 else small)
+        write_ldr(self.root / d / "photo.png", small)
         photo_full = self._copy(src, f"{d}/photo_full{src.suffix.lower()}")
         flags = merge_flags(sa.flags)
         if photo.pitch_deg is None or photo.roll_deg is None or photo.pitch_roll_source == "assumed_zero":
