@@ -1,0 +1,96 @@
+"""The chain on a virtual campaign held against its truth: synth campaign -> ingest -> align -> testset build.
+
+Truth is read only here, after the test set is built. Measured: probe pixels equal the field
+notes' (the team's marks, read from the card's ``fieldnotes.toml``) exactly, and their distance to
+the true pixel is reported; the sun within the labeling tolerance; every aligned LDR probe
+against the truth probe (exposed like the LDR, unsaturated pixels) above :data:`PSNR_MIN_DB`;
+rotations against the truth's ``R_pano_from_body``. Rendering takes minutes: ``slow``.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import tomllib
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from solidkit.envmap.coords import angular_distance
+from solidkit.envmap.io import read_exr, read_ldr
+from solidkit.envmap.resample import resize
+from solidkit.testset.build import load_testset
+from solidkit.testset.validate import validate_testset
+
+from test_testset import psnr_ldr
+
+PSNR_MIN_DB = 30.0  # align's target for aligned LDR probes (issue 11)
+SUN_TOL_DEG = 2.0  # labeling tolerance of the sun in the photo's panorama frame
+ROTATION_TOL_DEG = 2.0
+
+
+def rotation_angle_deg(A, B) -> float:
+    R = np.asarray(A) @ np.asarray(B).T
+    return math.degrees(math.acos(float(np.clip((np.trace(R) - 1) / 2, -1.0, 1.0))))
+
+
+def field_note_pixels(card: Path, scene: str) -> dict[str, list[float]]:
+    """``{probe: [x, y]}`` marked in ``CARD/<scene>/fieldnotes.toml`` (empty without notes)."""
+    path = card / scene / "fieldnotes.toml"
+    if not path.is_file():
+        return {}
+    notes = tomllib.loads(path.read_text())
+    return {pid: list(map(float, p["pixel"])) for pid, p in notes.get("probes", {}).items() if "pixel" in p}
+
+
+def compare_with_truth(out: Path, truth_dir: Path, card: Path | None = None) -> dict:
+    """Numbers of a built test set against a virtual campaign's truth (used by the test and for reports)."""
+    ts = load_testset(out)
+    res = {"pixel_err_px": [], "pixel_vs_notes_px": [], "sun_err_deg": [], "psnr_db": [], "rotation_err_deg": [],
+           "sun_found": []}
+    for s in ts.scenes:
+        t = json.loads((truth_dir / s.id / "scene.json").read_text())
+        notes = field_note_pixels(card, s.id) if card is not None else {}
+        caps = {c["id"]: c for c in t["captures"]}
+        res["sun_found"].append((s.sun.found, t["sun_found"]))
+        if s.sun.found and t["sun_found"]:
+            a = np.radians([s.sun.azimuth_deg, s.sun.elevation_deg])
+            b = np.radians([t["sun_azimuth_deg"], t["sun_elevation_deg"]])
+            res["sun_err_deg"].append(math.degrees(float(angular_distance(*(np.array(
+                [math.cos(e) * math.sin(z), -math.sin(e), math.cos(e) * math.cos(z)]) for z, e in (a, b))))))
+        for p in s.probes:
+            c = caps[p.id]
+            res["pixel_err_px"].append(float(np.hypot(*(np.asarray(p.pixel_full) - c["probe"]["pixel"]))))
+            if p.id in notes:
+                res["pixel_vs_notes_px"].append(float(np.hypot(*(np.asarray(p.pixel_full) - notes[p.id]))))
+            res["rotation_err_deg"].append(rotation_angle_deg(p.rotation, c["R_pano_from_body"]))
+            truth = read_exr(truth_dir.parent / c["probe"]["hdr_file"])[0][..., :3]
+            truth = truth if truth.shape[0] == 128 else resize(truth, 128)
+            sat = read_ldr(out / p.images.saturation)[..., 0] > 0.5
+            res["psnr_db"].append(psnr_ldr(read_ldr(out / p.ldr), truth, sat))
+    return res
+
+
+@pytest.mark.slow
+def test_chain_on_a_virtual_campaign(tmp_path, cli):
+    card_root = tmp_path / "virtual"
+    code, _, err = cli("synth", "campaign", "--scenes", "2", "--probes", "4", "--out", card_root, "--seed", "7", "--preset", "mini")
+    assert code == 0, err
+    camp = tmp_path / "campaign"
+    code, _, err = cli("ingest", card_root / "card", camp)
+    assert code == 0, err
+    code, _, err = cli("align", camp)
+    assert code == 0, err
+    out = tmp_path / "testset"
+    code, report, err = cli("testset", "build", camp, out, "--json")
+    assert code == 0, err
+    assert json.loads(report)["probes"] >= 3
+    assert validate_testset(out, allow_flagged=True) == []
+    res = compare_with_truth(out, card_root / "truth", card_root / "card")
+    assert len(res["pixel_vs_notes_px"]) == len(res["pixel_err_px"]) > 0
+    assert max(res["pixel_vs_notes_px"]) == 0.0  # the field notes' marks, exactly
+    assert all(a == b for a, b in res["sun_found"])
+    assert all(e < SUN_TOL_DEG for e in res["sun_err_deg"]), res
+    assert min(res["psnr_db"]) > PSNR_MIN_DB, res
+    assert max(res["rotation_err_deg"]) < ROTATION_TOL_DEG, res
