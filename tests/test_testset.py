@@ -84,6 +84,9 @@ def test_build_against_truth(campaign, built):
             v, u = np.unravel_index(np.argmax(pano.sum(-1)), pano.shape[:2])
             az, el = (u + 0.5) / (2 * h) * 360 - 180, 90 - (v + 0.5) / h * 180
             assert abs(az - t["sun"][0]) < 2.0 and abs(el - t["sun"][1]) < 2.0
+    lens = [r for r in ts.profiles if r.role == "lens"]
+    assert [(r.kind, r.name) for r in lens] == [("shipped", "theta-v")]
+    assert lens[0].path == f"profiles/{lens[0].sha256}.json" and ts.files[lens[0].path].sha256 == lens[0].sha256
     assert validate_testset(built) == []
 
 

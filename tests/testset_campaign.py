@@ -126,7 +126,7 @@ def make_campaign(root: Path, scenes: dict | None = None) -> dict:
                                   sun_frame=cshots[3]))
             products += [
                 Product(id=f"{sid}/{cid}/hdr-b01", kind="hdr", scene=sid, probe=cid, inputs=cshots[:3], path=f"{d}/hdr-b01.exr",
-                        layout="equirect", exposure_time=1 / 640, f_number=2.0, iso=100.0),
+                        layout="equirect", exposure_time=1 / 640, f_number=2.0, iso=100.0, stats={"profile": "theta-v"}),
                 Product(id=f"{sid}/{cid}/sun", kind="sun_frame", scene=sid, probe=cid, inputs=cshots[3:], path=f"{d}/sun.png",
                         layout="equirect", exposure_time=1 / 25000, f_number=2.0, iso=100.0),
             ]

@@ -460,8 +460,12 @@ class _Builder:
 
     # -- profiles
     def profiles(self) -> list[ProfileRef]:
+        """Every calibration profile the campaign's products were made with, copied by content hash."""
         refs = [self._profile("response", self.manifest.response),
                 self._profile("lens", self.manifest.lens_profile), self._profile("vignetting", self.manifest.vignetting)]
+        if self.manifest.lens_profile is None:  # the camera models' shipped profiles, as the products record them
+            names = sorted({str(p.stats["profile"]) for p in self.manifest.products if p.stats.get("profile")})
+            refs += [self._profile("lens", {"kind": "shipped", "name": n}) for n in names]
         return [r for r in refs if r is not None]
 
     def _profile(self, role: str, entry: dict[str, Any] | None) -> ProfileRef | None:
@@ -474,7 +478,18 @@ class _Builder:
             return ProfileRef(role=role, kind="file", name=Path(entry.get("path", "")).name, sha256=sha,
                               path=self._copy(src, f"profiles/{sha}{src.suffix}"))
         if kind == "shipped":
-            return ProfileRef(role=role, kind="shipped", name=entry.get("name"), sha256=entry.get("sha256"))
+            from importlib import resources
+
+            name = str(entry.get("name"))
+            res = resources.files("solidkit.camera").joinpath("profiles", f"{name}.json")
+            if not res.is_file():
+                return ProfileRef(role=role, kind="shipped", name=name, sha256=entry.get("sha256"))
+            data = res.read_bytes()
+            sha = hashlib.sha256(data).hexdigest()
+            rel = f"profiles/{sha}.json"
+            (self.root / "profiles").mkdir(exist_ok=True)
+            (self.root / rel).write_bytes(data)
+            return ProfileRef(role=role, kind="shipped", name=name, sha256=sha, path=rel)
         return ProfileRef(role=role, kind="builtin", name=str(kind))
 
 

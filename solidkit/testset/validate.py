@@ -98,6 +98,8 @@ class _Checker:
         for prof in ts.profiles:
             if prof.path and prof.path not in ts.files:
                 self.add("files", None, prof.path, "profile named but not listed in files")
+            elif prof.path and prof.sha256 and ts.files[prof.path].sha256 != prof.sha256:
+                self.add("files", None, prof.path, f"{prof.role} profile {prof.name}: content hash differs from the one recorded")
 
     def _image(self, scene: str, rel: str | None, hdr: bool = False) -> np.ndarray | None:
         if rel is None or rel in self.bad_files:
