@@ -31,7 +31,7 @@ def test_shipped_profiles_load_and_cite():
     assert {"theta-v", "theta-z1", "theta-s", "theta-s-video"} <= set(names)
     for name in names:
         p = load_profile(name)
-        assert p.schema_version == 1 and p.model == name and p.source
+        assert p.format_version == 1 and p.kind == "lens" and p.model == name and p.source
         assert len(p.lenses) == 2 and p.lenses[0].ypr_deg[0] == 0 and abs(p.lenses[1].ypr_deg[0]) > 170
 
 
@@ -96,12 +96,19 @@ def test_profile_files_and_errors(tmp_path):
     path = p.save(tmp_path / "unit.json")
     assert load_profile(path) == p
     data = json.loads(path.read_text())
-    data["schema_version"] = 99
+    assert data["kind"] == "lens" and data["format_version"] == 1
+    legacy = {("schema_version" if k == "format_version" else k): v for k, v in data.items()}  # before the document base
+    (tmp_path / "legacy.json").write_text(json.dumps(legacy))
+    assert load_profile(tmp_path / "legacy.json") == p
+    data["format_version"] = 99
     (tmp_path / "v99.json").write_text(json.dumps(data))
-    with pytest.raises(LensProfileError, match="schema version"):
+    with pytest.raises(LensProfileError, match="lens profile format version 99; this solidkit reads version 1"):
         load_profile(tmp_path / "v99.json")
+    (tmp_path / "colour.json").write_text(json.dumps({**data, "kind": "colour"}))
+    with pytest.raises(LensProfileError, match="is a 'colour' profile, expected 'lens'"):
+        load_profile(tmp_path / "colour.json")
     (tmp_path / "bad.json").write_text("{not json")
-    with pytest.raises(LensProfileError, match="not JSON"):
+    with pytest.raises(LensProfileError, match="not a JSON profile"):
         load_profile(tmp_path / "bad.json")
     data = json.loads(path.read_text())
     data["lenses"][0]["poly"] = [100.0, -200.0]  # r(theta) decreasing before 100 deg

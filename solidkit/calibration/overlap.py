@@ -25,7 +25,6 @@ their difference only; their common scale is determined by the data).
 
 from __future__ import annotations
 
-import datetime as _dt
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -35,14 +34,13 @@ import cv2
 import numpy as np
 from scipy.optimize import least_squares
 
-import solidkit
 from solidkit.camera.dualfisheye import get_maps, match_gains, read_linear, seam_disagreement, warp_lens
 from solidkit.camera.lens import LensProfile, load_profile, project, rotation_to_ypr_deg
+from solidkit.document import make_provenance
 from solidkit.envmap.coords import rotation_from_rotvec
 from solidkit.envmap.resample import sample_image
 from solidkit.envmap.sun import luminance
 from solidkit.errors import InputError
-from solidkit.fsutil import sha256_file
 
 __all__ = ["RefineResult", "ring_directions", "apply_params", "refine_overlap", "fit_image_circle", "refine_files"]
 
@@ -365,12 +363,8 @@ def refine_files(
             "back_rotation_change_deg": res.rotation_change_deg, "image_circles_px": res.circles,
             "levels": [{k: v for k, v in lv.items() if k != "params"} for lv in res.levels],
         },
-        "provenance": {
-            "inputs": [{"path": str(p), "sha256": sha256_file(p)} for p in paths],
-            "tool": "solidkit calibrate overlap", "solidkit_version": getattr(solidkit, "__version__", "unknown"),
-            "created": _dt.datetime.now(_dt.timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ"),
-            "parameters": {"circle_sigma_px": circle_sigma_px, "scale_sigma": scale_sigma, "fix_scale": fix_scale},
-        },
+        "provenance": make_provenance(paths, tool="solidkit calibrate overlap", circle_sigma_px=circle_sigma_px,
+                                      scale_sigma=scale_sigma, fix_scale=fix_scale),
     })
     refined.save(out)
     return {"output": str(out), "base": prof.model, "images": len(paths), "seam_mad_before": before,

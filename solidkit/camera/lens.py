@@ -1,10 +1,11 @@
 """Dual-fisheye lens profiles: the file format and the forward/inverse fisheye projection.
 
-Profile format (JSON, ``schema_version`` 1; shared with the Calibration issue)
-------------------------------------------------------------------------------
+Profile format (a :class:`~solidkit.document.VersionedDocument`: JSON, ``format_version`` 1;
+files written before it say ``schema_version`` 1 and are read the same)
+------------------------------------------------------------------------------------------------
 ::
 
-    {"kind": "lens", "schema_version": 1,
+    {"kind": "lens", "format_version": 1,
      "model": "theta-v",                      # profile name
      "camera_models": ["RICOH THETA V"],      # EXIF models it applies to
      "source": "...",                         # citation of the facts used (or how it was measured)
@@ -22,7 +23,8 @@ Profile format (JSON, ``schema_version`` 1; shared with the Calibration issue)
        },
        {"name": "back", ..., "ypr_deg": [180, 0, 0]}],
      "residuals": {...},                      # optional: fit/refinement quality (units in the key names)
-     "provenance": {...},                     # optional: inputs (path, sha256), tool, version, date
+     "provenance": {...},                     # optional (shipped profiles cite ``source``): inputs (path,
+                                              #   sha256), tool, versions, date (solidkit.document.Provenance)
      "notes": "..."}
 
 Geometry
@@ -47,24 +49,23 @@ centres as continuous coordinates ``(c + 0.5) s - 0.5``, radii ``r s``.
 
 from __future__ import annotations
 
-import json
+import hashlib
 import math
 import os
 from functools import lru_cache
 from importlib import resources
 from pathlib import Path
-from typing import Any, Literal
+from typing import Any, ClassVar
 
 import numpy as np
-from pydantic import BaseModel, Field, ValidationError, field_validator, model_validator
+from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
 
 from solidkit.envmap.coords import rotation_from_ypr, ypr_from_rotation
 from solidkit.envmap.perspective import scale_pixel_coordinates
-from solidkit.errors import InputError, validation_message
-from solidkit.fsutil import atomic_write_text
+from solidkit.document import DocumentError, VersionedDocument
 
 __all__ = [
-    "SCHEMA_VERSION",
+    "FORMAT_VERSION",
     "LensTable",
     "LensModel",
     "LensProfile",
@@ -77,11 +78,11 @@ __all__ = [
     "unproject",
 ]
 
-SCHEMA_VERSION = 1
+FORMAT_VERSION = 1
 _PROFILE_DIR = "profiles"
 
 
-class LensProfileError(InputError):
+class LensProfileError(DocumentError):
     """A lens profile is missing, malformed, of another schema version, or does not fit the image."""
 
 
@@ -193,11 +194,15 @@ def _dense_inverse(poly: tuple[float, ...], tmax: float) -> tuple[np.ndarray, np
     return grid, acc * grid
 
 
-class LensProfile(BaseModel):
+class LensProfile(VersionedDocument):
     """A dual-fisheye camera's lenses at a reference image size (format: module docstring)."""
 
-    kind: Literal["lens"] = "lens"
-    schema_version: int = SCHEMA_VERSION
+    model_config = ConfigDict(extra="ignore")  # profiles from other tools may carry fields of their own
+    KIND: ClassVar[str] = "lens"
+    FORMAT_VERSION: ClassVar[int] = FORMAT_VERSION
+    ERROR: ClassVar[type[DocumentError]] = LensProfileError
+    WHAT: ClassVar[str] = "profile"
+
     model: str
     camera_models: list[str] = Field(default_factory=list)
     source: str
@@ -205,15 +210,12 @@ class LensProfile(BaseModel):
     lenses: list[LensModel]
     parent: str | None = None
     residuals: dict[str, Any] = Field(default_factory=dict)
-    provenance: dict[str, Any] = Field(default_factory=dict)
     notes: str = ""
 
-    @field_validator("schema_version")
+    @field_validator("provenance", mode="before")
     @classmethod
-    def _version(cls, v: int) -> int:
-        if v != SCHEMA_VERSION:
-            raise ValueError(f"lens profile schema version {v}, this solidkit reads version {SCHEMA_VERSION}")
-        return v
+    def _no_provenance(cls, v: Any) -> Any:
+        return None if v == {} else v  # files written before the document base said {} for "none"
 
     @field_validator("lenses")
     @classmethod
@@ -244,15 +246,10 @@ class LensProfile(BaseModel):
         return self.model_copy(update={"reference_size": (width, height), "lenses": lenses})
 
     def key(self) -> str:
-        """Stable content hash (for remap caches)."""
-        import hashlib
-
-        return hashlib.sha256(self.model_dump_json().encode()).hexdigest()[:16]
-
-    def save(self, path: str | os.PathLike) -> Path:
-        """Write the profile as JSON, atomically."""
-        atomic_write_text(path, json.dumps(self.model_dump(mode="json"), indent=1) + "\n")
-        return Path(path)
+        """Hash of the geometry (name, reference size, lenses): remap caches and products name the
+        profile by it; notes, residuals and provenance do not change it."""
+        geometry = self.model_dump_json(include={"model", "reference_size", "lenses"})
+        return hashlib.sha256(geometry.encode()).hexdigest()[:16]
 
 
 def _builtin_dir() -> Any:
@@ -264,19 +261,6 @@ def list_profiles() -> list[str]:
     return sorted(p.name[:-5] for p in _builtin_dir().iterdir() if p.name.endswith(".json"))
 
 
-def _parse(text: str, where: str) -> LensProfile:
-    try:
-        data = json.loads(text)
-    except json.JSONDecodeError as exc:
-        raise LensProfileError(f"{where}: not JSON ({exc.msg} at line {exc.lineno})") from exc
-    if not isinstance(data, dict) or data.get("kind") != "lens":
-        raise LensProfileError(f"{where}: not a lens profile (kind != 'lens')")
-    try:
-        return LensProfile.model_validate(data)
-    except ValidationError as exc:
-        raise LensProfileError(f"{where}: invalid lens profile: {validation_message(exc)}") from exc
-
-
 def load_profile(name_or_path: str | os.PathLike) -> LensProfile:
     """A shipped profile by name (``theta-v``) or a profile JSON file (e.g. a per-unit ``unit.json``)."""
     s = str(name_or_path)
@@ -284,11 +268,11 @@ def load_profile(name_or_path: str | os.PathLike) -> LensProfile:
     if p.suffix == ".json" or p.exists() or os.sep in s:
         if not p.is_file():
             raise LensProfileError(f"{p}: no such lens profile file")
-        return _parse(p.read_text(), str(p))
+        return LensProfile.load(p)
     res = _builtin_dir().joinpath(s + ".json")
     if not res.is_file():
         raise LensProfileError(f"unknown lens profile {s!r}; shipped: {', '.join(list_profiles())}")
-    return _parse(res.read_text(), s)
+    return LensProfile.from_json(res.read_text(), s)
 
 
 def profile_for_metadata(model: str | None, width: int, height: int) -> LensProfile:
