@@ -21,9 +21,9 @@ from datetime import datetime
 from pathlib import Path
 from typing import Any, Literal
 
-from pydantic import BaseModel, Field
+from pydantic import BaseModel, Field, ValidationError
 
-from solidkit.errors import InputError
+from solidkit.errors import InputError, validation_message
 from solidkit.fsutil import atomic_write_text
 
 __all__ = [
@@ -241,8 +241,8 @@ def load_manifest(campaign_dir: str | os.PathLike) -> Manifest:
     data["schema_version"] = SCHEMA_VERSION
     try:
         return Manifest.model_validate(data)
-    except Exception as exc:
-        raise InputError(f"{path}: invalid manifest ({str(exc).splitlines()[0]})") from None
+    except ValidationError as exc:
+        raise InputError(f"{path}: invalid manifest: {validation_message(exc)}") from None
 
 
 def save_manifest(campaign: Path, manifest: Manifest) -> None:

@@ -38,7 +38,7 @@ import numpy as np
 from solidkit.envmap.coords import direction_from_angles
 from solidkit.envmap.io import read_exr, read_ldr, srgb_decode
 from solidkit.envmap.sun import luminance
-from solidkit.errors import InputError
+from solidkit.errors import InputError, validation_message
 from solidkit.finetune import metrics as M
 
 __all__ = [
@@ -274,7 +274,7 @@ def items_from_testset(root: str | os.PathLike) -> list[EvalItem]:
     try:
         ts = TestSet.model_validate_json(path.read_text())
     except ValidationError as exc:
-        raise InputError(f"{path}: not a valid test set ({exc.error_count()} schema errors; run 'solidkit testset validate')") from None
+        raise InputError(f"{path}: not a valid test set ({validation_message(exc)}; run 'solidkit testset validate')") from None
     items = []
     for sc in ts.scenes:
         if not sc.probes:

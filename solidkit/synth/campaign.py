@@ -100,7 +100,7 @@ from solidkit.capture.fieldnotes import NOTES_NAMES, FieldNotes, PhotoPose, Prob
 from solidkit.capture.unwarp import render_fisheye
 from solidkit.envmap import (CONVENTIONS_VERSION, angles_from_direction, angular_distance, rotation_from_ypr, srgb_encode,
                              write_exr)
-from solidkit.errors import InputError
+from solidkit.errors import InputError, validation_message
 from solidkit.fsutil import atomic_write_bytes, atomic_write_text
 from solidkit.synth.cameras import pinhole_sensor
 from solidkit.synth.exif import exif_app1, insert_app1
@@ -279,7 +279,7 @@ def load_truth(path: str | os.PathLike) -> CampaignTruth:
     try:
         truth = CampaignTruth.model_validate_json(p.read_text())
     except ValidationError as exc:
-        raise InputError(f"{p}: not a campaign truth file ({exc.error_count()} schema errors)") from None
+        raise InputError(f"{p}: not a campaign truth file: {validation_message(exc)}") from None
     if truth.conventions_version != CONVENTIONS_VERSION:
         from solidkit.errors import ConventionsError
 
