@@ -246,6 +246,8 @@ def test_sold_net_export_round_trips(built, tmp_path, cli):
             assert it.local_pano[k].shape == (64, 128, 3) and np.median(rel) < 0.01  # RGBE: 8-bit mantissa
         if s.sun.found:
             assert it.is_sunny and it.sun_deg == pytest.approx((s.sun.azimuth_deg, s.sun.elevation_deg), abs=1e-4)
+            col, row = np.loadtxt(dest / f"{it.id}_sun_pos.txt")  # SOLD-Net's estimator_test_real.py, literally
+            assert ((col - 63.5) / 64 * 180, (31.5 - row) / 64 * 180) == pytest.approx((s.sun.azimuth_deg, s.sun.elevation_deg), abs=1e-4)
         else:
             assert not it.is_sunny and it.sun_deg is None
     assert cli("testset", "export", built, "--format", "sold-net", dest)[0] == 0  # re-export over an earlier one

@@ -19,7 +19,7 @@ from typing import Callable
 import cv2
 import numpy as np
 
-from solidkit.envmap.coords import coords_from_direction, rotation_from_ypr
+from solidkit.envmap.coords import coords_from_angles, coords_from_direction, rotation_from_ypr
 from solidkit.envmap.io import imread
 from solidkit.envmap.perspective import pixel_rays
 from solidkit.errors import InputError
@@ -68,9 +68,9 @@ def fov_outline(K: np.ndarray, size: tuple[int, int], pitch_deg: float, roll_deg
 
 
 def _sun_px(az: float, el: float, height: int) -> tuple[float, float]:
-    u = ((math.radians(az) + math.pi) * height / math.pi) % (2 * height) - 0.5
-    v = (math.pi / 2 - math.radians(el)) * height / math.pi - 0.5
-    return u, v
+    """OpenCV drawing coordinates (pixel centres at integers) of a direction given in degrees."""
+    u, v = coords_from_angles(math.radians(az), math.radians(el), height)
+    return float(u) - 0.5, float(v) - 0.5
 
 
 def _label(img: np.ndarray, text: str, org: tuple[int, int], colour=(255, 255, 255), scale: float = 0.5) -> None:

@@ -39,6 +39,7 @@ from typing import Any
 import cv2
 import numpy as np
 
+from solidkit.envmap.coords import angles_from_coords, coords_from_angles
 from solidkit.envmap.io import read_exr, read_ldr, srgb_decode
 from solidkit.envmap.resample import resize
 from solidkit.errors import InputError
@@ -54,13 +55,17 @@ ITEMS_FILE = "solidkit_items.json"
 
 
 def sun_grid_position(azimuth_deg: float, elevation_deg: float) -> tuple[float, float]:
-    """``(col, row)`` on SOLD-Net's 128x32 grid of a direction (degrees, conventions §3)."""
-    return azimuth_deg * 64.0 / 180.0 + 63.5, 31.5 - elevation_deg * 64.0 / 180.0
+    """``(col, row)`` on SOLD-Net's 128x32 grid of a direction (degrees): the pixel-centre
+    coordinates in the top half of a 128x64 equirect map (conventions §3), i.e.
+    ``col = azimuth * 64 / 180 + 63.5``, ``row = 31.5 - elevation * 64 / 180``."""
+    x, y = coords_from_angles(math.radians(azimuth_deg), math.radians(elevation_deg), LOCAL_HEIGHT)
+    return float(x) - 0.5, float(y) - 0.5
 
 
 def sun_angles(col: float, row: float) -> tuple[float, float]:
     """Inverse of :func:`sun_grid_position`: ``(azimuth_deg, elevation_deg)`` (SOLD-Net's test script)."""
-    return (col - 63.5) / 64.0 * 180.0, (31.5 - row) / 64.0 * 180.0
+    phi, theta = angles_from_coords(col + 0.5, row + 0.5, LOCAL_HEIGHT)
+    return math.degrees(phi), math.degrees(theta)
 
 
 def _write_image(path: Path, image: np.ndarray, params: list[int] | None = None) -> None:
