@@ -71,6 +71,35 @@ def dataset(
     console.print(table)
 
 
+@app.command()
+def sources(
+    n: int = typer.Option(..., "--n", min=1, help="Total number of panoramas (all shards)."),
+    out: Path = typer.Option(..., "--out", help="Folder (created; re-running resumes)."),
+    shard: Optional[str] = typer.Option(None, "--shard", help="Render only shard i/N (contiguous index range)."),
+    seed: int = typer.Option(0, "--seed", help="Master seed (blocks, positions, lighting, noise)."),
+    height: int = typer.Option(768, "--height", min=64, help="Panorama height (width twice that)."),
+    spp: int = typer.Option(12, "--spp", min=1, help="Samples per pixel."),
+    exclude_hdr: list[str] = typer.Option([], "--exclude-hdr", help="HDR lighting maps to leave out (e.g. a held-out real test)."),
+    variant: Optional[str] = typer.Option(None, "--variant", help="Force a Mitsuba variant (default: cuda > llvm > scalar)."),
+) -> None:
+    """Render city-block HDR panoramas + their lighting: sources of the crop path of I-Net training."""
+    from solidkit.synth.dataset import parse_shard
+    from solidkit.synth.panocrops import SourceConfig, render_sources
+    from solidkit.synth.renderer import select_variant
+
+    sh = parse_shard(shard)
+    used = select_variant(variant)
+    cfg = SourceConfig(height=height, spp=spp, exclude_hdr=tuple(exclude_hdr))
+    t0 = time.perf_counter()
+    with _progress() as bar:
+        task = bar.add_task(f"sources {sh[0]}/{sh[1]} [{used}]", total=None)
+        counts = render_sources(out, n, seed=seed, shard=sh, config=cfg,
+                                progress=lambda done, total: bar.update(task, completed=done, total=total))
+    dt = time.perf_counter() - t0
+    console.print(f"rendered {counts['rendered']}, skipped {counts['skipped']}"
+                  + (f", {dt / counts['rendered']:.1f} s each" if counts["rendered"] else "") + f" -> {out}")
+
+
 @app.command(name="filter")
 def filter_cmd(
     out: Path = typer.Option(..., "--out", help="Dataset folder."),

@@ -1,9 +1,9 @@
 """A minimal training loop for SOLID-Net and an analytic toy scene to exercise it.
 
 :func:`fit` runs Adam on ``L_I + L_P`` (paper §4.3 and supplementary §1: Adam, lr 5e-4) over an
-iterable of batches in the format of :mod:`solidkit.model.solidnet`. Full training and fine-tuning
-live in :mod:`solidkit.finetune`; this loop is what the shipped first checkpoint and the overfitting
-test use.
+iterable of batches in the format of :mod:`solidkit.model.solidnet`. Real training (configuration
+file, I-Net then P-Net, resumable, logged) is ``solidkit train`` (:mod:`solidkit.model.trainer`);
+fine-tuning on real captures lives in :mod:`solidkit.finetune`. This loop serves the overfitting tests.
 
 :func:`toy_batch` renders an analytic scene (a ground plane and a wall facing the camera, a sky with a
 sun) with every ground-truth buffer consistent with the conventions: plane distances satisfy
@@ -288,34 +288,3 @@ def train_on_synth(
     }
     save_checkpoint(model, out, card, half=half)
     return card
-
-
-def main(argv: list[str] | None = None) -> None:
-    """``python -m solidkit.model.train DATA OUT [--seconds S] [--config small] [--seed N]``."""
-    import argparse
-    import json
-
-    from solidkit.model.config import preset
-
-    ap = argparse.ArgumentParser(description=train_on_synth.__doc__)
-    ap.add_argument("data")
-    ap.add_argument("out")
-    ap.add_argument("--config", default="small")
-    ap.add_argument("--seconds", type=float, default=300.0)
-    ap.add_argument("--steps", type=int, default=100_000)
-    ap.add_argument("--batch-size", type=int, default=2)
-    ap.add_argument("--probes", type=int, default=2)
-    ap.add_argument("--lr", type=float, default=1e-3)
-    ap.add_argument("--seed", type=int, default=0)
-    ap.add_argument("--threads", type=int, default=1)
-    ap.add_argument("--holdout", type=int, default=0)
-    a = ap.parse_args(argv)
-    card = train_on_synth(
-        a.data, a.out, preset(a.config), steps=a.steps, max_seconds=a.seconds, batch_size=a.batch_size,
-        probes=a.probes, lr=a.lr, seed=a.seed, threads=a.threads, holdout=a.holdout,
-    )
-    print(json.dumps(card, indent=1))
-
-
-if __name__ == "__main__":
-    main()

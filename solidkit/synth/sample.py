@@ -78,16 +78,22 @@ class SampleConfig:
     tex_size: int = 64
     p_sunsky: float = 0.5
     block_length: float = 60.0
+    exclude_hdr: tuple[str, ...] = ()
 
     def to_json(self) -> dict[str, Any]:
         d = asdict(self)
         d["item_size"] = list(self.item_size)
+        if self.exclude_hdr:  # HDR maps held out (e.g. for a real test); absent when none, as in older datasets
+            d["exclude_hdr"] = list(self.exclude_hdr)
+        else:
+            d.pop("exclude_hdr")
         return d
 
     @classmethod
     def from_json(cls, d: dict[str, Any]) -> "SampleConfig":
         d = dict(d)
         d["item_size"] = tuple(d.get("item_size", (64, 48)))
+        d["exclude_hdr"] = tuple(d.get("exclude_hdr", ()))
         return cls(**{k: v for k, v in d.items() if k in cls.__dataclass_fields__})
 
 
@@ -226,7 +232,8 @@ class Generator:
 
     def lighting(self, index: int) -> Lighting:
         rng = np.random.default_rng(derive_seed(self.seed, index, 3))
-        return random_lighting(rng, p_sunsky=self.config.p_sunsky, height=self.config.light_height)
+        return random_lighting(rng, p_sunsky=self.config.p_sunsky, height=self.config.light_height,
+                               exclude=tuple(self.config.exclude_hdr))
 
     def render(self, index: int, out_dir: str | Path, *, timings: dict[str, float] | None = None) -> dict[str, Any]:
         """Render sample ``index`` into ``out_dir`` (created); returns its JSON record.

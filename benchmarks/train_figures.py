@@ -1,0 +1,131 @@
+"""Accuracy figures of a SOLID-Net checkpoint against ground truth (the shipped one by default).
+
+- Synthetic test split: crops (:mod:`solidkit.synth.panocrops`) of panoramas rendered with a seed the
+  training never used (``--test-sources``, e.g. ``solidkit`` sources of seed 3000), ``--crops`` of them.
+- Real: crops of the real HDR panoramas in ``../shared/data/real/hdr_panoramas`` (Hold-Geoffroy et al.'s
+  protocol); each panorama is reported on its own and flagged ``held_out`` when the training excluded it
+  (the shipped run excludes ``city`` everywhere, as lighting and as crops).
+- Local probes: ``solidkit.finetune.evaluate`` (EVAL's metrics) on a synthetic dataset with probes
+  (``--synth``), the model against its own global map used as every probe.
+
+For each crop: the default detector (:func:`solidkit.envmap.detect_sun`, ``core``) on the predicted sky;
+found rate over skies whose truth has a visible sun (the same detector on the target), median angular,
+azimuth and elevation errors of the found ones, median predicted/true sun energy; plus the sun head's
+own direction (always answers) for every sky with a true sun.
+
+    .venv/bin/python benchmarks/train_figures.py [--checkpoint PT] [--test-sources DIR] [--crops 96]
+        [--synth DIR] [--out benchmarks/results/train_figures.json]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+REPO = Path(__file__).resolve().parents[1]
+REAL = REPO.parent / "shared" / "data" / "real" / "hdr_panoramas"
+
+
+def crop_metrics(model, sampler, indices, batch_size: int = 8) -> dict:
+    import torch
+
+    from solidkit.envmap import angles_from_direction, detect_sun
+    from solidkit.model.losses import sun_energy
+    from solidkit.model.trainer import crop_batch
+
+    found, errs, daz, delv, ratios, head, n_sun, l1 = 0, [], [], [], [], [], 0, []
+    for s in range(0, len(indices), batch_size):
+        b = crop_batch([sampler(int(i)) for i in indices[s : s + batch_size]])
+        with torch.no_grad():
+            out = model.inet(b["image"], intrinsics=False)
+        l1.append(float((out["sky_log"] - torch.log1p(b["sky"])).abs().mean()))
+        for i in range(b["image"].shape[0]):
+            if b["sun_visible"][i] < 0.5:
+                continue
+            n_sun += 1
+            t = b["sun_dir"][i].double().numpy()
+            if "sun_dir" in out:
+                head.append(math.degrees(math.acos(float(np.clip(out["sun_dir"][i].double().numpy() @ t, -1, 1)))))
+            det = detect_sun(out["sky"][i].permute(1, 2, 0).numpy())
+            if not det.found:
+                continue
+            found += 1
+            errs.append(math.degrees(math.acos(float(np.clip(det.direction @ t, -1, 1)))))
+            taz, tel = (float(a) for a in angles_from_direction(t))
+            d = abs(det.azimuth - taz) % (2 * math.pi)
+            daz.append(math.degrees(min(d, 2 * math.pi - d)))
+            delv.append(math.degrees(abs(det.elevation - tel)))
+            pd = torch.as_tensor(det.direction, dtype=torch.float32)[None]
+            ratios.append(float(sun_energy(out["sky"][i : i + 1], pd).sum()
+                                / sun_energy(b["sky"][i : i + 1], b["sun_dir"][i : i + 1]).sum().clamp_min(1e-9)))
+    med = lambda v: round(float(np.median(v)), 2) if v else None  # noqa: E731
+    within2 = sum(0.5 <= r <= 2.0 for r in ratios)
+    return {"crops": len(indices), "with_sun": n_sun, "found": found,
+            "found_rate": round(found / n_sun, 3) if n_sun else None,
+            "median_angular_err_deg": med(errs), "median_azimuth_err_deg": med(daz),
+            "median_elevation_err_deg": med(delv), "median_energy_ratio": med(ratios),
+            "energy_within_2x": within2, "sun_head_median_err_deg": med(head),
+            "sky_l1_log1p": round(float(np.mean(l1)), 4)}
+
+
+def main(argv: list[str]) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--checkpoint", default=None)
+    ap.add_argument("--test-sources", default="/work/data/train/src_test")
+    ap.add_argument("--crops", type=int, default=96)
+    ap.add_argument("--real-crops", type=int, default=48)
+    ap.add_argument("--synth", default=None, help="synthetic dataset with probes for the local metrics")
+    ap.add_argument("--held-out", nargs="*", default=["city"])
+    ap.add_argument("--out", default=str(REPO / "benchmarks" / "results" / "train_figures.json"))
+    a = ap.parse_args(argv)
+
+    import torch
+
+    from solidkit.model import SolidNet
+    from solidkit.synth.panocrops import CropConfig, CropSampler, load_sources, real_source
+
+    torch.set_num_threads(1)
+    model = SolidNet.from_checkpoint(a.checkpoint)
+    res: dict = {"checkpoint": a.checkpoint or "shipped", "card_step": model.card.get("step"),
+                 "config": model.config.name}
+    t0 = time.time()
+    if a.test_sources and Path(a.test_sources).is_dir():
+        srcs = load_sources(a.test_sources)
+        sampler = CropSampler(srcs, seed=99, config=CropConfig(exposure_stops=(0.0, 0.0), white_balance=0.0))
+        res["synthetic_crops"] = {"sources": len(srcs), "dir": a.test_sources,
+                                  **crop_metrics(model, sampler, list(range(a.crops)))}
+        print("synthetic", res["synthetic_crops"], file=sys.stderr)
+    if REAL.is_dir():
+        res["real_crops"] = {}
+        for p in sorted(REAL.glob("*.exr")):
+            sampler = CropSampler([real_source(p)], seed=98, config=CropConfig(exposure_stops=(0.0, 0.0),
+                                                                              white_balance=0.0))
+            m = crop_metrics(model, sampler, list(range(a.real_crops)))
+            res["real_crops"][p.stem] = {"held_out": p.stem in a.held_out, **m}
+            print("real", p.stem, m, file=sys.stderr)
+    if a.synth:
+        from solidkit.finetune.evaluate import GlobalAsLocal, ModelMethod, evaluate, items_from_synth
+
+        items = items_from_synth(a.synth)
+        base = ModelMethod("solidnet", model)
+        r = evaluate(items, [base, GlobalAsLocal(base)])
+        keep = ("local_ssim", "local_ssim_tonemap", "local_mae_log1p", "local_mae", "global_mae", "angle_deg/core",
+                "azimuth_deg/core", "elevation_deg/core", "no_sun_rate/core")
+        res["synthetic_local"] = {"dataset": a.synth, "items": len(items),
+                                  "summary": {m: {k: v for k, v in s.items() if k in keep}
+                                              for m, s in r["summary"].items()}}
+        print("local", json.dumps(res["synthetic_local"])[:2000], file=sys.stderr)
+    res["seconds"] = round(time.time() - t0, 1)
+    Path(a.out).write_text(json.dumps(res, indent=1))
+    print(json.dumps(res, indent=1))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main(sys.argv[1:]))
