@@ -536,21 +536,17 @@ def _check_out(out: Path, campaign: Path) -> None:
 
 def load_testset(root: str | os.PathLike) -> TestSet:
     """Read and validate ``ROOT/testset.json``; one-line :class:`InputError` otherwise."""
-    import json
-
     from pydantic import ValidationError
 
+    from solidkit.document import read_json_object
     from solidkit.errors import ConventionsError, validation_message
     from solidkit.testset.schema import SCHEMA_VERSION
 
     path = Path(root) / MANIFEST_FILE
     if not path.is_file():
         raise InputError(f"{root}: not a test set (no {MANIFEST_FILE})")
-    try:
-        data = json.loads(path.read_text(encoding="utf-8"))
-    except (OSError, ValueError) as exc:
-        raise InputError(f"{path}: unreadable ({exc})") from None
-    if not isinstance(data, dict) or data.get("format") != FORMAT:
+    data = read_json_object(path, InputError, "test set manifest")
+    if data.get("format") != FORMAT:
         raise InputError(f"{path}: not a solidkit test set manifest")
     if data.get("version") != SCHEMA_VERSION:
         raise InputError(f"{path}: test set schema version {data.get('version')!r}; this solidkit reads {SCHEMA_VERSION}")
