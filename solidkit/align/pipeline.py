@@ -45,6 +45,7 @@ from solidkit.align.schema import (ALIGNMENT_FILE, CampaignAlignment, CaptureSun
                                    save_alignment, wrap_deg)
 from solidkit.align.sun import Blob, CaptureSunInput, SunSettings, find_candidates, scene_sun, sky_fraction
 from solidkit.capture.manifest import Manifest, Scene, load_manifest
+from solidkit.envmap.coords import angles_from_direction, direction_from_angles, rotation_from_ypr, ypr_from_rotation
 from solidkit.envmap.io import srgb_decode
 from solidkit.errors import InputError, SolidkitError
 from solidkit.fsutil import atomic_path, sha256_file
@@ -65,6 +66,7 @@ class AlignSettings:
     feature_pitches_deg: tuple[float, ...] = (0.0, 45.0, -45.0)
     photo_scale: float | None = None
     level_sigma_deg: float = 0.4
+    refine_levelling: bool = True
     pixel_tolerance_frac: float = 0.05
     refine_focal: bool = True
     sun_motion: str = "auto"
@@ -153,6 +155,8 @@ class _CapState:
     fit: Any = None
     flags: list[str] = field(default_factory=list)
     ephemeris: Any = None
+    C: np.ndarray = field(default_factory=lambda: np.eye(3))  # product's level frame -> refined level frame
+    tilt: Any = None
 
 
 def align_scene(campaign: Path, manifest: Manifest, scene: Scene, settings: AlignSettings, store: Any = None,
@@ -188,7 +192,12 @@ def align_scene(campaign: Path, manifest: Manifest, scene: Scene, settings: Alig
             pano, fov_deg=s.feature_fov_deg, pitches_deg=s.feature_pitches_deg, linear=linear))
         st.feature_src = src
         st.normal_lin = pano if linear else srgb_decode(pano.astype(np.float32) / 255.0)
-        log(f"{scene.id}/{st.cap.id}: {len(st.features)} features")
+        if s.refine_levelling:
+            _refine_levelling(st, pano, s)
+            f = st.features
+            st.features = Features(f.directions @ st.C.T, f.descriptors, f.pixels, f.sizes)
+        log(f"{scene.id}/{st.cap.id}: {len(st.features)} features"
+            + ("" if st.tilt is None else f", residual tilt {st.tilt.tilt_deg:.2f} deg ({'reliable' if st.tilt.reliable else 'unreliable'})"))
 
     by_id = {st.cap.id: st for st in caps}
     cam = by_id.get(cam_id) if cam_id else None
@@ -267,13 +276,20 @@ def align_scene(campaign: Path, manifest: Manifest, scene: Scene, settings: Alig
                 dirs = [b.direction for b in st.blobs]
                 st.blobs = [Blob(**{**b.__dict__, "sky_fraction": sky_fraction(
                     st.normal_lin, b.direction, exclude=[d for d in dirs if d is not b.direction])}) for b in st.blobs]
+            st.blobs = [_to_frame(b, st.C) for b in st.blobs]
             note = ""
         else:
             note = "no sun frame (no low-exposure shot at this position)"
+        if human is not None and human.found:
+            d = st.C @ direction_from_angles(math.radians(human.azimuth_deg), math.radians(human.elevation_deg))
+            az, el = (math.degrees(float(v)) for v in angles_from_direction(d))
+            human = human.model_copy(update={"azimuth_deg": wrap_deg(az), "elevation_deg": el})
         y, ys = pre_yaw[st.cap.id]
         inputs.append(CaptureSunInput(st.cap.id, st.blobs, st.ephemeris, y, ys, st.heading, note, human))
     sun, motion_note = _sun_with_motion(caps, inputs, photo_eph, heading_p, s)
     scene_flags_info = [motion_note]
+    for st, cs in zip(caps, sun.captures):  # per-capture sun directions back into the sun-frame product's frame
+        _capture_sun_to_product_frame(cs, st.C)
 
     # final yaws, probe pixels
     probes: list[ProbeAlignment] = []
@@ -295,10 +311,12 @@ def align_scene(campaign: Path, manifest: Manifest, scene: Scene, settings: Alig
             flags.append(f"features_failed: yaw from {', '.join(used) or 'nothing'}")
         yaw_sigma[st.cap.id] = fused.sigma_deg
         role = "camera" if st.cap.id == cam_id else "probe"
+        levelling, y0 = _levelling_record(st)
+        if yaw is not None and source == "auto":
+            yaw = wrap_deg(yaw + y0)  # R_y(yaw) C R_meta = R_y(yaw + y0) R(0, p, r)
         pa = ProbeAlignment(
-            id=st.cap.id, role=role,
-            levelling=Levelling(pitch_deg=st.pitch, roll_deg=st.roll, source="metadata" if st.cap.normal else "none"),
-            rotation=body_to_pano(yaw if yaw is not None else 0.0, st.pitch, st.roll).tolist(),
+            id=st.cap.id, role=role, levelling=levelling,
+            rotation=body_to_pano(yaw if yaw is not None else 0.0, levelling.pitch_deg, levelling.roll_deg).tolist(),
             yaw_deg=yaw, yaw_source=source, residual_deg=fused.residual_deg, cues=st.cues, flags=flags)
         if role == "probe" and photo is not None:
             _probe_pixel(pa, st, scene, store, photo, cam, yaw_cam if yaw_cam is not None else None, s)
@@ -363,6 +381,65 @@ def _sun_with_motion(caps: list[_CapState], inputs: list[CaptureSunInput], photo
             st.cues["sun"] = cues[st.cap.id]
     sun.motion = why
     return sun, why
+
+
+def _refine_levelling(st: _CapState, pano: np.ndarray, s: AlignSettings) -> None:
+    """Correct the metadata levelling by the panorama's residual tilt (vertical edges), weighting
+    both by their uncertainties (small angles: each tilt component is a weighted mean of the
+    metadata's 0 and the edges' estimate)."""
+    from solidkit.envmap.tilt import residual_tilt
+
+    try:
+        est = residual_tilt(pano)
+    except SolidkitError:
+        return
+    st.tilt = est
+    if not est.reliable:
+        return
+    w = s.level_sigma_deg**2 / (s.level_sigma_deg**2 + max(est.uncertainty_deg, 0.05) ** 2)
+    st.C = np.asarray(rotation_from_ypr(0.0, math.radians(w * est.pitch_deg), math.radians(w * est.roll_deg)))
+
+
+def _levelling_record(st: _CapState) -> tuple[Levelling, float]:
+    """The capture's levelling (body -> refined level frame) and the tiny yaw ``y0`` that composing
+    the correction with the metadata's levelling leaves: ``C R(0, p_m, r_m) = R(y0, p, r)``."""
+    if st.cap.normal is None:
+        return Levelling(pitch_deg=0.0, roll_deg=0.0, source="none"), 0.0
+    R = st.C @ np.asarray(rotation_from_ypr(0.0, math.radians(st.pitch), math.radians(st.roll)))
+    y0, p, r = (math.degrees(float(v)) for v in ypr_from_rotation(R))
+    t = st.tilt
+    refined = not np.allclose(st.C, np.eye(3))
+    lev = Levelling(pitch_deg=p, roll_deg=r, source="metadata+tilt" if refined else "metadata",
+                    metadata_pitch_deg=st.pitch, metadata_roll_deg=st.roll,
+                    residual_tilt_deg=None if t is None else t.tilt_deg,
+                    tilt_uncertainty_deg=None if t is None else t.uncertainty_deg,
+                    tilt_reliable=None if t is None else t.reliable,
+                    confidence=None if t is None or not t.reliable else float(1.0 / (1.0 + t.uncertainty_deg)))
+    return lev, y0
+
+
+def _to_frame(b: Blob, C: np.ndarray) -> Blob:
+    d = C @ b.direction
+    az, el = (math.degrees(float(v)) for v in angles_from_direction(d))
+    return Blob(**{**b.__dict__, "direction": d, "azimuth_deg": wrap_deg(az), "elevation_deg": el})
+
+
+def _capture_sun_to_product_frame(cs: CaptureSun, C: np.ndarray) -> None:
+    """Directions of a capture's sun result from the refined level frame back to its sun-frame product's."""
+    if np.allclose(C, np.eye(3)):
+        return
+
+    def back(az: float, el: float) -> tuple[float, float]:
+        d = C.T @ direction_from_angles(math.radians(az), math.radians(el))
+        a, e = (math.degrees(float(v)) for v in angles_from_direction(d))
+        return wrap_deg(a), e
+
+    if cs.found and cs.source == "auto":
+        cs.azimuth_deg, cs.elevation_deg = back(cs.azimuth_deg, cs.elevation_deg)
+    elif cs.found:  # a human label: restore its own numbers
+        cs.azimuth_deg, cs.elevation_deg = back(cs.azimuth_deg, cs.elevation_deg)
+    for c in cs.candidates:
+        c.azimuth_deg, c.elevation_deg = back(c.azimuth_deg, c.elevation_deg)
 
 
 def _pano_height(st: _CapState) -> int:

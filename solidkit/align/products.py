@@ -3,7 +3,7 @@
 Per capture, under ``CAMPAIGN/align/<scene>/<probe>/`` (paths in ``ProbeAlignment.products``):
 
 - ``ldr_full.png``: the normal shot (the paper's 1/2500 s probe), 8-bit sRGB, unwarped once with
-  ``R_y(yaw) R_level`` (no second resampling), at ingest's panorama size;
+  ``ProbeAlignment.rotation`` (no second resampling), at ingest's panorama size;
 - ``ldr_256.png``: the paper's local-probe format, 256x128 8-bit sRGB: ``ldr_full`` decoded to
   linear, area-resampled on the sphere (:func:`solidkit.envmap.resample.resize`), re-encoded;
 - ``saturation_full.png`` / ``saturation_256.png``: 255 where the normal shot clipped (any
@@ -24,8 +24,8 @@ from typing import Any, Callable
 
 import numpy as np
 
-from solidkit.align.captures import captures_of, load_normal_panorama, read_hdr
-from solidkit.align.schema import ProbeProducts, SceneAlignment, level_to_pano
+from solidkit.align.captures import captures_of, levelling_of, load_normal_panorama, read_hdr
+from solidkit.align.schema import ProbeProducts, SceneAlignment, body_to_pano
 from solidkit.capture.manifest import Manifest, Scene
 from solidkit.envmap.io import srgb_decode, srgb_encode, write_exr, write_ldr
 from solidkit.envmap.resample import resize, rotate
@@ -74,9 +74,10 @@ def write_products(campaign: Path, manifest: Manifest, scene: Scene, sa: SceneAl
                     continue
             except ValueError:
                 pass
-        R_yaw = level_to_pano(pa.yaw_deg)
+        # body -> photo panorama frame, applied on top of the levelling each source was made with
+        R_total = body_to_pano(pa.yaw_deg, pa.levelling.pitch_deg, pa.levelling.roll_deg)
         if cap.normal is not None:
-            ldr = load_normal_panorama(campaign, manifest, cap.normal, R_yaw)
+            ldr = load_normal_panorama(campaign, manifest, cap.normal, R_total @ levelling_of(cap.normal)[2].T)
             write_ldr(campaign / files.ldr_full, ldr)
             lin = np.asarray(srgb_decode(ldr.astype(np.float32) / 255.0), np.float32)
             small = np.clip(np.asarray(resize(lin, out_h)), 0.0, 1.0)
@@ -87,7 +88,8 @@ def write_products(campaign: Path, manifest: Manifest, scene: Scene, sa: SceneAl
             write_ldr(campaign / files.saturation_256, (sat_small * 255).astype(np.uint8))
         if cap.hdr_path:
             hdr = read_hdr(campaign, cap.hdr_path)
-            full = np.clip(np.asarray(rotate(hdr, R_yaw, "linear")), 0.0, None).astype(np.float32)
+            R_hdr = R_total @ levelling_of(manifest.shot(cap.hdr_inputs[0]))[2].T
+            full = np.clip(np.asarray(rotate(hdr, R_hdr, "linear")), 0.0, None).astype(np.float32)
             meta = {"frame": "photo panorama frame (conventions §2, §8)", "scene": scene.id, "probe": pa.id,
                     "yaw_deg": pa.yaw_deg, "source": cap.hdr_path}
             write_exr(campaign / files.hdr_full, full, meta)

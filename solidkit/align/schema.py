@@ -155,12 +155,23 @@ class SceneSun(_Model):
 
 # --------------------------------------------------------------------------- probes
 class Levelling(_Model):
-    """How a capture was levelled: ``R_level = R(0, pitch, roll)``."""
+    """How a capture was levelled: ``R_level = R(0, pitch, roll)`` (body -> level frame).
+
+    ``source``: ``'metadata'`` (recorded gravity), ``'metadata+tilt'`` (the recorded gravity
+    corrected by the residual tilt of the vertical edges, :func:`solidkit.envmap.tilt.residual_tilt`,
+    weighted by both uncertainties) or ``'none'``. The ingest products are levelled with the
+    metadata (``metadata_pitch_deg``/``metadata_roll_deg``); directions in them (sun labels) are
+    in that frame.
+    """
 
     pitch_deg: float
     roll_deg: float
     source: str = Field(description="'metadata' (recorded gravity), 'metadata+tilt' (refined), or 'none'")
-    residual_tilt_deg: float | None = Field(None, description="residual tilt measured on the levelled panorama")
+    metadata_pitch_deg: float | None = None
+    metadata_roll_deg: float | None = None
+    residual_tilt_deg: float | None = Field(None, description="tilt of the metadata-levelled panorama's vertical edges")
+    tilt_uncertainty_deg: float | None = Field(None, description="1-sigma of residual_tilt_deg")
+    tilt_reliable: bool | None = None
     confidence: float | None = None
 
 
