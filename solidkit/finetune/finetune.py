@@ -82,6 +82,9 @@ SKY_LOGIT_GAIN = 4.0
 
 EPS = 1e-4
 
+MIN_SCENES_FOR_VERDICT = 5
+"""Fewer test scenes than this and the scene bootstrap cannot support a verdict (it says so)."""
+
 
 @dataclass(frozen=True)
 class FineTuneConfig:
@@ -330,6 +333,10 @@ def paired_difference(before: Sequence[dict], after: Sequence[dict], key: str, h
     if not d:
         return {"n": 0, "verdict": "not measurable"}
     s = M.summarise(d, g)
+    n_scenes = len(set(g))
+    if n_scenes < MIN_SCENES_FOR_VERDICT:
+        return {"n": s["n"], "mean": s["mean"], "mean_ci": s["mean_ci"], "median": s["median"],
+                "verdict": f"too few scenes to tell ({n_scenes} < {MIN_SCENES_FOR_VERDICT})"}
     lo, hi = s["mean_ci"]
     good, bad = (lo > 0, hi < 0) if higher_is_better else (hi < 0, lo > 0)
     verdict = "helps" if good else "hurts" if bad else "no significant change"

@@ -29,6 +29,7 @@ import numpy as np
 
 from solidkit.envmap.coords import angles_from_direction
 from solidkit.envmap.io import tonemap
+from solidkit.envmap.sun import luminance
 from solidkit.finetune import metrics as M
 from solidkit.finetune.evaluate import METRICS, EvalItem, Method
 from solidkit.fsutil import atomic_path, atomic_write_text
@@ -170,6 +171,12 @@ def sun_figures(result: dict[str, Any], folder: Path, prefix: str = "", title: s
     return paths
 
 
+def _display(hdr: np.ndarray) -> np.ndarray:
+    """An HDR map for display: mean luminance to 0.18, clipped, sRGB (the units of the two sides differ)."""
+    y = float(luminance(np.clip(hdr, 0, None)).mean())
+    return M.ldr_from_hdr(np.clip(hdr, 0, None), 0.18 / y if y > 0 else 1.0)
+
+
 def _mark_sun(ax: Any, direction: np.ndarray | None, colour: str, label: str) -> None:
     if direction is None:
         return
@@ -193,12 +200,13 @@ def qualitative_grid(item: EvalItem, method: Method, path: Path, title: str = ""
     ax.set(title=f"photo {item.scene}", xticks=[], yticks=[])
     sun_p = M.find_sun(pred.sky, "core") if pred.sky is not None else None
     sun_paper = M.find_sun(pred.sky, "paper") if pred.sky is not None else None
-    for ax, sky, name in ((axes[0, 1], pred.sky, f"predicted global ({method.name})"), (axes[0, 2], item.global_hdr, "true global")):
+    for ax, sky, name in ((axes[0, 1], pred.sky, f"predicted global ({method.name}), auto-exposed"),
+                          (axes[0, 2], item.global_hdr, "true global (camera position HDR), auto-exposed")):
         if sky is None:
             ax.text(0.5, 0.5, "no HDR global map", ha="center", va="center", transform=ax.transAxes)
             ax.set_axis_off()
             continue
-        ax.imshow(tonemap(sky), extent=ext)
+        ax.imshow(_display(sky), extent=ext)
         _mark_sun(ax, item.sun, "lime", "true sun")
         if sky is pred.sky and sun_p is not None:
             _mark_sun(ax, sun_p.direction if sun_p.found else None, "deepskyblue", "predicted (default)")
