@@ -155,12 +155,23 @@ def pitch_roll_from_gravity(g_ricoh: Any) -> tuple[float, float]:
 def level_rotation(meta: CaptureMetadata) -> np.ndarray:
     """Rotation mapping front-lens camera directions (our axes) to the level panorama frame.
 
-    ``R = R(0, pitch, roll)`` from the metadata (identity when no gravity is recorded, or when
-    the camera already applied zenith correction to an equirectangular image).
+    ``R = R(0, pitch, roll)`` from the metadata (identity when no gravity is recorded, when the
+    camera already applied zenith correction to an equirectangular image, or for a Ricoh
+    in-camera-stitched still: Ricoh image type 1).
+
+    Ricoh stitched stills: their pose tags (maker note ``0x0003``, mirrored in GPano) record the
+    body's attitude, which the camera's stitcher has already used, whatever the zenith flag
+    says. Evidence (issue 10 §3, :func:`solidkit.envmap.tilt.residual_tilt` on the shared Theta S
+    still ``Jobsite1.JPG``, 1087 vertical edges, ±0.03°): as stored it is 1.74° off level;
+    rotated by the recorded pose (pitch -0.5°, roll 0.7°) it is 2.10° off. The recorded pose
+    does not describe what is left, so it is not applied; ingest and ``capture unwarp`` measure
+    the residual tilt instead and flag it above 0.5°.
     """
     from solidkit.envmap.coords import rotation_from_ypr
 
-    if meta.pitch_deg is None or meta.roll_deg is None or (meta.image_type == "equirect" and meta.zenith_corrected):
+    ricoh_stitched = meta.image_type == "equirect" and meta.ricoh.get("0x0001") == [1]
+    if (meta.pitch_deg is None or meta.roll_deg is None or ricoh_stitched
+            or (meta.image_type == "equirect" and meta.zenith_corrected)):
         return np.eye(3)
     return np.asarray(rotation_from_ypr(0.0, math.radians(meta.pitch_deg), math.radians(meta.roll_deg)))
 
@@ -662,6 +673,10 @@ def _read_metadata_bytes(data: bytes, name: str) -> CaptureMetadata:
     pitch = roll = None
     angles = theta.get(0x0003)
     rvec = theta.get(0x0109)
+    if isinstance(angles, list) and len(angles) == 2 and all(isinstance(a, (int, float)) and math.isfinite(a)
+                                                             and -360 <= a <= 360 for a in angles):
+        # Ricoh writes angles in [0, 360): 359.6 is -0.4 (wrapped to (-180, 180])
+        angles = [a - 360.0 if a > 180 else a + 360.0 if a <= -180 else a for a in angles]
     if isinstance(angles, list) and len(angles) == 2 and all(math.isfinite(a) and abs(a) <= 180 for a in angles):
         roll, pitch = float(angles[0]), float(angles[1])
         meta["gravity_source"] = "ricoh:0x0003 [roll, pitch] deg"

@@ -55,7 +55,7 @@ from solidkit.capture.grouping import group_shots
 from solidkit.capture.manifest import (MANIFEST_NAME, SCHEMA_VERSION, Bracket, FieldNotesRecord, FileError,
                                        GroupingParams, Manifest, Probe, Product, Scene, Shot, SkippedFile, SourceRef,
                                        load_manifest, save_manifest)
-from solidkit.capture.products import make_product, planned_products, record_profile, to_panorama
+from solidkit.capture.products import make_product, planned_products, record_profile, tilt_warning, to_panorama
 from solidkit.errors import InputError
 from solidkit.fsutil import sha256_file
 
@@ -440,6 +440,9 @@ def summary_rows(manifest: Manifest) -> list[tuple[str, str]]:
                         f" ({sum(1 for r in manifest.fieldnotes if r.error)} file(s) refused)"),
         ("positions with an HDR product", listed(no_hdr)),
         ("positions with a sun frame", listed(no_sun)),
+        ("positions off level (residual tilt)", (lambda ids: "none above 0.5°" if not ids else
+                                                 f"{len(ids)} above 0.5°: {', '.join(ids[:6])}")(
+            [f"{p.scene}/{p.probe}" for p in manifest.products if tilt_warning(p)])),
         ("products", f"{len(manifest.products)} ({sum(1 for p in manifest.products if p.error)} with errors)"),
         ("profiles", "; ".join(f"{name} {_describe(rec, default)}" for name, rec, default in (
             ("response", manifest.response, "sRGB inverse"), ("lens", manifest.lens_profile, "model default"),

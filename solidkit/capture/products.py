@@ -35,10 +35,20 @@ from typing import Any
 import numpy as np
 
 from solidkit.capture.manifest import Manifest, Product
+from solidkit.envmap.tilt import TILT_FLAG_DEG, residual_tilt
 from solidkit.errors import InputError, SolidkitError
 from solidkit.fsutil import atomic_path, is_environmental, sha256_file
 
-__all__ = ["planned_products", "to_panorama", "make_product", "record_profile"]
+__all__ = ["planned_products", "to_panorama", "make_product", "record_profile", "tilt_warning"]
+
+
+def tilt_warning(product: Product) -> str | None:
+    """``residual_tilt: ...`` when a product's panorama is reliably more than TILT_FLAG_DEG off level."""
+    t = product.stats.get("residual_tilt")
+    if not t or not t.get("reliable") or t["tilt_deg"] <= TILT_FLAG_DEG:
+        return None
+    return (f"residual_tilt: the levelled panorama is {t['tilt_deg']:.2f}° ± {t['uncertainty_deg']:.2f}° off level "
+            f"(correction pitch {t['pitch_deg']:.2f}°, roll {t['roll_deg']:.2f}°; {t['segments']} vertical edges)")
 
 
 def _recipe_hash(recipe: dict[str, Any], inputs: list[str]) -> str:
@@ -203,6 +213,8 @@ def make_product(product: dict[str, Any], shots: list[dict[str, Any]], campaign:
             try:
                 hdr, pano_info = to_panorama(hdr, ref, lens, vig)
                 layout = "equirect"
+                # is the level frame level? vertical edges say (envmap.tilt); flagged above TILT_FLAG_DEG
+                pano_info["residual_tilt"] = residual_tilt(hdr).to_json()
             except SolidkitError as exc:  # no lens profile for this camera: keep the capture layout
                 pano_info = {"panorama": f"not made: {exc}"}
             stats.update(pano_info)

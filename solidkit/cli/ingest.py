@@ -2,12 +2,15 @@
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 from typing import Any
 
 import typer
 
 from solidkit.capture.campaign import IngestReport, ingest, load_manifest, summary_rows
+from solidkit.cli.parsing import parse_exposure
+from solidkit.capture.products import tilt_warning
 from solidkit.errors import InputError
 
 
@@ -23,8 +26,9 @@ def ingest_command(
     low_exposure_max: float | None = None,
     lens_profile: str | None = None,
     vignetting: Path | None = None,
+    quiet: bool = False,
 ) -> IngestReport:
-    """Run :func:`ingest` with a rich progress bar and print the summary (the CLI's body)."""
+    """Run :func:`ingest` with a rich progress bar (stderr) and print the summary (stdout; not when ``quiet``)."""
     from rich.console import Console
     from rich.markup import escape
     from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
@@ -46,6 +50,8 @@ def ingest_command(
         report = ingest(card_dir, campaign_dir, jobs=jobs, grouping=grouping, response_path=response,
                         products=products, progress=progress, lens_profile=lens_profile, vignetting_path=vignetting)
     manifest = load_manifest(campaign_dir)
+    if quiet:
+        return report
     out = Console()
     if report.nothing_done:
         out.print(f"[green]nothing to do:[/] {escape(str(campaign_dir))} is up to date with {escape(str(card_dir))} "
@@ -73,6 +79,9 @@ def ingest_command(
             break
         why = report.skip_reasons.get(name, "not a capture (.jpg/.jpeg/.dng)")
         out.print(f"[dim]skipped[/] {escape(name)}: {why}")
+    for prod in manifest.products:
+        if (w := tilt_warning(prod)) is not None:
+            out.print(f"[yellow]warning[/] {escape(prod.scene)}/{escape(prod.probe)}: {escape(w)}")
     for msg in report.product_errors:
         out.print(f"[yellow]product not built[/] {escape(msg)}")
     if report.transient_errors:
@@ -97,17 +106,21 @@ def ingest_cli(
     scene_gap: float | None = typer.Option(None, help="Seconds between shots that start a new scene (automatic layout; default 600, then the campaign's value)."),
     probe_gap: float | None = typer.Option(None, help="Seconds between Theta shots that start a new probe position (default 45)."),
     bracket_gap: float | None = typer.Option(None, help="Seconds between shots that end a bracket (default 10)."),
-    low_exposure_max: float | None = typer.Option(None, help="Longest exposure (s) of a sun frame (default 1/4000)."),
+    low_exposure_max: str | None = typer.Option(None, help="Longest exposure (s) of a sun frame, e.g. 1/4000 (the default)."),
     profile: str | None = typer.Option(None, "--profile", help="Per-unit lens profile (unit.json from 'solidkit calibrate overlap', or a shipped name) overriding the camera model's default; recorded in the campaign."),
     vignetting: Path | None = typer.Option(None, "--vignetting", help="Vignetting profile ('solidkit calibrate vignetting'): each lens divided by its falloff before the lenses are blended; recorded in the campaign."),
+    as_json: bool = typer.Option(False, "--json", help="Print what this run did as JSON (instead of the summary)."),
 ) -> None:
     """Copy a card's captures into a checksummed campaign, group scenes/probes/brackets, build products.
 
     Idempotent and resumable (re-run after an interruption); when some files could not be
     ingested they are listed, everything else is processed, and the exit code is 2.
     """
+    low = parse_exposure(low_exposure_max, "--low-exposure-max") if low_exposure_max is not None else None
     report = ingest_command(card_dir, campaign_dir, jobs, response, products, scene_gap, probe_gap, bracket_gap,
-                            low_exposure_max, lens_profile=profile, vignetting=vignetting)
+                            low, lens_profile=profile, vignetting=vignetting, quiet=as_json)
+    if as_json:
+        typer.echo(json.dumps({"card": str(card_dir), "campaign": str(campaign_dir), **report.model_dump(mode="json")}))
     if report.errors or report.known_errors or report.transient_errors:
         n = len(report.errors) + report.known_errors + len(report.transient_errors)
         raise InputError(f"{n} file(s) on {card_dir} could not be ingested (listed above); everything else was")
