@@ -44,14 +44,14 @@ mode, src, dst, cache = sys.argv[1:5]
 t0 = time.perf_counter()
 from solidkit.capture.unwarp import unwarp_file
 t_import = time.perf_counter() - t0
-kw = dict(profile="theta-v", size="%dx%d", cache_dir=cache if cache != "-" else None)
+kw = dict(profile="theta-v", out_height=%d, cache_dir=cache if cache != "-" else None)
 if mode == "memory":
     unwarp_file(src, dst, **kw)  # first call builds and caches the tables
     t0 = time.perf_counter()
 s = unwarp_file(src, dst, **kw)
 wall = time.perf_counter() - t0
 print(json.dumps({"wall_s": wall, "import_s": t_import, "cache": s["cache"]}))
-""" % OUT_SIZE
+""" % OUT_SIZE[1]
 
 
 def make_input(folder: Path) -> tuple[Path, np.ndarray]:

@@ -310,13 +310,13 @@ def test_cli_rotate_writes_the_rotated_exr_with_provenance(tmp_path):
     src = tmp_path / "in.exr"
     p = np.abs(smooth_pano(32)) + 0.1
     write_exr(src, p, {"exposure_time": 0.01})
-    res = _cli("rotate", str(src), str(tmp_path / "out.exr"), "--yaw", "-30", "--pitch", "10", "--roll", "5")
+    res = _cli("rotate", str(src), "-o", str(tmp_path / "out.exr"), "--yaw", "-30", "--pitch", "10", "--roll", "5")
     assert res.exit_code == 0, res.output
     out, meta = read_exr(tmp_path / "out.exr")
     R = C.rotation_from_ypr(math.radians(-30), math.radians(10), math.radians(5))
     np.testing.assert_allclose(out, rotate(p, R), atol=1e-6)
     assert meta["exposure_time"] == 0.01 and meta["provenance"]["yaw_deg"] == -30.0
-    res = _cli("rotate", str(src), str(tmp_path / "cubic.exr"), "--yaw", "12", "--interp", "cubic")
+    res = _cli("rotate", str(src), "-o", str(tmp_path / "cubic.exr"), "--yaw", "12", "--interp", "cubic")
     assert res.exit_code == 0 and read_exr(tmp_path / "cubic.exr")[0].min() >= 0
 
 
@@ -327,8 +327,8 @@ def test_cli_crop_writes_exr_and_tonemapped_png(tmp_path):
     p = np.abs(smooth_pano(64)) + 0.1
     write_exr(src, p)
     args = ["--fov", "80", "--yaw", "35", "--pitch", "-5", "--roll", "3", "--size", "64x48"]
-    assert _cli("crop", str(src), str(tmp_path / "c.exr"), *args).exit_code == 0
-    assert _cli("crop", str(src), str(tmp_path / "c.png"), *args).exit_code == 0
+    assert _cli("crop", str(src), "-o", str(tmp_path / "c.exr"), *args).exit_code == 0
+    assert _cli("crop", str(src), "-o", str(tmp_path / "c.png"), *args).exit_code == 0
     from solidkit.envmap.perspective import perspective_crop
 
     R = C.rotation_from_ypr(math.radians(35), math.radians(-5), math.radians(3))
@@ -346,20 +346,20 @@ def test_cli_ldr_round_trip_keeps_srgb(tmp_path):
     src = tmp_path / "in.png"
     img = (np.clip(smooth_pano(32) / 8 + 0.5, 0, 1) * 255).round().astype(np.uint8)
     write_ldr(src, img)
-    assert _cli("rotate", str(src), str(tmp_path / "out.png"), "--yaw", str(360 / 64 * 3)).exit_code == 0
+    assert _cli("rotate", str(src), "-o", str(tmp_path / "out.png"), "--yaw", str(360 / 64 * 3)).exit_code == 0
     np.testing.assert_allclose(read_ldr(tmp_path / "out.png"), np.roll(img, 3, axis=1) / 255, atol=1 / 255 + 1e-6)
 
 
 @pytest.mark.parametrize(
     "args",
     [
-        ["rotate", "{bad}", "{out}.exr"],  # W != 2H
-        ["rotate", "{missing}", "{out}.exr"],
-        ["rotate", "{good}", "{out}.txt"],  # unknown output type
-        ["rotate", "{good}", "{good}"],  # would overwrite the input
-        ["crop", "{good}", "{out}.exr", "--fov", "90", "--size", "64"],
-        ["crop", "{good}", "{out}.exr", "--fov", "190", "--size", "64x48"],
-        ["crop", "{nan}", "{out}.exr", "--fov", "90", "--size", "64x48"],
+        ["rotate", "{bad}", "-o", "{out}.exr"],  # W != 2H
+        ["rotate", "{missing}", "-o", "{out}.exr"],
+        ["rotate", "{good}", "-o", "{out}.txt"],  # unknown output type
+        ["rotate", "{good}", "-o", "{good}"],  # would overwrite the input
+        ["crop", "{good}", "-o", "{out}.exr", "--fov", "90", "--size", "64"],
+        ["crop", "{good}", "-o", "{out}.exr", "--fov", "190", "--size", "64x48"],
+        ["crop", "{nan}", "-o", "{out}.exr", "--fov", "90", "--size", "64x48"],
     ],
 )
 def test_cli_bad_input_is_a_solidkit_error(tmp_path, args):
@@ -388,7 +388,7 @@ def test_cli_error_is_one_line_and_exit_code_2(tmp_path):
 
     write_exr(bad, np.ones((16, 30, 3), np.float32))
     run = subprocess.run(
-        [sys.executable, "-m", "solidkit.cli", "envmap", "crop", str(bad), str(tmp_path / "o.png"), "--fov", "60", "--size", "32x24"],
+        [sys.executable, "-m", "solidkit.cli", "envmap", "crop", str(bad), "-o", str(tmp_path / "o.png"), "--fov", "60", "--size", "32x24"],
         capture_output=True,
         text=True,
     )

@@ -174,18 +174,18 @@ def test_cli_unwarp_and_bad_input(tmp_path, rendered, cli):
     src = tmp_path / "dual.png"
     write_ldr(src, cv2.resize(np.clip(fish[..., :3], 0, 1), (1024, 512), interpolation=cv2.INTER_AREA), encode_srgb=False)
     out = tmp_path / "pano.png"
-    code, _, err = cli("capture", "unwarp", str(src), str(out), "--profile", "theta-v", "--size", "512x256")
+    code, _, err = cli("capture", "unwarp", str(src), "-o", str(out), "--profile", "theta-v", "--size", "512x256")
     assert code == 0, err
     assert cv2.imread(str(out)).shape == (256, 512, 3)
-    code, _, err = cli("capture", "unwarp", str(src), str(tmp_path / "x.png"))  # no EXIF, no --profile
+    code, _, err = cli("capture", "unwarp", str(src), "-o", str(tmp_path / "x.png"))  # no EXIF, no --profile
     assert code == 2 and "no shipped lens profile" in err and "Traceback" not in err
-    code, _, err = cli("capture", "unwarp", str(src), str(tmp_path / "x.png"), "--profile", "theta-v", "--size", "500x300")
+    code, _, err = cli("capture", "unwarp", str(src), "-o", str(tmp_path / "x.png"), "--profile", "theta-v", "--size", "500x300")
     assert code == 2 and "W = 2 H" in err
-    code, _, err = cli("capture", "unwarp", str(src), str(tmp_path / "x.png"), "--profile", "theta-s-video")
+    code, _, err = cli("capture", "unwarp", str(src), "-o", str(tmp_path / "x.png"), "--profile", "theta-s-video")
     assert code == 2 and "aspect" in err
     empty = tmp_path / "empty.jpg"
     empty.write_bytes(b"")
-    code, _, err = cli("capture", "unwarp", str(empty), str(tmp_path / "x.png"))
+    code, _, err = cli("capture", "unwarp", str(empty), "-o", str(tmp_path / "x.png"))
     assert code == 2 and "empty file" in err
     assert not (tmp_path / "x.png").exists()
 
@@ -196,7 +196,7 @@ def test_real_theta_s_live_frame(real_data, tmp_path):
     from solidkit.capture.unwarp import unwarp_file
 
     src = real_data / "theta_s_dualfisheye" / "thetaS_dualfisheye_raw_1920x1080.jpg"
-    s = unwarp_file(src, tmp_path / "s.png", profile="theta-s-video", size="1024x512")
+    s = unwarp_file(src, tmp_path / "s.png", profile="theta-s-video", out_height=512)
     assert s["coverage"] == 1.0
     img = cv2.imread(str(tmp_path / "s.png"))
     assert img.shape == (512, 1024, 3)  # every output pixel is seen by a lens (coverage 1.0)
@@ -220,7 +220,7 @@ def test_real_stitched_equirect(real_data, tmp_path):
     src = real_data / "theta_s_equirect" / "Jobsite1.JPG"
     s = unwarp_file(src, tmp_path / "copy.JPG", level=False)
     assert s["resampled"] is False and (tmp_path / "copy.JPG").read_bytes() == src.read_bytes()
-    s = unwarp_file(src, tmp_path / "level.png", size="512x256")
+    s = unwarp_file(src, tmp_path / "level.png", out_height=256)
     assert s["resampled"] is True and s["level_pitch_roll_deg"] == [-0.5, 0.7]
     assert cv2.imread(str(tmp_path / "level.png")).shape == (256, 512, 3)
 
@@ -369,13 +369,13 @@ def test_cli_unwarp_vignetting(tmp_path, vignetted, cli):
     vfile = vprof.save(tmp_path / "vignetting.json")
     size = f"{2 * V_OUT}x{V_OUT}"
     for name, extra in (("off", []), ("on", ["--vignetting", str(vfile)])):
-        code, _, err = cli("capture", "unwarp", str(src), str(tmp_path / f"{name}.exr"),
+        code, _, err = cli("capture", "unwarp", str(src), "-o", str(tmp_path / f"{name}.exr"),
                          "--profile", "theta-v", "--size", size, *extra)
         assert code == 0, err
     on, meta = read_exr(tmp_path / "on.exr")
     off, _ = read_exr(tmp_path / "off.exr")
     assert _median_rel_error(on, truth) < 0.005 < 0.1 < _median_rel_error(off, truth)
     assert meta["vignetting"]["sha256"] and meta["vignetting"]["path"] == str(vfile)
-    code, _, err = cli("capture", "unwarp", str(src), str(tmp_path / "x.exr"), "--profile", "theta-v",
+    code, _, err = cli("capture", "unwarp", str(src), "-o", str(tmp_path / "x.exr"), "--profile", "theta-v",
                      "--vignetting", str(tmp_path / "missing.json"))
     assert code == 2 and "missing.json" in err and "Traceback" not in err

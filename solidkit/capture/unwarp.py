@@ -301,19 +301,6 @@ def render_fisheye(
     return out
 
 
-def parse_size(text: str | None) -> int | None:
-    """``"2048x1024"`` -> output height 1024 (the equirect width must be twice the height)."""
-    if text is None:
-        return None
-    try:
-        w, h = (int(x) for x in text.lower().split("x"))
-    except ValueError:
-        raise InputError(f"--size {text!r}: expected WxH, e.g. 2048x1024") from None
-    if w != 2 * h or h < 2:
-        raise InputError(f"--size {text}: an equirectangular panorama needs W = 2 H (>= 4x2)")
-    return h
-
-
 def _write_srgb8(path: Path, enc: np.ndarray) -> None:
     """8-bit sRGB RGB image -> PNG (fast compression) / JPEG (q95) / other LDR, atomically."""
     params = {".png": [cv2.IMWRITE_PNG_COMPRESSION, 1], ".jpg": [cv2.IMWRITE_JPEG_QUALITY, 95],
@@ -336,7 +323,7 @@ def unwarp_file(
     dst: str | os.PathLike,
     *,
     profile: str | os.PathLike | None = None,
-    size: str | None = None,
+    out_height: int | None = None,
     feather_deg: float = 10.0,
     level: bool = True,
     gain_match: bool = True,
@@ -347,8 +334,8 @@ def unwarp_file(
 
     Dual-fisheye input goes through the lens profile (``profile``: a shipped name or a unit JSON;
     default: the shipped profile of the EXIF camera model), after dividing each lens by its
-    falloff when a ``vignetting`` profile JSON is given; the output is ``size`` or, by default,
-    as wide as the input (:func:`default_out_height`). Stitched equirect input is levelled
+    falloff when a ``vignetting`` profile JSON is given; the output is ``(out_height, 2 out_height)``
+    or, by default, as wide as the input (:func:`default_out_height`). Stitched equirect input is levelled
     from its metadata, or copied byte for byte when no rotation (and no resize) is needed
     (a vignetting profile does not apply to it: a warning says so).
     Returns a summary dict (what was done, gains, seam disagreement, timings).
@@ -364,7 +351,9 @@ def unwarp_file(
     has_exif = src.suffix.lower() in (".jpg", ".jpeg", ".dng", ".tif", ".tiff") or is_raw_file(src)
     meta = read_metadata(src) if has_exif else None  # PNG/EXR inputs carry no camera metadata
     summary: dict[str, Any] = {"input": str(src), "output": str(dst), "warnings": list(meta.warnings) if meta else []}
-    out_h = parse_size(size)
+    if out_height is not None and int(out_height) < 2:
+        raise InputError(f"output height must be at least 2 pixels, got {out_height}")
+    out_h = None if out_height is None else int(out_height)
     vprof = load_vignetting(vignetting) if vignetting is not None else None
     R = level_rotation(meta) if (meta is not None and level) else np.eye(3)
     summary["level_pitch_roll_deg"] = (

@@ -3,9 +3,10 @@
 from __future__ import annotations
 
 import functools
+import os
 import sys
+import traceback
 from pathlib import Path
-from typing import Optional
 
 import typer
 
@@ -89,13 +90,19 @@ def _guard(typer_app: typer.Typer) -> None:
 _guard(app)
 
 
+DEBUG_ENV = "SOLIDKIT_DEBUG"  # SOLIDKIT_DEBUG=1: the traceback behind the one-line error, on stderr
+
+
 def _fail(message: str, code: int) -> None:
+    if os.environ.get(DEBUG_ENV, "") not in ("", "0"):
+        traceback.print_exc(file=sys.stderr)  # called inside the except block: the exception being handled
     typer.secho(f"error: {message}", err=True, fg="red")
     sys.exit(code)
 
 
 def main() -> None:
-    """Entry point: user errors become one line on stderr and exit code 2, never a traceback."""
+    """Entry point: user errors become one line on stderr and exit code 2 (unforeseen ones exit 1), never a
+    traceback unless ``SOLIDKIT_DEBUG=1`` asks for it."""
     from typer._click.exceptions import ClickException, NoArgsIsHelpError, UsageError  # typer >= 0.16 vendors click
 
     try:
@@ -122,7 +129,8 @@ def main() -> None:
             reason += " (a file is where a folder is needed)"
         _fail(f"{where}{reason}", 2)
     except Exception as exc:  # anything unforeseen: still one line
-        _fail(f"{type(exc).__name__}: {exc}", 1)
+        hint = "" if os.environ.get(DEBUG_ENV, "") not in ("", "0") else f" (run with {DEBUG_ENV}=1 for the traceback)"
+        _fail(f"{type(exc).__name__}: {exc}{hint}", 1)
 
 
 if __name__ == "__main__":

@@ -1,12 +1,14 @@
 """``solidkit calibrate ...``: lens, response, colour, vignetting and photo-camera profiles.
 
-Every command prints a short summary and writes its profile JSON atomically (with provenance:
-inputs and their SHA-256, date, solidkit version, and the fit's residuals). Angles are degrees
-at this edge (conventions §6).
+Every command writes its profile JSON atomically to ``-o/--out`` (with provenance: inputs and
+their SHA-256, date, solidkit version, and the fit's residuals) and prints a short summary, or with
+``--json`` the profile itself as JSON on stdout (progress goes to stderr). Angles are degrees at
+this edge (conventions §6).
 """
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 from typing import Optional
 
@@ -16,32 +18,17 @@ from rich.console import Console
 from rich.markup import escape
 from rich.table import Table
 
+from solidkit.cli.parsing import parse_angle, parse_angles, parse_exposures, parse_floats, parse_grid
 from solidkit.errors import InputError
 
 app = typer.Typer(no_args_is_help=True)
-console = Console()
+console = Console()  # the summaries (stdout)
+status = Console(stderr=True)  # progress
+JSON = typer.Option(False, "--json", help="Print the profile written as JSON (instead of the summary).")
 
 
-def _floats(text: str | None, n: int | None, what: str) -> list[float] | None:
-    if text is None:
-        return None
-    try:
-        vals = [float(x) for x in text.replace(" ", "").split(",") if x]
-    except ValueError:
-        raise InputError(f"{what}: expected comma-separated numbers, got {text!r}") from None
-    if n is not None and len(vals) != n:
-        raise InputError(f"{what}: expected {n} numbers, got {len(vals)}")
-    return vals
-
-
-def _pattern(text: str) -> tuple[int, int]:
-    try:
-        a, b = (int(x) for x in text.lower().split("x"))
-    except ValueError:
-        raise InputError(f"--pattern: expected inner corners as COLSxROWS (e.g. 9x6), got {text!r}") from None
-    if a < 2 or b < 2:
-        raise InputError(f"--pattern: a board needs at least 2x2 inner corners, got {text!r}")
-    return a, b
+def _print_json(profile, out: Path, **extra) -> None:
+    typer.echo(json.dumps({"output": str(out), **extra, "profile": profile.model_dump(mode="json")}))
 
 
 def _target(pattern: str | None, charuco: str | None, square: float, marker_ratio: float, dictionary: str):
@@ -51,8 +38,8 @@ def _target(pattern: str | None, charuco: str | None, square: float, marker_rati
     if (pattern is None) == (charuco is None):
         raise InputError("give exactly one of --pattern COLSxROWS (checkerboard inner corners) or --charuco COLSxROWS (squares)")
     if charuco is not None:
-        return CharucoTarget(_pattern(charuco), square, marker_ratio, dictionary)
-    return _pattern(pattern)
+        return CharucoTarget(parse_grid(charuco, "--charuco"), square, marker_ratio, dictionary)
+    return parse_grid(pattern, "--pattern")
 
 
 def _fmt(x: float | None, spec: str = ".3g") -> str:
@@ -64,19 +51,24 @@ def _fmt(x: float | None, spec: str = ".3g") -> str:
 def response(
     frames: list[Path] = typer.Argument(..., help="Aligned bracket frames (8-bit JPEG/PNG/TIFF)."),
     out: Path = typer.Option(..., "-o", "--out", help="Profile JSON to write (a plot is written beside it as .png)."),
-    times: Optional[str] = typer.Option(None, "--times", help="Exposure times in seconds, comma-separated (default: EXIF)."),
+    times: Optional[str] = typer.Option(None, "--times", help="Exposure times in seconds, comma-separated, e.g. 1/8,1/2,2 (default: EXIF)."),
     method: str = typer.Option("debevec", "--method", help="debevec (default) or robertson."),
     samples: int = typer.Option(400, min=1, help="Debevec: pixel samples."),
     smoothness: float = typer.Option(10.0, help="Debevec: smoothness weight lambda."),
     plot: bool = typer.Option(True, "--plot/--no-plot", help="Save the curve plot beside the profile."),
+    as_json: bool = JSON,
 ) -> None:
     """Camera response curve (inverse, per channel) from exposure brackets."""
     from solidkit.calibration.response import calibrate_response_files, plot_response
 
-    t = _floats(times, len(frames), "--times")
-    with console.status("fitting the response curve"):
+    t = parse_exposures(times, "--times", count=len(frames)) if times is not None else None
+    with status.status("fitting the response curve"):
         prof = calibrate_response_files(frames, t, method=method, samples=samples, smoothness=smoothness)
     prof.save(out)
+    png = plot_response(prof.array(), out.with_suffix(".png"), title=f"inverse response ({prof.method})") if plot else None
+    if as_json:
+        _print_json(prof, out, plot=None if png is None else str(png))
+        return
     table = Table(title=f"response curve ({prof.method})", show_header=False)
     table.add_row("frames / exposure times", f"{len(frames)} / " + ", ".join(f"{x:g}" for x in prof.exposure_times_s) + " s")
     san = prof.sanity
@@ -92,8 +84,7 @@ def response(
     table.add_row("codes observed (R, G, B)", ", ".join(f"{c:.0%}" for c in san.get("coverage_fraction", [])))
     table.add_row("dynamic range codes 1..254", ", ".join(f"{d:.1f}" for d in san["dynamic_range_stops"]) + " stops")
     table.add_row("radiance disagreement (RMS)", ", ".join(f"{r:.3f}" for r in prof.residuals["rms_stops_per_channel"]) + " stops")
-    if plot:
-        png = plot_response(prof.array(), out.with_suffix(".png"), title=f"inverse response ({prof.method})")
+    if png is not None:
         table.add_row("plot", str(png))
     table.add_row("profile", str(out))
     console.print(table)
@@ -110,19 +101,23 @@ def colour(
     response_path: Optional[Path] = typer.Option(None, "--response", help="Response profile to linearise an 8-bit image."),
     white_preserving: bool = typer.Option(True, "--white-preserving/--free", help="Constrain the CCM to map white exactly."),
     objective: str = typer.Option("delta-e", "--objective", help="delta-e (least squares refined on CIEDE2000) or linear."),
+    as_json: bool = JSON,
 ) -> None:
     """White balance + 3x3 colour-correction matrix from a ColorChecker (CIEDE2000 before/after)."""
     from solidkit.calibration.colour import calibrate_colour, read_linear_image
     from solidkit.calibration.response import ResponseProfile
 
+    c = parse_floats(corners, "--corners", 8) if corners is not None else None
     resp = ResponseProfile.load(response_path).array() if response_path else None
     img = read_linear_image(image, resp)
-    c = _floats(corners, 8, "--corners")
-    with console.status("locating the chart and fitting"):
+    with status.status("locating the chart and fitting"):
         prof = calibrate_colour(
             img, None if c is None else np.array(c).reshape(4, 2), white_preserving, inputs=[image], objective=objective
         )
     prof.save(out)
+    if as_json:
+        _print_json(prof, out)
+        return
     r = prof.residuals
     table = Table(title=f"colour profile ({prof.detection})", show_header=False)
     table.add_row("white balance (R, G, B)", ", ".join(f"{g:.4g}" for g in prof.white_balance))
@@ -148,18 +143,24 @@ def camera(
     dictionary: str = typer.Option("DICT_4X4_50", "--dictionary", help="ChArUco ArUco dictionary."),
     sensor_width_mm: Optional[float] = typer.Option(None, "--sensor-width-mm", help="Sensor width (overrides the table)."),
     fov_deg: Optional[float] = typer.Option(None, "--fov-deg", help="Known horizontal field of view in degrees."),
+    as_json: bool = JSON,
 ) -> None:
     """Photo-camera intrinsics K (EXIF, field of view or checkerboard) and K at the model's 320x240 input."""
     from solidkit.calibration.camera import calibrate_camera_from_board, calibrate_camera_from_photo
 
+    if fov_deg is not None:
+        fov_deg = parse_angle(fov_deg, "--fov-deg", 0.0, 180.0, open_interval=True)
     if pattern or charuco:
-        with console.status(f"detecting the board in {len(inputs)} views"):
+        with status.status(f"detecting the board in {len(inputs)} views"):
             prof = calibrate_camera_from_board(inputs, _target(pattern, charuco, square, marker_ratio, dictionary), square)
     else:
         if len(inputs) != 1:
             raise InputError("give one photo (EXIF route), or --pattern COLSxROWS for checkerboard views")
         prof = calibrate_camera_from_photo(inputs[0], sensor_width_mm, fov_deg)
     prof.save(out)
+    if as_json:
+        _print_json(prof, out)
+        return
     K, K2 = prof.matrix(), prof.matrix(True)
     table = Table(title=f"camera profile ({prof.source})", show_header=False)
     table.add_row("image", f"{prof.image_size[0]} x {prof.image_size[1]}" + (f" ({escape(prof.camera_model)})" if prof.camera_model else ""))
@@ -195,6 +196,7 @@ def lens(
     profile_name: str = typer.Option("calibrated", "--profile-name", help="Profile 'model' name."),
     camera_model: list[str] = typer.Option([], "--camera-model", help="EXIF camera model(s) the profile applies to."),
     max_blur_px: float = typer.Option(4.0, "--max-blur-px", help="Reject views whose board edges are wider than this (px)."),
+    as_json: bool = typer.Option(False, "--json", help="Print the lens profile and the calibration record as JSON."),
 ) -> None:
     """Fisheye intrinsics (Kannala-Brandt and Mei) from checkerboard views, exported as a lens profile."""
     from solidkit.calibration.boards import detect_views, read_gray
@@ -206,8 +208,8 @@ def lens(
     models = ("kb", "mei") if model == "auto" else (model,)
     if model not in ("auto", "kb", "mei"):
         raise InputError(f"--model: auto, kb or mei, got {model!r}")
-    box = _floats(crop, 4, "--crop")
-    angles = _floats(ypr, 3, "--ypr")
+    box = parse_floats(crop, "--crop", 4) if crop is not None else None
+    angles = parse_angles(ypr, "--ypr", 3)
     full_size = None
     images = []
     for p in views:
@@ -220,9 +222,9 @@ def lens(
             if g.shape[:2] != (h, w):
                 raise InputError(f"{p}: --crop {crop} exceeds the {full_size[0]}x{full_size[1]} image")
         images.append(np.ascontiguousarray(g))
-    with console.status(f"detecting the board in {len(views)} views"):
+    with status.status(f"detecting the board in {len(views)} views"):
         dviews = detect_views(images, target, max_blur_px, names=[p.name for p in views])
-    with console.status("fitting " + " and ".join(models) + " with held-out folds"):
+    with status.status("fitting " + " and ".join(models) + " with held-out folds"):
         cal = calibrate_fisheye(
             dviews, pat, square, models, holdout_k, name, offset=(box[0], box[1]) if box else (0.0, 0.0),
             ypr_deg=tuple(angles), max_angle_deg=max_angle_deg, inputs=views,
@@ -232,6 +234,9 @@ def lens(
     prof.save(out)
     record = out.with_name(f"{out.stem}.{name}.calibration.json")
     cal.save(record)
+    if as_json:
+        _print_json(prof, out, record=str(record), calibration=cal.model_dump(mode="json"))
+        return
     table = Table(title=f"lens {name}: {cal.chosen_model} ({escape(cal.choice_reason)})")
     table.add_column("view", overflow="fold")
     for m in cal.models:
@@ -272,6 +277,7 @@ def vignetting(
     degree: Optional[int] = typer.Option(None, "--degree", help="Polynomial terms in rho^2 (default: 1 overlap, 3 flat)."),
     response_path: Optional[Path] = typer.Option(None, "--response", help="Response profile to linearise an 8-bit image."),
     saturation: float = typer.Option(0.98, help="Linear value at/above which a pixel counts as clipped."),
+    as_json: bool = JSON,
 ) -> None:
     """Radial falloff of each fisheye lens, from a flat field or the two lenses' overlap."""
     from solidkit.calibration.colour import read_linear_image
@@ -283,7 +289,7 @@ def vignetting(
     img = read_linear_image(image, resp)
     h, w = img.shape[:2]
     lp = load_lens_profile(lens_profile).scaled(w, h)
-    with console.status(f"fitting the falloff ({method})"):
+    with status.status(f"fitting the falloff ({method})"):
         if method == "overlap":
             lenses, res = fit_overlap(img, lp, degree or 1, saturation=saturation)
         elif method == "flat":
@@ -293,6 +299,9 @@ def vignetting(
     prof = make_profile("overlap" if method == "overlap" else "flat-field", lenses, (w, h), res, [image], lens_profile=lp,
                         degree=degree, saturation=saturation)
     prof.save(out)
+    if as_json:
+        _print_json(prof, out)
+        return
     table = Table(title=f"vignetting ({prof.method})", show_header=False)
     for l in prof.lenses:
         table.add_row(l.name, "V = 1 " + " ".join(f"{a:+.4f}·ρ^{2 * (k + 1)}" for k, a in enumerate(l.coeffs))
@@ -320,11 +329,15 @@ def overlap(
     circle_sigma: float = typer.Option(1.0, "--circle-sigma", help="Prior (px) tying each lens centre to its fitted image circle; 0 = photometric only."),
     scale_sigma: float = typer.Option(0.005, "--scale-sigma", help="Prior std of the difference of the two lenses' log scales."),
     fix_scale: bool = typer.Option(False, "--fix-scale", help="Keep r(theta) as in the base profile."),
+    as_json: bool = typer.Option(False, "--json", help="Print the refinement summary as JSON."),
 ) -> None:
     """Refine lens centres, scales and the inter-lens rotation on the overlap ring (robust photometric fit)."""
     from solidkit.calibration.overlap import refine_files
 
     s = refine_files(images, base, out, circle_sigma_px=circle_sigma or None, scale_sigma=scale_sigma, fix_scale=fix_scale)
+    if as_json:
+        typer.echo(json.dumps(s, default=str))
+        return
     table = Table(title=escape(str(out)), show_header=False)
     table.add_row("base profile / images", f"{escape(s['base'])} / {s['images']}")
     for i, name in enumerate(("front", "back")):

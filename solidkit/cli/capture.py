@@ -1,9 +1,11 @@
-"""``solidkit capture ...``: Theta capture commands. Angles are degrees at this edge (conventions §6)."""
+"""``solidkit capture ...``: Theta capture commands. Angles are degrees at this edge (conventions §6).
+
+Writers take ``-o/--out``; every command takes ``--json`` (the result as JSON on stdout).
+"""
 
 from __future__ import annotations
 
 import json
-import math
 from pathlib import Path
 
 import typer
@@ -12,6 +14,7 @@ from rich.markup import escape
 from rich.table import Table
 
 from solidkit.camera.metadata import read_metadata
+from solidkit.cli.parsing import parse_angle, parse_exposures, parse_floats, parse_size
 from solidkit.errors import InputError
 from solidkit.fsutil import jpeg_truncated
 
@@ -71,15 +74,10 @@ def merge(
     """Merge exposure brackets into linear HDR EXR (weights, saturation/black exclusion, ghost report)."""
     from solidkit.capture.merge import merge_files
 
-    try:
-        t = [float(eval_fraction(x)) for x in times.split(",")] if times else None
-        wb_arg: object = tuple(float(x) for x in wb.split(",")) if "," in wb else wb
-    except ValueError as exc:
-        raise InputError(f"--times/--wb: {exc}") from None
+    t = parse_exposures(times, "--times") if times else None
+    wb_arg: object = tuple(parse_floats(wb, "--wb", 3, positive=True)) if "," in wb else wb
     if isinstance(wb_arg, str) and wb_arg not in ("camera", "daylight", "none"):
         raise InputError(f"--wb: unknown white balance '{wb}' (camera, daylight, none or r,g,b)")
-    if isinstance(wb_arg, tuple) and (len(wb_arg) != 3 or not all(math.isfinite(x) and x > 0 for x in wb_arg)):
-        raise InputError(f"--wb: expected three positive numbers r,g,b, got '{wb}'")
     summaries = merge_files(frames, out, times=t, response_path=response, group=group, deghost=deghost,
                             ghost_mask_path=ghost_mask, wb=wb_arg)
     if as_json:
@@ -99,19 +97,10 @@ def merge(
                           "curve that is not sRGB (calibrate one: solidkit.calibration.response, then --response)")
 
 
-def eval_fraction(text: str) -> float:
-    """``"1/8"`` -> 0.125, ``"2.5"`` -> 2.5 (exposure times as cameras print them)."""
-    text = text.strip()
-    if "/" in text:
-        num, den = text.split("/", 1)
-        return float(num) / float(den)
-    return float(text)
-
-
 @app.command()
 def unwarp(
     src: Path = typer.Argument(..., help="Dual-fisheye (JPEG, DNG, EXR) or stitched equirect capture."),
-    out: Path = typer.Argument(..., help="Output panorama: .exr (linear HDR) or .png/.jpg (sRGB)."),
+    out: Path = typer.Option(..., "-o", "--out", help="Output panorama: .exr (linear HDR) or .png/.jpg (sRGB)."),
     profile: str | None = typer.Option(None, "--profile", help="Lens profile: a shipped name (theta-v, theta-z1, theta-s, theta-s-video) or a unit.json; default from the EXIF model."),
     size: str | None = typer.Option(None, "--size", help="Output WxH (W = 2H); default: as wide as the input (the size ingest products get too)."),
     feather: float = typer.Option(10.0, "--feather", help="Seam cross-fade band, degrees of incidence angle."),
@@ -124,7 +113,9 @@ def unwarp(
     """Dual-fisheye -> equirectangular panorama in the panorama frame (docs/conventions.md)."""
     from solidkit.capture.unwarp import unwarp_file
 
-    s = unwarp_file(src, out, profile=profile, size=size, feather_deg=feather, level=level, gain_match=gain,
+    out_height = parse_size(size, "--size", equirect=True)[1] if size is not None else None
+    feather = parse_angle(feather, "--feather", 0.0, 180.0)
+    s = unwarp_file(src, out, profile=profile, out_height=out_height, feather_deg=feather, level=level, gain_match=gain,
                     cache_dir=cache_dir, vignetting=vignetting)
     if as_json:
         typer.echo(json.dumps(s, indent=1, default=str))

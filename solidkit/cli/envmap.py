@@ -1,4 +1,7 @@
-"""``solidkit envmap ...``: panorama commands. Angles are degrees at this edge (conventions §6)."""
+"""``solidkit envmap ...``: panorama commands. Angles are degrees at this edge (conventions §6).
+
+Writers take ``-o/--out``; every command takes ``--json`` (the result as JSON on stdout).
+"""
 
 from __future__ import annotations
 
@@ -13,6 +16,7 @@ from rich.table import Table
 
 from solidkit.envmap.coords import solid_angle
 from solidkit.envmap.io import read_image, validate_panorama
+from solidkit.cli.parsing import parse_angle, parse_size
 from solidkit.envmap.sun import luminance
 
 app = typer.Typer(no_args_is_help=True)
@@ -26,24 +30,38 @@ def load_panorama(path: Path) -> tuple[np.ndarray, dict]:
 
 
 @app.command()
-def info(pano: Path = typer.Argument(..., help="Equirectangular panorama (EXR or LDR).")) -> None:
+def info(
+    pano: Path = typer.Argument(..., help="Equirectangular panorama (EXR or LDR)."),
+    as_json: bool = typer.Option(False, "--json", help="Print the summary as JSON."),
+) -> None:
     """Size, dynamic range and radiometric summary of a panorama."""
     img, meta = load_panorama(pano)
     h, w = img.shape[:2]
     lum = luminance(img)
-    omega = solid_angle(h)
     positive = lum[lum > 0]
+    summary = {
+        "path": str(pano), "width": w, "height": h, "channels": int(img.shape[2]),
+        "kind": "ldr" if meta.get("ldr") else "hdr",
+        "luminance_min": float(lum.min()), "luminance_max": float(lum.max()),
+        "dynamic_range_stops": float(np.log2(positive.max() / max(positive.min(), 1e-12))) if positive.size else None,
+        "mean_rgb": [float(c) for c in img.reshape(-1, 3).mean(0)],
+        "luminance_integral": float((lum * solid_angle(h)).sum()),
+        **{k: meta[k] for k in ("exposure_time", "provenance", "conventions_version") if k in meta},
+    }
+    if as_json:
+        typer.echo(json.dumps(summary, default=str))
+        return
     table = Table(title=str(pano), show_header=False)
     table.add_row("size", f"{w} x {h} ({img.shape[2]} channels used)")
     table.add_row("kind", "LDR (sRGB decoded to linear)" if meta.get("ldr") else "HDR (linear)")
-    table.add_row("min / max luminance", f"{lum.min():.4g} / {lum.max():.4g}")
-    if positive.size:
-        table.add_row("dynamic range", f"{np.log2(positive.max() / max(positive.min(), 1e-12)):.1f} stops")
-    table.add_row("mean radiance (RGB)", ", ".join(f"{c:.4g}" for c in img.reshape(-1, 3).mean(0)))
-    table.add_row("irradiance integral ∫L dω", f"{float((lum * omega).sum()):.4g}")
+    table.add_row("min / max luminance", f"{summary['luminance_min']:.4g} / {summary['luminance_max']:.4g}")
+    if summary["dynamic_range_stops"] is not None:
+        table.add_row("dynamic range", f"{summary['dynamic_range_stops']:.1f} stops")
+    table.add_row("mean radiance (RGB)", ", ".join(f"{c:.4g}" for c in summary["mean_rgb"]))
+    table.add_row("irradiance integral ∫L dω", f"{summary['luminance_integral']:.4g}")
     for key in ("exposure_time", "provenance", "conventions_version"):
         if key in meta:
-            table.add_row(key, json.dumps(meta[key]))
+            table.add_row(key, json.dumps(meta[key], default=str))
     console.print(table)
 
 
@@ -119,11 +137,12 @@ def _output_writer(pano: Path, out: Path):
 @app.command()
 def rotate(
     pano: Path = typer.Argument(..., help="Equirectangular panorama (EXR or LDR)."),
-    out: Path = typer.Argument(..., help="Output: .exr (linear HDR) or .png/.jpg (tonemapped LDR)."),
+    out: Path = typer.Option(..., "-o", "--out", help="Output: .exr (linear HDR) or .png/.jpg (tonemapped LDR)."),
     yaw: float = typer.Option(0.0, "--yaw", help="Degrees; > 0 moves the content to the right."),
     pitch: float = typer.Option(0.0, "--pitch", help="Degrees; > 0 moves the forward content up."),
     roll: float = typer.Option(0.0, "--roll", help="Degrees (conventions §4)."),
     interp: Interp = typer.Option(Interp.linear, "--interp", help="Interpolation; cubic output is clamped at 0."),
+    as_json: bool = typer.Option(False, "--json", help="Print what was written as JSON."),
 ) -> None:
     """Rotate a panorama: content in direction d moves to R(yaw, pitch, roll) d (conventions §4)."""
     import math
@@ -131,6 +150,7 @@ def rotate(
     from solidkit.envmap.coords import rotation_from_ypr
     from solidkit.envmap.resample import rotate as rotate_pano
 
+    yaw, pitch, roll = (parse_angle(v, f"--{n}") for v, n in ((yaw, "yaw"), (pitch, "pitch"), (roll, "roll")))
     write = _output_writer(pano, out)
     img, meta = load_panorama(pano)
     R = rotation_from_ypr(math.radians(yaw), math.radians(pitch), math.radians(roll))
@@ -139,33 +159,34 @@ def rotate(
         result = np.maximum(result, 0.0)  # bicubic overshoot next to the sun
     prov = {"op": "envmap rotate", "source": str(pano), "yaw_deg": yaw, "pitch_deg": pitch, "roll_deg": roll, "interp": interp.value}
     write(result, meta, prov)
+    if as_json:
+        typer.echo(json.dumps({**prov, "output": str(out), "size": [result.shape[1], result.shape[0]]}))
+        return
     console.print(f"rotated {pano} by yaw {yaw}°, pitch {pitch}°, roll {roll}° -> {out}", highlight=False, soft_wrap=True)
 
 
 @app.command()
 def crop(
     pano: Path = typer.Argument(..., help="Equirectangular panorama (EXR or LDR)."),
-    out: Path = typer.Argument(..., help="Output: .exr (linear HDR) or .png/.jpg (tonemapped LDR)."),
+    out: Path = typer.Option(..., "-o", "--out", help="Output: .exr (linear HDR) or .png/.jpg (tonemapped LDR)."),
     fov: float = typer.Option(..., "--fov", help="Horizontal field of view, degrees (0-180)."),
     yaw: float = typer.Option(0.0, "--yaw", help="Viewing azimuth, degrees (> 0: right)."),
     pitch: float = typer.Option(0.0, "--pitch", help="Viewing elevation, degrees (> 0: up)."),
     roll: float = typer.Option(0.0, "--roll", help="Camera roll, degrees (> 0: right axis down)."),
     size: str = typer.Option(..., "--size", help="Output size WIDTHxHEIGHT in pixels, e.g. 640x480."),
     interp: Interp = typer.Option(Interp.linear, "--interp", help="Interpolation; cubic output is clamped at 0."),
+    as_json: bool = typer.Option(False, "--json", help="Print what was written as JSON."),
 ) -> None:
     """Perspective (pinhole) view of a panorama, camera R(yaw, pitch, roll) (conventions §1, §4)."""
     import math
-    import re
 
     from solidkit.envmap.coords import rotation_from_ypr
     from solidkit.envmap.perspective import intrinsics_from_fov, perspective_crop
-    from solidkit.errors import InputError
 
-    match = re.fullmatch(r"\s*(\d+)\s*[xX]\s*(\d+)\s*", size)
-    if not match or min(int(match[1]), int(match[2])) < 1 or max(int(match[1]), int(match[2])) > 32000:
-        raise InputError(f"--size must be WIDTHxHEIGHT with positive integers (e.g. 640x480), got '{size}'")
-    width, height = int(match[1]), int(match[2])
-    K = intrinsics_from_fov(math.radians(fov), width, height)  # validates fov
+    width, height = parse_size(size)
+    fov = parse_angle(fov, "--fov", 0.0, 180.0, open_interval=True)
+    yaw, pitch, roll = (parse_angle(v, f"--{n}") for v, n in ((yaw, "yaw"), (pitch, "pitch"), (roll, "roll")))
+    K = intrinsics_from_fov(math.radians(fov), width, height)
     write = _output_writer(pano, out)
     img, meta = load_panorama(pano)
     R = rotation_from_ypr(math.radians(yaw), math.radians(pitch), math.radians(roll))
@@ -177,6 +198,9 @@ def crop(
         "roll_deg": roll, "size": [width, height], "K": K.tolist(), "interp": interp.value,
     }
     write(result, meta, prov)
+    if as_json:
+        typer.echo(json.dumps({**prov, "output": str(out)}))
+        return
     console.print(
         f"cropped {pano}: {width}x{height}, fov {fov}°, yaw {yaw}°, pitch {pitch}°, roll {roll}° -> {out}",
         highlight=False,

@@ -1,9 +1,9 @@
-"""``solidkit predict IMAGE --at X,Y [--at X,Y ...] --out DIR``: SOLID-Net inference on one photo.
+"""``solidkit predict IMAGE --at X,Y [--at X,Y ...] -o DIR``: SOLID-Net inference on one photo.
 
 Writes, into DIR: ``sky.exr`` (the global HDR sky H_g) and ``local_NN.exr`` (one local HDR
 panorama H_l per ``--at`` pixel), each with a tonemapped PNG beside it (the paper's tonemap,
 e = -0.3), and ``prediction.json`` with the sun direction found in H_g (degrees, panorama frame of
-docs/conventions.md) and each probe's pixel and 3D centre.
+docs/conventions.md) and each probe's pixel and 3D centre; ``--json`` prints that report on stdout.
 """
 
 from __future__ import annotations
@@ -17,64 +17,50 @@ import typer
 from rich.console import Console
 from rich.table import Table
 
+from solidkit.cli.parsing import parse_angle, parse_floats, parse_pixel
 from solidkit.envmap.coords import CONVENTIONS_VERSION
 from solidkit.envmap.io import read_ldr, tonemap, write_exr, write_ldr
 from solidkit.errors import InputError
 from solidkit.fsutil import atomic_write_text
 
-__all__ = ["predict_command", "parse_pixel"]
+__all__ = ["predict_command"]
 
-console = Console(stderr=True)
-
-
-def parse_pixel(text: str) -> tuple[float, float]:
-    """``"X,Y"`` -> ``(x, y)`` floats; a clear InputError otherwise."""
-    parts = text.replace(" ", "").split(",")
-    try:
-        if len(parts) != 2:
-            raise ValueError
-        x, y = float(parts[0]), float(parts[1])
-    except ValueError:
-        raise InputError(f"--at expects X,Y pixel coordinates (e.g. --at 160,200), got {text!r}") from None
-    if not (math.isfinite(x) and math.isfinite(y)):
-        raise InputError(f"--at {text!r}: coordinates must be finite")
-    return x, y
+console = Console()
 
 
 def _intrinsics(text: str | None) -> np.ndarray | None:
     if text is None:
         return None
-    try:
-        fx, fy, cx, cy = (float(v) for v in text.split(","))
-    except ValueError:
-        raise InputError(f"--intrinsics expects fx,fy,cx,cy in pixels, got {text!r}") from None
+    fx, fy, cx, cy = parse_floats(text, "--intrinsics", 4)
+    if fx <= 0 or fy <= 0:
+        raise InputError(f"--intrinsics: focal lengths fx, fy must be positive pixels, got {text!r}")
     return np.array([[fx, 0.0, cx], [0.0, fy, cy], [0.0, 0.0, 1.0]])
 
 
 def predict_command(
     image: Path = typer.Argument(..., help="Limited-FOV LDR photo (JPEG/PNG)."),
     at: list[str] = typer.Option(..., "--at", help="Probe pixel X,Y in IMAGE (repeatable)."),
-    out: Path = typer.Option(..., "--out", help="Output folder (created)."),
+    out: Path = typer.Option(..., "-o", "--out", help="Output folder (created)."),
     checkpoint: Path | None = typer.Option(None, help="SOLID-Net checkpoint (default: the shipped one)."),
     fov: float | None = typer.Option(None, help="Horizontal field of view in degrees (default: the checkpoint's)."),
     intrinsics: str | None = typer.Option(None, help="fx,fy,cx,cy of IMAGE in pixels (overrides --fov)."),
     pitch: float = typer.Option(0.0, help="Camera pitch in degrees (positive = looking up)."),
     roll: float = typer.Option(0.0, help="Camera roll in degrees (positive = right side down)."),
+    as_json: bool = typer.Option(False, "--json", help="Print prediction.json on stdout instead of the summary."),
 ) -> None:
     """Predict the global HDR sky, its sun direction and a local HDR panorama at each --at pixel."""
     from solidkit.model.blocks import HDR_PARAMETERISATION
     from solidkit.envmap.perspective import intrinsics_from_fov
     from solidkit.model.solidnet import SolidNet
 
-    pixels = [parse_pixel(a) for a in at]
-    if not (math.isfinite(pitch) and math.isfinite(roll)):
-        raise InputError(f"--pitch/--roll must be finite degrees, got {pitch}, {roll}")
+    pixels = [parse_pixel(a, "--at") for a in at]
+    pitch, roll = parse_angle(pitch, "--pitch", -90.0, 90.0), parse_angle(roll, "--roll", -180.0, 180.0)
+    if fov is not None:
+        fov = parse_angle(fov, "--fov", 1.0, 179.0, open_interval=True)
+    K = _intrinsics(intrinsics)
     photo = read_ldr(image)
     model = SolidNet.from_checkpoint(checkpoint)
-    K = _intrinsics(intrinsics)
     if K is None and fov is not None:
-        if not 1.0 < fov < 179.0:
-            raise InputError(f"--fov must be in (1, 179) degrees, got {fov}")
         K = intrinsics_from_fov(math.radians(fov), photo.shape[1], photo.shape[0])
     pred = model.predict(photo, pixels, K=K, pitch=math.radians(pitch), roll=math.radians(roll))
     out.mkdir(parents=True, exist_ok=True)
@@ -101,6 +87,9 @@ def predict_command(
         "probes": probes,
     }
     atomic_write_text(out / "prediction.json", json.dumps(report, indent=2) + "\n")
+    if as_json:
+        typer.echo(json.dumps({**report, "output": str(out)}))
+        return
     table = Table(title=f"SOLID-Net prediction -> {out}", show_header=False)
     sun = report["sun"]
     table.add_row(

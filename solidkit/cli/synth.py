@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import logging
 import time
 from pathlib import Path
@@ -13,10 +14,12 @@ from rich.console import Console
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
 from rich.table import Table
 
+from solidkit.cli.parsing import parse_exposures
 from solidkit.errors import InputError
 
 app = typer.Typer(no_args_is_help=True)
-console = Console(stderr=True)
+console = Console(stderr=True)  # progress and logs
+summary = Console()  # results (stdout)
 
 
 def _progress() -> Progress:
@@ -27,7 +30,7 @@ def _progress() -> Progress:
 @app.command()
 def dataset(
     n: int = typer.Option(..., "--n", min=1, help="Total number of samples of the dataset (all shards)."),
-    out: Path = typer.Option(..., "--out", help="Dataset folder (created; re-running resumes)."),
+    out: Path = typer.Option(..., "-o", "--out", help="Dataset folder (created; re-running resumes)."),
     shard: Optional[str] = typer.Option(None, "--shard", help="Render only shard i/N (contiguous index range)."),
     spp: int = typer.Option(64, "--spp", min=1, help="Samples per pixel of the photo."),
     probe_spp: int = typer.Option(32, "--probe-spp", min=1, help="Samples per pixel of the local probes."),
@@ -39,6 +42,7 @@ def dataset(
     reference: Optional[Path] = typer.Option(None, "--reference", help="Folder of real LDR photos for the colour filter."),
     threshold: float = typer.Option(0.7, "--threshold", min=0.0, max=1.0, help="Histogram-intersection threshold."),
     variant: Optional[str] = typer.Option(None, "--variant", help="Force a Mitsuba variant (default: cuda > llvm > scalar)."),
+    as_json: bool = typer.Option(False, "--json", help="Print the counts as JSON."),
 ) -> None:
     """Render SOLID-Img-style samples: photo (HDR+LDR), buffers, global map, 4 local probes, JSON."""
     from solidkit.synth.dataset import generate, parse_shard
@@ -60,6 +64,9 @@ def dataset(
 
         counts = generate(out, n, seed=seed, shard=sh, config=cfg, reference=ref, threshold=threshold, progress=report)
     dt = time.perf_counter() - t0
+    if as_json:
+        typer.echo(json.dumps({"output": str(out), "variant": used, "shard": list(sh), **counts, "seconds": dt}))
+        return
     table = Table(title=f"solidkit synth dataset -> {out}", show_header=False)
     table.add_row("variant", used)
     table.add_row("shard", f"{sh[0]}/{sh[1]}")
@@ -68,13 +75,13 @@ def dataset(
         table.add_row("kept by colour filter", f"{counts['kept']} / {counts['rendered']} (threshold {threshold})")
     if counts["rendered"]:
         table.add_row("seconds per sample", f"{dt / counts['rendered']:.1f}")
-    console.print(table)
+    summary.print(table)
 
 
 @app.command()
 def sources(
     n: int = typer.Option(..., "--n", min=1, help="Total number of panoramas (all shards)."),
-    out: Path = typer.Option(..., "--out", help="Folder (created; re-running resumes)."),
+    out: Path = typer.Option(..., "-o", "--out", help="Folder (created; re-running resumes)."),
     shard: Optional[str] = typer.Option(None, "--shard", help="Render only shard i/N (contiguous index range)."),
     seed: int = typer.Option(0, "--seed", help="Master seed (blocks, positions, lighting, noise)."),
     height: int = typer.Option(768, "--height", min=64, help="Panorama height (width twice that)."),
@@ -96,7 +103,7 @@ def sources(
         counts = render_sources(out, n, seed=seed, shard=sh, config=cfg,
                                 progress=lambda done, total: bar.update(task, completed=done, total=total))
     dt = time.perf_counter() - t0
-    console.print(f"rendered {counts['rendered']}, skipped {counts['skipped']}"
+    summary.print(f"rendered {counts['rendered']}, skipped {counts['skipped']}"
                   + (f", {dt / counts['rendered']:.1f} s each" if counts["rendered"] else "") + f" -> {out}")
 
 
@@ -107,8 +114,6 @@ def filter_cmd(
     threshold: float = typer.Option(0.7, "--threshold", min=0.0, max=1.0),
 ) -> None:
     """(Re-)score every sample of a dataset against real photos and rewrite the index."""
-    import json
-
     from solidkit.envmap import read_ldr
     from solidkit.fsutil import atomic_write_text
     from solidkit.synth.dataset import build_index
@@ -127,7 +132,7 @@ def filter_cmd(
         kept += int(score >= threshold)
         atomic_write_text(meta, json.dumps(rec, indent=1))
     build_index(out)
-    console.print(f"kept {kept} / {len(metas)} samples (threshold {threshold}, {len(ref.names)} reference images)")
+    summary.print(f"kept {kept} / {len(metas)} samples (threshold {threshold}, {len(ref.names)} reference images)")
 
 
 @app.command()
@@ -135,7 +140,7 @@ def campaign(
     ctx: typer.Context,
     scenes: int = typer.Option(29, "--scenes", min=1, help="Number of scenes (the paper's real set: 29)."),
     probes: int = typer.Option(67, "--probes", min=0, help="Number of probe positions in all (the paper: 67)."),
-    out: Path = typer.Option(..., "--out", help="Output folder: card/ (what the field team brings) and truth/."),
+    out: Path = typer.Option(..., "-o", "--out", help="Output folder: card/ (what the field team brings) and truth/."),
     seed: int = typer.Option(0, "--seed", help="Master seed."),
     photo_spp: int = typer.Option(32, "--photo-spp", min=1),
     pano_height: int = typer.Option(512, "--pano-height", min=8, help="Height of the HDR panorama behind each Theta shot."),
@@ -150,10 +155,9 @@ def campaign(
                                               help="Every n-th scene (scene02, scene05, ...) has glass facades that glint; 0: none (default 3)."),
     photo_width: Optional[int] = typer.Option(None, "--photo-width", min=16, help="Photo width (px); height at 4:3."),
     variant: Optional[str] = typer.Option(None, "--variant", help="Force a Mitsuba variant."),
+    as_json: bool = typer.Option(False, "--json", help="Print the summary as JSON."),
 ) -> None:
     """A virtual field campaign: photos, Theta dual-fisheye shots (card layout) and a separate truth file."""
-    from fractions import Fraction
-
     from solidkit.synth.campaign import PRESETS, CampaignConfig, generate_campaign
     from solidkit.synth.renderer import select_variant
 
@@ -163,13 +167,7 @@ def campaign(
     used = select_variant(variant)
     given: dict[str, object] = {}
     if brackets is not None:
-        try:
-            br = [] if brackets.strip().lower() == "none" else [float(Fraction(b.strip())) for b in brackets.split(",")]
-        except (ValueError, ZeroDivisionError):
-            raise InputError(f"--brackets: expected comma-separated exposure times like 1/640,1/160, got '{brackets}'") from None
-        if any(b <= 0 for b in br):
-            raise InputError("--brackets: exposure times must be positive")
-        given["brackets_s"] = br
+        given["brackets_s"] = [] if brackets.strip().lower() == "none" else parse_exposures(brackets, "--brackets")
     for name, value in (("photo_spp", photo_spp), ("pano_height", pano_height), ("pano_spp", pano_spp),
                         ("fisheye_width", fisheye_width)):
         if ctx.get_parameter_source(name) != click.core.ParameterSource.DEFAULT:
@@ -187,9 +185,14 @@ def campaign(
             bar.advance(task)
 
         truth = generate_campaign(out, scenes, probes, seed=seed, config=cfg, progress=report)
+    if as_json:
+        typer.echo(json.dumps({"output": str(out), "variant": used, "scenes": len(truth.scenes),
+                               "captures": sum(len(s.captures) for s in truth.scenes), "card": str(out / "card"),
+                               "truth": str(out / "truth" / "truth.json"), "seconds": time.perf_counter() - t0}))
+        return
     table = Table(title=f"solidkit synth campaign -> {out}", show_header=False)
     table.add_row("scenes / captures", f"{len(truth.scenes)} / {sum(len(s.captures) for s in truth.scenes)}")
     table.add_row("card", str(out / "card"))
     table.add_row("truth (keep apart)", str(out / "truth" / "truth.json"))
     table.add_row("seconds", f"{time.perf_counter() - t0:.1f}")
-    console.print(table)
+    summary.print(table)
