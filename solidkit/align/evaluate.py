@@ -25,7 +25,7 @@ from typing import Any
 import numpy as np
 
 from solidkit.align.schema import load_alignment, wrap_deg
-from solidkit.envmap.coords import angles_from_direction, direction_from_angles, rotation_from_ypr
+from solidkit.envmap.coords import angular_distance, angles_from_direction, direction_from_angles, rotation_from_ypr
 from solidkit.envmap.io import read_exr, read_ldr, srgb_decode, srgb_encode, tonemap
 
 __all__ = ["evaluate", "summary", "psnr"]
@@ -40,7 +40,7 @@ def psnr(a: np.ndarray, b: np.ndarray) -> float:
 def _angle(az1, el1, az2, el2) -> float:
     a = direction_from_angles(math.radians(az1), math.radians(el1))
     b = direction_from_angles(math.radians(az2), math.radians(el2))
-    return math.degrees(math.acos(max(-1.0, min(1.0, float(np.dot(a, b))))))
+    return math.degrees(float(angular_distance(a, b)))
 
 
 def _radiance(ldr8: np.ndarray, md: dict[str, Any], k_sensor: float) -> np.ndarray:

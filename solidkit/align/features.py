@@ -26,13 +26,13 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from solidkit.envmap.coords import rotation_from_ypr
+from solidkit.envmap.coords import coords_from_direction, rotation_from_ypr
 from solidkit.envmap.io import srgb_encode
-from solidkit.envmap.perspective import intrinsics_from_fov, perspective_crop
+from solidkit.envmap.perspective import intrinsics_from_fov, perspective_crop, scale_pixel_coordinates
 from solidkit.envmap.sun import luminance
 from solidkit.errors import InputError
 
-__all__ = ["Features", "to_grey8", "photo_features", "panorama_features", "match_features"]
+__all__ = ["Features", "rays_from_pixels", "to_grey8", "photo_features", "panorama_features", "match_features"]
 
 
 @dataclass(frozen=True)
@@ -58,6 +58,12 @@ class Features:
 
     def __len__(self) -> int:
         return int(self.directions.shape[0])
+
+
+def rays_from_pixels(pixels: np.ndarray, K: np.ndarray) -> np.ndarray:
+    """Unit camera-frame rays ``K⁻¹ (x, y, 1)`` (normalised) of pixel points ``(N, 2)`` (conventions §1)."""
+    r = np.c_[np.asarray(pixels, np.float64), np.ones(len(pixels))] @ np.linalg.inv(np.asarray(K, np.float64)).T
+    return r / np.linalg.norm(r, axis=1, keepdims=True)
 
 
 def _empty() -> Features:
@@ -115,10 +121,8 @@ def photo_features(photo: np.ndarray, K: np.ndarray, *, scale: float = 1.0, n_fe
     pts, desc, sizes = _sift(grey, None, n_features)
     if not len(pts):
         return _empty()
-    # resized pixel centres: x_full = (x_small + 0.5) / scale - 0.5
-    full = (pts + 0.5) / scale - 0.5
-    rays = np.c_[full, np.ones(len(full))] @ np.linalg.inv(K).T
-    rays /= np.linalg.norm(rays, axis=1, keepdims=True)
+    full = scale_pixel_coordinates(pts, 1.0 / scale)  # back to full-size pixel centres
+    rays = rays_from_pixels(full, K)
     return Features(rays, desc, full, sizes / (scale * K[0, 0]))
 
 
@@ -151,7 +155,6 @@ def panorama_features(pano: np.ndarray, *, n_yaw: int = 8, fov_deg: float = 75.0
     if crop_px is None:
         crop_px = int(round(2.0 * math.tan(fov / 2.0) / (math.pi / h)))
     K = intrinsics_from_fov(fov, crop_px, crop_px)
-    Kinv = np.linalg.inv(K)
     grey_pano = to_grey8(pano, linear=linear, clahe=False).astype(np.float32)
     dirs, descs, pix, sizes = [], [], [], []
     step = 2.0 * math.pi / n_yaw
@@ -165,26 +168,20 @@ def panorama_features(pano: np.ndarray, *, n_yaw: int = 8, fov_deg: float = 75.0
             pts, desc, sz = _sift(crop, None, n_features // max(1, n_yaw * len(pitches_deg)) * 2)
             if not len(pts):
                 continue
-            rays = np.c_[pts, np.ones(len(pts))] @ Kinv.T
-            rays /= np.linalg.norm(rays, axis=1, keepdims=True)
-            d = rays @ R.T
+            d = rays_from_pixels(pts, K) @ R.T
             # keep a keypoint only in the crop whose centre is nearest to it (within the ring)
             az = np.arctan2(d[:, 0], d[:, 2])
             own = np.abs((az - yaw + math.pi) % (2 * math.pi) - math.pi) <= step / 2.0
-            if len(pitches_deg) > 1:
-                centres = [np.asarray(rotation_from_ypr(0.0, math.radians(p), 0.0))[:, 2] for p in pitches_deg]
+            if len(pitches_deg) > 1:  # and only in the ring whose pitch is nearest to its elevation
                 el = np.arcsin(np.clip(-d[:, 1], -1, 1))
                 nearest = np.argmin([np.abs(el - math.radians(p)) for p in pitches_deg], axis=0)
                 own &= nearest == pitches_deg.index(pitch)
-                del centres
             if max_elevation_deg is not None:
                 own &= -d[:, 1] <= math.sin(math.radians(max_elevation_deg))
             if not own.any():
                 continue
             dirs.append(d[own])
             descs.append(desc[own])
-            from solidkit.envmap.coords import coords_from_direction
-
             x, y = coords_from_direction(d[own], h)
             pix.append(np.c_[x, y])
             sizes.append(sz[own] / K[0, 0])

@@ -27,7 +27,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from solidkit.align.features import Features, match_features
+from solidkit.align.features import Features, match_features, rays_from_pixels
 from solidkit.align.geometry import estimate_level_pose, estimate_rotation
 from solidkit.align.schema import Cue, wrap_deg
 from solidkit.envmap.coords import ypr_from_rotation
@@ -50,11 +50,6 @@ class PhotoMatch:
     focal_scale: float = 1.0
 
 
-def _rays(pixels: np.ndarray, K: np.ndarray) -> np.ndarray:
-    r = np.c_[pixels, np.ones(len(pixels))] @ np.linalg.inv(K).T
-    return r / np.linalg.norm(r, axis=1, keepdims=True)
-
-
 def refine_focal(pixels: np.ndarray, targets: np.ndarray, K: np.ndarray, *, lo: float = 0.8, hi: float = 1.25) -> tuple[float, float]:
     """Focal-length scale ``s`` (``fx, fy -> s fx, s fy``) minimising the rotation residual of inlier matches.
 
@@ -70,7 +65,7 @@ def refine_focal(pixels: np.ndarray, targets: np.ndarray, K: np.ndarray, *, lo: 
         Ks = K.copy()
         Ks[0, 0] *= math.exp(log_s)
         Ks[1, 1] *= math.exp(log_s)
-        a = _rays(pixels, Ks)
+        a = rays_from_pixels(pixels, Ks)
         rot, _ = Rotation.align_vectors(targets, a)
         d = np.arccos(np.clip(np.sum(rot.apply(a) * targets, axis=1), -1.0, 1.0))
         return float(np.sqrt(np.mean(d**2)))
@@ -104,7 +99,7 @@ def match_photo(photo: Features, pano: Features, *, K: np.ndarray | None = None,
         Ks = np.asarray(K, np.float64).copy()
         Ks[0, 0] *= scale
         Ks[1, 1] *= scale
-        refit = estimate_rotation(_rays(photo.pixels[m[:, 0]], Ks), pano.directions[m[:, 1]],
+        refit = estimate_rotation(rays_from_pixels(photo.pixels[m[:, 0]], Ks), pano.directions[m[:, 1]],
                                   threshold=math.radians(threshold_deg), min_inliers=min_inliers)
         if refit is not None and refit.n_inliers >= fit.n_inliers * 0.9:
             fit = refit

@@ -16,10 +16,12 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from solidkit.align.features import rays_from_pixels
 from solidkit.align.schema import CampaignAlignment, SceneAlignment, wrap_deg
 from solidkit.capture.manifest import Manifest
 from solidkit.envmap.coords import coords_from_direction, direction_from_angles, rotation_from_ypr
 from solidkit.envmap.io import imread, write_ldr
+from solidkit.envmap.perspective import scale_pixel_coordinates
 from solidkit.fsutil import atomic_write_text
 
 __all__ = ["write_report", "scene_picture"]
@@ -34,9 +36,9 @@ def _fov_outline(sa: SceneAlignment, height: int, n: int = 60) -> list[np.ndarra
     w, h = p.size
     K = np.asarray(p.K_full)
     t = np.linspace(0.0, 1.0, n)
-    xs = np.concatenate([t * (w - 1), np.full(n, w - 1.0), (1 - t) * (w - 1), np.zeros(n)]) 
+    xs = np.concatenate([t * (w - 1), np.full(n, w - 1.0), (1 - t) * (w - 1), np.zeros(n)])
     ys = np.concatenate([np.zeros(n), t * (h - 1), np.full(n, h - 1.0), (1 - t) * (h - 1)])
-    rays = np.c_[xs, ys, np.ones_like(xs)] @ np.linalg.inv(K).T
+    rays = rays_from_pixels(np.c_[xs, ys], K)
     R = np.asarray(rotation_from_ypr(0.0, math.radians(p.pitch_deg or 0.0), math.radians(p.roll_deg or 0.0)))
     d = rays @ R.T
     x, y = coords_from_direction(d / np.linalg.norm(d, axis=1, keepdims=True), height)
@@ -72,11 +74,11 @@ def scene_picture(campaign: Path, sa: SceneAlignment) -> np.ndarray:
         ph = cv2.resize(ph, (width, int(round(ph.shape[0] * s))), interpolation=cv2.INTER_AREA)
         for pa in sa.probes:
             if pa.pixel_full is not None:
-                c = (int(round((pa.pixel_full[0] + 0.5) * s - 0.5)), int(round((pa.pixel_full[1] + 0.5) * s - 0.5)))
+                c = tuple(int(round(float(scale_pixel_coordinates(v, s)))) for v in pa.pixel_full)
                 cv2.circle(ph, c, 6, _CYAN, 2, cv2.LINE_AA)
                 cv2.putText(ph, pa.id, (c[0] + 8, c[1] - 6), cv2.FONT_HERSHEY_SIMPLEX, 0.45, _CYAN, 1, cv2.LINE_AA)
             if pa.pixel_geometry is not None:
-                g = (int(round((pa.pixel_geometry[0] + 0.5) * s - 0.5)), int(round((pa.pixel_geometry[1] + 0.5) * s - 0.5)))
+                g = tuple(int(round(float(scale_pixel_coordinates(v, s)))) for v in pa.pixel_geometry)
                 cv2.drawMarker(ph, g, _YELLOW, cv2.MARKER_DIAMOND, 10, 1, cv2.LINE_AA)
         _label(ph, f"{sa.id}: photo (cyan: probe pixels, yellow: geometry)")
         panels.append(ph)

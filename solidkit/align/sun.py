@@ -36,7 +36,7 @@ import cv2
 import numpy as np
 
 from solidkit.align.schema import CaptureSun, Ephemeris, SceneSun, SunCandidate, wrap_deg
-from solidkit.envmap.coords import angles_from_direction, direction_from_angles, direction_grid, solid_angle
+from solidkit.envmap.coords import angular_distance, angles_from_direction, direction_from_angles, direction_grid, solid_angle
 from solidkit.envmap.sun import SUN_ANGULAR_DIAMETER, label_spherical, luminance, spherical_centroid
 
 __all__ = ["Blob", "SunSettings", "CaptureSunInput", "find_candidates", "sky_fraction", "scene_sun"]
@@ -194,7 +194,7 @@ def _sun_in_photo_time(blob: Blob, cap: CaptureSunInput, photo_eph: Ephemeris | 
 def _angle_deg(az1: float, el1: float, az2: float, el2: float) -> float:
     a = direction_from_angles(np.radians(az1), np.radians(el1))
     b = direction_from_angles(np.radians(az2), np.radians(el2))
-    return math.degrees(math.acos(max(-1.0, min(1.0, float(np.dot(a, b))))))
+    return math.degrees(float(angular_distance(a, b)))
 
 
 def scene_sun(captures: list[CaptureSunInput], *, photo_ephemeris: Ephemeris | None, photo_heading_deg: float | None,

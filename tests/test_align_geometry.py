@@ -1,0 +1,106 @@
+"""align.geometry and align.heading on synthetic rays with a known answer (and outliers)."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from solidkit.align.features import rays_from_pixels
+from solidkit.align.geometry import estimate_level_pose, estimate_rotation
+from solidkit.align.heading import fuse_cues, refine_focal
+from solidkit.align.schema import Cue, body_to_pano, level_to_pano, wrap_deg
+from solidkit.envmap.coords import angles_from_direction, direction_from_angles, rotation_from_ypr, rotation_y
+
+
+def _unit(v: np.ndarray) -> np.ndarray:
+    return v / np.linalg.norm(v, axis=-1, keepdims=True)
+
+
+def _angle_deg(R1: np.ndarray, R2: np.ndarray) -> float:
+    c = (np.trace(R1.T @ R2) - 1.0) / 2.0
+    return math.degrees(math.acos(max(-1.0, min(1.0, c))))
+
+
+def test_rotation_with_outliers() -> None:
+    rng = np.random.default_rng(1)
+    R = np.asarray(rotation_from_ypr(math.radians(123.0), math.radians(-7.0), math.radians(2.0)))
+    a = _unit(rng.normal(size=(60, 3)))
+    b = a @ R.T + rng.normal(scale=math.radians(0.05), size=(60, 3))
+    b[:25] = _unit(rng.normal(size=(25, 3)))  # 40 % outliers
+    fit = estimate_rotation(a, _unit(b))
+    assert fit is not None
+    assert _angle_deg(fit.R, R) < 0.05
+    assert fit.inliers[25:].all() and fit.inliers[:25].sum() <= 1
+
+
+def test_rotation_refuses_noise() -> None:
+    rng = np.random.default_rng(2)
+    assert estimate_rotation(_unit(rng.normal(size=(30, 3))), _unit(rng.normal(size=(30, 3)))) is None
+
+
+@pytest.mark.parametrize("yaw_deg", [37.0, -150.0])
+def test_level_pose_recovers_yaw_and_direction(yaw_deg: float) -> None:
+    """Two level panoramas 6 m apart see 80 points (30 % outliers): yaw to 0.05 deg, baseline direction, its sign."""
+    rng = np.random.default_rng(3)
+    pts = np.c_[rng.uniform(-20, 20, 80), rng.uniform(-8, 2, 80), rng.uniform(-20, 20, 80)]
+    c1, c2 = np.zeros(3), np.array([4.0, 0.3, 4.5])
+    R2 = np.asarray(rotation_y(math.radians(yaw_deg)))  # view 2's frame: x_2 = R2 (x_world - c2)
+    a = _unit(pts - c1)
+    b = _unit((pts - c2) @ R2.T)
+    b = _unit(b + rng.normal(scale=math.radians(0.03), size=b.shape))
+    b[:24] = _unit(rng.normal(size=(24, 3)))
+    fit = estimate_level_pose(a, b)
+    assert fit is not None
+    assert abs(math.degrees(fit.yaw) - yaw_deg) < 0.05
+    assert np.degrees(np.arccos(np.clip(fit.centre2_in_1 @ _unit(c2), -1, 1))) < 1.0
+    assert fit.inliers[24:].mean() > 0.95
+
+
+def test_level_pose_needs_matches() -> None:
+    rng = np.random.default_rng(4)
+    assert estimate_level_pose(_unit(rng.normal(size=(5, 3))), _unit(rng.normal(size=(5, 3)))) is None
+
+
+def test_focal_refinement() -> None:
+    """Pixels made with f = 560 px, rays computed with a 3 % too long focal length: the scale comes back."""
+    rng = np.random.default_rng(5)
+    K_true = np.array([[560.0, 0, 319.5], [0, 560.0, 239.5], [0, 0, 1]])
+    px = np.c_[rng.uniform(0, 640, 50), rng.uniform(0, 480, 50)]
+    R = np.asarray(rotation_from_ypr(0.4, -0.1, 0.02))
+    targets = rays_from_pixels(px, K_true) @ R.T
+    K_exif = K_true.copy()
+    K_exif[0, 0] *= 1.03
+    K_exif[1, 1] *= 1.03
+    s, rms = refine_focal(px, targets, K_exif)
+    assert abs(s * 1.03 - 1.0) < 1e-3
+    assert rms < 1e-4
+
+
+def test_heading_convention() -> None:
+    """conventions §8: a feature at azimuth a in the level frame is at a + yaw in the photo frame."""
+    d = direction_from_angles(math.radians(10.0), math.radians(20.0))
+    az, el = (math.degrees(float(v)) for v in angles_from_direction(level_to_pano(30.0) @ d))
+    assert az == pytest.approx(40.0) and el == pytest.approx(20.0)
+    R = body_to_pano(30.0, 2.0, -1.0)
+    assert np.allclose(R, np.asarray(rotation_from_ypr(*np.radians([30.0, 2.0, -1.0]))))
+
+
+def test_fuse_cues_flags_the_odd_one() -> None:
+    cues = {"features": Cue(yaw_deg=10.1, sigma_deg=0.2, ok=True), "sun": Cue(yaw_deg=9.8, sigma_deg=0.3, ok=True),
+            "compass": Cue(yaw_deg=100.0, sigma_deg=8.0, ok=True)}  # a probe rotated 90 deg by mistake
+    f = fuse_cues(cues)
+    assert abs(f.yaw_deg - 10.0) < 0.15
+    assert not cues["compass"].ok and cues["features"].ok and cues["sun"].ok
+    assert any(fl.startswith("compass_disagrees") for fl in f.flags)
+    assert cues["compass"].residual_deg == pytest.approx(wrap_deg(100.0 - f.yaw_deg))
+
+
+def test_fuse_cues_single_and_none() -> None:
+    f = fuse_cues({"compass": Cue(yaw_deg=-170.0, sigma_deg=8.0, ok=True), "features": Cue(yaw_deg=None, ok=False)})
+    assert f.yaw_deg == pytest.approx(-170.0) and any(x.startswith("single_cue") for x in f.flags)
+    assert fuse_cues({"features": Cue(yaw_deg=None, ok=False)}).yaw_deg is None
+    # across the seam
+    f = fuse_cues({"a": Cue(yaw_deg=179.9, sigma_deg=0.2, ok=True), "b": Cue(yaw_deg=-179.9, sigma_deg=0.2, ok=True)})
+    assert abs(wrap_deg(f.yaw_deg - 180.0)) < 0.01

@@ -1,0 +1,128 @@
+"""align.sun on small synthetic panoramas: the sun is chosen by physics, glints are rejected with reasons."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from solidkit.align.schema import Ephemeris, wrap_deg
+from solidkit.align.sun import CaptureSunInput, SunSettings, find_candidates, scene_sun, sky_fraction
+from solidkit.envmap.coords import angular_distance, direction_from_angles, direction_grid
+
+H = 256
+SUN_P = (40.0, 35.0)  # the sun in the photo's panorama frame (azimuth, elevation), degrees
+
+
+def _dir(az: float, el: float) -> np.ndarray:
+    return direction_from_angles(math.radians(az), math.radians(el))
+
+
+def _disk(img: np.ndarray, az: float, el: float, radius_deg: float, value: float) -> None:
+    grid = direction_grid(H)
+    img[grid @ _dir(az, el) >= math.cos(math.radians(radius_deg))] = value
+
+
+def _normal_pano(facade: tuple[float, float] | None) -> np.ndarray:
+    """Linear normal exposure: bright sky, darker ground, a dark glass facade over ``facade`` azimuths."""
+    grid = direction_grid(H)
+    el = np.degrees(np.arcsin(-grid[..., 1]))
+    az = np.degrees(np.arctan2(grid[..., 0], grid[..., 2]))
+    img = np.where(el > 0, 0.8 + 0.2 * np.sin(np.radians(el)), 0.15).astype(np.float32)
+    if facade is not None:
+        a0, a1 = facade
+        img[(el < 45) & (np.abs(((az - (a0 + a1) / 2) + 180) % 360 - 180) < (a1 - a0) / 2)] = 0.05
+    return np.repeat(img[..., None], 3, axis=2)
+
+
+def _sun_frame(spots: list[tuple[float, float]]) -> np.ndarray:
+    img = np.full((H, 2 * H), 0.03, np.float32)
+    for az, el in spots:
+        _disk(img, az, el, 0.9, 1.0)
+    return np.repeat(img[..., None], 3, axis=2)
+
+
+def _capture(pid: str, yaw: float, *, sun: bool = True, glint: tuple[float, float] | None = None,
+             facade: tuple[float, float] | None = None, eph_el: float | None = SUN_P[1]) -> CaptureSunInput:
+    """A capture whose level frame is the photo frame turned by -yaw (so that level + yaw = photo)."""
+    spots = [(wrap_deg(SUN_P[0] - yaw), SUN_P[1])] if sun else []
+    if glint is not None:
+        spots.append(glint)
+    blobs = find_candidates(_sun_frame(spots))
+    normal = _normal_pano(facade)
+    from solidkit.align.sun import Blob
+
+    blobs = [Blob(**{**b.__dict__, "sky_fraction": sky_fraction(normal, b.direction)}) for b in blobs]
+    eph = None if eph_el is None else Ephemeris(time_utc="2024-06-01T12:00:00+00:00", latitude_deg=45.0, longitude_deg=7.0,
+                                                azimuth_deg=180.0 + SUN_P[0], elevation_deg=eph_el)
+    return CaptureSunInput(pid, blobs, eph, yaw_deg=yaw + 0.2, yaw_sigma_deg=0.3, heading_deg=None)
+
+
+PHOTO_EPH = Ephemeris(time_utc="2024-06-01T12:00:00+00:00", latitude_deg=45.0, longitude_deg=7.0,
+                      azimuth_deg=180.0 + SUN_P[0], elevation_deg=SUN_P[1])
+STATIC = SunSettings(sun_moves=False)
+
+
+def test_candidates_are_accurate() -> None:
+    blobs = find_candidates(_sun_frame([(12.3, 47.1)]))
+    assert len(blobs) == 1
+    assert math.degrees(float(angular_distance(blobs[0].direction, _dir(12.3, 47.1)))) < 0.1
+    assert 1.2 < blobs[0].size_deg < 2.5
+    assert find_candidates(np.full((H, 2 * H, 3), 0.5, np.float32)) == []
+
+
+def test_sky_fraction_tells_sky_from_facade() -> None:
+    normal = _normal_pano((-60.0, -20.0))
+    assert sky_fraction(normal, _dir(40.0, 35.0)) > 0.9
+    assert sky_fraction(normal, _dir(-40.0, 20.0)) < 0.1
+
+
+def test_glints_rejected_sun_chosen() -> None:
+    """Capture p1 sees a glint on a dark facade (same elevation: a vertical mirror), p2 a bright spot in the sky
+    that no other position sees; both are rejected with reasons, the sun is chosen everywhere."""
+    caps = [_capture("cam", 0.0),
+            _capture("p1", 150.0, glint=(-40.0, SUN_P[1]), facade=(-60.0, -20.0)),
+            _capture("p2", -120.0, glint=(100.0, 20.0))]
+    sun = scene_sun(caps, photo_ephemeris=PHOTO_EPH, photo_heading_deg=180.0, settings=STATIC)
+    assert sun.found and all(c.found for c in sun.captures)
+    for cap, res in zip(caps, sun.captures):
+        chosen = [c for c in res.candidates if c.chosen]
+        assert len(chosen) == 1
+        assert abs(wrap_deg(chosen[0].azimuth_deg - (SUN_P[0] - cap.yaw_deg + 0.2))) < 0.2
+    glint = [c for c in sun.captures[1].candidates if not c.chosen]
+    assert len(glint) == 1 and any("not in the sky" in r for r in glint[0].reasons)
+    spot = [c for c in sun.captures[2].candidates if not c.chosen]
+    assert len(spot) == 1 and any("disagrees with the scene's sun" in r for r in spot[0].reasons)
+    assert abs(sun.elevation_deg - SUN_P[1]) < 0.1
+    assert abs(wrap_deg(sun.azimuth_deg - (SUN_P[0] + 0.2))) < 0.2  # the captures' yaws carry a 0.2 deg offset
+    assert sun.world_azimuth_deg == pytest.approx((sun.azimuth_deg + 180.0) % 360.0)
+    assert not sun.flags
+
+
+def test_occluded_position_and_lone_glint() -> None:
+    """The sun is occluded at p1, which sees only a glint: p1 reports no sun (the glint rejected), the scene is fine."""
+    caps = [_capture("cam", 0.0), _capture("p1", 150.0, sun=False, glint=(-40.0, SUN_P[1]), facade=(-60.0, -20.0)),
+            _capture("p2", -120.0)]
+    sun = scene_sun(caps, photo_ephemeris=PHOTO_EPH, photo_heading_deg=180.0, settings=STATIC)
+    assert sun.found and sun.n_captures == 2
+    p1 = sun.captures[1]
+    assert not p1.found and len(p1.candidates) == 1 and not p1.candidates[0].chosen
+    assert p1.candidates[0].reasons
+
+
+def test_clock_off_by_hours_is_flagged() -> None:
+    """The images agree with each other; the ephemeris (a clock three hours off) does not: flagged, not averaged."""
+    bad = PHOTO_EPH.model_copy(update={"elevation_deg": SUN_P[1] - 25.0, "azimuth_deg": 180.0 + SUN_P[0] + 45.0})
+    caps = [_capture("cam", 0.0, eph_el=SUN_P[1] - 25.0), _capture("p1", 75.0, eph_el=SUN_P[1] - 25.0),
+            _capture("p2", -120.0, eph_el=SUN_P[1] - 25.0)]
+    sun = scene_sun(caps, photo_ephemeris=bad, photo_heading_deg=180.0, settings=STATIC)
+    assert sun.found and abs(sun.elevation_deg - SUN_P[1]) < 0.1
+    assert any(f.startswith("ephemeris_disagrees") for f in sun.flags)
+
+
+def test_no_sun_anywhere() -> None:
+    caps = [_capture("cam", 0.0, sun=False), _capture("p1", 10.0, sun=False)]
+    sun = scene_sun(caps, photo_ephemeris=PHOTO_EPH, photo_heading_deg=180.0, settings=STATIC)
+    assert not sun.found and not any(c.found for c in sun.captures)
+    assert "occluded or overcast" in sun.captures[0].reason
