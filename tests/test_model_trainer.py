@@ -121,4 +121,7 @@ def test_config_errors_are_one_line(tmp_path, sources, cli):
     assert cli("train", other, "--no-progress")[0] == 0
     changed = _config(tmp_path, sources, tmp_path / "run", steps=1, seed=6)
     code, out, err = cli("train", changed)
-    assert code == 2 and "other settings" in err
+    assert code == 2 and "other settings (seed)" in err
+    longer = _config(tmp_path, sources, tmp_path / "run", steps=2)  # a longer stage is allowed: resumes, goes on
+    code, out, err = cli("train", longer, "--no-progress")
+    assert code == 0 and json.loads(out.strip().splitlines()[-1])["step"] == 2 and "inet.steps" in err

@@ -321,6 +321,23 @@ def evaluate_lighting(model: SolidNet, batches: list[dict[str, torch.Tensor]]) -
 # ----------------------------------------------------------------------------------------- trainer
 
 
+RESUME_FIXED = ("model", "model_overrides", "init", "seed", "batch_size", "lr", "lr_halve_every", "probes",
+                "teacher_geometry")
+"""Settings a resumed run must share with the stored one; the others (data folders, stage lengths, the
+crop fraction, logging) may change, and the batches after the resumption follow the new values."""
+
+
+def _changed_settings(old: dict[str, Any], new: dict[str, Any]) -> list[str]:
+    out = []
+    for k in sorted(set(old) | set(new)):
+        a, b = old.get(k), new.get(k)
+        if isinstance(a, dict) and isinstance(b, dict) and k in STAGES:
+            out += [f"{k}.{kk}" for kk in sorted(set(a) | set(b)) if a.get(kk) != b.get(kk)]
+        elif a != b:
+            out.append(k)
+    return out
+
+
 def _dist_info() -> tuple[int, int, int]:
     return int(os.environ.get("RANK", 0)), int(os.environ.get("WORLD_SIZE", 1)), int(os.environ.get("LOCAL_RANK", 0))
 
@@ -350,9 +367,19 @@ class Trainer:
         if cfg.init:
             from solidkit.model.solidnet import load_checkpoint
 
-            self.model.load_state_dict(load_checkpoint(cfg.init)["state_dict"])
+            init = Path(cfg.init)
+            try:  # a training state (RUN/last.pt) or a model checkpoint
+                payload = torch.load(init, map_location="cpu", weights_only=True)
+            except Exception:
+                payload = None
+            if isinstance(payload, dict) and payload.get("format") == "solidkit.train_state":
+                self.model.load_state_dict(payload["model"])
+            else:
+                self.model.load_state_dict(load_checkpoint(init)["state_dict"])
         self.model.to(self.device)
         self.data = _Data(cfg.crops, cfg.crops_exclude, cfg.synth, cfg.seed)
+        if cfg.crops:
+            self.data.refresh()  # bad data folders fail here, before the run folder is created
         self.val = _Data(cfg.val_crops, [], cfg.val_synth, cfg.seed + 1) if (cfg.val_crops or cfg.val_synth) else None
         self.state: dict[str, Any] = {"stage": STAGES[0], "step": 0, "best": None, "seconds": 0.0, "samples": 0,
                                       "sources": None}
@@ -401,14 +428,12 @@ class Trainer:
             raise InputError(f"{path}: not a solidkit training state")
         old = tomllib.loads(payload["config"])
         new = tomllib.loads(self.cfg.to_toml())
-        keep = ("out", "max_minutes", "device", "threads", "val_every", "log_every", "checkpoint_every", "val_crops",
-                "val_synth", "val_samples")
-        for table in (old, new):  # a stage may be lengthened or shortened on resuming
-            for name in STAGES:
-                table.get(name, {}).pop("steps", None)
-        changed = sorted(k for k in set(old) | set(new) if k not in keep and old.get(k) != new.get(k))
+        changed = _changed_settings(old, new)
+        fixed = [k for k in changed if k.split(".")[0] in RESUME_FIXED or k.split(".")[-1] in RESUME_FIXED]
+        if fixed:
+            raise InputError(f"{self.out}: holds a run with other settings ({', '.join(fixed)}); use another out folder")
         if changed:
-            raise InputError(f"{self.out}: holds a run with other settings ({', '.join(changed)}); use another out folder")
+            self.log(f"resuming with changed settings: {', '.join(changed)} (later batches follow the new ones)")
         self.model.load_state_dict(payload["model"])
         self.state = json.loads(payload["state"])
         return payload
@@ -647,3 +672,21 @@ class _Bar:
     def close(self) -> None:
         if self.enabled:
             self.p.stop()
+
+
+def export_checkpoint(src: str | os.PathLike, dst: str | os.PathLike, extra: dict[str, Any] | None = None) -> dict[str, Any]:
+    """Write the model checkpoint ``src`` to ``dst`` (float16 weights) with ``extra`` merged into its card,
+    and ``dst``'s ``.card.json`` beside it (sha256, bytes, config, parameters, card); returns that JSON."""
+    from solidkit.envmap.coords import CONVENTIONS_VERSION
+    from solidkit.fsutil import sha256_file
+    from solidkit.model.solidnet import CHECKPOINT_VERSION
+
+    model = SolidNet.from_checkpoint(src)
+    card = {**getattr(model, "card", {}), **(extra or {})}
+    dst = Path(dst)
+    save_checkpoint(model, dst, card, half=True)
+    doc = {"file": dst.name, "sha256": sha256_file(dst), "bytes": dst.stat().st_size,
+           "conventions_version": CONVENTIONS_VERSION, "format_version": CHECKPOINT_VERSION,
+           "config": model.config.to_dict(), "parameters": model.num_parameters, "card": card}
+    atomic_write_text(dst.with_suffix(".card.json"), json.dumps(doc, indent=1, default=str))
+    return doc
