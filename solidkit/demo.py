@@ -2,7 +2,7 @@
 
 From an SD card to a report, with the steps a field team runs (docs/walkthrough.md):
 
-1. **card**: the mini campaign shipped with the package (``solidkit/assets/mini_campaign``:
+1. **card**: the mini campaign shipped with the package (``solidkit/assets/campaign_mini``:
    what a team brings home, rendered by ``solidkit synth campaign``) or ``card=DIR``;
 2. **ingest**: originals copied read-only, manifest, unwarped panoramas and merged HDR brackets
    (:func:`solidkit.capture.campaign.ingest`);
@@ -32,13 +32,14 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from scipy.spatial.transform import Rotation
 
 from solidkit.errors import InputError
 from solidkit.fsutil import atomic_write_text
 
 __all__ = ["MINI_CAMPAIGN", "DemoConfig", "run_demo", "truth_check"]
 
-MINI_CAMPAIGN = Path(__file__).parent / "assets" / "mini_campaign"
+MINI_CAMPAIGN = Path(__file__).parent / "assets" / "campaign_mini"
 """The shipped mini campaign: ``card/`` (what the field team brings home) and ``truth/``."""
 
 
@@ -96,12 +97,21 @@ def _ingest(card: Path, campaign: Path, cfg: DemoConfig, log: Callable[[str], An
 
 
 def _label_sun(campaign: Path, cfg: DemoConfig, log: Callable[[str], Any]) -> dict[str, Any]:
-    from solidkit.align import pipeline
+    """``solidkit label sun``: sun labels only (no products, no alignment.json), as the CLI runs it."""
+    import inspect
 
-    label_sun = getattr(pipeline, "label_sun", None)
-    if label_sun is None:  # this align writes the sun labels in the same pass as the headings
+    from solidkit.align.pipeline import AlignSettings, align_campaign
+
+    if "label_kinds" not in inspect.signature(align_campaign).parameters:  # an align without the sun-only pass
         return {"note": "done by the alignment pass (next step)"}
-    return _as_dict(label_sun(campaign, log=log), "sun labels")
+    al = align_campaign(campaign, settings=AlignSettings(products=False), report=False, label_kinds=("sun", "sun_scene"),
+                        write=False, log=lambda s: log(f"    {s}"))
+    caps = [c for sc in al.scenes for c in sc.sun.captures]
+    found = sum(1 for c in caps if c.found)
+    flagged = sum(1 for c in caps if c.flags) + sum(1 for sc in al.scenes if sc.sun.flags)
+    scenes = sum(1 for sc in al.scenes if sc.sun.found)
+    return {"captures": len(caps), "found": found, "flagged": flagged,
+            "note": f"sun in {found}/{len(caps)} sun frames, {scenes}/{len(al.scenes)} scenes; {flagged} flagged for review"}
 
 
 def _align(campaign: Path, cfg: DemoConfig, log: Callable[[str], Any]) -> dict[str, Any]:
@@ -160,10 +170,10 @@ def truth_check(testset: Path, truth_dir: Path) -> dict[str, Any]:
     """
     from solidkit.envmap.coords import direction_from_angles
     from solidkit.synth.campaign import load_truth
-    from solidkit.testset.schema import TestSet
+    from solidkit.testset.build import load_testset
 
     truth = load_truth(Path(truth_dir) / "campaign.json")
-    ts = TestSet.model_validate_json((Path(testset) / "testset.json").read_text())
+    ts = load_testset(testset)
     by_id = {s.id: s for s in truth.scenes}
     rows, sun_err, pix_err, rot_err = [], [], [], []
     for sc in ts.scenes:
@@ -184,8 +194,8 @@ def truth_check(testset: Path, truth_dir: Path) -> dict[str, Any]:
             if c is None or c.probe is None:
                 continue
             pe = float(np.hypot(*(np.asarray(p.pixel_full) - np.asarray(c.probe.pixel))))
-            Rt = np.asarray(c.R_pano_from_body)
-            re = math.degrees(math.acos(np.clip((np.trace(np.asarray(p.rotation).T @ Rt) - 1) / 2, -1, 1)))
+            re = math.degrees(float(np.linalg.norm(Rotation.from_matrix(
+                np.asarray(p.rotation).T @ np.asarray(c.R_pano_from_body)).as_rotvec())))
             probes.append({"probe": p.id, "pixel_error_px": pe, "rotation_error_deg": re})
             pix_err.append(pe)
             rot_err.append(re)

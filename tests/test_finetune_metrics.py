@@ -154,3 +154,15 @@ def test_bootstrap_interval_contains_the_statistic_and_resamples_scenes():
     assert (hi_g - lo_g) > 2 * (hi_v - lo_v)
     s = M.summarise([1.0, float("nan"), 3.0])
     assert s["n"] == 2 and s["median"] == 2.0
+
+
+def test_vectorised_cluster_bootstrap_matches_the_concatenated_statistic():
+    rng = np.random.default_rng(3)
+    v = rng.normal(size=17)
+    gi = np.array([0, 0, 1, 2, 2, 2, 3, 4, 4, 5, 6, 6, 6, 6, 7, 8, 8])
+    boot_rng = np.random.default_rng(11)
+    for stat in (np.median, np.mean):
+        got = M._cluster_bootstrap(v, gi, 9, stat, 50, np.random.default_rng(11))
+        idx = boot_rng.integers(0, 9, size=(50, 9)) if stat is np.median else np.random.default_rng(11).integers(0, 9, size=(50, 9))
+        want = [stat(np.concatenate([v[gi == k] for k in row])) for row in idx]
+        assert np.allclose(got, want)

@@ -38,7 +38,7 @@ import numpy as np
 from solidkit.envmap.coords import direction_from_angles
 from solidkit.envmap.io import read_exr, read_ldr, srgb_decode
 from solidkit.envmap.sun import luminance
-from solidkit.errors import InputError, validation_message
+from solidkit.errors import InputError
 from solidkit.finetune import metrics as M
 
 __all__ = [
@@ -263,18 +263,10 @@ def items_from_testset(root: str | os.PathLike) -> list[EvalItem]:
     one (its saturated pixels excluded from the global MAE); probes are the 256x128 LDR probes with
     their saturation masks.
     """
-    from pydantic import ValidationError
-
-    from solidkit.testset.schema import TestSet
+    from solidkit.testset.build import load_testset
 
     root = Path(root)
-    path = root / "testset.json"
-    if not path.is_file():
-        raise InputError(f"{root}: not a test set (no testset.json)")
-    try:
-        ts = TestSet.model_validate_json(path.read_text())
-    except ValidationError as exc:
-        raise InputError(f"{path}: not a valid test set ({validation_message(exc)}; run 'solidkit testset validate')") from None
+    ts = load_testset(root)  # format, schema and conventions versions checked, one-line errors
     items = []
     for sc in ts.scenes:
         if not sc.probes:

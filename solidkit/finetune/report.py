@@ -213,7 +213,8 @@ def qualitative_grid(item: EvalItem, method: Method, path: Path, title: str = ""
             _mark_sun(ax, sun_paper.direction if sun_paper.found else None, "magenta", "predicted (paper recipe)")
         ax.set(title=name, xticks=[-180, -90, 0, 90, 180], yticks=[-90, 0, 90])
         ax.title.set_fontsize(9)
-        ax.legend(fontsize=6, loc="lower left")
+        if ax.get_legend_handles_labels()[0]:
+            ax.legend(fontsize=6, loc="lower left")
     for k in range(n):
         truth = item.probes_ldr[k]
         sat = M.saturation_mask(truth, item.probes_saturated[k])
