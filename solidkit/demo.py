@@ -263,14 +263,16 @@ def run_demo(out: str | Path, cfg: DemoConfig | None = None, log: Callable[[str]
         return data
 
     def evaluate_step() -> dict[str, Any]:
-        from solidkit.finetune.evaluate import default_methods, evaluate, items_from_testset, load_model, save_json
+        from solidkit.finetune.evaluate import (default_methods, evaluate, items_from_testset, load_model, save_json,
+                                                shipped_ablations)
         from solidkit.finetune.report import evaluation_sections
 
         items = items_from_testset(testset)
         state["items"] = items
         net = load_model(cfg.model)
         state["net"] = net
-        methods = default_methods(net)
+        ablations = {f"ablation: {k}": load_model(v) for k, v in shipped_ablations().items()}
+        methods = default_methods(net, extra=ablations)
         res = evaluate(items, methods, log=log)
         (out / "eval").mkdir(exist_ok=True)
         save_json(out / "eval" / "results.json", res)

@@ -52,6 +52,7 @@ __all__ = [
     "items_from_testset",
     "default_methods",
     "load_model",
+    "shipped_ablations",
     "save_json",
     "evaluate",
     "evaluate_item",
@@ -302,6 +303,14 @@ def load_model(path: str | os.PathLike | None) -> Any:
     from solidkit.model import SolidNet
 
     return SolidNet.from_checkpoint(path)
+
+
+def shipped_ablations() -> dict[str, Path]:
+    """Checkpoints shipped beside the default one (``solidkit/model/checkpoints/*.pt``), by file stem:
+    the model's ablations (e.g. the paper's sky decoder without the sun head), evaluated side by side."""
+    from solidkit.model.solidnet import DEFAULT_CHECKPOINT
+
+    return {p.stem: p for p in sorted(DEFAULT_CHECKPOINT.parent.glob("*.pt")) if p.resolve() != DEFAULT_CHECKPOINT.resolve()}
 
 
 def default_methods(model: Any, name: str = "solidnet", extra: dict[str, Any] | None = None,

@@ -312,14 +312,17 @@ def evaluation_report(
     limit: int | None = None,
     max_grids: int = 6,
     log: Any = None,
+    ablations: bool = True,
 ) -> dict[str, Any]:
     """``solidkit eval``: evaluate ``model`` (default: the shipped checkpoint) and the baselines on a
-    real test set and/or a synthetic split; write ``results.json``, ``report.md``, ``report.html``
+    real test set and/or a synthetic split (with ``ablations``, also every checkpoint shipped beside the default
+    one); write ``results.json``, ``report.md``, ``report.html``
     and ``figures/`` into ``out``. Returns ``{"results": {dataset: result}, "report": path}``."""
     import torch
 
     from solidkit.errors import InputError
-    from solidkit.finetune.evaluate import default_methods, evaluate, items_from_synth, items_from_testset, load_model, save_json
+    from solidkit.finetune.evaluate import (default_methods, evaluate, items_from_synth, items_from_testset, load_model,
+                                            save_json, shipped_ablations)
 
     log = log or (lambda s: None)
     if testset is None and synthetic is None:
@@ -333,7 +336,10 @@ def evaluation_report(
     if limit is not None and "real" in datasets:
         datasets["real"] = datasets["real"][:limit]
     net = load_model(model)
-    extra = {name: load_model(path) for name, path in (baselines or {}).items()}
+    named = dict(baselines or {})
+    if ablations:
+        named = {**{f"ablation: {k}": v for k, v in shipped_ablations().items()}, **named}
+    extra = {name: load_model(path) for name, path in named.items()}
     out = Path(out)
     results, qual = {}, {}
     for ds, items in datasets.items():
