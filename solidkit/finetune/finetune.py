@@ -273,7 +273,7 @@ def finetune_fold(
                     syn = None
                     continue
                 o = net(batch["image"], batch["K"], batch["pixels"], batch["pitch"], batch["roll"])
-                loss = solidnet_losses(o, batch, net.config.loss_weights)["total"]
+                loss = solidnet_losses(o, batch, net.config.loss_weights, getattr(net.config, "loss_variant", "paper"))["total"]
                 opt.zero_grad(set_to_none=True)
                 loss.backward()
                 opt.step()
