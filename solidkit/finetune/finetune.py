@@ -224,6 +224,15 @@ def _mean_loss(model: torch.nn.Module, items: Sequence[EvalItem], sun_weight: fl
         return float(np.mean([float(real_losses(model, it, sun_weight)["total"]) for it in items])) if items else math.nan
 
 
+def _synthetic_batches(dataset: Any, seed: int) -> Any:
+    """Endless seeded shuffled batches of one synthetic sample (the model's batch format)."""
+    from solidkit.model.train import batch_from_synth
+
+    g = torch.Generator().manual_seed(seed)
+    while True:
+        yield from torch.utils.data.DataLoader(dataset, batch_size=1, shuffle=True, collate_fn=batch_from_synth, generator=g)
+
+
 def finetune_fold(
     model: torch.nn.Module,
     train: Sequence[EvalItem],
@@ -238,7 +247,6 @@ def finetune_fold(
     with the loss history, the best epoch, the trainable parameter count and the time.
     """
     from solidkit.model.losses import solidnet_losses
-    from solidkit.model.train import batch_from_synth
 
     torch.manual_seed(cfg.seed)
     rng = random.Random(cfg.seed)
@@ -250,7 +258,8 @@ def finetune_fold(
     best, best_epoch, bad = copy.deepcopy(net.state_dict()), 0, 0
     best_val = history[0]["val"]
     order = list(range(len(train)))
-    syn = iter(()) if synthetic is None else None
+    mixing = synthetic is not None and cfg.synthetic_every > 0
+    syn = _synthetic_batches(synthetic, cfg.seed) if mixing else None
     steps = 0
     for epoch in range(1, cfg.epochs + 1):
         rng.shuffle(order)
@@ -262,16 +271,8 @@ def finetune_fold(
             opt.step()
             losses.append(float(terms["total"].detach()))
             steps += 1
-            if synthetic is not None and cfg.synthetic_every and steps % cfg.synthetic_every == 0:
-                if syn is None:
-                    syn = iter(torch.utils.data.DataLoader(synthetic, batch_size=1, shuffle=True,
-                                                           collate_fn=batch_from_synth,
-                                                           generator=torch.Generator().manual_seed(cfg.seed)))
-                try:
-                    batch = next(syn)
-                except StopIteration:
-                    syn = None
-                    continue
+            if mixing and steps % cfg.synthetic_every == 0:
+                batch = next(syn)
                 o = net(batch["image"], batch["K"], batch["pixels"], batch["pitch"], batch["roll"])
                 loss = solidnet_losses(o, batch, net.config.loss_weights, getattr(net.config, "loss_variant", "paper"))["total"]
                 opt.zero_grad(set_to_none=True)
