@@ -125,3 +125,22 @@ def test_config_errors_are_one_line(tmp_path, sources, cli):
     longer = _config(tmp_path, sources, tmp_path / "run", steps=2)  # a longer stage is allowed: resumes, goes on
     code, out, err = cli("train", longer, "--no-progress")
     assert code == 0 and json.loads(out.strip().splitlines()[-1])["step"] == 2 and "inet.steps" in err
+
+
+@pytest.mark.slow
+def test_torchrun_two_processes_share_each_batch(tmp_path, sources):
+    """DDP on CPU (Gloo) through torchrun, never a home-made launcher: both ranks take half of every
+    global batch; rank 0 alone writes the run folder."""
+    import os
+    import subprocess
+    import sys
+
+    cfg = _config(tmp_path, sources, tmp_path / "ddp", steps=2)
+    torchrun = Path(sys.executable).with_name("torchrun")
+    env = {**os.environ, "OMP_NUM_THREADS": "1"}
+    res = subprocess.run([str(torchrun), "--nproc_per_node", "2", "-m", "solidkit.cli", "train", str(cfg), "--no-progress"],
+                         capture_output=True, text=True, env=env, timeout=600)
+    assert res.returncode == 0, res.stderr[-2000:]
+    states = [json.loads(line) for line in res.stdout.splitlines() if line.startswith("{")]
+    assert len(states) == 2 and all(s["step"] == 2 and s["samples"] == 4 for s in states)  # 2 steps x global batch 2
+    assert (tmp_path / "ddp" / "model.pt").is_file() and (tmp_path / "ddp" / "last.pt").is_file()

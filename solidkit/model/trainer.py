@@ -552,8 +552,10 @@ class Trainer:
             module = self._stage_modules(stage)
             ddp = None
             if self.world > 1:
+                # crop batches leave the intrinsic decoders unused: DDP must not wait for their gradients
                 ddp = torch.nn.parallel.DistributedDataParallel(
-                    module, device_ids=[self.device.index] if self.device.type == "cuda" else None)
+                    module, device_ids=[self.device.index] if self.device.type == "cuda" else None,
+                    find_unused_parameters=True)
             if self.data.crop_dirs and stage == "inet":
                 self.data.refresh(self.state.get("sources"))
                 self.state["sources"] = self.data.source_names
