@@ -145,6 +145,8 @@ def test_human_labels_win_with_provenance(campaign, tmp_path):
     problems = validate_testset(out)
     assert [p.check for p in problems] == ["flags"] and "check" in problems[0].message
     assert validate_testset(out, allow_flagged=True) == []
+    build_testset(camp, tmp_path / "again")  # re-rotated products are deterministic too
+    assert _tree(tmp_path / "again") == _tree(out)
 
 
 def _edit(root: Path, edit) -> None:
