@@ -279,3 +279,24 @@ def test_torch_dataset_keys_match_synth(built):
     assert len(only) == 1 and "probes" not in only[0] and only[0]["scene"] == "sB"
     with pytest.raises(InputError):
         TestsetDataset(built, scenes=["nope"])
+
+
+@pytest.mark.real
+@pytest.mark.parametrize("name", ["city", "courtyard", "sunrise"])
+def test_sky_mask_on_real_outdoor_views(real_data, name):
+    """Pinhole views of real outdoor HDR panoramas (Poly Haven): sky found above the skyline, none on the ground."""
+    from solidkit.envmap.coords import rotation_from_ypr
+    from solidkit.envmap.perspective import intrinsics_from_fov, perspective_crop
+    from solidkit.envmap.io import srgb_encode
+    from solidkit.testset.sky import on_sky, sky_mask
+
+    pano = read_exr(real_data / "hdr_panoramas" / f"{name}.exr")[0][..., :3]
+    K = intrinsics_from_fov(math.radians(60), 640, 480)
+    for yaw in (0, 120, 240):
+        view = perspective_crop(pano, np.asarray(rotation_from_ypr(math.radians(yaw), math.radians(5), 0)), (640, 480), K=K)
+        ldr = np.round(srgb_encode(np.clip(view * 0.8 / np.percentile(view, 90), 0, 1)) * 255).astype(np.uint8)
+        mask = sky_mask(ldr, K, 5.0, 0.0)
+        assert not mask[300:].any()  # rows below the horizon of a camera pitched up by 5 degrees (horizon ~ row 288)
+        assert not on_sky(mask, 320, 420)
+        if (name, yaw) != ("courtyard", 120) and (name, yaw) != ("courtyard", 240):  # views under a roof
+            assert mask[:100].mean() > 0.15, (name, yaw)
