@@ -300,3 +300,18 @@ def test_sky_mask_on_real_outdoor_views(real_data, name):
         assert not on_sky(mask, 320, 420)
         if (name, yaw) != ("courtyard", 120) and (name, yaw) != ("courtyard", 240):  # views under a roof
             assert mask[:100].mean() > 0.15, (name, yaw)
+
+
+def test_concurrent_build_refused_and_killed_build_leaves_old_set(campaign, built, tmp_path):
+    import fcntl
+
+    out = tmp_path / "ts"
+    shutil.copytree(built, out)
+    (tmp_path / ".ts.build-x").mkdir()  # what a killed build leaves beside OUT
+    with open(tmp_path / ".ts.lock", "a") as fh:
+        fcntl.flock(fh, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        with pytest.raises(InputError, match="another testset build"):
+            build_testset(campaign[0], out)
+    assert _tree(out) == _tree(built)
+    build_testset(campaign[0], out)
+    assert not (tmp_path / ".ts.build-x").exists() and _tree(out) == _tree(built)

@@ -34,12 +34,14 @@ whose content is unchanged leaves ``OUT`` untouched.
 
 from __future__ import annotations
 
+import contextlib
+import fcntl
 import hashlib
 import math
 import os
 import shutil
 import tempfile
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -561,8 +563,6 @@ def load_testset(root: str | os.PathLike) -> TestSet:
 def build_testset(campaign: str | os.PathLike, out: str | os.PathLike, *,
                   log: Callable[[str], None] | None = None) -> BuildReport:
     """Build the test set of ``campaign`` into ``out`` (see the module docstring); returns a :class:`BuildReport`."""
-    from solidkit import __version__
-
     campaign, out = Path(campaign), Path(out)
     if not (campaign / "manifest.json").is_file():
         raise InputError(f"{campaign}: not a campaign (no manifest.json; run solidkit ingest first)")
@@ -574,6 +574,32 @@ def build_testset(campaign: str | os.PathLike, out: str | os.PathLike, *,
         raise InputError(f"{campaign}: the alignment was computed from another manifest (re-run solidkit align)")
     report = BuildReport(out=out)
     out.parent.mkdir(parents=True, exist_ok=True)
+    with _exclusive(out):
+        return _build(campaign, out, manifest, alignment, manifest_sha, report, log)
+
+
+@contextlib.contextmanager
+def _exclusive(out: Path) -> Iterator[None]:
+    """One build per output folder at a time: an flock on ``.<out>.lock`` beside it (kept, so that
+    every build locks the same inode); a second concurrent build is refused."""
+    lock = out.parent / f".{out.name}.lock"
+    with open(lock, "a") as fh:
+        try:
+            fcntl.flock(fh, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            raise InputError(f"{out}: another testset build is writing it") from None
+        try:
+            yield
+        finally:
+            fcntl.flock(fh, fcntl.LOCK_UN)
+
+
+def _build(campaign: Path, out: Path, manifest: Manifest, alignment: CampaignAlignment, manifest_sha: str,
+           report: BuildReport, log: Callable[[str], None] | None) -> BuildReport:
+    from solidkit import __version__
+
+    for stale in out.parent.glob(f".{out.name}.build-*"):  # left by a killed build
+        shutil.rmtree(stale, ignore_errors=True)
     staging = Path(tempfile.mkdtemp(prefix=f".{out.name}.build-", dir=out.parent))
     try:
         b = _Builder(campaign, staging, manifest, alignment, report)
