@@ -133,6 +133,8 @@ class VersionedDocument(BaseModel):
         if not isinstance(data, dict):
             raise cls.ERROR(f"{name}: a {cls.WHAT} is a JSON object")
         kind = data.get("kind")
+        if kind is None:
+            raise cls.ERROR(f"{name}: has no 'kind' field, expected a {cls.KIND!r} {cls.WHAT}")
         if kind != cls.KIND:
             raise cls.ERROR(f"{name}: is a {kind!r} {cls.WHAT}, expected {cls.KIND!r}")
         if "format_version" not in data and "schema_version" in data:  # written before this base existed

@@ -204,6 +204,7 @@ def lens(
     from solidkit.camera.lens import load_profile as load_lens_profile
 
     target = _target(pattern, charuco, square, marker_ratio, dictionary)
+    base = load_lens_profile(add_to) if add_to else None  # a bad --add-to fails before the views are read
     pat = target if isinstance(target, tuple) else target.pattern
     models = ("kb", "mei") if model == "auto" else (model,)
     if model not in ("auto", "kb", "mei"):
@@ -229,7 +230,6 @@ def lens(
             dviews, pat, square, models, holdout_k, name, offset=(box[0], box[1]) if box else (0.0, 0.0),
             ypr_deg=tuple(angles), max_angle_deg=max_angle_deg, inputs=views,
         )
-    base = load_lens_profile(add_to) if add_to else None
     prof = lens_profile_from_calibrations([cal], profile_name, full_size, camera_model, base=base)
     prof.save(out)
     record = out.with_name(f"{out.stem}.{name}.calibration.json")
@@ -274,7 +274,7 @@ def vignetting(
     out: Path = typer.Option(..., "-o", "--out", help="Profile JSON to write."),
     lens_profile: str = typer.Option(..., "--lens-profile", help="Lens profile name (theta-s, ...) or JSON file: the geometry."),
     method: str = typer.Option("overlap", "--method", help="overlap (two lenses) or flat (flat field)."),
-    degree: Optional[int] = typer.Option(None, "--degree", help="Polynomial terms in rho^2 (default: 1 overlap, 3 flat)."),
+    degree: Optional[int] = typer.Option(None, "--degree", min=1, help="Polynomial terms in rho^2 (default: 1 overlap, 3 flat)."),
     response_path: Optional[Path] = typer.Option(None, "--response", help="Response profile to linearise an 8-bit image."),
     saturation: float = typer.Option(0.98, help="Linear value at/above which a pixel counts as clipped."),
     as_json: bool = JSON,

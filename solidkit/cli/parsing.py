@@ -10,7 +10,8 @@ example of what it expects. Every command parses these values here, before any w
 - angles in degrees (finite, optionally within a range): :func:`parse_angle`, :func:`parse_angles`;
 - comma-separated numbers (``fx,fy,cx,cy``, ``r,g,b``): :func:`parse_floats`;
 - pixels ``X,Y`` (repeatable options) and pixel lists ``X,Y;X,Y``: :func:`parse_pixel`, :func:`parse_pixels`;
-- grids ``COLSxROWS`` (board corners): :func:`parse_grid`.
+- grids ``COLSxROWS`` (board corners): :func:`parse_grid`;
+- output folders (``-o DIR``), checked before any work: :func:`output_folder`.
 """
 
 from __future__ import annotations
@@ -18,6 +19,7 @@ from __future__ import annotations
 import math
 import re
 from fractions import Fraction
+from pathlib import Path
 
 from solidkit.errors import InputError
 
@@ -31,6 +33,7 @@ __all__ = [
     "parse_floats",
     "parse_pixel",
     "parse_pixels",
+    "output_folder",
 ]
 
 MAX_SIDE = 32000  # OpenCV's remap and most image codecs stop below 32767 px
@@ -141,3 +144,14 @@ def parse_pixels(text: str, option: str) -> list[tuple[float, float]]:
     if not items:
         raise InputError(f"{option}: expected pixels X,Y separated by ';', e.g. 160,200;80,210")
     return [parse_pixel(p, option) for p in items]
+
+
+def output_folder(path: Path, option: str = "--out") -> Path:
+    """``path`` as a folder to write into: refused when it, or the nearest existing folder above it, is a file."""
+    path = Path(path)
+    for p in (path, *path.parents):
+        if p.exists():
+            if not p.is_dir():
+                raise InputError(f"{p}: exists and is not a folder ({option} {path})")
+            break
+    return path

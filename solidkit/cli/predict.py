@@ -17,7 +17,7 @@ import typer
 from rich.console import Console
 from rich.table import Table
 
-from solidkit.cli.parsing import parse_angle, parse_floats, parse_pixel
+from solidkit.cli.parsing import output_folder, parse_angle, parse_floats, parse_pixel
 from solidkit.envmap.coords import CONVENTIONS_VERSION
 from solidkit.envmap.io import read_ldr, tonemap, write_exr, write_ldr
 from solidkit.errors import InputError
@@ -53,6 +53,7 @@ def predict_command(
     from solidkit.envmap.perspective import intrinsics_from_fov
     from solidkit.model.solidnet import SolidNet
 
+    output_folder(out)
     pixels = [parse_pixel(a, "--at") for a in at]
     pitch, roll = parse_angle(pitch, "--pitch", -90.0, 90.0), parse_angle(roll, "--roll", -180.0, 180.0)
     if fov is not None:

@@ -14,7 +14,7 @@ from rich.console import Console
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
 from rich.table import Table
 
-from solidkit.cli.parsing import parse_exposures
+from solidkit.cli.parsing import output_folder, parse_exposures
 from solidkit.errors import InputError
 
 app = typer.Typer(no_args_is_help=True)
@@ -51,6 +51,7 @@ def dataset(
     from solidkit.synth.sample import SampleConfig
 
     logging.basicConfig(level=logging.INFO, format="%(message)s")
+    output_folder(out)
     sh = parse_shard(shard)
     used = select_variant(variant)
     ref = ReferenceSet.from_dir(reference) if reference is not None else None
@@ -94,6 +95,7 @@ def sources(
     from solidkit.synth.panocrops import SourceConfig, render_sources
     from solidkit.synth.renderer import select_variant
 
+    output_folder(out)
     sh = parse_shard(shard)
     used = select_variant(variant)
     cfg = SourceConfig(height=height, spp=spp, exclude_hdr=tuple(exclude_hdr))
@@ -120,10 +122,10 @@ def filter_cmd(
     from solidkit.synth.filter import ReferenceSet
     from solidkit.synth.sample import FILES
 
-    ref = ReferenceSet.from_dir(reference)
     metas = sorted((out / "samples").glob(f"*/{FILES['meta']}"))
     if not metas:
-        raise InputError(f"{out}: no samples")
+        raise InputError(f"{out}: no samples (not a dataset of 'solidkit synth dataset')")
+    ref = ReferenceSet.from_dir(reference)
     kept = 0
     for meta in metas:
         rec = json.loads(meta.read_text())
@@ -164,6 +166,7 @@ def campaign(
     if preset not in PRESETS:
         raise InputError(f"--preset: expected one of {', '.join(PRESETS)}, got '{preset}'")
     logging.basicConfig(level=logging.INFO, format="%(message)s")
+    output_folder(out)
     used = select_variant(variant)
     given: dict[str, object] = {}
     if brackets is not None:

@@ -196,6 +196,8 @@ def read_image(path: str | os.PathLike) -> tuple[np.ndarray, dict[str, Any]]:
         return img[..., :3], meta
     if path.suffix.lower() in LDR_SUFFIXES:
         return read_ldr(path, linear=True), {"ldr": True}
+    if path.is_dir():
+        raise InputError(f"{path}: is a folder, not an image file")
     raise InputError(f"{path}: unknown image type '{path.suffix}' (expected .exr or an LDR format)")
 
 
