@@ -13,6 +13,7 @@ import torch
 from typer.testing import CliRunner
 
 from solidkit.envmap.io import read_exr, write_ldr
+from solidkit.envmap.sun import detect_sun
 from solidkit.errors import ConventionsError, InputError, SolidkitError
 from solidkit.model.config import SolidNetConfig, preset
 from solidkit.model.solidnet import (
@@ -106,7 +107,7 @@ def test_predict_outputs_and_pixel_scaling(tiny_ckpt):
     assert pred.sky.shape == (128, 256, 3) and pred.sky.dtype == np.float32
     assert len(pred.local) == 2 and all(x.shape == (128, 256, 3) for x in pred.local)
     assert pred.centres.shape == (2, 3) and np.isfinite(pred.centres).all()
-    assert hasattr(pred.sun, "found")
+    assert pred.sun.to_json() == detect_sun(pred.sky, "core").to_json()  # the sun reported is its own sky's
     small = model.predict(img, [(49.75, 199.75)], pitch=math.radians(3.0))  # same point at half resolution
     assert np.allclose(small.centres[0], pred.centres[0], atol=0.2)
     with pytest.raises(InputError):

@@ -131,3 +131,56 @@ def test_non_shadow_mask_otsu():
     valid = torch.ones_like(m)
     valid[..., 9, :] = False
     assert not non_shadow_mask(s, valid)[..., 9, :].any()
+
+
+# --- hand-computed pins of the paper's loss functions (§4.3, eq. 4, 5, 7): an L1 where the paper says L2
+# (or the reverse), a sum instead of a mean or a dropped mask changes these numbers.
+def _img(*values):
+    return torch.tensor(values, dtype=torch.float64).view(1, 1, 1, -1)
+
+
+def test_sup1_pixel_losses_pinned():
+    pred, target = _img(0.0, 0.0), _img(1.0, 3.0)
+    assert albedo_loss(pred, target).item() == 5.0  # L2: (1 + 9) / 2
+    assert shadow_loss(pred, target).item() == 5.0  # L2
+    assert distance_loss(pred, target).item() == 2.0  # L1: (1 + 3) / 2
+    second = torch.tensor([False, True]).view(1, 1, 1, 2)
+    assert albedo_loss(pred, target, second).item() == 9.0 and distance_loss(pred, target, second).item() == 3.0
+    nothing = torch.zeros(1, 1, 1, 2, dtype=torch.bool)
+    assert albedo_loss(pred, target, nothing).item() == 0.0  # an empty mask is 0, not NaN
+
+
+def test_normal_cosine_loss_pinned():
+    x = torch.tensor([1.0, 0.0, 0.0]).view(1, 3, 1, 1)
+    y = torch.tensor([0.0, 1.0, 0.0]).view(1, 3, 1, 1)
+    at60 = torch.tensor([0.5, math.sqrt(3) / 2, 0.0]).view(1, 3, 1, 1)
+    assert normal_loss(x, y).item() == pytest.approx(1.0)  # 1 - cos 90°
+    assert normal_loss(-x, x).item() == pytest.approx(2.0)  # opposite
+    assert normal_loss(at60, x).item() == pytest.approx(0.5, abs=1e-6)  # 1 - cos 60°
+    assert normal_loss(3.0 * x, x).item() == pytest.approx(0.0, abs=1e-7)  # the length of the prediction is ignored
+
+
+def test_sky_and_local_l1_in_log1p_pinned():
+    target = _img(0.0, math.e - 1.0)  # log1p: 0, 1
+    pred_log = _img(0.5, 0.0)
+    assert hdr_l1_loss(pred_log, target).item() == pytest.approx(0.75)  # (|0.5 - 0| + |0 - 1|) / 2; an L2 gives 0.625
+    assert sup2_loss(pred_log, target).item() == pytest.approx(0.75)
+
+
+def test_reconstruction_and_diffuse_losses_pinned():
+    """L_rec with a constant SH (shading = L_0 for every normal): ((I - (A L_0)^(1/2.2))^2, masked mean."""
+    L = torch.zeros(1, 3, 9, dtype=torch.float64)
+    L[..., 0] = 0.25
+    normals = _unit(1, 3, 1, 2).double()
+    image = torch.full((1, 3, 1, 2), 0.5, dtype=torch.float64)
+    image[..., 1] = 0.9  # masked out below
+    albedo = torch.ones(1, 3, 1, 2, dtype=torch.float64)
+    mask = torch.tensor([True, False]).view(1, 1, 1, 2)
+    expected = (0.5 - 0.25 ** (1 / 2.2)) ** 2  # 0.0010575...
+    assert reconstruction_loss(image, albedo, normals, L, mask).item() == pytest.approx(expected, rel=1e-9)
+    # L_dif of a constant sky c: D(H) = c / 2; relit with L_0 = 0.6 c the error is (0.1 c)^2, channel mean
+    c = torch.tensor([2.0, 1.0, 0.5], dtype=torch.float64)
+    sky = c.view(1, 3, 1, 1).expand(1, 3, 32, 64).contiguous()
+    L = torch.zeros(1, 3, 9, dtype=torch.float64)
+    L[..., 0] = 0.6 * c
+    assert diffuse_loss(sky, L).item() == pytest.approx(((0.1 * c) ** 2).mean().item(), rel=1e-3)  # 0.0175; D on a 32x64 grid
