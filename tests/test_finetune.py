@@ -120,3 +120,16 @@ def test_kfold_finetuning_runs_records_the_split_and_lowers_the_training_loss(to
     assert set(res["effect"]) == {"local_ssim", "local_mae", "sun_angle/paper", "sun_angle/core"}
     # the original model is untouched (fine-tuning works on copies)
     assert all(p.requires_grad for p in net.parameters())
+
+
+def test_panorama_crops_carry_the_sun_into_each_photo_frame():
+    from solidkit.envmap.coords import angles_from_direction
+    from solidkit.finetune.evaluate import SHIPPED_PANORAMAS, items_from_panoramas
+
+    items = items_from_panoramas([SHIPPED_PANORAMAS / "city.exr"], yaws=4, size=(64, 48), height=32)
+    assert [i.id for i in items] == ["city@000", "city@090", "city@180", "city@270"]
+    az = [math.degrees(float(angles_from_direction(i.sun)[0])) for i in items]
+    # the panorama's sun (35.9° azimuth, tests/test_demo history) seen from photos turned by 0, 90, 180, 270°
+    for k, a in enumerate(az):
+        assert (a - (35.93 - 90 * k) + 180) % 360 - 180 == pytest.approx(0.0, abs=0.3)
+    assert items[0].global_hdr.shape == (32, 64, 3) and items[0].image.shape == (48, 64, 3)

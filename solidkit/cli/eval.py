@@ -31,14 +31,33 @@ def eval_command(
     synthetic: Path | None = typer.Option(None, "--synthetic", help="Synthetic split (solidkit synth dataset folder)."),
     out: Path = typer.Option(Path("eval_report"), "-o", "--out", help="Report folder (report.html, report.md, figures/, results.json)."),
     baseline: list[str] | None = typer.Option(None, "--baseline", help="Extra checkpoint NAME=CKPT evaluated side by side (ablations; repeatable)."),
+    panoramas: list[Path] | None = typer.Option(None, "--panoramas", help="Real HDR panorama (EXR) or a folder of them: photos "
+                                                "cropped at 8 headings, global map and sun only (repeatable)."),
+    shipped_panoramas: bool = typer.Option(False, "--shipped-panoramas", help="Add the real HDR panoramas shipped with solidkit."),
     limit: int | None = typer.Option(None, min=1, help="Evaluate only the first N photos of each dataset."),
     grids: int = typer.Option(6, min=0, help="Qualitative grids per dataset."),
     as_json: bool = typer.Option(False, "--json", help="Print the summaries as JSON on stdout."),
 ) -> None:
     """Sun azimuth/elevation error, global MAE and local SSIM/MAE for the model and baselines; a report."""
     extra = parse_named_paths(baseline, "--baseline")
-    if testset is None and synthetic is None:
-        raise InputError("give a real test set (--testset DIR) and/or a synthetic split (--synthetic DIR)")
+    panos: list[Path] = []
+    for p in panoramas or []:
+        if p.is_dir():
+            found = sorted(p.glob("*.exr"))
+            if not found:
+                raise InputError(f"--panoramas {p}: no .exr panorama in this folder")
+            panos += found
+        elif p.is_file():
+            panos.append(p)
+        else:
+            raise InputError(f"--panoramas {p}: no such file or folder")
+    if shipped_panoramas:
+        from solidkit.finetune.evaluate import SHIPPED_PANORAMAS
+
+        panos += sorted(SHIPPED_PANORAMAS.glob("*.exr"))
+    if testset is None and synthetic is None and not panos:
+        raise InputError("give a real test set (--testset DIR), a synthetic split (--synthetic DIR) and/or HDR panoramas "
+                         "(--panoramas, --shipped-panoramas)")
     for p in [model, *extra.values()]:
         if p is not None and not p.is_file():
             raise InputError(f"{p}: no such checkpoint")
@@ -51,7 +70,7 @@ def eval_command(
     from solidkit.finetune.report import evaluation_report
 
     res = evaluation_report(out, model, testset, synthetic, extra, limit=limit, max_grids=grids,
-                            log=lambda s: typer.echo(s, err=True))
+                            log=lambda s: typer.echo(s, err=True), panoramas=panos)
     if as_json:
         typer.echo(json.dumps({ds: r["summary"] for ds, r in res["results"].items()}, indent=1, default=float))
     typer.echo(f"report: {res['report']}", err=True)

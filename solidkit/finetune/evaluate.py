@@ -50,6 +50,8 @@ __all__ = [
     "MeanBaseline",
     "items_from_synth",
     "items_from_testset",
+    "items_from_panoramas",
+    "SHIPPED_PANORAMAS",
     "default_methods",
     "load_model",
     "shipped_ablations",
@@ -148,8 +150,10 @@ class ModelMethod(Method):
         key = f"{item.scene}/{item.id}"
         if key not in self._cache:
             t0 = time.perf_counter()
-            pred = self.model.predict(item.image, item.pixels, K=item.K, pitch=item.pitch, roll=item.roll)
-            local = list(pred.local) if getattr(pred, "local", None) else None
+            h, w = item.image.shape[:2]
+            pixels = item.pixels if len(item.pixels) else np.array([[(w - 1) / 2, 0.9 * (h - 1)]])  # global map only
+            pred = self.model.predict(item.image, pixels, K=item.K, pitch=item.pitch, roll=item.roll)
+            local = list(pred.local)[:len(item.probe_ids)] if getattr(pred, "local", None) else None
             self._cache[key] = Prediction(pred.sky, local, time.perf_counter() - t0,
                                           {"probe_valid": (pred.extra or {}).get("probe_valid")})
         return self._cache[key]
@@ -249,6 +253,51 @@ def items_from_synth(root: str | os.PathLike, indices: Iterable[int] | None = No
             probes_saturated=[s[1] for s in sims], probes_hdr=hdr, source="synthetic",
             photo_path=str(Path(root) / ds.entries[i]["dir"]),
         ))
+    return items
+
+
+SHIPPED_PANORAMAS = Path(__file__).resolve().parents[1] / "assets" / "hdr_panoramas"
+"""Real outdoor HDR panoramas shipped with the package (Poly Haven, CC0)."""
+
+
+def items_from_panoramas(
+    paths: Sequence[str | os.PathLike], yaws: int = 8, pitch_deg: float = 5.0, hfov_deg: float = 60.0,
+    size: tuple[int, int] = (320, 240), height: int = 128,
+) -> list[EvalItem]:
+    """Virtual photos cropped from real HDR panoramas (as Hold-Geoffroy et al. evaluate), global map only.
+
+    Per panorama, ``yaws`` photos at equally spaced headings (``pitch_deg`` up, ``hfov_deg`` wide,
+    ``size`` pixels, LDR by the paper's tonemap as the synthetic photos are). Truth: the panorama
+    turned into each photo's panorama frame and resized to ``height`` (energy-preserving), and its
+    sun from the default detector (``None`` when it finds none: an occluded or overcast sky). No
+    local probes. Each panorama is one scene.
+    """
+    from solidkit.envmap.coords import rotation_from_ypr
+    from solidkit.envmap.io import read_image, tonemap, validate_panorama
+    from solidkit.envmap.perspective import intrinsics_from_fov, perspective_crop
+    from solidkit.envmap.resample import resize, rotate
+    from solidkit.envmap.sun import detect_sun
+
+    K = intrinsics_from_fov(math.radians(hfov_deg), *size)
+    items = []
+    for path in paths:
+        pano, _ = read_image(path)
+        validate_panorama(pano, str(path))
+        pano = pano[..., :3]
+        sun = detect_sun(pano, "core")
+        small = resize(pano, height)
+        name = Path(path).stem
+        for k in range(yaws):
+            yaw = 2 * math.pi * k / yaws
+            R = np.asarray(rotation_from_ypr(yaw, math.radians(pitch_deg), 0.0))
+            photo = perspective_crop(pano, R, size, K=K)
+            Ry = np.asarray(rotation_from_ypr(yaw))
+            items.append(EvalItem(
+                scene=name, id=f"{name}@{round(math.degrees(yaw)):03d}", image=np.clip(tonemap(photo), 0, 1).astype(np.float32),
+                K=K, pitch=math.radians(pitch_deg), roll=0.0, pixels=np.zeros((0, 2)), probe_ids=[],
+                sun=(Ry.T @ sun.direction) if sun.found else None, global_hdr=rotate(small, Ry.T),
+                probes_ldr=[], probes_saturated=[], probes_hdr=[], source="real-hdr-crops", photo_path=str(path),
+            ))
     return items
 
 

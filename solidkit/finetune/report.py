@@ -84,8 +84,11 @@ def metric_tables(runs: dict[str, dict[str, Any]], methods: Sequence[str] | None
     """Markdown: one table per metric; rows = methods, columns = (dataset x {median, mean}) + n."""
     names = list(methods or dict.fromkeys(m["name"] for r in runs.values() for m in r["methods"]))
     out = []
+    def has(summary: dict[str, Any], key: str) -> bool:  # a method without any sun still shows its no-sun rate
+        return key in summary or ("/" in key and f"no_sun_rate/{key.split('/')[1]}" in summary)
+
     for key, (label, unit, higher) in METRICS.items():
-        if not any(key in r["summary"].get(m, {}) for r in runs.values() for m in names):
+        if not any(has(r["summary"].get(m, {}), key) for r in runs.values() for m in names):
             continue
         header = ["method"]
         for ds in runs:
@@ -97,7 +100,7 @@ def metric_tables(runs: dict[str, dict[str, Any]], methods: Sequence[str] | None
         rows = []
         for m in names:
             cells = [m]
-            if not any(key in r["summary"].get(m, {}) for r in runs.values()):
+            if not any(has(r["summary"].get(m, {}), key) for r in runs.values()):
                 continue
             for r in runs.values():
                 s = r["summary"].get(m, {}).get(key)
@@ -313,26 +316,29 @@ def evaluation_report(
     max_grids: int = 6,
     log: Any = None,
     ablations: bool = True,
+    panoramas: Sequence[str | os.PathLike] | None = None,
 ) -> dict[str, Any]:
     """``solidkit eval``: evaluate ``model`` (default: the shipped checkpoint) and the baselines on a
-    real test set and/or a synthetic split (with ``ablations``, also every checkpoint shipped beside the default
-    one); write ``results.json``, ``report.md``, ``report.html``
+    real test set and/or a synthetic split and/or photos cropped from real HDR ``panoramas`` (with ``ablations``,
+    also every checkpoint shipped beside the default one); write ``results.json``, ``report.md``, ``report.html``
     and ``figures/`` into ``out``. Returns ``{"results": {dataset: result}, "report": path}``."""
     import torch
 
     from solidkit.errors import InputError
-    from solidkit.finetune.evaluate import (default_methods, evaluate, items_from_synth, items_from_testset, load_model,
-                                            save_json, shipped_ablations)
+    from solidkit.finetune.evaluate import (default_methods, evaluate, items_from_panoramas, items_from_synth,
+                                            items_from_testset, load_model, save_json, shipped_ablations)
 
     log = log or (lambda s: None)
-    if testset is None and synthetic is None:
-        raise InputError("give a real test set (--testset DIR) and/or a synthetic split (--synthetic DIR)")
+    if testset is None and synthetic is None and not panoramas:
+        raise InputError("give a real test set (--testset DIR), a synthetic split (--synthetic DIR) and/or HDR panoramas")
     torch.set_num_threads(1)  # a 2-core machine shared with other jobs; inference is small
     datasets: dict[str, Any] = {}
     if testset is not None:
         datasets["real"] = items_from_testset(testset)
     if synthetic is not None:
         datasets["synthetic"] = items_from_synth(synthetic, limit=limit)
+    if panoramas:
+        datasets["real HDR crops"] = items_from_panoramas(panoramas)
     if limit is not None and "real" in datasets:
         datasets["real"] = datasets["real"][:limit]
     net = load_model(model)
