@@ -153,7 +153,7 @@ def _html(ts: TestSet, sheets: dict[str, str]) -> str:
         probes = "".join(
             f"<tr><td>{k + 1}</td><td>{e(p.id)}</td><td>{p.pixel[0]:.1f}, {p.pixel[1]:.1f}</td><td>{e(p.pixel_source)}</td>"
             f"<td>{p.alignment.yaw_deg:.2f}</td><td>{'' if p.alignment.residual_deg is None else f'{p.alignment.residual_deg:.2f}'}</td>"
-            f"<td>{e(p.alignment.source)}</td><td>{'yes' if p.hdr else 'no'}</td><td>{p.images.saturated_fraction:.3f}</td>"
+            f"<td>{e(p.alignment.source)}</td><td>{'yes' if p.hdr else 'no'}</td><td>{100 * p.images.saturated_fraction:.2f} %</td>"
             f"<td class=flag>{e(', '.join(p.flags))}</td></tr>" for k, p in enumerate(s.probes))
         rows.append(
             f"<section id='{e(s.id)}'><h2>{e(s.id)}</h2>"
@@ -162,7 +162,7 @@ def _html(ts: TestSet, sheets: dict[str, str]) -> str:
             f"K from {e(s.K_source)}; photo {s.photo_full_size[0]}×{s.photo_full_size[1]}</p>"
             + (f"<p class=flag>flags: {e(', '.join(sorted(set(s.flags) | set(sun.flags))))}</p>" if s.flags or sun.flags else "")
             + "<table><tr><th>#</th><th>probe</th><th>pixel (320×240)</th><th>pixel from</th><th>yaw °</th>"
-            "<th>residual °</th><th>rotation from</th><th>HDR</th><th>saturated</th><th>flags</th></tr>"
+            "<th>residual °</th><th>rotation from</th><th>HDR</th><th>clipped (solid angle)</th><th>flags</th></tr>"
             f"{probes}</table><img src='{e(sheets[s.id])}' alt='contact sheet of {e(s.id)}'></section>")
     n_probes = sum(len(s.probes) for s in ts.scenes)
     return (
