@@ -46,13 +46,26 @@ __all__ = [
 
 
 def namespace(*arrays: Any) -> Any:
-    """Array-API namespace of ``arrays`` (NumPy or torch); Python scalars are ignored."""
+    """Array-API namespace of ``arrays`` (NumPy or torch); Python scalars are ignored.
+
+    Examples
+    --------
+    >>> namespace(np.zeros(3), 2.0).__name__
+    'array_api_compat.numpy'
+    """
     arrays = [a for a in arrays if not isinstance(a, (int, float))]
     return array_api_compat.array_namespace(*arrays) if arrays else array_api_compat.array_namespace(np.zeros(0))
 
 
 def module_namespace(module: Any) -> Any:
-    """Array-API namespace for a module given by the caller (``numpy`` or ``torch``)."""
+    """Array-API namespace for a module given by the caller (``numpy`` or ``torch``).
+
+    Examples
+    --------
+    >>> xp = module_namespace(np)
+    >>> xp.__name__
+    'array_api_compat.numpy'
+    """
     return array_api_compat.array_namespace(module.zeros(0))
 
 
@@ -71,6 +84,12 @@ def angles_from_coords(x: Any, y: Any, height: int) -> tuple[Any, Any]:
     (phi, theta) : arrays (...)
         Azimuth in ``[-pi, pi)`` (0 = forward, positive to the right) and elevation in
         ``[-pi/2, pi/2]`` (positive up), radians.
+
+    Examples
+    --------
+    >>> phi, theta = angles_from_coords(192.0, 32.0, 128)  # W = 256
+    >>> round(math.degrees(phi), 9), round(math.degrees(theta), 9)
+    (90.0, 45.0)
     """
     phi = x * (math.pi / height) - math.pi
     theta = math.pi / 2 - y * (math.pi / height)
@@ -78,7 +97,14 @@ def angles_from_coords(x: Any, y: Any, height: int) -> tuple[Any, Any]:
 
 
 def coords_from_angles(phi: Any, theta: Any, height: int) -> tuple[Any, Any]:
-    """Inverse of :func:`angles_from_coords`; ``x`` is wrapped into ``[0, W)``."""
+    """Inverse of :func:`angles_from_coords`; ``x`` is wrapped into ``[0, W)``.
+
+    Examples
+    --------
+    >>> x, y = coords_from_angles(math.pi / 2, math.pi / 4, 128)
+    >>> float(x), float(y)
+    (192.0, 32.0)
+    """
     width = 2 * height
     x = ((phi + math.pi) * (height / math.pi)) % width
     y = (math.pi / 2 - theta) * (height / math.pi)
@@ -86,14 +112,29 @@ def coords_from_angles(phi: Any, theta: Any, height: int) -> tuple[Any, Any]:
 
 
 def direction_from_angles(phi: Any, theta: Any) -> Any:
-    """Unit direction ``(cos t sin p, -sin t, cos t cos p)``; shape ``(..., 3)``."""
+    """Unit direction ``(cos t sin p, -sin t, cos t cos p)``; shape ``(..., 3)``.
+
+    Examples
+    --------
+    >>> np.round(direction_from_angles(math.pi / 2, 0.0), 12) + 0.0  # azimuth 90°: right
+    array([1., 0., 0.])
+    >>> np.round(direction_from_angles(0.0, math.pi / 2), 12) + 0.0  # elevation 90°: up (-y)
+    array([ 0., -1.,  0.])
+    """
     xp = namespace(phi, theta)
     ct = xp.cos(theta)
     return xp.stack([ct * xp.sin(phi), -xp.sin(theta), ct * xp.cos(phi)], axis=-1)
 
 
 def angles_from_direction(d: Any) -> tuple[Any, Any]:
-    """Azimuth ``atan2(dx, dz)`` and elevation ``asin(-dy)`` of (not necessarily unit) ``d (..., 3)``."""
+    """Azimuth ``atan2(dx, dz)`` and elevation ``asin(-dy)`` of (not necessarily unit) ``d (..., 3)``.
+
+    Examples
+    --------
+    >>> phi, theta = angles_from_direction(np.array([1.0, -1.0, 0.0]))  # right and up
+    >>> round(math.degrees(phi), 9), round(math.degrees(theta), 9)
+    (90.0, 45.0)
+    """
     xp = namespace(d)
     norm = xp.sqrt(d[..., 0] ** 2 + d[..., 1] ** 2 + d[..., 2] ** 2)
     phi = xp.atan2(d[..., 0], d[..., 2])
@@ -103,12 +144,25 @@ def angles_from_direction(d: Any) -> tuple[Any, Any]:
 
 
 def coords_from_direction(d: Any, height: int) -> tuple[Any, Any]:
-    """Continuous equirect coordinates ``(x, y)`` of directions ``d (..., 3)``."""
+    """Continuous equirect coordinates ``(x, y)`` of directions ``d (..., 3)``.
+
+    Examples
+    --------
+    >>> x, y = coords_from_direction(np.array([1.0, 0.0, 0.0]), 128)
+    >>> float(x), float(y)
+    (192.0, 64.0)
+    """
     return coords_from_angles(*angles_from_direction(d), height)
 
 
 def direction_from_coords(x: Any, y: Any, height: int) -> Any:
-    """Unit directions ``(..., 3)`` of continuous equirect coordinates."""
+    """Unit directions ``(..., 3)`` of continuous equirect coordinates.
+
+    Examples
+    --------
+    >>> np.round(direction_from_coords(128.0, 64.0, 128), 12) + 0.0  # the centre is forward
+    array([0., 0., 1.])
+    """
     return direction_from_angles(*angles_from_coords(x, y, height))
 
 
@@ -124,6 +178,14 @@ def angles_grid(height: int, xp: Any = np, **kw: Any) -> tuple[Any, Any]:
     """Azimuth and elevation of every pixel centre, each ``(H, 2H)``.
 
     ``xp`` is ``numpy`` (default) or ``torch``; ``kw`` go to ``xp.arange`` (``dtype``, ``device``).
+
+    Examples
+    --------
+    >>> phi, theta = angles_grid(2)
+    >>> np.degrees(phi)[0]
+    array([-135.,  -45.,   45.,  135.])
+    >>> np.degrees(theta)[:, 0]
+    array([ 45., -45.])
     """
     kw.setdefault("dtype", xp.float64 if xp is np else xp.float32)
     xx, yy = _pixel_centres(height, module_namespace(xp), **kw)
@@ -135,6 +197,14 @@ def direction_grid(height: int, xp: Any = np, **kw: Any) -> Any:
 
     The same formula as :func:`direction_from_angles`, evaluated on one row of azimuths and one
     column of elevations (the grid is separable), so the trigonometry costs O(H + W), not O(HW).
+
+    Examples
+    --------
+    >>> d = direction_grid(64)
+    >>> d.shape
+    (64, 128, 3)
+    >>> bool(np.allclose(np.linalg.norm(d, axis=-1), 1.0))
+    True
     """
     kw.setdefault("dtype", xp.float64 if xp is np else xp.float32)
     ns = module_namespace(xp)
@@ -151,6 +221,14 @@ def solid_angle(height: int, xp: Any = np, **kw: Any) -> Any:
     """Exact solid angle of every pixel, ``(H, 2H)`` steradians, summing to ``4 pi``.
 
     ``Omega(v) = (2 pi / W) (sin theta_top(v) - sin theta_bottom(v))``.
+
+    Examples
+    --------
+    >>> omega = solid_angle(64)
+    >>> omega.shape
+    (64, 128)
+    >>> round(float(omega.sum()) / (4 * math.pi), 12)
+    1.0
     """
     kw.setdefault("dtype", xp.float64 if xp is np else xp.float32)
     ns = module_namespace(xp)
@@ -174,17 +252,35 @@ def _elementary(angle: Any, axes: tuple[int, int]) -> Any:
 
 
 def rotation_x(angle: Any) -> Any:
-    """``R_x``: right-handed rotation about x (right); maps forward z toward -y (up) for angle > 0."""
+    """``R_x``: right-handed rotation about x (right); maps forward z toward -y (up) for angle > 0.
+
+    Examples
+    --------
+    >>> np.round(rotation_x(math.pi / 2) @ [0.0, 0.0, 1.0], 12) + 0.0  # forward turns up
+    array([ 0., -1.,  0.])
+    """
     return _elementary(angle, (1, 2))
 
 
 def rotation_y(angle: Any) -> Any:
-    """``R_y``: right-handed rotation about y (down); maps forward z toward +x (right) for angle > 0."""
+    """``R_y``: right-handed rotation about y (down); maps forward z toward +x (right) for angle > 0.
+
+    Examples
+    --------
+    >>> np.round(rotation_y(math.pi / 2) @ [0.0, 0.0, 1.0], 12) + 0.0  # forward turns right
+    array([1., 0., 0.])
+    """
     return _elementary(angle, (2, 0))
 
 
 def rotation_z(angle: Any) -> Any:
-    """``R_z``: right-handed rotation about z (forward); maps right x toward +y (down) for angle > 0."""
+    """``R_z``: right-handed rotation about z (forward); maps right x toward +y (down) for angle > 0.
+
+    Examples
+    --------
+    >>> np.round(rotation_z(math.pi / 2) @ [1.0, 0.0, 0.0], 12) + 0.0  # right turns down
+    array([0., 1., 0.])
+    """
     return _elementary(angle, (0, 1))
 
 
@@ -194,6 +290,12 @@ def rotation_from_ypr(yaw: Any, pitch: Any = 0.0, roll: Any = 0.0) -> Any:
     ``R`` maps camera-frame vectors to panorama-frame vectors: a camera with this orientation
     looks at azimuth ``yaw`` and elevation ``pitch``, and ``roll > 0`` turns its right axis down.
     Non-finite Python-number angles raise :class:`~solidkit.errors.InputError`.
+
+    Examples
+    --------
+    >>> R = rotation_from_ypr(math.radians(90.0), math.radians(30.0))  # look right, 30° up
+    >>> np.round(R @ [0.0, 0.0, 1.0], 6) + 0.0
+    array([ 0.866025, -0.5     ,  0.      ])
     """
     arrays = [a for a in (yaw, pitch, roll) if not isinstance(a, (int, float))]
     if arrays:  # Python floats follow the array arguments' backend, dtype and device
@@ -212,6 +314,12 @@ def ypr_from_rotation(R: Any) -> tuple[Any, Any, Any]:
     """Inverse of :func:`rotation_from_ypr`: ``(yaw, pitch, roll)`` in radians.
 
     Pitch is in ``[-pi/2, pi/2]``; at pitch = ±pi/2 (gimbal lock) roll is returned as 0.
+
+    Examples
+    --------
+    >>> yaw, pitch, roll = ypr_from_rotation(rotation_from_ypr(0.3, -0.2, 0.1))
+    >>> round(float(yaw), 12), round(float(pitch), 12), round(float(roll), 12)
+    (0.3, -0.2, 0.1)
     """
     xp = namespace(R)
     # forward = R e_z = (cp sy, -sp, cp cy); right = R e_x = (cy cr + sy sp sr, cp sr, -sy cr + cy sp sr)
@@ -249,7 +357,16 @@ def rotation_from_rotvec(w: Any) -> Any:
 
 
 def angular_distance(a: Any, b: Any) -> Any:
-    """Angle in radians between directions ``a`` and ``b`` (``(..., 3)``), robust near 0 and pi."""
+    """Angle in radians between directions ``a`` and ``b`` (``(..., 3)``), robust near 0 and pi.
+
+    Examples
+    --------
+    >>> a, b = np.array([1.0, 0.0, 0.0]), np.array([1.0, 1e-9, 0.0])
+    >>> float(angular_distance(a, b))  # exact near 0, where acos(a . b) returns 0
+    1e-09
+    >>> round(math.degrees(float(angular_distance(a, np.array([0.0, 0.0, 1.0])))), 9)
+    90.0
+    """
     xp = namespace(a, b)
     cross = xp.linalg.cross(a, b)
     return xp.atan2(xp.sqrt(xp.sum(cross * cross, axis=-1)), xp.sum(a * b, axis=-1))

@@ -49,6 +49,15 @@ def read_exr(path: str | os.PathLike) -> tuple[np.ndarray, dict[str, Any]]:
     meta : dict
         The solidkit attributes written by :func:`write_exr` (e.g. ``exposure_time``,
         ``provenance``) plus ``"header"``: the raw OpenEXR header.
+
+    Examples
+    --------
+    >>> import tempfile
+    >>> folder = Path(tempfile.mkdtemp())
+    >>> path = write_exr(folder / 'sky.exr', np.full((2, 4, 3), 0.5, np.float32), {'note': 'a test'})
+    >>> image, meta = read_exr(path)
+    >>> image.shape, image.dtype, meta['note']
+    ((2, 4, 3), dtype('float32'), 'a test')
     """
     path = Path(path)
     if not path.is_file():
@@ -89,6 +98,14 @@ def write_exr(
     ``meta`` (JSON-serialisable: exposure time in seconds, provenance, ...) is stored in a
     ``solidkit`` string attribute together with the conventions version. ``half=True`` stores
     16-bit floats (values above 65504 become inf: refused).
+
+    Examples
+    --------
+    >>> import tempfile
+    >>> folder = Path(tempfile.mkdtemp())
+    >>> path = write_exr(folder / 'sky.exr', np.ones((2, 4, 3), np.float32) * 1e4, {'exposure_time': 0.001})
+    >>> float(read_exr(path)[0].max()), read_exr(path)[1]['exposure_time']
+    (10000.0, 0.001)
     """
     image = np.asarray(image)
     if image.ndim == 2:
@@ -116,14 +133,27 @@ def write_exr(
 
 
 def srgb_encode(linear: Any) -> Any:
-    """IEC 61966-2-1 sRGB encoding of linear values in [0, 1] (NumPy or torch)."""
+    """IEC 61966-2-1 sRGB encoding of linear values in [0, 1] (NumPy or torch).
+
+    Examples
+    --------
+    >>> np.round(srgb_encode(np.array([0.0, 0.0031308, 0.214, 1.0])), 6)
+    array([0.      , 0.04045 , 0.499956, 1.      ])
+    """
     xp = namespace(linear)
     x = xp.clip(linear, 0.0, 1.0)
     return xp.where(x <= 0.0031308, 12.92 * x, 1.055 * xp.clip(x, 0.0031308, 1.0) ** (1 / 2.4) - 0.055)
 
 
 def srgb_decode(encoded: Any) -> Any:
-    """Inverse of :func:`srgb_encode`."""
+    """Inverse of :func:`srgb_encode`.
+
+    Examples
+    --------
+    >>> x = np.linspace(0.0, 1.0, 5)
+    >>> bool(np.allclose(srgb_decode(srgb_encode(x)), x))
+    True
+    """
     xp = namespace(encoded)
     x = xp.clip(encoded, 0.0, 1.0)
     return xp.where(x <= 0.04045, x / 12.92, ((xp.clip(x, 0.04045, 1.0) + 0.055) / 1.055) ** 2.4)
@@ -133,6 +163,11 @@ def tonemap(hdr: Any, exposure: float = PAPER_EXPOSURE, gamma: float = PAPER_GAM
     """The paper's tonemap ``clip((2^e * H)^(1/gamma), 0, 1)`` (§4.3, L_tom); NumPy or torch.
 
     Negative inputs map to 0; the result is differentiable where ``0 < 2^e H < 1``.
+
+    Examples
+    --------
+    >>> np.round(tonemap(np.array([0.0, 1.0, 10.0])), 6)
+    array([0.      , 0.909809, 1.      ])
     """
     xp = namespace(hdr)
     scaled = xp.clip(hdr * (2.0**exposure), 1e-12, None)
@@ -157,7 +192,18 @@ def imread(path: str | os.PathLike, flags: int = cv2.IMREAD_UNCHANGED) -> np.nda
 
 
 def read_ldr(path: str | os.PathLike, *, linear: bool = False) -> np.ndarray:
-    """Read an 8/16-bit image as RGB float32 in [0, 1]; ``linear=True`` undoes sRGB."""
+    """Read an 8/16-bit image as RGB float32 in [0, 1]; ``linear=True`` undoes sRGB.
+
+    Examples
+    --------
+    >>> import tempfile
+    >>> path = Path(tempfile.mkdtemp()) / 'grey.png'
+    >>> _ = write_ldr(path, np.full((2, 2, 3), 0.5))
+    >>> float(read_ldr(path)[0, 0, 0])  # code 128 / 255
+    0.501960813999176
+    >>> round(float(read_ldr(path, linear=True)[0, 0, 0]), 6)  # sRGB-decoded
+    0.215861
+    """
     img = imread(path)
     scale = float(np.iinfo(img.dtype).max) if np.issubdtype(img.dtype, np.integer) else 1.0
     if img.ndim == 2:
@@ -170,6 +216,14 @@ def write_ldr(path: str | os.PathLike, image: np.ndarray, *, encode_srgb: bool =
     """Write RGB float in [0, 1] (or uint8) as 8-bit PNG/JPEG atomically.
 
     ``encode_srgb=True`` applies the sRGB transfer function to linear input first.
+
+    Examples
+    --------
+    >>> import tempfile
+    >>> path = Path(tempfile.mkdtemp()) / 'mid.png'
+    >>> _ = write_ldr(path, np.full((2, 2, 3), 0.214, np.float32), encode_srgb=True)
+    >>> int(cv2.imread(str(path))[0, 0, 0])  # linear 0.214 is sRGB 0.49996: code 127
+    127
     """
     image = np.asarray(image)
     if image.dtype != np.uint8:
@@ -187,7 +241,16 @@ def write_ldr(path: str | os.PathLike, image: np.ndarray, *, encode_srgb: bool =
 
 
 def read_image(path: str | os.PathLike) -> tuple[np.ndarray, dict[str, Any]]:
-    """Read an EXR (linear HDR) or an LDR file (sRGB decoded to linear); ``(H, W, 3)`` float32."""
+    """Read an EXR (linear HDR) or an LDR file (sRGB decoded to linear); ``(H, W, 3)`` float32.
+
+    Examples
+    --------
+    >>> import tempfile
+    >>> path = write_exr(Path(tempfile.mkdtemp()) / 'p.exr', np.ones((4, 8, 1), np.float32))
+    >>> image, meta = read_image(path)
+    >>> image.shape  # one channel repeated to RGB
+    (4, 8, 3)
+    """
     path = Path(path)
     if path.suffix.lower() == ".exr":
         img, meta = read_exr(path)
@@ -205,6 +268,15 @@ def validate_panorama(image: np.ndarray, name: str = "panorama") -> np.ndarray:
     """Check an equirectangular panorama: ``(H, 2H, C)``, finite; returns it unchanged.
 
     Raises :class:`~solidkit.errors.PanoramaError` with a one-line reason otherwise.
+
+    Examples
+    --------
+    >>> validate_panorama(np.zeros((4, 8, 3))).shape
+    (4, 8, 3)
+    >>> validate_panorama(np.zeros((4, 6, 3)), 'photo.exr')
+    Traceback (most recent call last):
+        ...
+    solidkit.errors.PanoramaError: photo.exr: not an equirectangular panorama: 6x4 (width must be 2 x height)
     """
     if image.ndim != 3:
         raise PanoramaError(f"{name}: expected an (H, W, C) image, got shape {image.shape}")

@@ -152,6 +152,13 @@ def project_to_pixels(K: Any, c: Any) -> tuple[Any, Any, Any]:
 
     Returns ``(x, y, in_front)``: OpenCV pixel coordinates (centres at integers) and a boolean
     mask of directions with ``c_z > 0``; behind the camera ``x, y`` are meaningless.
+
+    Examples
+    --------
+    >>> K = ideal_intrinsics(640, 480, 500.0)
+    >>> x, y, front = project_to_pixels(K, np.array([[0.0, 0.0, 1.0], [0.1, -0.2, 1.0], [0.0, 0.0, -1.0]]))
+    >>> x[:2], y[:2], front
+    (array([319.5, 369.5]), array([239.5, 139.5]), array([ True,  True, False]))
     """
     xp = namespace(c)
     p = _vecmat(c, xp.asarray(K, dtype=c.dtype, **({"device": c.device} if _is_torch(c) else {})).T)
@@ -196,6 +203,17 @@ def perspective_crop(
     -------
     ndarray (height, width[, C]) or tensor (B, C, height, width) / (C, height, width).
     Pixel ``(x, y)`` shows the panorama in direction ``R K⁻¹ (x, y, 1)``.
+
+    Examples
+    --------
+    >>> from solidkit.envmap.coords import rotation_from_ypr
+    >>> pano = np.zeros((64, 128, 3), np.float32)
+    >>> pano[:32] = 1.0  # bright sky, dark ground
+    >>> photo = perspective_crop(pano, rotation_from_ypr(0.0, 0.0), (8, 6), fov=math.radians(90.0))
+    >>> photo.shape
+    (6, 8, 3)
+    >>> photo[:, 0, 0]  # top rows see the sky, bottom rows the ground
+    array([1., 1., 1., 0., 0., 0.], dtype=float32)
     """
     _check_interp(interp)
     width, height = (int(s) for s in size)
@@ -237,6 +255,15 @@ def embed_perspective(photo: Any, K: Any, R: Any, height: int, interp: str = "li
         ``mask``: coverage, 1 where the pixel centre's direction projects inside the photo
         (within ``[-0.5, w - 0.5] x [-0.5, h - 0.5]``, in front of the camera), else 0;
         ndarray (H, 2H) float32 / tensor (B, 1, H, 2H).
+
+    Examples
+    --------
+    >>> photo = np.ones((6, 8, 3), np.float32)
+    >>> pano, covered = embed_perspective(photo, intrinsics_from_fov(math.radians(90.0), 8, 6), np.eye(3), 16)
+    >>> pano.shape, covered.shape
+    ((16, 32, 3), (16, 32))
+    >>> bool(covered[8, 16]), bool(covered[8, 0])  # forward is covered, backward is not
+    (True, False)
     """
     _check_interp(interp)
     height = int(height)

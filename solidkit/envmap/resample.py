@@ -109,6 +109,15 @@ def pad_panorama(pano: Any, pad: int = PAD) -> Any:
     Same type, ``(H + 2 pad, W + 2 pad[, C])`` or ``(..., C, H + 2 pad, W + 2 pad)``.
     Row ``-1 - k`` (above the top) is row ``k`` shifted by ``W/2`` columns, and likewise below
     the bottom; columns wrap around. Differentiable for tensors.
+
+    Examples
+    --------
+    >>> pano = np.arange(8.0).reshape(2, 4, 1) * np.ones(3)
+    >>> padded = pad_panorama(pano, 1)
+    >>> padded.shape
+    (4, 6, 3)
+    >>> padded[1, :, 0]  # the row wraps around the seam
+    array([3., 0., 1., 2., 3., 0.])
     """
     h = _pano_height(pano)
     if not 0 <= pad <= h:
@@ -214,6 +223,17 @@ def sample_panorama(pano: Any, directions: Any, interp: str = "linear", *, per_i
     Returns
     -------
     ndarray (..., [C]) for NumPy input; tensor (B, C, ...) / (C, ...) for torch input.
+
+    Examples
+    --------
+    >>> import math
+    >>> pano = np.zeros((32, 64, 3), np.float32)
+    >>> pano[:, 48:] = 1.0  # the right quarter (azimuth 90-180°)
+    >>> d = np.array([[1.0, 0.0, 1.0], [-1.0, 0.0, 1.0]]) / math.sqrt(2.0)  # azimuth 45° and -45°
+    >>> sample_panorama(pano, d)[:, 0]
+    array([0., 0.], dtype=float32)
+    >>> sample_panorama(pano, np.array([[1.0, 0.0, -1.0]]) / math.sqrt(2.0))[:, 0]  # azimuth 135°
+    array([1.], dtype=float32)
     """
     _check_interp(interp)
     h = _pano_height(pano)
@@ -343,6 +363,16 @@ def rotate(pano: Any, R: Any, interp: str = "linear", height: int | None = None)
     Returns
     -------
     Same type and layout as ``pano``, ``(height, 2 height)`` spatially.
+
+    Examples
+    --------
+    >>> import math
+    >>> from solidkit.envmap.coords import rotation_y
+    >>> pano = np.zeros((32, 64, 1), np.float32)
+    >>> pano[16, 32] = 1.0  # forward, at the horizon
+    >>> turned = rotate(pano, rotation_y(math.pi / 2))  # content moves 90° to the right
+    >>> tuple(int(i) for i in np.unravel_index(int(np.argmax(turned)), turned.shape)[:2])  # row 16, column 48
+    (16, 48)
     """
     _check_interp(interp)
     h = _pano_height(pano)
@@ -398,6 +428,17 @@ def downsample(pano: Any, factor: int) -> Any:
     Returns
     -------
     Same type/layout and dtype, ``(H / factor, W / factor)`` spatially. Differentiable for tensors.
+
+    Examples
+    --------
+    >>> from solidkit.envmap.coords import solid_angle
+    >>> pano = np.random.default_rng(0).random((64, 128, 3)).astype(np.float32)
+    >>> small = downsample(pano, 4)
+    >>> small.shape
+    (16, 32, 3)
+    >>> integral = lambda p: (p * solid_angle(p.shape[0])[..., None]).sum(axis=(0, 1))
+    >>> bool(np.allclose(integral(small), integral(pano), rtol=1e-5))
+    True
     """
     h = _pano_height(pano)
     factor = int(factor)
@@ -482,6 +523,17 @@ def resize(pano: Any, height: int) -> Any:
     Returns
     -------
     Same type/layout and dtype. Differentiable for tensors.
+
+    Examples
+    --------
+    >>> from solidkit.envmap.coords import solid_angle
+    >>> pano = np.random.default_rng(0).random((64, 128, 3)).astype(np.float32)
+    >>> small = resize(pano, 24)  # not a divisor of 64
+    >>> small.shape
+    (24, 48, 3)
+    >>> integral = lambda p: (p * solid_angle(p.shape[0])[..., None]).sum(axis=(0, 1))
+    >>> bool(np.allclose(integral(small), integral(pano), rtol=1e-5))
+    True
     """
     h = _pano_height(pano)
     height = int(height)

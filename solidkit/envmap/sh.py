@@ -198,6 +198,14 @@ def sh_basis(n: Any) -> Any:
     ``n (..., 3)`` in the panorama frame (x right, y down, z forward). ``n`` is not renormalised
     (the basis is a polynomial; gradients flow to ``n``). ``SH_ORTHONORMAL_SCALE * b`` are the
     orthonormal real SH of Ramamoorthi & Hanrahan (2001).
+
+    Examples
+    --------
+    >>> b = sh_basis(np.array([0.0, 0.0, 1.0]))
+    >>> b.shape
+    (9,)
+    >>> np.round(b, 6)
+    array([1., 0., 0., 1., 2., 0., 0., 0., 0.])
     """
     xp = namespace(n)
     x, y, z = n[..., 0], n[..., 1], n[..., 2]
@@ -237,6 +245,15 @@ def sh_project(pano: Any, height: int | None = None) -> Any:
     Returns
     -------
     array ``(..., C, 9)``, same backend, dtype and device as ``pano``.
+
+    Examples
+    --------
+    >>> sky = np.full((32, 64, 3), 2.0, np.float32)  # a constant sky of radiance 2
+    >>> L = sh_project(sky)
+    >>> L.shape
+    (3, 9)
+    >>> np.round(L[0], 3) + 0.0  # only the constant band
+    array([2., 0., 0., 0., 0., 0., 0., 0., 0.], dtype=float32)
     """
     x, xp = _working(pano, height)
     h = x.shape[-2]
@@ -251,6 +268,13 @@ def sh_render(L: Any, n: Any) -> Any:
     ``L (..., C, 9)`` and ``n (..., 3)``; the leading dimensions broadcast like a matmul batch
     (for an ``(H, W)`` image of normals and one ``L (C, 9)`` use ``L`` as is; for ``L (B, C, 9)``
     and normals ``(B, H, W, 3)`` pass ``L[:, None, None]``).
+
+    Examples
+    --------
+    >>> L = sh_project(np.full((32, 64, 1), 2.0, np.float32))
+    >>> np.round(sh_render(L, np.array([[0.0, -1.0, 0.0], [1.0, 0.0, 0.0]])), 3)  # 2 in every direction
+    array([[2.],
+           [2.]])
     """
     return (L @ sh_basis(n)[..., :, None])[..., 0]
 
@@ -264,6 +288,12 @@ def sh_irradiance(L: Any, kind: Literal["mean", "irradiance", "radiance"] = "mea
       paper's diffuse convolution ``D(H, i)`` (§4.3); a constant ``c`` gives ``c / 2``;
     * ``"irradiance"``: ``E(n) = int L(w) max(w.n, 0) dw``; a constant ``c`` gives ``pi c``;
     * ``"radiance"``: ``E(n) / pi``, the radiance of a white Lambertian surface; ``c`` gives ``c``.
+
+    Examples
+    --------
+    >>> L = sh_project(np.full((32, 64, 1), 2.0, np.float32))
+    >>> np.round(sh_irradiance(L)[0, :3], 6)  # 'mean': the cosine-weighted hemisphere mean is c / 2
+    array([1., 0., 0.], dtype=float32)
     """
     if kind not in LAMBERT_BAND_FACTORS:
         raise InputError(f"unknown kind {kind!r}; expected one of {sorted(LAMBERT_BAND_FACTORS)}")
@@ -290,6 +320,15 @@ def lambertian_sphere(L: Any, height: int, albedo: Any = None) -> Any:
     Returns
     -------
     NumPy ``(..., H, 2H, C)`` or torch ``(..., C, H, 2H)``.
+
+    Examples
+    --------
+    >>> L = sh_irradiance(sh_project(np.full((32, 64, 3), 2.0, np.float32)))
+    >>> sphere = lambertian_sphere(L, 8)
+    >>> sphere.shape
+    (8, 16, 3)
+    >>> np.round(sphere[4, 8], 3)  # c / 2 for every normal of the sphere
+    array([1., 1., 1.], dtype=float32)
     """
     xp = namespace(L)
     if albedo is not None:
@@ -417,6 +456,14 @@ def diffuse_convolution(pano: Any, normals: Any = None, *, height: int | None = 
     ``normals=None``: a panorama in the backend's layout (``(..., h, 2h, C)`` / ``(..., C, h, 2h)``,
     ``h`` the working height). Otherwise NumPy ``(..., *S, C)`` / torch ``(..., C, *S)``.
     Differentiable in torch with respect to ``pano`` (and ``normals``).
+
+    Examples
+    --------
+    >>> d = diffuse_convolution(np.full((32, 64, 3), 2.0, np.float32), height=8)
+    >>> d.shape
+    (8, 16, 3)
+    >>> np.round(d[4, 8], 2)  # c / 2 = 1 for a constant sky c (0.99 on this coarse grid)
+    array([0.99, 0.99, 0.99], dtype=float32)
     """
     x, xp = _working(pano, height)
     if normals is None:

@@ -171,6 +171,14 @@ def label_spherical(mask: np.ndarray) -> tuple[np.ndarray, int]:
         0 for background, ``1 .. n`` for the components, numbered in raster order of first pixel.
     n : int
         Number of components.
+
+    Examples
+    --------
+    >>> mask = np.zeros((8, 16), bool)
+    >>> mask[3, [0, 15]] = True  # two pixels either side of the seam
+    >>> labels, n = label_spherical(mask)
+    >>> n, bool(labels[3, 0] == labels[3, 15])  # one component across the seam
+    (1, True)
     """
     mask = np.asarray(mask, dtype=bool)
     labels, n = ndimage.label(mask, structure=np.ones((3, 3), dtype=bool))
@@ -211,6 +219,13 @@ def spherical_centroid(weights: np.ndarray, mask: np.ndarray | None = None) -> n
     ``n_p`` the unit direction and ``Omega_p`` the solid angle of pixel ``p``
     (:func:`~solidkit.envmap.coords.direction_from_coords`, :func:`~solidkit.envmap.coords.solid_angle`).
     Returns the unit vector ``(3,)`` float64, or ``None`` when the weighted sum vanishes.
+
+    Examples
+    --------
+    >>> w = np.zeros((8, 16))
+    >>> w[3, [7, 8]] = 1.0  # two pixels either side of forward
+    >>> np.round(spherical_centroid(w), 6) + 0.0
+    array([ 0.      , -0.198763,  0.980048])
     """
     weights = np.asarray(weights)
     h = weights.shape[0]
@@ -389,6 +404,14 @@ def sun_core(
     Returns
     -------
     SunDetection
+
+    Examples
+    --------
+    >>> pano = np.full((64, 128, 3), 0.5, np.float32)
+    >>> pano[20:22, 80:82] = 5e4
+    >>> sun = sun_core(pano)
+    >>> sun.found, sun.method, round(sun.x, 3), round(sun.y, 3)
+    (True, 'core', 81.0, 21.005)
     """
     pano, lum = _prepare(pano)
     h, w = lum.shape
@@ -471,6 +494,14 @@ def sun_paper(
     ``confidence = (1 - min_contrast / contrast) * f``, with ``f`` the fraction of the
     component's luminance energy (``L Omega``) within ``concentration_radius`` of the returned
     direction: low when the centroid sits in the sky beside the sun.
+
+    Examples
+    --------
+    >>> pano = np.full((64, 128, 3), 0.5, np.float32)
+    >>> pano[20:22, 80:82] = 5e4
+    >>> sun = sun_paper(pano)
+    >>> sun.found, sun.method, round(sun.x, 3), round(sun.y, 3)
+    (True, 'paper', 81.0, 21.005)
     """
     pano, lum = _prepare(pano)
     h, _ = lum.shape
@@ -525,6 +556,18 @@ def detect_sun(pano: np.ndarray, method: Method = "core", **kwargs: Any) -> SunD
     SunDetection
         ``found``, unit ``direction``, ``azimuth``/``elevation`` (radians), sub-pixel ``x, y``,
         ``confidence`` in ``[0, 1]``; the angles are ``None`` when no sun was found.
+
+    Examples
+    --------
+    >>> from solidkit.envmap.coords import coords_from_angles
+    >>> pano = np.full((64, 128, 3), 0.5, np.float32)
+    >>> x, y = coords_from_angles(math.radians(40.0), math.radians(30.0), 64)
+    >>> pano[int(y), int(x)] = 5e4  # the pixel holding azimuth 40°, elevation 30°
+    >>> sun = detect_sun(pano)
+    >>> sun.found, round(sun.azimuth_deg, 1), round(sun.elevation_deg, 1)  # that pixel's centre
+    (True, 40.8, 29.5)
+    >>> detect_sun(np.full((64, 128, 3), 0.5, np.float32)).found  # overcast: no sun
+    False
     """
     if method == "core":
         return sun_core(pano, **kwargs)
