@@ -120,6 +120,7 @@ class App {
   async switchTask(task, key = null) {
     if (!TASK_NAMES[task]) task = 'sun';
     if (task === 'review') this.setReviewing(false);
+    delete document.body.dataset.item;
     this.task = task;
     for (const b of document.querySelectorAll('#tabs button')) b.classList.toggle('active', b.dataset.task === task);
     const view = $('#view'), panel = $('#panel');
@@ -129,7 +130,7 @@ class App {
     ctl.mount(view, panel);
     document.body.dataset.task = task;
     await this.refreshQueue();
-    if (task === 'review') { ctl.render(this.queue); return; }
+    if (task === 'review') { ctl.render(this.queue); document.body.dataset.item = 'review'; return; }
     let pos = key ? this.queue.findIndex(q => q.key === key) : -1;
     if (pos < 0) pos = this.queue.findIndex(q => q.status !== 'done');
     if (pos < 0) pos = 0;
@@ -176,11 +177,15 @@ class App {
   async open(pos) {
     if (pos < 0 || pos >= this.queue.length) return;
     this.pos = pos;
-    const q = this.queue[pos];
-    history.replaceState(null, '', `#task=${this.task}&key=${encodeURIComponent(q.key)}`);
-    this.item = await api.item(this.task, q.key);
+    const q = this.queue[pos], task = this.task, ticket = (this._ticket = (this._ticket || 0) + 1);
+    history.replaceState(null, '', `#task=${task}&key=${encodeURIComponent(q.key)}`);
+    delete document.body.dataset.item;
+    const item = await api.item(task, q.key);
+    if (ticket !== this._ticket) return; // another item was opened meanwhile
+    this.item = item;
     this.renderQueue();
-    await this.controller(this.task).load(this.item);
+    await this.controller(task).load(item);
+    if (ticket === this._ticket) document.body.dataset.item = `${task}:${q.key}`; // loaded (tests wait for it)
   }
 
   async reload() {
@@ -196,14 +201,18 @@ class App {
     this.setReviewing(true);
   }
 
-  async next(step = 1) {
-    if (!this.queue.length) return;
-    let p = this.pos;
-    for (let i = 0; i < this.queue.length; i++) {
-      p = (p + step + this.queue.length) % this.queue.length;
-      if (this.filter === 'all' || this.queue[p].status === this.filter) break;
+  // the next (step 1) or previous (-1) item shown by the filter; `unfinished`: skip done items
+  async next(step = 1, unfinished = false) {
+    const n = this.queue.length;
+    if (!n) return;
+    const shown = q => this.filter === 'all' || q.status === this.filter;
+    let p = this.pos, found = -1;
+    for (let i = 1; i <= n; i++) {
+      const c = (this.pos + i * step + n * n) % n;
+      if (shown(this.queue[c]) && (!unfinished || this.queue[c].status !== 'done')) { found = c; break; }
+      if (p === this.pos && shown(this.queue[c])) p = c;
     }
-    await this.open(p);
+    await this.open(found >= 0 ? found : p);
   }
 
   // save `value` for the open item; true when stored. A conflict opens the conflict dialog and
@@ -219,7 +228,7 @@ class App {
       this.toast(`saved ${it.title} (v${res.version})`, 'ok');
       document.body.dataset.saved = `${it.kind}:${it.key}:${res.version}`;
       await this.refreshQueue();
-      if (advance && !this.reviewing) await this.next();
+      if (advance && !this.reviewing) await this.next(1, true);
       else await this.reload();
       return true;
     } catch (err) {
@@ -698,6 +707,7 @@ class HeadingTask {
     this.root.append(this.sphereBox, this.photoBox);
     this.panel = el('div', { class: 'panel-body', id: 'heading-panel' });
     this.exposure = 0;
+    this.overlay = 0.5;
     this.sphere = new SphereView(this.sphereBox, {
       onPick: null,
       dragTest: e => e.shiftKey || this.insideFrame(e),
@@ -770,6 +780,8 @@ class HeadingTask {
       if (it.proposal && it.proposal.yaw_deg != null) ms.push({ id: 'auto', polygon: this.outline(it.proposal.yaw_deg), style: { fill: 'none', stroke: '#fb923c', strokeWidth: '2px', strokeDasharray: '8 5' }, tooltip: `auto: ${formatValue('heading', it.proposal)}` });
       if (it.label) ms.push({ id: 'saved', polygon: this.outline(it.label.value.yaw_deg), style: { fill: 'none', stroke: '#4ade80', strokeWidth: '2px' }, tooltip: `saved: ${formatValue('heading', it.label.value)}` });
     }
+    const ol = this.outline(this.yaw), n = ol.length / 4;
+    if (this.overlay > 0) ms.push({ id: 'photo', imageLayer: imageUrl.preview(it.view.photo.image.id), corners: [ol[0], ol[n], ol[2 * n], ol[3 * n]], opacity: this.overlay, z: 5 });
     ms.push({ id: 'draft', polygon: this.outline(this.yaw), style: { fill: 'rgba(34,211,238,0.08)', stroke: '#22d3ee', strokeWidth: '2.5px' }, z: 20, tooltip: 'the photo’s frame: drag it (or Shift+drag, ←/→) to rotate' });
     ms.push({ id: 'draft-centre', azimuth_deg: wrap180(-this.yaw), elevation_deg: pitch, cls: 'centre', size: 18, z: 21 });
     this.sphere.setMarkers(ms);
@@ -780,7 +792,7 @@ class HeadingTask {
     const cues = Object.entries(v.cues || {});
     fill(this.panel,
       ...panelHeader(app, it),
-      el('p', { class: 'hint' }, 'Turn the photo’s frame (cyan) until the panorama inside it matches the photo below: drag inside the frame, Shift+drag anywhere, or ←/→.'),
+      el('p', { class: 'hint' }, 'Turn the photo’s frame (cyan, with the photo drawn inside it) until the photo lines up with the panorama: drag inside the frame, Shift+drag anywhere, or ←/→. O toggles the photo.'),
       el('div', { class: 'row' }, el('span', { class: 'swatch auto' }), 'Auto: ',
         this.hidden() ? el('i', {}, 'hidden') : el('b', { id: 'auto-value' }, it.proposal ? formatValue('heading', it.proposal) : 'none'),
         v.residual_deg != null && !this.hidden() ? el('span', { class: 'muted' }, ` (cue residual ${f2(v.residual_deg)}°)`) : null),
@@ -789,6 +801,7 @@ class HeadingTask {
       el('label', { class: 'slider' }, el('span', {}, 'Yaw (°)'),
         el('input', { type: 'number', id: 'yaw-input', step: 0.1, value: this.yaw, onchange: e => this.setYaw(+e.target.value) })),
       opinionsBlock(app, it),
+      slider('overlay', 'Photo overlay', 0, 1, 0.05, this.overlay, x => `${Math.round(x * 100)} %`, x => { this.overlay = x; this.renderMarkers(); }),
       slider('exposure-h', 'Exposure', -4, 8, 0.5, this.exposure, x => `${x > 0 ? '+' : ''}${x} EV`, x => { this.exposure = x; this.sphere.setExposure(x); }),
       el('div', { class: 'buttons' },
         button('Accept auto', 'A', () => this.accept(), 'btn-accept', 'primary'),
@@ -821,6 +834,12 @@ class HeadingTask {
       case 'a': case 'A': case 'Enter': this.accept(); return true;
       case 's': case 'S': this.saveDraft(); return true;
       case 'f': this.lookThrough(); return true;
+      case 'o': {
+        const s = $('#overlay');
+        this.overlayOn = this.overlay > 0 ? this.overlay : (this.overlayOn || 0.5);
+        if (s) { s.value = this.overlay > 0 ? 0 : this.overlayOn; s.dispatchEvent(new Event('input')); }
+        return true;
+      }
       case 'ArrowLeft': this.setYaw(this.yaw + step); return true;
       case 'ArrowRight': this.setYaw(this.yaw - step); return true;
       case '[': case ']': {

@@ -25,7 +25,13 @@ export class SphereView {
     container.addEventListener('mousedown', e => this._maybeDrag(e), true);
   }
 
-  async show(info, { azimuth_deg = 0, elevation_deg = 0, fov = 75 } = {}) {
+  // show a panorama; calls are queued (a second call while the first loads waits for it)
+  show(info, opts = {}) {
+    this._queue = (this._queue || Promise.resolve()).then(() => this._show(info, opts), () => this._show(info, opts));
+    return this._queue;
+  }
+
+  async _show(info, { azimuth_deg = 0, elevation_deg = 0, fov = 75 } = {}) {
     this.container.dataset.ready = '0';
     const panorama = {
       width: info.width, cols: info.tiles.cols, rows: info.tiles.rows,
@@ -99,7 +105,8 @@ export class SphereView {
     const out = [];
     for (const m of list) {
       const base = { id: m.id, tooltip: m.tooltip ? { content: m.tooltip, position: 'top center' } : undefined, zIndex: m.z || 10 };
-      if (m.polygon) out.push({ ...base, polygon: m.polygon.map(([a, e]) => { const v = toViewer(a, e); return [v.yaw, v.pitch]; }), svgStyle: m.style });
+      if (m.imageLayer) out.push({ ...base, imageLayer: m.imageLayer, opacity: m.opacity ?? 1, position: m.corners.map(([a, e]) => toViewer(a, e)) });
+      else if (m.polygon) out.push({ ...base, polygon: m.polygon.map(([a, e]) => { const v = toViewer(a, e); return [v.yaw, v.pitch]; }), svgStyle: m.style });
       else if (m.polygonRad) out.push({ ...base, polygon: m.polygonRad, svgStyle: m.style });
       else if (m.polyline) out.push({ ...base, polyline: m.polyline.map(([a, e]) => { const v = toViewer(a, e); return [v.yaw, v.pitch]; }), svgStyle: m.style });
       else {

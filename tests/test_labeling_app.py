@@ -1,0 +1,202 @@
+"""The labeling web app's API (FastAPI TestClient): tasks, saving, conflicts, review, pixels, security."""
+
+from __future__ import annotations
+
+import math
+import os
+
+import cv2
+import numpy as np
+import pytest
+from fastapi.testclient import TestClient
+
+from _labeling_campaign import PHOTO_DOT, SUN_DOTS, make_campaign
+from solidkit.labeling.app import MAX_BODY_BYTES, create_app
+from solidkit.labeling.images import tile_grid
+from solidkit.labeling.store import LabelStore
+
+W = {"X-Solidkit": "1"}  # the page sends it with every write
+
+
+@pytest.fixture(scope="module")
+def campaign(tmp_path_factory):
+    return make_campaign(tmp_path_factory.mktemp("labcamp") / "camp")
+
+
+@pytest.fixture
+def client(campaign, tmp_path):
+    root, alignment = campaign
+    # a fresh label store per test: copy nothing, point the app at the shared images but its own labels dir
+    (root / "labels").mkdir(exist_ok=True)
+    for f in (root / "labels").iterdir():
+        f.unlink()
+    return TestClient(create_app(root, alignment=alignment, allowed_hosts=["testserver"]))
+
+
+def item(client, kind, key):
+    r = client.get("/api/item", params={"kind": kind, "key": key})
+    assert r.status_code == 200, r.text
+    return r.json()
+
+
+def put(client, kind, key, value, version, annotator="ann", **kw):
+    body = {"kind": kind, "key": key, "value": value, "expected_version": version, "annotator": annotator, **kw}
+    return client.put("/api/label", json=body, headers=W)
+
+
+def test_queues_follow_the_manifest_and_alignment(client):
+    c = client.get("/api/campaign").json()
+    assert c["progress"]["sun"] == {"done": 0, "flagged": 1, "left": 4, "total": 5}  # p2: align found no sun
+    assert [i["key"] for i in client.get("/api/queue/sun").json()["items"]] == ["city/cam", "city/p1", "s1/cam", "s1/p1", "s1/p2"]
+    assert [i["key"] for i in client.get("/api/queue/probe_pixel").json()["items"]] == ["city/p1", "s1/p1", "s1/p2"]  # not the camera
+    sun = item(client, "sun", "s1/p1")
+    assert sun["proposal"]["azimuth_deg"] == SUN_DOTS["p1"][0]
+    assert [c["chosen"] for c in sun["view"]["candidates"]] == [True, False]
+    img = sun["view"]["image"]
+    assert (img["width"], img["height"], img["tiles"]) == (1024, 512, {"cols": 2, "rows": 1})
+    pix = item(client, "probe_pixel", "s1/p1")
+    assert pix["proposal"] == {"x": 402.0, "y": 297.0} and pix["view"]["proposal_source"] == "field_notes"
+    head = item(client, "heading", "s1/p1")
+    assert head["proposal"] == {"yaw_deg": -30.0} and head["view"]["image"]["hdr"] is True
+    outline = np.array(head["view"]["photo"]["outline"])
+    hfov = 2 * math.degrees(math.atan(320 / 500))
+    assert outline[:, 0].min() == pytest.approx(-hfov / 2, abs=0.01) and outline[:, 0].max() == pytest.approx(hfov / 2, abs=0.01)
+
+
+def test_save_conflict_loses_nothing_and_review_compares(client, campaign):
+    v = {"found": True, "azimuth_deg": 40.1, "elevation_deg": 25.2, "uncertainty_deg": 0.3}
+    r = put(client, "sun", "s1/p1", v, 0)
+    assert r.status_code == 200 and r.json()["version"] == 1
+    mine = {"found": True, "azimuth_deg": 43.0, "elevation_deg": 25.0, "uncertainty_deg": 0.5}
+    r = put(client, "sun", "s1/p1", mine, 0, annotator="bob")  # bob opened it before ann saved
+    assert r.status_code == 409
+    assert r.json()["current"]["annotator"] == "ann" and r.json()["version"] == 1
+    assert item(client, "sun", "s1/p1")["label"]["value"]["azimuth_deg"] == 40.1
+    r = put(client, "sun", "s1/p1", mine, r.json()["version"], annotator="bob")  # "save mine on top"
+    assert r.status_code == 200 and r.json()["version"] == 2
+    rev = item(client, "sun", "s1/p1")["review"]
+    assert set(rev["opinions"]) == {"ann", "bob"} and rev["open_disagreement"] and rev["status"] == "flagged"
+    assert rev["disagreement"] == pytest.approx(2.6, abs=0.1)  # degrees of arc, not of azimuth
+    queue = client.get("/api/queue/review").json()["items"]
+    assert queue[0]["key"] == "s1/p1" and "annotators disagree" in queue[0]["flags"]
+    r = put(client, "sun", "s1/p1", v, 2, annotator="rev", source="reviewed")
+    assert item(client, "sun", "s1/p1")["review"]["status"] == "done"
+    r = client.post("/api/undo", json={"kind": "sun", "key": "s1/p1", "annotator": "rev", "expected_version": 3}, headers=W)
+    assert r.status_code == 200 and r.json()["label"]["annotator"] == "bob" and r.json()["version"] == 4
+    exported = client.get("/api/export").json()
+    assert exported["labels"][0]["value"]["azimuth_deg"] == 43.0
+    assert LabelStore(campaign[0]).get("sun", "s1/p1").version == 4
+
+
+def test_bad_bodies(client):
+    assert put(client, "sun", "s1/p1", {"found": True, "azimuth_deg": 1.0}, 0).status_code == 422  # no elevation
+    assert put(client, "sun", "s1/p1", {"found": True, "azimuth_deg": 1, "elevation_deg": 2, "x": 3}, 0).status_code == 422
+    assert put(client, "sun", "nope/p9", {"found": False}, 0).status_code == 404
+    assert put(client, "heading", "s1/p1", {"yaw_deg": "east"}, 0).status_code == 422
+    body = {"kind": "sun", "key": "s1/p1", "value": {"found": False}, "expected_version": 0, "annotator": "ann", "admin": True}
+    assert client.put("/api/label", json=body, headers=W).status_code == 422
+    big = {"kind": "sun", "key": "s1/p1", "value": {"found": False}, "expected_version": 0, "annotator": "a" * MAX_BODY_BYTES}
+    assert client.put("/api/label", json=big, headers=W).status_code == 413
+    assert put(client, "sun", "s1/p1", {"found": False}, 0, annotator="").status_code == 422
+    assert client.get("/api/item", params={"kind": "sun", "key": "s1/zz"}).status_code == 404
+
+
+def test_pixels_preview_tiles_crops(client):
+    sun = item(client, "sun", "s1/p1")["view"]["image"]
+    r = client.get(f"/api/img/{sun['id']}/tile/1/0.jpg")
+    tile = cv2.imdecode(np.frombuffer(r.content, np.uint8), cv2.IMREAD_COLOR)
+    assert r.headers["content-type"] == "image/jpeg" and tile.shape == (512, 512, 3)
+    # the red disk at azimuth 40 deg lies in the right half: tile (1, 0), x = (40 + 180) / 360 * 1024 - 512
+    ys, xs = np.nonzero((tile[..., 2] > 150) & (tile[..., 1] < 100))
+    assert xs.mean() == pytest.approx((40 + 180) / 360 * 1024 - 512 - 0.5, abs=1.0)
+    assert client.get(f"/api/img/{sun['id']}/tile/2/0.jpg").status_code == 404
+    photo = item(client, "probe_pixel", "s1/p1")["view"]["photo"]["image"]
+    r = client.get(f"/api/img/{photo['id']}/crop.jpg", params={"x": 380, "y": 280, "w": 40, "h": 40, "out": 40})
+    crop = cv2.imdecode(np.frombuffer(r.content, np.uint8), cv2.IMREAD_COLOR)
+    assert crop.shape == (40, 40, 3) and r.headers["x-crop-box"] == "380,280,420,320"
+    ys, xs = np.nonzero((crop[..., 2] > 150) & (crop[..., 1] < 100))
+    assert (xs.mean() + 380, ys.mean() + 280) == pytest.approx(PHOTO_DOT, abs=0.6)
+    assert client.get(f"/api/img/{photo['id']}/crop.jpg", params={"x": 9000, "y": 0, "w": 5, "h": 5}).status_code == 404
+    assert client.get(f"/api/img/{photo['id']}/crop.jpg", params={"x": 0, "y": 0, "w": -5, "h": 5}).status_code == 422
+    assert tile_grid(7296) == (16, 8) and tile_grid(1920) == (4, 2)
+
+
+@pytest.mark.parametrize(
+    "url",
+    [
+        "/static/../manifest.json",
+        "/static/%2e%2e/%2e%2e/manifest.json",
+        "/static/..%2f..%2f..%2fmanifest.json",
+        "/static/%2e%2e%2f%2e%2e%2fstore.py",
+        "/static/js/..%2f..%2fapp.py",
+        "/api/img/..%2f..%2fmanifest.json/preview.jpg",
+        "/api/img/img-0123456789abcdef/preview.jpg",
+        "/api/img/img-0123456789abcdef/../../manifest.json",
+        "/manifest.json",
+        "/products/s1/p1/sun.png",
+        "/labels/labels.sqlite",
+    ],
+)
+def test_traversal_is_404(client, url):
+    assert client.get(url).status_code == 404
+
+
+def test_symlink_escape_is_not_served(tmp_path):
+    root, alignment = make_campaign(tmp_path / "camp")
+    secret = tmp_path / "secret.png"
+    cv2.imwrite(str(secret), np.zeros((8, 16, 3), np.uint8))
+    target = root / "products/s1/p2/sun.png"
+    target.unlink()
+    os.symlink(secret, target)
+    app = create_app(root, alignment=alignment, allowed_hosts=["testserver"])
+    c = TestClient(app)
+    assert "s1/p2" not in [i["key"] for i in c.get("/api/queue/sun").json()["items"]]
+    assert any("outside the campaign" in p for p in c.get("/api/campaign").json()["problems"])
+    assert all(ref.path.is_relative_to(root.resolve()) for ref in app.state.index.images.values())
+
+
+def test_cross_site_writes_refused(client):
+    v = {"kind": "sun", "key": "s1/p1", "value": {"found": False}, "expected_version": 0, "annotator": "ann"}
+    assert client.put("/api/label", json=v).status_code == 403  # no X-Solidkit header (a form post cannot add it)
+    assert client.put("/api/label", json=v, headers={**W, "Origin": "http://evil.example"}).status_code == 403
+    assert client.put("/api/label", json=v, headers={**W, "Sec-Fetch-Site": "cross-site"}).status_code == 403
+    assert client.get("/api/campaign", headers={"Host": "evil.example"}).status_code == 400  # DNS rebinding
+    ok = client.put("/api/label", json=v, headers={**W, "Origin": "http://testserver", "Sec-Fetch-Site": "same-origin"})
+    assert ok.status_code == 200
+    page = client.get("/")
+    assert "frame-ancestors 'none'" in page.headers["content-security-policy"] and page.headers["x-frame-options"] == "DENY"
+
+
+def test_token_mode(campaign):
+    root, alignment = campaign
+    token = "s3cret-token-for-the-test"
+    c = TestClient(create_app(root, alignment=alignment, token=token, allowed_hosts=["testserver"]))
+    assert c.get("/").status_code == 200  # the page itself holds no data
+    assert c.get("/api/campaign").status_code == 401
+    assert c.get("/api/session").json() == {"token_required": True, "authenticated": False}
+    assert c.get("/api/campaign", params={"token": token}).status_code == 401  # never from a URL
+    assert c.post("/api/session", json={"token": "wrong"}, headers=W).status_code == 401
+    assert c.get("/api/campaign", headers={"Authorization": f"Bearer {token}"}).status_code == 200
+    r = c.post("/api/session", json={"token": token}, headers=W)
+    cookie = r.headers["set-cookie"].lower()
+    assert r.status_code == 200 and "httponly" in cookie and "samesite=strict" in cookie and token not in cookie
+    assert c.get("/api/campaign").status_code == 200  # the session cookie
+    sun = c.get("/api/item", params={"kind": "sun", "key": "s1/p1"}).json()["view"]["image"]["id"]
+    assert c.get(f"/api/img/{sun}/preview.jpg").status_code == 200
+    c.cookies.clear()
+    assert c.get(f"/api/img/{sun}/preview.jpg").status_code == 401
+
+
+def test_cli_export(cli, campaign, tmp_path):
+    root, _ = campaign
+    LabelStore(root).put("sun", "s1/cam", {"found": False}, source="annotator", annotator="ann")
+    code, out, err = cli("label", "export", root, "--json")
+    assert code == 0 and any(lab["key"] == "s1/cam" for lab in __import__("json").loads(out)["labels"])
+    code, out, err = cli("label", "export", root, "-o", tmp_path / "labels.json")
+    assert code == 0 and (tmp_path / "labels.json").is_file()
+    code, out, err = cli("label", "export", tmp_path)
+    assert code == 2 and "no label store" in err
+    code, out, err = cli("label", "serve", tmp_path)
+    assert code == 2 and "manifest.json" in err
+    code, out, err = cli("label", "serve", root, "--host", "0.0.0.0", "--token", "short")
+    assert code == 2 and "16 characters" in err

@@ -1,0 +1,252 @@
+"""The labeling app end to end in a real headless browser (Debian's chromium driven by Playwright).
+
+Directions are checked against markers drawn by Python with solidkit's conventions and found on
+screen by their colour, so Photo Sphere Viewer's own angle conventions are under test, not assumed.
+Screenshots of each task view go to docs/screenshots/ when SOLIDKIT_SCREENSHOTS=1.
+"""
+
+from __future__ import annotations
+
+import os
+import re
+import shutil
+import socket
+import threading
+import time
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+from _labeling_campaign import HEADING_DOT_AZ, PHOTO_DOT, SUN_DOTS, make_campaign
+from solidkit.labeling.store import LabelStore
+
+CHROMIUM = shutil.which("chromium") or "/usr/bin/chromium"
+SHOTS = Path(__file__).resolve().parents[1] / "docs" / "screenshots"
+VIEWPORT = {"width": 1366, "height": 768}  # a laptop screen
+
+pytestmark = [
+    pytest.mark.skipif(not Path(CHROMIUM).is_file(), reason="Debian's chromium is not installed (make installs it as root: apt-get install chromium)"),
+]
+playwright_api = pytest.importorskip("playwright.sync_api", reason="playwright not installed (pip install -e '.[test]')")
+
+
+def _serve(app):
+    import uvicorn
+
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    server = uvicorn.Server(uvicorn.Config(app, host="127.0.0.1", port=port, log_level="warning"))
+    thread = threading.Thread(target=server.run, daemon=True)
+    thread.start()
+    t0 = time.monotonic()
+    while not server.started:
+        if time.monotonic() - t0 > 10:
+            raise RuntimeError("uvicorn did not start")
+        time.sleep(0.02)
+    return server, thread, f"http://127.0.0.1:{port}"
+
+
+@pytest.fixture(scope="module")
+def campaign(tmp_path_factory):
+    return make_campaign(tmp_path_factory.mktemp("browser") / "camp")
+
+
+@pytest.fixture(scope="module")
+def server(campaign):
+    from solidkit.labeling.app import create_app
+
+    root, alignment = campaign
+    srv, thread, url = _serve(create_app(root, alignment=alignment))
+    yield url
+    srv.should_exit = True
+    thread.join(5)
+
+
+@pytest.fixture(scope="module")
+def browser():
+    with playwright_api.sync_playwright() as p:
+        b = p.chromium.launch(executable_path=CHROMIUM, args=["--no-sandbox"])
+        yield b
+        b.close()
+
+
+def open_page(browser, url, annotator="ann"):
+    ctx = browser.new_context(viewport=VIEWPORT)
+    ctx.add_init_script(f"localStorage.setItem('solidkit.annotator', {annotator!r})")
+    page = ctx.new_page()
+    errors: list[str] = []
+    page.on("pageerror", lambda e: errors.append(str(e)))
+    page.goto(url)
+    return page, errors
+
+
+def loaded(page, task, key=None):
+    """Wait until the page shows ``task``'s item ``key`` (set by the app once drawn)."""
+    page.wait_for_selector(f"body[data-item='{task}:{key}']" if key else f"body[data-item='{task}']", timeout=20000)
+    page.wait_for_timeout(150)  # a frame or two for WebGL
+
+
+def goto(page, task, key):
+    page.evaluate(f"() => {{ window.solidkitApp.switchTask('{task}', '{key}'); }}")
+    loaded(page, task, key)
+
+
+def blob(page, selector, rgb, tol=70):
+    """Screen position (page px) of the centroid of the pixels of colour ``rgb`` inside ``selector``."""
+    loc = page.locator(selector)
+    box = loc.bounding_box()
+    img = cv2.imdecode(np.frombuffer(loc.screenshot(), np.uint8), cv2.IMREAD_COLOR)[..., ::-1].astype(int)
+    mask = np.abs(img - np.array(rgb)).sum(axis=2) < tol
+    assert mask.sum() > 5, f"colour {rgb} not on screen"
+    ys, xs = np.nonzero(mask)
+    sx, sy = box["width"] / img.shape[1], box["height"] / img.shape[0]
+    return box["x"] + (xs.mean() + 0.5) * sx, box["y"] + (ys.mean() + 0.5) * sy
+
+
+def shot(page, name):
+    if os.environ.get("SOLIDKIT_SCREENSHOTS") == "1":
+        SHOTS.mkdir(parents=True, exist_ok=True)
+        page.screenshot(path=str(SHOTS / f"{name}.jpg"), type="jpeg", quality=70)
+
+
+def numbers(text):
+    return [float(x) for x in re.findall(r"-?\d+\.\d+", text)]
+
+
+def test_sun_click_markers_store_the_drawn_direction(server, browser, campaign):
+    """Markers drawn at known (azimuth, elevation) (one at negative azimuth, one at 62 deg up),
+    clicked where they appear on screen: the store holds those directions; a reload shows them."""
+    root, _ = campaign
+    page, errors = open_page(browser, f"{server}/#task=sun&key=s1/cam")
+    loaded(page, "sun", "s1/cam")
+    for key in ("s1/cam", "s1/p2"):
+        pid = key.split("/")[1]
+        az, el, bgr = SUN_DOTS[pid]
+        goto(page, "sun", key)
+        ov = page.locator("#sun-overview canvas").bounding_box()  # look there through the overview strip
+        page.mouse.click(ov["x"] + (az + 180) / 360 * ov["width"], ov["y"] + (90 - el) / 180 * ov["height"])
+        page.wait_for_timeout(250)
+        x, y = blob(page, "#sun-sphere", bgr[::-1])
+        page.mouse.click(x, y)
+        page.wait_for_selector("#draft-value:text-matches('^az')")
+        page.keyboard.press("s")
+        page.wait_for_selector(f"body[data-saved^='sun:{key}:']")
+        lab = LabelStore(root).get("sun", key)
+        assert (lab.source, lab.annotator, lab.value["found"]) == ("annotator", "ann", True)
+        assert lab.value["azimuth_deg"] == pytest.approx(az, abs=0.3) and lab.value["elevation_deg"] == pytest.approx(el, abs=0.3)
+    page.goto(f"{server}/#task=sun&key=s1/cam")  # reload: the label persists as that direction
+    page.reload()
+    loaded(page, "sun", "s1/cam")
+    page.wait_for_selector("#saved-value")
+    saved = numbers(page.locator("#saved-value").text_content())
+    assert saved[0] == pytest.approx(SUN_DOTS["cam"][0], abs=0.3) and saved[1] == pytest.approx(SUN_DOTS["cam"][1], abs=0.3)
+    assert not errors
+
+
+def test_sun_accept_with_one_key(server, browser, campaign):
+    root, alignment = campaign
+    page, errors = open_page(browser, f"{server}/#task=sun&key=city/p1")
+    loaded(page, "sun", "city/p1")
+    page.wait_for_selector("#auto-value")
+    shot(page, "sun")
+    page.keyboard.press("a")
+    page.wait_for_selector(f"body[data-saved^='sun:city/p1:']")
+    proposal = next(c for s in alignment["scenes"] if s["id"] == "city" for c in s["sun"]["captures"] if c["probe"] == "p1")
+    lab = LabelStore(root).get("sun", "city/p1")
+    assert lab.value["azimuth_deg"] == pytest.approx(proposal["azimuth_deg"], abs=1e-6)
+    keys = ["city/cam", "city/p1", "s1/cam", "s1/p1", "s1/p2"]
+    store = LabelStore(root)
+    unfinished = [k for k in keys[2:] + keys[:2] if store.get("sun", k) is None or store.get("sun", k).source == "auto"]
+    loaded(page, "sun", unfinished[0])  # moved on to the next item still to do
+    assert not errors
+
+
+def test_probe_pixel_click_and_concurrent_edit(server, browser, campaign):
+    """Click the red dot on the photo: stored in full-res pixels. Two annotators edit one label at
+    once: the second gets the conflict dialog, keeps their value and may save it on top."""
+    root, _ = campaign
+    a, errors_a = open_page(browser, f"{server}/#task=probe_pixel&key=s1/p1", "ann")
+    b, errors_b = open_page(browser, f"{server}/#task=probe_pixel&key=s1/p1", "bob")
+    loaded(a, "probe_pixel", "s1/p1")
+    loaded(b, "probe_pixel", "s1/p1")
+    x, y = blob(a, "#pixel-view", (255, 0, 0), tol=120)
+    a.mouse.click(x, y)
+    shot(a, "probe_pixel")
+    a.keyboard.press("s")
+    a.wait_for_selector(f"body[data-saved^='probe_pixel:s1/p1:']")
+    first = LabelStore(root).get("probe_pixel", "s1/p1")
+    scale = 640 / a.locator("#pixel-view").bounding_box()["width"]  # photo px per screen px (fit to width)
+    assert (first.value["x"], first.value["y"]) == pytest.approx(PHOTO_DOT, abs=max(1.0, 1.5 * scale))
+    x, y = blob(b, "#pixel-view", (255, 0, 0), tol=120)
+    b.mouse.click(x + 30, y + 10)  # bob, who opened the item before ann saved, marks elsewhere
+    mine = b.locator("#draft-value").text_content()
+    b.keyboard.press("s")
+    b.wait_for_selector("#conflict:not([hidden])")
+    assert b.locator("#conflict-mine").text_content() == mine  # nothing lost
+    assert "ann" in b.locator("#conflict-text").text_content()
+    assert LabelStore(root).get("probe_pixel", "s1/p1") == first  # the first label stands
+    b.click("#conflict-keep-mine")
+    b.wait_for_selector(f"body[data-saved^='probe_pixel:s1/p1:2']")
+    second = LabelStore(root).get("probe_pixel", "s1/p1")
+    assert second.annotator == "bob" and second.version == 2
+    assert [c.annotator for c in LabelStore(root).history("probe_pixel", "s1/p1")] == ["ann", "bob"]
+    assert not errors_a and not errors_b
+
+
+def test_heading_frame_and_yaw(server, browser, campaign):
+    """A red disk drawn at azimuth 30 deg of the capture's level frame, with align's yaw -30: looking
+    through the photo puts it at the centre of the view; a nudge stores the new yaw."""
+    root, _ = campaign
+    page, errors = open_page(browser, f"{server}/#task=heading&key=s1/p1")
+    loaded(page, "heading", "s1/p1")
+    page.keyboard.press("o")  # photo overlay off: only the panorama
+    page.keyboard.press("f")
+    page.wait_for_timeout(250)
+    x, y = blob(page, "#heading-sphere", (255, 0, 0), tol=150)
+    box = page.locator("#heading-sphere").bounding_box()
+    assert x == pytest.approx(box["x"] + box["width"] / 2, abs=6) and y == pytest.approx(box["y"] + box["height"] / 2, abs=6)
+    page.keyboard.press("ArrowRight")  # turns the frame to the right: yaw decreases
+    page.keyboard.press("s")
+    page.wait_for_selector(f"body[data-saved^='heading:s1/p1:']")
+    assert LabelStore(root).get("heading", "s1/p1").value["yaw_deg"] == pytest.approx(-HEADING_DOT_AZ - 0.2, abs=1e-6)
+    goto(page, "heading", "city/p1")
+    shot(page, "heading")
+    assert not errors
+
+
+def test_review_lists_the_disagreement(server, browser):
+    page, errors = open_page(browser, f"{server}/#task=review")
+    loaded(page, "review")
+    first = page.locator("#review-table tbody tr").first
+    assert first.get_attribute("data-key") == "probe_pixel:s1/p1" and "px" in first.text_content()
+    shot(page, "review")
+    first.click()
+    loaded(page, "probe_pixel", "s1/p1")
+    assert page.locator("#review-badge").is_visible()
+    assert not errors
+
+
+def test_traversal_404_and_token_401(server, browser, campaign):
+    from solidkit.labeling.app import create_app
+
+    page, _ = open_page(browser, f"{server}/")
+    for url in ("/static/%2e%2e/%2e%2e/manifest.json", "/static/..%2f..%2fstore.py", "/api/img/..%2fmanifest.json/preview.jpg"):
+        assert page.request.get(server + url).status == 404
+    root, alignment = campaign
+    token = "token-for-the-browser-test"
+    srv, thread, url = _serve(create_app(root, alignment=alignment, token=token))
+    try:
+        page, errors = open_page(browser, f"{url}/")
+        assert page.request.get(f"{url}/api/campaign").status == 401
+        page.wait_for_selector("#login:not([hidden])")
+        page.fill("#login-token", token)
+        page.keyboard.press("Enter")
+        page.wait_for_selector("body[data-item^='sun:']", timeout=20000)
+        assert page.request.get(f"{url}/api/campaign").status == 200  # the session cookie, not the URL
+        assert token not in page.url
+    finally:
+        srv.should_exit = True
+        thread.join(5)
