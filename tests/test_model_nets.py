@@ -45,7 +45,7 @@ def test_solidnet_shapes_and_dtypes(b):
         "local_log": (b, 2, 3, 128, 256),
         "local": (b, 2, 3, 128, 256),
         # the sun head (tiny has it, like the shipped small preset)
-        "sun_logits": (b, 1, 128, 256),
+        "sun_logits": (b, 1, 64, 128),  # the sky decoder's last stage (sky_stages = 3)
         "sun_dir": (b, 3),
         "sun_energy": (b, 3),
         "sun_log_energy": (b, 3),

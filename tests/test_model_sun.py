@@ -111,7 +111,7 @@ def test_located_variant_needs_the_sun_head():
         preset("small-paper", loss_variant="located")
     assert preset("small").sun_head and preset("small").loss_variant == "located"
     out = SolidNet(preset("tiny")).eval().inet(torch.rand(1, 3, 240, 320))
-    assert out["sky"].shape == (1, 3, 128, 256) and out["sun_logits"].shape == (1, 1, 128, 256)
+    assert out["sky"].shape == (1, 3, 128, 256) and out["sun_logits"].shape == (1, 1, 64, 128)
     assert torch.allclose(torch.log1p(out["sky"]), out["sky_log"], atol=1e-5)
 
 

@@ -53,6 +53,10 @@ class SolidNetConfig:
         Channels of the lighting branch (the features behind ``P_SH`` and the sky features).
     sky_widths : tuple of int
         Sky-decoder channels at panorama heights ``pano_height/8, /4, /2, /1``.
+    sky_stages : int
+        4: the sky decoder runs up to ``pano_height``; 3: it stops at ``pano_height / 2`` and its smooth
+        output is upsampled bilinearly (the sun is rendered at full resolution by the sun head), which
+        saves the full-resolution stage, the costliest of a lighting-only training step.
     sky_feature_width : int
         Channels of the flip-padded sky features concatenated at every sky-decoder stage; 0 means
         ``light_width`` (the first checkpoints). Fewer channels make the full-resolution stages,
@@ -85,6 +89,7 @@ class SolidNetConfig:
     light_width: int = 64
     sky_widths: tuple[int, ...] = (32, 24, 16, 16)
     sky_feature_width: int = 0
+    sky_stages: int = 4
     pnet_widths: tuple[int, ...] = (16, 24, 32, 64, 96)
     pnet_inputs: tuple[str, ...] = ("col", "sha", "sky")
     image_size: tuple[int, int] = (240, 320)
@@ -122,6 +127,8 @@ class SolidNetConfig:
             raise ConfigError(f"pnet_widths must list at least two positive channel counts, got {self.pnet_widths}")
         if len(self.sky_widths) != 4 or min(self.sky_widths) < 1:
             raise ConfigError(f"sky_widths must list 4 positive channel counts, got {self.sky_widths}")
+        if self.sky_stages not in (3, 4):
+            raise ConfigError(f"sky_stages must be 3 or 4, got {self.sky_stages}")
         bad = [k for k in self.pnet_inputs if k not in PNET_INPUTS]
         if bad or "col" not in self.pnet_inputs:
             raise ConfigError(f"pnet_inputs must include 'col' and be drawn from {PNET_INPUTS}, got {self.pnet_inputs}")
@@ -167,7 +174,7 @@ class SolidNetConfig:
         return cls(**{**data, "loss_weights": weights})
 
 
-_SUN = {"sun_head": True, "loss_variant": "located", "sky_feature_width": 16}
+_SUN = {"sun_head": True, "loss_variant": "located", "sky_feature_width": 16, "sky_stages": 3}
 
 PRESETS: dict[str, SolidNetConfig] = {
     # the shipped model: small widths, the sun head and the located losses

@@ -68,6 +68,16 @@ def sh_panorama(L: torch.Tensor, height: int) -> torch.Tensor:
     return torch.einsum("bck,hwk->bchw", L, basis)
 
 
+def _upsample_panorama(x: torch.Tensor, height: int) -> torch.Tensor:
+    """Bilinear upsampling of ``(B, C, h, 2h)`` to ``(B, C, height, 2 height)``, continuous across the seam."""
+    h = x.shape[-2]
+    if h == height:
+        return x
+    s = height // h
+    x = F.pad(x, (1, 1, 0, 0), mode="circular")
+    return F.interpolate(x, scale_factor=float(s), mode="bilinear", align_corners=False)[..., s:-s]
+
+
 class INet(nn.Module):
     """I-Net: ``image (B, 3, H, W)`` in [0, 1] (sRGB LDR) -> dict of intrinsics and lighting.
 
@@ -109,9 +119,10 @@ class INet(nn.Module):
         self.sky_features = ConvBlock(w[mid] + lw, sf)
         sw = config.sky_widths
         self.sky_in = nn.Sequential(ConvBlock(3 + sf + 1, sw[0], panorama=True), ConvBlock(sw[0], sw[0], panorama=True))
-        self.sky_ups = nn.ModuleList(ConvBlock(sw[i] + 3 + sf + 1, sw[i + 1], panorama=True) for i in range(3))
-        self.sky_head = nn.Conv2d(sw[-1], 3, 1)
-        self.sun = SunHead(lw * 12, sw[-1]) if config.sun_head else None
+        stages = config.sky_stages
+        self.sky_ups = nn.ModuleList(ConvBlock(sw[i] + 3 + sf + 1, sw[i + 1], panorama=True) for i in range(stages - 1))
+        self.sky_head = nn.Conv2d(sw[stages - 1], 3, 1)
+        self.sun = SunHead(lw * 12, sw[stages - 1]) if config.sun_head else None
         self._footprints = [
             image_footprint(config.pano_height >> (3 - k), config.hfov_deg, config.vfov_deg) for k in range(4)
         ]
@@ -146,13 +157,13 @@ class INet(nn.Module):
         for k, up in enumerate(self.sky_ups, start=1):
             y = F.interpolate(y, scale_factor=2.0, mode="bilinear", align_corners=False)
             y = up(torch.cat([y, self._sky_stage_inputs(L, sky_feats, k)], dim=1))
-        sky_log = F.softplus(self.sky_head(y))
+        sky_log = _upsample_panorama(F.softplus(self.sky_head(y)), self.config.pano_height)
         if self.sun is None:
             out["sky_log"] = sky_log
             out["sky"] = radiance_from_log(sky_log)
             return out
         out.update(self.sun(pooled, y))
-        sun = render_sun(out["sun_dir"], out["sun_energy"], out["sun_sigma"], y.shape[-2])
+        sun = render_sun(out["sun_dir"], out["sun_energy"], out["sun_sigma"], self.config.pano_height)
         out["sky_np_log"] = sky_log
         out["sky"] = radiance_from_log(sky_log) + sun
         out["sky_log"] = torch.log1p(out["sky"])

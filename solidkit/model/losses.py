@@ -144,9 +144,13 @@ def sun_energy(sky: torch.Tensor, direction: torch.Tensor, visible: torch.Tensor
     """Energy ``(B, C)`` (radiance x sr) of the sun at ``direction (B, 3)`` in ``sky (B, C, H, 2H)``.
 
     ``sum over the cap of max(L - L_bg, 0) Omega`` with ``L_bg`` the per-channel median of the
-    ``annulus`` about the sun (the sky under it); 0 where ``visible (B,)`` is false.
+    ``annulus`` about the sun (the sky under it); 0 where ``visible (B,)`` is false. On coarse grids the
+    cap is widened to 1.5 pixels and the annulus moved out with it (a cap must hold a pixel centre).
     """
     b, c, h, w = sky.shape
+    px = math.pi / h
+    cap = max(cap, 1.5 * px)
+    annulus = (max(annulus[0], cap + px), max(annulus[1], cap + 4 * px))
     cos = _cos_to(direction, h)
     omega = solid_angle(h, torch, dtype=sky.dtype, device=sky.device)
     ring = (cos < math.cos(annulus[0])) & (cos > math.cos(annulus[1]))

@@ -48,10 +48,11 @@ def local_soft_argmax(logits: torch.Tensor, radius: float = math.radians(10.0)) 
     """Unit direction ``(B, 3)`` of the probability-weighted mean over a cap about the mode.
 
     ``logits (B, 1, H, 2H)`` define ``p ∝ exp(logit) Omega`` over the pixels; the mean of the pixel
-    directions weighted by ``p`` within ``radius`` (radians) of the most probable pixel is
-    normalised. Differentiable in ``logits`` (the cap itself is not).
+    directions weighted by ``p`` within ``radius`` (radians; at least 2.5 pixels) of the most probable
+    pixel is normalised. Differentiable in ``logits`` (the cap itself is not).
     """
     b, _, h, w = logits.shape
+    radius = max(radius, 2.5 * math.pi / h)
     dirs = direction_grid(h, torch, dtype=logits.dtype, device=logits.device).reshape(-1, 3)
     lp = (logits[:, 0] + log_solid_angle(h, logits)).reshape(b, -1)
     mode = dirs[lp.argmax(dim=1)]  # (B, 3)
