@@ -256,8 +256,10 @@ def rotation_x(angle: Any) -> Any:
 
     Examples
     --------
-    >>> np.round(rotation_x(math.pi / 2) @ [0.0, 0.0, 1.0], 12) + 0.0  # forward turns up
-    array([ 0., -1.,  0.])
+    >>> np.round(rotation_x(math.radians(90.0)), 12) + 0.0  # its third column: forward turns up (-y)
+    array([[ 1.,  0.,  0.],
+           [ 0.,  0., -1.],
+           [ 0.,  1.,  0.]])
     """
     return _elementary(angle, (1, 2))
 
@@ -278,7 +280,10 @@ def rotation_z(angle: Any) -> Any:
 
     Examples
     --------
-    >>> np.round(rotation_z(math.pi / 2) @ [1.0, 0.0, 0.0], 12) + 0.0  # right turns down
+    >>> R = rotation_z(np.array([0.0, math.pi / 2]))  # a batch of two angles
+    >>> R.shape
+    (2, 3, 3)
+    >>> np.round(R[1] @ [1.0, 0.0, 0.0], 12) + 0.0  # right turns down
     array([0., 1., 0.])
     """
     return _elementary(angle, (0, 1))
