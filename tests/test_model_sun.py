@@ -182,3 +182,23 @@ def test_overfitting_eight_rendered_crops_puts_a_detectable_sun_in_each(tmp_path
         results[name] = _found_within(model, batch)
     assert all(ok for ok, _, _ in results["tiny"]), results["tiny"]
     assert sum(ok for ok, _, _ in results["tiny-paper"]) <= 1, results["tiny-paper"]
+
+
+def test_consistent_reconstruction_agrees_with_the_diffuse_term_where_eq7_does_not():
+    """A constant sky c: L_dif's SH gives L b(n) = c/2 for every normal; a white-lit Lambertian pixel of
+    albedo A is A E / pi = A c before the input's tonemap. The located variant's L_rec renders exactly that
+    (0 loss); eq. 7 as written, (A c/2)^(1/2.2), does not (the 1.6x scale conflict of issue 15)."""
+    from solidkit.envmap.io import tonemap
+    from solidkit.envmap.sh import sh_irradiance, sh_project
+    from solidkit.model.losses import diffuse_loss, reconstruction_loss
+
+    c = torch.tensor([0.9, 0.8, 0.7])
+    sky = c.view(1, 3, 1, 1).expand(1, 3, 32, 64).contiguous()
+    L = sh_irradiance(sh_project(sky))
+    assert float(diffuse_loss(sky, L)) < 1e-8
+    albedo = torch.full((1, 3, 6, 8), 0.5)
+    normal = torch.nn.functional.normalize(torch.randn(1, 3, 6, 8, generator=torch.Generator().manual_seed(1)), dim=1)
+    image = tonemap(albedo * c.view(1, 3, 1, 1))
+    mask = torch.ones(1, 1, 6, 8, dtype=torch.bool)
+    assert float(reconstruction_loss(image, albedo, normal, L, mask, consistent=True)) < 1e-8
+    assert float(reconstruction_loss(image, albedo, normal, L, mask)) > 1e-3

@@ -289,14 +289,24 @@ def reconstruction_loss(
     mask: torch.Tensor,
     rotation: torch.Tensor | None = None,
     gamma: float = PAPER_GAMMA,
+    consistent: bool = False,
 ) -> torch.Tensor:
     """``L_rec`` (eq. 7): masked mean of ``(I - (A ⊙ L B(N))^(1/gamma))^2`` over ``mask (B, 1, H, W)``.
 
     ``image (B, 3, H, W)`` is the LDR input in [0, 1]; the shading is clamped at a small positive
     value before the power (its derivative is unbounded at 0).
+
+    ``consistent=True`` (variant ``"located"``) renders the pixel the way the input was made instead:
+    ``T(A ⊙ 2 L B(N))`` with the paper's tonemap ``T`` (exposure ``2^-0.3``, clip). ``L_dif`` ties
+    ``L b(n)`` to ``D = E / 2 pi`` (a cosine-weighted hemisphere *mean*), while a Lambertian pixel is
+    ``A E / pi`` before the input's tonemap; eq. 7 as written asks for an ``L`` ``2 * 2^-0.3 ≈ 1.62``
+    times smaller than ``L_dif`` does, and the two terms pull ``P_SH`` apart.
     """
     shading = sh_shading(normal, sh, rotation)
-    rendered = (albedo * shading).clamp_min(1e-6) ** (1.0 / gamma)
+    if consistent:
+        rendered = tonemap((albedo * 2.0 * shading).clamp_min(1e-6))
+    else:
+        rendered = (albedo * shading).clamp_min(1e-6) ** (1.0 / gamma)
     return masked_mean((image - rendered) ** 2, mask)
 
 
@@ -332,7 +342,8 @@ def solidnet_losses(
         shadow = batch.get("shadow", out["shadow"])
         mask = non_shadow_mask(shadow, batch.get("geometry_mask"))
         terms["rec"] = reconstruction_loss(
-            batch["image"], out["albedo"], out["normal"], out["sh"], mask, out.get("rotation")
+            batch["image"], out["albedo"], out["normal"], out["sh"], mask, out.get("rotation"),
+            consistent=variant == "located"
         )
     if "local_log" in out and "local" in batch:
         terms["local"] = sup2_loss(out["local_log"], batch["local"])
