@@ -348,6 +348,8 @@ CASES: list[tuple[str, list[str], str, tuple]] = [
      "--baseline expects NAME=CHECKPOINT (e.g. --baseline col=ablation_col.pt), got '{d}/notes.txt'", SLOW),
     ("eval-model-missing", ["eval", "--testset", "{d}/sub", "--model", "{d}/missing.pt", "-o", "{d}/ev"],
      "{d}/missing.pt: no such checkpoint", SLOW),
+    ("eval-panoramas-missing", ["eval", "--panoramas", "{d}/missing.exr", "-o", "{d}/ev"],
+     "--panoramas {d}/missing.exr: no such file or folder", ()),
     ("finetune-testset-not-a-testset", ["finetune", "--testset", "{d}/sub", "-o", "{d}/ft"],
      "--testset {d}/sub: not a test set (no testset.json; run 'solidkit testset build')", ()),
     ("finetune-trainable-bad", ["finetune", "--testset", "{d}/sub", "--trainable", "head", "-o", "{d}/ft"],
