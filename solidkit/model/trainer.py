@@ -248,7 +248,26 @@ class _Data:
         pick = rng.integers(0, len(self.synth_index), size)[rank::world]
         items = [self.synth[k][i] for k, i in (self.synth_index[int(j)] for j in pick)]
         flip = rng.random(size)[rank::world] < 0.5
+        gains = (2.0 ** rng.uniform(-0.5, 0.5, (size, 1)) * np.exp(rng.uniform(-0.08, 0.08, (size, 3))))[rank::world]
+        items = [_relight_item(it, g) for it, g in zip(items, gains)]
         return "synth", synth_batch([_flip_item(it) if f else it for it, f in zip(items, flip)])
+
+
+def _relight_item(it: dict[str, Any], gain: np.ndarray) -> dict[str, Any]:
+    """Exposure / white balance of a SynthDataset item: the HDR photo, global map and probes scaled by
+    ``gain (3,)`` (the light, not the albedo), the LDR input re-tonemapped from the scaled HDR photo."""
+    if "hdr" not in it:
+        return it
+    from solidkit.envmap.io import tonemap
+
+    g = torch.as_tensor(gain, dtype=torch.float32)[:, None, None]
+    out = dict(it)
+    out["hdr"] = it["hdr"][:3] * g
+    out["image"] = tonemap(out["hdr"]).clamp(0.0, 1.0)
+    for k in ("global", "probes"):
+        if k in it:
+            out[k] = it[k][..., :3, :, :] * g
+    return out
 
 
 def _flip_item(it: dict[str, Any]) -> dict[str, Any]:
