@@ -235,6 +235,18 @@ def _fit_once(model: ModelName, views: Sequence[BoardView], pattern: tuple[int, 
     raise FisheyeCalibrationError(f"unknown fisheye model {model!r} (kb or mei)")
 
 
+def _best_without_one(model: ModelName, views: list[BoardView], pattern: tuple[int, int],
+                      square: float) -> tuple[FisheyeFit, BoardView] | None:
+    """The lowest-RMS fit among those leaving one view out, and that view (None when every fit fails)."""
+    trials = []
+    for v in views:
+        try:
+            trials.append((_fit_once(model, [u for u in views if u is not v], pattern, square), v))
+        except FisheyeCalibrationError:
+            continue
+    return min(trials, key=lambda fv: fv[0].rms_px) if trials else None
+
+
 def _fit_or_drop_one(model, views, pattern, square, outliers: dict[str, str]) -> FisheyeFit:
     """Fit; if OpenCV fails on the whole set, find the one view without which it succeeds."""
     try:
@@ -243,15 +255,10 @@ def _fit_or_drop_one(model, views, pattern, square, outliers: dict[str, str]) ->
         good = [v for v in views if v.ok]
         if len(good) <= _MIN_VIEWS:
             raise
-        trials = []
-        for v in good:
-            try:
-                trials.append((_fit_once(model, [u for u in good if u is not v], pattern, square), v))
-            except FisheyeCalibrationError:
-                continue
-        if not trials:
+        best = _best_without_one(model, good, pattern, square)
+        if best is None:
             raise exc from None
-        fit, culprit = min(trials, key=lambda fv: fv[0].rms_px)
+        fit, culprit = best
         outliers[culprit.name] = f"the {model} fit fails with this view ({exc}) and succeeds without it"
         return fit
 
@@ -286,15 +293,10 @@ def fit_model(
         kept = [v for v in views if v.name in fit.per_view_rms_px]
         if fit.rms_px <= outlier_floor_px or len(kept) <= _MIN_VIEWS:
             break
-        trials = []
-        for v in kept:
-            try:
-                trials.append((_fit_once(model, [u for u in kept if u is not v], pattern, square), v))
-            except FisheyeCalibrationError:
-                continue
-        if not trials:
+        found = _best_without_one(model, kept, pattern, square)
+        if found is None:
             break
-        best, worst = min(trials, key=lambda fv: fv[0].rms_px)
+        best, worst = found
         if best.rms_px >= 0.8 * fit.rms_px:
             break
         outliers[worst.name] = f"removing it lowers the fit RMS from {fit.rms_px:.2f} to {best.rms_px:.2f} px"
