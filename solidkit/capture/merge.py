@@ -642,16 +642,20 @@ def merge_files(
     ghost_mask_path: str | os.PathLike | None = None,
     wb: Any = "camera",
     progress: Any = None,
+    align: bool = True,
 ) -> list[dict[str, Any]]:
     """Group ``paths`` into brackets, merge each and write EXR(s) with provenance.
 
     One bracket is written to ``out``; several to ``<stem>-1.exr``, ``<stem>-2.exr``, ... in
     capture order (``group=False`` merges all frames as one bracket). Exposure times come from
     the metadata (scaled by ISO and f-number relative to the bracket's first frame) or from
-    ``times`` (seconds, in the order of ``paths``, taken as effective exposures). The EXR's
-    ``solidkit`` attribute holds ``exposure_time`` (the reference frame's), ``units`` and
-    ``provenance`` (inputs with sha256, times, response, parameters, solidkit version,
-    merge statistics). Returns one summary dict per written file.
+    ``times`` (seconds, in the order of ``paths``, taken as effective exposures). Each bracket
+    goes through :func:`solidkit.capture.bracket_hdr.merge_bracket` (read by content, registered
+    unless ``align=False``, response given / estimated from the frames / sRGB assumed with a
+    warning). The EXR's ``solidkit`` attribute holds ``exposure_time`` (the reference frame's),
+    ``units`` and ``provenance`` (inputs with sha256, times, response and where it came from,
+    registration shifts, warnings, parameters, solidkit version, merge statistics). Returns one
+    summary dict per written file.
     """
     paths = [Path(p) for p in paths]
     if not paths:
@@ -663,11 +667,11 @@ def merge_files(
         raise InputError(f"{out}: the output must be an .exr file")
     if response is not None and response_path is not None:
         raise InputError("give a response array or a response file, not both")
-    resp = load_response(response_path) if response_path is not None else (
-        validate_response(response) if response is not None else srgb_response())
-    resp_info: dict[str, Any] = (
+    given = load_response(response_path) if response_path is not None else (
+        validate_response(response) if response is not None else None)
+    given_record: dict[str, Any] | None = (
         {"kind": "file", "path": str(response_path), "sha256": sha256_file(response_path)} if response_path is not None
-        else {"kind": "array"} if response is not None else {"kind": "srgb_inverse"})
+        else {"kind": "array"} if response is not None else None)
     infos = _bracket_infos(paths, times)
     if group and times is None:
         shots = [
@@ -687,29 +691,25 @@ def merge_files(
         if len(bracket) < 2:
             raise InputError(f"{bracket[0][0].name} forms a bracket of one frame (by time/sequence/exposure); "
                              "pass the frames of one bracket, or --no-group to merge them as one")
+        from solidkit.capture.bracket_hdr import merge_bracket
+
         ref_meta = bracket[0][1]
-        frames, inputs = [], []
+        effs, inputs = [], []
         for p, m, t in bracket:
             eff = t if times is not None else effective_exposure(t, m.iso, m.f_number, ref_meta.iso, ref_meta.f_number)
-            frames.append(load_frame(p, eff, resp, wb=wb))
+            effs.append(eff)
             inputs.append({"path": str(p), "sha256": sha256_file(p), "exposure_time": t, "effective_exposure": eff,
                            "iso": m.iso, "f_number": m.f_number})
-            if progress is not None:
+        result, prov = merge_bracket([p for p, _, _ in bracket], effs, response=given, response_record=given_record,
+                                     align=align, ghost_k=ghost_k, deghost=deghost, wb=wb)
+        if progress is not None:
+            for _ in bracket:
                 progress()
-        result = merge_frames(frames, ghost_k=ghost_k, deghost=deghost)
-        stats = result.stats()
+        stats = prov["stats"]
         meta = {
             "exposure_time": bracket[0][2],
             "units": "relative radiance: linear code per second at the first frame's ISO and f-number",
-            "provenance": {
-                "tool": "solidkit capture merge",
-                "solidkit_version": __version__,
-                "inputs": inputs,
-                "response": resp_info,
-                "parameters": {"ghost_k": ghost_k, "deghost": deghost, "wb": str(wb),
-                               "saturation": DEFAULT_SATURATION, "black": DEFAULT_BLACK},
-                "stats": stats,
-            },
+            "provenance": {"tool": "solidkit capture merge", "solidkit_version": __version__, "inputs": inputs, **prov},
         }
         write_exr(target, result.hdr, meta)
         mask_file = None
@@ -718,5 +718,6 @@ def merge_files(
             mask_file = gm if len(brackets) == 1 else gm.with_name(f"{gm.stem}-{len(summaries) + 1}{gm.suffix}")
             write_ldr(mask_file, (result.ghost.astype(np.uint8) * 255)[..., None].repeat(3, axis=2))
         summaries.append({"output": str(target), "frames": [str(p) for p, _, _ in bracket],
-                          "ghost_mask": str(mask_file) if mask_file else None, **stats})
+                          "ghost_mask": str(mask_file) if mask_file else None, "response": prov["response"],
+                          "registration": prov["registration"], "warnings": prov["warnings"], **stats})
     return summaries

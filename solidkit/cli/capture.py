@@ -64,7 +64,8 @@ def merge(
     frames: list[Path] = typer.Argument(..., help="Bracket frames (JPEG via the response curve, DNG linearly)."),
     out: Path = typer.Option(..., "-o", "--out", help="Output EXR (several brackets: OUT-1.exr, OUT-2.exr, ...)."),
     times: str | None = typer.Option(None, "--times", help="Exposure times in seconds, comma-separated, in FRAMES order (default: EXIF)."),
-    response: Path | None = typer.Option(None, "--response", help="Inverse response curve (.json profile, .npy, .csv); default sRGB inverse."),
+    response: Path | None = typer.Option(None, "--response", help="Inverse response curve (.json profile, .npy, .csv); default: estimated from the bracket (3+ frames), else sRGB assumed (warned)."),
+    align: bool = typer.Option(True, "--align/--no-align", help="Register the frames (sub-pixel shifts) before merging."),
     group: bool = typer.Option(True, "--group/--no-group", help="Split FRAMES into brackets by time, sequence and exposure."),
     deghost: bool = typer.Option(False, "--deghost", help="Replace ghost pixels by the reference frame."),
     ghost_mask: Path | None = typer.Option(None, "--ghost-mask", help="Write the ghost mask as a PNG."),
@@ -79,7 +80,7 @@ def merge(
     if isinstance(wb_arg, str) and wb_arg not in ("camera", "daylight", "none"):
         raise InputError(f"--wb: unknown white balance '{wb}' (camera, daylight, none or r,g,b)")
     summaries = merge_files(frames, out, times=t, response_path=response, group=group, deghost=deghost,
-                            ghost_mask_path=ghost_mask, wb=wb_arg)
+                            ghost_mask_path=ghost_mask, wb=wb_arg, align=align)
     if as_json:
         typer.echo(json.dumps(summaries, indent=2))
         return
@@ -91,10 +92,16 @@ def merge(
         table.add_row("saturated in every frame", f"{100 * s['saturated_in_all_frames_fraction']:.2f} % (shortest exposure used)")
         table.add_row("black in every frame", f"{100 * s['underexposed_in_all_frames_fraction']:.2f} %")
         table.add_row("ghosts", f"{100 * s['ghost_fraction']:.2f} % of pixels" + (f" -> {escape(s['ghost_mask'])}" if s["ghost_mask"] else ""))
+        rk = s["response"]["kind"]
+        table.add_row("response curve", {"file": f"given ({escape(str(s['response'].get('path')))})", "array": "given",
+                                         "estimated": f"estimated from these {s['response'].get('frames')} frames (Debevec)",
+                                         "linear_raw": "none needed (raw frames)"}.get(rk, "[yellow]sRGB assumed[/]"))
+        if s.get("registration"):
+            table.add_row("frame shifts (px)", ", ".join(f"({dx:+.2f}, {dy:+.2f})" + ("" if a else " not applied")
+                                                        for (dx, dy), a in zip(s["registration"]["shifts_px"], s["registration"]["applied"])))
         console.print(table)
-        if s["ghost_fraction"] > 0.02 and response is None:
-            console.print("[yellow]note:[/] many inconsistent pixels: moving objects, camera motion, or a response "
-                          "curve that is not sRGB (calibrate one: solidkit.calibration.response, then --response)")
+        for w in s["warnings"]:
+            console.print(f"[yellow]warning[/] {escape(w)}")
 
 
 @app.command()
