@@ -35,6 +35,7 @@ from scipy.optimize import least_squares
 
 from solidkit.calibration.boards import BoardView
 from solidkit.calibration.profile import Profile, make_provenance
+from solidkit.camera.lens import LensModel, LensProfile
 from solidkit.envmap.coords import rotation_from_rotvec
 from solidkit.errors import SolidkitError
 
@@ -401,8 +402,6 @@ def lens_model_from_fit(
 ):
     """Export a fit as a :class:`solidkit.camera.lens.LensModel` (centre shifted by ``offset``,
     e.g. the crop origin of this lens' half in a dual-fisheye frame)."""
-    from solidkit.camera.lens import LensModel
-
     cx, cy = float(fit.K[0, 2]) + offset[0], float(fit.K[1, 2]) + offset[1]
     top = _max_angle_deg(fit, max_angle_deg)
     if fit.model == "kb":
@@ -431,9 +430,7 @@ class FisheyeProfile(Profile):
     views: dict[str, str] = Field(default_factory=dict, description="view -> 'used' or the rejection reason")
 
     def lens_model(self):
-        from solidkit.camera.lens import LensModel
-
-        return LensModel.model_validate(self.lens)
+            return LensModel.model_validate(self.lens)
 
 
 def calibrate_fisheye(
@@ -506,8 +503,6 @@ def lens_profile_from_calibrations(
 
     ``base`` (an existing LensProfile) keeps its other lenses; a lens with the same name is replaced.
     """
-    from solidkit.camera.lens import LensProfile
-
     lenses = {l.name: l for l in (base.lenses if base is not None else [])}
     res = dict(base.residuals) if base is not None else {}
     for c in calibrations:

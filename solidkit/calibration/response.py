@@ -30,6 +30,7 @@ from solidkit.calibration.profile import Profile, make_provenance
 from solidkit.camera.metadata import read_metadata
 from solidkit.envmap.io import imread
 from solidkit.errors import InputError, SolidkitError
+from solidkit.fsutil import atomic_path
 
 __all__ = [
     "NORMALISATION_CODE",
@@ -238,12 +239,11 @@ def radiance_consistency(curve: np.ndarray, images: Sequence[np.ndarray], times:
 
 def plot_response(curve: np.ndarray, path: str | os.PathLike, title: str = "inverse camera response") -> Path:
     """Plot log2 relative exposure vs code per channel into ``path`` (PNG, written atomically)."""
-    import matplotlib
+    import matplotlib  # lazy: only the plot needs it (about 1 s to import)
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from solidkit.fsutil import atomic_path
 
     curve = np.asarray(curve)
     fig, ax = plt.subplots(figsize=(5, 4), dpi=100)

@@ -30,6 +30,7 @@ from pydantic import BaseModel, Field
 from scipy.optimize import least_squares
 
 from solidkit.calibration.profile import Profile, make_provenance
+from solidkit.camera.lens import project
 from solidkit.envmap.perspective import scale_pixel_coordinates
 from solidkit.envmap.resample import sample_image
 from solidkit.envmap.sun import luminance
@@ -191,8 +192,6 @@ def fit_overlap(
     Returns the lenses (sharing the coefficients) and residuals: robust RMS of the log ratio
     before and after (stops), parameter standard errors, sample count.
     """
-    from solidkit.camera.lens import project
-
     img = np.asarray(image, dtype=np.float32)
     _check_size(img)
     if img.ndim == 2:

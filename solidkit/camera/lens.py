@@ -241,7 +241,8 @@ class LensProfile(VersionedDocument):
             if lens.table is not None:
                 table = LensTable(theta_deg=lens.table.theta_deg, r_px=[r * s for r in lens.table.r_px])
             lenses.append(lens.model_copy(update={
-                "center": (scale_pixel_coordinates(cx, s), scale_pixel_coordinates(cy, s)), "poly": [k * s for k in lens.poly], "table": table,
+                "center": (scale_pixel_coordinates(cx, s), scale_pixel_coordinates(cy, s)),
+                "poly": [k * s for k in lens.poly], "table": table,
             }))
         return self.model_copy(update={"reference_size": (width, height), "lenses": lenses})
 

@@ -58,10 +58,11 @@ import xml.etree.ElementTree as ET
 from pathlib import Path
 from typing import Any, Literal
 
+import exifread
 import numpy as np
 from pydantic import BaseModel, Field
 
-from solidkit.envmap.coords import rotation_from_rotvec
+from solidkit.envmap.coords import rotation_from_rotvec, rotation_from_ypr
 from solidkit.errors import InputError
 
 __all__ = [
@@ -136,8 +137,6 @@ def gravity_from_pitch_roll(pitch: float, roll: float) -> np.ndarray:
     ``g_ours_cam = R_camᵀ (0, 1, 0)`` (gravity is +y in the level frame), then
     ``g_ricoh = RICOH_TO_OURSᵀ g_ours_cam``.
     """
-    from solidkit.envmap.coords import rotation_from_ypr
-
     R = np.asarray(rotation_from_ypr(0.0, float(pitch), float(roll)))
     return RICOH_TO_OURS.T @ (R.T @ np.array([0.0, 1.0, 0.0]))
 
@@ -167,8 +166,6 @@ def level_rotation(meta: CaptureMetadata) -> np.ndarray:
     does not describe what is left, so it is not applied; ingest and ``capture unwarp`` measure
     the residual tilt instead and flag it above 0.5°.
     """
-    from solidkit.envmap.coords import rotation_from_ypr
-
     ricoh_stitched = meta.image_type == "equirect" and meta.ricoh.get("0x0001") == [1]
     if (meta.pitch_deg is None or meta.roll_deg is None or ricoh_stitched
             or (meta.image_type == "equirect" and meta.zenith_corrected)):
@@ -318,8 +315,6 @@ def _parse_xmp(packet: bytes, warnings: list[str]) -> dict:
 
 
 def _exifread_tags(data: bytes, warnings: list[str]) -> dict[str, Any]:
-    import exifread
-
     logging.getLogger("exifread").setLevel(logging.CRITICAL)
     try:
         tags = exifread.process_file(io.BytesIO(data), details=False, extract_thumbnail=False)

@@ -100,7 +100,7 @@ def read_raw(
     InputError
         Unreadable / not a raw file, or unusable white balance.
     """
-    import rawpy
+    import rawpy  # lazy: LibRaw is needed by raw files only (and costs 0.1-0.3 s to import)
 
     path = Path(path)
     if not path.is_file():

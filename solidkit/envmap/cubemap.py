@@ -110,7 +110,7 @@ def cube_from_equirect(pano: Any, size: int, interp: str = "linear") -> Any:
         raise InputError(f"cube face size must be >= 1, got {size}")
     _check_interp(interp)
     if _is_torch(pano):
-        import torch
+        import torch  # lazy: only torch inputs need it (NumPy users never import torch)
 
         dtype = pano.dtype if pano.dtype in (torch.float32, torch.float64) else torch.float32
         d = torch.as_tensor(_face_directions(size), dtype=dtype, device=pano.device)
@@ -145,7 +145,7 @@ def _face_lookup(d: Any, size: int) -> tuple[Any, Any, Any]:
     K = intrinsics_from_fov(math.pi / 2, size, size)
     R = _rotations()
     if _is_torch(d):  # differentiable: every face's projection, selected per direction
-        import torch
+        import torch  # lazy: only torch inputs need it (NumPy users never import torch)
 
         Rt = torch.as_tensor(R.copy(), dtype=d.dtype, device=d.device)
         face = torch.argmax(_vecmat(d, Rt[:, :, 2].T), dim=-1)
@@ -192,7 +192,7 @@ def _padded_atlas(faces: Any, size: int, interp_pad: str = "linear") -> Any:
     P, n = _FACE_PAD, size + 2 * _FACE_PAD
     ring, x, y = _ring_maps(size)
     if _is_torch(faces):
-        import torch
+        import torch  # lazy: only torch inputs need it (NumPy users never import torch)
 
         b, _, ch = faces.shape[:3]
         atlas = faces.transpose(1, 2).reshape(b, ch, 6 * size, size)
@@ -240,7 +240,7 @@ def equirect_from_cube(faces: Any, height: int, interp: str = "linear") -> Any:
     torch_in = _is_torch(faces)
     unbatched = torch_in and faces.ndim == 4
     if torch_in:
-        import torch
+        import torch  # lazy: only torch inputs need it (NumPy users never import torch)
 
         if unbatched:
             faces = faces[None]

@@ -6,9 +6,9 @@ Camera model (conventions §1): OpenCV frame (x right, y down, z forward), intri
 ``K⁻¹ (x, y, 1)``, evaluated as ``y' = (y - cy)/fy``, ``x' = (x - cx - s y')/fx`` (the form
 kornia's ``unproject_points`` and OpenCV use). This module is the one home of the ideal ``K``
 (:func:`ideal_intrinsics`, :func:`intrinsics_from_fov`), its rescaling (:func:`scale_intrinsics`)
-and the pixel rays (:func:`pixel_rays`), for NumPy and torch alike. A camera orientation ``R`` maps camera-frame vectors to panorama-frame
-vectors (conventions §4): ``R = rotation_from_ypr(yaw, pitch, roll)`` looks at azimuth ``yaw``
-and elevation ``pitch``.
+and the pixel rays (:func:`pixel_rays`), for NumPy and torch alike. A camera orientation ``R``
+maps camera-frame vectors to panorama-frame vectors (conventions §4):
+``R = rotation_from_ypr(yaw, pitch, roll)`` looks at azimuth ``yaw`` and elevation ``pitch``.
 
 NumPy images are ``(h, w[, C])``; torch images are ``(B, C, h, w)`` or ``(C, h, w)``, and the
 torch functions are differentiable w.r.t. the images and ``R``.
@@ -21,7 +21,7 @@ from typing import Any
 
 import numpy as np
 
-from solidkit.envmap.coords import module_namespace, namespace
+from solidkit.envmap.coords import direction_grid, module_namespace, namespace
 from solidkit.envmap.resample import (
     _cached_direction_grid,
     _check_interp,
@@ -219,7 +219,7 @@ def perspective_crop(
     width, height = (int(s) for s in size)
     K = _intrinsics(K, fov, (width, height))
     if _is_torch(pano):
-        import torch
+        import torch  # lazy: only torch inputs need it (NumPy users never import torch)
 
         dtype = pano.dtype if pano.dtype in (torch.float32, torch.float64) else torch.float32
         Rt = torch.as_tensor(R, dtype=dtype, device=pano.device)
@@ -270,9 +270,8 @@ def embed_perspective(photo: Any, K: Any, R: Any, height: int, interp: str = "li
     if height < 1:
         raise InputError(f"panorama height must be >= 1, got {height}")
     if _is_torch(photo):
-        import torch
+        import torch  # lazy: only torch inputs need it (NumPy users never import torch)
 
-        from solidkit.envmap.coords import direction_grid
 
         unbatched = photo.ndim == 3
         img = photo[None] if unbatched else photo

@@ -125,7 +125,7 @@ def pad_panorama(pano: Any, pad: int = PAD) -> Any:
     if pad == 0:
         return pano
     if _is_torch(pano):
-        import torch
+        import torch  # lazy: only torch inputs need it (NumPy users never import torch)
 
         xp, rows, cols = module_namespace(torch), -2, -1
 
@@ -289,7 +289,7 @@ def _cv2_maps(direction_rows: Callable[[int, int], np.ndarray], shape: tuple[int
 
 
 def _sample_torch(pano: Any, directions: Any, height: int, interp: str, per_item: bool | None) -> Any:
-    import torch
+    import torch  # lazy: only torch inputs need it (NumPy users never import torch)
 
     unbatched = pano.ndim == 3
     if pano.ndim not in (3, 4):
@@ -317,8 +317,8 @@ def _torch_remap(img: Any, x: Any, y: Any, interp: str, border: str = "constant"
     ``img (B, C, Hi, Wi)``, ``x, y (B, ...)``; returns ``(B, C, ...)``. ``align_corners=False``
     spans the pixel edges: OpenCV coordinate ``x`` is grid value ``2 (x + 0.5) / Wi - 1``.
     """
-    import torch
-    import torch.nn.functional as F
+    import torch  # lazy: only torch inputs need it (NumPy users never import torch)
+    import torch.nn.functional as F  # lazy, as above
 
     grid = torch.stack([2 * (x + 0.5) / img.shape[-1] - 1, 2 * (y + 0.5) / img.shape[-2] - 1], dim=-1)
     b, spatial = grid.shape[0], grid.shape[1:-1]
@@ -380,7 +380,7 @@ def rotate(pano: Any, R: Any, interp: str = "linear", height: int | None = None)
     if out_h < 1:
         raise InputError(f"output height must be >= 1, got {height}")
     if _is_torch(pano):
-        import torch
+        import torch  # lazy: only torch inputs need it (NumPy users never import torch)
 
         dtype = pano.dtype if pano.dtype in (torch.float32, torch.float64) else torch.float32
         Rt = torch.as_tensor(R, dtype=dtype, device=pano.device)
@@ -450,7 +450,7 @@ def downsample(pano: Any, factor: int) -> Any:
     omega = _row_solid_angles(h)
     weight = omega / np.repeat(omega.reshape(ho, factor).sum(1), factor) / factor  # sums to 1 per block
     if _is_torch(pano):
-        import torch
+        import torch  # lazy: only torch inputs need it (NumPy users never import torch)
 
         x = pano.to(torch.float64) if pano.dtype != torch.float64 else pano
         wt = torch.as_tensor(weight, dtype=torch.float64, device=pano.device)
@@ -485,7 +485,7 @@ def _apply_weights(x: Any, idx: np.ndarray, w: np.ndarray, axis: int) -> Any:
     """``out[.., o, ..] = sum_j w[o, j] x[.., idx[o, j], ..]`` along ``axis`` (NumPy or torch)."""
     torch_in = _is_torch(x)
     if torch_in:
-        import torch
+        import torch  # lazy: only torch inputs need it (NumPy users never import torch)
 
         idx_t = torch.as_tensor(idx, device=x.device)
         w_t = torch.as_tensor(w, dtype=x.dtype, device=x.device)
@@ -546,7 +546,7 @@ def resize(pano: Any, height: int) -> Any:
     rows = _overlap_weights(s_in, s_out)
     cols = _overlap_weights(phi_in, phi_out)
     if _is_torch(pano):
-        import torch
+        import torch  # lazy: only torch inputs need it (NumPy users never import torch)
 
         x = pano.to(torch.float64)
         x = _apply_weights(_apply_weights(x, *rows, axis=x.ndim - 2), *cols, axis=x.ndim - 1)
