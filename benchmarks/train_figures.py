@@ -40,6 +40,7 @@ def crop_metrics(model, sampler, indices, batch_size: int = 8) -> dict:
     from solidkit.model.trainer import crop_batch
 
     found, errs, daz, delv, ratios, head, n_sun, l1 = 0, [], [], [], [], [], 0, []
+    paper_az, paper_el, paper_found = [], [], 0
     for s in range(0, len(indices), batch_size):
         b = crop_batch([sampler(int(i)) for i in indices[s : s + batch_size]])
         with torch.no_grad():
@@ -52,12 +53,19 @@ def crop_metrics(model, sampler, indices, batch_size: int = 8) -> dict:
             t = b["sun_dir"][i].double().numpy()
             if "sun_dir" in out:
                 head.append(math.degrees(math.acos(float(np.clip(out["sun_dir"][i].double().numpy() @ t, -1, 1)))))
-            det = detect_sun(out["sky"][i].permute(1, 2, 0).numpy())
+            sky = out["sky"][i].permute(1, 2, 0).numpy()
+            taz, tel = (float(a) for a in angles_from_direction(t))
+            pap = detect_sun(sky, method="paper")  # the paper's recipe, for its azimuth / elevation metric
+            if pap.found:
+                paper_found += 1
+                d = abs(pap.azimuth - taz) % (2 * math.pi)
+                paper_az.append(math.degrees(min(d, 2 * math.pi - d)))
+                paper_el.append(math.degrees(abs(pap.elevation - tel)))
+            det = detect_sun(sky)
             if not det.found:
                 continue
             found += 1
             errs.append(math.degrees(math.acos(float(np.clip(det.direction @ t, -1, 1)))))
-            taz, tel = (float(a) for a in angles_from_direction(t))
             d = abs(det.azimuth - taz) % (2 * math.pi)
             daz.append(math.degrees(min(d, 2 * math.pi - d)))
             delv.append(math.degrees(abs(det.elevation - tel)))
@@ -71,6 +79,8 @@ def crop_metrics(model, sampler, indices, batch_size: int = 8) -> dict:
             "median_angular_err_deg": med(errs), "median_azimuth_err_deg": med(daz),
             "median_elevation_err_deg": med(delv), "median_energy_ratio": med(ratios),
             "energy_within_2x": within2, "sun_head_median_err_deg": med(head),
+            "paper_recipe_found": paper_found, "paper_recipe_median_azimuth_err_deg": med(paper_az),
+            "paper_recipe_median_elevation_err_deg": med(paper_el),
             "sky_l1_log1p": round(float(np.mean(l1)), 4)}
 
 
