@@ -448,13 +448,15 @@ class Trainer:
         old = tomllib.loads(payload["config"])
         new = tomllib.loads(self.cfg.to_toml())
         changed = _changed_settings(old, new)
-        fixed = [k for k in changed if k.split(".")[0] in RESUME_FIXED or k.split(".")[-1] in RESUME_FIXED]
+        state = json.loads(payload["state"])
+        begun = STAGES[: STAGES.index(state["stage"]) + 1]  # a stage not begun yet may still be configured freely
+        fixed = [k for k in changed if k in RESUME_FIXED or (k.split(".")[0] in begun and k.split(".")[-1] in RESUME_FIXED)]
         if fixed:
             raise InputError(f"{self.out}: holds a run with other settings ({', '.join(fixed)}); use another out folder")
         if changed:
             self.log(f"resuming with changed settings: {', '.join(changed)} (later batches follow the new ones)")
         self.model.load_state_dict(payload["model"])
-        self.state = json.loads(payload["state"])
+        self.state = state
         return payload
 
     # -------------------------------------------------------------- logging
