@@ -351,7 +351,9 @@ def test_synthetic_campaign_end_to_end(tmp_path):
     ingest(out / "card", tmp_path / "camp")
     m = load_manifest(tmp_path / "camp")
     truth = json.loads((out / "truth" / "truth.json").read_text())
-    role_to_kind = {"photo": "photo", "bracket": "bracket_member", "low_exposure": "low_exposure", "normal": "probe"}
+    # the field protocol: every Theta shot of a position belongs to its one bracket
+    role_to_kind = {"photo": "photo", "bracket": "bracket_member", "low_exposure": "bracket_member",
+                    "normal": "bracket_member"}
     by_path = {s.sources[0].path: s for s in m.shots}
     sc = truth["scenes"][0]
     shots = [sc["photo"]["shot"]] + [s for c in sc["captures"] for s in c["shots"]]

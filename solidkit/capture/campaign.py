@@ -443,9 +443,13 @@ def summary_rows(manifest: Manifest) -> list[tuple[str, str]]:
         ("positions off level (residual tilt)", (lambda ids: "none above 0.5°" if not ids else
                                                  f"{len(ids)} above 0.5°: {', '.join(ids[:6])}")(
             [f"{p.scene}/{p.probe}" for p in manifest.products if tilt_warning(p)])),
+        ("HDR response curves", (lambda kinds: ", ".join(f"{kinds.count(k)} {label}" for k, label in (
+            ("estimated", "estimated from their bracket"), ("file", "given"), ("srgb_assumed", "sRGB ASSUMED"),
+            ("linear_raw", "raw (linear)")) if kinds.count(k)) or "-")(
+            [p.stats.get("response") for p in manifest.products if p.kind == "hdr"])),
         ("products", f"{len(manifest.products)} ({sum(1 for p in manifest.products if p.error)} with errors)"),
         ("profiles", "; ".join(f"{name} {_describe(rec, default)}" for name, rec, default in (
-            ("response", manifest.response, "sRGB inverse"), ("lens", manifest.lens_profile, "model default"),
+            ("response", manifest.response, "estimated per bracket (3+ frames), else sRGB assumed"), ("lens", manifest.lens_profile, "model default"),
             ("vignetting", manifest.vignetting, "none")))),
     ]
 

@@ -193,7 +193,10 @@ class Manifest(BaseModel):
     solidkit_version: str = ""
     conventions_version: int = 0
     grouping: GroupingParams = Field(default_factory=GroupingParams)
-    response: dict[str, Any] = Field(default_factory=lambda: {"kind": "srgb_inverse"})
+    response: dict[str, Any] = Field(
+        default_factory=lambda: {"kind": "auto"},
+        description="{kind: file, path, sha256} (--response), or {kind: auto}: each bracket's curve estimated from "
+                    "its frames (3+), else sRGB assumed (the product's stats say which)")
     lens_profile: dict[str, Any] | None = Field(
         None, description="per-unit lens profile overriding the model default: {kind: file, path, sha256} or {kind: shipped, name}"
     )
@@ -239,6 +242,8 @@ def load_manifest(campaign_dir: str | os.PathLike) -> Manifest:
         raise InputError(f"{path}: manifest schema version {version!r}; this solidkit reads versions "
                          f"{', '.join(map(str, _READABLE_VERSIONS))}")
     data["schema_version"] = SCHEMA_VERSION
+    if isinstance(data.get("response"), dict) and data["response"].get("kind") == "srgb_inverse":
+        data["response"] = {"kind": "auto"}  # version 1 silently assumed sRGB; now it is estimated or warned
     try:
         return Manifest.model_validate(data)
     except ValidationError as exc:

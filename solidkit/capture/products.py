@@ -65,8 +65,8 @@ def planned_products(manifest: Manifest) -> list[Product]:
         for pr in sc.probes:
             for b in pr.brackets:
                 first = manifest.shot(b.shots[0]).metadata
-                recipe = {"tool": "solidkit.capture.merge.merge_frames", "response": manifest.response,
-                          "ghost_k": 6.0, "deghost": False, "wb": "camera", "solidkit_version": __version__,
+                recipe = {"tool": "solidkit.capture.bracket_hdr.merge_bracket", "response": manifest.response,
+                          "ghost_k": 6.0, "deghost": False, "wb": "camera", "align": True, "solidkit_version": __version__,
                           **_unwarp_recipe(manifest, first)}
                 out.append(Product(
                     id=f"{sc.id}/{pr.id}/hdr-{b.id}", kind="hdr", scene=sc.id, probe=pr.id, inputs=list(b.shots),
@@ -192,22 +192,28 @@ def make_product(product: dict[str, Any], shots: list[dict[str, Any]], campaign:
     camp = Path(campaign)
     try:
         if p.kind == "hdr":
-            from solidkit.capture.merge import effective_exposure, load_frame, load_response, merge_frames
+            from solidkit.capture.bracket_hdr import merge_bracket
+            from solidkit.capture.merge import effective_exposure, load_response
             from solidkit.envmap.io import write_exr
 
-            resp = load_response(camp / response["path"]) if response.get("kind") == "file" else None
+            given = given_record = None
+            if response.get("kind") == "file":
+                given, given_record = load_response(_recorded_file(camp, response, "response curve")), response
             ref = shots[0]["metadata"]
-            frames, inputs = [], []
+            effs, inputs = [], []
             for s in shots:
                 md = s["metadata"]
                 t = md.get("exposure_time")
                 if not t:
                     raise InputError(f"{s['original']}: no exposure time in the metadata")
                 eff = effective_exposure(t, md.get("iso"), md.get("f_number"), ref.get("iso"), ref.get("f_number"))
-                frames.append(load_frame(camp / s["original"], eff, resp))
+                effs.append(eff)
                 inputs.append({"original": s["original"], "sha256": s["sha256"], "exposure_time": t, "effective_exposure": eff})
-            result = merge_frames(frames, ghost_k=p.recipe["ghost_k"], deghost=p.recipe["deghost"])
-            stats = result.stats()
+            result, prov = merge_bracket([camp / s["original"] for s in shots], effs, response=given,
+                                         response_record=given_record, align=p.recipe.get("align", True),
+                                         ghost_k=p.recipe["ghost_k"], deghost=p.recipe["deghost"])
+            stats = dict(prov["stats"], response=prov["response"]["kind"], registration=prov["registration"],
+                         warnings=prov["warnings"])
             hdr, layout = result.hdr, p.layout
             lens, vig = _load_optics(camp, p.recipe)
             try:
@@ -224,7 +230,8 @@ def make_product(product: dict[str, Any], shots: list[dict[str, Any]], campaign:
                 "exposure_time": ref.get("exposure_time"), "layout": p.layout,
                 "units": "relative radiance: linear code per second at the first frame's ISO and f-number",
                 "provenance": {"tool": p.recipe["tool"], "solidkit_version": p.solidkit_version, "inputs": inputs,
-                               "response": response, "recipe": p.recipe, "stats": stats},
+                               "response": prov["response"], "registration": prov["registration"],
+                               "warnings": prov["warnings"], "recipe": p.recipe, "stats": stats},
             })
             p.path, p.sha256, p.stats = rel.as_posix(), sha256_file(camp / rel), {
                 k: (round(v, 6) if isinstance(v, float) else v) for k, v in stats.items() if k != "noise_sigma"}

@@ -16,7 +16,8 @@ exposure) in two steps:
 
 The correlation coefficient is the registration's confidence: below ``min_correlation``, or
 when ECC does not converge, the frame "does not register" (a warning; it is then left
-unshifted). Shifts below ``min_shift_px``
+unshifted), as is a shift above ``max_shift_px`` or 5 % of the image's smaller side (a tripod
+bracket does not move that much; a degenerate image can fool the search). Shifts below ``min_shift_px``
 are not applied (resampling would only blur). Shifts are ``(dx, dy)`` in pixels, positive to
 the right and down, of the frame's content relative to the reference.
 """
@@ -89,13 +90,22 @@ def register_frames(codes: Sequence[np.ndarray], linear: Sequence[np.ndarray], e
             mx, my = mtb.calculateShift(gray[ref], gray[i])  # how to move frame i onto the reference
             cx, cy = -float(mx), -float(my)  # the content's displacement
         mask = cv2.erode(ok[ref] & ok[i], kernel)
-        # ECC's warp maps reference coordinates into frame i: x_i = x_ref + (dx, dy)
-        warp = np.float32([[1, 0, cx * scale], [0, 1, cy * scale]])
-        try:
-            cc, warp = cv2.findTransformECC(lum[ref], lum[i], warp, cv2.MOTION_TRANSLATION, criteria, mask, 1)
-            dx, dy = float(warp[0, 2]) / scale, float(warp[1, 2]) / scale
-        except cv2.error:
-            cc, dx, dy = 0.0, cx, cy
+        # ECC's warp maps reference coordinates into frame i: x_i = x_ref + (dx, dy). Started from no
+        # shift and from MTB's: MTB can lock onto a wrong offset in images with little structure
+        # (a smooth gradient); the better correlation wins, the smaller shift on a tie.
+        best = None
+        for sx, sy in {(0.0, 0.0), (cx, cy)}:
+            warp = np.float32([[1, 0, sx * scale], [0, 1, sy * scale]])
+            try:
+                cc_try, warp = cv2.findTransformECC(lum[ref], lum[i], warp, cv2.MOTION_TRANSLATION, criteria, mask, 1)
+            except cv2.error:
+                continue
+            cand = (float(cc_try), float(warp[0, 2]) / scale, float(warp[1, 2]) / scale)
+            if best is None or cand[0] > best[0] + 1e-3 or (abs(cand[0] - best[0]) <= 1e-3
+                                                              and np.hypot(*cand[1:]) < np.hypot(*best[1:])):
+                best = cand
+        cc, dx, dy = best if best is not None else (0.0, cx, cy)
+        max_shift_px = min(max_shift_px, 0.05 * min(h, w))
         if cc < min_correlation or abs(dx) > max_shift_px or abs(dy) > max_shift_px:
             warnings.append(f"frame_not_registered: frame {i} (exposure {exposures[i]:.6g}) does not register "
                             f"(correlation {cc:.3f}, shift ({dx:.2f}, {dy:.2f}) px); merged unshifted")

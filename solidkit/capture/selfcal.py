@@ -17,8 +17,8 @@ slower) and was dropped.
 
 :func:`response_for_bracket` decides what a merge uses and says so: a given curve
 (``"file"``/``"array"``), a curve ``"estimated"`` from these frames, or ``"srgb_assumed"``
-(fewer than 3 frames, raw/16-bit frames, or an estimate that failed: the reason is recorded
-and a warning is returned).
+(fewer than 3 frames, fewer than :data:`MIN_DISTINCT_CODES` distinct values, 16-bit frames,
+or an estimate that failed: the reason is recorded and a warning is returned).
 """
 
 from __future__ import annotations
@@ -29,9 +29,19 @@ import numpy as np
 
 from solidkit.calibration.response import ResponseError, calibrate_response, make_monotonic, response_sanity
 
-__all__ = ["MIN_FRAMES", "estimate_response", "response_for_bracket"]
+__all__ = ["MIN_FRAMES", "MIN_DISTINCT_CODES", "estimate_response", "response_for_bracket"]
 
 MIN_FRAMES = 3
+#: Fewer distinct 8-bit values than this (per channel, middle exposure) leave the curve between
+#: them unconstrained: Debevec then fits the samples and bends in between (a 54-value synthetic
+#: gradient merged 3x worse than through sRGB), so sRGB is assumed instead (and said so).
+MIN_DISTINCT_CODES = 128
+
+
+def _distinct_codes(codes: np.ndarray) -> int:
+    """Smallest per-channel count of distinct values in an 8-bit image."""
+    flat = codes.reshape(-1, codes.shape[-1])
+    return int(min(np.count_nonzero(np.bincount(flat[:, c], minlength=256)) for c in range(flat.shape[1])))
 
 
 def estimate_response(images: Sequence[np.ndarray], times: Sequence[float], *, samples: int = 150,
@@ -72,6 +82,8 @@ def response_for_bracket(images: Sequence[np.ndarray] | None, times: Sequence[fl
         why = "frames are not 8-bit"
     elif len(images) < MIN_FRAMES:
         why = f"{len(images)} frames (estimating a curve needs {MIN_FRAMES}+)"
+    elif (distinct := _distinct_codes(images[int(np.argsort(times)[len(times) // 2])])) < MIN_DISTINCT_CODES:
+        why = f"the frames show only {distinct} distinct code values (a 256-entry curve needs {MIN_DISTINCT_CODES}+)"
     else:
         try:
             curve, record = estimate_response(images, times)

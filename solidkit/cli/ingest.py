@@ -7,6 +7,10 @@ from pathlib import Path
 from typing import Any
 
 import typer
+from rich.console import Console
+from rich.markup import escape
+from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
+from rich.table import Table
 
 from solidkit.capture.campaign import IngestReport, ingest, load_manifest, summary_rows
 from solidkit.cli.parsing import parse_exposure
@@ -29,11 +33,6 @@ def ingest_command(
     quiet: bool = False,
 ) -> IngestReport:
     """Run :func:`ingest` with a rich progress bar (stderr) and print the summary (stdout; not when ``quiet``)."""
-    from rich.console import Console
-    from rich.markup import escape
-    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
-    from rich.table import Table
-
     console = Console(stderr=True)
     given = {"scene_gap_s": scene_gap, "probe_gap_s": probe_gap, "bracket_gap_s": bracket_gap,
              "low_exposure_max_s": low_exposure_max}
@@ -80,8 +79,9 @@ def ingest_command(
         why = report.skip_reasons.get(name, "not a capture (.jpg/.jpeg/.dng)")
         out.print(f"[dim]skipped[/] {escape(name)}: {why}")
     for prod in manifest.products:
-        if (w := tilt_warning(prod)) is not None:
-            out.print(f"[yellow]warning[/] {escape(prod.scene)}/{escape(prod.probe)}: {escape(w)}")
+        for w in [*prod.stats.get("warnings", []), tilt_warning(prod)]:
+            if w:
+                out.print(f"[yellow]warning[/] {escape(prod.id)}: {escape(w)}")
     for msg in report.product_errors:
         out.print(f"[yellow]product not built[/] {escape(msg)}")
     if report.transient_errors:
