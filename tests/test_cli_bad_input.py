@@ -446,12 +446,12 @@ def test_debug_shows_the_traceback_behind_the_line(cli, bad_dir: Path, monkeypat
 
 
 def test_unforeseen_errors_exit_1_with_a_hint(cli, bad_dir: Path, monkeypatch) -> None:
-    import solidkit.envmap.sun
+    import solidkit.cli.envmap
 
     def broken(*args, **kwargs):
         raise ZeroDivisionError("a bug")
 
-    monkeypatch.setattr(solidkit.envmap.sun, "detect_sun", broken)
+    monkeypatch.setattr(solidkit.cli.envmap, "detect_sun", broken)
     monkeypatch.delenv("SOLIDKIT_DEBUG", raising=False)
     code, _, err = cli("envmap", "sun", bad_dir / "pano.exr")
     assert code == 1

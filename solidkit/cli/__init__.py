@@ -9,6 +9,7 @@ import traceback
 from pathlib import Path
 
 import typer
+from typer._click.exceptions import ClickException, NoArgsIsHelpError, UsageError  # typer >= 0.16 vendors click
 
 from solidkit.cli.align import align_cli
 from solidkit.cli.calibrate import app as calibrate_app
@@ -103,8 +104,6 @@ def _fail(message: str, code: int) -> None:
 def main() -> None:
     """Entry point: user errors become one line on stderr and exit code 2 (unforeseen ones exit 1), never a
     traceback unless ``SOLIDKIT_DEBUG=1`` asks for it."""
-    from typer._click.exceptions import ClickException, NoArgsIsHelpError, UsageError  # typer >= 0.16 vendors click
-
     try:
         app(standalone_mode=False)
     except SolidkitError as exc:

@@ -18,6 +18,14 @@ from rich.console import Console
 from rich.markup import escape
 from rich.table import Table
 
+from solidkit.calibration.boards import CharucoTarget, detect_views, read_gray
+from solidkit.calibration.camera import calibrate_camera_from_board, calibrate_camera_from_photo
+from solidkit.calibration.colour import calibrate_colour, read_linear_image
+from solidkit.calibration.fisheye import calibrate_fisheye, lens_profile_from_calibrations
+from solidkit.calibration.overlap import refine_files
+from solidkit.calibration.response import ResponseProfile, calibrate_response_files, plot_response
+from solidkit.calibration.vignetting import falloff, fit_flat_field, fit_overlap, lenses_from_profile, make_profile
+from solidkit.camera.lens import load_profile as load_lens_profile
 from solidkit.cli.parsing import parse_angle, parse_angles, parse_exposures, parse_floats, parse_grid
 from solidkit.errors import InputError
 
@@ -33,8 +41,6 @@ def _print_json(profile, out: Path, **extra) -> None:
 
 def _target(pattern: str | None, charuco: str | None, square: float, marker_ratio: float, dictionary: str):
     """The board: a checkerboard's inner corners (``--pattern``) or a ChArUco target (``--charuco``)."""
-    from solidkit.calibration.boards import CharucoTarget
-
     if (pattern is None) == (charuco is None):
         raise InputError("give exactly one of --pattern COLSxROWS (checkerboard inner corners) or --charuco COLSxROWS (squares)")
     if charuco is not None:
@@ -59,8 +65,6 @@ def response(
     as_json: bool = JSON,
 ) -> None:
     """Camera response curve (inverse, per channel) from exposure brackets."""
-    from solidkit.calibration.response import calibrate_response_files, plot_response
-
     t = parse_exposures(times, "--times", count=len(frames)) if times is not None else None
     with status.status("fitting the response curve"):
         prof = calibrate_response_files(frames, t, method=method, samples=samples, smoothness=smoothness)
@@ -104,9 +108,6 @@ def colour(
     as_json: bool = JSON,
 ) -> None:
     """White balance + 3x3 colour-correction matrix from a ColorChecker (CIEDE2000 before/after)."""
-    from solidkit.calibration.colour import calibrate_colour, read_linear_image
-    from solidkit.calibration.response import ResponseProfile
-
     c = parse_floats(corners, "--corners", 8) if corners is not None else None
     resp = ResponseProfile.load(response_path).array() if response_path else None
     img = read_linear_image(image, resp)
@@ -146,8 +147,6 @@ def camera(
     as_json: bool = JSON,
 ) -> None:
     """Photo-camera intrinsics K (EXIF, field of view or checkerboard) and K at the model's 320x240 input."""
-    from solidkit.calibration.camera import calibrate_camera_from_board, calibrate_camera_from_photo
-
     if fov_deg is not None:
         fov_deg = parse_angle(fov_deg, "--fov-deg", 0.0, 180.0, open_interval=True)
     if pattern or charuco:
@@ -199,10 +198,6 @@ def lens(
     as_json: bool = typer.Option(False, "--json", help="Print the lens profile and the calibration record as JSON."),
 ) -> None:
     """Fisheye intrinsics (Kannala-Brandt and Mei) from checkerboard views, exported as a lens profile."""
-    from solidkit.calibration.boards import detect_views, read_gray
-    from solidkit.calibration.fisheye import calibrate_fisheye, lens_profile_from_calibrations
-    from solidkit.camera.lens import load_profile as load_lens_profile
-
     target = _target(pattern, charuco, square, marker_ratio, dictionary)
     base = load_lens_profile(add_to) if add_to else None  # a bad --add-to fails before the views are read
     pat = target if isinstance(target, tuple) else target.pattern
@@ -280,11 +275,6 @@ def vignetting(
     as_json: bool = JSON,
 ) -> None:
     """Radial falloff of each fisheye lens, from a flat field or the two lenses' overlap."""
-    from solidkit.calibration.colour import read_linear_image
-    from solidkit.calibration.response import ResponseProfile
-    from solidkit.calibration.vignetting import falloff, fit_flat_field, fit_overlap, lenses_from_profile, make_profile
-    from solidkit.camera.lens import load_profile as load_lens_profile
-
     resp = ResponseProfile.load(response_path).array() if response_path else None
     img = read_linear_image(image, resp)
     h, w = img.shape[:2]
@@ -332,8 +322,6 @@ def overlap(
     as_json: bool = typer.Option(False, "--json", help="Print the refinement summary as JSON."),
 ) -> None:
     """Refine lens centres, scales and the inter-lens rotation on the overlap ring (robust photometric fit)."""
-    from solidkit.calibration.overlap import refine_files
-
     s = refine_files(images, base, out, circle_sigma_px=circle_sigma or None, scale_sigma=scale_sigma, fix_scale=fix_scale)
     if as_json:
         typer.echo(json.dumps(s, default=str))

@@ -14,6 +14,8 @@ from rich.markup import escape
 from rich.table import Table
 
 from solidkit.camera.metadata import read_metadata
+from solidkit.capture.merge import merge_files
+from solidkit.capture.unwarp import unwarp_file
 from solidkit.cli.parsing import parse_angle, parse_exposures, parse_floats, parse_size
 from solidkit.errors import InputError
 from solidkit.fsutil import jpeg_truncated
@@ -73,8 +75,6 @@ def merge(
     as_json: bool = typer.Option(False, "--json", help="Print the merge statistics as JSON."),
 ) -> None:
     """Merge exposure brackets into linear HDR EXR (weights, saturation/black exclusion, ghost report)."""
-    from solidkit.capture.merge import merge_files
-
     t = parse_exposures(times, "--times") if times else None
     wb_arg: object = tuple(parse_floats(wb, "--wb", 3, positive=True)) if "," in wb else wb
     if isinstance(wb_arg, str) and wb_arg not in ("camera", "daylight", "none"):
@@ -118,8 +118,6 @@ def unwarp(
     as_json: bool = typer.Option(False, "--json", help="Print the summary as JSON."),
 ) -> None:
     """Dual-fisheye -> equirectangular panorama in the panorama frame (docs/conventions.md)."""
-    from solidkit.capture.unwarp import unwarp_file
-
     out_height = parse_size(size, "--size", equirect=True)[1] if size is not None else None
     feather = parse_angle(feather, "--feather", 0.0, 180.0)
     s = unwarp_file(src, out, profile=profile, out_height=out_height, feather_deg=feather, level=level, gain_match=gain,

@@ -6,6 +6,7 @@ Writers take ``-o/--out``; every command takes ``--json`` (the result as JSON on
 from __future__ import annotations
 
 import json
+import math
 from enum import Enum
 from pathlib import Path
 
@@ -14,10 +15,13 @@ import typer
 from rich.console import Console
 from rich.table import Table
 
-from solidkit.envmap.coords import solid_angle
-from solidkit.envmap.io import read_image, validate_panorama
 from solidkit.cli.parsing import parse_angle, parse_size
-from solidkit.envmap.sun import luminance
+from solidkit.envmap.coords import rotation_from_ypr, solid_angle
+from solidkit.envmap.io import LDR_SUFFIXES, read_image, tonemap, validate_panorama, write_exr, write_ldr
+from solidkit.envmap.perspective import intrinsics_from_fov, perspective_crop
+from solidkit.envmap.resample import rotate as rotate_pano
+from solidkit.envmap.sun import detect_sun, luminance
+from solidkit.errors import InputError
 
 app = typer.Typer(no_args_is_help=True)
 console = Console()
@@ -83,8 +87,6 @@ def sun(
     ),
 ) -> None:
     """Find the sun: azimuth and elevation in degrees (conventions §3), or 'no sun'."""
-    from solidkit.envmap.sun import detect_sun
-
     img, _ = load_panorama(pano)
     result = detect_sun(img, method=method.value)
     if as_json:
@@ -112,9 +114,6 @@ class Interp(str, Enum):
 
 def _output_writer(pano: Path, out: Path):
     """Check ``out`` before any work (known suffix, not the input file); return its writer."""
-    from solidkit.envmap.io import LDR_SUFFIXES, tonemap, write_exr, write_ldr
-    from solidkit.errors import InputError
-
     suffix = out.suffix.lower()
     if suffix != ".exr" and suffix not in LDR_SUFFIXES:
         raise InputError(f"{out}: unknown output type '{out.suffix}' (use .exr, or .png/.jpg for a tonemapped LDR)")
@@ -145,11 +144,6 @@ def rotate(
     as_json: bool = typer.Option(False, "--json", help="Print what was written as JSON."),
 ) -> None:
     """Rotate a panorama: content in direction d moves to R(yaw, pitch, roll) d (conventions §4)."""
-    import math
-
-    from solidkit.envmap.coords import rotation_from_ypr
-    from solidkit.envmap.resample import rotate as rotate_pano
-
     yaw, pitch, roll = (parse_angle(v, f"--{n}") for v, n in ((yaw, "yaw"), (pitch, "pitch"), (roll, "roll")))
     write = _output_writer(pano, out)
     img, meta = load_panorama(pano)
@@ -178,11 +172,6 @@ def crop(
     as_json: bool = typer.Option(False, "--json", help="Print what was written as JSON."),
 ) -> None:
     """Perspective (pinhole) view of a panorama, camera R(yaw, pitch, roll) (conventions §1, §4)."""
-    import math
-
-    from solidkit.envmap.coords import rotation_from_ypr
-    from solidkit.envmap.perspective import intrinsics_from_fov, perspective_crop
-
     width, height = parse_size(size)
     fov = parse_angle(fov, "--fov", 0.0, 180.0, open_interval=True)
     yaw, pitch, roll = (parse_angle(v, f"--{n}") for v, n in ((yaw, "yaw"), (pitch, "pitch"), (roll, "roll")))

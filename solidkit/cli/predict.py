@@ -19,6 +19,7 @@ from rich.table import Table
 
 from solidkit.cli.parsing import output_folder, parse_angle, parse_floats, parse_pixel
 from solidkit.envmap.coords import CONVENTIONS_VERSION
+from solidkit.envmap.perspective import intrinsics_from_fov
 from solidkit.envmap.io import read_ldr, tonemap, write_exr, write_ldr
 from solidkit.errors import InputError
 from solidkit.fsutil import atomic_write_text
@@ -49,9 +50,8 @@ def predict_command(
     as_json: bool = typer.Option(False, "--json", help="Print prediction.json on stdout instead of the summary."),
 ) -> None:
     """Predict the global HDR sky, its sun direction and a local HDR panorama at each --at pixel."""
-    from solidkit.model.blocks import HDR_PARAMETERISATION
-    from solidkit.envmap.perspective import intrinsics_from_fov
-    from solidkit.model.solidnet import SolidNet
+    from solidkit.model.blocks import HDR_PARAMETERISATION  # lazy: solidkit.model imports torch (seconds), so
+    from solidkit.model.solidnet import SolidNet  # only `solidkit predict` pays for it, not every command
 
     output_folder(out)
     pixels = [parse_pixel(a, "--at") for a in at]
