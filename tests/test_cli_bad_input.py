@@ -445,6 +445,20 @@ def test_debug_shows_the_traceback_behind_the_line(cli, bad_dir: Path, monkeypat
     assert err.strip().splitlines()[-1] == f"error: {bad_dir / 'nan.exr'}: 1 pixel(s) are NaN or Inf"
 
 
+def test_exit_codes_of_commands_pass_through(cli, bad_dir: Path, monkeypatch) -> None:
+    """``raise typer.Exit(3)`` in a command exits 3 (click hands it back instead of raising it)."""
+    import typer
+
+    import solidkit.cli.envmap
+
+    def stop(*args, **kwargs):
+        raise typer.Exit(3)
+
+    monkeypatch.setattr(solidkit.cli.envmap, "detect_sun", stop)
+    assert cli("envmap", "sun", bad_dir / "pano.exr")[0] == 3
+    assert cli("envmap", "info", bad_dir / "pano.exr")[0] == 0
+
+
 def test_unforeseen_errors_exit_1_with_a_hint(cli, bad_dir: Path, monkeypatch) -> None:
     import solidkit.cli.envmap
 

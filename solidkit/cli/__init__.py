@@ -105,7 +105,7 @@ def main() -> None:
     """Entry point: user errors become one line on stderr and exit code 2 (unforeseen ones exit 1), never a
     traceback unless ``SOLIDKIT_DEBUG=1`` asks for it."""
     try:
-        app(standalone_mode=False)
+        code = app(standalone_mode=False)  # a typer.Exit(n) raised in a command comes back as n here
     except SolidkitError as exc:
         _fail(str(exc), 2)
     except (typer.Abort, KeyboardInterrupt):
@@ -130,6 +130,8 @@ def main() -> None:
     except Exception as exc:  # anything unforeseen: still one line
         hint = "" if os.environ.get(DEBUG_ENV, "") not in ("", "0") else f" (run with {DEBUG_ENV}=1 for the traceback)"
         _fail(f"{type(exc).__name__}: {exc}{hint}", 1)
+    if isinstance(code, int) and not isinstance(code, bool) and code != 0:
+        sys.exit(code)
 
 
 if __name__ == "__main__":
