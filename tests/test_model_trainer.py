@@ -102,6 +102,13 @@ def test_resumed_run_takes_the_same_steps_as_an_uninterrupted_one(tmp_path, sour
 
     card = SolidNet.from_checkpoint(tmp_path / "full" / "model.pt").card
     assert card["samples_seen"] == 8 and card["seed"] == 5
+    from solidkit.fsutil import sha256_file
+    from solidkit.model.trainer import export_checkpoint
+
+    doc = export_checkpoint(tmp_path / "full" / "model.pt", tmp_path / "ship" / "m.pt", {"metrics": {"x": 1}})
+    on_disk = json.loads((tmp_path / "ship" / "m.card.json").read_text())
+    assert on_disk["sha256"] == sha256_file(tmp_path / "ship" / "m.pt") == doc["sha256"]
+    assert on_disk["card"]["metrics"] == {"x": 1} and on_disk["card"]["seed"] == 5
 
 
 def test_config_errors_are_one_line(tmp_path, sources, cli):
