@@ -48,8 +48,11 @@ def disk(image: np.ndarray, az_deg: float, el_deg: float, radius_deg: float, col
     image[dist < math.radians(radius_deg)] = colour
 
 
-def make_campaign(root: Path, *, with_alignment: bool = True) -> tuple[Path, dict | None]:
-    """Write the campaign under ``root``; return it and its alignment dict (or None)."""
+def make_campaign(root: Path, *, with_alignment: bool = True, with_city: bool = True) -> tuple[Path, dict | None]:
+    """Write the campaign under ``root``; return it and its alignment dict (or None).
+
+    ``with_city``: also the realistic scene ``city`` (from the shipped CC0 panorama).
+    """
     root.mkdir(parents=True, exist_ok=True)
     (root / "originals").mkdir(exist_ok=True)
     photo = np.full((PHOTO_SIZE[1], PHOTO_SIZE[0], 3), (90, 110, 120), np.uint8)
@@ -72,8 +75,9 @@ def make_campaign(root: Path, *, with_alignment: bool = True) -> tuple[Path, dic
     write_exr(root / "products/s1/p1/hdr-b01.exr", hdr)
     products.append(Product(id="s1/p1/hdr-b01", kind="hdr", scene="s1", probe="p1", inputs=[], path="products/s1/p1/hdr-b01.exr", layout="equirect"))
     scene = Scene(id="s1", grouping="folder", photos=["a" * 64], photo="a" * 64, camera_probe="cam", probes=probes)
-    city, city_align = _city(root, shots, products)
-    save_manifest(root, Manifest(shots=shots, scenes=[scene, city], products=products, conventions_version=1))
+    city, city_align = _city(root, shots, products) if with_city else (None, None)
+    scenes = [scene, city] if with_city else [scene]
+    save_manifest(root, Manifest(shots=shots, scenes=scenes, products=products, conventions_version=1))
     if not with_alignment:
         return root, None
     K = [[FX, 0.0, (PHOTO_SIZE[0] - 1) / 2], [0.0, FX, (PHOTO_SIZE[1] - 1) / 2], [0.0, 0.0, 1.0]]
@@ -97,7 +101,7 @@ def make_campaign(root: Path, *, with_alignment: bool = True) -> tuple[Path, dic
                  "yaw_deg": -HEADING_DOT_AZ, "residual_deg": 0.3, "cues": {"sun": {"yaw_deg": -HEADING_DOT_AZ, "weight": 1.0, "ok": True}}, "flags": []},
                 {"id": "p2", "role": "probe", "pixel_full": None, "yaw_deg": None, "flags": ["low_confidence"]},
             ],
-        }, city_align]
+        }] + ([city_align] if with_city else [])
     }  # fmt: skip
     return root, alignment
 

@@ -142,7 +142,7 @@ def test_traversal_is_404(client, url):
 
 
 def test_symlink_escape_is_not_served(tmp_path):
-    root, alignment = make_campaign(tmp_path / "camp")
+    root, alignment = make_campaign(tmp_path / "camp", with_city=False)
     secret = tmp_path / "secret.png"
     cv2.imwrite(str(secret), np.zeros((8, 16, 3), np.uint8))
     target = root / "products/s1/p2/sun.png"
@@ -200,3 +200,16 @@ def test_cli_export(cli, campaign, tmp_path):
     assert code == 2 and "manifest.json" in err
     code, out, err = cli("label", "serve", root, "--host", "0.0.0.0", "--token", "short")
     assert code == 2 and "16 characters" in err
+
+
+def test_proposal_from_the_store_without_alignment(tmp_path):
+    """`solidkit label sun` writes auto labels (with candidates) but no alignment.json: they are the proposal."""
+    root, _ = make_campaign(tmp_path / "camp", with_alignment=False, with_city=False)
+    cand = [{"azimuth_deg": -60.0, "elevation_deg": 10.0, "size_deg": 0.5, "chosen": False, "reasons": ["below the ephemeris"]}]
+    LabelStore(root).put("sun", "s1/p1", {"found": True, "azimuth_deg": 40.0, "elevation_deg": 25.0, "uncertainty_deg": 0.4,
+                                          "candidates": cand}, source="auto", annotator="align", flags=["glint"])  # fmt: skip
+    c = TestClient(create_app(root, allowed_hosts=["testserver"]))
+    it = item(c, "sun", "s1/p1")
+    assert it["proposal"] == {"found": True, "azimuth_deg": 40.0, "elevation_deg": 25.0, "uncertainty_deg": 0.4}
+    assert it["view"]["candidates"] == cand and "glint" in it["review"]["flags"]
+    assert item(c, "sun", "s1/p2")["proposal"] is None

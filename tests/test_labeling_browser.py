@@ -130,8 +130,13 @@ def test_sun_click_markers_store_the_drawn_direction(server, browser, campaign):
         page.mouse.click(ov["x"] + (az + 180) / 360 * ov["width"], ov["y"] + (90 - el) / 180 * ov["height"])
         page.wait_for_timeout(250)
         x, y = blob(page, "#sun-sphere", bgr[::-1])
-        page.mouse.click(x, y)
+        page.mouse.click(x + 25, y - 10)  # a first, careless click beside the sun ...
         page.wait_for_selector("#draft-value:text-matches('^az')")
+        page.mouse.move(x + 25, y - 10)  # ... then the mark is dragged onto it
+        page.mouse.down()
+        page.mouse.move(x + 10, y - 4, steps=3)
+        page.mouse.move(x, y, steps=3)
+        page.mouse.up()
         page.keyboard.press("s")
         page.wait_for_selector(f"body[data-saved^='sun:{key}:']")
         lab = LabelStore(root).get("sun", key)
@@ -146,6 +151,7 @@ def test_sun_click_markers_store_the_drawn_direction(server, browser, campaign):
     assert not errors
 
 
+@pytest.mark.slow
 def test_sun_accept_with_one_key(server, browser, campaign):
     root, alignment = campaign
     page, errors = open_page(browser, f"{server}/#task=sun&key=city/p1")
@@ -174,7 +180,6 @@ def test_probe_pixel_click_and_concurrent_edit(server, browser, campaign):
     loaded(b, "probe_pixel", "s1/p1")
     x, y = blob(a, "#pixel-view", (255, 0, 0), tol=120)
     a.mouse.click(x, y)
-    shot(a, "probe_pixel")
     a.keyboard.press("s")
     a.wait_for_selector(f"body[data-saved^='probe_pixel:s1/p1:']")
     first = LabelStore(root).get("probe_pixel", "s1/p1")
@@ -196,6 +201,7 @@ def test_probe_pixel_click_and_concurrent_edit(server, browser, campaign):
     assert not errors_a and not errors_b
 
 
+@pytest.mark.slow
 def test_heading_frame_and_yaw(server, browser, campaign):
     """A red disk drawn at azimuth 30 deg of the capture's level frame, with align's yaw -30: looking
     through the photo puts it at the centre of the view; a nudge stores the new yaw."""
@@ -208,7 +214,18 @@ def test_heading_frame_and_yaw(server, browser, campaign):
     x, y = blob(page, "#heading-sphere", (255, 0, 0), tol=150)
     box = page.locator("#heading-sphere").bounding_box()
     assert x == pytest.approx(box["x"] + box["width"] / 2, abs=6) and y == pytest.approx(box["y"] + box["height"] / 2, abs=6)
+    x0 = box["x"] + box["width"] / 2
+    page.mouse.move(x0, y)  # drag the frame 60 px to the right: the photo turns right, yaw decreases
+    page.mouse.down()
+    page.mouse.move(x0 + 60, y, steps=4)
+    page.mouse.up()
+    dragged = float(page.locator("#yaw-input").input_value())
+    assert -HEADING_DOT_AZ - 10 < dragged < -HEADING_DOT_AZ - 0.5
+    page.fill("#yaw-input", str(-HEADING_DOT_AZ))
+    page.locator("#yaw-input").press("Enter")
+    page.locator("#yaw-input").blur()
     page.keyboard.press("ArrowRight")  # turns the frame to the right: yaw decreases
+    page.keyboard.press("o")  # overlay back on
     page.keyboard.press("s")
     page.wait_for_selector(f"body[data-saved^='heading:s1/p1:']")
     assert LabelStore(root).get("heading", "s1/p1").value["yaw_deg"] == pytest.approx(-HEADING_DOT_AZ - 0.2, abs=1e-6)
@@ -217,15 +234,27 @@ def test_heading_frame_and_yaw(server, browser, campaign):
     assert not errors
 
 
-def test_review_lists_the_disagreement(server, browser):
+@pytest.mark.slow
+def test_review_lists_the_disagreement(server, browser, campaign):
+    store = LabelStore(campaign[0])
+    store.put("heading", "city/cam", {"yaw_deg": 1.0}, source="annotator", annotator="ann")
+    store.put("heading", "city/cam", {"yaw_deg": 9.0}, source="annotator", annotator="bob")  # 8 deg apart: 4x the threshold
     page, errors = open_page(browser, f"{server}/#task=review")
     loaded(page, "review")
-    first = page.locator("#review-table tbody tr").first
-    assert first.get_attribute("data-key") == "probe_pixel:s1/p1" and "px" in first.text_content()
+    row = page.locator("#review-table tr[data-key='heading:city/cam']")
+    assert "8.00°" in row.text_content() and "open" in row.get_attribute("class")
+    assert page.locator("#review-table tbody tr").first.get_attribute("class").endswith("open")  # disagreements first
     shot(page, "review")
-    first.click()
-    loaded(page, "probe_pixel", "s1/p1")
+    row.click()
+    loaded(page, "heading", "city/cam")
     assert page.locator("#review-badge").is_visible()
+    page.keyboard.press("s")  # the reviewer settles it
+    page.wait_for_selector("body[data-saved^='heading:city/cam:3']")
+    assert store.get("heading", "city/cam").source == "reviewed"
+    goto(page, "probe_pixel", "city/p1")
+    box = page.locator("#pixel-view").bounding_box()
+    page.mouse.click(box["x"] + box["width"] * 0.52, box["y"] + box["height"] * 0.86)
+    shot(page, "probe_pixel")
     assert not errors
 
 

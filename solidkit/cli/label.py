@@ -12,12 +12,14 @@ import typer
 from rich.console import Console
 from rich.table import Table
 
+from solidkit.cli.align import label_sun
 from solidkit.errors import InputError
 from solidkit.fsutil import atomic_write_text
 from solidkit.labeling.store import LabelStore, store_path
 
 app = typer.Typer(no_args_is_help=True)
 console = Console(stderr=True)
+app.command("sun")(label_sun)  # align/'s automatic sun labels (candidates + reasons) into the store
 
 
 def _is_loopback(host: str) -> bool:

@@ -221,7 +221,8 @@ def create_app(
         if kind == "review":
             rows = [r for r in review_all(index, store) if r.flags or r.open_disagreement or r.opinions]
             order = {"flagged": 0, "left": 1, "done": 2}
-            rows.sort(key=lambda r: (not r.open_disagreement, order[r.status], -(r.disagreement or r.vs_auto or 0.0)))
+            # biggest first, in units of each kind's threshold (degrees and pixels do not compare)
+            rows.sort(key=lambda r: (not r.open_disagreement, order[r.status], -(r.disagreement or r.vs_auto or 0.0) / THRESHOLDS[r.kind]))
             items = [r.as_dict() | {"title": index.items[r.kind][r.key].title} for r in rows]
         else:
             items = [
@@ -251,7 +252,15 @@ def create_app(
         it = _item(kind, key)
         label = store.get(kind, key)
         history = store.history(kind, key)
-        view = dict(it.view)
+        view, proposal = dict(it.view), it.proposal
+        if proposal is None:  # no alignment.json: align's auto label in the store (`solidkit label sun`)
+            auto = next((c for c in reversed(history) if c.source == "auto" and c.value), None)
+            if auto is not None:
+                proposal = {k: v for k, v in auto.value.items() if k in _WEB_FIELDS[kind]}
+                if kind == "sun":
+                    view["candidates"] = view.get("candidates") or auto.value.get("candidates") or []
+                if kind == "probe_pixel":
+                    view["proposal_source"] = "align (geometry)"
         for name in ("image",):
             if view.get(name):
                 view[name] = _image_info(view[name])
@@ -265,7 +274,7 @@ def create_app(
                     siblings[other.probe] = (lab.value if lab else None) or other.proposal
         return {
             "kind": kind, "key": key, "title": it.title, "scene": it.scene, "probe": it.probe, "view": view,
-            "proposal": it.proposal, "flags": it.flags, "siblings": siblings,
+            "proposal": proposal, "flags": it.flags, "siblings": siblings,
             "label": label.model_dump(mode="json") if label else None, "version": store.version(kind, key),
             "review": review_item(it, label, history).as_dict(),
             "history": [c.model_dump(mode="json") for c in history[-30:]],

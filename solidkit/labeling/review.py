@@ -106,7 +106,9 @@ def review_item(item: Item, label: Label | None, history: list[Change]) -> Revie
     if auto is None:
         auto = next((c.value for c in reversed(history) if c.source == "auto" and c.value), None)
     vs_auto = distance(item.kind, label.value, auto) if human and auto else None
-    flags = list(dict.fromkeys([*item.flags, *(label.flags if label else [])]))
+    # store flags are the names of align's messages ("name: detail"): keep the message only
+    extra = [f for f in (label.flags if label else []) if not any(a == f or a.startswith(f + ":") for a in item.flags)]
+    flags = list(dict.fromkeys([*item.flags, *extra]))
     open_dis = dis is not None and dis > THRESHOLDS[item.kind]
     if open_dis:
         flags.append("annotators disagree")

@@ -24,7 +24,7 @@ const TASK_NAMES = { sun: 'Sun', probe_pixel: 'Probe pixels', heading: 'Heading'
 
 export function formatValue(kind, v) {
   if (!v) return '–';
-  if (kind === 'sun') return v.found === false ? 'no sun visible' : `az ${f2(v.azimuth_deg)}°, el ${f2(v.elevation_deg)}°` + (v.uncertainty_deg != null ? ` ±${f2(v.uncertainty_deg)}°` : '');
+  if (kind === 'sun') return v.found === false ? 'no sun visible' : `az ${f2(wrap180(v.azimuth_deg))}°, el ${f2(v.elevation_deg)}°` + (v.uncertainty_deg != null ? ` ±${f2(v.uncertainty_deg)}°` : '');
   if (kind === 'probe_pixel') return `x ${f2(v.x, 1)}, y ${f2(v.y, 1)} px`;
   if (kind === 'heading') return v.yaw_deg == null ? 'unknown' : `yaw ${f2(v.yaw_deg)}°`;
   return JSON.stringify(v);
@@ -166,7 +166,7 @@ class App {
       const li = el('li', {
         class: `q ${q.status}${i === this.pos ? ' current' : ''}`, 'data-key': q.key, title: (q.flags || []).join(', '),
         onclick: () => (this.task === 'review' ? this.openReview(q.kind, q.key) : this.open(i)),
-      }, el('span', { class: 'dot' }), el('span', { class: 'qt' }, q.title),
+      }, el('span', { class: 'dot' }), el('span', { class: 'qt' }, this.task === 'review' ? `${TASK_NAMES[q.kind]}: ${q.title}` : q.title),
       q.flags && q.flags.length ? el('span', { class: 'qf' }, '⚑') : null);
       list.append(li);
     });
@@ -325,7 +325,7 @@ function panelHeader(app, item) {
 function savedLine(app, item) {
   if (app.blind && !app.reviewing) return el('div', { class: 'row muted' }, 'blind mode: other labels hidden');
   const lab = item.label;
-  return el('div', { class: 'row' }, el('span', { class: 'swatch saved' }), 'Saved: ',
+  return el('div', { class: 'row' }, el('span', { class: 'swatch saved' }), 'Stored: ',
     lab ? el('b', { id: 'saved-value' }, formatValue(item.kind, lab.value)) : el('i', {}, 'none'),
     lab ? el('span', { class: 'muted' }, ` — ${lab.annotator} (${lab.source}), v${lab.version}`) : null);
 }
@@ -336,7 +336,7 @@ function opinionsBlock(app, item) {
   if (names.length < 2 || (app.blind && !app.reviewing)) return null;
   const u = item.review.unit;
   return el('div', { class: 'opinions' },
-    el('div', { class: 'row' }, `Annotators (${names.length}) disagree by `, el('b', {}, `${item.review.disagreement} ${u}`)),
+    el('div', { class: 'row' }, `Annotators (${names.length}) are `, el('b', {}, item.review.disagreement === 'inf' ? 'found vs none' : u === 'deg' ? `${f2(item.review.disagreement)}°` : `${f2(item.review.disagreement, 1)} ${u}`), ' apart'),
     el('ul', {}, names.map(n => el('li', {}, `${n}: ${formatValue(item.kind, ops[n].value)}`))));
 }
 
@@ -430,25 +430,24 @@ class SunTask {
     const it = this.item, ms = [];
     if (!this.hidden()) {
       it.view.candidates.forEach((c, i) => {
-        if (!c.chosen) ms.push({ id: `cand${i}`, azimuth_deg: c.azimuth_deg, elevation_deg: c.elevation_deg, cls: 'rejected', size: 18,
-          tooltip: `rejected candidate: ${(c.reasons || []).join('; ') || 'no reason given'}` });
+        if (!c.chosen) ms.push({ id: `cand${i}`, azimuth_deg: c.azimuth_deg, elevation_deg: c.elevation_deg, cls: 'rejected', size: 18 });
       });
       if (it.proposal && it.proposal.found) {
         const p = it.proposal;
-        ms.push({ id: 'auto', azimuth_deg: p.azimuth_deg, elevation_deg: p.elevation_deg, cls: 'auto', size: 30, tooltip: `auto: ${formatValue('sun', p)}` });
+        ms.push({ id: 'auto', azimuth_deg: p.azimuth_deg, elevation_deg: p.elevation_deg, cls: 'auto', size: 30 });
         if (p.uncertainty_deg) ms.push({ id: 'auto-unc', polygonRad: circle(p.azimuth_deg, p.elevation_deg, p.uncertainty_deg), style: { fill: 'none', stroke: '#fb923c', strokeWidth: '1.5px', strokeDasharray: '4 3' } });
       }
       for (const [who, op] of Object.entries(it.review.opinions || {})) {
-        if (op.value && op.value.found && (!it.label || who !== it.label.annotator)) ms.push({ id: `op-${who}`, azimuth_deg: op.value.azimuth_deg, elevation_deg: op.value.elevation_deg, cls: 'other', size: 14, tooltip: `${who}: ${formatValue('sun', op.value)}` });
+        if (op.value && op.value.found && (!it.label || who !== it.label.annotator)) ms.push({ id: `op-${who}`, azimuth_deg: op.value.azimuth_deg, elevation_deg: op.value.elevation_deg, cls: 'other', size: 14 });
       }
       const lab = it.label && it.label.value;
       if (lab && lab.found) {
-        ms.push({ id: 'saved', azimuth_deg: lab.azimuth_deg, elevation_deg: lab.elevation_deg, cls: 'saved', size: 26, tooltip: `saved: ${formatValue('sun', lab)}` });
+        ms.push({ id: 'saved', azimuth_deg: lab.azimuth_deg, elevation_deg: lab.elevation_deg, cls: 'saved', size: 26 });
         if (lab.uncertainty_deg) ms.push({ id: 'saved-unc', polygonRad: circle(lab.azimuth_deg, lab.elevation_deg, lab.uncertainty_deg), style: { fill: 'none', stroke: '#4ade80', strokeWidth: '1.5px' } });
       }
     }
     if (this.draft) {
-      ms.push({ id: 'draft', azimuth_deg: this.draft.azimuth_deg, elevation_deg: this.draft.elevation_deg, cls: 'draft', size: 30, z: 20, tooltip: 'your mark (drag to move)' });
+      ms.push({ id: 'draft', azimuth_deg: this.draft.azimuth_deg, elevation_deg: this.draft.elevation_deg, cls: 'draft', size: 30, z: 20 });
       ms.push({ id: 'draft-unc', polygonRad: circle(this.draft.azimuth_deg, this.draft.elevation_deg, this.unc), style: { fill: 'rgba(34,211,238,0.12)', stroke: '#22d3ee', strokeWidth: '2px' }, z: 19 });
     }
     this.sphere.setMarkers(ms);
@@ -516,6 +515,7 @@ class SunTask {
     const rejected = it.view.candidates.filter(c => !c.chosen);
     fill(this.panel,
       ...panelHeader(app, it),
+      el('p', { class: 'hint' }, 'Click the centre of the sun’s bright disk (drag your mark to adjust), A to accept the orange proposal, N if no sun is visible. Grey × marks are candidates align/ rejected. Hover the strip below to look around.'),
       el('div', { class: 'row' }, el('span', { class: 'swatch auto' }), 'Auto: ', auto),
       it.view.ephemeris && it.view.ephemeris.elevation_deg != null
         ? el('div', { class: 'row muted' }, el('span', { class: 'swatch ephem' }), `pvlib sun elevation ${f2(it.view.ephemeris.elevation_deg)}° (dashed line)`) : null,
@@ -533,7 +533,7 @@ class SunTask {
         button('Clear my mark', 'Esc', () => { this.draft = null; this.renderMarkers(); this.renderPanel(); }, 'btn-clear')),
       rejected.length && !this.hidden() ? el('details', { class: 'cands', open: true }, el('summary', {}, `Rejected candidates (${rejected.length})`),
         el('ul', {}, rejected.map(c => el('li', { onclick: () => this.sphere.lookAt(c.azimuth_deg, c.elevation_deg, 15) },
-          `az ${f2(c.azimuth_deg, 1)}°, el ${f2(c.elevation_deg, 1)}°: `, el('span', { class: 'muted' }, (c.reasons || []).join('; ')))))) : null,
+          `az ${f2(wrap180(c.azimuth_deg), 1)}°, el ${f2(c.elevation_deg, 1)}°: `, el('span', { class: 'muted' }, (c.reasons || []).join('; ')))))) : null,
       historyBlock(it),
     );
   }
@@ -757,7 +757,7 @@ class HeadingTask {
     this.renderMarkers();
     const v = $('#draft-value');
     if (v) v.textContent = formatValue('heading', { yaw_deg: this.yaw });
-    if (!dragging) { const i = $('#yaw-input'); if (i) i.value = this.yaw; }
+    if (!dragging) { const i = $('#yaw-input'); if (i) i.value = +this.yaw.toFixed(2); }
   }
 
   insideFrame(e) {
@@ -777,12 +777,12 @@ class HeadingTask {
     if (!it.view.photo.outline) { this.sphere.setMarkers([]); return; }
     const pitch = it.view.photo.pitch_deg || 0;
     if (!this.hidden()) {
-      if (it.proposal && it.proposal.yaw_deg != null) ms.push({ id: 'auto', polygon: this.outline(it.proposal.yaw_deg), style: { fill: 'none', stroke: '#fb923c', strokeWidth: '2px', strokeDasharray: '8 5' }, tooltip: `auto: ${formatValue('heading', it.proposal)}` });
-      if (it.label) ms.push({ id: 'saved', polygon: this.outline(it.label.value.yaw_deg), style: { fill: 'none', stroke: '#4ade80', strokeWidth: '2px' }, tooltip: `saved: ${formatValue('heading', it.label.value)}` });
+      if (it.proposal && it.proposal.yaw_deg != null) ms.push({ id: 'auto', polygon: this.outline(it.proposal.yaw_deg), style: { fill: 'none', stroke: '#fb923c', strokeWidth: '2px', strokeDasharray: '8 5' } });
+      if (it.label) ms.push({ id: 'saved', polygon: this.outline(it.label.value.yaw_deg), style: { fill: 'none', stroke: '#4ade80', strokeWidth: '2px' } });
     }
     const ol = this.outline(this.yaw), n = ol.length / 4;
     if (this.overlay > 0) ms.push({ id: 'photo', imageLayer: imageUrl.preview(it.view.photo.image.id), corners: [ol[0], ol[n], ol[2 * n], ol[3 * n]], opacity: this.overlay, z: 5 });
-    ms.push({ id: 'draft', polygon: this.outline(this.yaw), style: { fill: 'rgba(34,211,238,0.08)', stroke: '#22d3ee', strokeWidth: '2.5px' }, z: 20, tooltip: 'the photo’s frame: drag it (or Shift+drag, ←/→) to rotate' });
+    ms.push({ id: 'draft', polygon: this.outline(this.yaw), style: { fill: 'rgba(34,211,238,0.08)', stroke: '#22d3ee', strokeWidth: '2.5px' }, z: 20 });
     ms.push({ id: 'draft-centre', azimuth_deg: wrap180(-this.yaw), elevation_deg: pitch, cls: 'centre', size: 18, z: 21 });
     this.sphere.setMarkers(ms);
   }
@@ -799,7 +799,7 @@ class HeadingTask {
       savedLine(app, it),
       el('div', { class: 'row' }, el('span', { class: 'swatch draft' }), 'Yours: ', el('b', { id: 'draft-value' }, formatValue('heading', { yaw_deg: this.yaw }))),
       el('label', { class: 'slider' }, el('span', {}, 'Yaw (°)'),
-        el('input', { type: 'number', id: 'yaw-input', step: 0.1, value: this.yaw, onchange: e => this.setYaw(+e.target.value) })),
+        el('input', { type: 'number', id: 'yaw-input', step: 0.1, value: +this.yaw.toFixed(2), onchange: e => this.setYaw(+e.target.value) })),
       opinionsBlock(app, it),
       slider('overlay', 'Photo overlay', 0, 1, 0.05, this.overlay, x => `${Math.round(x * 100)} %`, x => { this.overlay = x; this.renderMarkers(); }),
       slider('exposure-h', 'Exposure', -4, 8, 0.5, this.exposure, x => `${x > 0 ? '+' : ''}${x} EV`, x => { this.exposure = x; this.sphere.setExposure(x); }),
@@ -876,8 +876,8 @@ class ReviewTask {
       el('p', { class: 'muted small' }, 'Second opinion: tick “blind” in the top bar and label the same items; your labels are compared with the first annotator’s here.'),
     );
     if (!rows.length) { this.root.replaceChildren(el('p', { class: 'empty' }, 'Nothing to review yet.')); return; }
-    const dis = r => (r.disagreement == null ? '–' : r.disagreement === 'inf' ? 'found vs none' : `${r.disagreement} ${r.unit}`);
-    const va = r => (r.vs_auto == null ? '–' : r.vs_auto === 'inf' ? 'found vs none' : `${r.vs_auto} ${r.unit}`);
+    const size = (x, u) => (x == null ? '–' : x === 'inf' ? 'found vs none' : u === 'deg' ? `${f2(x)}°` : `${f2(x, 1)} ${u}`);
+    const dis = r => size(r.disagreement, r.unit), va = r => size(r.vs_auto, r.unit);
     this.root.replaceChildren(el('table', { class: 'review', id: 'review-table' },
       el('thead', {}, el('tr', {}, ['Item', 'Task', 'Status', 'Flags', 'Labels', 'Annotators apart', 'Label vs auto'].map(h => el('th', {}, h)))),
       el('tbody', {}, rows.map(r => el('tr', { class: `${r.status}${r.open_disagreement ? ' open' : ''}`, 'data-key': `${r.kind}:${r.key}`, onclick: () => this.app.openReview(r.kind, r.key) },

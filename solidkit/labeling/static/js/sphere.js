@@ -98,13 +98,15 @@ export class SphereView {
     return fromViewer(this.viewer.dataHelper.viewerCoordsToSphericalCoords({ x: clientX - r.left, y: clientY - r.top }));
   }
 
-  // markers: [{id, azimuth_deg, elevation_deg, cls, size, tooltip}] (html points) and
+  // markers: [{id, azimuth_deg, elevation_deg, cls, size, label}] (html points) and
   // [{id, polygon|polyline: [[az, el], ...], style}] (shapes on the sphere)
   setMarkers(list) {
     if (!this.markers) return;
     const out = [];
     for (const m of list) {
-      const base = { id: m.id, tooltip: m.tooltip ? { content: m.tooltip, position: 'top center' } : undefined, zIndex: m.z || 10 };
+      // markers never take the pointer: a click on (or inside) one marks that spot (the
+      // common case: the sun right under align's proposal); what they mean is in the panel
+      const base = { id: m.id, zIndex: m.z || 10, style: { pointerEvents: 'none' } };
       if (m.imageLayer) out.push({ ...base, imageLayer: m.imageLayer, opacity: m.opacity ?? 1, position: m.corners.map(([a, e]) => toViewer(a, e)) });
       else if (m.polygon) out.push({ ...base, polygon: m.polygon.map(([a, e]) => { const v = toViewer(a, e); return [v.yaw, v.pitch]; }), svgStyle: m.style });
       else if (m.polygonRad) out.push({ ...base, polygon: m.polygonRad, svgStyle: m.style });

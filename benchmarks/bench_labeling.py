@@ -1,0 +1,294 @@
+"""Benchmark of the labeling app: serving a 7296x3648 panorama, and labels per minute in a browser.
+
+A. Serving (``solidkit label serve`` in its own process, a Theta Z1-sized 7296x3648 JPEG sun frame):
+   memory (VmRSS / VmHWM of the server process) and latency of the preview, of full-resolution
+   tiles (cold: first decode; encode from the decoded cache; warm: encoded cache) and of crops.
+   Peer in the same run: sending the whole JPEG (Starlette ``StaticFiles`` on the campaign, the
+   naive viewer) and decoding it as the browser would have to on every pan (``cv2.imdecode``).
+B. A scripted annotator in Debian's chromium (Playwright): 20 sun frames (1024x512, suns at random
+   directions, seed 0); (1) "click": find the sun in the overview strip, then in the rectilinear
+   view, click its centre, save; (2) "accept": press A on align's proposal. Labels per minute and
+   the clicked direction's error against the drawn truth.
+
+Writes benchmarks/results/labeling.json and labeling.md. Run: ``.venv/bin/python benchmarks/bench_labeling.py``.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import platform
+import shutil
+import socket
+import statistics
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+import urllib.request
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+HERE = Path(__file__).resolve().parent
+sys.path.insert(0, str(HERE.parent / "tests"))
+
+from _labeling_campaign import disk  # noqa: E402
+
+from solidkit.capture.manifest import Manifest, Probe, Product, Scene, save_manifest  # noqa: E402
+from solidkit.envmap.coords import angular_distance, direction_from_angles  # noqa: E402
+from solidkit.labeling.store import LabelStore  # noqa: E402
+
+OUT = HERE / "results"
+CHROMIUM = shutil.which("chromium") or "/usr/bin/chromium"
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def rss_mb(pid: int) -> dict[str, float]:
+    status = Path(f"/proc/{pid}/status").read_text()
+    out = {}
+    for line in status.splitlines():
+        if line.startswith(("VmRSS:", "VmHWM:")):
+            out[line.split(":")[0]] = int(line.split()[1]) / 1024
+    return out
+
+
+def get(url: str) -> tuple[float, bytes]:
+    t0 = time.perf_counter()
+    with urllib.request.urlopen(url, timeout=120) as r:
+        data = r.read()
+    return time.perf_counter() - t0, data
+
+
+def wait_up(url: str, proc: subprocess.Popen) -> None:
+    for _ in range(600):
+        if proc.poll() is not None:
+            raise RuntimeError(f"server exited: {proc.stderr.read().decode()[-2000:]}")
+        try:
+            get(url)
+            return
+        except OSError:
+            time.sleep(0.1)
+    raise RuntimeError("server did not start")
+
+
+def big_campaign(root: Path) -> Path:
+    """One scene, one position, a 7296x3648 JPEG sun frame (sky gradient, noise, a sun)."""
+    h, w = 3648, 7296
+    rng = np.random.default_rng(0)
+    y = np.linspace(0, 1, h, dtype=np.float32)[:, None, None]
+    img = (40 + 60 * (1 - y)) * np.array([1.0, 0.8, 0.6], np.float32) + rng.normal(0, 6, (h, w, 3)).astype(np.float32)
+    img = np.clip(img, 0, 255).astype(np.uint8)
+    small = np.zeros((512, 1024, 3), np.uint8)
+    disk(small, 30.0, 40.0, 0.4, (255, 255, 255))
+    img = np.maximum(img, cv2.resize(small, (w, h), interpolation=cv2.INTER_LINEAR))
+    rel = "products/s1/p1/sun.jpg"
+    (root / rel).parent.mkdir(parents=True)
+    cv2.imwrite(str(root / rel), img, [cv2.IMWRITE_JPEG_QUALITY, 90])
+    products = [Product(id="s1/p1/sun", kind="sun_frame", scene="s1", probe="p1", inputs=[], path=rel, layout="equirect")]
+    save_manifest(root, Manifest(scenes=[Scene(id="s1", grouping="folder", probes=[Probe(id="p1", shots=[])])], products=products))
+    return root / rel
+
+
+def bench_serving(tmp: Path) -> dict:
+    camp = tmp / "big"
+    jpeg = big_campaign(camp)
+    port = free_port()
+    env = {**os.environ, "OMP_NUM_THREADS": "1"}
+    code = "import sys; from solidkit.cli import main; sys.argv = ['solidkit'] + sys.argv[1:]; main()"
+    proc = subprocess.Popen([sys.executable, "-c", code, "label", "serve", str(camp), "--port", str(port)],
+                            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, env=env)  # fmt: skip
+    base = f"http://127.0.0.1:{port}"
+    res: dict = {"file_mb": jpeg.stat().st_size / 1e6, "size": [7296, 3648]}
+    try:
+        wait_up(base + "/api/session", proc)
+        res["rss_idle_mb"] = rss_mb(proc.pid)["VmRSS"]
+        item = json.loads(get(base + "/api/item?kind=sun&key=s1/p1")[1])
+        img = item["view"]["image"]
+        res["tiles"] = img["tiles"]
+        res["preview_cold_s"], prev = get(f"{base}/api/img/{img['id']}/preview.jpg")
+        res["preview_kb"] = len(prev) / 1e3
+        res["preview_warm_s"] = min(get(f"{base}/api/img/{img['id']}/preview.jpg")[0] for _ in range(5))
+        res["rss_after_preview_mb"] = rss_mb(proc.pid)["VmRSS"]
+        cols, rows = img["tiles"]["cols"], img["tiles"]["rows"]
+        times, sizes = [], []
+        for r in range(rows):
+            for c in range(cols):
+                t, data = get(f"{base}/api/img/{img['id']}/tile/{c}/{r}.jpg")
+                times.append(t)
+                sizes.append(len(data))
+        res["tile_encode_median_s"] = statistics.median(times)
+        res["tile_kb_median"] = statistics.median(sizes) / 1e3
+        res["tiles_all_mb"] = sum(sizes) / 1e6
+        res["tile_warm_median_s"] = statistics.median(get(f"{base}/api/img/{img['id']}/tile/{c}/{r}.jpg")[0] for c in range(4) for r in range(2))
+        crops = [get(f"{base}/api/img/{img['id']}/crop.jpg?x={1000 + 64 * k}&y=800&w=1024&h=640&out=1024")[0] for k in range(5)]
+        res["crop_median_s"] = statistics.median(crops)
+        mem = rss_mb(proc.pid)
+        res["rss_after_all_tiles_mb"], res["rss_peak_mb"] = mem["VmRSS"], mem["VmHWM"]
+    finally:
+        proc.terminate()
+        proc.wait(10)
+    # the peer: the whole JPEG from a static file server, decoded like a browser must on each pan
+    import uvicorn
+    from starlette.applications import Starlette
+    from starlette.routing import Mount
+    from starlette.staticfiles import StaticFiles
+
+    port = free_port()
+    server = uvicorn.Server(uvicorn.Config(Starlette(routes=[Mount("/", StaticFiles(directory=camp))]), port=port, log_level="warning"))
+    th = threading.Thread(target=server.run, daemon=True)
+    th.start()
+    while not server.started:
+        time.sleep(0.05)
+    whole = [get(f"http://127.0.0.1:{port}/products/s1/p1/sun.jpg") for _ in range(3)]
+    server.should_exit = True
+    th.join(5)
+    res["peer_whole_jpeg_s"] = min(t for t, _ in whole)
+    data = whole[0][1]
+    t0 = time.perf_counter()
+    cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_COLOR)
+    res["peer_decode_s"] = time.perf_counter() - t0
+    # a pan at a 30 deg field of view needs ~2 new full-resolution tiles (456 px = 22.5 deg each)
+    res["bytes_per_pan_ratio_whole_over_tiles"] = res["file_mb"] * 1e3 / (2 * res["tile_kb_median"])
+    res["first_view_ratio_whole_over_preview_plus_4_tiles"] = res["file_mb"] * 1e3 / (res["preview_kb"] + 4 * res["tile_kb_median"])
+    return res
+
+
+def sun_campaign(root: Path, n_scenes: int = 5, per_scene: int = 4, seed: int = 0) -> tuple[dict, dict]:
+    """n_scenes x per_scene sun frames (1024x512) with a 0.5 deg-radius sun at random directions;
+    an alignment dict whose proposals are off by ~0.2 deg."""
+    rng = np.random.default_rng(seed)
+    truth, products, scenes, align = {}, [], [], {"scenes": []}
+    for s in range(n_scenes):
+        probes, captures = [], []
+        for p in range(per_scene):
+            az, el = float(rng.uniform(-180, 180)), float(rng.uniform(5, 75))
+            key = f"sc{s:02d}/p{p}"
+            truth[key] = (az, el)
+            pano = np.full((512, 1024, 3), 10, np.uint8)
+            disk(pano, az, el, 0.9, (255, 255, 255))
+            rel = f"products/{key}/sun.png"
+            (root / rel).parent.mkdir(parents=True)
+            cv2.imwrite(str(root / rel), pano)
+            products.append(Product(id=f"{key}/sun", kind="sun_frame", scene=f"sc{s:02d}", probe=f"p{p}", inputs=[], path=rel, layout="equirect"))
+            probes.append(Probe(id=f"p{p}", shots=[]))
+            captures.append({"probe": f"p{p}", "found": True, "azimuth_deg": az + rng.normal(0, 0.2), "elevation_deg": el + rng.normal(0, 0.2),
+                             "uncertainty_deg": 0.3, "candidates": []})  # fmt: skip
+        scenes.append(Scene(id=f"sc{s:02d}", grouping="folder", probes=probes))
+        align["scenes"].append({"id": f"sc{s:02d}", "sun": {"found": True, "captures": captures}, "probes": []})
+    save_manifest(root, Manifest(scenes=scenes, products=products))
+    return truth, align
+
+
+def bench_annotator(tmp: Path) -> dict:
+    import uvicorn
+    from playwright.sync_api import sync_playwright
+
+    from solidkit.labeling.app import create_app
+
+    res: dict = {}
+    for mode in ("click", "accept"):
+        camp = tmp / f"sun_{mode}"
+        camp.mkdir()
+        truth, align = sun_campaign(camp)
+        port = free_port()
+        server = uvicorn.Server(uvicorn.Config(create_app(camp, alignment=align), port=port, log_level="warning"))
+        th = threading.Thread(target=server.run, daemon=True)
+        th.start()
+        while not server.started:
+            time.sleep(0.05)
+        with sync_playwright() as pw:
+            browser = pw.chromium.launch(executable_path=CHROMIUM, args=["--no-sandbox"])
+            ctx = browser.new_context(viewport={"width": 1366, "height": 768})
+            ctx.add_init_script("localStorage.setItem('solidkit.annotator', 'bench')")
+            page = ctx.new_page()
+            keys = list(truth)
+            page.goto(f"http://127.0.0.1:{port}/#task=sun&key={keys[0]}")
+            page.wait_for_selector(f"body[data-item='sun:{keys[0]}']", timeout=30000)
+            t0 = time.perf_counter()
+            for i, key in enumerate(keys):
+                page.wait_for_selector(f"body[data-item='sun:{key}']", timeout=30000)
+                if mode == "accept":
+                    page.keyboard.press("a")
+                else:
+                    strip = page.locator("#sun-overview")
+                    box = strip.bounding_box()
+                    shot = cv2.imdecode(np.frombuffer(strip.screenshot(), np.uint8), cv2.IMREAD_GRAYSCALE)
+                    ys, xs = np.nonzero(shot >= shot.max() - 10)  # the brightest spot, as an eye would
+                    page.mouse.click(box["x"] + xs.mean() * box["width"] / shot.shape[1], box["y"] + ys.mean() * box["height"] / shot.shape[0])
+                    page.wait_for_timeout(120)
+                    view = page.locator("#sun-sphere")
+                    vb = view.bounding_box()
+                    g = cv2.imdecode(np.frombuffer(view.screenshot(), np.uint8), cv2.IMREAD_GRAYSCALE)
+                    ys, xs = np.nonzero(g > 200)
+                    page.mouse.click(vb["x"] + (xs.mean() + 0.5) * vb["width"] / g.shape[1], vb["y"] + (ys.mean() + 0.5) * vb["height"] / g.shape[0])
+                    page.keyboard.press("s")
+                page.wait_for_selector(f"body[data-saved^='sun:{key}:']", timeout=30000)
+            elapsed = time.perf_counter() - t0
+            browser.close()
+        server.should_exit = True
+        th.join(5)
+        store = LabelStore(camp)
+        errs = []
+        for key, (az, el) in truth.items():
+            v = store.get("sun", key).value
+            a = np.asarray(direction_from_angles(math.radians(v["azimuth_deg"]), math.radians(v["elevation_deg"])))
+            b = np.asarray(direction_from_angles(math.radians(az), math.radians(el)))
+            errs.append(math.degrees(float(angular_distance(a, b))))
+        res[mode] = {
+            "labels": len(keys), "seconds": elapsed, "labels_per_minute": 60 * len(keys) / elapsed,
+            "error_deg_median": statistics.median(errs), "error_deg_max": max(errs),
+        }  # fmt: skip
+    return res
+
+
+def main() -> None:
+    OUT.mkdir(exist_ok=True)
+    with tempfile.TemporaryDirectory() as t:
+        tmp = Path(t)
+        serving = bench_serving(tmp)
+        annot = bench_annotator(tmp) if Path(CHROMIUM).is_file() else {"skipped": "no chromium"}
+    load = os.getloadavg()[0]
+    doc = {"machine": platform.platform(), "load_average_1min": load, "serving_7296x3648": serving, "scripted_annotator": annot}
+    (OUT / "labeling.json").write_text(json.dumps(doc, indent=1) + "\n")
+    s = serving
+    lines = [
+        "# Labeling app",
+        "",
+        f"Machine: {platform.machine()}, load average {load:.1f} during the run (shared; numbers are upper bounds).",
+        "",
+        f"## Serving a 7296x3648 panorama ({s['file_mb']:.1f} MB JPEG)",
+        "",
+        "| what | app (preview + tiles) | peer: whole JPEG |",
+        "|---|---|---|",
+        f"| first view | preview {s['preview_kb']:.0f} kB in {s['preview_cold_s']:.2f} s cold, {s['preview_warm_s'] * 1e3:.0f} ms warm | {s['file_mb'] * 1e3:.0f} kB in {s['peer_whole_jpeg_s'] * 1e3:.0f} ms + {s['peer_decode_s'] * 1e3:.0f} ms decode |",
+        f"| one pan (~2 new tiles of {s['tiles']['cols']}x{s['tiles']['rows']}) | {2 * s['tile_kb_median']:.0f} kB, {s['tile_encode_median_s'] * 1e3:.0f} ms/tile (encode), {s['tile_warm_median_s'] * 1e3:.1f} ms/tile cached | {s['file_mb'] * 1e3:.0f} kB again |",
+        f"| bytes ratio whole/app | per pan {s['bytes_per_pan_ratio_whole_over_tiles']:.0f}x, first view {s['first_view_ratio_whole_over_preview_plus_4_tiles']:.1f}x | |",
+        f"| crop 1024x640 (photo zoom) | {s['crop_median_s'] * 1e3:.0f} ms | |",
+        "",
+        f"Server memory: {s['rss_idle_mb']:.0f} MB idle, {s['rss_after_preview_mb']:.0f} MB after the preview (decoded image cached), "
+        f"{s['rss_after_all_tiles_mb']:.0f} MB after all {s['tiles']['cols'] * s['tiles']['rows']} tiles ({s['tiles_all_mb']:.1f} MB encoded, cached), peak {s['rss_peak_mb']:.0f} MB.",
+        "",
+        "## Scripted annotator in chromium (20 sun frames, 1024x512)",
+        "",
+    ]
+    if "skipped" in annot:
+        lines.append("skipped: no chromium")
+    else:
+        lines += ["| mode | labels/min | median error vs truth | max error |", "|---|---|---|---|"]
+        for mode, r in annot.items():
+            lines.append(f"| {mode} | {r['labels_per_minute']:.0f} | {r['error_deg_median']:.3f} deg | {r['error_deg_max']:.3f} deg |")
+    (OUT / "labeling.md").write_text("\n".join(lines) + "\n")
+    print("\n".join(lines))
+
+
+if __name__ == "__main__":
+    main()
