@@ -143,8 +143,11 @@ def _testset(campaign: Path, out: Path, log: Callable[[str], Any]) -> dict[str, 
     from solidkit.testset.build import build_testset
     from solidkit.testset.validate import validate_testset
 
+    from solidkit.testset.show import show_testset
+
     build_testset(campaign, out)
     problems = validate_testset(out, allow_flagged=True)
+    show_testset(out, out.parent / "contact_sheets")  # what an annotator checks before using it
     ts = json.loads((out / "testset.json").read_text())
     n_probes = sum(len(s["probes"]) for s in ts["scenes"])
     for p in problems:
@@ -349,8 +352,9 @@ def run_demo(out: str | Path, cfg: DemoConfig | None = None, log: Callable[[str]
         step(name, fn)
     total = time.perf_counter() - t_start
     rows = [[s.name, s.status, f"{s.seconds:.1f}", s.note.replace("|", "/")] for s in steps]
-    head = (f"Card: `{card}`. Total {total:.0f} s. Outputs: `campaign/` (ingested campaign, labels, alignment), "
-            "`testset/` (the versioned test set), `eval/results.json`, `finetune/` (per-fold checkpoints and results), "
+    head = (f"Card: `{card}`. Total {total:.0f} s. Outputs: `campaign/` (ingested campaign, labels, alignment; its report "
+            "[campaign/align/report.html](campaign/align/report.html)), "
+            "`testset/` (the versioned test set), `contact_sheets/` (one per scene), `eval/results.json`, `finetune/` (per-fold checkpoints and results), "
             "`figures/`.\n\n" + markdown_table(["step", "status", "s", "result"], rows))
     report_sections = [("Pipeline", head)]
     if "truth" in state:
