@@ -34,11 +34,11 @@ from solidkit.finetune import metrics as M
 from solidkit.finetune.evaluate import METRICS, EvalItem, Method
 from solidkit.fsutil import atomic_path, atomic_write_text
 
-__all__ = ["fmt", "metric_tables", "sun_figures", "qualitative_grid", "write_report", "markdown_table"]
+__all__ = ["fmt", "headline_table", "metric_tables", "sun_figures", "qualitative_grid", "write_report", "markdown_table"]
 
 _CSS = """body{font-family:system-ui,sans-serif;max-width:1200px;margin:2em auto;padding:0 1em;color:#222}
 table{border-collapse:collapse;margin:.6em 0 1.4em}th,td{border:1px solid #bbb;padding:3px 8px;text-align:right}
-th{background:#eee}td:first-child,th:first-child{text-align:left}img{max-width:100%}code{background:#f3f3f3}
+th{background:#eee}td:first-child,th:first-child,td:last-child{text-align:left}img{max-width:100%}code{background:#f3f3f3}
 h2{border-bottom:1px solid #ccc;margin-top:2em}"""
 
 
@@ -113,6 +113,22 @@ def metric_tables(runs: dict[str, dict[str, Any]], methods: Sequence[str] | None
         arrow = "higher is better" if higher else "lower is better"
         out.append(f"**{label}**{' (' + unit + ')' if unit else ''}, {arrow}\n\n" + markdown_table(header, rows))
     return "\n".join(out)
+
+
+def headline_table(runs: dict[str, dict[str, Any]]) -> str:
+    """Markdown: one row per (dataset, method) with the medians a reader looks at first."""
+    cols = [("azimuth_deg/paper", "azimuth °"), ("elevation_deg/paper", "elevation °"), ("angle_deg/core", "angle ° (default)"),
+            ("global_mae", "global MAE"), ("local_ssim", "local SSIM"), ("local_mae", "local MAE")]
+    rows = []
+    for ds, r in runs.items():
+        for m in [x["name"] for x in r["methods"]]:
+            s = r["summary"].get(m, {})
+            ns = s.get("no_sun_rate/core")
+            cells = [fmt((s.get(k) or {}).get("median")) for k, _ in cols] + [f"{100 * ns['rate']:.0f}% of {ns['n']}" if ns else "—"]
+            if any(c != "—" for c in cells):  # a baseline with nothing to say on this dataset
+                rows.append([ds, m] + cells)
+    return ("Medians (sun errors: paper recipe unless marked; no sun: the default detector's no-sun rate):\n\n"
+            + markdown_table(["dataset", "method"] + [c for _, c in cols] + ["no sun (default)"], rows))
 
 
 def _sun_values(result: dict[str, Any], method: str, recipe: str, err: str) -> list[float]:
@@ -280,7 +296,7 @@ def evaluation_sections(
 ) -> list[tuple[str, str]]:
     """The report sections of one or more evaluation results (one per dataset name)."""
     figs = folder / "figures"
-    sections = [("Metrics", _METRIC_NOTES + "\n" + metric_tables(results))]
+    sections = [("Headline", headline_table(results)), ("Metrics", _METRIC_NOTES + "\n" + metric_tables(results))]
     body = []
     for ds, res in results.items():
         for p in sun_figures(res, figs, prefix=f"{prefix}{_slug(ds)}_", title=ds):
