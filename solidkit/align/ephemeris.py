@@ -50,13 +50,15 @@ def capture_place(metadata: dict[str, Any]) -> tuple[float, float, float | None]
     return float(lat), float(lon), (None if gps.get("alt_m") is None else float(gps["alt_m"]))
 
 
-def ephemeris_for(metadata: dict[str, Any], fallback_place: tuple[float, float, float | None] | None = None) -> Ephemeris | None:
-    """pvlib's sun at a shot's time and GPS place (``fallback_place`` when the shot has no GPS).
+def ephemeris_for(metadata: dict[str, Any], place: tuple[float, float, float | None] | None = None) -> Ephemeris | None:
+    """pvlib's sun at a shot's time, at ``place`` (``(lat, lon, alt)``) or else the shot's GPS.
 
-    ``None`` when the time (with its UTC offset) or the place is unknown.
+    The captures of a scene are evaluated at one place (the photo's), so that differences
+    between their ephemerides are the sun's motion in time only. ``None`` when the time (with
+    its UTC offset) or the place is unknown.
     """
     when, source = capture_time(metadata)
-    place = capture_place(metadata) or fallback_place
+    place = place or capture_place(metadata)
     if when is None or place is None:
         return None
     lat, lon, alt = place

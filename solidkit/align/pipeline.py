@@ -69,6 +69,7 @@ class AlignSettings:
     refine_levelling: bool = True
     pixel_tolerance_frac: float = 0.05
     refine_focal: bool = True
+    min_pose_inliers: int = 15
     sun_motion: str = "auto"
     focal_tolerance: float = 0.02
     products: bool = True
@@ -102,8 +103,8 @@ def _cached(campaign: Path, key: str, make: Callable[[], Features]) -> Features:
 
 def _feature_panorama(campaign: Path, manifest: Manifest, cap: Capture) -> tuple[np.ndarray | None, bool, str, list[str]]:
     """(level panorama for features, is_linear, description, input hashes)."""
-    if cap.hdr_path:
-        return read_hdr(campaign, cap.hdr_path), True, cap.hdr_path, cap.hdr_inputs
+    if cap.hdr_path:  # keyed by the product's content: a rebuilt or replaced product is new input
+        return read_hdr(campaign, cap.hdr_path), True, cap.hdr_path, [sha256_file(campaign / cap.hdr_path)]
     if cap.normal is not None:
         return load_normal_panorama(campaign, manifest, cap.normal), False, cap.normal.original, [cap.normal.sha256]
     return None, False, "", []
@@ -199,9 +200,17 @@ def align_scene(campaign: Path, manifest: Manifest, scene: Scene, settings: Alig
         log(f"{scene.id}/{st.cap.id}: {len(st.features)} features"
             + ("" if st.tilt is None else f", residual tilt {st.tilt.tilt_deg:.2f} deg ({'reliable' if st.tilt.reliable else 'unreliable'})"))
 
+    if photo_eph is not None:
+        from solidkit.align.sun import _hours_apart
+
+        far = [st.cap.id for st in caps if st.ephemeris is not None and _hours_apart(photo_eph, st.ephemeris) > 1.0]
+        if far:
+            scene_flags.append(f"clock_mismatch: {', '.join(far)} taken more than an hour from the photo "
+                               "(camera clocks or UTC offsets disagree); no sun drift correction there")
     by_id = {st.cap.id: st for st in caps}
     cam = by_id.get(cam_id) if cam_id else None
     photo_match: PhotoMatch | None = None
+    pf: Features | None = None
     if cam is not None and cam.features is not None and photo is not None:
         from solidkit.envmap.io import read_ldr
 
@@ -224,14 +233,15 @@ def align_scene(campaign: Path, manifest: Manifest, scene: Scene, settings: Alig
             cam.cues["photo_features"] = Cue(yaw_deg=photo_match.yaw_deg, sigma_deg=photo_match.sigma_deg, ok=True,
                                              detail=detail + f"; photo pitch {photo_match.pitch_deg:+.2f}, "
                                                              f"roll {photo_match.roll_deg:+.2f} deg")
-            if photo.pitch_deg is None or photo.roll_deg is None:
-                photo.pitch_deg, photo.roll_deg = photo_match.pitch_deg, photo_match.roll_deg
-                photo.pitch_roll_source = "features"
-            else:
+            if photo.pitch_deg is not None and photo.roll_deg is not None:
                 d = max(abs(photo.pitch_deg - photo_match.pitch_deg), abs(photo.roll_deg - photo_match.roll_deg))
                 if d > 1.0:
                     scene_flags.append(f"photo_pose_disagrees: recorded pitch/roll {photo.pitch_deg:+.2f}/{photo.roll_deg:+.2f},"
                                        f" features {photo_match.pitch_deg:+.2f}/{photo_match.roll_deg:+.2f} deg")
+            if photo.pitch_deg is None or photo.roll_deg is None or photo_match.n_inliers >= s.min_pose_inliers:
+                # the rotation to a levelled panorama measures the photo's pitch and roll better than a bubble level
+                photo.pitch_deg, photo.roll_deg = photo_match.pitch_deg, photo_match.roll_deg
+                photo.pitch_roll_source = "features"
         else:
             cam.cues["photo_features"] = Cue(yaw_deg=None, ok=False, detail=detail)
             scene_flags.append(f"photo_match_failed: {detail}")
@@ -262,9 +272,11 @@ def align_scene(campaign: Path, manifest: Manifest, scene: Scene, settings: Alig
         st.cues["features"], st.fit = cue, fit
 
     # the sun
+    # yaws for the sun's cross-position test: from features only; a compass-only capture is tested on
+    # elevation (its compass may be 90 deg off: then the sun gives its yaw and the compass is flagged)
     pre_yaw = {}
     for st in caps:
-        f = fuse_cues({k: c.model_copy() for k, c in st.cues.items()})
+        f = fuse_cues({k: c.model_copy() for k, c in st.cues.items() if k != "compass"})
         pre_yaw[st.cap.id] = (f.yaw_deg, f.sigma_deg)
     inputs = []
     for st in caps:
@@ -285,7 +297,9 @@ def align_scene(campaign: Path, manifest: Manifest, scene: Scene, settings: Alig
             az, el = (math.degrees(float(v)) for v in angles_from_direction(d))
             human = human.model_copy(update={"azimuth_deg": wrap_deg(az), "elevation_deg": el})
         y, ys = pre_yaw[st.cap.id]
-        inputs.append(CaptureSunInput(st.cap.id, st.blobs, st.ephemeris, y, ys, st.heading, note, human))
+        compass = st.cues.get("compass")
+        inputs.append(CaptureSunInput(st.cap.id, st.blobs, st.ephemeris, y, ys, st.heading, note, human,
+                                      compass_yaw_deg=None if compass is None else compass.yaw_deg))
     sun, motion_note = _sun_with_motion(caps, inputs, photo_eph, heading_p, s)
     scene_flags_info = [motion_note]
     for st, cs in zip(caps, sun.captures):  # per-capture sun directions back into the sun-frame product's frame
@@ -469,7 +483,7 @@ def _sun_cues(caps: list[_CapState], sun: SceneSun, photo_eph: Any, s: AlignSett
         for other in caps:
             if other is st or other.cap.id not in pts:
                 continue
-            y_other = other.cues and fuse_cues({k: c.model_copy() for k, c in other.cues.items() if k != "sun"})
+            y_other = other.cues and fuse_cues({k: c.model_copy() for k, c in other.cues.items() if k not in ("sun", "compass")})
             if y_other is None or y_other.yaw_deg is None:
                 continue
             az_o, el_o, unc_o = pts[other.cap.id]

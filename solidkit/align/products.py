@@ -29,7 +29,7 @@ from solidkit.align.schema import ProbeProducts, SceneAlignment, body_to_pano
 from solidkit.capture.manifest import Manifest, Scene
 from solidkit.envmap.io import srgb_decode, srgb_encode, write_exr, write_ldr
 from solidkit.envmap.resample import resize, rotate
-from solidkit.fsutil import atomic_write_text
+from solidkit.fsutil import atomic_write_text, sha256_file
 
 __all__ = ["write_products", "SATURATION_CODE"]
 
@@ -55,7 +55,8 @@ def write_products(campaign: Path, manifest: Manifest, scene: Scene, sa: SceneAl
         root = campaign / rel
         recipe = {"tool": "solidkit.align.products", "solidkit_version": __version__, "yaw_deg": round(pa.yaw_deg, 6),
                   "levelling": [round(pa.levelling.pitch_deg, 6), round(pa.levelling.roll_deg, 6)],
-                  "normal": cap.normal.sha256 if cap.normal else None, "hdr": cap.hdr_inputs, "probe_height": out_h,
+                  "normal": cap.normal.sha256 if cap.normal else None,
+                  "hdr": sha256_file(campaign / cap.hdr_path) if cap.hdr_path else None, "probe_height": out_h,
                   "saturation_code": SATURATION_CODE}
         h = _recipe_hash(recipe)
         files = ProbeProducts()

@@ -83,6 +83,7 @@ class CaptureSunInput:
     note: str = ""
     human: CaptureSun | None = None
     extra_flags: list[str] = field(default_factory=list)
+    compass_yaw_deg: float | None = None  # only breaks ties between candidates (a compass can be 90 deg off)
 
 
 # --------------------------------------------------------------------------- per capture
@@ -185,10 +186,18 @@ def _sun_in_photo_time(blob: Blob, cap: CaptureSunInput, photo_eph: Ephemeris | 
     """(azimuth, elevation) of a blob in the capture's level frame, moved to the photo's time by the
     ephemeris when the sun moves (the drift between the two times)."""
     az, el = blob.azimuth_deg, blob.elevation_deg
-    if s.sun_moves and photo_eph is not None and cap.ephemeris is not None:
+    if s.sun_moves and photo_eph is not None and cap.ephemeris is not None and _hours_apart(photo_eph, cap.ephemeris) <= 1.0:
         az += wrap_deg(photo_eph.azimuth_deg - cap.ephemeris.azimuth_deg)
         el += photo_eph.elevation_deg - cap.ephemeris.elevation_deg
     return az, el
+
+
+def _hours_apart(a: Ephemeris, b: Ephemeris) -> float:
+    """Hours between two ephemerides' times (a capture more than an hour from its photo gets no drift
+    correction: its clock, not the sun, is the likely cause)."""
+    import datetime as dt
+
+    return abs((dt.datetime.fromisoformat(a.time_utc) - dt.datetime.fromisoformat(b.time_utc)).total_seconds()) / 3600.0
 
 
 def _angle_deg(az1: float, el1: float, az2: float, el2: float) -> float:
@@ -277,8 +286,15 @@ def scene_sun(captures: list[CaptureSunInput], *, photo_ephemeris: Ephemeris | N
         h_sig = captures[ci0].yaw_sigma_deg or 0.0
         for ci, cap in enumerate(captures):
             pick = None
-            cands = sorted((bi for bi in range(len(cap.blobs)) if not hard[ci, bi]),
-                           key=lambda bi: abs(p_frame(ci, bi)[1] - h_el))
+            def closeness(bi: int) -> tuple[float, float]:
+                az, el = p_frame(ci, bi)
+                d_el = round(abs(el - h_el) / el_tol, 1)
+                if az is None and cap.compass_yaw_deg is not None and h_az is not None:
+                    az_c, _ = _sun_in_photo_time(cap.blobs[bi], cap, photo_ephemeris, s)
+                    return d_el, abs(wrap_deg(az_c + cap.compass_yaw_deg - h_az))
+                return d_el, 0.0
+
+            cands = sorted((bi for bi in range(len(cap.blobs)) if not hard[ci, bi]), key=closeness)
             for bi in cands:
                 ok, _ = agrees(h_az, h_el, h_sig, ci, bi)
                 if ok:
