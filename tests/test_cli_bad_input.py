@@ -337,6 +337,15 @@ CASES: list[tuple[str, list[str], str, tuple]] = [
      "{d}/notes.txt: card folder not found", SLOW),
     ("demo-out-is-file", ["demo", "--out", "{d}/notes.txt", "--card", "{d}/sub"],
      "{d}/notes.txt: exists and is not a folder", ()),
+    # ---- label
+    ("label-serve-missing", ["label", "serve", "{d}/missing"], "{d}/missing: campaign folder not found", ()),
+    ("label-serve-no-manifest", ["label", "serve", "{d}/sub"],
+     "{d}/sub: no manifest.json (run `solidkit ingest CARD {d}/sub` first)", SLOW),
+    ("label-serve-port-0", ["label", "serve", "{d}/sub", "--port", "0"],
+     "Invalid value for '--port': Input should be greater than or equal to 1", SLOW),
+    ("label-export-missing", ["label", "export", "{d}/missing", "--json"], "{d}/missing: campaign folder not found", SLOW),
+    ("label-export-no-store", ["label", "export", "{d}/sub"],
+     "{d}/sub: no label store ({d}/sub/labels/labels.sqlite); nothing labelled yet", ()),
     # ---- eval / finetune
     ("eval-no-data", ["eval", "-o", "{d}/ev"],
      "give a real test set (--testset DIR)", ()),

@@ -4,6 +4,12 @@ from __future__ import annotations
 
 import math
 import os
+import socket
+import subprocess
+import sys
+import time
+import urllib.error
+import urllib.request
 
 import cv2
 import numpy as np
@@ -213,3 +219,34 @@ def test_proposal_from_the_store_without_alignment(tmp_path):
     assert it["proposal"] == {"found": True, "azimuth_deg": 40.0, "elevation_deg": 25.0, "uncertainty_deg": 0.4}
     assert it["view"]["candidates"] == cand and "glint" in it["review"]["flags"]
     assert item(c, "sun", "s1/p2")["proposal"] is None
+
+
+@pytest.mark.slow
+def test_serve_beyond_loopback_prints_a_token_and_requires_it(campaign):
+    """The real command in its own process: bound to all interfaces it makes up a token and
+    answers 401 without it."""
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    code = "import sys; from solidkit.cli import main; sys.argv = ['solidkit'] + sys.argv[1:]; main()"
+    proc = subprocess.Popen([sys.executable, "-c", code, "label", "serve", str(campaign[0]), "--host", "0.0.0.0", "--port", str(port)],
+                            stderr=subprocess.PIPE, stdout=subprocess.DEVNULL, text=True)  # fmt: skip
+    try:
+        token = proc.stderr.readline().strip().rsplit(" ", 1)[-1]
+        assert "labeling" in proc.stderr.readline() and len(token) >= 16
+        url = f"http://127.0.0.1:{port}/api/campaign"
+        for _ in range(200):
+            try:
+                urllib.request.urlopen(url, timeout=5)
+            except urllib.error.HTTPError as exc:
+                assert exc.code == 401
+                break
+            except OSError:
+                time.sleep(0.05)
+        else:
+            pytest.fail("server did not answer")
+        req = urllib.request.Request(url, headers={"Authorization": f"Bearer {token}"})
+        assert urllib.request.urlopen(req, timeout=5).status == 200
+    finally:
+        proc.terminate()
+        proc.wait(10)

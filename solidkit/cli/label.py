@@ -55,6 +55,8 @@ def serve(
 
     from solidkit.labeling.app import LOOPBACK_HOSTS, create_app
 
+    if not campaign.is_dir():
+        raise InputError(f"{campaign}: campaign folder not found")
     if not (campaign / "manifest.json").is_file():
         raise InputError(f"{campaign}: no manifest.json (run `solidkit ingest CARD {campaign}` first)")
     if token is not None and len(token) < 16:
@@ -62,12 +64,12 @@ def serve(
     local = _is_loopback(host)
     if not local and token is None:
         token = secrets.token_urlsafe(24)
-        console.print(f"token (give it to the annotators; it is not shown again): [bold]{token}[/]")
+        typer.echo(f"token (give it to the annotators; it is not shown again): {token}", err=True)
     wildcard = host in ("0.0.0.0", "::", "[::]")
     allowed = ["*"] if wildcard else [host.strip("[]"), host, *LOOPBACK_HOSTS]
     app_ = create_app(campaign, alignment=_alignment(campaign), token=token, allowed_hosts=allowed)
     shown = "127.0.0.1" if wildcard else host
-    console.print(f"labeling {campaign} at http://{shown}:{port}/  (Ctrl+C to stop)")
+    typer.echo(f"labeling {campaign} at http://{shown}:{port}/  (Ctrl+C to stop)", err=True)
     uvicorn.run(app_, host=host.strip("[]"), port=port, log_level="warning", server_header=False)
 
 
@@ -78,6 +80,8 @@ def export(
     out: Optional[Path] = typer.Option(None, "-o", "--out", help="Write the export (JSON) to this file."),
 ) -> None:
     """Export the current labels (for the test-set builder); without --json/-o, a summary."""
+    if not campaign.is_dir():
+        raise InputError(f"{campaign}: campaign folder not found")
     if not store_path(campaign).is_file():
         raise InputError(f"{campaign}: no label store ({store_path(campaign)}); nothing labelled yet")
     doc = LabelStore(campaign, readonly=True).export()
