@@ -309,9 +309,11 @@ def evaluate_lighting(model: SolidNet, batches: list[dict[str, torch.Tensor]]) -
     from solidkit.model.losses import sun_energy
 
     model.eval()
+    dev = next(model.parameters()).device
     l1, found, ang, daz, del_, ratio, n_sun = [], 0, [], [], [], [], 0
     for b in batches:
-        out = model.inet(b["image"], intrinsics=False)
+        b = {k: v.cpu() for k, v in b.items()}
+        out = {k: v.cpu() for k, v in model.inet(b["image"].to(dev), intrinsics=False).items()}
         l1.append(float((out["sky_log"] - torch.log1p(b["sky"].clamp_min(0))).abs().mean()))
         for i in range(b["image"].shape[0]):
             if b["sun_visible"][i] < 0.5:
@@ -514,8 +516,7 @@ class Trainer:
         """Validation metrics on the held-out split; ``score`` (lower is better) picks ``best.pt``."""
         batches = [{k: v.to(self.device) for k, v in b.items()} for b in self._val_batches(stage)]
         self.model.eval()
-        m = evaluate_lighting(self.model, [{k: v.cpu() for k, v in b.items()} for b in batches]) \
-            if self.device.type == "cpu" else {}
+        m = evaluate_lighting(self.model, batches)
         if stage == "pnet":
             l1 = []
             for b in batches:
