@@ -9,16 +9,18 @@ exposure) in two steps:
    robust image registration for compositing high dynamic range photographs from hand-held
    exposures", JGT 2003), which does not care how differently the frames are exposed;
 2. fine, sub-pixel: enhanced correlation coefficient maximisation (``cv2.findTransformECC``,
-   translation; Evangelidis & Psarakis, PAMI 2008) of the two frames' log radiance (the frame's
-   linear values over its exposure time: exposure-invariant), started from the coarse shift,
-   over the pixels well exposed in *both* frames, on images at most ``max_width`` wide (the
-   shift is scaled back).
+   translation; Evangelidis & Psarakis, PAMI 2008) of the two frames' luminance *ranks* over
+   the pixels well exposed in both (rank-normalised: any monotone camera response gives the same
+   image, so a wrong provisional curve cannot bias the shift; an sRGB-linearised film-curve
+   bracket was "shifted" by 0.24 px before this), started from no shift and from the coarse
+   one, on images at most ``max_width`` wide (the shift is scaled back).
 
 The correlation coefficient is the registration's confidence: below ``min_correlation``, or
 when ECC does not converge, the frame "does not register" (a warning; it is then left
 unshifted), as is a shift above ``max_shift_px`` or 5 % of the image's smaller side (a tripod
 bracket does not move that much; a degenerate image can fool the search). Shifts below ``min_shift_px``
-are not applied (resampling would only blur). Shifts are ``(dx, dy)`` in pixels, positive to
+are not applied (0.25 px: about the fine step's own error on real and simulated brackets;
+resampling below it would only blur). Shifts are ``(dx, dy)`` in pixels, positive to
 the right and down, of the frame's content relative to the reference.
 """
 
@@ -49,6 +51,23 @@ def _log_lum(linear: np.ndarray, exposure: float) -> np.ndarray:
     return np.log(np.maximum(np.asarray(linear, np.float32).mean(axis=-1) / np.float32(exposure), 1e-6)).astype(np.float32)
 
 
+def _ranks(img: np.ndarray, mask: np.ndarray) -> np.ndarray:
+    """``img`` replaced by its values' ranks (0..1) among the ``mask`` pixels (0.5 elsewhere).
+
+    Two frames seen through the same monotone response then agree on their common pixels,
+    whatever that response is: registration does not depend on the curve being known yet.
+    """
+    out = np.full(img.shape, 0.5, np.float32)
+    sel = mask.astype(bool)
+    if sel.sum() > 1:
+        v = img[sel]
+        order = np.argsort(v, kind="stable")
+        r = np.empty(v.size, np.float32)
+        r[order] = np.arange(v.size, dtype=np.float32) / (v.size - 1)
+        out[sel] = r
+    return out
+
+
 def shift_image(image: np.ndarray, dx: float, dy: float) -> np.ndarray:
     """``image`` with its content moved by ``(-dx, -dy)`` (undoing a measured shift), edges replicated."""
     M = np.float32([[1, 0, -dx], [0, 1, -dy]])
@@ -59,7 +78,7 @@ def shift_image(image: np.ndarray, dx: float, dy: float) -> np.ndarray:
 
 def register_frames(codes: Sequence[np.ndarray], linear: Sequence[np.ndarray], exposures: Sequence[float],
                     valid: Sequence[np.ndarray], *, max_width: int = 2048, min_correlation: float = 0.8,
-                    min_shift_px: float = 0.1, max_shift_px: float = 32.0) -> Registration:
+                    min_shift_px: float = 0.25, max_shift_px: float = 32.0) -> Registration:
     """Measure each frame's shift against the middle exposure (module docstring).
 
     ``codes``: 8-bit ``(H, W, 3)`` frames (for MTB); ``linear``: their linear values, divided
@@ -90,6 +109,7 @@ def register_frames(codes: Sequence[np.ndarray], linear: Sequence[np.ndarray], e
             mx, my = mtb.calculateShift(gray[ref], gray[i])  # how to move frame i onto the reference
             cx, cy = -float(mx), -float(my)  # the content's displacement
         mask = cv2.erode(ok[ref] & ok[i], kernel)
+        a, b = _ranks(lum[ref], mask), _ranks(lum[i], mask)
         # ECC's warp maps reference coordinates into frame i: x_i = x_ref + (dx, dy). Started from no
         # shift and from MTB's: MTB can lock onto a wrong offset in images with little structure
         # (a smooth gradient); the better correlation wins, the smaller shift on a tie.
@@ -97,7 +117,7 @@ def register_frames(codes: Sequence[np.ndarray], linear: Sequence[np.ndarray], e
         for sx, sy in {(0.0, 0.0), (cx, cy)}:
             warp = np.float32([[1, 0, sx * scale], [0, 1, sy * scale]])
             try:
-                cc_try, warp = cv2.findTransformECC(lum[ref], lum[i], warp, cv2.MOTION_TRANSLATION, criteria, mask, 1)
+                cc_try, warp = cv2.findTransformECC(a, b, warp, cv2.MOTION_TRANSLATION, criteria, mask, 1)
             except cv2.error:
                 continue
             cand = (float(cc_try), float(warp[0, 2]) / scale, float(warp[1, 2]) / scale)

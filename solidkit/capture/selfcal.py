@@ -8,12 +8,14 @@ through :func:`solidkit.calibration.response.calibrate_response`) on pixels chos
 code range evenly, then made strictly increasing per channel
 (:func:`solidkit.calibration.response.make_monotonic`).
 
-Samples: OpenCV's random draw of ``samples`` pixels (150: twice its default; black and
-saturated samples, e.g. outside a dual-fisheye frame's image circles, get zero weight in
-Debevec's equations and cost nothing but a row). On the real frobisher bracket this curve
-brings the ghost detector's false positives from 4.3 % (sRGB assumed) to 0.3 %; a stratified
-draw of the middle exposure's codes did worse (17 % with 256 samples, 0.9 % with 512, and 20x
-slower) and was dropped.
+Samples and smoothness: OpenCV's random draw of ``samples`` = 400 pixels (its default is 70;
+black and saturated samples, e.g. outside a dual-fisheye frame's image circles, get zero weight
+in Debevec's equations), with the smoothness weight scaled by the same factor (lambda =
+10 x 400 / 70): the data term grows with the samples, and without the scaling more samples fit
+the noise (on HDR panoramas through simulated film and gamma cameras, 400 samples with lambda 10
+merged *worse* than OpenCV's 70/10, with lambda 57 2-3x better: benchmarks/results/merge_selfcal.md).
+On the real frobisher bracket the estimated curve brings the ghost detector's false positives
+from 4.3 % (sRGB assumed) to 0.4 %.
 
 :func:`response_for_bracket` decides what a merge uses and says so: a given curve
 (``"file"``/``"array"``), a curve ``"estimated"`` from these frames, or ``"srgb_assumed"``
@@ -44,8 +46,8 @@ def _distinct_codes(codes: np.ndarray) -> int:
     return int(min(np.count_nonzero(np.bincount(flat[:, c], minlength=256)) for c in range(flat.shape[1])))
 
 
-def estimate_response(images: Sequence[np.ndarray], times: Sequence[float], *, samples: int = 150,
-                      smoothness: float = 10.0) -> tuple[np.ndarray, dict[str, Any]]:
+def estimate_response(images: Sequence[np.ndarray], times: Sequence[float], *, samples: int = 400,
+                      smoothness: float | None = None) -> tuple[np.ndarray, dict[str, Any]]:
     """Inverse response ``(256, 3)`` (``curve[128] = 1``) fitted to the bracket itself, and its record.
 
     ``images``: 8-bit ``(H, W, 3)`` frames of one static scene (registered); ``times``: their
@@ -53,6 +55,8 @@ def estimate_response(images: Sequence[np.ndarray], times: Sequence[float], *, s
     """
     imgs = [np.ascontiguousarray(im) for im in images]
     t = np.asarray(times, np.float64)
+    if smoothness is None:  # OpenCV's lambda = 10 is tuned for its 70 samples: keep the balance
+        smoothness = 10.0 * samples / 70.0
     raw = calibrate_response(imgs, t, method="debevec", samples=samples, smoothness=smoothness)
     curve = make_monotonic(raw)
     sanity = response_sanity(curve, [im[::4, ::4] for im in imgs])
