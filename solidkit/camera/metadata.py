@@ -4,9 +4,11 @@ This is solidkit's one EXIF reader: capture (grouping, merging, levelling) and c
 (exposure times of response brackets, a photo's focal geometry for its intrinsics K) both use
 :func:`read_metadata`.
 
-Standard EXIF and GPS fields are read with ``exifread``; the GPano XMP packet is parsed with
-the standard library's XML parser; the Ricoh maker note ("RICOH THETA IFD", which no Python
-library decodes) is read by the small bounds-checked TIFF-IFD reader in this module.
+Standard EXIF and GPS fields are read with ``exifread`` (this module); the containers by the
+bounds-checked TIFF-IFD reader of :mod:`solidkit.camera.tiff`; the GPano XMP packet by
+:mod:`solidkit.camera.xmp`; the Ricoh maker note ("RICOH THETA IFD", which no Python library
+decodes) by :mod:`solidkit.camera.makernote`; gravity and heading from them by
+:mod:`solidkit.camera.orientation`.
 
 References
 ----------
@@ -54,7 +56,6 @@ import math
 import os
 import re
 import struct
-import xml.etree.ElementTree as ET
 from pathlib import Path
 from typing import Any, Literal
 
@@ -62,7 +63,11 @@ import exifread
 import numpy as np
 from pydantic import BaseModel, Field
 
-from solidkit.envmap.coords import rotation_from_rotvec, rotation_from_ypr
+from solidkit.camera.makernote import RICOH_IMAGE_TYPES, ricoh_makernote
+from solidkit.camera.orientation import RICOH_TO_OURS, gravity_from_pitch_roll, pitch_roll_from_gravity, pose_fields
+from solidkit.camera.tiff import Tiff, TiffError, dng_size, jpeg_segments
+from solidkit.camera.xmp import XMP_APP1, parse_gpano
+from solidkit.envmap.coords import rotation_from_ypr
 from solidkit.errors import InputError
 
 __all__ = [
@@ -77,12 +82,6 @@ __all__ = [
 
 ImageType = Literal["equirect", "dual_fisheye", "dual_fisheye_upright", "perspective", "unknown"]
 
-#: ``v_ours = RICOH_TO_OURS @ v_ricoh`` (Ricoh X right, Y front, Z up -> ours x right, y down, z front).
-RICOH_TO_OURS = np.array([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]])
-
-_GPANO_NS = "http://ns.google.com/photos/1.0/panorama/"
-_XMP_APP1 = b"http://ns.adobe.com/xap/1.0/\x00"
-_RICOH_IMAGE_TYPES: dict[int, ImageType] = {1: "equirect", 2: "dual_fisheye", 3: "dual_fisheye_upright"}
 _MAX_READ = 64 << 20  # metadata lives in the first MiBs; never slurp more than this
 
 log = logging.getLogger(__name__)
@@ -128,27 +127,7 @@ class CaptureMetadata(BaseModel):
     warnings: list[str] = Field(default_factory=list)
 
 
-# --------------------------------------------------------------------------- orientation helpers
-
-
-def gravity_from_pitch_roll(pitch: float, roll: float) -> np.ndarray:
-    """Gravity in Ricoh camera axes for a front-lens frame with ``R_cam = R(0, pitch, roll)`` (radians).
-
-    ``g_ours_cam = R_camᵀ (0, 1, 0)`` (gravity is +y in the level frame), then
-    ``g_ricoh = RICOH_TO_OURSᵀ g_ours_cam``.
-    """
-    R = np.asarray(rotation_from_ypr(0.0, float(pitch), float(roll)))
-    return RICOH_TO_OURS.T @ (R.T @ np.array([0.0, 1.0, 0.0]))
-
-
-def pitch_roll_from_gravity(g_ricoh: Any) -> tuple[float, float]:
-    """Inverse of :func:`gravity_from_pitch_roll` (radians); ``g`` need not be unit length."""
-    g = RICOH_TO_OURS @ np.asarray(g_ricoh, dtype=np.float64)
-    g = g / np.linalg.norm(g)
-    # g_cam = R_z(roll)^T R_x(pitch)^T e_y = (sin r cos p, cos r cos p, -sin p)
-    pitch = math.asin(max(-1.0, min(1.0, -g[2])))
-    roll = math.atan2(g[0], g[1])
-    return pitch, roll
+# --------------------------------------------------------------------------- orientation
 
 
 def level_rotation(meta: CaptureMetadata) -> np.ndarray:
@@ -171,147 +150,6 @@ def level_rotation(meta: CaptureMetadata) -> np.ndarray:
             or (meta.image_type == "equirect" and meta.zenith_corrected)):
         return np.eye(3)
     return np.asarray(rotation_from_ypr(0.0, math.radians(meta.pitch_deg), math.radians(meta.roll_deg)))
-
-
-# --------------------------------------------------------------------------- TIFF IFD reader
-
-_TYPE_SIZES = {1: 1, 2: 1, 3: 2, 4: 4, 5: 8, 6: 1, 7: 1, 8: 2, 9: 4, 10: 8, 11: 4, 12: 8, 13: 4}
-_MAX_ENTRIES = 512
-
-
-class _TiffError(ValueError):
-    pass
-
-
-class _Tiff:
-    """Bounds-checked reader of TIFF IFDs in ``buf`` (offsets relative to the TIFF header)."""
-
-    def __init__(self, buf: bytes):
-        if len(buf) < 8 or buf[:2] not in (b"II", b"MM"):
-            raise _TiffError("no TIFF header")
-        self.buf = buf
-        self.bo = "<" if buf[:2] == b"II" else ">"
-        if struct.unpack(self.bo + "H", buf[2:4])[0] != 42:
-            raise _TiffError("bad TIFF magic")
-        self.first_ifd = struct.unpack(self.bo + "I", buf[4:8])[0]
-
-    def ifd(self, offset: int) -> dict[int, tuple[int, int, int]]:
-        """Entries ``tag -> (type, count, value_offset_or_inline_pos)`` of the IFD at ``offset``."""
-        buf, bo = self.buf, self.bo
-        if not isinstance(offset, int):  # a pointer tag whose type byte was mangled into RATIONAL/ASCII
-            raise _TiffError(f"IFD pointer is a {type(offset).__name__}, not an offset")
-        if offset <= 0 or offset + 2 > len(buf):
-            raise _TiffError(f"IFD offset {offset} out of range")
-        n = struct.unpack(bo + "H", buf[offset : offset + 2])[0]
-        if n == 0 or n > _MAX_ENTRIES or offset + 2 + 12 * n > len(buf):
-            raise _TiffError(f"IFD at {offset}: implausible entry count {n}")
-        out: dict[int, tuple[int, int, int]] = {}
-        for i in range(n):
-            p = offset + 2 + 12 * i
-            tag, typ, cnt = struct.unpack(bo + "HHI", buf[p : p + 8])
-            size = _TYPE_SIZES.get(typ)
-            if size is None:
-                continue  # unknown type: skip the entry (TIFF 6.0 says readers should)
-            nbytes = size * cnt
-            pos = p + 8 if nbytes <= 4 else struct.unpack(bo + "I", buf[p + 8 : p + 12])[0]
-            if pos + nbytes > len(buf):
-                continue
-            out[tag] = (typ, cnt, pos)
-        return out
-
-    def value(self, entry: tuple[int, int, int]) -> Any:
-        """Decoded value: ``str`` for ASCII, ``bytes`` for UNDEFINED, else a list of numbers."""
-        typ, cnt, pos = entry
-        buf, bo = self.buf, self.bo
-        raw = buf[pos : pos + _TYPE_SIZES[typ] * cnt]
-        if typ == 2:
-            return raw.split(b"\x00", 1)[0].decode("latin-1").strip()
-        if typ in (1, 7):
-            return raw if typ == 7 else list(raw)
-        if typ in (5, 10):
-            fmt = "I" if typ == 5 else "i"
-            pairs = struct.unpack(bo + fmt * (2 * cnt), raw)
-            return [(pairs[2 * i] / pairs[2 * i + 1]) if pairs[2 * i + 1] else math.nan for i in range(cnt)]
-        fmt = {3: "H", 4: "I", 6: "b", 8: "h", 9: "i", 11: "f", 12: "d", 13: "I"}[typ]
-        return list(struct.unpack(bo + fmt * cnt, raw))
-
-
-# --------------------------------------------------------------------------- container parsing
-
-
-def _jpeg_segments(data: bytes) -> tuple[list[tuple[int, bytes]], tuple[int, int] | None]:
-    """APPn segments ``(marker, payload)`` and the ``(width, height)`` from the SOF marker."""
-    segs: list[tuple[int, bytes]] = []
-    size = None
-    p = 2
-    n = len(data)
-    while p + 4 <= n:
-        if data[p] != 0xFF:
-            break
-        marker = data[p + 1]
-        if marker == 0xFF:  # fill byte
-            p += 1
-            continue
-        if marker in (0xD8, 0x01) or 0xD0 <= marker <= 0xD7:
-            p += 2
-            continue
-        if marker == 0xD9:
-            break
-        length = struct.unpack(">H", data[p + 2 : p + 4])[0]
-        if length < 2 or p + 2 + length > n:
-            break
-        payload = data[p + 4 : p + 2 + length]
-        if marker in (0xC0, 0xC1, 0xC2, 0xC3, 0xC5, 0xC6, 0xC7, 0xC9, 0xCA, 0xCB, 0xCD, 0xCE, 0xCF):
-            if len(payload) >= 5:
-                h, w = struct.unpack(">HH", payload[1:5])
-                size = (w, h)
-            break
-        if marker == 0xDA:
-            break
-        segs.append((marker, payload))
-        p += 2 + length
-    return segs, size
-
-
-def _parse_xmp(packet: bytes, warnings: list[str]) -> dict:
-    """GPano fields of an XMP packet, as attributes or elements; numbers converted."""
-    start = packet.find(b"<x:xmpmeta")
-    end = packet.find(b"</x:xmpmeta>")
-    if start < 0 or end < 0:
-        start, end = packet.find(b"<rdf:RDF"), packet.find(b"</rdf:RDF>")
-        if start < 0 or end < 0:
-            warnings.append("xmp_unparsable: no xmpmeta element")
-            return {}
-        end += len(b"</rdf:RDF>")
-    else:
-        end += len(b"</x:xmpmeta>")
-    try:
-        root = ET.fromstring(packet[start:end])
-    except ET.ParseError as exc:
-        warnings.append(f"xmp_unparsable: {exc}")
-        return {}
-    out: dict[str, Any] = {}
-    prefix = "{" + _GPANO_NS + "}"
-    for el in root.iter():
-        for key, val in el.attrib.items():
-            if key.startswith(prefix):
-                out[key[len(prefix) :]] = val
-        if isinstance(el.tag, str) and el.tag.startswith(prefix) and el.text is not None:
-            out[el.tag[len(prefix) :]] = el.text.strip()
-    for key, val in list(out.items()):
-        if val.lower() in ("true", "false"):
-            out[key] = val.lower() == "true"
-            continue
-        try:
-            num = float(val)
-        except ValueError:
-            continue
-        if not math.isfinite(num):
-            warnings.append(f"gpano_bad_value: {key}={val!r}")
-            del out[key]
-            continue
-        out[key] = int(num) if re.fullmatch(r"[+-]?\d+", val) else num
-    return out
 
 
 def _exifread_tags(data: bytes, warnings: list[str]) -> dict[str, Any]:
@@ -440,89 +278,6 @@ def _gps(tags: dict, warnings: list[str]) -> dict | None:
     return out
 
 
-def _ricoh_makernote(tiff: _Tiff, warnings: list[str]) -> tuple[dict[int, Any], dict[int, Any]] | None:
-    """``(maker-note IFD, RICOH THETA IFD)`` decoded, or ``None`` when absent."""
-    try:
-        ifd0 = tiff.ifd(tiff.first_ifd)
-        if 0x8769 not in ifd0:
-            return None
-        exif_off = tiff.value(ifd0[0x8769])[0]
-        exif = tiff.ifd(exif_off)
-        if 0x927C not in exif:
-            return None
-        _, cnt, mn = exif[0x927C]
-    except (_TiffError, struct.error, IndexError, KeyError) as exc:
-        warnings.append(f"exif_ifd_unreadable: {exc}"[:120])
-        return None
-    if tiff.buf[mn : mn + 8] != b"Ricoh\x00\x00\x00":
-        return None
-    try:
-        main = tiff.ifd(mn + 8)
-    except (_TiffError, struct.error) as exc:
-        warnings.append(f"makernote_unreadable: {exc}"[:120])
-        return None
-    main_vals: dict[int, Any] = {}
-    for tag, entry in main.items():
-        try:
-            main_vals[tag] = tiff.value(entry)
-        except (struct.error, KeyError, UnicodeDecodeError):
-            warnings.append(f"makernote_bad_tag: 0x{tag:04x}")
-    theta: dict[int, Any] = {}
-    if 0x4001 in main_vals and isinstance(main_vals[0x4001], list) and main_vals[0x4001]:
-        off = int(main_vals[0x4001][0])
-        ifd = None
-        for base in (0, mn):  # offsets are TIFF-relative on the S; tolerate makernote-relative writers
-            try:
-                ifd = tiff.ifd(base + off)
-                break
-            except (_TiffError, struct.error):
-                continue
-        if ifd is None:
-            warnings.append("makernote_unreadable: RICOH THETA IFD offset invalid")
-        else:
-            for tag, entry in ifd.items():
-                try:
-                    theta[tag] = tiff.value(entry)
-                except (struct.error, KeyError, UnicodeDecodeError):
-                    warnings.append(f"makernote_bad_tag: theta 0x{tag:04x}")
-    else:
-        warnings.append("makernote_no_theta_ifd: the Ricoh maker note has no RICOH THETA IFD (tag 0x4001)")
-    return main_vals, theta
-
-
-def _dng_size(tiff: _Tiff, warnings: list[str]) -> tuple[int, int] | None:
-    """Size of the full-resolution image of a TIFF/DNG (DefaultCropSize when present)."""
-    seen: set[int] = set()
-    stack = [tiff.first_ifd]
-    best = None
-    while stack and len(seen) < 32:
-        off = stack.pop()
-        if off in seen:
-            continue
-        seen.add(off)
-        try:
-            ifd = tiff.ifd(off)
-        except (_TiffError, struct.error):
-            continue
-        try:
-            if 0x014A in ifd:  # SubIFDs
-                stack.extend(int(x) for x in tiff.value(ifd[0x014A]))
-            subfile = tiff.value(ifd[0x00FE])[0] if 0x00FE in ifd else 0
-            if 0x0100 in ifd and 0x0101 in ifd and subfile == 0:
-                w, h = tiff.value(ifd[0x0100])[0], tiff.value(ifd[0x0101])[0]
-                if 0xC620 in ifd:  # DefaultCropSize
-                    cw, ch = tiff.value(ifd[0xC620])[:2]
-                    if cw > 0 and ch > 0:
-                        w, h = cw, ch
-                if best is None or w * h > best[0] * best[1]:
-                    best = (int(w), int(h))
-        except (struct.error, IndexError, TypeError, ValueError):
-            continue
-    if best is None:
-        warnings.append("dng_no_main_image: no full-resolution IFD (NewSubFileType 0) found")
-    return best
-
-
 def read_metadata(path: str | os.PathLike) -> CaptureMetadata:
     """Read the capture metadata of a JPEG or DNG/TIFF file.
 
@@ -552,36 +307,36 @@ def read_metadata(path: str | os.PathLike) -> CaptureMetadata:
     return _read_metadata_bytes(data, str(p))
 
 
-def _read_metadata_bytes(data: bytes, name: str) -> CaptureMetadata:
-    warnings: list[str] = []
+def _container(data: bytes, name: str, warnings: list[str]) -> tuple[str, Tiff | None, bytes | None, tuple[int, int]]:
+    """``(file format, TIFF structure of the EXIF block or file, XMP packet, (width, height))`` of a JPEG or TIFF/DNG."""
     if len(data) == 0:
         raise InputError(f"{name}: empty file (0 bytes)")
-    tiff: _Tiff | None = None
+    tiff: Tiff | None = None
     xmp_packet: bytes | None = None
     size: tuple[int, int] | None = None
     if data[:2] == b"\xff\xd8":
         fmt = "jpeg"
-        segs, size = _jpeg_segments(data)
+        segs, size = jpeg_segments(data)
         for marker, payload in segs:
             if marker == 0xE1 and payload.startswith(b"Exif\x00\x00") and tiff is None:
                 try:
-                    tiff = _Tiff(payload[6:])
-                except (_TiffError, struct.error) as exc:
+                    tiff = Tiff(payload[6:])
+                except (TiffError, struct.error) as exc:
                     warnings.append(f"exif_unreadable: {exc}")
-            elif marker == 0xE1 and payload.startswith(_XMP_APP1) and xmp_packet is None:
-                xmp_packet = payload[len(_XMP_APP1) :]
+            elif marker == 0xE1 and payload.startswith(XMP_APP1) and xmp_packet is None:
+                xmp_packet = payload[len(XMP_APP1) :]
         if size is None:
             raise InputError(f"{name}: corrupt or truncated JPEG (no frame header found)")
         if tiff is None and not any(w.startswith("exif_unreadable") for w in warnings):
             warnings.append("no_exif: the file carries no EXIF block")
     elif data[:4] in (b"II*\x00", b"MM\x00*"):
         try:
-            tiff = _Tiff(data)
-        except (_TiffError, struct.error) as exc:
+            tiff = Tiff(data)
+        except (TiffError, struct.error) as exc:
             raise InputError(f"{name}: corrupt TIFF/DNG header ({exc})") from exc
         try:
             ifd0 = tiff.ifd(tiff.first_ifd)
-        except (_TiffError, struct.error) as exc:
+        except (TiffError, struct.error) as exc:
             raise InputError(f"{name}: corrupt TIFF/DNG ({exc})") from exc
         fmt = "dng" if 0xC612 in ifd0 else "tiff"  # DNGVersion
         if 0x02BC in ifd0:  # XMLPacket
@@ -589,7 +344,7 @@ def _read_metadata_bytes(data: bytes, name: str) -> CaptureMetadata:
                 xmp_packet = bytes(tiff.value(ifd0[0x02BC]))
             except (struct.error, KeyError, TypeError):
                 warnings.append("xmp_unparsable: bad XMLPacket tag")
-        size = _dng_size(tiff, warnings)
+        size = dng_size(tiff, warnings)
         if size is None:
             raise InputError(f"{name}: TIFF/DNG without a readable main image")
     else:
@@ -597,6 +352,12 @@ def _read_metadata_bytes(data: bytes, name: str) -> CaptureMetadata:
     if size[0] <= 0 or size[1] <= 0:
         raise InputError(f"{name}: invalid image size {size[0]}x{size[1]}")
 
+    return fmt, tiff, xmp_packet, size
+
+
+def _read_metadata_bytes(data: bytes, name: str) -> CaptureMetadata:
+    warnings: list[str] = []
+    fmt, tiff, xmp_packet, size = _container(data, name, warnings)
     tags = _exifread_tags(data, warnings) if tiff is not None else {}
     meta: dict[str, Any] = {"path": name, "width": size[0], "height": size[1], "file_format": fmt}
     meta["make"] = _text(tags, "Image Make")
@@ -624,14 +385,14 @@ def _read_metadata_bytes(data: bytes, name: str) -> CaptureMetadata:
     # --- GPano XMP
     gpano: dict[str, Any] = {}
     if xmp_packet is not None:
-        gpano = _parse_xmp(xmp_packet, warnings)
+        gpano = parse_gpano(xmp_packet, warnings)
     meta["gpano"] = gpano
 
     # --- Ricoh maker note
     ricoh_main: dict[int, Any] = {}
     theta: dict[int, Any] = {}
     if tiff is not None:
-        mn = _ricoh_makernote(tiff, warnings)
+        mn = ricoh_makernote(tiff, warnings)
         if mn is not None:
             ricoh_main, theta = mn
     is_ricoh = (meta["make"] or "").upper().startswith("RICOH")
@@ -648,7 +409,7 @@ def _read_metadata_bytes(data: bytes, name: str) -> CaptureMetadata:
     image_type: ImageType = "unknown"
     t = theta.get(0x0001)
     if isinstance(t, list) and t:
-        image_type = _RICOH_IMAGE_TYPES.get(int(t[0]), "unknown")
+        image_type = RICOH_IMAGE_TYPES.get(int(t[0]), "unknown")
         if image_type == "unknown":
             warnings.append(f"unsupported_image_type: Ricoh image type {t[0]} (single fisheye or unknown)")
     elif str(gpano.get("ProjectionType", "")).lower() == "equirectangular":
@@ -664,44 +425,7 @@ def _read_metadata_bytes(data: bytes, name: str) -> CaptureMetadata:
     if isinstance(zc, list) and zc and zc[0] not in (0, 1):
         warnings.append(f"bad_zenith_correction: {zc[0]}")
 
-    # gravity: Ricoh angle pair (S/SC; verified against GPano pose), rotation vector (V/Z1/X), GPano pose.
-    pitch = roll = None
-    angles = theta.get(0x0003)
-    rvec = theta.get(0x0109)
-    if isinstance(angles, list) and len(angles) == 2 and all(isinstance(a, (int, float)) and math.isfinite(a)
-                                                             and -360 <= a <= 360 for a in angles):
-        # Ricoh writes angles in [0, 360): 359.6 is -0.4 (wrapped to (-180, 180])
-        angles = [a - 360.0 if a > 180 else a + 360.0 if a <= -180 else a for a in angles]
-    if isinstance(angles, list) and len(angles) == 2 and all(math.isfinite(a) and abs(a) <= 180 for a in angles):
-        roll, pitch = float(angles[0]), float(angles[1])
-        meta["gravity_source"] = "ricoh:0x0003 [roll, pitch] deg"
-    elif isinstance(rvec, list) and len(rvec) == 3 and all(math.isfinite(a) for a in rvec) and np.linalg.norm(rvec) < 2 * math.pi:
-        # Ricoh: "Zenith Direction (= Rotation Vector)" in camera axes. We read it as the rotation
-        # taking the level frame's up (Z) to the camera's measured zenith: zenith_cam = R e_z.
-        R = rotation_from_rotvec(np.asarray(rvec, dtype=np.float64))
-        g = -(R @ np.array([0.0, 0.0, 1.0]))
-        p_rad, r_rad = pitch_roll_from_gravity(g)
-        pitch, roll = math.degrees(p_rad), math.degrees(r_rad)
-        meta["gravity_source"] = "ricoh:0x0109 rotation vector"
-        warnings.append("gravity_rotvec_unverified: 0x0109 sense not verified against a sample file")
-    elif isinstance(angles, list) or isinstance(rvec, list):
-        warnings.append("bad_gravity: Ricoh zenith fields present but invalid")
-    if pitch is None and ("PosePitchDegrees" in gpano or "PoseRollDegrees" in gpano):
-        try:
-            pitch = float(gpano.get("PosePitchDegrees", 0.0))
-            roll = float(gpano.get("PoseRollDegrees", 0.0))
-            meta["gravity_source"] = "gpano:PosePitchDegrees/PoseRollDegrees"
-        except (TypeError, ValueError):
-            warnings.append("bad_gravity: GPano pose not numeric")
-            pitch = roll = None
-    if pitch is not None and roll is not None:
-        meta["pitch_deg"], meta["roll_deg"] = pitch, roll
-        meta["gravity"] = [float(x) for x in gravity_from_pitch_roll(math.radians(pitch), math.radians(roll))]
-    comp = theta.get(0x0004)
-    if isinstance(comp, list) and comp and math.isfinite(comp[0]) and 0 <= comp[0] <= 360:
-        meta["heading_deg"] = float(comp[0])
-    elif isinstance(gpano.get("PoseHeadingDegrees"), (int, float)):
-        meta["heading_deg"] = float(gpano["PoseHeadingDegrees"])
+    meta.update(pose_fields(theta, gpano, warnings))
 
     # sanity
     if meta["datetime_original"] is not None and is_ricoh and meta["datetime_original"].date() == _dt.date(2015, 1, 1):
