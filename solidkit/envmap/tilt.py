@@ -71,7 +71,15 @@ class TiltEstimate:
 
 
 def correction_from_gravity(g: np.ndarray) -> tuple[float, float]:
-    """``(pitch, roll)`` in radians of ``R(0, pitch, roll)`` mapping the unit gravity ``g`` to ``(0, 1, 0)``."""
+    """``(pitch, roll)`` in radians of ``R(0, pitch, roll)`` mapping the unit gravity ``g`` to ``(0, 1, 0)``.
+
+    Examples
+    --------
+    >>> from solidkit.envmap.coords import rotation_from_ypr
+    >>> g = rotation_from_ypr(0.0, math.radians(3.0), 0.0).T @ [0.0, 1.0, 0.0]  # gravity seen by a camera pitched 3°
+    >>> [round(math.degrees(a), 6) for a in correction_from_gravity(g)]
+    [3.0, 0.0]
+    """
     g = np.asarray(g, np.float64) / np.linalg.norm(g)
     return math.asin(max(-1.0, min(1.0, -g[2]))), math.atan2(g[0], g[1])
 
@@ -212,6 +220,19 @@ def residual_tilt(pano: np.ndarray, *, max_lean_deg: float = 12.0, max_elevation
     Returns
     -------
     TiltEstimate
+
+    Examples
+    --------
+    >>> from solidkit.envmap.coords import direction_grid, rotation_from_ypr
+    >>> from solidkit.envmap.resample import rotate
+    >>> d = direction_grid(256)
+    >>> stripes = np.floor(np.arctan2(d[..., 0], d[..., 2]) / (np.pi / 12)) % 2 == 0  # vertical edges every 15°
+    >>> pano = np.repeat(np.where(stripes, 0.9, 0.3)[..., None], 3, axis=2).astype(np.float32)
+    >>> round(residual_tilt(pano).tilt_deg, 1)
+    0.0
+    >>> t = residual_tilt(rotate(pano, rotation_from_ypr(0.0, math.radians(3.0), 0.0)))  # content pitched 3°
+    >>> round(t.tilt_deg), round(t.pitch_deg)  # R(0, pitch, roll) levels it again
+    (3, -3)
     """
     img = np.asarray(pano)
     h = img.shape[0]
