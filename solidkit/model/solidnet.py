@@ -41,7 +41,7 @@ import torch
 from torch import nn
 
 from solidkit.envmap.coords import CONVENTIONS_VERSION
-from solidkit.envmap.perspective import intrinsics_from_fov
+from solidkit.envmap.perspective import intrinsics_from_fov, scale_intrinsics, scale_pixel_coordinates
 from solidkit.errors import ConventionsError, InputError, SolidkitError
 from solidkit.fsutil import atomic_write_bytes
 from solidkit.model.config import ConfigError, SolidNetConfig, preset
@@ -224,9 +224,8 @@ class SolidNet(nn.Module):
         H, W = self.config.image_size
         sx, sy = W / w0, H / h0
         resized = cv2.resize(image, (W, H), interpolation=cv2.INTER_AREA if sx < 1 else cv2.INTER_LINEAR)
-        S = np.array([[sx, 0, 0.5 * sx - 0.5], [0, sy, 0.5 * sy - 0.5], [0, 0, 1]])
-        K_net = S @ K
-        pix_net = np.stack([(pix[:, 0] + 0.5) * sx - 0.5, (pix[:, 1] + 0.5) * sy - 0.5], axis=-1)
+        K_net = scale_intrinsics(K, sx, sy)
+        pix_net = np.stack([scale_pixel_coordinates(pix[:, 0], sx), scale_pixel_coordinates(pix[:, 1], sy)], axis=-1)
         pix_net = np.clip(pix_net, 0, [W - 1, H - 1])
         dev = next(self.parameters()).device
         t = lambda a: torch.as_tensor(np.asarray(a), dtype=torch.float32, device=dev)  # noqa: E731

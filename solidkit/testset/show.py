@@ -21,7 +21,7 @@ import numpy as np
 
 from solidkit.envmap.coords import coords_from_angles, coords_from_direction, rotation_from_ypr
 from solidkit.envmap.io import imread
-from solidkit.envmap.perspective import pixel_rays
+from solidkit.envmap.perspective import pixel_rays, scale_pixel_coordinates
 from solidkit.errors import InputError
 from solidkit.fsutil import atomic_path, atomic_write_text
 from solidkit.testset.build import load_testset
@@ -107,7 +107,7 @@ def scene_sheet(root: Path, scene: Scene) -> np.ndarray:
     cv2.rectangle(ph, (int(x0 * s), int(y0 * s)), (int((x0 + cw) * s) - 1, int((y0 + chh) * s) - 1), FOV_COLOUR, 1)
     for k, p in enumerate(scene.probes):
         col = PROBE_COLOURS[k % len(PROBE_COLOURS)]
-        c = (int(round((p.pixel_full[0] + 0.5) * s - 0.5)), int(round((p.pixel_full[1] + 0.5) * s - 0.5)))
+        c = (int(round(scale_pixel_coordinates(p.pixel_full[0], s))), int(round(scale_pixel_coordinates(p.pixel_full[1], s))))
         cv2.circle(ph, c, 7, col, 2, cv2.LINE_AA)
         _label(ph, str(k + 1), (c[0] + 9, c[1] - 6), col, 0.6)
     sun = scene.sun
