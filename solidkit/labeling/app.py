@@ -37,8 +37,8 @@ from starlette.middleware.trustedhost import TrustedHostMiddleware
 
 from solidkit.errors import InputError
 from solidkit.labeling.images import ImageService, tile_grid, PREVIEW_WIDTH
-from solidkit.labeling.review import THRESHOLDS, UNITS, review_all, review_item
-from solidkit.labeling.store import LabelConflict, LabelStore
+from solidkit.labeling.review import THRESHOLDS, UNITS, disagreement_flag, review_all, review_item
+from solidkit.labeling.store import LabelConflict, LabelStore, validate_value
 from solidkit.labeling.tasks import TASKS, CampaignIndex
 
 __all__ = ["create_app", "MAX_BODY_BYTES", "LOOPBACK_HOSTS", "PutBody", "UndoBody"]
@@ -291,9 +291,17 @@ def create_app(
         extra = set(body.value) - _WEB_FIELDS[body.kind]
         if extra:
             raise HTTPException(422, f"{body.kind}: unknown value fields {sorted(extra)}")
+        flags = list(body.flags)
+        if body.source == "annotator":  # a second opinion far from the first is flagged for review
+            try:
+                value = validate_value(body.kind, body.key, body.value)
+            except InputError as exc:
+                raise HTTPException(422, str(exc)) from None
+            flag = disagreement_flag(body.kind, body.annotator, value, store.history(body.kind, body.key))
+            flags += [flag] if flag else []
         try:
             lab = store.put(body.kind, body.key, body.value, source=body.source, annotator=body.annotator,
-                            expected_version=body.expected_version, flags=body.flags)  # fmt: skip
+                            expected_version=body.expected_version, flags=flags)  # fmt: skip
         except LabelConflict as exc:
             return _conflict(exc)
         except InputError as exc:

@@ -40,7 +40,7 @@ class ImageRef:
     Attributes
     ----------
     id : str
-        Opaque id used in URLs (``img-`` + 16 hex digits of the file's sha256 or path hash).
+        Opaque id used in URLs (``img-`` + 16 hex digits of a hash of the path, size and mtime).
     path : Path
         Resolved absolute path, inside the campaign (checked by the caller).
     layout : {"equirect", "perspective"}

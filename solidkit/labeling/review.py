@@ -25,7 +25,7 @@ from solidkit.envmap.coords import angular_distance, direction_from_angles
 from solidkit.labeling.store import HUMAN_SOURCES, Change, Label, LabelStore
 from solidkit.labeling.tasks import CampaignIndex, Item
 
-__all__ = ["THRESHOLDS", "UNITS", "distance", "Review", "review_item", "review_all"]
+__all__ = ["THRESHOLDS", "UNITS", "distance", "opinions", "disagreement_flag", "Review", "review_item", "review_all"]
 
 #: disagreement worth a reviewer's look (label units)
 THRESHOLDS = {"sun": 1.0, "sun_scene": 1.0, "probe_pixel": 12.0, "heading": 2.0}
@@ -51,6 +51,22 @@ def distance(kind: str, a: dict[str, Any] | None, b: dict[str, Any] | None) -> f
     if kind == "heading":
         return abs((a["yaw_deg"] - b["yaw_deg"] + 180.0) % 360.0 - 180.0)
     raise KeyError(kind)
+
+
+def disagreement_flag(kind: str, annotator: str, value: dict[str, Any], history: list[Change]) -> str | None:
+    """The flag a new human ``value`` by ``annotator`` gets when it lies more than
+    :data:`THRESHOLDS` from another annotator's current opinion (since the last review), e.g.
+    ``"annotators_disagree: 23.6 px (ann)"``; None when they agree. The flag travels with the
+    label into the test set until a reviewer settles it."""
+    worst, who = 0.0, None
+    for other, ch in opinions(history).items():
+        d = distance(kind, value, ch.value) if other != annotator else None
+        if d is not None and d > THRESHOLDS[kind] and d >= worst:
+            worst, who = d, other
+    if who is None:
+        return None
+    size = "found vs no sun" if math.isinf(worst) else f"{worst:.1f} {'deg' if UNITS[kind] == 'deg' else 'px'}"
+    return f"annotators_disagree: {size} ({who})"[:64]
 
 
 @dataclass
@@ -79,7 +95,7 @@ class Review:
         }  # fmt: skip
 
 
-def _opinions(history: list[Change]) -> dict[str, Change]:
+def opinions(history: list[Change]) -> dict[str, Change]:
     """Latest applied human value per annotator since the last reviewed change."""
     latest: dict[str, Change] = {}
     for ch in history:
@@ -96,7 +112,7 @@ def _opinions(history: list[Change]) -> dict[str, Change]:
 
 def review_item(item: Item, label: Label | None, history: list[Change]) -> Review:
     """Status, flags and disagreements of one item (``history``: its store history)."""
-    ops = _opinions(history)
+    ops = opinions(history)
     values = {who: ch.value for who, ch in ops.items() if ch.value is not None}
     pair = [distance(item.kind, a, b) for i, a in enumerate(values.values()) for b in list(values.values())[i + 1 :]]
     pair = [p for p in pair if p is not None]
@@ -110,8 +126,8 @@ def review_item(item: Item, label: Label | None, history: list[Change]) -> Revie
     extra = [f for f in (label.flags if label else []) if not any(a == f or a.startswith(f + ":") for a in item.flags)]
     flags = list(dict.fromkeys([*item.flags, *extra]))
     open_dis = dis is not None and dis > THRESHOLDS[item.kind]
-    if open_dis:
-        flags.append("annotators disagree")
+    if open_dis and not any(f.startswith("annotators_disagree") for f in flags):
+        flags.append("annotators_disagree")
     if vs_auto is not None and vs_auto > THRESHOLDS[item.kind]:
         flags.append("differs from auto")
     if human and not open_dis:

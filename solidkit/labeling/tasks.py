@@ -132,7 +132,8 @@ class CampaignIndex:
         if real is None:
             self.problems.append(f"{rel}: missing or outside the campaign; not served")
             return None
-        img_id = "img-" + hashlib.sha256(str(real.relative_to(self.root)).encode()).hexdigest()[:16]
+        st = real.stat()  # the id changes with the file, so a browser never shows a stale cached copy
+        img_id = "img-" + hashlib.sha256(f"{real.relative_to(self.root)}:{st.st_size}:{st.st_mtime_ns}".encode()).hexdigest()[:16]
         ref = ImageRef(id=img_id, path=real, layout=layout, hdr=real.suffix.lower() in _HDR)
         self.images[img_id] = ref
         return ref
