@@ -18,12 +18,12 @@ from solidkit.capture.merge import (
     frame_from_raw,
     load_frame,
     load_response,
-    merge_files,
     merge_frames,
     srgb_response,
     validate_response,
 )
 from solidkit.camera.raw import RawImage
+from solidkit.capture.bracket_hdr import merge_files
 from solidkit.envmap.io import read_exr
 from solidkit.errors import InputError
 

@@ -214,15 +214,19 @@ def test_real_theta_s_live_frame(real_data, tmp_path):
 
 @pytest.mark.real
 def test_real_stitched_equirect(real_data, tmp_path):
-    """Jobsite1.JPG (stitched, not zenith-corrected): copied untouched without levelling, levelled otherwise."""
+    """Jobsite1.JPG (Ricoh in-camera stitched): its recorded pose is not re-applied (camera.metadata.level_rotation:
+    doing so made it more tilted, issue 10 §3); the residual tilt of its vertical edges is reported and flagged."""
     from solidkit.capture.unwarp import unwarp_file
 
     src = real_data / "theta_s_equirect" / "Jobsite1.JPG"
     s = unwarp_file(src, tmp_path / "copy.JPG", level=False)
     assert s["resampled"] is False and (tmp_path / "copy.JPG").read_bytes() == src.read_bytes()
     s = unwarp_file(src, tmp_path / "level.png", out_height=256)
-    assert s["resampled"] is True and s["level_pitch_roll_deg"] == [-0.5, 0.7]
+    assert s["resampled"] is True and s["level_pitch_roll_deg"] is None
     assert cv2.imread(str(tmp_path / "level.png")).shape == (256, 512, 3)
+    s = unwarp_file(src, tmp_path / "same.JPG")  # level and same size: copied, and measured
+    assert s["resampled"] is False and s["residual_tilt"]["reliable"] and s["residual_tilt"]["tilt_deg"] > 1.0
+    assert any(w.startswith("residual_tilt") for w in s["warnings"])
 
 
 @pytest.mark.real

@@ -19,19 +19,27 @@ header and the manifest.
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 from typing import Any, Sequence
 
 import numpy as np
+from PIL import Image
 
+from solidkit import __version__
+from solidkit.camera.metadata import CaptureMetadata, read_metadata
 from solidkit.camera.raw import is_raw_file, read_raw
-from solidkit.capture.merge import (DEFAULT_BLACK, DEFAULT_SATURATION, Frame, MergeResult, frame_from_ldr,
-                                    frame_from_raw, merge_frames, read_ldr_codes, sniff_format)
+from solidkit.capture.brackets import ShotInfo, gain_from, group_brackets, sequence_from_name
+from solidkit.capture.merge import (DEFAULT_BLACK, DEFAULT_SATURATION, Frame, MergeResult, effective_exposure,
+                                    frame_from_ldr, frame_from_raw, load_response, merge_frames, read_ldr_codes,
+                                    sniff_format, validate_response)
+from solidkit.envmap.io import write_exr, write_ldr
+from solidkit.fsutil import sha256_file
 from solidkit.capture.register import register_frames, shift_image
 from solidkit.capture.selfcal import response_for_bracket
 from solidkit.errors import InputError
 
-__all__ = ["merge_bracket", "read_codes"]
+__all__ = ["merge_bracket", "merge_files", "read_codes"]
 
 _CONTENT_SUFFIXES = {"jpeg": (".jpg", ".jpeg", ".jpe"), "png": (".png",), "tiff": (".tif", ".tiff", ".dng")}
 
@@ -70,6 +78,11 @@ def merge_bracket(paths: Sequence[str | Path], exposures: Sequence[float], *, re
     ldr = all(c is not None for c, _ in decoded)
     if not ldr and any(c is not None for c, _ in decoded):
         raise InputError("a bracket mixes raw and LDR frames: merge them separately")
+    shapes = [(c if c is not None else np.asarray(r.linear)).shape[:2] for c, r in decoded]
+    for p, shp in zip(paths[1:], shapes[1:]):  # before registration: it needs frames of one size
+        if shp != shapes[0]:
+            raise InputError(f"frame {p.name} is {shp[1]}x{shp[0]}, expected {shapes[0][1]}x{shapes[0][0]} "
+                             f"like {paths[0].name}")
 
     def frames_with(curve: np.ndarray | None) -> list[Frame]:
         if ldr:
@@ -110,3 +123,123 @@ def merge_bracket(paths: Sequence[str | Path], exposures: Sequence[float], *, re
         "stats": result.stats(),
     }
     return result, provenance
+
+
+def _bracket_infos(paths: Sequence[Path], times: Sequence[float] | None) -> list[tuple[Path, Any, float]]:
+    """(path, metadata, exposure time in s) per file; times from ``times`` or EXIF."""
+    if times is not None and len(times) != len(paths):
+        raise InputError(f"--times has {len(times)} value(s) for {len(paths)} frame(s)")
+    out = []
+    for i, p in enumerate(paths):
+        if not p.is_file():
+            raise InputError(f"{p}: no such file")
+        if p.stat().st_size == 0:
+            raise InputError(f"{p}: empty file (0 bytes)")
+        if sniff_format(p) == "png":  # no EXIF in PNG: size only
+            with Image.open(p) as im:
+                meta = CaptureMetadata(path=str(p), width=im.width, height=im.height, warnings=["no_exif: PNG file"])
+        else:
+            meta = read_metadata(p)
+        if times is not None:
+            t = float(times[i])
+            if not (np.isfinite(t) and t > 0):
+                raise InputError(f"--times: exposure time {times[i]} for {p.name} is not positive")
+        else:
+            t = meta.exposure_time
+            if not t or t <= 0:
+                raise InputError(f"{p}: no exposure time in the metadata; pass --times t1,t2,...")
+        out.append((p, meta, float(t)))
+    return out
+
+
+def merge_files(
+    paths: Sequence[str | os.PathLike],
+    out: str | os.PathLike,
+    *,
+    times: Sequence[float] | None = None,
+    response_path: str | os.PathLike | None = None,
+    response: np.ndarray | None = None,
+    group: bool = True,
+    max_gap_s: float = 10.0,
+    deghost: bool = False,
+    ghost_k: float = 6.0,
+    ghost_mask_path: str | os.PathLike | None = None,
+    wb: Any = "camera",
+    progress: Any = None,
+    align: bool = True,
+) -> list[dict[str, Any]]:
+    """Group ``paths`` into brackets, merge each and write EXR(s) with provenance.
+
+    One bracket is written to ``out``; several to ``<stem>-1.exr``, ``<stem>-2.exr``, ... in
+    capture order (``group=False`` merges all frames as one bracket). Exposure times come from
+    the metadata (scaled by ISO and f-number relative to the bracket's first frame) or from
+    ``times`` (seconds, in the order of ``paths``, taken as effective exposures). Each bracket
+    goes through :func:`solidkit.capture.bracket_hdr.merge_bracket` (read by content, registered
+    unless ``align=False``, response given / estimated from the frames / sRGB assumed with a
+    warning). The EXR's ``solidkit`` attribute holds ``exposure_time`` (the reference frame's),
+    ``units`` and ``provenance`` (inputs with sha256, times, response and where it came from,
+    registration shifts, warnings, parameters, solidkit version, merge statistics). Returns one
+    summary dict per written file.
+    """
+    paths = [Path(p) for p in paths]
+    if not paths:
+        raise InputError("no frames given")
+    if len(set(p.resolve() for p in paths)) != len(paths):
+        raise InputError("the same file is given more than once")
+    out = Path(out)
+    if out.suffix.lower() != ".exr":
+        raise InputError(f"{out}: the output must be an .exr file")
+    if response is not None and response_path is not None:
+        raise InputError("give a response array or a response file, not both")
+    given = load_response(response_path) if response_path is not None else (
+        validate_response(response) if response is not None else None)
+    given_record: dict[str, Any] | None = (
+        {"kind": "file", "path": str(response_path), "sha256": sha256_file(response_path)} if response_path is not None
+        else {"kind": "array"} if response is not None else None)
+    infos = _bracket_infos(paths, times)
+    if group and times is None:
+        shots = [
+            ShotInfo(
+                key=str(i), time=m.datetime_original, sequence=m.sequence if m.sequence is not None else sequence_from_name(p.name),
+                exposure=t, camera=" ".join(x for x in (m.make, m.model, m.serial) if x), size=(m.width, m.height), name=p.name,
+                gain=gain_from(m.iso, m.f_number),
+            )
+            for i, (p, m, t) in enumerate(infos)
+        ]
+        brackets = [[infos[int(s.key)] for s in g] for g in group_brackets(shots, max_gap_s=max_gap_s)]
+    else:
+        brackets = [infos]
+    outputs = [out] if len(brackets) == 1 else [out.with_name(f"{out.stem}-{i + 1}{out.suffix}") for i in range(len(brackets))]
+    summaries = []
+    for bracket, target in zip(brackets, outputs):
+        if len(bracket) < 2:
+            raise InputError(f"{bracket[0][0].name} forms a bracket of one frame (by time/sequence/exposure); "
+                             "pass the frames of one bracket, or --no-group to merge them as one")
+        ref_meta = bracket[0][1]
+        effs, inputs = [], []
+        for p, m, t in bracket:
+            eff = t if times is not None else effective_exposure(t, m.iso, m.f_number, ref_meta.iso, ref_meta.f_number)
+            effs.append(eff)
+            inputs.append({"path": str(p), "sha256": sha256_file(p), "exposure_time": t, "effective_exposure": eff,
+                           "iso": m.iso, "f_number": m.f_number})
+        result, prov = merge_bracket([p for p, _, _ in bracket], effs, response=given, response_record=given_record,
+                                     align=align, ghost_k=ghost_k, deghost=deghost, wb=wb)
+        if progress is not None:
+            for _ in bracket:
+                progress()
+        stats = prov["stats"]
+        meta = {
+            "exposure_time": bracket[0][2],
+            "units": "relative radiance: linear code per second at the first frame's ISO and f-number",
+            "provenance": {"tool": "solidkit capture merge", "solidkit_version": __version__, "inputs": inputs, **prov},
+        }
+        write_exr(target, result.hdr, meta)
+        mask_file = None
+        if ghost_mask_path is not None:
+            gm = Path(ghost_mask_path)
+            mask_file = gm if len(brackets) == 1 else gm.with_name(f"{gm.stem}-{len(summaries) + 1}{gm.suffix}")
+            write_ldr(mask_file, (result.ghost.astype(np.uint8) * 255)[..., None].repeat(3, axis=2))
+        summaries.append({"output": str(target), "frames": [str(p) for p, _, _ in bracket],
+                          "ghost_mask": str(mask_file) if mask_file else None, "response": prov["response"],
+                          "registration": prov["registration"], "warnings": prov["warnings"], **stats})
+    return summaries

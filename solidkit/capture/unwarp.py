@@ -65,7 +65,7 @@ from solidkit.camera.lens import LensProfile, load_profile, profile_for_metadata
 from solidkit.camera.metadata import level_rotation, read_metadata
 from solidkit.camera.raw import is_raw_file
 from solidkit.envmap.coords import angles_from_coords
-from solidkit.envmap.io import LDR_SUFFIXES, write_exr
+from solidkit.envmap.io import LDR_SUFFIXES, read_exr, write_exr
 from solidkit.envmap.resample import resize, rotate, sample_panorama
 from solidkit.errors import InputError
 from solidkit.fsutil import atomic_path, sha256_file
@@ -318,6 +318,27 @@ def _write(path: Path, linear: np.ndarray, meta: dict) -> None:
     _write_srgb8(path, encode_srgb8(linear))
 
 
+def report_tilt(summary: dict, pano: Any) -> None:
+    """Add the output's residual tilt (:func:`solidkit.envmap.tilt.residual_tilt`) to ``summary``,
+    and a warning when it is reliably above :data:`~solidkit.envmap.tilt.TILT_FLAG_DEG`.
+
+    ``pano``: the panorama array, or the written file (read at half size: edges survive).
+    """
+    from solidkit.envmap.tilt import TILT_FLAG_DEG, residual_tilt
+
+    if isinstance(pano, (str, os.PathLike)):
+        path = Path(pano)
+        pano = read_exr(path)[0] if path.suffix.lower() == ".exr" else cv2.imread(str(path), cv2.IMREAD_REDUCED_COLOR_2)
+        if pano is None:
+            return
+    est = residual_tilt(np.asarray(pano))
+    summary["residual_tilt"] = est.to_json()
+    if est.reliable and est.tilt_deg > TILT_FLAG_DEG:
+        summary["warnings"].append(
+            f"residual_tilt: the panorama is {est.tilt_deg:.2f}° ± {est.uncertainty_deg:.2f}° off level by its vertical "
+            f"edges (correction pitch {est.pitch_deg:.2f}°, roll {est.roll_deg:.2f}°)")
+
+
 def unwarp_file(
     src: str | os.PathLike,
     dst: str | os.PathLike,
@@ -381,6 +402,7 @@ def unwarp_file(
                 img = resize(img, out_h)
             _write(dst, img, {"source": str(src), "source_sha256": sha256_file(src), "rotation": R.tolist()})
             summary.update(mode="stitched: levelled from metadata" if not identity else "stitched: re-encoded", resampled=not identity or out_h is not None)
+        report_tilt(summary, dst)
         summary["seconds"] = time.perf_counter() - t0
         return summary
     img, saturation = read_input(src)
@@ -412,6 +434,7 @@ def unwarp_file(
         _write(dst, pano, meta_out)
     summary.update(mode="dual-fisheye unwarped", profile=prof.model, size=[2 * out_h, out_h], resampled=True,
                    unwarp_seconds=t2 - t1, seconds=time.perf_counter() - t0, **stats)
+    report_tilt(summary, pano)
     return summary
 
 

@@ -14,7 +14,7 @@ from rich.markup import escape
 from rich.table import Table
 
 from solidkit.camera.metadata import read_metadata
-from solidkit.capture.merge import merge_files
+from solidkit.capture.bracket_hdr import merge_files
 from solidkit.capture.unwarp import unwarp_file
 from solidkit.cli.parsing import parse_angle, parse_exposures, parse_floats, parse_size
 from solidkit.errors import InputError
