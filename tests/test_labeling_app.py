@@ -85,7 +85,7 @@ def test_save_conflict_loses_nothing_and_review_compares(client, campaign):
     assert set(rev["opinions"]) == {"ann", "bob"} and rev["open_disagreement"] and rev["status"] == "flagged"
     assert rev["disagreement"] == pytest.approx(2.6, abs=0.1)  # degrees of arc, not of azimuth
     queue = client.get("/api/queue/review").json()["items"]
-    assert queue[0]["key"] == "s1/p1" and queue[0]["flags"] == ["annotators_disagree: 2.6 deg (ann)", "differs from auto"]
+    assert queue[0]["key"] == "s1/p1" and queue[0]["flags"] == ["annotators_disagree: 2.6 deg (ann)", "differs_from_auto"]
     r = put(client, "sun", "s1/p1", v, 2, annotator="rev", source="reviewed")
     assert item(client, "sun", "s1/p1")["review"]["status"] == "done" and r.json()["label"]["flags"] == []
     r = client.post("/api/undo", json={"kind": "sun", "key": "s1/p1", "annotator": "rev", "expected_version": 3}, headers=W)

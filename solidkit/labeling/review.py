@@ -22,10 +22,10 @@ from typing import Any
 import numpy as np
 
 from solidkit.envmap.coords import angular_distance, direction_from_angles
-from solidkit.labeling.store import HUMAN_SOURCES, Change, Label, LabelStore
+from solidkit.labeling.store import HUMAN_SOURCES, Change, Label, LabelStore, opinions
 from solidkit.labeling.tasks import CampaignIndex, Item
 
-__all__ = ["THRESHOLDS", "UNITS", "distance", "opinions", "disagreement_flag", "Review", "review_item", "review_all"]
+__all__ = ["THRESHOLDS", "UNITS", "distance", "disagreement_flag", "Review", "review_item", "review_all"]
 
 #: disagreement worth a reviewer's look (label units)
 THRESHOLDS = {"sun": 1.0, "sun_scene": 1.0, "probe_pixel": 12.0, "heading": 2.0}
@@ -95,21 +95,6 @@ class Review:
         }  # fmt: skip
 
 
-def opinions(history: list[Change]) -> dict[str, Change]:
-    """Latest applied human value per annotator since the last reviewed change."""
-    latest: dict[str, Change] = {}
-    for ch in history:
-        if not ch.applied:
-            continue
-        if ch.op == "put" and ch.source == "reviewed":
-            latest = {}
-        elif ch.op == "put" and ch.source in HUMAN_SOURCES and ch.annotator:
-            latest[ch.annotator] = ch
-        elif ch.op == "undo" and ch.actor in latest and latest[ch.actor].version == ch.version - 1:
-            del latest[ch.actor]
-    return latest
-
-
 def review_item(item: Item, label: Label | None, history: list[Change]) -> Review:
     """Status, flags and disagreements of one item (``history``: its store history)."""
     ops = opinions(history)
@@ -129,7 +114,7 @@ def review_item(item: Item, label: Label | None, history: list[Change]) -> Revie
     if open_dis and not any(f.startswith("annotators_disagree") for f in flags):
         flags.append("annotators_disagree")
     if vs_auto is not None and vs_auto > THRESHOLDS[item.kind]:
-        flags.append("differs from auto")
+        flags.append("differs_from_auto")
     if human and not open_dis:
         status = "done"
     elif open_dis or item.flags:

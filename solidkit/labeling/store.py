@@ -69,6 +69,7 @@ __all__ = [
     "HeadingValue",
     "store_path",
     "validate_value",
+    "opinions",
 ]
 
 STORE_SCHEMA_VERSION = 1
@@ -237,6 +238,23 @@ class LabelConflict(SolidkitError):
         self.expected_version = expected
         self.current = current
         self.current_version = current_version
+
+
+def opinions(history: list[Change]) -> dict[str, Change]:
+    """Each human annotator's latest applied value in a label's ``history`` since the last
+    ``reviewed`` change (a review settles what came before); values later undone by their own
+    author are left out. ``{annotator: Change}``."""
+    latest: dict[str, Change] = {}
+    for ch in history:
+        if not ch.applied:
+            continue
+        if ch.op == "put" and ch.source == "reviewed":
+            latest = {}
+        elif ch.op == "put" and ch.source in HUMAN_SOURCES and ch.annotator:
+            latest[ch.annotator] = ch
+        elif ch.op == "undo" and ch.actor in latest and latest[ch.actor].version == ch.version - 1:
+            del latest[ch.actor]
+    return latest
 
 
 def store_path(campaign_dir: str | os.PathLike) -> Path:
@@ -427,19 +445,8 @@ class LabelStore:
         return out
 
     def opinions(self, kind: str, key: str) -> dict[str, Change]:
-        """Each human annotator's latest applied value for one label (review: compare them).
-
-        Values later undone by their own author are left out.
-        """
-        latest: dict[str, Change] = {}
-        for ch in self.history(kind, key):
-            if not ch.applied:
-                continue
-            if ch.op == "put" and ch.source in HUMAN_SOURCES and ch.annotator:
-                latest[ch.annotator] = ch
-            elif ch.op == "undo" and ch.actor in latest and latest[ch.actor].version == ch.version - 1:
-                del latest[ch.actor]
-        return latest
+        """Each human annotator's latest value for one label since its last review (:func:`opinions`)."""
+        return opinions(self.history(kind, key))
 
     # -- writing -----------------------------------------------------------------------------
     def put(
