@@ -24,6 +24,18 @@ app = typer.Typer(no_args_is_help=True)
 console = Console()
 
 
+def _stored_tilt(path: Path, meta):
+    """Residual tilt of a stitched (equirect) capture as stored (envmap.tilt), else None."""
+    if meta.image_type != "equirect" or meta.width != 2 * meta.height:
+        return None
+    import cv2
+
+    from solidkit.envmap.tilt import residual_tilt
+
+    img = cv2.imread(str(path), cv2.IMREAD_REDUCED_COLOR_2)
+    return None if img is None else residual_tilt(img)
+
+
 @app.command()
 def info(
     files: list[Path] = typer.Argument(..., help="JPEG or DNG captures."),
@@ -35,7 +47,8 @@ def info(
         if meta.file_format == "jpeg" and jpeg_truncated(path):  # read_metadata reads the header only
             raise InputError(f"{path}: truncated JPEG (no end-of-image marker)")
         if as_json:
-            typer.echo(meta.model_dump_json())
+            tilt = _stored_tilt(path, meta)
+            typer.echo(json.dumps({**meta.model_dump(mode="json"), "residual_tilt": None if tilt is None else tilt.to_json()}))
             continue
         table = Table(title=str(path), show_header=False)
         table.add_row("size", f"{meta.width} x {meta.height} ({meta.file_format})")
@@ -56,6 +69,11 @@ def info(
             table.add_row("gps", json.dumps(meta.gps))
         if meta.gpano:
             table.add_row("GPano", escape(", ".join(f"{k}={v}" for k, v in meta.gpano.items())))
+        tilt = _stored_tilt(path, meta)
+        if tilt is not None:
+            table.add_row("residual tilt (as stored)", f"{tilt.tilt_deg:.2f}° ± {tilt.uncertainty_deg:.2f}° "
+                          f"(correction pitch {tilt.pitch_deg:.2f}°, roll {tilt.roll_deg:.2f}°; {tilt.segments} vertical edges"
+                          + ("" if tilt.reliable else "; unreliable") + ")")
         for w in meta.warnings:
             table.add_row("[yellow]warning[/]", escape(w))
         console.print(table)
@@ -136,6 +154,10 @@ def unwarp(
         table.add_row("remap tables", s["cache"])
     if s.get("level_pitch_roll_deg"):
         table.add_row("levelled (pitch, roll)", ", ".join(f"{a:.2f}°" for a in s["level_pitch_roll_deg"]))
+    if s.get("residual_tilt"):
+        t = s["residual_tilt"]
+        table.add_row("residual tilt (vertical edges)", f"{t['tilt_deg']:.2f}° ± {t['uncertainty_deg']:.2f}° from {t['segments']} edges"
+                      + ("" if t["reliable"] else " [dim](unreliable: few vertical edges)[/]"))
     table.add_row("time", f"{s['seconds']:.2f} s")
     for w in s["warnings"]:
         table.add_row("[yellow]warning[/]", escape(w))
