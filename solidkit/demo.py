@@ -75,7 +75,7 @@ def _locate_card(cfg: DemoConfig) -> tuple[Path, Path | None]:
         if not card.is_dir():
             raise InputError(f"{card}: card folder not found")
         truth = Path(cfg.truth) if cfg.truth is not None else None
-        if truth is None and (card.parent / "truth" / "campaign.json").is_file():
+        if truth is None and (card.parent / "truth" / "truth.json").is_file():
             truth = card.parent / "truth"
         return card, truth
     card = MINI_CAMPAIGN / "card"
@@ -178,7 +178,7 @@ def truth_check(testset: Path, truth_dir: Path) -> dict[str, Any]:
     from solidkit.synth.campaign import load_truth
     from solidkit.testset.build import load_testset
 
-    truth = load_truth(Path(truth_dir) / "campaign.json")
+    truth = load_truth(Path(truth_dir) / "truth.json")
     ts = load_testset(testset)
     by_id = {s.id: s for s in truth.scenes}
     rows, sun_err, pix_err, rot_err = [], [], [], []
@@ -186,8 +186,9 @@ def truth_check(testset: Path, truth_dir: Path) -> dict[str, Any]:
         st = by_id.get(sc.id)
         if st is None:
             continue
+        visible = any(c.sun_visible for c in st.captures)  # a sun hidden from every position cannot be labelled
         row: dict[str, Any] = {"scene": sc.id, "truth_sun": st.sun_found and st.sun_azimuth_deg is not None,
-                               "label_sun": sc.sun.found}
+                               "sun_visible": visible, "label_sun": sc.sun.found}
         if row["truth_sun"] and sc.sun.found:
             e = _angle_deg(direction_from_angles(math.radians(sc.sun.azimuth_deg), math.radians(sc.sun.elevation_deg)),
                            direction_from_angles(math.radians(st.sun_azimuth_deg), math.radians(st.sun_elevation_deg)))
@@ -202,17 +203,20 @@ def truth_check(testset: Path, truth_dir: Path) -> dict[str, Any]:
             pe = float(np.hypot(*(np.asarray(p.pixel_full) - np.asarray(c.probe.pixel))))
             re = math.degrees(float(np.linalg.norm(Rotation.from_matrix(
                 np.asarray(p.rotation).T @ np.asarray(c.R_pano_from_body)).as_rotvec())))
-            probes.append({"probe": p.id, "pixel_error_px": pe, "rotation_error_deg": re})
+            probes.append({"probe": p.id, "pixel_error_px": pe, "rotation_error_deg": re, "flagged": bool(p.flags)})
             pix_err.append(pe)
             rot_err.append(re)
         row["probes"] = probes
         rows.append(row)
     stat = lambda v: {"n": len(v), "median": float(np.median(v)) if v else None,  # noqa: E731
                       "p95": float(np.percentile(v, 95)) if v else None, "max": float(max(v)) if v else None}
-    missed = sum(1 for r in rows if r["truth_sun"] and not r["label_sun"])
+    missed = sum(1 for r in rows if r["truth_sun"] and r["sun_visible"] and not r["label_sun"])
+    hidden = sum(1 for r in rows if r["truth_sun"] and not r["sun_visible"])
     false = sum(1 for r in rows if not r["truth_sun"] and r["label_sun"])
     return {"scenes": rows, "sun_error_deg": stat(sun_err), "pixel_error_px": stat(pix_err),
-            "rotation_error_deg": stat(rot_err), "sun_missed": missed, "sun_false": false}
+            "rotation_error_deg": stat(rot_err), "sun_missed": missed, "sun_false": false, "sun_hidden": hidden,
+            "probes_over_5deg": sum(1 for e in rot_err if e > 5.0),
+            "probes_over_5deg_unflagged": sum(1 for r in rows for p in r["probes"] if p["rotation_error_deg"] > 5.0 and not p["flagged"])}
 
 
 def _truth_section(tc: dict[str, Any]) -> str:
@@ -223,10 +227,14 @@ def _truth_section(tc: dict[str, Any]) -> str:
              ("probe rotation error (°)", tc["rotation_error_deg"]))]
     text = ("The campaign's hidden truth, read only now: how far the automatic chain (ingest, sun labels, alignment, "
             "test set) is from it.\n\n" + markdown_table(["quantity", "n", "median", "95th percentile", "max"], rows)
-            + f"\nSuns missed (truth has a sun, label says none): {tc['sun_missed']}; "
-              f"false suns (label where the truth has none): {tc['sun_false']}.\n")
-    per = [[r["scene"], fmt(r.get("sun_error_deg")) if r["truth_sun"] else "no sun in truth",
-            ", ".join(f"{p['probe']}: {p['rotation_error_deg']:.2f}° / {p['pixel_error_px']:.1f} px" for p in r["probes"])]
+            + f"\nSuns missed (visible from a position, label says none): {tc['sun_missed']}; false suns (label where the "
+              f"truth has none): {tc['sun_false']}; suns hidden from every position (correctly 'no sun'): {tc['sun_hidden']}. "
+              f"Probes rotated more than 5° off: {tc['probes_over_5deg']}, of which not flagged for review: "
+              f"{tc['probes_over_5deg_unflagged']}.\n")
+    per = [[r["scene"], fmt(r.get("sun_error_deg")) if r["truth_sun"] and r["label_sun"] else
+            ("no sun in truth" if not r["truth_sun"] else "hidden from every position" if not r["sun_visible"] else "MISSED"),
+            ", ".join(f"{p['probe']}: {p['rotation_error_deg']:.2f}° / {p['pixel_error_px']:.1f} px"
+                      + (" (flagged for review)" if p["flagged"] else "") for p in r["probes"])]
            for r in tc["scenes"]]
     return text + "\n" + markdown_table(["scene", "sun error (°)", "probes: rotation error / pixel error"], per)
 
@@ -325,7 +333,7 @@ def run_demo(out: str | Path, cfg: DemoConfig | None = None, log: Callable[[str]
                 "seconds_per_fold": res["seconds_per_fold"], "effect": eff}
 
     def truth_step() -> dict[str, Any]:
-        if truth is None or not (truth / "campaign.json").is_file():
+        if truth is None or not (truth / "truth.json").is_file():
             raise InputError("no truth for this card (a real campaign): nothing to check against")
         tc = truth_check(testset, truth)
         state["truth"] = tc
