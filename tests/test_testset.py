@@ -147,6 +147,18 @@ def test_human_labels_win_with_provenance(campaign, tmp_path):
     assert validate_testset(out, allow_flagged=True) == []
     build_testset(camp, tmp_path / "again")  # re-rotated products are deterministic too
     assert _tree(tmp_path / "again") == _tree(out)
+    # the changelog between the automatic and the reviewed version
+    from solidkit.testset.diff import diff_testsets
+
+    base = tmp_path / "base"
+    build_testset(campaign[0], base)
+    d = diff_testsets(base, out)
+    changes = {(c["what"], c["where"]): c for c in d.changes}
+    assert changes[("pixel", "sA/p01")]["distance_px"] == pytest.approx(math.hypot(10, 10))
+    assert changes[("rotation", "sA/p02")]["angle_deg"] == pytest.approx(10.0, abs=1e-6)
+    assert ("pixel", "sA/p02") not in changes and not d.scenes_added and not d.probes_removed
+    assert "scenes/sA/probes/p02/ldr.png" in d.files_changed and "scenes/sB/photo.png" not in d.files_changed
+    assert diff_testsets(out, tmp_path / "again").same
 
 
 def _edit(root: Path, edit) -> None:

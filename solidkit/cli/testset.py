@@ -122,3 +122,22 @@ def export_command(
     typer.echo(f"wrote {len(doc['items'])} items to {dest}", err=True)
     if doc["skipped_by_sold_net_loader"]:
         typer.echo(f"note: SOLD-Net's loader skips items with fewer than 2 probes: {', '.join(doc['skipped_by_sold_net_loader'])}", err=True)
+
+
+@app.command("diff")
+def diff_command(
+    old: Path = typer.Argument(..., help="Earlier test set folder."),
+    new: Path = typer.Argument(..., help="Later test set folder."),
+    json_out: bool = typer.Option(False, "--json", help="Print the differences as JSON on stdout."),
+) -> None:
+    """What changed between two test set versions: scenes, probes, sun, pixels, rotations, flags, files."""
+    import json
+
+    from solidkit.testset.diff import diff_testsets
+
+    d = diff_testsets(old, new)
+    if json_out:
+        typer.echo(json.dumps(d.to_json(), indent=1))
+    else:
+        for line in d.lines():
+            typer.echo(line)
