@@ -166,3 +166,16 @@ def test_vectorised_cluster_bootstrap_matches_the_concatenated_statistic():
         idx = boot_rng.integers(0, 9, size=(50, 9)) if stat is np.median else np.random.default_rng(11).integers(0, 9, size=(50, 9))
         want = [stat(np.concatenate([v[gi == k] for k in row])) for row in idx]
         assert np.allclose(got, want)
+
+
+def test_global_mae_compares_the_sky_only_and_skips_invalid_pixels():
+    sky = _sky(10.0, 40.0)
+    ground = sky.copy()
+    ground[H // 2:] = 123.0  # a truth map taken at the camera position also holds the ground
+    assert M.global_mae(sky, ground) == pytest.approx(0.0, abs=1e-6)
+    assert M.global_mae(sky, ground, sky_only=False) > 0.1
+    bad = sky.copy()
+    bad[:4] = 0.0
+    valid = np.ones(sky.shape[:2], bool)
+    valid[:4] = False
+    assert M.global_mae(bad, sky, valid) < M.global_mae(bad, sky)

@@ -15,10 +15,12 @@ Sun
     (conventions §3, §6).
 
 Global map
-    :func:`global_mae`: the paper's ``xi_HDR``, the MAE of the *normalised* HDR maps. Each map is
-    divided by its solid-angle-weighted mean radiance (so the score does not depend on the
-    prediction's absolute units, which a real capture does not share), then the per-pixel absolute
-    difference is averaged over pixels and channels (plain pixel mean, as the paper's numbers are).
+    :func:`global_mae`: the paper's ``xi_HDR``, the MAE of the *normalised* HDR sky maps, over the
+    upper hemisphere (a real truth map, taken at the camera position, also holds the ground; the
+    predicted global map is the sky). Each map is divided by its solid-angle-weighted mean radiance
+    there (so the score does not depend on the prediction's absolute units, which a real capture
+    does not share), then the per-pixel absolute difference is averaged over pixels and channels
+    (plain pixel mean, as the paper's numbers are).
 
 Local probes against LDR (the real set)
     A real probe is an 8-bit sRGB LDR panorama whose exposure is unknown to the model and whose
@@ -157,25 +159,32 @@ def sun_statistics(errors: Sequence[SunError]) -> dict[str, Any]:
 # --------------------------------------------------------------------------------------- global map
 
 
-def _normalised(pano: np.ndarray) -> np.ndarray:
-    h = pano.shape[0]
-    w = solid_angle(h)[:, :, None] if pano.ndim == 3 else solid_angle(h)
-    mean = float((pano * w).sum() / (w.sum() * (pano.shape[2] if pano.ndim == 3 else 1)))
+def _normalised(pano: np.ndarray, region: np.ndarray) -> np.ndarray:
+    w = solid_angle(pano.shape[0])[:, :, None] * region[..., None]
+    mean = float((pano * w).sum() / (w.sum() * pano.shape[2])) if w.sum() > 0 else 0.0
     return pano / mean if mean > 0 else np.zeros_like(pano)
 
 
-def global_mae(predicted: np.ndarray, truth: np.ndarray, valid: np.ndarray | None = None) -> float:
-    """The paper's ``xi_HDR``: MAE of the normalised HDR global maps ``(H, 2H, 3)``.
+def global_mae(predicted: np.ndarray, truth: np.ndarray, valid: np.ndarray | None = None, sky_only: bool = True) -> float:
+    """The paper's ``xi_HDR``: MAE of the normalised HDR global (sky) maps ``(H, 2H, 3)``.
 
-    Each map is divided by its solid-angle-weighted mean radiance, then ``|a - b|`` is averaged over
-    the pixels (where ``valid (H, 2H)`` is true, all when ``None``) and the channels. Unitless.
+    The region compared: the upper hemisphere (elevation > 0, the sky map the paper predicts; a real
+    truth map taken at the camera position also holds the ground) with ``sky_only``, intersected with
+    ``valid (H, 2H)`` (e.g. unsaturated truth pixels). Each map is divided by its solid-angle-weighted
+    mean radiance over that region, then ``|a - b|`` is averaged over its pixels and the channels
+    (plain pixel mean, as the paper's numbers are). Unitless; NaN for an empty region.
     """
-    a = _normalised(np.asarray(predicted, dtype=np.float64))
-    b = _normalised(np.asarray(truth, dtype=np.float64))
-    diff = np.abs(a - b).mean(axis=-1)
+    a = np.asarray(predicted, dtype=np.float64)[..., :3]
+    b = np.asarray(truth, dtype=np.float64)[..., :3]
+    region = np.ones(a.shape[:2], dtype=bool)
+    if sky_only:
+        region[a.shape[0] // 2:] = False
     if valid is not None:
-        diff = diff[np.asarray(valid, dtype=bool)]
-    return float(diff.mean()) if diff.size else float("nan")
+        region &= np.asarray(valid, dtype=bool)
+    if not region.any():
+        return float("nan")
+    diff = np.abs(_normalised(a, region) - _normalised(b, region)).mean(axis=-1)
+    return float(diff[region].mean())
 
 
 # --------------------------------------------------------------------------------- local probes (LDR)

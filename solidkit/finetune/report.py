@@ -275,8 +275,9 @@ _METRIC_NOTES = """\
 How the numbers are made (`solidkit.finetune.metrics`): the sun of a predicted global map is found
 with the paper's recipe (brightest 2 %, largest component, centroid; always answers) and with the
 package's default detector (which may say "no sun": its rate is reported, never hidden); errors
-are in degrees against the labelled sun, over the photos whose truth has a sun. Global MAE: the
-HDR maps each divided by their solid-angle mean, then the mean absolute difference. Local SSIM /
+are in degrees against the labelled sun, over the photos whose truth has a sun. Global MAE: over
+the upper hemisphere (the sky map), the HDR maps each divided by their solid-angle mean there,
+then the mean absolute difference (saturated truth pixels excluded). Local SSIM /
 MAE on LDR probes: the HDR prediction is exposed by the median log-luminance ratio to the probe
 over its unsaturated pixels, clipped and sRGB-encoded like the camera, and compared on the
 unsaturated pixels only (SSIM: kornia, 11x11 Gaussian window). Synthetic probes are made LDR by
