@@ -250,14 +250,134 @@ def bench_annotator(tmp: Path) -> dict:
     return res
 
 
+def truth_suns(truth_json: Path) -> dict[str, tuple[bool, float | None, float | None]]:
+    """Truth sun per capture in the level frame of its sun-frame product (as align/evaluate.py:
+    ``R(0, recorded pitch, recorded roll) sun_body``); read only here, to measure."""
+    from solidkit.envmap.coords import angles_from_direction, rotation_from_ypr
+
+    out = {}
+    for st in json.loads(truth_json.read_text())["scenes"]:
+        for ct in st["captures"]:
+            if not ct["sun_visible"] or ct["sun_body"] is None:
+                out[f"{st['id']}/{ct['id']}"] = (False, None, None)
+                continue
+            R = np.asarray(rotation_from_ypr(0.0, math.radians(ct["recorded_pitch_deg"]), math.radians(ct["recorded_roll_deg"])))
+            az, el = (math.degrees(float(v)) for v in angles_from_direction(R @ np.asarray(ct["sun_body"])))
+            out[f"{st['id']}/{ct['id']}"] = (True, az, el)
+    return out
+
+
+def bench_virtual_campaign(campaign: Path, truth_json: Path, tmp: Path) -> dict:
+    """A scripted annotator labels every sun frame of an ingested + aligned virtual campaign in the
+    browser (brightest blob, clicked at its centre in the rectilinear view; "no sun" when nothing is
+    saturated); its labels and align/'s automatic ones against the truth."""
+    import uvicorn
+    from playwright.sync_api import sync_playwright
+
+    from solidkit.align.schema import load_alignment
+    from solidkit.labeling.app import create_app
+
+    camp = Path(tempfile.mkdtemp(prefix=".bench-labeling-", dir=campaign.parent))  # hard links: same file system
+    for name in ("originals", "products", "align"):
+        shutil.copytree(campaign / name, camp / name, copy_function=os.link)
+    shutil.copy(campaign / "manifest.json", camp / "manifest.json")  # a fresh label store: labels/ not copied
+    align = load_alignment(camp).model_dump(mode="json")
+    auto = {f"{s['id']}/{c['probe']}": c for s in align["scenes"] for c in s["sun"]["captures"]}
+    truth = truth_suns(truth_json)
+    port = free_port()
+    server = uvicorn.Server(uvicorn.Config(create_app(camp, alignment=align), port=port, log_level="warning"))
+    th = threading.Thread(target=server.run, daemon=True)
+    th.start()
+    while not server.started:
+        time.sleep(0.05)
+    keys = [q["key"] for q in json.loads(get(f"http://127.0.0.1:{port}/api/queue/sun")[1])["items"]]
+    with sync_playwright() as pw:
+        browser = pw.chromium.launch(executable_path=CHROMIUM, args=["--no-sandbox"])
+        ctx = browser.new_context(viewport={"width": 1366, "height": 768})
+        ctx.add_init_script("localStorage.setItem('solidkit.annotator', 'bench'); localStorage.setItem('solidkit.blind', '1')")
+        page = ctx.new_page()  # blind: the scripted annotator does not see align's proposal
+        t0 = time.perf_counter()
+        for key in keys:
+            page.goto(f"http://127.0.0.1:{port}/#task=sun&key={key}")
+            page.wait_for_selector(f"body[data-item='sun:{key}']", timeout=30000)
+            strip = page.locator("#sun-overview img")
+            box = strip.bounding_box()
+            g = cv2.imdecode(np.frombuffer(strip.screenshot(), np.uint8), cv2.IMREAD_GRAYSCALE)
+            if g.max() < 120:  # nothing bright in the (downscaled) strip
+                page.keyboard.press("n")
+            else:  # look at the biggest small bright blob of the strip (not a bright sky patch), as an eye would
+                n, _, stats, cent = cv2.connectedComponentsWithStats((g >= int(g.max()) - 20).astype(np.uint8))
+                area = np.where(stats[1:, cv2.CC_STAT_AREA] <= 0.002 * g.size, stats[1:, cv2.CC_STAT_AREA], 0)
+                c = 1 + int(np.argmax(area))
+                page.mouse.click(box["x"] + (cent[c][0] + 0.5) * box["width"] / g.shape[1], box["y"] + (cent[c][1] + 0.5) * box["height"] / g.shape[0])
+                page.wait_for_timeout(150)
+                view = page.locator("#sun-sphere")
+                vb = view.bounding_box()
+                v = cv2.imdecode(np.frombuffer(view.screenshot(), np.uint8), cv2.IMREAD_GRAYSCALE)
+                n, _, stats, cent = cv2.connectedComponentsWithStats((v >= 250).astype(np.uint8))
+                if n < 2:
+                    page.keyboard.press("n")
+                else:
+                    c = 1 + int(np.argmax(stats[1:, cv2.CC_STAT_AREA]))
+                    page.mouse.click(vb["x"] + (cent[c][0] + 0.5) * vb["width"] / v.shape[1], vb["y"] + (cent[c][1] + 0.5) * vb["height"] / v.shape[0])
+                    page.keyboard.press("s")
+            page.wait_for_selector(f"body[data-saved^='sun:{key}:']", timeout=30000)
+        elapsed = time.perf_counter() - t0
+        browser.close()
+    review = json.loads(get(f"http://127.0.0.1:{port}/api/queue/review")[1])["items"]
+    flagged = {r["key"] for r in review if r["kind"] == "sun" and any(f.startswith("differs_from_auto") for f in r["flags"])}
+    server.should_exit = True
+    th.join(5)
+    store = LabelStore(camp)
+
+    def err(v: dict, t: tuple) -> float | None:
+        if not (v.get("found") and t[0]):
+            return None
+        a = np.asarray(direction_from_angles(math.radians(v["azimuth_deg"]), math.radians(v["elevation_deg"])))
+        b = np.asarray(direction_from_angles(math.radians(t[1]), math.radians(t[2])))
+        return math.degrees(float(angular_distance(a, b)))
+
+    rows = []
+    for key in keys:
+        t = truth.get(key)
+        if t is None:
+            continue
+        human = store.get("sun", key).value
+        a = auto.get(key, {})
+        rows.append({"key": key, "truth_visible": t[0], "scripted_found": human["found"], "auto_found": bool(a.get("found")),
+                     "scripted_error_deg": err(human, t), "auto_error_deg": err(a, t) if a else None,
+                     "review_flags_it": key in flagged})  # fmt: skip
+    se = [r["scripted_error_deg"] for r in rows if r["scripted_error_deg"] is not None]
+    ae = [r["auto_error_deg"] for r in rows if r["auto_error_deg"] is not None]
+    out = {
+        "campaign": str(campaign), "truth": str(truth_json), "captures": len(rows), "seconds": elapsed,
+        "labels_per_minute": 60 * len(keys) / elapsed,
+        "scripted_error_deg_median": statistics.median(se) if se else None, "scripted_error_deg_max": max(se) if se else None,
+        "auto_error_deg_median": statistics.median(ae) if ae else None, "auto_error_deg_max": max(ae) if ae else None,
+        "found_agrees_with_truth_scripted": sum(r["scripted_found"] == r["truth_visible"] for r in rows),
+        "found_agrees_with_truth_auto": sum(r["auto_found"] == r["truth_visible"] for r in rows),
+        "scripted_within_1deg": sum(e <= 1.0 for e in se),
+        "scripted_over_1deg_flagged_by_review": sum(r["review_flags_it"] for r in rows if (r["scripted_error_deg"] or 0) > 1.0),
+        "scripted_over_1deg": sum(e > 1.0 for e in se),
+        "rows": rows,
+    }  # fmt: skip
+    shutil.rmtree(camp)
+    return out
+
+
 def main() -> None:
     OUT.mkdir(exist_ok=True)
     with tempfile.TemporaryDirectory() as t:
         tmp = Path(t)
         serving = bench_serving(tmp)
         annot = bench_annotator(tmp) if Path(CHROMIUM).is_file() else {"skipped": "no chromium"}
+        # an ingested + aligned virtual campaign and its truth (e.g. from `solidkit synth campaign`)
+        vc, vt = os.environ.get("SOLIDKIT_BENCH_CAMPAIGN"), os.environ.get("SOLIDKIT_BENCH_TRUTH")
+        virtual = bench_virtual_campaign(Path(vc), Path(vt), tmp) if vc and vt and Path(CHROMIUM).is_file() else {
+            "skipped": "set SOLIDKIT_BENCH_CAMPAIGN (ingested + aligned) and SOLIDKIT_BENCH_TRUTH (its truth.json)"}
     load = os.getloadavg()[0]
-    doc = {"machine": platform.platform(), "load_average_1min": load, "serving_7296x3648": serving, "scripted_annotator": annot}
+    doc = {"machine": platform.platform(), "load_average_1min": load, "serving_7296x3648": serving, "scripted_annotator": annot,
+           "virtual_campaign": virtual}
     (OUT / "labeling.json").write_text(json.dumps(doc, indent=1) + "\n")
     s = serving
     lines = [
@@ -286,6 +406,22 @@ def main() -> None:
         lines += ["| mode | labels/min | median error vs truth | max error |", "|---|---|---|---|"]
         for mode, r in annot.items():
             lines.append(f"| {mode} | {r['labels_per_minute']:.0f} | {r['error_deg_median']:.3f} deg | {r['error_deg_max']:.3f} deg |")
+    lines += ["", "## A virtual campaign's sun frames, labelled blind by the scripted annotator, against the truth", ""]
+    if "skipped" in virtual:
+        lines.append(f"skipped: {virtual['skipped']}")
+    else:
+        v = virtual
+        lines += [
+            f"{v['captures']} captures of `{v['campaign']}` (truth `{v['truth']}`), {v['labels_per_minute']:.0f} labels/min.",
+            "",
+            "| labels | median error | max error | found/not found agrees with truth |",
+            "|---|---|---|---|",
+            f"| scripted annotator in the app | {v['scripted_error_deg_median']:.3f} deg | {v['scripted_error_deg_max']:.3f} deg | {v['found_agrees_with_truth_scripted']}/{v['captures']} |",
+            f"| align/ (auto) | {v['auto_error_deg_median']:.3f} deg | {v['auto_error_deg_max']:.3f} deg | {v['found_agrees_with_truth_auto']}/{v['captures']} |",
+            "",
+            f"Scripted labels within 1 deg of the truth: {v['scripted_within_1deg']}; more than 1 deg off (a wrong blob clicked): "
+            f"{v['scripted_over_1deg']}, of which the Review tab flags {v['scripted_over_1deg_flagged_by_review']} as `differs_from_auto`.",
+        ]
     (OUT / "labeling.md").write_text("\n".join(lines) + "\n")
     print("\n".join(lines))
 
