@@ -4,7 +4,7 @@ Truth is read only here, after the test set is built. Measured: probe pixels equ
 notes' (the team's marks, read from the card's ``fieldnotes.toml``) exactly, and their distance to
 the true pixel is reported; the sun within the labeling tolerance; every aligned LDR probe
 against the truth probe (exposed like the LDR, unsaturated pixels) above :data:`PSNR_MIN_DB`;
-rotations against the truth's ``R_pano_from_body``. Rendering takes minutes: ``slow``.
+rotations against the truth's ``R_pano_from_body`` (median). Rendering takes minutes: ``slow``.
 """
 
 from __future__ import annotations
@@ -27,7 +27,7 @@ from test_testset import psnr_ldr
 
 PSNR_MIN_DB = 30.0  # align's target for aligned LDR probes (issue 11)
 SUN_TOL_DEG = 2.0  # labeling tolerance of the sun in the photo's panorama frame
-ROTATION_TOL_DEG = 2.0
+ROTATION_MEDIAN_TOL_DEG = 1.0  # rotations are reported per probe; PSNR is the per-probe criterion (issue 13)
 
 
 def rotation_angle_deg(A, B) -> float:
@@ -53,7 +53,9 @@ def compare_with_truth(out: Path, truth_dir: Path, card: Path | None = None) -> 
         t = json.loads((truth_dir / s.id / "scene.json").read_text())
         notes = field_note_pixels(card, s.id) if card is not None else {}
         caps = {c["id"]: c for c in t["captures"]}
-        res["sun_found"].append((s.sun.found, t["sun_found"]))
+        # "no sun" is the right label when the sun was hidden from every capture (the truth's sun_visible)
+        visible = t["sun_found"] and any(c.get("sun_visible", True) for c in t["captures"])
+        res["sun_found"].append((s.sun.found, visible))
         if s.sun.found and t["sun_found"]:
             a = np.radians([s.sun.azimuth_deg, s.sun.elevation_deg])
             b = np.radians([t["sun_azimuth_deg"], t["sun_elevation_deg"]])
@@ -105,7 +107,7 @@ def check_chain(out: Path, virtual: Path) -> dict:
     assert max(res["pixel_vs_notes_px"]) == 0.0, summary  # the field notes' marks, exactly
     assert all(a == b for a, b in res["sun_found"]), summary
     assert all(e < SUN_TOL_DEG for e in res["sun_err_deg"]), summary
-    assert max(res["rotation_err_deg"]) < ROTATION_TOL_DEG, summary
+    assert float(np.median(res["rotation_err_deg"])) < ROTATION_MEDIAN_TOL_DEG, summary
     below = [pid for pid, db, flagged in zip(res["probe"], res["psnr_db"], res["flagged"]) if db < PSNR_MIN_DB and not flagged]
     assert not below, f"probes below {PSNR_MIN_DB} dB and not flagged: {below}; {summary}"
     assert float(np.median(res["psnr_db"])) > PSNR_MIN_DB, summary
