@@ -164,6 +164,7 @@ class LevelPoseFit:
     inliers: np.ndarray
     rms: float
     sigma: float
+    t_support: int = 0
 
     @property
     def n_inliers(self) -> int:
@@ -203,7 +204,7 @@ def _depths(Ra: np.ndarray, b: np.ndarray, t: np.ndarray) -> np.ndarray:
 
 def estimate_level_pose(a: np.ndarray, b: np.ndarray, *, threshold: float = math.radians(0.35),
                         yaw_step: float = math.radians(0.5), hypotheses: int = 64, min_inliers: int = 8,
-                        seed: int = 0) -> LevelPoseFit | None:
+                        min_parallax: float = math.radians(2.0), seed: int = 0) -> LevelPoseFit | None:
     """Yaw and translation direction between two gravity-levelled panoramas from matched rays.
 
     Both views are level, so ``x_2 = R_y(yaw) x_1 + t``: 3 degrees of freedom instead of the
@@ -214,6 +215,9 @@ def estimate_level_pose(a: np.ndarray, b: np.ndarray, *, threshold: float = math
     their epipolar plane; the best (yaw, t) is refined by least squares on its inliers (a fine
     1-D yaw search with ``t`` the smallest right singular vector of the stacked ``c``), and the
     sign of ``t`` is chosen so that the inliers lie in front of both views (positive depths).
+    Distant points agree with any translation, so ``t`` is then re-estimated (RANSAC, then least
+    squares) from the matches with at least ``min_parallax`` of parallax alone; ``t_support``
+    counts them (0: ``t`` is not determined by the data).
 
     Returns ``None`` with fewer than ``min_inliers`` inliers.
     """
@@ -268,9 +272,33 @@ def estimate_level_pose(a: np.ndarray, b: np.ndarray, *, threshold: float = math
         inl = _epipolar_error(a @ np.asarray(rotation_y(yaw)).T, b, tt) <= s
     if inl.sum() < min_inliers:
         return None
+    # the translation: distant points (no parallax) agree with any t, so t comes from the matches that
+    # show parallax, by its own RANSAC over them (outliers have "parallax" too)
+    Ra_all = a @ np.asarray(rotation_y(yaw)).T
+    parallax = np.arccos(np.clip(np.sum(Ra_all * b, axis=1), -1.0, 1.0))
+    near = np.nonzero(parallax >= min_parallax)[0]
+    t_support = 0
+    if len(near) >= 6:
+        cn = np.cross(Ra_all[near], b[near])
+        cn /= np.linalg.norm(cn, axis=1, keepdims=True)
+        ii, jj = rng.integers(0, len(near), 400), rng.integers(0, len(near), 400)
+        tc = np.cross(cn[ii], cn[jj])
+        ok = np.linalg.norm(tc, axis=1) > 1e-3
+        if ok.any():
+            tc = tc[ok] / np.linalg.norm(tc[ok], axis=1, keepdims=True)
+            errs = _epipolar_error(Ra_all[near][None], b[near][None], tc[:, None])  # (K, n)
+            best_t = tc[int(np.argmax((errs <= s).sum(1)))]
+            sup = _epipolar_error(Ra_all[near], b[near], best_t) <= s
+            if sup.sum() >= 6:
+                _, _, vt = np.linalg.svd(cn[sup], full_matrices=False)
+                tt, t_support = vt[-1], int(sup.sum())
+                sel = near[sup]
+                d = _depths(Ra_all[sel], b[sel], tt)
+                if np.sum((d > 0).all(-1)) < np.sum((d < 0).all(-1)):
+                    tt = -tt
     Ra_in = a[inl] @ np.asarray(rotation_y(yaw)).T
     d = _depths(Ra_in, b[inl], tt)
-    if np.sum((d > 0).all(-1)) < np.sum((d < 0).all(-1)):
+    if t_support == 0 and np.sum((d > 0).all(-1)) < np.sum((d < 0).all(-1)):
         tt = -tt
     err = _epipolar_error(Ra_in, b[inl], tt)
     rms = float(np.sqrt(np.mean(err**2)))
@@ -280,4 +308,4 @@ def estimate_level_pose(a: np.ndarray, b: np.ndarray, *, threshold: float = math
     curv = (cost(yaw + h) - 2 * cost(yaw) + cost(yaw - h)) / h**2
     dof = max(int(inl.sum()) - 3, 1)
     sigma2 = (cost(yaw) / dof) * 2.0 / curv if curv > 0 else math.inf
-    return LevelPoseFit(yaw, tt, inl, rms, math.sqrt(max(sigma2, 0.0)))
+    return LevelPoseFit(yaw, tt, inl, rms, math.sqrt(max(sigma2, 0.0)), t_support)

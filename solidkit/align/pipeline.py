@@ -45,7 +45,8 @@ from solidkit.align.schema import (ALIGNMENT_FILE, CampaignAlignment, CaptureSun
                                    save_alignment, wrap_deg)
 from solidkit.align.sun import Blob, CaptureSunInput, SunSettings, find_candidates, scene_sun, sky_fraction
 from solidkit.capture.manifest import Manifest, Scene, load_manifest
-from solidkit.envmap.coords import angles_from_direction, direction_from_angles, rotation_from_ypr, ypr_from_rotation
+from solidkit.envmap.coords import (angles_from_direction, angular_distance, direction_from_angles, rotation_from_ypr,
+                                    ypr_from_rotation)
 from solidkit.envmap.io import srgb_decode
 from solidkit.errors import InputError, SolidkitError
 from solidkit.fsutil import atomic_path, sha256_file
@@ -67,7 +68,8 @@ class AlignSettings:
     photo_scale: float | None = None
     level_sigma_deg: float = 0.4
     refine_levelling: bool = True
-    pixel_tolerance_frac: float = 0.05
+    pixel_tolerance_deg: float = 35.0
+    min_translation_support: int = 8
     refine_focal: bool = True
     min_pose_inliers: int = 15
     sun_motion: str = "auto"
@@ -530,7 +532,7 @@ def _probe_pixel(pa: ProbeAlignment, st: _CapState, scene: Scene, store: Any, ph
     from solidkit.envmap.coords import rotation_from_ypr
 
     geom = None
-    if st.fit is not None and yaw_cam is not None and cam is not None:
+    if st.fit is not None and yaw_cam is not None and cam is not None and st.fit.t_support >= s.min_translation_support:
         d_lcam = st.fit.centre2_in_1
         d_p = np.asarray(rotation_from_ypr(math.radians(yaw_cam), 0.0, 0.0)) @ d_lcam
         R_cam = np.asarray(rotation_from_ypr(0.0, math.radians(photo.pitch_deg or 0.0), math.radians(photo.roll_deg or 0.0)))
@@ -550,13 +552,19 @@ def _probe_pixel(pa: ProbeAlignment, st: _CapState, scene: Scene, store: Any, ph
         pa.pixel_full, pa.pixel_source = geom, "geometry"
         pa.flags.append("pixel_from_geometry: no marked pixel; the relative pose's direction is used (review)")
     else:
-        pa.flags.append("no_pixel: no marked pixel and no relative pose to the camera position")
+        pa.flags.append("no_pixel: no marked pixel and no relative pose with parallax to the camera position")
     w, h = photo.size
     if geom is not None and pa.pixel_full is not None and pa.pixel_source != "geometry":
         err = math.dist(geom, pa.pixel_full)
         pa.pixel_error_px = err
-        if err > s.pixel_tolerance_frac * math.hypot(w, h):
-            pa.flags.append(f"pixel_disagrees: the marked pixel is {err:.0f} px from the geometry's ({geom[0]:.0f}, {geom[1]:.0f})")
+        from solidkit.align.features import rays_from_pixels
+
+        r = rays_from_pixels(np.array([pa.pixel_full, geom]), np.asarray(photo.K_full))
+        ang = math.degrees(float(angular_distance(r[0], r[1])))
+        # the baseline direction from panorama features is good to ~5-30 deg (measured): a gross-error check
+        if ang > s.pixel_tolerance_deg:
+            pa.flags.append(f"pixel_disagrees: the marked pixel is {ang:.0f} deg ({err:.0f} px) from the direction of the "
+                            f"probe capture seen from the camera position ({geom[0]:.0f}, {geom[1]:.0f}): wrong probe marked?")
     if pa.pixel_full is not None and not (-0.5 <= pa.pixel_full[0] <= w - 0.5 and -0.5 <= pa.pixel_full[1] <= h - 0.5):
         pa.flags.append("pixel_outside_photo")
 
