@@ -1,4 +1,4 @@
-"""The chain on a virtual campaign held against its truth: synth campaign -> ingest -> align -> testset build.
+"""The chain on a virtual campaign held against its truth: synth campaign -> ingest -> label sun -> align -> testset build.
 
 Truth is read only here, after the test set is built. Measured: probe pixels equal the field
 notes' (the team's marks, read from the card's ``fieldnotes.toml``) exactly, and their distance to
@@ -83,6 +83,8 @@ def test_chain_on_a_virtual_campaign(tmp_path, cli):
     assert code == 0, err
     camp = tmp_path / "campaign"
     code, _, err = cli("ingest", card_root / "card", camp)
+    assert code == 0, err
+    code, _, err = cli("label", "sun", camp)  # the automatic sun labels an annotator would review
     assert code == 0, err
     code, _, err = cli("align", camp)
     assert code == 0, err
