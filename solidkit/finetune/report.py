@@ -402,6 +402,7 @@ def loss_curves(result: dict[str, Any], path: Path) -> Path:
             ax.plot(e, [r["val"] for r in h], "--s", ms=3, color=cm(f["fold"]), label=f"fold {f['fold'] + 1} validation")
             ax.axvline(f["best_epoch"], color=cm(f["fold"]), alpha=0.3, lw=3)
     ax.set(xlabel="epoch (0 = before fine-tuning)", ylabel="real-label loss", title="fine-tuning loss (bars: kept epoch)")
+    ax.xaxis.get_major_locator().set_params(integer=True)
     ax.grid(alpha=0.3)
     ax.legend(fontsize=7, ncol=2)
     fig.tight_layout()
