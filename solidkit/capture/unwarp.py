@@ -80,6 +80,7 @@ __all__ = [
     "unwarp",
     "seam_disagreement",
     "clear_cache",
+    "default_cache_dir",
     "render_fisheye",
     "cut_columns",
     "seam_step",
@@ -316,6 +317,18 @@ def _write(path: Path, linear: np.ndarray, meta: dict) -> None:
         write_exr(path, linear, meta)
         return
     _write_srgb8(path, encode_srgb8(linear))
+
+
+def default_cache_dir() -> Path:
+    """Per-user on-disk cache of remap tables: ``$SOLIDKIT_CACHE_DIR``, else ``$XDG_CACHE_HOME/solidkit``,
+    else ``~/.cache/solidkit``; a sub-folder per solidkit version (a new version never reads tables an
+    older one built). Files are keyed by profile, sizes, levelling and feather
+    (:func:`solidkit.camera.dualfisheye.get_maps`) and written atomically (safe for concurrent runs).
+    """
+    from solidkit import __version__
+
+    root = os.environ.get("SOLIDKIT_CACHE_DIR") or Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "solidkit"
+    return Path(root) / f"v{__version__}" / "unwarp"
 
 
 def report_tilt(summary: dict, pano: Any) -> None:

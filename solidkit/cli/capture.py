@@ -131,13 +131,17 @@ def unwarp(
     feather: float = typer.Option(10.0, "--feather", help="Seam cross-fade band, degrees of incidence angle."),
     level: bool = typer.Option(True, "--level/--no-level", help="Apply the metadata's gravity (pitch/roll) so the horizon is level."),
     gain: bool = typer.Option(True, "--gain/--no-gain", help="Match the lenses' gains on the overlap (linear light)."),
-    cache_dir: Path | None = typer.Option(None, "--cache-dir", help="Also cache remap tables on disk here."),
+    cache_dir: Path | None = typer.Option(None, "--cache-dir", help="On-disk cache of remap tables (default: per user, ~/.cache/solidkit/<version>/unwarp; $SOLIDKIT_CACHE_DIR overrides)."),
+    disk_cache: bool = typer.Option(True, "--disk-cache/--no-disk-cache", help="Keep remap tables on disk between runs (a second file of the same camera and size skips the table build)."),
     vignetting: Path | None = typer.Option(None, "--vignetting", help="Vignetting profile (solidkit calibrate vignetting): each lens divided by its falloff before gain matching and blending."),
     as_json: bool = typer.Option(False, "--json", help="Print the summary as JSON."),
 ) -> None:
     """Dual-fisheye -> equirectangular panorama in the panorama frame (docs/conventions.md)."""
     out_height = parse_size(size, "--size", equirect=True)[1] if size is not None else None
     feather = parse_angle(feather, "--feather", 0.0, 180.0)
+    from solidkit.capture.unwarp import default_cache_dir
+
+    cache_dir = (cache_dir or default_cache_dir()) if disk_cache else None
     s = unwarp_file(src, out, profile=profile, out_height=out_height, feather_deg=feather, level=level, gain_match=gain,
                     cache_dir=cache_dir, vignetting=vignetting)
     if as_json:
