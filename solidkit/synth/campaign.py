@@ -150,6 +150,7 @@ class CampaignConfig(BaseModel):
     level_noise_deg: float = Field(0.5, description="rms error of the photo pitch/roll read off the tripod level")
     glass_every: int = Field(3, description="every n-th scene (scene02, scene05, ...) has curtain-wall glass along "
                                             "the street and a sun whose glint a position sees; 0: none")
+    glass_spp_factor: int = Field(4, description="samples per pixel multiplier of glass scenes (sun caustics)")
     jpeg_quality: int = 92
     candidates: int = 8
     p_sunsky: float = 0.7
@@ -162,7 +163,7 @@ PRESETS: dict[str, dict[str, Any]] = {
     "default": {},
     # the campaign shipped in solidkit/assets/campaign_mini (a few MB): small photo, panoramas and fisheyes
     "mini": {"photo_width": 320, "photo_height": 240, "photo_spp": 16, "pano_height": 256, "pano_spp": 8,
-             "probe_spp": 16, "fisheye_width": 768, "brackets_s": [1 / 250], "jpeg_quality": 85},
+             "probe_spp": 16, "fisheye_width": 640, "brackets_s": [1 / 250], "jpeg_quality": 85},
 }
 
 
@@ -297,6 +298,12 @@ def expose(radiance: np.ndarray, exposure_time: float, f_number: float, iso: flo
     if not ok:
         raise InputError("JPEG encoding failed")
     return img, buf.tobytes()
+
+
+def _write_truth_exr(path: Path, image: np.ndarray, meta: dict[str, Any]) -> None:
+    """Truth radiance as half floats when it fits (0.05 % steps, half the bytes), else float32."""
+    half = bool(np.nanmax(np.abs(image)) < 0.5 * np.finfo(np.float16).max)
+    write_exr(path, image, meta, half=half)
 
 
 def _split(total: int, parts: int) -> list[int]:
@@ -447,7 +454,7 @@ def _render_scene(out: Path, s: int, sid: str, seed: int, cfg: CampaignConfig, g
         info = {"pixel": [int(x), int(y)], "quadrant": p["quadrant"], "point_scene": point.tolist(),
                 "normal_scene": p["normal"].tolist(), "point_camera": ((point - cam.position) @ R).tolist(),
                 "depth": float(buf["depth"][y, x]), "category": CATEGORIES[block.category_of(np.array([p["label"]]))[0]],
-                "surface_height_m": float(-point[1])}
+                "surface_height_m": float(-point[1]) + 0.0}
         positions.append((f"p{k + 1:02d}", p["position"], info))
     # --- a sunny spot (and, for a glass scene, a sun whose glint some position sees), as a team would pick
     attempts = cfg.sun_attempts * (4 if glass else 1)  # a glint needs the sun on the glass and at a position
@@ -474,7 +481,10 @@ def _render_scene(out: Path, s: int, sid: str, seed: int, cfg: CampaignConfig, g
     t0 = fix.when_local
     gps = (fix.lat_deg, fix.lon_deg, fix.alt_m)
     # --- the photo
-    hdr = render_rgb(scene, pinhole_sensor(cam, spp=cfg.photo_spp, seed=derive_seed(seed, s, 1)), cfg.photo_spp,
+    # glass reflects the sun onto the street (caustics): more samples keep that noise near the others' level
+    spp_scale = cfg.glass_spp_factor if glass else 1
+    photo_spp = cfg.photo_spp * spp_scale
+    hdr = render_rgb(scene, pinhole_sensor(cam, spp=photo_spp, seed=derive_seed(seed, s, 1)), photo_spp,
                      seed=derive_seed(seed, s, 1))
     hdr, _ = suppress_fireflies(hdr, sun_mask_image(light.sun, cam, 6.0), cfg.firefly_k)
     f_number, iso = 2.8, 100
@@ -490,7 +500,7 @@ def _render_scene(out: Path, s: int, sid: str, seed: int, cfg: CampaignConfig, g
     photo_name = f"IMG_{s + 1:04d}.JPG"
     photo_file = f"card/{sid}/photo/{photo_name}"
     atomic_write_bytes(out / photo_file, insert_app1(jpg, app))
-    write_exr(truth_dir / sid / "photo.exr", hdr, {"scene": sid})
+    _write_truth_exr(truth_dir / sid / "photo.exr", hdr, {"scene": sid})
     photo = PhotoTruth(shot=Shot(file=photo_file, exposure_time=t_photo, f_number=f_number, iso=iso, time=t0, role="photo"),
                        camera=cam.to_json(), focal_length_mm=f_mm, sensor_width_mm=sensor_w, focal_35mm=f_35,
                        hdr_file=f"truth/{sid}/photo.exr")
@@ -505,7 +515,7 @@ def _render_scene(out: Path, s: int, sid: str, seed: int, cfg: CampaignConfig, g
         rec_pitch = math.degrees(pitch) + rng.normal(0.0, cfg.gravity_noise_deg)
         rec_roll = math.degrees(roll) + rng.normal(0.0, cfg.gravity_noise_deg)
         rec_heading = (math.degrees(yaw) + rng.normal(0.0, cfg.compass_noise_deg)) % 360.0
-        pano = render_panorama(scene, pos, np.eye(3), cfg.pano_height, cfg.pano_spp,
+        pano = render_panorama(scene, pos, np.eye(3), cfg.pano_height, cfg.pano_spp * spp_scale,
                                seed=derive_seed(seed, s, 100 + c))
         keep = sun_mask_panorama(light.sun, np.eye(3), cfg.pano_height, 2.0)
         glint = glint_direction(mi, geometry, pos, light.sun, panels) if (panels and light.sun is not None) else None
@@ -528,11 +538,12 @@ def _render_scene(out: Path, s: int, sid: str, seed: int, cfg: CampaignConfig, g
             shots.append(Shot(file=f, exposure_time=t_exp, f_number=2.0, iso=iso_c, time=when, role=role))
         probe = None
         if info is not None:
-            local = render_panorama(scene, pos, cam.pano_rotation, cfg.probe_height, cfg.probe_spp,
+            local = render_panorama(scene, pos, cam.pano_rotation, cfg.probe_height, cfg.probe_spp * spp_scale,
                                     seed=derive_seed(seed, s, 200 + c))
             local, _ = suppress_fireflies(local, sun_mask_panorama(light.sun, cam.pano_rotation, cfg.probe_height),
                                           cfg.firefly_k, wrap=True)
-            write_exr(truth_dir / sid / f"{cid}.exr", local, {"scene": sid, "probe": cid, "frame": "photo panorama frame"})
+            _write_truth_exr(truth_dir / sid / f"{cid}.exr", local,
+                             {"scene": sid, "probe": cid, "frame": "photo panorama frame"})
             marked = np.asarray(info["pixel"], np.float64) + rng.normal(0.0, cfg.mark_noise_px, 2)
             marked = np.round(np.clip(marked, 0.0, [cam.width - 1, cam.height - 1]) * 2.0) / 2.0  # a tablet's half pixels
             probe = ProbeTruth(**info, marked_pixel=marked.tolist(), hdr_file=f"truth/{sid}/{cid}.exr")
