@@ -89,18 +89,17 @@ import math
 import os
 import shutil
 from pathlib import Path
-from typing import Any, Literal
+from typing import Any
 
 import cv2
 import numpy as np
-from pydantic import BaseModel, Field
 
 from solidkit.calibration.camera import FULL_FRAME_DIAGONAL_MM
 from solidkit.capture.fieldnotes import NOTES_NAMES, FieldNotes, PhotoPose, ProbeNote, notes_text
 from solidkit.capture.unwarp import render_fisheye
 from solidkit.envmap import (CONVENTIONS_VERSION, angles_from_direction, angular_distance, rotation_from_ypr, srgb_encode,
                              write_exr)
-from solidkit.errors import InputError, validation_message
+from solidkit.errors import InputError
 from solidkit.fsutil import atomic_write_bytes, atomic_write_text
 from solidkit.synth.cameras import pinhole_sensor
 from solidkit.synth.exif import exif_app1, insert_app1
@@ -108,184 +107,17 @@ from solidkit.synth.fieldwork import GlassPanel, add_glass_facades, glint_direct
 from solidkit.synth.sample import (Generator, SampleConfig, derive_seed, render_buffers, render_panorama, render_rgb,
                                    sun_mask_image, sun_mask_panorama, suppress_fireflies)
 from solidkit.synth.scene import CATEGORIES, to_mitsuba
-from solidkit.synth.solar import TEMPERATURE_C, direction_angles, place_sun, solar_direction, solar_position, utc_offset_text
+from solidkit.synth.campaign_truth import (PRESETS, SCHEMA_VERSION, CampaignConfig, CampaignTruth, CaptureTruth,
+                                           PhotoTruth, ProbeTruth, SceneTruth, Shot, SolarTruth, load_truth)
+from solidkit.synth.solar import direction_angles, place_sun, solar_direction, solar_position, utc_offset_text
 
 __all__ = ["K_SENSOR", "PRESETS", "CampaignConfig", "Shot", "ProbeTruth", "CaptureTruth", "PhotoTruth", "SceneTruth",
            "SolarTruth", "CampaignTruth", "expose", "generate_campaign", "load_truth", "open_campaign"]
 
 K_SENSOR = 3500.0
-SCHEMA_VERSION = 3
 SETTINGS_FILE = "campaign.json"
 SCENE_FILE = "scene.json"
 log = logging.getLogger(__name__)
-
-
-class CampaignConfig(BaseModel):
-    """Settings of a campaign (recorded in the truth)."""
-
-    photo_width: int = 640
-    photo_height: int = 480
-    hfov_deg: float = 60.0
-    photo_spp: int = 32
-    pano_height: int = 512
-    pano_spp: int = 16
-    probe_height: int = 128
-    probe_spp: int = 32
-    fisheye_width: int = 1920
-    lens_profile: str = "theta-v"
-    normal_exposure_s: float = 1 / 2500
-    low_exposure_s: float = 1 / 25000
-    brackets_s: list[float] = Field(default_factory=lambda: [1 / 640, 1 / 160, 1 / 40],
-                                    description="longer exposures after the normal one, same bracket")
-    shot_interval_s: float = Field(3.0, description="between the shots of one position (one bracket: < 10 s)")
-    position_interval_s: float = Field(60.0, description="from one Theta position to the next (the sun moves 0.25°/min)")
-    max_tilt_deg: float = 5.0
-    gravity_noise_deg: float = 0.3
-    compass_noise_deg: float = 5.0
-    lens_height_m: float = Field(0.10, description="Theta lens above the probe's surface")
-    max_surface_height_m: float = Field(1.0, description="highest surface a probe is put on (ground, curbs, benches)")
-    probe_clearance_m: float = Field(0.30, description="free space around the lens at its height")
-    max_probe_distance_m: float = Field(25.0, description="farthest probe from the photo camera (horizontal)")
-    mark_noise_px: float = Field(2.0, description="rms error of the probe pixels the team marks in the field notes")
-    level_noise_deg: float = Field(0.5, description="rms error of the photo pitch/roll read off the tripod level")
-    glass_every: int = Field(3, description="every n-th scene (scene02, scene05, ...) has curtain-wall glass along "
-                                            "the street and a sun whose glint a position sees; 0: none")
-    glass_spp_factor: int = Field(4, description="samples per pixel multiplier of glass scenes (sun caustics)")
-    jpeg_quality: int = 92
-    candidates: int = 8
-    p_sunsky: float = 0.7
-    block_length: float = 60.0
-    sun_attempts: int = 8
-    firefly_k: float = 10.0
-
-
-PRESETS: dict[str, dict[str, Any]] = {
-    "default": {},
-    # the campaign shipped in solidkit/assets/campaign_mini (a few MB): small photo, panoramas and fisheyes
-    "mini": {"photo_width": 320, "photo_height": 240, "photo_spp": 16, "pano_height": 256, "pano_spp": 8,
-             "probe_spp": 16, "fisheye_width": 640, "brackets_s": [1 / 250], "jpeg_quality": 85},
-}
-
-
-class Shot(BaseModel):
-    file: str
-    exposure_time: float
-    f_number: float
-    iso: int
-    time: dt.datetime = Field(description="aware local civil time (the EXIF clock time with its UTC offset)")
-    role: Literal["photo", "normal", "low_exposure", "bracket"]
-
-
-class ProbeTruth(BaseModel):
-    pixel: list[int] = Field(description="exact photo pixel of the probe's surface point")
-    marked_pixel: list[float] = Field(description="the pixel the field notes give (marked by hand: a few px off)")
-    surface_height_m: float = Field(description="the surface point's height above the ground")
-    quadrant: int
-    point_scene: list[float]
-    normal_scene: list[float]
-    point_camera: list[float]
-    depth: float
-    category: str
-    hdr_file: str
-
-
-class CaptureTruth(BaseModel):
-    id: str
-    kind: Literal["camera_position", "probe"]
-    position: list[float]
-    yaw_deg: float
-    pitch_deg: float
-    roll_deg: float
-    R_scene_from_body: list[list[float]]
-    R_pano_from_body: list[list[float]]
-    recorded_pitch_deg: float
-    recorded_roll_deg: float
-    recorded_heading_deg: float
-    sun_body: list[float] | None
-    sun_visible: bool = Field(description="the sun's centre is unoccluded from the capture position")
-    sun_drift_deg: float | None = Field(None, description="angle between the rendered sun and pvlib's sun at the "
-                                                           "time of the capture's normal shot")
-    glint_body: list[float] | None = Field(None, description="body-frame direction of a sun glint on glass seen from "
-                                                             "the capture (None: none)")
-    shots: list[Shot]
-    probe: ProbeTruth | None = None
-
-
-class PhotoTruth(BaseModel):
-    shot: Shot
-    camera: dict[str, Any]
-    focal_length_mm: float
-    sensor_width_mm: float
-    focal_35mm: float | None = Field(None, description="35 mm-equivalent focal length (diagonal), before EXIF rounds it")
-    hdr_file: str
-
-
-class SolarTruth(BaseModel):
-    """Where and when the photo was taken, and pvlib's sun there and then (module doc)."""
-
-    time_utc: dt.datetime
-    utc_offset: str = Field(description="local civil offset, as in EXIF OffsetTimeOriginal")
-    latitude_deg: float
-    longitude_deg: float
-    altitude_m: float
-    azimuth_deg: float = Field(description="pvlib solar azimuth, clockwise from true north")
-    elevation_deg: float = Field(description="pvlib apparent (refracted) solar elevation")
-    error_deg: float = Field(description="angle between pvlib's sun and the scene's sun direction")
-    temperature_c: float = TEMPERATURE_C
-    model: str = "pvlib.solarposition.get_solarposition (NREL SPA), apparent elevation, pressure from altitude"
-    rendered: bool = Field(description="false for overcast lightings: the sun is there but hidden")
-
-
-class SceneTruth(BaseModel):
-    id: str
-    block_seed: int
-    sector: int
-    lighting: dict[str, Any]
-    sun_found: bool
-    sun_scene: list[float] | None = Field(description="scene frame: x east, y down, z north")
-    sun_azimuth_deg: float | None = Field(None, description="in the photo's panorama frame")
-    sun_elevation_deg: float | None = None
-    heading_deg: float = Field(description="true heading of the photo camera (its panorama frame's forward), "
-                                           "clockwise from true north; EXIF GPSImgDirection")
-    solar: SolarTruth
-    gps: list[float]
-    photo: PhotoTruth
-    captures: list[CaptureTruth]
-    camera_position: str = Field("cam", description="the capture taken at the photo camera's position")
-    fieldnotes_file: str | None = Field(None, description="the field notes on the card (relative to the campaign)")
-    glass_panels: list[dict[str, float]] = Field(default_factory=list, description="curtain-wall glass (fieldwork.GlassPanel)")
-
-
-class CampaignTruth(BaseModel):
-    kind: Literal["solidkit-synth-campaign-truth"] = "solidkit-synth-campaign-truth"
-    schema_version: int = SCHEMA_VERSION
-    conventions_version: int = CONVENTIONS_VERSION
-    seed: int
-    scenes_requested: int
-    probes_requested: int
-    card_dir: str = "card"
-    config: CampaignConfig
-    renderer: dict[str, Any]
-    radiometry: dict[str, Any]
-    scenes: list[SceneTruth]
-
-
-def load_truth(path: str | os.PathLike) -> CampaignTruth:
-    """Read and validate a truth file."""
-    from pydantic import ValidationError
-
-    p = Path(path)
-    if not p.is_file():
-        raise InputError(f"{p}: no such truth file")
-    try:
-        truth = CampaignTruth.model_validate_json(p.read_text())
-    except ValidationError as exc:
-        raise InputError(f"{p}: not a campaign truth file: {validation_message(exc)}") from None
-    if truth.conventions_version != CONVENTIONS_VERSION:
-        from solidkit.errors import ConventionsError
-
-        raise ConventionsError(f"{p}: written under conventions version {truth.conventions_version}")
-    return truth
 
 
 def expose(radiance: np.ndarray, exposure_time: float, f_number: float, iso: float, rng: np.random.Generator,
