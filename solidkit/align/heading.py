@@ -115,7 +115,7 @@ def match_photo(photo: Features, pano: Features, *, K: np.ndarray | None = None,
 
 
 def feature_cue(cam: Features, other: Features, yaw_cam_deg: float | None, yaw_cam_sigma: float,
-                *, min_inliers: int = 10, level_sigma_deg: float = 0.3) -> tuple[Cue, object | None]:
+                *, min_inliers: int = 12, level_sigma_deg: float = 0.3) -> tuple[Cue, object | None]:
     """The ``features`` cue of a capture against the camera-position capture; also returns the fit.
 
     The cue's sigma adds the levelling uncertainty (a tilt error of either panorama biases the
@@ -189,5 +189,7 @@ def fuse_cues(cues: dict[str, Cue], *, n_sigma: float = 3.0, floor_deg: float = 
             flags.append(f"{k}_disagrees: {c.residual_deg:+.1f} deg from the consensus")
     if len(members) == 1 and len(usable) == 1:
         flags.append(f"single_cue: yaw from {members[0]} only")
+    elif len(members) == 1:
+        flags.append(f"no_agreement: no two cues agree; the most precise ({members[0]}) is used (review)")
     rms = float(np.sqrt(np.mean(np.square(res)))) if len(res) > 1 else None
     return Fused(wrap_deg(yaw), sigma, rms, flags)
