@@ -98,6 +98,14 @@ def evaluate(campaign_dir: str | Path, truth_path: str | Path, *, peers: bool = 
                     row["sun_error_deg"] = _angle(cs.azimuth_deg, cs.elevation_deg, az, el)
                     row["false_sun"] = row["sun_error_deg"] > 2.0
                 row["miss"] = bool(ct.sun_visible and not cs.found)
+                glint = getattr(ct, "glint_body", None)
+                if glint is not None:  # a glint of the sun on glass that this capture sees
+                    R = np.asarray(rotation_from_ypr(0.0, math.radians(ct.recorded_pitch_deg), math.radians(ct.recorded_roll_deg)))
+                    gaz, gel = (math.degrees(float(v)) for v in angles_from_direction(R @ np.asarray(glint)))
+                    near = [c for c in cs.candidates if _angle(c.azimuth_deg, c.elevation_deg, gaz, gel) < 2.0]
+                    row["glint_candidate"] = bool(near)
+                    row["glint_accepted"] = any(c.chosen for c in near)
+                    row["glint_reasons"] = [r for c in near for r in c.reasons]
             # probes: PSNR in the paper's tonemap
             if ct.probe is not None and pa.products.ldr_256:
                 ref, _ = read_exr(root / ct.probe.hdr_file)
@@ -156,6 +164,9 @@ def summary(result: dict[str, Any]) -> dict[str, Any]:
         "sun_median_deg": _q(sun, 50), "sun_p95_deg": _q(sun, 95), "sun_n": len(sun),
         "sun_false": sum(1 for r in rows if r.get("false_sun")), "sun_missed": sum(1 for r in rows if r.get("miss")),
         "sun_found_not_visible": sum(1 for r in rows if r.get("sun_found") and not r.get("sun_visible")),
+        "glints_in_truth": sum(1 for r in rows if "glint_candidate" in r),
+        "glints_as_candidates": sum(1 for r in rows if r.get("glint_candidate")),
+        "glints_accepted": sum(1 for r in rows if r.get("glint_accepted")),
         "scene_sun_median_deg": _q([s["sun_error_deg"] for s in result["scenes"] if "sun_error_deg" in s], 50),
         "yaw_probe_median_deg": _q(yaw, 50), "yaw_probe_p95_deg": _q(yaw, 95), "yaw_probe_n": len(yaw),
         "yaw_all_median_deg": _q(yaw_all, 50), "yaw_all_p95_deg": _q(yaw_all, 95),

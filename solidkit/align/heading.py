@@ -191,5 +191,6 @@ def fuse_cues(cues: dict[str, Cue], *, n_sigma: float = 3.0, floor_deg: float = 
         flags.append(f"single_cue: yaw from {members[0]} only")
     elif len(members) == 1:
         flags.append(f"no_agreement: no two cues agree; the most precise ({members[0]}) is used (review)")
-    rms = float(np.sqrt(np.mean(np.square(res)))) if len(res) > 1 else None
+    # inverse-variance weighted RMS: a compass 5 deg off does not make a 0.1 deg alignment look bad
+    rms = float(np.sqrt(np.sum(w * np.square(res)) / np.sum(w))) if len(res) > 1 else None
     return Fused(wrap_deg(yaw), sigma, rms, flags)

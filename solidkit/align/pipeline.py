@@ -333,7 +333,8 @@ def align_scene(campaign: Path, manifest: Manifest, scene: Scene, settings: Alig
         pa = ProbeAlignment(
             id=st.cap.id, role=role, levelling=levelling,
             rotation=body_to_pano(yaw if yaw is not None else 0.0, levelling.pitch_deg, levelling.roll_deg).tolist(),
-            yaw_deg=yaw, yaw_source=source, residual_deg=fused.residual_deg, cues=st.cues, flags=flags)
+            yaw_deg=yaw, yaw_source=source, residual_deg=fused.residual_deg,
+            yaw_sigma_deg=fused.sigma_deg if source == "auto" else None, cues=st.cues, flags=flags)
         if role == "probe" and photo is not None:
             _probe_pixel(pa, st, scene, store, photo, cam, yaw_cam if yaw_cam is not None else None, s)
         probes.append(pa)

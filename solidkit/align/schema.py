@@ -210,7 +210,8 @@ class ProbeAlignment(_Model):
     rotation: Matrix3 = Field(description="3x3, capture body -> photo panorama frame: R_y(yaw) R(0, pitch, roll)")
     yaw_deg: float | None = Field(description="level frame -> photo panorama frame (heading convention); None: unknown")
     yaw_source: LabelSource = "auto"
-    residual_deg: float | None = Field(None, description="RMS of the agreeing cues about the consensus")
+    residual_deg: float | None = Field(None, description="weighted RMS of the agreeing cues about the consensus")
+    yaw_sigma_deg: float | None = Field(None, description="1-sigma uncertainty of yaw_deg from the agreeing cues")
     cues: dict[str, Cue] = Field(default_factory=dict)
     flags: list[str] = Field(default_factory=list)
     products: ProbeProducts = Field(default_factory=ProbeProducts)
