@@ -383,3 +383,24 @@ def test_cli_unwarp_vignetting(tmp_path, vignetted, cli):
     code, _, err = cli("capture", "unwarp", str(src), "-o", str(tmp_path / "x.exr"), "--profile", "theta-v",
                      "--vignetting", str(tmp_path / "missing.json"))
     assert code == 2 and "missing.json" in err and "Traceback" not in err
+
+
+def test_a_profile_that_does_not_fit_the_frame_is_not_silent(tmp_path):
+    """Issue 10 §2: the frame's image circles are checked against the profile; a unit or camera whose
+    circles sit elsewhere (or are another size) gets a profile_mismatch warning, the right one none."""
+    from solidkit.capture.unwarp import check_image_circles
+
+    prof = load_profile("theta-v").scaled(1024, 512)
+    rng = np.random.default_rng(0)
+    sky = cv2.resize(rng.uniform(0.2, 0.9, (16, 32, 3)).astype(np.float32), (512, 256), interpolation=cv2.INTER_CUBIC)
+    fish = render_fisheye(sky, prof, (1024, 512))
+    fits, warns = check_image_circles(fish, prof)
+    assert not warns and all(abs(f["center"][0] - f["profile_center"][0]) < 2 for f in fits)
+    moved = prof.model_copy(update={"lenses": [prof.lenses[0].model_copy(update={"center": (prof.lenses[0].center[0] + 25,
+                                                                                            prof.lenses[0].center[1])}),
+                                               prof.lenses[1]]})
+    _, warns = check_image_circles(fish, moved)
+    assert len(warns) == 1 and warns[0].startswith("profile_mismatch: lens 0")
+    smaller = prof.model_copy(update={"lenses": [L.model_copy(update={"poly": [c * 0.75 for c in L.poly]}) for L in prof.lenses]})
+    _, warns = check_image_circles(fish, smaller)
+    assert len(warns) == 2

@@ -81,6 +81,7 @@ __all__ = [
     "seam_disagreement",
     "clear_cache",
     "default_cache_dir",
+    "check_image_circles",
     "render_fisheye",
     "cut_columns",
     "seam_step",
@@ -319,6 +320,47 @@ def _write(path: Path, linear: np.ndarray, meta: dict) -> None:
     _write_srgb8(path, encode_srgb8(linear))
 
 
+def check_image_circles(image: np.ndarray, profile: LensProfile, *, max_offset: float = 0.02,
+                        radius_range: tuple[float, float] = (0.9, 1.15), min_inliers: float = 0.4
+                        ) -> tuple[list[dict[str, float]], list[str]]:
+    """Does the frame show its image circles where the lens profile puts them? (issue 10 §2)
+
+    Each lens's circle is fitted from the profile's position
+    (:func:`solidkit.calibration.overlap.fit_image_circle`, robust to a start tens of pixels
+    off). A circle centre more than ``max_offset`` x the profile's radius (at least 4 px) from
+    the profile's centre, a radius outside ``radius_range`` x the profile's (the dark edge lies
+    a little beyond the profile's largest field angle: +3 % on the Theta S), or no circle edge
+    around the expected place (fewer than ``min_inliers`` of the rays) means another camera,
+    another layout (stacked, rotated, cropped) or a unit far from the model's profile: a
+    ``profile_mismatch`` warning, with what was found. Returns ``(per-lens fits, warnings)``.
+    """
+    from solidkit.calibration.overlap import fit_image_circle
+    from solidkit.envmap.sun import luminance
+
+    h, w = image.shape[:2]
+    prof = profile.scaled(w, h) if tuple(profile.reference_size) != (w, h) else profile
+    img = image.astype(np.float32) / (255.0 if image.dtype == np.uint8 else 1.0)
+    lum = luminance(img) if img.ndim == 3 else img
+    fits, warnings = [], []
+    for k, lens in enumerate(prof.lenses):
+        r0 = lens.max_radius()
+        cx, cy, r, frac = fit_image_circle(lum, lens.center, r0, search=0.2)
+        fits.append({"center": [round(cx, 2), round(cy, 2)], "radius": round(r, 2), "inliers": round(frac, 3),
+                     "profile_center": [round(lens.center[0], 2), round(lens.center[1], 2)], "profile_radius": round(r0, 2)})
+        if not (math.isfinite(r) and frac >= min_inliers):
+            warnings.append(f"profile_mismatch: lens {k}: no image circle edge near the profile's circle "
+                            f"(centre ({lens.center[0]:.0f}, {lens.center[1]:.0f}), radius {r0:.0f} px): another camera "
+                            "or layout? (check --profile; 'solidkit calibrate overlap' fits a unit's profile)")
+            continue
+        off = math.hypot(cx - lens.center[0], cy - lens.center[1])
+        if off > max(4.0, max_offset * r0) or not radius_range[0] <= r / r0 <= radius_range[1]:
+            warnings.append(f"profile_mismatch: lens {k}: image circle at ({cx:.0f}, {cy:.0f}) radius {r:.0f} px, the "
+                            f"profile expects ({lens.center[0]:.0f}, {lens.center[1]:.0f}) radius {r0:.0f} px "
+                            f"({off:.0f} px apart): another camera or layout? (check --profile; 'solidkit calibrate "
+                            "overlap' fits a unit's profile)")
+    return fits, warnings
+
+
 def default_cache_dir() -> Path:
     """Per-user on-disk cache of remap tables: ``$SOLIDKIT_CACHE_DIR``, else ``$XDG_CACHE_HOME/solidkit``,
     else ``~/.cache/solidkit``; a sub-folder per solidkit version (a new version never reads tables an
@@ -428,6 +470,9 @@ def unwarp_file(
         summary["warnings"].append("upright_dual_fisheye: the camera already rotated the circles upright; no gravity applied")
         R = np.eye(3)
     out_h = out_h or default_out_height(w)
+    circles, circle_warnings = check_image_circles(img, prof)
+    summary["image_circles"] = circles
+    summary["warnings"] += circle_warnings
     stats: dict[str, Any] = {}
     t1 = time.perf_counter()
     fast = img.dtype == np.uint8 and dst.suffix.lower() != ".exr" and len(prof.lenses) == 2
