@@ -175,14 +175,16 @@ def to_panorama(image, md: dict[str, Any], lens_profile: Any = None, vignetting:
         return rotate(image, R, "linear"), {"resampled": True, "levelled": True}
     if layout in ("dual_fisheye", "dual_fisheye_upright"):
         from solidkit.camera.lens import profile_for_metadata
-        from solidkit.capture.unwarp import default_out_height, unwarp
+        from solidkit.capture.unwarp import check_image_circles, default_out_height, unwarp
 
         h, w = image.shape[:2]
         prof = lens_profile if lens_profile is not None else profile_for_metadata(md.get("model"), w, h)
         stats: dict[str, Any] = {}
         pano = unwarp(image, prof, default_out_height(w), R, stats=stats, vignetting=vignetting)
+        _, circle_warnings = check_image_circles(image, prof)
         return pano, {"resampled": True, "levelled": not identity, "profile": prof.model, "profile_key": prof.key(),
-                      "vignetting": vignetting is not None, "seam_mad": stats.get("seam_mad")}
+                      "vignetting": vignetting is not None, "seam_mad": stats.get("seam_mad"),
+                      "profile_warnings": circle_warnings}
     raise InputError(f"image type {layout!r} is not a panorama layout (equirect or dual-fisheye)")
 
 
@@ -223,6 +225,7 @@ def make_product(product: dict[str, Any], shots: list[dict[str, Any]], campaign:
                 pano_info["residual_tilt"] = residual_tilt(hdr).to_json()
             except SolidkitError as exc:  # no lens profile for this camera: keep the capture layout
                 pano_info = {"panorama": f"not made: {exc}"}
+            stats["warnings"] = stats.get("warnings", []) + pano_info.pop("profile_warnings", [])
             stats.update(pano_info)
             p.layout = layout
             rel = _product_path(p, ".exr")
