@@ -99,7 +99,8 @@ def make_campaign(root: Path, *, with_alignment: bool = True, with_city: bool = 
             "probes": [
                 {"id": "p1", "role": "probe", "pixel_full": [402.0, 297.0], "pixel_source": "field_notes",
                  "yaw_deg": -HEADING_DOT_AZ, "residual_deg": 0.3, "cues": {"sun": {"yaw_deg": -HEADING_DOT_AZ, "weight": 1.0, "ok": True}}, "flags": []},
-                {"id": "p2", "role": "probe", "pixel_full": None, "yaw_deg": None, "flags": ["low_confidence"]},
+                {"id": "p2", "role": "probe", "pixel_full": None, "yaw_deg": None,
+                 "flags": ["low_confidence", "pixel_disagrees: the marked pixel is 40 px from the geometry's"]},
             ],
         }] + ([city_align] if with_city else [])
     }  # fmt: skip

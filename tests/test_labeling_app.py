@@ -62,6 +62,8 @@ def test_queues_follow_the_manifest_and_alignment(client):
     assert (img["width"], img["height"], img["tiles"]) == (1024, 512, {"cols": 2, "rows": 1})
     pix = item(client, "probe_pixel", "s1/p1")
     assert pix["proposal"] == {"x": 402.0, "y": 297.0} and pix["view"]["proposal_source"] == "field_notes"
+    assert item(client, "probe_pixel", "s1/p2")["flags"] == ["pixel_disagrees: the marked pixel is 40 px from the geometry's"]
+    assert item(client, "heading", "s1/p2")["flags"] == ["low_confidence"]  # each task gets align's flags about it
     head = item(client, "heading", "s1/p1")
     assert head["proposal"] == {"yaw_deg": -30.0} and head["view"]["image"]["hdr"] is True
     outline = np.array(head["view"]["photo"]["outline"])

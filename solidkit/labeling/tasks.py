@@ -85,6 +85,11 @@ def fov_outline(K: np.ndarray, size: tuple[int, int], pitch_deg: float, roll_deg
     return [[round(math.degrees(a), 4), round(math.degrees(e), 4)] for a, e in zip(az, el)]
 
 
+def _flags(aprobe: dict[str, Any], *, pixel: bool) -> list[str]:
+    """align/'s flags of a probe that concern its pixel (``pixel_...``) or the rest (yaw, cues)."""
+    return [f for f in aprobe.get("flags", []) if f.split(":", 1)[0].strip().startswith("pixel") == pixel]
+
+
 @dataclass
 class Item:
     """One thing to label: ``kind`` + ``key`` (the label's address in the store) and what the
@@ -233,13 +238,13 @@ class CampaignIndex:
             "geometry": aprobe.get("pixel_geometry"), "geometry_error_px": aprobe.get("pixel_error_px"),
         }  # fmt: skip
         prop = {"x": float(proposal[0]), "y": float(proposal[1])} if proposal else None
-        return Item("probe_pixel", key, scene_id, probe.id, label, view, prop, list(aprobe.get("flags", [])))
+        return Item("probe_pixel", key, scene_id, probe.id, label, view, prop, _flags(aprobe, pixel=True))
 
     def _heading_item(self, key, scene_id, probe_id, label, pano, photo, aprobe) -> Item:
         yaw = aprobe.get("yaw_deg")
         cues = {n: {k: c.get(k) for k in ("yaw_deg", "weight", "ok", "detail")} for n, c in (aprobe.get("cues") or {}).items()}
         view = {"image": pano.id, "hdr": pano.hdr, "photo": photo, "cues": cues, "residual_deg": aprobe.get("residual_deg")}
-        flags = list(aprobe.get("flags", []))
+        flags = _flags(aprobe, pixel=False)
         if photo.get("outline") is None:
             flags.append("no photo intrinsics")
         return Item("heading", key, scene_id, probe_id, label, view, {"yaw_deg": yaw} if yaw is not None else None, flags)
