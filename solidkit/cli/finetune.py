@@ -16,7 +16,7 @@ TRAINABLE_CHOICES = ("pnet+sky", "pnet", "sky", "all")  # solidkit.finetune.fine
 
 def finetune_command(
     model: Path | None = typer.Option(None, "--model", help="SOLID-Net checkpoint (default: the shipped one)."),
-    testset: Path = typer.Option(..., "--testset", help="Real test set folder (testset.json)."),
+    testset: list[Path] = typer.Option(..., "--testset", help="Real test set folder (testset.json); repeat to pool several."),
     out: Path = typer.Option(Path("finetune_out"), "-o", "--out", help="Output folder (report, finetune.json, fold_<i>.pt)."),
     folds: int = typer.Option(3, min=2, help="Number of scene-level folds (at most the number of scenes)."),
     epochs: int = typer.Option(8, min=1, help="Most epochs per fold (early stopping on held-out training scenes)."),
@@ -34,11 +34,14 @@ def finetune_command(
         raise InputError(f"--trainable must be one of {', '.join(TRAINABLE_CHOICES)}, got {trainable!r}")
     if model is not None and not model.is_file():
         raise InputError(f"{model}: no such checkpoint")
-    for p, opt in ((testset, "--testset"), (mix_synthetic, "--mix-synthetic"), (synthetic, "--synthetic")):
+    for p, opt in [*((t, "--testset") for t in testset), (mix_synthetic, "--mix-synthetic"), (synthetic, "--synthetic")]:
         if p is not None and not p.is_dir():
             raise InputError(f"{opt} {p}: not a folder")
-    if not (testset / "testset.json").is_file():
-        raise InputError(f"--testset {testset}: not a test set (no testset.json; run 'solidkit testset build')")
+    for t in testset:
+        if not (t / "testset.json").is_file():
+            raise InputError(f"--testset {t}: not a test set (no testset.json; run 'solidkit testset build')")
+    if len({t.name for t in testset}) < len(testset):
+        raise InputError("--testset: pooled test sets need distinct folder names (they prefix the scene ids)")
     # torch is imported only once the arguments are known to be good (a bad call answers at once)
     from solidkit.finetune.finetune import FineTuneConfig, finetune_report
     cfg = FineTuneConfig(folds=folds, epochs=epochs, patience=patience, lr=lr, trainable=trainable,

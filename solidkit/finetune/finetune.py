@@ -416,7 +416,8 @@ def finetune_report(
     save_models: bool = True,
     log: Callable[[str], Any] | None = None,
 ) -> dict[str, Any]:
-    """``solidkit finetune``: k-fold fine-tuning on a real test set; writes ``finetune.json``,
+    """``solidkit finetune``: k-fold fine-tuning on a real test set, or several pooled (``testset`` a
+    list; scene ids are then prefixed by each folder's name); writes ``finetune.json``,
     ``report.md``/``report.html``, ``figures/`` and ``fold_<i>.pt`` into ``out``."""
     import json
     from pathlib import Path
@@ -428,7 +429,16 @@ def finetune_report(
     log = log or (lambda s: None)
     cfg = cfg or FineTuneConfig()
     torch.set_num_threads(1)
-    items = list(real_items) if real_items is not None else items_from_testset(testset)
+    if real_items is not None:
+        items = list(real_items)
+    else:
+        sets = [testset] if isinstance(testset, (str, Path)) else list(testset)
+        items = []
+        for ts in sets:  # several test sets pool their scenes (ids prefixed by the folder name)
+            for it in items_from_testset(ts):
+                if len(sets) > 1:
+                    it.scene = it.id = f"{Path(ts).name}/{it.scene}"
+                items.append(it)
     net = load_model(model)
     mix = None
     if mix_synthetic is not None:
