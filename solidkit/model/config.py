@@ -81,7 +81,7 @@ class SolidNetConfig:
         One of :data:`LOSS_VARIANTS`.
     loss_weights : dict
         Weights of ``sup1`` terms, of ``dif``, ``rec``, ``sup2``, ``tom`` (paper: all 1) and of the
-        sun terms ``sun_dir``, ``sun_energy``, ``sun_peak`` (used by ``loss_variant="located"``).
+        sun terms ``sun_dir``, ``sun_energy``, ``sun_peak``, ``sun_size`` (used by ``loss_variant="located"``).
     """
 
     name: str = "small"
@@ -112,6 +112,7 @@ class SolidNetConfig:
             "sun_dir": 1.0,
             "sun_energy": 1.0,
             "sun_peak": 0.2,
+            "sun_size": 0.2,
         }
     )
 

@@ -163,7 +163,9 @@ class INet(nn.Module):
             out["sky"] = radiance_from_log(sky_log)
             return out
         out.update(self.sun(pooled, y))
-        sun = render_sun(out["sun_dir"], out["sun_energy"], out["sun_sigma"], self.config.pano_height)
+        # the size is learnt from its own loss only (losses.sun_size_loss): through the radiance terms it
+        # would grow to hedge an uncertain direction
+        sun = render_sun(out["sun_dir"], out["sun_energy"], out["sun_sigma"].detach(), self.config.pano_height)
         out["sky_np_log"] = sky_log
         out["sky"] = radiance_from_log(sky_log) + sun
         out["sky_log"] = torch.log1p(out["sky"])

@@ -32,7 +32,11 @@ L1 in metres (up to ~90 m) dominates the total. So:
 - ``sun_energy``: L1 on ``log(E + SUN_ENERGY_EPS)`` (RGB) against the true sun energy
   (:func:`sun_energy`; 0 for skies without a visible sun);
 - ``sun_peak``: L1 on ``log1p`` of the full predicted sky (sun included) over the target's brightest
-  0.1 % of pixels (the sun's peak, its size);
+  0.1 % of pixels (the sun's peak);
+- ``sun_size``: L1 on the log of the sun's angular size against the true sun's (:func:`sun_size`). The
+  size gets no gradient from the radiance terms (the sun is rendered with a detached size): measured
+  in training, a size free to follow the peak L1 grows to the largest allowed (4°) while the direction
+  is uncertain, a hedge that leaves a blob the detector rightly refuses as a sun;
 - ``distance``: L1 of plane distance divided by the scene's median plane distance (per image).
 
 The truth sun (``batch["sun_dir"] (B, 3)``, ``batch["sun_visible"] (B,)``) is what the default
@@ -74,6 +78,8 @@ __all__ = [
     "sun_direction_loss",
     "sun_energy_loss",
     "sun_peak_loss",
+    "sun_size",
+    "sun_size_loss",
     "sky_away_from_sun_loss",
     "SUN_CAP",
     "SUN_TARGET_SIGMA",
@@ -164,6 +170,39 @@ def sun_energy(sky: torch.Tensor, direction: torch.Tensor, visible: torch.Tensor
     return e
 
 
+def sun_size(sky: torch.Tensor, direction: torch.Tensor, cap: float = SUN_CAP,
+             annulus: tuple[float, float] = SUN_ANNULUS) -> torch.Tensor:
+    """Angular standard deviation ``(B,)`` (radians) of the sun at ``direction (B, 3)`` in ``sky (B, C, H, 2H)``.
+
+    ``sqrt(sum w (1 - cos t) / sum w)`` over the cap, ``w`` the luminance above the annulus median
+    times the solid angle: for ``L ∝ exp((cos t - 1) / sigma^2)`` this is ``sigma`` (the model's
+    parameterisation, :func:`solidkit.model.sunhead.render_sun`).
+    """
+    b, c, h, w = sky.shape
+    px = math.pi / h
+    cap = max(cap, 1.5 * px)
+    annulus = (max(annulus[0], cap + px), max(annulus[1], cap + 4 * px))
+    lum = sky.mean(dim=1)
+    cos = _cos_to(direction, h)
+    omega = solid_angle(h, torch, dtype=sky.dtype, device=sky.device)
+    ring = (cos < math.cos(annulus[0])) & (cos > math.cos(annulus[1]))
+    bg = torch.stack([lum[i][ring[i]].median() if ring[i].any() else lum.new_zeros(()) for i in range(b)])
+    wgt = (lum - bg[:, None, None]).clamp_min(0.0) * (cos > math.cos(cap)).to(sky.dtype) * omega
+    return torch.sqrt((wgt * (1.0 - cos)).sum(dim=(1, 2)) / wgt.sum(dim=(1, 2)).clamp_min(1e-12))
+
+
+def sun_size_loss(sigma: torch.Tensor, sky: torch.Tensor, direction: torch.Tensor, visible: torch.Tensor) -> torch.Tensor:
+    """L1 between ``log sigma~ (B,)`` and the log of the true sun's :func:`sun_size` (clamped to the head's
+    range), over skies with a visible sun."""
+    from solidkit.model.sunhead import SIGMA_MAX, SIGMA_MIN
+
+    keep = visible > 0.5
+    if not keep.any():
+        return sigma.sum() * 0.0
+    true = sun_size(sky[keep], direction[keep]).clamp(SIGMA_MIN, SIGMA_MAX).detach()
+    return (torch.log(sigma[keep]) - torch.log(true)).abs().mean()
+
+
 def sun_direction_loss(logits: torch.Tensor, direction: torch.Tensor, visible: torch.Tensor,
                        sigma: float = SUN_TARGET_SIGMA) -> torch.Tensor:
     """Cross-entropy of ``p ∝ exp(logits) Omega`` (``logits (B, 1, H, 2H)``) against a Gaussian of
@@ -231,6 +270,7 @@ def sup1_loss(out: dict[str, torch.Tensor], batch: dict[str, torch.Tensor], vari
             terms["sun_dir"] = sun_direction_loss(out["sun_logits"], sd, vis)
             terms["sun_energy"] = sun_energy_loss(out["sun_log_energy"], sun_energy(sky, sd, vis))
             terms["sun_peak"] = sun_peak_loss(out["sky_log"], sky)
+            terms["sun_size"] = sun_size_loss(out["sun_sigma"], sky, sd, vis)
         else:
             terms["sky"] = hdr_l1_loss(out["sky_log"], batch["sky"])
     return terms
