@@ -117,3 +117,16 @@ def check_chain(out: Path, virtual: Path) -> dict:
     strict = {f"{p.scene}/{p.message.split()[1]}" for p in validate_testset(out) if p.message.startswith("probe ")}
     assert strict == flagged, (strict, flagged)
     return res
+
+
+@pytest.mark.slow
+def test_chain_on_the_shipped_mini_campaign(tmp_path, cli):
+    """The same chain on CAPTURE's shipped campaign (solidkit/assets/campaign_mini): no rendering, ~1 min of CPU."""
+    from conftest import ASSETS
+
+    virtual = ASSETS / "campaign_mini"
+    camp, out = tmp_path / "campaign", tmp_path / "testset"
+    for argv in (("ingest", virtual / "card", camp), ("label", "sun", camp), ("align", camp), ("testset", "build", camp, out)):
+        code, _, err = cli(*argv)
+        assert code == 0, (argv, err)
+    check_chain(out, virtual)
