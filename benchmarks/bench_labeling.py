@@ -9,6 +9,9 @@ B. A scripted annotator in Debian's chromium (Playwright): 20 sun frames (1024x5
    directions, seed 0); (1) "click": find the sun in the overview strip, then in the rectilinear
    view, click its centre, save; (2) "accept": press A on align's proposal. Labels per minute and
    the clicked direction's error against the drawn truth.
+C. The chain: the shipped mini campaign (solidkit/assets/campaign_mini) ingested and aligned, its
+   sun frames labelled blind by the scripted annotator; its labels and align/'s against the
+   campaign's truth, and whether the Review tab flags the labels that are off.
 
 Writes benchmarks/results/labeling.json and labeling.md. Run: ``.venv/bin/python benchmarks/bench_labeling.py``.
 """
@@ -43,6 +46,7 @@ from solidkit.envmap.coords import angular_distance, direction_from_angles  # no
 from solidkit.labeling.store import LabelStore  # noqa: E402
 
 OUT = HERE / "results"
+MINI = HERE.parent / "solidkit" / "assets" / "campaign_mini"
 CHROMIUM = shutil.which("chromium") or "/usr/bin/chromium"
 
 
@@ -250,6 +254,15 @@ def bench_annotator(tmp: Path) -> dict:
     return res
 
 
+def chain_mini(tmp: Path) -> Path:
+    """The shipped mini campaign's card -> `solidkit ingest` -> `solidkit align`; returns the campaign."""
+    code = "import sys; from solidkit.cli import main; sys.argv = ['solidkit'] + sys.argv[1:]; main()"
+    camp = tmp / "mini"
+    for args in (["ingest", str(MINI / "card"), str(camp)], ["align", str(camp), "--no-report"]):
+        subprocess.run([sys.executable, "-c", code, *args], check=True, capture_output=True)
+    return camp
+
+
 def truth_suns(truth_json: Path) -> dict[str, tuple[bool, float | None, float | None]]:
     """Truth sun per capture in the level frame of its sun-frame product (as align/evaluate.py:
     ``R(0, recorded pitch, recorded roll) sun_body``); read only here, to measure."""
@@ -371,10 +384,13 @@ def main() -> None:
         tmp = Path(t)
         serving = bench_serving(tmp)
         annot = bench_annotator(tmp) if Path(CHROMIUM).is_file() else {"skipped": "no chromium"}
-        # an ingested + aligned virtual campaign and its truth (e.g. from `solidkit synth campaign`)
+        # an ingested + aligned virtual campaign and its truth: $SOLIDKIT_BENCH_CAMPAIGN/_TRUTH, else the
+        # shipped mini campaign run through `solidkit ingest` and `solidkit align` here
         vc, vt = os.environ.get("SOLIDKIT_BENCH_CAMPAIGN"), os.environ.get("SOLIDKIT_BENCH_TRUTH")
+        if not (vc and vt) and MINI.is_dir():
+            vc, vt = str(chain_mini(tmp)), str(MINI / "truth" / "truth.json")
         virtual = bench_virtual_campaign(Path(vc), Path(vt), tmp) if vc and vt and Path(CHROMIUM).is_file() else {
-            "skipped": "set SOLIDKIT_BENCH_CAMPAIGN (ingested + aligned) and SOLIDKIT_BENCH_TRUTH (its truth.json)"}
+            "skipped": "no chromium, or no campaign (set SOLIDKIT_BENCH_CAMPAIGN and SOLIDKIT_BENCH_TRUTH)"}
     load = os.getloadavg()[0]
     doc = {"machine": platform.platform(), "load_average_1min": load, "serving_7296x3648": serving, "scripted_annotator": annot,
            "virtual_campaign": virtual}
