@@ -253,3 +253,23 @@ def test_serve_beyond_loopback_prints_a_token_and_requires_it(campaign):
     finally:
         proc.terminate()
         proc.wait(10)
+
+
+def test_hdr_shown_exposed_and_nothing_written_but_the_store(tmp_path):
+    """An EXR product is served as an exposed sRGB preview (the red disk drawn at azimuth 30 deg is
+    where conventions §3 puts it); a whole session writes nothing in the campaign but labels/."""
+    root, alignment = make_campaign(tmp_path / "camp", with_city=False)
+    before = {p: p.stat().st_mtime_ns for p in root.rglob("*")}
+    c = TestClient(create_app(root, alignment=alignment, allowed_hosts=["testserver"]))
+    img = item(c, "heading", "s1/p1")["view"]["image"]
+    assert img["hdr"] is True
+    prev = cv2.imdecode(np.frombuffer(c.get(f"/api/img/{img['id']}/preview.jpg").content, np.uint8), cv2.IMREAD_COLOR)
+    ys, xs = np.nonzero((prev[..., 2] > 200) & (prev[..., 1] < 80))
+    assert (xs.mean() + 0.5) / prev.shape[1] * 360 - 180 == pytest.approx(30.0, abs=0.5)
+    assert np.median(prev[:256]) > 60  # the sky exposed to mid grey, not black
+    for kind, key, value in (("heading", "s1/p1", {"yaw_deg": -29.5}), ("probe_pixel", "s1/p1", {"x": 1.0, "y": 2.0})):
+        assert put(c, kind, key, value, 0).status_code == 200
+    c.get(f"/api/img/{img['id']}/tile/0/0.jpg")
+    c.get("/api/export")
+    changed = {p for p in root.rglob("*") if before.get(p) != p.stat().st_mtime_ns}
+    assert changed and all(p.relative_to(root).parts[0] == "labels" for p in changed)
