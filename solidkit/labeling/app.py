@@ -21,8 +21,8 @@ Security model
 
 from __future__ import annotations
 
-import hashlib
 import base64
+import hashlib
 import hmac
 import re
 import secrets
@@ -36,7 +36,7 @@ from pydantic import BaseModel, ConfigDict, Field
 from starlette.middleware.trustedhost import TrustedHostMiddleware
 
 from solidkit.errors import InputError
-from solidkit.labeling.images import ImageService, tile_grid, PREVIEW_WIDTH
+from solidkit.labeling.images import PREVIEW_WIDTH, ImageService, tile_grid
 from solidkit.labeling.review import THRESHOLDS, UNITS, disagreement_flag, review_all, review_item
 from solidkit.labeling.store import LabelConflict, LabelStore, validate_value
 from solidkit.labeling.tasks import TASKS, CampaignIndex

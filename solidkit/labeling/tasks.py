@@ -68,8 +68,8 @@ def fov_outline(K: np.ndarray, size: tuple[int, int], pitch_deg: float, roll_deg
     Returns
     -------
     list of [azimuth_deg, elevation_deg]
-        ``4 n`` points around the frame (top edge left to right first), the photo centre's
-        direction last is *not* included.
+        ``4 n`` points around the frame's outer pixel edges, clockwise from the top-left corner
+        (corners at indices 0, n, 2n, 3n: top-left, top-right, bottom-right, bottom-left).
     """
     w, h = size
     t = np.linspace(0.0, 1.0, n, endpoint=False)
