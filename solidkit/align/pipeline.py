@@ -307,6 +307,10 @@ def align_scene(campaign: Path, manifest: Manifest, scene: Scene, settings: Alig
     for st, cs in zip(caps, sun.captures):  # per-capture sun directions back into the sun-frame product's frame
         _capture_sun_to_product_frame(cs, st.C)
 
+    # captures whose features failed against the camera position: features against the other captures,
+    # whose yaws (features, sun; never the compass) carry them over
+    _chain_cues(caps, cam, s)
+
     # final yaws, probe pixels
     probes: list[ProbeAlignment] = []
     yaw_sigma: dict[str, float | None] = {}
@@ -324,7 +328,7 @@ def align_scene(campaign: Path, manifest: Manifest, scene: Scene, settings: Alig
             yaw, source = lyaw, label.source
         if "features" in st.cues and not st.cues["features"].ok and st.cues["features"].yaw_deg is None and yaw is not None:
             used = [k for k, c in st.cues.items() if c.ok and k != "features"]
-            flags.append(f"features_failed: yaw from {', '.join(used) or 'nothing'}")
+            flags.append(f"features_failed: no match to the camera position; yaw from {', '.join(used) or 'nothing'}")
         yaw_sigma[st.cap.id] = fused.sigma_deg
         role = "camera" if st.cap.id == cam_id else "probe"
         levelling, y0 = _levelling_record(st)
@@ -398,6 +402,27 @@ def _sun_with_motion(caps: list[_CapState], inputs: list[CaptureSunInput], photo
             st.cues["sun"] = cues[st.cap.id]
     sun.motion = why
     return sun, why
+
+
+def _chain_cues(caps: list[_CapState], cam: _CapState | None, s: AlignSettings) -> None:
+    """``features_via_<id>`` cues for captures left with the compass alone (features failed against the
+    camera position, no sun): a chain adds the other capture's error, so it is a fallback only."""
+    known = {}
+    for st in caps:
+        f = fuse_cues({k: c.model_copy() for k, c in st.cues.items() if k != "compass"})
+        if f.yaw_deg is not None:
+            known[st.cap.id] = (f.yaw_deg, f.sigma_deg or 0.0, st)
+    for st in caps:
+        own, sun = st.cues.get("features"), st.cues.get("sun")
+        if st is cam or st.features is None or own is None or own.yaw_deg is not None or (sun is not None and sun.ok):
+            continue
+        for oid, (yaw_o, sig_o, other) in known.items():
+            if other is st or other is cam or other.features is None:
+                continue
+            cue, _ = feature_cue(other.features, st.features, yaw_o, sig_o, level_sigma_deg=s.level_sigma_deg)
+            if cue.yaw_deg is not None:
+                cue.detail = cue.detail.replace("the camera position", oid)
+                st.cues[f"features_via_{oid}"] = cue
 
 
 def _refine_levelling(st: _CapState, pano: np.ndarray, s: AlignSettings) -> None:
