@@ -37,6 +37,7 @@ from __future__ import annotations
 import contextlib
 import fcntl
 import hashlib
+import json
 import math
 import os
 import shutil
@@ -46,6 +47,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+import cv2
 import numpy as np
 
 from solidkit.align.schema import (
@@ -61,9 +63,9 @@ from solidkit.calibration.camera import resize_crop
 from solidkit.capture.campaign import Manifest, load_manifest
 from solidkit.envmap.coords import CONVENTIONS_VERSION, direction_from_angles, solid_angle
 from solidkit.envmap.io import imread, read_exr, read_ldr, write_exr, write_ldr
-from solidkit.envmap.resample import resize, rotate
+from solidkit.envmap.resample import rotate
 from solidkit.errors import InputError
-from solidkit.fsutil import sha256_file
+from solidkit.fsutil import atomic_path, sha256_file
 from solidkit.testset.schema import (
     FORMAT,
     MODEL_INPUT_SIZE,
@@ -497,10 +499,6 @@ class _Builder:
 
 def _write_u8(path: Path, image: np.ndarray) -> None:
     """8-bit PNG of an OpenCV-ordered (BGR / grey) image given as float 0-255."""
-    import cv2
-
-    from solidkit.fsutil import atomic_path
-
     data = np.clip(np.round(np.asarray(image, np.float32)), 0, 255).astype(np.uint8)
     path.parent.mkdir(parents=True, exist_ok=True)
     with atomic_path(path) as tmp:
@@ -527,8 +525,6 @@ def _check_out(out: Path, campaign: Path) -> None:
     if out.is_dir() and any(out.iterdir()):
         m = out / MANIFEST_FILE
         try:
-            import json
-
             fmt = json.loads(m.read_text(encoding="utf-8")).get("format") if m.is_file() else None
         except (OSError, ValueError, AttributeError):
             fmt = None

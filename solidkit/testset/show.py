@@ -21,7 +21,7 @@ import numpy as np
 
 from solidkit.envmap.coords import coords_from_angles, coords_from_direction, rotation_from_ypr
 from solidkit.envmap.io import imread
-from solidkit.envmap.perspective import pixel_rays, scale_pixel_coordinates
+from solidkit.envmap.perspective import scale_pixel_coordinates
 from solidkit.errors import InputError
 from solidkit.fsutil import atomic_path, atomic_write_text
 from solidkit.testset.build import load_testset
