@@ -6,13 +6,19 @@ label store):
 1. The photo: its intrinsics from EXIF (:func:`solidkit.calibration.camera.intrinsics_from_exif`),
    heading, time and GPS.
 2. Features (:mod:`solidkit.align.features`) of the photo and of every capture's level panorama
-   (the merged HDR, else the normal shot), cached under ``CAMPAIGN/align/cache`` by input hash.
-3. Yaw cues without the sun: photo <-> camera position (rotation), capture <-> camera position
-   (level relative pose), compass; a first consensus per capture (:func:`~solidkit.align.heading.fuse_cues`).
-4. The sun (:func:`solidkit.align.sun.scene_sun`) with those yaws; then the ``sun`` cue of
-   every capture that saw it (leave-one-out: the scene's sun from the *other* captures), and the
-   final consensus. A human ``heading`` label overrides it; human ``sun`` labels replace the
-   automatic choice of their capture.
+   (the merged HDR, else the normal shot), cached under ``CAMPAIGN/align/cache`` by input hash;
+   each capture's levelling refined by the residual tilt of its vertical edges
+   (:func:`solidkit.envmap.tilt.residual_tilt`, weighted against the metadata's gravity).
+3. Yaw cues without the sun: photo <-> camera position (rotation; it also refines the photo's
+   focal length and measures its pitch and roll), capture <-> camera position (level relative
+   pose), compass.
+4. The sun (:func:`solidkit.align.sun.scene_sun`) with the feature yaws (compass-only captures
+   are tested on elevation: a compass may be 90° off); the sun's motion between the captures'
+   times applied or not as the images say (``AlignSettings.sun_motion``); then the ``sun`` cue of
+   every capture that saw it (leave-one-out: the scene's sun from the *other* captures).
+   Captures left with the compass alone get ``features_via_<id>`` cues through the other captures.
+   The final consensus per capture (:func:`~solidkit.align.heading.fuse_cues`); a human ``heading``
+   label overrides it; human ``sun`` labels replace the automatic choice of their capture.
 5. Probe pixels (field notes, else a human label, else the geometry) checked against the
    geometry: the direction from the camera position to the probe capture (relative pose),
    projected into the photo.
@@ -302,8 +308,7 @@ def align_scene(campaign: Path, manifest: Manifest, scene: Scene, settings: Alig
         compass = st.cues.get("compass")
         inputs.append(CaptureSunInput(st.cap.id, st.blobs, st.ephemeris, y, ys, st.heading, note, human,
                                       compass_yaw_deg=None if compass is None else compass.yaw_deg))
-    sun, motion_note = _sun_with_motion(caps, inputs, photo_eph, heading_p, s)
-    scene_flags_info = [motion_note]
+    sun, _ = _sun_with_motion(caps, inputs, photo_eph, heading_p, s)
     for st, cs in zip(caps, sun.captures):  # per-capture sun directions back into the sun-frame product's frame
         _capture_sun_to_product_frame(cs, st.C)
 
@@ -343,7 +348,7 @@ def align_scene(campaign: Path, manifest: Manifest, scene: Scene, settings: Alig
             _probe_pixel(pa, st, scene, store, photo, cam, yaw_cam if yaw_cam is not None else None, s)
         probes.append(pa)
     sa = SceneAlignment(id=scene.id, photo=photo, camera_probe=cam_id, sun=sun, probes=probes, flags=scene_flags)
-    return sa, {"yaw_sigma": yaw_sigma, "notes": scene_flags_info}
+    return sa, {"yaw_sigma": yaw_sigma}
 
 
 def _sun_with_motion(caps: list[_CapState], inputs: list[CaptureSunInput], photo_eph: Any, heading_p: float | None,
@@ -476,9 +481,7 @@ def _capture_sun_to_product_frame(cs: CaptureSun, C: np.ndarray) -> None:
         a, e = (math.degrees(float(v)) for v in angles_from_direction(d))
         return wrap_deg(a), e
 
-    if cs.found and cs.source == "auto":
-        cs.azimuth_deg, cs.elevation_deg = back(cs.azimuth_deg, cs.elevation_deg)
-    elif cs.found:  # a human label: restore its own numbers
+    if cs.found:  # (a human label comes back to its own numbers)
         cs.azimuth_deg, cs.elevation_deg = back(cs.azimuth_deg, cs.elevation_deg)
     for c in cs.candidates:
         c.azimuth_deg, c.elevation_deg = back(c.azimuth_deg, c.elevation_deg)

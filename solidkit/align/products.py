@@ -8,8 +8,8 @@ Per capture, under ``CAMPAIGN/align/<scene>/<probe>/`` (paths in ``ProbeAlignmen
   linear, area-resampled on the sphere (:func:`solidkit.envmap.resample.resize`), re-encoded;
 - ``saturation_full.png`` / ``saturation_256.png``: 255 where the normal shot clipped (any
   channel at code 250 or above; at 256x128 a pixel is marked when any of its footprint clipped);
-- ``hdr_full.exr`` / ``hdr_256.exr``: the merged bracket (ingest's level HDR) rotated by
-  ``R_y(yaw)`` and area-resized, where a bracket exists.
+- ``hdr_full.exr`` / ``hdr_256.exr``: the merged bracket (ingest's HDR, levelled by the
+  metadata) rotated into the photo's panorama frame and area-resized, where a bracket exists.
 
 Each capture's recipe (inputs' sha256, yaw, levelling, sizes, solidkit version) is hashed into
 ``recipe.json`` beside the files; an unchanged recipe with its files present is not rebuilt.
