@@ -308,3 +308,28 @@ def test_real_frobisher_with_calibrated_response(real_data, tmp_path):
     # two frames: nothing to estimate from -> sRGB assumed, and said so
     two = merge_files(frames[:2], tmp_path / "two.exr")[0]
     assert two["response"]["kind"] == "srgb_assumed" and any(w.startswith("srgb_assumed") for w in two["warnings"])
+
+
+def test_frames_read_by_content_and_registered(tmp_path, scene):
+    """Issue 10 §1: a JPEG named .png is read as the JPEG it is (and said so); a frame shifted by
+    (-0.7, +0.8) px is registered (shift recorded and undone) instead of merged smeared."""
+    paths = _write_bracket(tmp_path, scene)
+    jpeg_named_png = tmp_path / "R0010009.png"
+    img = cv2.imread(str(paths[1]))
+    cv2.imwrite(str(tmp_path / "tmp.jpg"), img, [cv2.IMWRITE_JPEG_QUALITY, 98])
+    (tmp_path / "tmp.jpg").rename(jpeg_named_png)
+    gamma = np.repeat((CODES**2.2)[:, None], 3, axis=1)
+    s = merge_files([paths[0], jpeg_named_png, paths[2]], tmp_path / "a.exr", times=TIMES[:3], response=gamma)[0]
+    assert any(w.startswith("content_not_suffix: R0010009.png is a JPEG") for w in s["warnings"])
+    # shift the longest frame's content by (-0.7, +0.8) px
+    long = cv2.imread(str(paths[2]))
+    h, w = long.shape[:2]
+    shifted = cv2.warpAffine(long, np.float32([[1, 0, -0.7], [0, 1, 0.8]]), (w, h), flags=cv2.INTER_CUBIC,
+                             borderMode=cv2.BORDER_REPLICATE)
+    cv2.imwrite(str(tmp_path / "shifted.png"), shifted)
+    s = merge_files([paths[0], paths[1], tmp_path / "shifted.png"], tmp_path / "b.exr", times=TIMES[:3], response=gamma)[0]
+    dx, dy = s["registration"]["shifts_px"][2]
+    assert s["registration"]["applied"][2] and abs(dx + 0.7) < 0.25 and abs(dy - 0.8) < 0.25, s["registration"]
+    unaligned = merge_files([paths[0], paths[1], tmp_path / "shifted.png"], tmp_path / "c.exr", times=TIMES[:3],
+                            response=gamma, align=False)[0]
+    assert s["ghost_fraction"] <= unaligned["ghost_fraction"]
