@@ -10,6 +10,7 @@ import sys
 import time
 import urllib.error
 import urllib.request
+from pathlib import Path
 
 import cv2
 import numpy as np
@@ -273,3 +274,35 @@ def test_hdr_shown_exposed_and_nothing_written_but_the_store(tmp_path):
     c.get("/api/export")
     changed = {p for p in root.rglob("*") if before.get(p) != p.stat().st_mtime_ns}
     assert changed and all(p.relative_to(root).parts[0] == "labels" for p in changed)
+
+
+MINI = Path(__file__).resolve().parents[1] / "solidkit" / "assets" / "campaign_mini"
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(not MINI.is_dir(), reason="the shipped mini campaign is absent")
+def test_the_app_on_the_mini_campaign_chain(cli, tmp_path):
+    """The chain: the shipped mini campaign ingested and aligned; every item of every task opens,
+    every image is served, and align's proposals are the ones shown."""
+    from solidkit.align.schema import load_alignment
+
+    camp = tmp_path / "camp"
+    assert cli("ingest", MINI / "card", camp)[0] == 0
+    assert cli("align", camp, "--no-report")[0] == 0
+    alignment = load_alignment(camp).model_dump(mode="json")
+    c = TestClient(create_app(camp, alignment=alignment, allowed_hosts=["testserver"]))
+    assert c.get("/api/campaign").json()["problems"] == []
+    captures = {f"{s['id']}/{x['probe']}": x for s in alignment["scenes"] for x in s["sun"]["captures"]}
+    for kind in ("sun", "probe_pixel", "heading"):
+        keys = [q["key"] for q in c.get(f"/api/queue/{kind}").json()["items"]]
+        assert keys, kind
+        for key in keys:
+            it = item(c, kind, key)
+            for img in (it["view"].get("image"), (it["view"].get("photo") or {}).get("image")):
+                if img:
+                    assert c.get(f"/api/img/{img['id']}/preview.jpg").status_code == 200
+            if kind == "sun" and captures.get(key, {}).get("found"):
+                assert it["proposal"]["azimuth_deg"] == pytest.approx(captures[key]["azimuth_deg"])
+            if kind == "heading":
+                assert it["view"]["photo"]["outline"], key
+    assert len(c.get("/api/queue/sun").json()["items"]) == len(captures)
