@@ -468,7 +468,7 @@ class Trainer:
             return
         path = self.out / "metrics.csv"
         cols = ["time", "stage", "step", "kind", "lr", "samples_per_s", "total", "inet", "pnet", "albedo", "normal",
-                "distance", "shadow", "sky", "sun_dir", "sun_energy", "sun_peak", "dif", "rec", "local", "tom",
+                "distance", "shadow", "sky", "sun_dir", "sun_energy", "sun_peak", "sun_size", "dif", "rec", "local", "tom",
                 "sky_l1", "suns", "sun_found_rate", "sun_err_deg", "sun_az_err_deg", "sun_el_err_deg",
                 "sun_energy_ratio", "local_l1", "score"]
         new = not path.is_file()
