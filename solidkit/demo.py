@@ -54,7 +54,7 @@ class DemoConfig:
     model: Path | None = None
     folds: int = 3
     epochs: int = 3
-    grids: int = 4
+    grids: int | None = None  # qualitative grids per dataset (None: every scene of the test set)
     crop_yaws: int = 8
     jobs: int = 1
     seed: int = 0

@@ -35,7 +35,8 @@ def eval_command(
                                                 "cropped at 8 headings, global map and sun only (repeatable)."),
     shipped_panoramas: bool = typer.Option(False, "--shipped-panoramas", help="Add the real HDR panoramas shipped with solidkit."),
     limit: int | None = typer.Option(None, min=1, help="Evaluate only the first N photos of each dataset."),
-    grids: int = typer.Option(6, min=0, help="Qualitative grids per dataset."),
+    grids: int | None = typer.Option(None, min=0, help="Qualitative grids per dataset (default: every scene of a real "
+                                     "test set, 6 of the other datasets)."),
     as_json: bool = typer.Option(False, "--json", help="Print the summaries as JSON on stdout."),
 ) -> None:
     """Sun azimuth/elevation error, global MAE and local SSIM/MAE for the model and baselines; a report."""

@@ -292,7 +292,7 @@ def evaluation_sections(
     results: dict[str, dict[str, Any]],
     folder: Path,
     qualitative: dict[str, tuple[Sequence[EvalItem], Method]] | None = None,
-    max_grids: int = 6,
+    max_grids: int | None = None,
     prefix: str = "",
 ) -> list[tuple[str, str]]:
     """The report sections of one or more evaluation results (one per dataset name)."""
@@ -307,7 +307,9 @@ def evaluation_sections(
     if qualitative:
         body = []
         for ds, (items, method) in qualitative.items():
-            shown = list(items)[:max_grids]
+            # a real test set gets a grid for every scene unless limited; other datasets 6
+            cap = max_grids if max_grids is not None else (len(items) if items and items[0].source == "real" else 6)
+            shown = list(items)[:cap]
             body.append(f"**{ds}**: {len(shown)} of {len(items)} scenes, {method.name}.\n")
             for it in shown:
                 p = qualitative_grid(it, method, figs / f"{prefix}{_slug(ds)}_{_slug(it.scene)}.png", f"{ds}: {it.scene}")
@@ -330,7 +332,7 @@ def evaluation_report(
     synthetic: str | os.PathLike | None = None,
     baselines: dict[str, str | os.PathLike] | None = None,
     limit: int | None = None,
-    max_grids: int = 6,
+    max_grids: int | None = None,
     log: Any = None,
     ablations: bool = True,
     panoramas: Sequence[str | os.PathLike] | None = None,
