@@ -337,6 +337,10 @@ CASES: list[tuple[str, list[str], str, tuple]] = [
      "{d}/notes.txt: card folder not found", SLOW),
     ("demo-out-is-file", ["demo", "--out", "{d}/notes.txt", "--card", "{d}/sub"],
      "{d}/notes.txt: exists and is not a folder", ()),
+    ("demo-model-missing", ["demo", "--out", "{d}/demo", "--model", "{d}/missing.pt"],
+     "{d}/missing.pt: no such checkpoint", ()),
+    ("demo-truth-not-a-truth", ["demo", "--out", "{d}/demo", "--card", "{d}/sub", "--truth", "{d}/sub"],
+     "--truth {d}/sub: no truth.json there", SLOW),
     # ---- label
     ("label-serve-missing", ["label", "serve", "{d}/missing"], "{d}/missing: campaign folder not found", ()),
     ("label-serve-no-manifest", ["label", "serve", "{d}/sub"],

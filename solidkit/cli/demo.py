@@ -23,6 +23,12 @@ def demo_command(
 ) -> None:
     """The whole chain on a small virtual field campaign, into OUT/report.html."""
     from solidkit.demo import DemoConfig, run_demo
+    from solidkit.errors import InputError
+
+    if model is not None and not model.is_file():
+        raise InputError(f"{model}: no such checkpoint")
+    if truth is not None and not (truth / "truth.json").is_file():
+        raise InputError(f"--truth {truth}: no truth.json there (the truth folder of a 'solidkit synth campaign')")
 
     err = Console(stderr=True)
     cfg = DemoConfig(card=card, truth=truth, model=model, folds=folds, epochs=epochs, jobs=jobs)
