@@ -260,6 +260,24 @@ SHIPPED_PANORAMAS = Path(__file__).resolve().parents[1] / "assets" / "hdr_panora
 """Real outdoor HDR panoramas shipped with the package (Poly Haven, CC0)."""
 
 
+PHOTO_MEAN_LDR = 0.21
+"""Mean LDR value of the synthetic training photos (median over 12 ``solidkit synth dataset`` samples:
+0.11-0.49): a photo cropped from a panorama in other units is exposed to it before the paper's tonemap."""
+
+
+def _expose_like_training(photo_hdr: np.ndarray, tonemap: Any, target: float = PHOTO_MEAN_LDR) -> np.ndarray:
+    """The paper's tonemap of ``s * photo_hdr`` with ``s`` chosen (bisection on ``log s``) so that the
+    LDR photo's mean is ``target``; float32 in [0, 1]."""
+    lo, hi = -30.0, 30.0
+    for _ in range(40):
+        mid = 0.5 * (lo + hi)
+        if float(np.mean(tonemap(photo_hdr * math.exp(mid)))) < target:
+            lo = mid
+        else:
+            hi = mid
+    return np.clip(tonemap(photo_hdr * math.exp(0.5 * (lo + hi))), 0, 1).astype(np.float32)
+
+
 def items_from_panoramas(
     paths: Sequence[str | os.PathLike], yaws: int = 8, pitch_deg: float = 5.0, hfov_deg: float = 60.0,
     size: tuple[int, int] = (320, 240), height: int = 128,
@@ -267,7 +285,8 @@ def items_from_panoramas(
     """Virtual photos cropped from real HDR panoramas (as Hold-Geoffroy et al. evaluate), global map only.
 
     Per panorama, ``yaws`` photos at equally spaced headings (``pitch_deg`` up, ``hfov_deg`` wide,
-    ``size`` pixels, LDR by the paper's tonemap as the synthetic photos are). Truth: the panorama
+    ``size`` pixels, LDR by the paper's tonemap as the synthetic photos are, after an exposure that
+    gives them the training photos' mean brightness, :data:`PHOTO_MEAN_LDR`). Truth: the panorama
     turned into each photo's panorama frame and resized to ``height`` (energy-preserving), and its
     sun from the default detector (``None`` when it finds none: an occluded or overcast sky). No
     local probes. Each panorama is one scene.
@@ -290,10 +309,10 @@ def items_from_panoramas(
         for k in range(yaws):
             yaw = 2 * math.pi * k / yaws
             R = np.asarray(rotation_from_ypr(yaw, math.radians(pitch_deg), 0.0))
-            photo = perspective_crop(pano, R, size, K=K)
+            photo = _expose_like_training(perspective_crop(pano, R, size, K=K), tonemap)
             Ry = np.asarray(rotation_from_ypr(yaw))
             items.append(EvalItem(
-                scene=name, id=f"{name}@{round(math.degrees(yaw)):03d}", image=np.clip(tonemap(photo), 0, 1).astype(np.float32),
+                scene=name, id=f"{name}@{round(math.degrees(yaw)):03d}", image=photo,
                 K=K, pitch=math.radians(pitch_deg), roll=0.0, pixels=np.zeros((0, 2)), probe_ids=[],
                 sun=(Ry.T @ sun.direction) if sun.found else None, global_hdr=rotate(small, Ry.T),
                 probes_ldr=[], probes_saturated=[], probes_hdr=[], source="real-hdr-crops", photo_path=str(path),

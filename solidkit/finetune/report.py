@@ -216,11 +216,12 @@ def qualitative_grid(item: EvalItem, method: Method, path: Path, title: str = ""
     for k, (x, y) in enumerate(item.pixels):
         ax.plot(x, y, "o", ms=9, mfc="none", mec="yellow", mew=1.5)
         ax.text(x + 6, y - 6, str(k + 1), color="yellow", fontsize=9, weight="bold")
-    ax.set(title=f"photo {item.scene}", xticks=[], yticks=[])
+    ax.set(title=f"photo {item.id}", xticks=[], yticks=[])
     sun_p = M.find_sun(pred.sky, "core") if pred.sky is not None else None
     sun_paper = M.find_sun(pred.sky, "paper") if pred.sky is not None else None
     for ax, sky, name in ((axes[0, 1], pred.sky, f"predicted global ({method.name}), auto-exposed"),
-                          (axes[0, 2], item.global_hdr, "true global (camera position HDR), auto-exposed")):
+                          (axes[0, 2], item.global_hdr, "true global (" + ("the panorama" if item.source == "real-hdr-crops"
+                                                        else "camera position HDR") + "), auto-exposed")):
         if sky is None:
             ax.text(0.5, 0.5, "no HDR global map", ha="center", va="center", transform=ax.transAxes)
             ax.set_axis_off()
