@@ -15,7 +15,9 @@ exposure) in two steps:
    bracket was "shifted" by 0.24 px before this), started from no shift and from the coarse
    one, on images at most ``max_width`` wide (the shift is scaled back).
 
-The correlation coefficient is the registration's confidence: below ``min_correlation``, or
+A frame with too few pixels well exposed in common with the reference (a sun frame) is not
+registered (correlation ``None``) and merged unshifted. The correlation coefficient is the
+registration's confidence: below ``min_correlation``, or
 when ECC does not converge, the frame "does not register" (a warning; it is then left
 unshifted), as is a shift above ``max_shift_px`` or 5 % of the image's smaller side (a tripod
 bracket does not move that much; a degenerate image can fool the search). Shifts below ``min_shift_px``
@@ -44,7 +46,7 @@ class Registration:
 
     def to_json(self) -> dict[str, Any]:
         return {"reference_frame": self.reference, "shifts_px": [[round(dx, 3), round(dy, 3)] for dx, dy in self.shifts],
-                "correlation": [round(r, 3) for r in self.responses], "applied": self.applied}
+                "correlation": [None if r != r else round(r, 3) for r in self.responses], "applied": self.applied}
 
 
 def _log_lum(linear: np.ndarray, exposure: float) -> np.ndarray:
@@ -109,6 +111,11 @@ def register_frames(codes: Sequence[np.ndarray], linear: Sequence[np.ndarray], e
             mx, my = mtb.calculateShift(gray[ref], gray[i])  # how to move frame i onto the reference
             cx, cy = -float(mx), -float(my)  # the content's displacement
         mask = cv2.erode(ok[ref] & ok[i], kernel)
+        if int(mask.sum()) < max(500, 0.005 * mask.size):
+            # nothing in common to register on (e.g. a 1/25000 s sun frame: black but for the sun); it
+            # contributes only where the others clip, so it is merged unshifted without a warning
+            shifts.append((0.0, 0.0)), scores.append(float("nan")), applied.append(False)
+            continue
         a, b = _ranks(lum[ref], mask), _ranks(lum[i], mask)
         # ECC's warp maps reference coordinates into frame i: x_i = x_ref + (dx, dy). Started from no
         # shift and from MTB's: MTB can lock onto a wrong offset in images with little structure

@@ -320,31 +320,37 @@ def _write(path: Path, linear: np.ndarray, meta: dict) -> None:
     _write_srgb8(path, encode_srgb8(linear))
 
 
-def check_image_circles(image: np.ndarray, profile: LensProfile, *, max_offset: float = 0.02,
-                        radius_range: tuple[float, float] = (0.9, 1.15), min_inliers: float = 0.4
+def check_image_circles(image: np.ndarray, profile: LensProfile, *, max_offset: float = 0.05,
+                        radius_range: tuple[float, float] = (0.85, 1.2), min_inliers: float = 0.4
                         ) -> tuple[list[dict[str, float]], list[str]]:
     """Does the frame show its image circles where the lens profile puts them? (issue 10 §2)
 
     Each lens's circle is fitted from the profile's position
-    (:func:`solidkit.calibration.overlap.fit_image_circle`, robust to a start tens of pixels
-    off). A circle centre more than ``max_offset`` x the profile's radius (at least 4 px) from
-    the profile's centre, a radius outside ``radius_range`` x the profile's (the dark edge lies
-    a little beyond the profile's largest field angle: +3 % on the Theta S), or no circle edge
-    around the expected place (fewer than ``min_inliers`` of the rays) means another camera,
-    another layout (stacked, rotated, cropped) or a unit far from the model's profile: a
+    (:func:`solidkit.calibration.overlap.fit_image_circle` on linear luminance, robust to a start
+    tens of pixels off). A circle centre more than ``max_offset`` x the profile's radius (at least
+    4 px) from the profile's centre, a radius outside ``radius_range`` x the profile's, or no
+    circle edge around the expected place (fewer than ``min_inliers`` of the rays) means another
+    camera, another layout (stacked, rotated, cropped) or a unit far from the model's profile: a
     ``profile_mismatch`` warning, with what was found. Returns ``(per-lens fits, warnings)``.
+
+    The tolerances are loose on purpose: on noisy JPEGs of the right camera (virtual Theta V
+    brackets, 1920 px) bright content at the circle's edge pulls the fit up to 16 px / +5 % off;
+    the real Theta S frame fits within 4 px / +3 %; the Gear 360 case of issue 10 §2 is 130 px off.
     """
     from solidkit.calibration.overlap import fit_image_circle
+    from solidkit.envmap.io import srgb_decode
     from solidkit.envmap.sun import luminance
 
     h, w = image.shape[:2]
     prof = profile.scaled(w, h) if tuple(profile.reference_size) != (w, h) else profile
-    img = image.astype(np.float32) / (255.0 if image.dtype == np.uint8 else 1.0)
+    # linear light: sRGB-encoded sensor noise outside the circles (a few codes) would pass for image
+    img = np.asarray(srgb_decode(image.astype(np.float32) / 255.0)) if image.dtype == np.uint8 else image.astype(np.float32)
     lum = luminance(img) if img.ndim == 3 else img
     fits, warnings = [], []
     for k, lens in enumerate(prof.lenses):
         r0 = lens.max_radius()
-        cx, cy, r, frac = fit_image_circle(lum, lens.center, r0, search=0.2)
+        # search +-12 %: wider, a ray from one lens reaches into the other's circle (Theta V side by side)
+        cx, cy, r, frac = fit_image_circle(lum, lens.center, r0, search=0.12, rel_threshold=0.25)
         fits.append({"center": [round(cx, 2), round(cy, 2)], "radius": round(r, 2), "inliers": round(frac, 3),
                      "profile_center": [round(lens.center[0], 2), round(lens.center[1], 2)], "profile_radius": round(r0, 2)})
         if not (math.isfinite(r) and frac >= min_inliers):
