@@ -73,7 +73,7 @@ def validate_command(
             console.print(f"[red]problem[/red] {escape(str(p))}")
         console.print(f"{root}: " + ("[green]valid[/green]" if not problems else f"[red]{len(problems)} problem(s)[/red]"))
     if problems:
-        raise SystemExit(1)  # typer.Exit's code is dropped by solidkit.cli.main (standalone_mode=False)
+        raise typer.Exit(1)
 
 
 @app.command("show")
