@@ -66,6 +66,7 @@ def main() -> None:
     t_fold_peer = t_predict * sum(passes) / len(passes)
     res = {
         "machine": platform.platform(), "python": platform.python_version(), "torch": torch.__version__, "threads": 1,
+        "load_average_1min": round(__import__("os").getloadavg()[0], 1),
         "scenes": N_SCENES, "probes": n_probes, "model": net.config.name, "parameters": net.num_parameters,
         "eval_s_per_scene": round(t_eval, 3), "predict_peer_s_per_scene": round(t_predict, 3),
         "eval_over_predict": round(t_eval / t_predict, 2),
@@ -79,7 +80,8 @@ def main() -> None:
     (OUT / "finetune.md").write_text(
         "# evaluation and k-fold fine-tuning\n\n"
         f"{N_SCENES} analytic scenes, {n_probes} probes; model `{net.config.name}` ({net.num_parameters / 1e6:.2f} M parameters, "
-        f"{res['trainable_parameters'] / 1e3:.0f} k trainable), 1 torch thread; {res['machine']}\n\n"
+        f"{res['trainable_parameters'] / 1e3:.0f} k trainable), 1 torch thread; {res['machine']}, load average "
+        f"{res['load_average_1min']} when measured (shared machine: the ratios hold, absolute times do not)\n\n"
         "| step | seconds | peer | peer seconds | ratio |\n|---|---|---|---|---|\n"
         f"| evaluation per scene (4 methods, all metrics) | {t_eval:.2f} | SolidNet.predict per scene | {t_predict:.2f} | "
         f"{t_eval / t_predict:.1f}x |\n"
