@@ -19,7 +19,10 @@ converted by their test script as ``azimuth = (col - 63.5) / 64 * 180``, ``eleva
 (31.5 - row) / 64 * 180`` (degrees) — the same equirect layout as conventions §3 (azimuth 0 at
 the centre column, growing to the right; row 0 at the zenith) restricted to the top half of a
 128x64 map. We write the sub-cell (fractional) position so nothing is lost; their code uses it as
-a number. An item with fewer than two probes is written but SOLD-Net's loader skips it (reported).
+a number. Their documents do not say which direction azimuth 0 is; we export with azimuth 0 = the
+photo's view direction projected on the horizon (our panorama frame, as in SOLID-Net), which is
+what their estimator's use of the photo implies but not something we could check against their
+data. An item with fewer than two probes is written but SOLD-Net's loader skips it (reported).
 
 Local maps are our HDR probes (photo panorama frame) resized to 128x64 with the radiance-preserving
 :func:`solidkit.envmap.resample.resize`; a probe without a bracket is exported from its LDR
