@@ -133,4 +133,4 @@ def test_cli_errors_are_one_line(tmp_path: Path, cli) -> None:
     code, _, err = cli("synth", "dataset", "--n", "2", "--out", str(tmp_path), "--shard", "3/2")
     assert code == 2 and "need 0 <= i < N" in err and "Traceback" not in err
     code, _, err = cli("synth", "filter", "--out", str(tmp_path), "--reference", str(tmp_path / "none"))
-    assert code == 2 and "no LDR reference images" in err and len(err.strip().splitlines()) == 1
+    assert code == 2 and "no samples (not a dataset" in err and len(err.strip().splitlines()) == 1  # checked first
