@@ -194,7 +194,7 @@ def _zenith(gray: np.ndarray, max_lean_deg: float, max_elevation_deg: float, ran
 def residual_tilt(pano: np.ndarray, *, max_lean_deg: float = 12.0, max_elevation_deg: float = 60.0,
                   min_segments: int = 8, max_uncertainty_deg: float = 0.3, ransac_iters: int = 500,
                   endpoint_px: float = 0.5, model_deg: float = 0.05, seed: int = 0,
-                  max_height: int = 512) -> TiltEstimate:
+                  max_height: int = 1024) -> TiltEstimate:
     """Estimate how far a panorama is from level (module docstring).
 
     Parameters
@@ -215,7 +215,9 @@ def residual_tilt(pano: np.ndarray, *, max_lean_deg: float = 12.0, max_elevation
         verticality (degrees); a segment's weight is the inverse variance of its great circle's
         distance from the zenith.
     max_height : int
-        Larger panoramas are first reduced to this height (area averaging): edges stay, time drops.
+        Larger panoramas are first reduced to this height (area averaging): time drops, but so does
+        precision (about 2x per halving: on the 11 ingested captures of a virtual campaign, error
+        vs truth median 0.06°/max 0.15° at 960 px high, 0.16°/0.31° reduced to 512).
 
     Returns
     -------
