@@ -41,6 +41,7 @@ def crop_metrics(model, sampler, indices, batch_size: int = 8) -> dict:
 
     found, errs, daz, delv, ratios, head, n_sun, l1 = 0, [], [], [], [], [], 0, []
     paper_az, paper_el, paper_found = [], [], 0
+    no_sun, false_found = 0, 0
     for s in range(0, len(indices), batch_size):
         b = crop_batch([sampler(int(i)) for i in indices[s : s + batch_size]])
         with torch.no_grad():
@@ -48,6 +49,8 @@ def crop_metrics(model, sampler, indices, batch_size: int = 8) -> dict:
         l1.append(float((out["sky_log"] - torch.log1p(b["sky"])).abs().mean()))
         for i in range(b["image"].shape[0]):
             if b["sun_visible"][i] < 0.5:
+                no_sun += 1
+                false_found += int(detect_sun(out["sky"][i].permute(1, 2, 0).numpy()).found)
                 continue
             n_sun += 1
             t = b["sun_dir"][i].double().numpy()
@@ -76,6 +79,7 @@ def crop_metrics(model, sampler, indices, batch_size: int = 8) -> dict:
     within2 = sum(0.5 <= r <= 2.0 for r in ratios)
     return {"crops": len(indices), "with_sun": n_sun, "found": found,
             "found_rate": round(found / n_sun, 3) if n_sun else None,
+            "without_sun": no_sun, "sun_found_where_truth_has_none": false_found,
             "median_angular_err_deg": med(errs), "median_azimuth_err_deg": med(daz),
             "median_elevation_err_deg": med(delv), "median_energy_ratio": med(ratios),
             "energy_within_2x": within2, "sun_head_median_err_deg": med(head),
