@@ -109,13 +109,13 @@ def main(argv: list[str]) -> int:
     res: dict = {"checkpoint": a.checkpoint or "shipped", "card_step": model.card.get("step"),
                  "config": model.config.name}
     t0 = time.time()
-    if a.test_sources and Path(a.test_sources).is_dir():
+    if a.crops and a.test_sources and Path(a.test_sources).is_dir():
         srcs = load_sources(a.test_sources)
         sampler = CropSampler(srcs, seed=99, config=CropConfig(exposure_stops=(0.0, 0.0), white_balance=0.0))
         res["synthetic_crops"] = {"sources": len(srcs), "dir": a.test_sources,
                                   **crop_metrics(model, sampler, list(range(a.crops)))}
         print("synthetic", res["synthetic_crops"], file=sys.stderr)
-    if REAL.is_dir():
+    if a.real_crops and REAL.is_dir():
         res["real_crops"] = {}
         for p in sorted(REAL.glob("*.exr")):
             sampler = CropSampler([real_source(p)], seed=98, config=CropConfig(exposure_stops=(0.0, 0.0),
