@@ -85,7 +85,7 @@ def open_page(browser, url, annotator="ann"):
 
 def loaded(page, task, key=None):
     """Wait until the page shows ``task``'s item ``key`` (set by the app once drawn)."""
-    page.wait_for_selector(f"body[data-item='{task}:{key}']" if key else f"body[data-item='{task}']", timeout=20000)
+    page.wait_for_selector(f"body[data-item='{task}:{key}']" if key else f"body[data-item='{task}']", timeout=60000)  # generous: CI machines may be loaded
     page.wait_for_timeout(150)  # a frame or two for WebGL
 
 
@@ -287,7 +287,7 @@ def test_traversal_404_and_token_401(server, browser, campaign):
         page.wait_for_selector("#login:not([hidden])")
         page.fill("#login-token", token)
         page.keyboard.press("Enter")
-        page.wait_for_selector("body[data-item^='sun:']", timeout=20000)
+        page.wait_for_selector("body[data-item^='sun:']", timeout=60000)  # generous: CI machines may be loaded
         assert page.request.get(f"{url}/api/campaign").status == 200  # the session cookie, not the URL
         assert token not in page.url
     finally:
