@@ -309,8 +309,6 @@ def align_scene(campaign: Path, manifest: Manifest, scene: Scene, settings: Alig
         inputs.append(CaptureSunInput(st.cap.id, st.blobs, st.ephemeris, y, ys, st.heading, note, human,
                                       compass_yaw_deg=None if compass is None else compass.yaw_deg))
     sun, _ = _sun_with_motion(caps, inputs, photo_eph, heading_p, s)
-    for st, cs in zip(caps, sun.captures):  # per-capture sun directions back into the sun-frame product's frame
-        _capture_sun_to_product_frame(cs, st.C)
 
     # captures whose features failed against the camera position: features against the other captures,
     # whose yaws (features, sun; never the compass) carry them over
@@ -347,6 +345,9 @@ def align_scene(campaign: Path, manifest: Manifest, scene: Scene, settings: Alig
         if role == "probe" and photo is not None:
             _probe_pixel(pa, st, scene, store, photo, cam, yaw_cam if yaw_cam is not None else None, s)
         probes.append(pa)
+    _explain_rejections(sun, probes)
+    for st, cs in zip(caps, sun.captures):  # per-capture sun directions back into the sun-frame product's frame
+        _capture_sun_to_product_frame(cs, st.C)
     sa = SceneAlignment(id=scene.id, photo=photo, camera_probe=cam_id, sun=sun, probes=probes, flags=scene_flags)
     return sa, {"yaw_sigma": yaw_sigma}
 
@@ -407,6 +408,30 @@ def _sun_with_motion(caps: list[_CapState], inputs: list[CaptureSunInput], photo
             st.cues["sun"] = cues[st.cap.id]
     sun.motion = why
     return sun, why
+
+
+def _explain_rejections(sun: SceneSun, probes: list[ProbeAlignment]) -> None:
+    """Candidates rejected only because another one fitted better (their capture's yaw was not known when
+    the sun was chosen: elevation alone, e.g. a glint in a vertical glass wall) get the reason the final
+    yaw gives: how far from the scene's sun they are in the photo's panorama frame."""
+    if not sun.found or sun.azimuth_deg is None:
+        return
+    yaws = {p.id: p.yaw_deg for p in probes}
+    for cs in sun.captures:
+        yaw = yaws.get(cs.probe)
+        if yaw is None:
+            continue
+        for c in cs.candidates:
+            if c.reasons == ["another candidate fits better"]:
+                d_az = wrap_deg(c.azimuth_deg + yaw - sun.azimuth_deg)
+                d = math.degrees(float(angular_distance(
+                    direction_from_angles(math.radians(c.azimuth_deg + yaw), math.radians(c.elevation_deg)),
+                    direction_from_angles(math.radians(sun.azimuth_deg), math.radians(sun.elevation_deg)))))
+                c.reasons = [f"not where the scene's sun is: {d:.1f} deg away (azimuth {d_az:+.1f} deg) once this capture's "
+                             "yaw is known; same elevation as the sun: a mirror image (glint) in a vertical glass wall?"
+                             if abs(c.elevation_deg - (cs.elevation_deg or c.elevation_deg)) < 1.5 else
+                             f"not where the scene's sun is: {d:.1f} deg away once this capture's yaw is known"]
+                c.scores["distance_to_scene_sun_deg"] = d
 
 
 def _chain_cues(caps: list[_CapState], cam: _CapState | None, s: AlignSettings) -> None:
