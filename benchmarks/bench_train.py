@@ -40,7 +40,8 @@ def _rate(fn, n: int, repeats: int) -> float:
     return n / statistics.median(times)
 
 
-def model_rates(name: str, repeats: int) -> dict[str, float]:
+def model_steps(name: str) -> tuple[dict, float]:
+    """The three training steps of configuration ``name`` as closures, and its parameter count (M)."""
     import torch
 
     from solidkit.model.config import preset
@@ -77,9 +78,25 @@ def model_rates(name: str, repeats: int) -> dict[str, float]:
         for p in model.inet.parameters():
             p.requires_grad_(True)
 
-    return {"inet_crops": _rate(lambda: inet_step(crop, False), 4, repeats),
-            "inet_full": _rate(lambda: inet_step(full, True), 4, repeats),
-            "pnet": _rate(pnet_step, 4, repeats), "parameters_M": sum(p.numel() for p in model.parameters()) / 1e6}
+    steps = {"inet_crops": lambda: inet_step(crop, False), "inet_full": lambda: inet_step(full, True), "pnet": pnet_step}
+    return steps, sum(p.numel() for p in model.parameters()) / 1e6
+
+
+def model_rates(names: list[str], repeats: int) -> dict[str, dict[str, float]]:
+    """Samples/s (batch 4) of each step of each configuration, the configurations interleaved step by step
+    (a shared machine's load then weighs on all of them alike)."""
+    built = {n: model_steps(n) for n in names}
+    times: dict[str, dict[str, list[float]]] = {n: {k: [] for k in built[n][0]} for n in names}
+    for n in names:
+        for fn in built[n][0].values():
+            fn()  # warm-up
+    for _ in range(repeats):
+        for kind in ("inet_crops", "inet_full", "pnet"):
+            for n in names:
+                t = time.perf_counter()
+                built[n][0][kind]()
+                times[n][kind].append(time.perf_counter() - t)
+    return {n: {**{k: 4 / statistics.median(v) for k, v in times[n].items()}, "parameters_M": built[n][1]} for n in names}
 
 
 def data_rates(sources: str | None, repeats: int) -> dict[str, float | None]:
@@ -118,14 +135,14 @@ def main(argv: list[str]) -> int:
     torch.set_num_threads(1)
     res = {"machine": f"{platform.machine()}, {os.cpu_count()} shared cores, 1 torch thread, "
                       f"load average {os.getloadavg()[0]:.1f} at start", "torch": torch.__version__,
-           "models": {n: model_rates(n, a.repeats) for n in ("small", "small-paper")},
+           "models": model_rates(["small", "small-paper"], a.repeats),
            "data": data_rates(a.sources, a.repeats), "full_sample_seconds": a.full_sample_seconds}
     res["load_average_end"] = round(os.getloadavg()[0], 1)
     m, d = res["models"], res["data"]
     lines = ["# SOLID-Net training throughput (CPU, samples/s, batch 4)", "",
              f"{res['machine']}; load average {res['load_average_end']} at the end. Peer in the same run: "
              "`small-paper` (the paper's sky decoder and losses, same widths).", "",
-             "| config | params (M) | I-Net on crops | I-Net on full samples | P-Net (2 probes) | crops: small / small-paper |",
+             "| config | params (M) | I-Net on crops | I-Net on full samples | P-Net (2 probes) | I-Net on crops vs small-paper |",
              "|---|---|---|---|---|---|"]
     for n, r in m.items():
         lines.append(f"| {n} | {r['parameters_M']:.2f} | {r['inet_crops']:.2f} | {r['inet_full']:.2f} | {r['pnet']:.2f} | "
