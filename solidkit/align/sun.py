@@ -286,13 +286,21 @@ def scene_sun(captures: list[CaptureSunInput], *, photo_ephemeris: Ephemeris | N
         h_sig = captures[ci0].yaw_sigma_deg or 0.0
         for ci, cap in enumerate(captures):
             pick = None
-            def closeness(bi: int) -> tuple[float, float]:
+            def closeness(bi: int) -> float:
+                """Chi-square of a candidate against the hypothesis: elevation, and azimuth through this
+                capture's yaw (features) or, failing that, its compass (a glint in a vertical glass wall
+                has the sun's elevation: only the azimuth tells them apart)."""
                 az, el = p_frame(ci, bi)
-                d_el = round(abs(el - h_el) / el_tol, 1)
-                if az is None and cap.compass_yaw_deg is not None and h_az is not None:
+                chi2 = ((el - h_el) / (el_tol / 3.0)) ** 2
+                cos_el = max(math.cos(math.radians(h_el)), 0.2)
+                if h_az is None:
+                    return chi2
+                if az is not None:
+                    return chi2 + (wrap_deg(az - h_az) * cos_el / math.hypot(cap.yaw_sigma_deg or 0.0, el_tol / 3.0)) ** 2
+                if cap.compass_yaw_deg is not None:
                     az_c, _ = _sun_in_photo_time(cap.blobs[bi], cap, photo_ephemeris, s)
-                    return d_el, abs(wrap_deg(az_c + cap.compass_yaw_deg - h_az))
-                return d_el, 0.0
+                    return chi2 + (wrap_deg(az_c + cap.compass_yaw_deg - h_az) / s.compass_sigma_deg) ** 2
+                return chi2
 
             cands = sorted((bi for bi in range(len(cap.blobs)) if not hard[ci, bi]), key=closeness)
             for bi in cands:
