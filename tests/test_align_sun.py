@@ -93,7 +93,7 @@ def test_glints_rejected_sun_chosen() -> None:
     glint = [c for c in sun.captures[1].candidates if not c.chosen]
     assert len(glint) == 1 and any("not in the sky" in r for r in glint[0].reasons)
     spot = [c for c in sun.captures[2].candidates if not c.chosen]
-    assert len(spot) == 1 and any("disagrees with the scene's sun" in r for r in spot[0].reasons)
+    assert len(spot) == 1 and any("disagrees with the scene's sun" in r or "this position only" in r for r in spot[0].reasons)
     assert abs(sun.elevation_deg - SUN_P[1]) < 0.1
     assert abs(wrap_deg(sun.azimuth_deg - (SUN_P[0] + 0.2))) < 0.2  # the captures' yaws carry a 0.2 deg offset
     assert sun.world_azimuth_deg == pytest.approx((sun.azimuth_deg + 180.0) % 360.0)
@@ -119,6 +119,15 @@ def test_clock_off_by_hours_is_flagged() -> None:
     sun = scene_sun(caps, photo_ephemeris=bad, photo_heading_deg=180.0, settings=STATIC)
     assert sun.found and abs(sun.elevation_deg - SUN_P[1]) < 0.1
     assert any(f.startswith("ephemeris_disagrees") for f in sun.flags)
+
+
+def test_lone_glint_off_the_ephemeris_is_rejected() -> None:
+    """The sun is occluded everywhere; one position sees a glint at the sun's elevation, 30 deg off in azimuth:
+    nothing confirms it and the ephemeris (through the compass) puts the sun elsewhere: no sun, with the reason."""
+    caps = [_capture("cam", 0.0, sun=False, glint=(SUN_P[0] - 30.0, SUN_P[1])), _capture("p1", 75.0, sun=False)]
+    sun = scene_sun(caps, photo_ephemeris=PHOTO_EPH, photo_heading_deg=180.0, settings=STATIC)
+    assert not sun.found and not sun.captures[0].found
+    assert any("this position only" in r for r in sun.captures[0].candidates[0].reasons)
 
 
 def test_no_sun_anywhere() -> None:

@@ -274,6 +274,13 @@ def scene_sun(captures: list[CaptureSunInput], *, photo_ephemeris: Ephemeris | N
             eph_el_ok = eph_p is not None and abs(h_el - eph_p[1]) <= s.ephemeris_tolerance_deg
             eph_az_ok = (eph_p is not None and eph_p[0] is not None and h_az is not None
                          and abs(wrap_deg(h_az - eph_p[0])) <= 3.0 * s.compass_sigma_deg)
+            eph_az_bad = (eph_p is not None and eph_p[0] is not None and h_az is not None and not eph_az_ok)
+            if support == 1.0 and eph_az_bad:
+                # seen from one position only and not where the ephemeris and the compass put the sun:
+                # nothing confirms it (a glint in a vertical glass wall has the sun's elevation too)
+                hard[ci, bi] = [f"seen from this position only and {abs(wrap_deg(h_az - eph_p[0])):.1f} deg in azimuth from "
+                                "the ephemeris (through the photo's compass): a glint? (occluded sun elsewhere)"]
+                continue
             score = support + 1.5 * eph_el_ok + 0.5 * eph_az_ok + 0.01 * min(cap.blobs[bi].contrast, 50) / 50
             if best is None or score > best[0]:
                 best = (score, ci, bi, h_az, h_el, members, eph_el_ok, eph_az_ok)
