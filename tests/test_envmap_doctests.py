@@ -8,6 +8,7 @@ import importlib
 import inspect
 import pkgutil
 
+import numpy as np
 import pytest
 
 import solidkit.envmap
@@ -18,7 +19,8 @@ MODULES = sorted(m.name for m in pkgutil.iter_modules(solidkit.envmap.__path__))
 @pytest.mark.parametrize("name", MODULES)
 def test_examples_run(name):
     module = importlib.import_module(f"solidkit.envmap.{name}")
-    result = doctest.testmod(module, optionflags=doctest.ELLIPSIS | doctest.NORMALIZE_WHITESPACE, report=True)
+    with np.printoptions(legacy=False):  # importing colour-science sets numpy's 1.13 legacy printing process-wide
+        result = doctest.testmod(module, optionflags=doctest.ELLIPSIS | doctest.NORMALIZE_WHITESPACE, report=True)
     assert result.attempted > 0 and result.failed == 0, result
 
 
