@@ -369,6 +369,10 @@ CASES: list[tuple[str, list[str], str, tuple]] = [
      "--trainable must be one of pnet+sky, pnet, sky, all, got 'head'", SLOW),
     ("finetune-folds-1", ["finetune", "--testset", "{d}/sub", "--folds", "1", "-o", "{d}/ft"],
      "Invalid value for '--folds': Input should be greater than or equal to 2", SLOW),
+    ("train-config-missing", ["train", "{d}/missing.toml"], "{d}/missing.toml: no such training configuration", ()),
+    ("train-config-not-toml", ["train", "{d}/notes.txt"], "{d}/notes.txt: not valid TOML", SLOW),
+    ("sources-bad-shard", ["synth", "sources", "--n", "2", "-o", "{d}/src", "--shard", "3/2"],
+     "--shard 3/2: need 0 <= i < N", SLOW),
 ]
 
 
