@@ -81,6 +81,28 @@ def read_json_object(path: str | os.PathLike, error: type[InputError] = Document
     return data
 
 
+M = TypeVar("M", bound=BaseModel)
+
+
+def validate_versioned(path: str | os.PathLike, data: dict, model: type[M], *, kind_key: str, kind: str,
+                       version_key: str, version: int, what: str, error: type[InputError] = InputError) -> M:
+    """``data`` (read from ``path``) as ``model`` once its kind, format version and conventions version are checked.
+
+    For documents whose field names predate :class:`VersionedDocument` (the alignment, the test set manifest):
+    the same checks in the same order, each a one-line ``error`` (:class:`ConventionsError` for conventions).
+    """
+    if data.get(kind_key) != kind:
+        raise error(f"{path}: not a solidkit {what}")
+    if data.get(version_key) != version:
+        raise error(f"{path}: {what} schema version {data.get(version_key)!r}; this solidkit reads {version}")
+    if data.get("conventions_version") != CONVENTIONS_VERSION:
+        raise ConventionsError(f"{path}: written under conventions version {data.get('conventions_version')}")
+    try:
+        return model.model_validate(data)
+    except ValidationError as exc:
+        raise error(f"{path}: invalid {what}: {validation_message(exc)}") from None
+
+
 D = TypeVar("D", bound="VersionedDocument")
 
 

@@ -31,17 +31,17 @@ sun's world azimuth is ``A = photo_heading + azimuth_in_P = heading_c + azimuth_
 
 from __future__ import annotations
 
-import json
 import math
 import os
 from pathlib import Path
 from typing import Literal
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field, ValidationError
+from pydantic import BaseModel, ConfigDict, Field
 
+from solidkit.document import read_json_object, validate_versioned
 from solidkit.envmap.coords import CONVENTIONS_VERSION, rotation_from_ypr, rotation_y
-from solidkit.errors import ConventionsError, InputError, validation_message
+from solidkit.errors import InputError
 from solidkit.fsutil import atomic_write_text
 
 __all__ = [
@@ -274,20 +274,9 @@ def load_alignment(path: str | os.PathLike) -> CampaignAlignment:
         p = p / ALIGNMENT_FILE
     if not p.is_file():
         raise InputError(f"{p}: no alignment file (run `solidkit align CAMPAIGN` first)")
-    try:
-        data = json.loads(p.read_text(encoding="utf-8"))
-    except (OSError, ValueError) as exc:
-        raise InputError(f"{p}: unreadable alignment ({exc})") from None
-    if not isinstance(data, dict) or data.get("kind") != "solidkit-alignment":
-        raise InputError(f"{p}: not a solidkit alignment file")
-    if data.get("schema_version") != SCHEMA_VERSION:
-        raise InputError(f"{p}: alignment schema version {data.get('schema_version')!r}; this solidkit reads {SCHEMA_VERSION}")
-    if data.get("conventions_version") != CONVENTIONS_VERSION:
-        raise ConventionsError(f"{p}: written under conventions version {data.get('conventions_version')}")
-    try:
-        return CampaignAlignment.model_validate(data)
-    except ValidationError as exc:
-        raise InputError(f"{p}: invalid alignment: {validation_message(exc)}") from None
+    data = read_json_object(p, InputError, "alignment")
+    return validate_versioned(p, data, CampaignAlignment, kind_key="kind", kind="solidkit-alignment",
+                              version_key="schema_version", version=SCHEMA_VERSION, what="alignment file")
 
 
 def save_alignment(alignment: CampaignAlignment, campaign_dir: str | os.PathLike) -> Path:

@@ -534,26 +534,15 @@ def _check_out(out: Path, campaign: Path) -> None:
 
 def load_testset(root: str | os.PathLike) -> TestSet:
     """Read and validate ``ROOT/testset.json``; one-line :class:`InputError` otherwise."""
-    from pydantic import ValidationError
-
-    from solidkit.document import read_json_object
-    from solidkit.errors import ConventionsError, validation_message
+    from solidkit.document import read_json_object, validate_versioned
     from solidkit.testset.schema import SCHEMA_VERSION
 
     path = Path(root) / MANIFEST_FILE
     if not path.is_file():
         raise InputError(f"{root}: not a test set (no {MANIFEST_FILE})")
     data = read_json_object(path, InputError, "test set manifest")
-    if data.get("format") != FORMAT:
-        raise InputError(f"{path}: not a solidkit test set manifest")
-    if data.get("version") != SCHEMA_VERSION:
-        raise InputError(f"{path}: test set schema version {data.get('version')!r}; this solidkit reads {SCHEMA_VERSION}")
-    if data.get("conventions_version") != CONVENTIONS_VERSION:
-        raise ConventionsError(f"{path}: written under conventions version {data.get('conventions_version')}")
-    try:
-        return TestSet.model_validate(data)
-    except ValidationError as exc:
-        raise InputError(f"{path}: invalid test set: {validation_message(exc)}") from None
+    return validate_versioned(path, data, TestSet, kind_key="format", kind=FORMAT, version_key="version",
+                              version=SCHEMA_VERSION, what="test set manifest")
 
 
 def build_testset(campaign: str | os.PathLike, out: str | os.PathLike, *,
