@@ -165,9 +165,7 @@ def load_train_config(path: str | os.PathLike, **overrides: Any) -> TrainConfig:
     try:
         cfg = TrainConfig(**data, **stages)
         cfg.model_config()
-    except (TypeError, ValueError) as exc:
-        raise InputError(f"{path}: {exc}") from None
-    except Exception as exc:  # ConfigError and friends
+    except Exception as exc:  # TypeError/ValueError from the dataclasses, ConfigError from the model config
         raise InputError(f"{path}: {exc}") from None
     for name in STAGES:
         st = getattr(cfg, name)
