@@ -26,9 +26,9 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from solidkit.envmap.coords import coords_from_direction, rotation_from_ypr
+from solidkit.envmap.coords import angles_from_direction, coords_from_direction, rotation_from_ypr
 from solidkit.envmap.io import srgb_encode
-from solidkit.envmap.perspective import intrinsics_from_fov, perspective_crop, scale_pixel_coordinates
+from solidkit.envmap.perspective import intrinsics_from_fov, perspective_crop, rays_through_pixels, scale_pixel_coordinates
 from solidkit.envmap.sun import luminance
 from solidkit.errors import InputError
 
@@ -62,7 +62,8 @@ class Features:
 
 def rays_from_pixels(pixels: np.ndarray, K: np.ndarray) -> np.ndarray:
     """Unit camera-frame rays ``K⁻¹ (x, y, 1)`` (normalised) of pixel points ``(N, 2)`` (conventions §1)."""
-    r = np.c_[np.asarray(pixels, np.float64), np.ones(len(pixels))] @ np.linalg.inv(np.asarray(K, np.float64)).T
+    pixels = np.asarray(pixels, np.float64).reshape(-1, 2)
+    r = rays_through_pixels(K, pixels[:, 0], pixels[:, 1])
     return r / np.linalg.norm(r, axis=1, keepdims=True)
 
 
@@ -170,10 +171,9 @@ def panorama_features(pano: np.ndarray, *, n_yaw: int = 8, fov_deg: float = 75.0
                 continue
             d = rays_from_pixels(pts, K) @ R.T
             # keep a keypoint only in the crop whose centre is nearest to it (within the ring)
-            az = np.arctan2(d[:, 0], d[:, 2])
+            az, el = angles_from_direction(d)
             own = np.abs((az - yaw + math.pi) % (2 * math.pi) - math.pi) <= step / 2.0
             if len(pitches_deg) > 1:  # and only in the ring whose pitch is nearest to its elevation
-                el = np.arcsin(np.clip(-d[:, 1], -1, 1))
                 nearest = np.argmin([np.abs(el - math.radians(p)) for p in pitches_deg], axis=0)
                 own &= nearest == pitches_deg.index(pitch)
             if max_elevation_deg is not None:

@@ -20,15 +20,10 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from solidkit._imports import pycolmap as _pycolmap
+from solidkit.envmap.coords import angular_distance
 from solidkit.errors import InputError
 
-__all__ = ["RotationFit", "PoseFit", "LevelPoseFit", "estimate_rotation", "estimate_relative_pose", "estimate_level_pose", "angle_between"]
-
-
-def angle_between(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Angles (radians) between rows of ``a`` and ``b`` (``(N, 3)``)."""
-    cross = np.linalg.norm(np.cross(a, b), axis=-1)
-    return np.arctan2(cross, np.sum(a * b, axis=-1))
+__all__ = ["RotationFit", "PoseFit", "LevelPoseFit", "estimate_rotation", "estimate_relative_pose", "estimate_level_pose"]
 
 
 @dataclass(frozen=True)
@@ -88,15 +83,15 @@ def estimate_rotation(a: np.ndarray, b: np.ndarray, *, threshold: float = math.r
             best, best_count = Rs[start + k], int(counts[k])
     R = best
     for _ in range(3):
-        inl = angle_between(a @ R.T, b) <= threshold
+        inl = angular_distance(a @ R.T, b) <= threshold
         if inl.sum() < min_inliers:
             return None
         rot, _ = Rotation.align_vectors(b[inl], a[inl])
         R = rot.as_matrix()
-    inl = angle_between(a @ R.T, b) <= threshold
+    inl = angular_distance(a @ R.T, b) <= threshold
     if inl.sum() < min_inliers:
         return None
-    rms = float(np.sqrt(np.mean(angle_between(a[inl] @ R.T, b[inl]) ** 2)))
+    rms = float(np.sqrt(np.mean(angular_distance(a[inl] @ R.T, b[inl]) ** 2)))
     return RotationFit(R, inl, rms)
 
 

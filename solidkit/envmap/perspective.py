@@ -40,6 +40,7 @@ __all__ = [
     "scale_pixel_coordinates",
     "pixel_rays",
     "project_to_pixels",
+    "rays_through_pixels",
     "perspective_crop",
     "embed_perspective",
 ]
@@ -145,6 +146,26 @@ def pixel_rays(K: Any, width: int, height: int, xp: Any = np, **kw: Any) -> Any:
     y = (ys - cy) / fy
     x = (xs - cx - s * y) / fx
     return ns.stack([x, ns.broadcast_to(y, x.shape), ns.ones_like(x)], axis=-1)
+
+
+def rays_through_pixels(K: Any, x: Any, y: Any) -> np.ndarray:
+    """Camera-frame rays ``K⁻¹ (x, y, 1)`` through pixel points ``x, y`` (any equal shapes), ``(..., 3)`` (z = 1).
+
+    The point form of :func:`pixel_rays` (same formula, skew included) and the inverse of
+    :func:`project_to_pixels`; OpenCV pixel coordinates (centres at integers). NumPy, float64.
+
+    Examples
+    --------
+    >>> K = ideal_intrinsics(4, 2, 2.0)
+    >>> rays_through_pixels(K, np.array([3.0, 1.5]), np.array([1.0, 0.5]))
+    array([[0.75, 0.25, 1.  ],
+           [0.  , 0.  , 1.  ]])
+    """
+    K = np.asarray(K, np.float64)
+    _check_K(K)
+    y_ = (np.asarray(y, np.float64) - K[1, 2]) / K[1, 1]
+    x_ = (np.asarray(x, np.float64) - K[0, 2] - K[0, 1] * y_) / K[0, 0]
+    return np.stack([x_, y_, np.ones_like(x_)], axis=-1)
 
 
 def project_to_pixels(K: Any, c: Any) -> tuple[Any, Any, Any]:

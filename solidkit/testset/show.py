@@ -21,7 +21,7 @@ import numpy as np
 
 from solidkit.envmap.coords import coords_from_angles, coords_from_direction, rotation_from_ypr
 from solidkit.envmap.io import imread
-from solidkit.envmap.perspective import scale_pixel_coordinates
+from solidkit.envmap.perspective import rays_through_pixels, scale_pixel_coordinates
 from solidkit.errors import InputError
 from solidkit.fsutil import atomic_path, atomic_write_text
 from solidkit.testset.build import load_testset
@@ -53,7 +53,7 @@ def fov_outline(K: np.ndarray, size: tuple[int, int], pitch_deg: float, roll_deg
     # the outer edges of the border pixels
     xs = np.where(xs <= 0, -0.5, np.where(xs >= w - 1, w - 0.5, xs))
     ys = np.where(ys <= 0, -0.5, np.where(ys >= h - 1, h - 0.5, ys))
-    rays = np.stack([xs, ys, np.ones_like(xs)], -1) @ np.linalg.inv(np.asarray(K, np.float64)).T
+    rays = rays_through_pixels(K, xs, ys)
     R = np.asarray(rotation_from_ypr(0.0, math.radians(pitch_deg), math.radians(roll_deg)), np.float64)
     u, v = coords_from_direction(rays @ R.T, height)
     pts = np.stack([np.asarray(u) - 0.5, np.asarray(v) - 0.5], -1)
