@@ -104,3 +104,29 @@ def test_fuse_cues_single_and_none() -> None:
     # across the seam
     f = fuse_cues({"a": Cue(yaw_deg=179.9, sigma_deg=0.2, ok=True), "b": Cue(yaw_deg=-179.9, sigma_deg=0.2, ok=True)})
     assert abs(wrap_deg(f.yaw_deg - 180.0)) < 0.01
+
+
+def test_level_pose_ignores_the_vertical_baseline_degeneracy() -> None:
+    """Mismatches with equal azimuths at the wrong yaw (repeated facades) fit a vertical baseline at any elevation.
+
+    A camera 1.5 m above the ground and a probe 6 m away: 14 true matches at yaw 170 deg; 18 mismatches whose
+    azimuths agree at yaw -10 deg, elevations random (seen in mini4 seed 3 scene04/p01: 180 deg off, t 82 deg
+    steep). The baseline's elevation is bounded (60 deg by default), so the true pose wins.
+    """
+    rng = np.random.default_rng(11)
+    yaw_true = math.radians(170.0)
+    pts = np.c_[rng.uniform(-15, 15, 14), rng.uniform(-6, 0.5, 14), rng.uniform(-15, 15, 14)]
+    c1, c2 = np.array([0.0, -1.5, 0.0]), np.array([5.7, -0.1, 0.4])
+    R2 = np.asarray(rotation_y(yaw_true))
+    a_true = _unit(pts - c1)
+    b_true = _unit((pts - c2) @ R2.T)
+    a_bad = _unit(np.c_[rng.normal(size=18), rng.uniform(-0.3, 0.3, 18), rng.normal(size=18)])
+    az, _ = angles_from_direction(a_bad @ np.asarray(rotation_y(yaw_true - math.pi)).T)
+    b_bad = direction_from_angles(az, np.radians(rng.uniform(-20, 30, 18)))
+    a, b = np.r_[a_true, a_bad], np.r_[b_true, b_bad]
+    free = estimate_level_pose(a, b, max_baseline_elevation=None)
+    assert free is not None and abs(wrap_deg(math.degrees(free.yaw) - 170.0)) > 90.0  # the degenerate answer
+    fit = estimate_level_pose(a, b)
+    assert fit is not None
+    assert abs(wrap_deg(math.degrees(fit.yaw) - 170.0)) < 0.1
+    assert np.degrees(np.arccos(np.clip(fit.centre2_in_1 @ _unit(c2 - c1), -1, 1))) < 10.0  # (not 82 deg steep)

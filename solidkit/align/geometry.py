@@ -197,9 +197,30 @@ def _depths(Ra: np.ndarray, b: np.ndarray, t: np.ndarray) -> np.ndarray:
     return np.stack([l1, l2], -1)
 
 
+def _constrained_t(cc: np.ndarray, max_ty: float | None) -> tuple[np.ndarray, float]:
+    """Unit ``t`` minimising ``|cc t|`` (the smallest right singular vector) with ``|t_y| <= max_ty``.
+
+    When the free minimum is steeper than allowed, the minimum lies on the cone's rim
+    ``t = (r cos φ, ±max_ty, r sin φ)``, ``r = sqrt(1 - max_ty²)``: searched over ``φ``.
+    Returns ``(t, cost)`` with ``cost = |cc t|²``.
+    """
+    _, sv, vt = np.linalg.svd(cc, full_matrices=False)
+    t = vt[-1]
+    if max_ty is None or abs(t[1]) <= max_ty:
+        return t, float(sv[-1] ** 2) if len(sv) == 3 else 0.0
+    r = math.sqrt(max(1.0 - max_ty**2, 0.0))
+    phi = np.linspace(-math.pi, math.pi, 1441)[:-1]
+    cands = np.concatenate([np.stack([r * np.cos(phi), np.full_like(phi, sgn * max_ty), r * np.sin(phi)], -1)
+                            for sgn in (1.0, -1.0)])
+    costs = np.sum((cands @ cc.T) ** 2, axis=1)
+    k = int(np.argmin(costs))
+    return cands[k], float(costs[k])
+
+
 def estimate_level_pose(a: np.ndarray, b: np.ndarray, *, threshold: float = math.radians(0.35),
                         yaw_step: float = math.radians(0.5), hypotheses: int = 64, min_inliers: int = 8,
-                        min_parallax: float = math.radians(2.0), seed: int = 0) -> LevelPoseFit | None:
+                        min_parallax: float = math.radians(2.0), seed: int = 0,
+                        max_baseline_elevation: float | None = math.radians(60.0)) -> LevelPoseFit | None:
     """Yaw and translation direction between two gravity-levelled panoramas from matched rays.
 
     Both views are level, so ``x_2 = R_y(yaw) x_1 + t``: 3 degrees of freedom instead of the
@@ -242,13 +263,14 @@ def estimate_level_pose(a: np.ndarray, b: np.ndarray, *, threshold: float = math
         e = _epipolar_error(Ra[y0:y0 + 90, None], b[None, None], t[y0:y0 + 90, :, None])  # (y, K, N)
         counts[y0:y0 + 90] = (e <= s).sum(-1)
     counts[tn[..., 0] < 1e-3] = 0  # nearly parallel constraints (duplicate matches) fix no translation
+    max_ty = None if max_baseline_elevation is None else math.sin(max_baseline_elevation)
+    if max_ty is not None:
+        counts[np.abs(t[..., 1]) > max_ty] = 0
     yi, ki = np.unravel_index(int(np.argmax(counts)), counts.shape)
     yaw0, t0 = float(yaws[yi]), t[yi, ki]
 
     def fit_t(yaw: float, mask: np.ndarray) -> tuple[np.ndarray, float]:
-        cc = np.cross(a[mask] @ np.asarray(rotation_y(yaw)).T, b[mask])
-        _, sv, vt = np.linalg.svd(cc, full_matrices=False)
-        return vt[-1], float(sv[-1] ** 2)
+        return _constrained_t(np.cross(a[mask] @ np.asarray(rotation_y(yaw)).T, b[mask]), max_ty)
 
     inl = _epipolar_error(a @ np.asarray(rotation_y(yaw0)).T, b, t0) <= s
     yaw, tt = yaw0, t0
@@ -279,14 +301,16 @@ def estimate_level_pose(a: np.ndarray, b: np.ndarray, *, threshold: float = math
         ii, jj = rng.integers(0, len(near), 400), rng.integers(0, len(near), 400)
         tc = np.cross(cn[ii], cn[jj])
         ok = np.linalg.norm(tc, axis=1) > 1e-3
+        if max_ty is not None:
+            ok &= np.abs(tc[:, 1]) <= max_ty * np.maximum(np.linalg.norm(tc, axis=1), 1e-12)
         if ok.any():
             tc = tc[ok] / np.linalg.norm(tc[ok], axis=1, keepdims=True)
             errs = _epipolar_error(Ra_all[near][None], b[near][None], tc[:, None])  # (K, n)
             best_t = tc[int(np.argmax((errs <= s).sum(1)))]
             sup = _epipolar_error(Ra_all[near], b[near], best_t) <= s
             if sup.sum() >= 6:
-                _, _, vt = np.linalg.svd(cn[sup], full_matrices=False)
-                tt, t_support = vt[-1], int(sup.sum())
+                tt, _ = _constrained_t(cn[sup], max_ty)
+                t_support = int(sup.sum())
                 sel = near[sup]
                 d = _depths(Ra_all[sel], b[sel], tt)
                 if np.sum((d > 0).all(-1)) < np.sum((d < 0).all(-1)):

@@ -115,7 +115,8 @@ def match_photo(photo: Features, pano: Features, *, K: np.ndarray | None = None,
 
 
 def feature_cue(cam: Features, other: Features, yaw_cam_deg: float | None, yaw_cam_sigma: float,
-                *, min_inliers: int = 12, level_sigma_deg: float = 0.3) -> tuple[Cue, object | None]:
+                *, min_inliers: int = 12, level_sigma_deg: float = 0.3,
+                max_baseline_elevation_deg: float | None = 60.0) -> tuple[Cue, object | None]:
     """The ``features`` cue of a capture against the camera-position capture; also returns the fit.
 
     The cue's sigma adds the levelling uncertainty (a tilt error of either panorama biases the
@@ -124,7 +125,9 @@ def feature_cue(cam: Features, other: Features, yaw_cam_deg: float | None, yaw_c
     m = match_features(cam, other)
     if len(m) < min_inliers:
         return Cue(yaw_deg=None, ok=False, detail=f"features failed: {len(m)} SIFT matches (< {min_inliers})"), None
-    fit = estimate_level_pose(cam.directions[m[:, 0]], other.directions[m[:, 1]], min_inliers=min_inliers)
+    fit = estimate_level_pose(cam.directions[m[:, 0]], other.directions[m[:, 1]], min_inliers=min_inliers,
+                              max_baseline_elevation=None if max_baseline_elevation_deg is None
+                              else math.radians(max_baseline_elevation_deg))
     if fit is None:
         return Cue(yaw_deg=None, ok=False,
                    detail=f"features failed: {len(m)} matches, no relative pose with {min_inliers}+ inliers"), None

@@ -78,6 +78,7 @@ class AlignSettings:
     min_translation_support: int = 8
     refine_focal: bool = True
     min_pose_inliers: int = 15
+    max_baseline_elevation_deg: float | None = 60.0
     sun_motion: str = "auto"
     focal_tolerance: float = 0.02
     products: bool = True
@@ -276,7 +277,8 @@ def align_scene(campaign: Path, manifest: Manifest, scene: Scene, settings: Alig
         if st.features is None:
             st.cues["features"] = Cue(yaw_deg=None, ok=False, detail="features failed: no panorama")
             continue
-        cue, fit = feature_cue(cam.features, st.features, yaw_cam, yaw_cam_sigma, level_sigma_deg=s.level_sigma_deg)
+        cue, fit = feature_cue(cam.features, st.features, yaw_cam, yaw_cam_sigma, level_sigma_deg=s.level_sigma_deg,
+                               max_baseline_elevation_deg=s.max_baseline_elevation_deg)
         st.cues["features"], st.fit = cue, fit
 
     # the sun
@@ -449,7 +451,8 @@ def _chain_cues(caps: list[_CapState], cam: _CapState | None, s: AlignSettings) 
         for oid, (yaw_o, sig_o, other) in known.items():
             if other is st or other is cam or other.features is None:
                 continue
-            cue, _ = feature_cue(other.features, st.features, yaw_o, sig_o, level_sigma_deg=s.level_sigma_deg)
+            cue, _ = feature_cue(other.features, st.features, yaw_o, sig_o, level_sigma_deg=s.level_sigma_deg,
+                                 max_baseline_elevation_deg=s.max_baseline_elevation_deg)
             if cue.yaw_deg is not None:
                 cue.detail = cue.detail.replace("the camera position", oid)
                 st.cues[f"features_via_{oid}"] = cue
