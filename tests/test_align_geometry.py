@@ -130,3 +130,21 @@ def test_level_pose_ignores_the_vertical_baseline_degeneracy() -> None:
     assert fit is not None
     assert abs(wrap_deg(math.degrees(fit.yaw) - 170.0)) < 0.1
     assert np.degrees(np.arccos(np.clip(fit.centre2_in_1 @ _unit(c2 - c1), -1, 1))) < 10.0  # (not 82 deg steep)
+
+
+def test_level_pose_baseline_sigma_is_calibrated() -> None:
+    """The baseline direction's sigma (``t_sigma``) covers its actual error: street-like points, 0.05 deg noise."""
+    rng = np.random.default_rng(12)
+    z = []
+    for _ in range(12):
+        pts = np.c_[rng.uniform(-15, 15, 60), rng.uniform(-6, 0.5, 60), rng.uniform(-15, 15, 60)]
+        c2 = np.array([rng.uniform(3, 8), 1.4, rng.uniform(-3, 3)])
+        R2 = np.asarray(rotation_y(rng.uniform(-math.pi, math.pi)))
+        a = _unit(pts + rng.normal(scale=math.radians(0.05), size=pts.shape) * np.linalg.norm(pts, axis=1, keepdims=True))
+        b = _unit((pts - c2) @ R2.T)
+        fit = estimate_level_pose(a, b)
+        assert fit is not None and fit.t_support >= 20 and math.isfinite(fit.t_sigma)
+        err = float(np.arccos(np.clip(fit.centre2_in_1 @ _unit(c2), -1.0, 1.0)))
+        z.append(err / fit.t_sigma)
+        assert math.degrees(fit.t_sigma) < 2.0
+    assert np.median(z) < 2.0 and max(z) < 5.0

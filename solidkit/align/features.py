@@ -12,8 +12,11 @@ Images are made comparable before SIFT: 8-bit grey of the sRGB encoding after a 
 exposure normalisation (the median of the bright half mapped to mid-grey), then CLAHE
 (OpenCV), so that a photo, a 1/2500 s Theta shot and a merged HDR look alike to the detector.
 
-Matching: OpenCV's brute-force L2 matcher, Lowe's ratio test (0.8) and mutual nearest
-neighbours (``crossCheck`` on the ratio-filtered pairs).
+Matching: OpenCV's brute-force L2 matcher, Lowe's ratio test and mutual nearest neighbours
+(``crossCheck`` on the ratio-filtered pairs). The align pipeline uses a ratio of 0.85: its
+geometric models (a rotation: 2 matches; a level pose: 3 degrees of freedom) reject outliers
+well, and wide-baseline panorama pairs keep too few matches at Lowe's 0.8 (measured on virtual
+campaigns: 30-50 % more inliers, the yaws unchanged within 0.05 deg where both succeed).
 
 Reference: D. G. Lowe, "Distinctive image features from scale-invariant keypoints", IJCV 2004.
 """

@@ -151,7 +151,9 @@ class LevelPoseFit:
 
     ``yaw`` radians; ``t`` unit (3,) in view 2's frame; ``inliers`` mask over the matches;
     ``rms`` the inliers' RMS angular distance to their epipolar planes (radians); ``sigma`` the
-    yaw's 1-sigma uncertainty from the curvature of the inlier cost (radians).
+    yaw's 1-sigma uncertainty from the curvature of the inlier cost (radians); ``t_support`` the
+    matches with parallax that fixed ``t`` and ``t_sigma`` the 1-sigma angle of ``t`` from them
+    (radians; ``inf`` when ``t_support`` is 0).
     """
 
     yaw: float
@@ -160,6 +162,7 @@ class LevelPoseFit:
     rms: float
     sigma: float
     t_support: int = 0
+    t_sigma: float = math.inf
 
     @property
     def n_inliers(self) -> int:
@@ -215,6 +218,20 @@ def _constrained_t(cc: np.ndarray, max_ty: float | None) -> tuple[np.ndarray, fl
     costs = np.sum((cands @ cc.T) ** 2, axis=1)
     k = int(np.argmin(costs))
     return cands[k], float(costs[k])
+
+
+def _null_vector_sigma(cc: np.ndarray, t: np.ndarray) -> float:
+    """1-sigma angle (radians) of the unit null vector ``t`` of ``cc`` (``cc t ≈ 0``, rows with noise).
+
+    First-order perturbation of the smallest right singular vector: the residual variance
+    ``|cc t|² / (n - 2)`` over the two larger squared singular values (in quadrature).
+    """
+    n = len(cc)
+    if n < 3:
+        return math.inf
+    sv = np.linalg.svd(cc, compute_uv=False)
+    var = float(np.sum((cc @ t) ** 2)) / max(n - 2, 1)
+    return math.sqrt(var * (1.0 / max(sv[0] ** 2, 1e-18) + 1.0 / max(sv[1] ** 2, 1e-18)))
 
 
 def estimate_level_pose(a: np.ndarray, b: np.ndarray, *, threshold: float = math.radians(0.35),
@@ -294,7 +311,7 @@ def estimate_level_pose(a: np.ndarray, b: np.ndarray, *, threshold: float = math
     Ra_all = a @ np.asarray(rotation_y(yaw)).T
     parallax = np.arccos(np.clip(np.sum(Ra_all * b, axis=1), -1.0, 1.0))
     near = np.nonzero(parallax >= min_parallax)[0]
-    t_support = 0
+    t_support, t_sigma = 0, math.inf
     if len(near) >= 6:
         cn = np.cross(Ra_all[near], b[near])
         cn /= np.linalg.norm(cn, axis=1, keepdims=True)
@@ -311,6 +328,7 @@ def estimate_level_pose(a: np.ndarray, b: np.ndarray, *, threshold: float = math
             if sup.sum() >= 6:
                 tt, _ = _constrained_t(cn[sup], max_ty)
                 t_support = int(sup.sum())
+                t_sigma = _null_vector_sigma(cn[sup], tt)
                 sel = near[sup]
                 d = _depths(Ra_all[sel], b[sel], tt)
                 if np.sum((d > 0).all(-1)) < np.sum((d < 0).all(-1)):
@@ -327,4 +345,4 @@ def estimate_level_pose(a: np.ndarray, b: np.ndarray, *, threshold: float = math
     curv = (cost(yaw + h) - 2 * cost(yaw) + cost(yaw - h)) / h**2
     dof = max(int(inl.sum()) - 3, 1)
     sigma2 = (cost(yaw) / dof) * 2.0 / curv if curv > 0 else math.inf
-    return LevelPoseFit(yaw, tt, inl, rms, math.sqrt(max(sigma2, 0.0)), t_support)
+    return LevelPoseFit(yaw, tt, inl, rms, math.sqrt(max(sigma2, 0.0)), t_support, t_sigma)

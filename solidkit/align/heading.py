@@ -75,14 +75,15 @@ def refine_focal(pixels: np.ndarray, targets: np.ndarray, K: np.ndarray, *, lo: 
 
 
 def match_photo(photo: Features, pano: Features, *, K: np.ndarray | None = None, threshold_deg: float = 0.5,
-                min_inliers: int = 8, refine_f: bool = True, min_refine_inliers: int = 12) -> tuple[PhotoMatch | None, str]:
+                min_inliers: int = 8, refine_f: bool = True, min_refine_inliers: int = 12,
+                ratio: float = 0.85) -> tuple[PhotoMatch | None, str]:
     """Rotation between a photo's rays (camera frame) and a level panorama's directions.
 
     With ``K`` (the photo's intrinsics, those ``photo``'s rays were made with) and enough inliers,
     the focal length is refined (:func:`refine_focal`) and the rotation re-estimated with it;
     ``PhotoMatch.focal_scale`` reports the factor.
     """
-    m = match_features(photo, pano)
+    m = match_features(photo, pano, ratio=ratio)
     if len(m) < min_inliers:
         return None, f"{len(m)} SIFT matches between the photo and the panorama (< {min_inliers})"
     fit = estimate_rotation(photo.directions[m[:, 0]], pano.directions[m[:, 1]],
@@ -116,13 +117,13 @@ def match_photo(photo: Features, pano: Features, *, K: np.ndarray | None = None,
 
 def feature_cue(cam: Features, other: Features, yaw_cam_deg: float | None, yaw_cam_sigma: float,
                 *, min_inliers: int = 12, level_sigma_deg: float = 0.3,
-                max_baseline_elevation_deg: float | None = 60.0) -> tuple[Cue, object | None]:
+                max_baseline_elevation_deg: float | None = 60.0, ratio: float = 0.85) -> tuple[Cue, object | None]:
     """The ``features`` cue of a capture against the camera-position capture; also returns the fit.
 
     The cue's sigma adds the levelling uncertainty (a tilt error of either panorama biases the
     yaw of off-horizon matches) to the fit's own.
     """
-    m = match_features(cam, other)
+    m = match_features(cam, other, ratio=ratio)
     if len(m) < min_inliers:
         return Cue(yaw_deg=None, ok=False, detail=f"features failed: {len(m)} SIFT matches (< {min_inliers})"), None
     fit = estimate_level_pose(cam.directions[m[:, 0]], other.directions[m[:, 1]], min_inliers=min_inliers,

@@ -74,11 +74,14 @@ class AlignSettings:
     photo_scale: float | None = None
     level_sigma_deg: float = 0.4
     refine_levelling: bool = True
-    pixel_tolerance_deg: float = 35.0
+    pixel_tolerance_deg: float = 5.0
+    pixel_n_sigma: float = 4.0
+    min_pixel_check_inliers: int = 20
     min_translation_support: int = 8
     refine_focal: bool = True
     min_pose_inliers: int = 15
     max_baseline_elevation_deg: float | None = 60.0
+    match_ratio: float = 0.85
     sun_motion: str = "auto"
     focal_tolerance: float = 0.02
     products: bool = True
@@ -229,7 +232,7 @@ def align_scene(campaign: Path, manifest: Manifest, scene: Scene, settings: Alig
         scale = s.photo_scale or min(1.0, (_pano_height(cam) / math.pi) / K[0, 0] * 1.1)
         pf = _cached(campaign, _cache_key("photo", photo.sha256, photo.K_full, scale, 2),
                      lambda: photo_features(img, K, scale=scale))
-        photo_match, detail = match_photo(pf, cam.features, K=K, refine_f=s.refine_focal)
+        photo_match, detail = match_photo(pf, cam.features, K=K, refine_f=s.refine_focal, ratio=s.match_ratio)
         if photo_match is not None and photo_match.focal_scale != 1.0:
             Kr = K.copy()
             Kr[0, 0] *= photo_match.focal_scale
@@ -278,7 +281,7 @@ def align_scene(campaign: Path, manifest: Manifest, scene: Scene, settings: Alig
             st.cues["features"] = Cue(yaw_deg=None, ok=False, detail="features failed: no panorama")
             continue
         cue, fit = feature_cue(cam.features, st.features, yaw_cam, yaw_cam_sigma, level_sigma_deg=s.level_sigma_deg,
-                               max_baseline_elevation_deg=s.max_baseline_elevation_deg)
+                               max_baseline_elevation_deg=s.max_baseline_elevation_deg, ratio=s.match_ratio)
         st.cues["features"], st.fit = cue, fit
 
     # the sun
@@ -452,7 +455,7 @@ def _chain_cues(caps: list[_CapState], cam: _CapState | None, s: AlignSettings) 
             if other is st or other is cam or other.features is None:
                 continue
             cue, _ = feature_cue(other.features, st.features, yaw_o, sig_o, level_sigma_deg=s.level_sigma_deg,
-                                 max_baseline_elevation_deg=s.max_baseline_elevation_deg)
+                                 max_baseline_elevation_deg=s.max_baseline_elevation_deg, ratio=s.match_ratio)
             if cue.yaw_deg is not None:
                 cue.detail = cue.detail.replace("the camera position", oid)
                 st.cues[f"features_via_{oid}"] = cue
@@ -597,6 +600,7 @@ def _probe_pixel(pa: ProbeAlignment, st: _CapState, scene: Scene, store: Any, ph
         if c[2] > 1e-6:
             p = np.asarray(photo.K_full) @ (c / c[2])
             geom = [float(p[0]), float(p[1])]
+            pa.pixel_geometry_sigma_deg = math.degrees(st.fit.t_sigma) if math.isfinite(st.fit.t_sigma) else None
     pa.pixel_geometry = geom
     label = _human(store, "probe_pixel", f"{scene.id}/{pa.id}")
     if st.cap.probe.photo_pixel is not None:
@@ -618,10 +622,16 @@ def _probe_pixel(pa: ProbeAlignment, st: _CapState, scene: Scene, store: Any, ph
 
         r = rays_from_pixels(np.array([pa.pixel_full, geom]), np.asarray(photo.K_full))
         ang = math.degrees(float(angular_distance(r[0], r[1])))
-        # the baseline direction from panorama features is good to ~5-30 deg (measured): a gross-error check
-        if ang > s.pixel_tolerance_deg:
-            pa.flags.append(f"pixel_disagrees: the marked pixel is {ang:.0f} deg ({err:.0f} px) from the direction of the "
-                            f"probe capture seen from the camera position ({geom[0]:.0f}, {geom[1]:.0f}): wrong probe marked?")
+        pa.pixel_error_deg = ang
+        # tolerance: n_sigma of the baseline direction's own uncertainty (plus the lens's height above the marked
+        # surface, ~1 deg at a few metres), never below pixel_tolerance_deg
+        sig = pa.pixel_geometry_sigma_deg if pa.pixel_geometry_sigma_deg is not None else math.inf
+        tol = max(s.pixel_tolerance_deg, s.pixel_n_sigma * math.hypot(sig, 1.0))
+        # a pose from few matches can be wrong beyond its sigma (measured: 13 inliers in a glass scene, 11 deg off)
+        if ang > tol and st.fit.n_inliers >= s.min_pixel_check_inliers:
+            pa.flags.append(f"pixel_disagrees: the marked pixel is {ang:.1f} deg ({err:.0f} px) from the direction of the "
+                            f"probe capture seen from the camera position ({geom[0]:.0f}, {geom[1]:.0f}; tolerance "
+                            f"{tol:.1f} deg): wrong probe marked?")
     if pa.pixel_full is not None and not (-0.5 <= pa.pixel_full[0] <= w - 0.5 and -0.5 <= pa.pixel_full[1] <= h - 0.5):
         pa.flags.append("pixel_outside_photo")
 

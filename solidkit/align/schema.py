@@ -206,6 +206,9 @@ class ProbeAlignment(_Model):
     pixel_source: Literal["field_notes", "label", "geometry"] | None = None
     pixel_geometry: list[float] | None = Field(None, description="[x, y] predicted from the relative pose (check)")
     pixel_error_px: float | None = Field(None, description="distance between pixel_full and pixel_geometry")
+    pixel_geometry_sigma_deg: float | None = Field(None, description="1-sigma angle of pixel_geometry's direction "
+                                                   "(from the baseline's fit)")
+    pixel_error_deg: float | None = Field(None, description="angle between the rays of pixel_full and pixel_geometry")
     levelling: Levelling
     rotation: Matrix3 = Field(description="3x3, capture body -> photo panorama frame: R_y(yaw) R(0, pitch, roll)")
     yaw_deg: float | None = Field(description="level frame -> photo panorama frame (heading convention); None: unknown")
