@@ -11,7 +11,8 @@
 For each crop: the default detector (:func:`solidkit.envmap.detect_sun`, ``core``) on the predicted sky;
 found rate over skies whose truth has a visible sun (the same detector on the target), median angular,
 azimuth and elevation errors of the found ones, median predicted/true sun energy; plus the sun head's
-own direction (always answers) for every sky with a true sun.
+own direction (always answers) for every sky with a true sun; suns found where the truth has none; and, for a
+model with a visibility output, how often it says "sun" (probability >= 0.5) in skies with / without one.
 
     .venv/bin/python benchmarks/train_figures.py [--checkpoint PT] [--test-sources DIR] [--crops 96]
         [--synth DIR] [--out benchmarks/results/train_figures.json]
@@ -35,29 +36,35 @@ REAL = REPO.parent / "shared" / "data" / "real" / "hdr_panoramas"
 def crop_metrics(model, sampler, indices, batch_size: int = 8) -> dict:
     import torch
 
-    from solidkit.envmap import angles_from_direction, detect_sun
+    from solidkit.envmap import angles_from_direction, angular_distance, detect_sun
     from solidkit.model.losses import sun_energy
     from solidkit.model.trainer import crop_batch
 
     found, errs, daz, delv, ratios, head, n_sun, l1 = 0, [], [], [], [], [], 0, []
     paper_az, paper_el, paper_found = [], [], 0
-    no_sun, false_found = 0, 0
+    true_el, true_az_from_forward = [], []  # for the constant-guess reference
+    no_sun, false_found, vis_sun, vis_none = 0, 0, 0, 0
     for s in range(0, len(indices), batch_size):
         b = crop_batch([sampler(int(i)) for i in indices[s : s + batch_size]])
         with torch.no_grad():
             out = model.inet(b["image"], intrinsics=False)
         l1.append(float((out["sky_log"] - torch.log1p(b["sky"])).abs().mean()))
         for i in range(b["image"].shape[0]):
+            says_sun = bool(out["sun_visible"][i] >= 0.5) if "sun_visible" in out else None
             if b["sun_visible"][i] < 0.5:
                 no_sun += 1
+                vis_none += int(bool(says_sun))
                 false_found += int(detect_sun(out["sky"][i].permute(1, 2, 0).numpy()).found)
                 continue
             n_sun += 1
+            vis_sun += int(bool(says_sun))
             t = b["sun_dir"][i].double().numpy()
             if "sun_dir" in out:
-                head.append(math.degrees(math.acos(float(np.clip(out["sun_dir"][i].double().numpy() @ t, -1, 1)))))
+                head.append(math.degrees(float(angular_distance(out["sun_dir"][i].double().numpy(), t))))
             sky = out["sky"][i].permute(1, 2, 0).numpy()
             taz, tel = (float(a) for a in angles_from_direction(t))
+            true_el.append(math.degrees(tel))
+            true_az_from_forward.append(math.degrees(abs((taz + math.pi) % (2 * math.pi) - math.pi)))
             pap = detect_sun(sky, method="paper")  # the paper's recipe, for its azimuth / elevation metric
             if pap.found:
                 paper_found += 1
@@ -68,7 +75,7 @@ def crop_metrics(model, sampler, indices, batch_size: int = 8) -> dict:
             if not det.found:
                 continue
             found += 1
-            errs.append(math.degrees(math.acos(float(np.clip(det.direction @ t, -1, 1)))))
+            errs.append(math.degrees(float(angular_distance(np.asarray(det.direction, dtype=np.float64), t))))
             d = abs(det.azimuth - taz) % (2 * math.pi)
             daz.append(math.degrees(min(d, 2 * math.pi - d)))
             delv.append(math.degrees(abs(det.elevation - tel)))
@@ -76,16 +83,22 @@ def crop_metrics(model, sampler, indices, batch_size: int = 8) -> dict:
             ratios.append(float(sun_energy(out["sky"][i : i + 1], pd).sum()
                                 / sun_energy(b["sky"][i : i + 1], b["sun_dir"][i : i + 1]).sum().clamp_min(1e-9)))
     med = lambda v: round(float(np.median(v)), 2) if v else None  # noqa: E731
+    has_vis = "sun_visible" in out
     within2 = sum(0.5 <= r <= 2.0 for r in ratios)
     return {"crops": len(indices), "with_sun": n_sun, "found": found,
             "found_rate": round(found / n_sun, 3) if n_sun else None,
             "without_sun": no_sun, "sun_found_where_truth_has_none": false_found,
+            "visibility_says_sun_with_sun": vis_sun if has_vis else None,
+            "visibility_says_sun_without_sun": vis_none if has_vis else None,
             "median_angular_err_deg": med(errs), "median_azimuth_err_deg": med(daz),
             "median_elevation_err_deg": med(delv), "median_energy_ratio": med(ratios),
             "energy_within_2x": within2, "sun_head_median_err_deg": med(head),
             "paper_recipe_found": paper_found, "paper_recipe_median_azimuth_err_deg": med(paper_az),
             "paper_recipe_median_elevation_err_deg": med(paper_el),
-            "sky_l1_log1p": round(float(np.mean(l1)), 4)}
+            "sky_l1_log1p": round(float(np.mean(l1)), 4),
+            # reference: one constant answer for every crop (straight ahead, at the set's median true elevation)
+            "constant_guess_median_azimuth_err_deg": med(true_az_from_forward),
+            "constant_guess_median_elevation_err_deg": med([abs(e - np.median(true_el)) for e in true_el])}
 
 
 def main(argv: list[str]) -> int:

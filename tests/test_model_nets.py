@@ -50,6 +50,8 @@ def test_solidnet_shapes_and_dtypes(b):
         "sun_energy": (b, 3),
         "sun_log_energy": (b, 3),
         "sun_sigma": (b,),
+        "sun_visible": (b,),  # the probability that a sun is visible, and its logit
+        "sun_visible_logit": (b,),
         "sky_np_log": (b, 3, 128, 256),
     }
     assert set(out) == set(expect)

@@ -3,8 +3,8 @@
 The paper (Zhu et al., CVPR 2021, §4.2 and supplementary) gives the structure of I-Net and
 P-Net but no layer widths. Two presets are provided:
 
-- ``small``: a CPU-friendly configuration (≈1.5 M parameters) with the sun head and the located
-  losses, used by the shipped checkpoint; ``small-paper``: the same widths with the paper's sky
+- ``small``: a CPU-friendly configuration (≈1.5 M parameters) with the sun head (and its visibility
+  output) and the located losses, used by the shipped checkpoint; ``small-paper``: the same widths with the paper's sky
   decoder and losses (the ablation);
 - ``paper``: a paper-sized configuration (standard U-Net widths 32..512, paper losses) for GPU training;
 - ``tiny`` / ``tiny-paper``: a few thousand parameters, for tests.
@@ -77,6 +77,11 @@ class SolidNetConfig:
     sun_head : bool
         Predict the sun parametrically (:mod:`solidkit.model.sunhead`) and add it to the sky map;
         False is the paper's purely non-parametric sky decoder.
+    sun_visibility : bool
+        The sun head also predicts whether a sun is visible; none is rendered below probability 0.5.
+    sun_fine : bool
+        The sun logits add a 1x1 convolution of the sky decoder's (mirror-tiled) features to the
+        global coarse map; False: the global map alone.
     loss_variant : str
         One of :data:`LOSS_VARIANTS`.
     loss_weights : dict
@@ -97,6 +102,8 @@ class SolidNetConfig:
     hfov_deg: float = 60.0
     probe_offset: float = 0.10
     sun_head: bool = False
+    sun_visibility: bool = False
+    sun_fine: bool = True
     loss_variant: str = "paper"
     loss_weights: dict[str, float] = field(
         default_factory=lambda: {
@@ -113,6 +120,8 @@ class SolidNetConfig:
             "sun_energy": 1.0,
             "sun_peak": 0.2,
             "sun_size": 0.2,
+            "sun_cos": 0.0,
+            "sun_vis": 1.0,
         }
     )
 
@@ -144,6 +153,8 @@ class SolidNetConfig:
             raise ConfigError(f"hfov_deg must be in (1, 179), got {self.hfov_deg}")
         if self.loss_variant not in LOSS_VARIANTS:
             raise ConfigError(f"loss_variant must be one of {LOSS_VARIANTS}, got {self.loss_variant!r}")
+        if (self.sun_visibility or not self.sun_fine) and not self.sun_head:
+            raise ConfigError("sun_visibility / sun_fine=False need sun_head=True")
         if self.loss_variant == "located" and not self.sun_head:
             raise ConfigError("loss_variant 'located' needs sun_head=True (its sun terms read the sun head)")
         unknown = set(self.loss_weights) - set(SolidNetConfig.__dataclass_fields__["loss_weights"].default_factory())
@@ -175,7 +186,8 @@ class SolidNetConfig:
         return cls(**{**data, "loss_weights": weights})
 
 
-_SUN = {"sun_head": True, "loss_variant": "located", "sky_feature_width": 16, "sky_stages": 3}
+_SUN = {"sun_head": True, "sun_visibility": True, "loss_variant": "located", "sky_feature_width": 16, "sky_stages": 3,
+        "loss_weights": {**SolidNetConfig.__dataclass_fields__["loss_weights"].default_factory(), "sun_cos": 1.0}}
 
 PRESETS: dict[str, SolidNetConfig] = {
     # the shipped model: small widths, the sun head and the located losses

@@ -93,7 +93,8 @@ class INet(nn.Module):
     With ``config.sun_head`` (:mod:`solidkit.model.sunhead`) also ``sun_logits (B, 1, Hp, 2Hp)``,
     ``sun_dir (B, 3)``, ``sun_energy``, ``sun_log_energy (B, 3)``, ``sun_sigma (B,)`` and
     ``sky_np_log`` (the non-parametric sky without the sun); ``sky`` is then the non-parametric sky
-    plus the rendered sun.
+    plus the rendered sun. With ``config.sun_visibility`` also ``sun_visible (B,)`` (probability) and
+    ``sun_visible_logit``; in eval mode no sun is added to a sky where it is below 0.5.
     """
 
     def __init__(self, config: SolidNetConfig) -> None:
@@ -122,7 +123,8 @@ class INet(nn.Module):
         stages = config.sky_stages
         self.sky_ups = nn.ModuleList(ConvBlock(sw[i] + 3 + sf + 1, sw[i + 1], panorama=True) for i in range(stages - 1))
         self.sky_head = nn.Conv2d(sw[stages - 1], 3, 1)
-        self.sun = SunHead(lw * 12, sw[stages - 1]) if config.sun_head else None
+        self.sun = (SunHead(lw * 12, sw[stages - 1], visibility=config.sun_visibility, fine=config.sun_fine)
+                    if config.sun_head else None)
         self._footprints = [
             image_footprint(config.pano_height >> (3 - k), config.hfov_deg, config.vfov_deg) for k in range(4)
         ]
@@ -166,6 +168,10 @@ class INet(nn.Module):
         # the size is learnt from its own loss only (losses.sun_size_loss): through the radiance terms it
         # would grow to hedge an uncertain direction
         sun = render_sun(out["sun_dir"], out["sun_energy"], out["sun_sigma"].detach(), self.config.pano_height)
+        if "sun_visible" in out:
+            # a sun only in skies that have one: soft while training, a decision at evaluation
+            gate = out["sun_visible"] if self.training else (out["sun_visible"] >= 0.5).to(sun.dtype)
+            sun = sun * gate[:, None, None, None]
         out["sky_np_log"] = sky_log
         out["sky"] = radiance_from_log(sky_log) + sun
         out["sky_log"] = torch.log1p(out["sky"])

@@ -27,10 +27,16 @@ L1 in metres (up to ~90 m) dominates the total. So:
 
 - ``sky``: L1 on ``log1p`` of the *non-parametric* sky outside a ``SUN_CAP`` cap about the true sun;
 - ``sun_dir``: cross-entropy of the sun head's distribution ``p ∝ exp(logit) Omega`` against a
-  Gaussian of ``SUN_TARGET_SIGMA`` at the true sun (skies with a visible sun), divided by
-  ``log(H W)`` so that a uniform guess scores 1;
+  Gaussian of ``sun_sigma`` (default ``SUN_TARGET_SIGMA``) at the true sun (skies with a visible sun),
+  divided by ``log(H W)`` so that a uniform guess scores 1. A 2° target over 64 x 128 bins is nearly
+  one-hot: early in training it rewards only the bin of the sun and says nothing about a guess 30°
+  off against one 150° off. The trainer can anneal ``sun_sigma`` from a wide target (coarse to fine);
+- ``sun_cos``: ``1 - cos`` of the angle between the soft-argmax of ``p`` over the whole sphere (the
+  normalised mean direction) and the true sun: smooth in the error however far off the guess is;
+- ``sun_vis``: binary cross-entropy of the sun head's visibility logit against ``sun_visible``;
 - ``sun_energy``: L1 on ``log(E + SUN_ENERGY_EPS)`` (RGB) against the true sun energy
-  (:func:`sun_energy`; 0 for skies without a visible sun);
+  (:func:`sun_energy`; 0 for skies without a visible sun; only skies with one when the model predicts
+  the visibility, which then decides whether a sun is rendered);
 - ``sun_peak``: L1 on ``log1p`` of the full predicted sky (sun included) over the target's brightest
   0.1 % of pixels (the sun's peak);
 - ``sun_size``: L1 on the log of the sun's angular size against the true sun's (:func:`sun_size`). The
@@ -76,6 +82,8 @@ __all__ = [
     "relative_distance_loss",
     "sun_energy",
     "sun_direction_loss",
+    "sun_cosine_loss",
+    "sun_visibility_loss",
     "sun_energy_loss",
     "sun_peak_loss",
     "sun_size",
@@ -218,6 +226,25 @@ def sun_direction_loss(logits: torch.Tensor, direction: torch.Tensor, visible: t
     return ce[keep].mean() / math.log(h * w)
 
 
+def sun_cosine_loss(logits: torch.Tensor, direction: torch.Tensor, visible: torch.Tensor) -> torch.Tensor:
+    """``1 - cos`` between the soft-argmax of ``p ∝ exp(logits) Omega`` over the whole sphere (the normalised
+    probability-weighted mean direction; ``logits (B, 1, H, 2H)``) and ``direction (B, 3)``, over skies
+    with ``visible (B,)``. 0 when aligned, 2 when opposite."""
+    b, _, h, w = logits.shape
+    keep = visible > 0.5
+    if not keep.any():
+        return logits.sum() * 0.0
+    p = torch.softmax((logits[:, 0] + log_solid_angle(h, logits)).reshape(b, -1), dim=1)
+    grid = direction_grid(h, torch, dtype=logits.dtype, device=logits.device).reshape(-1, 3)
+    mean = F.normalize(p @ grid, dim=-1, eps=1e-8)
+    return (1.0 - (mean * direction).sum(dim=-1))[keep].mean()
+
+
+def sun_visibility_loss(logit: torch.Tensor, visible: torch.Tensor) -> torch.Tensor:
+    """Binary cross-entropy of the visibility ``logit (B,)`` against ``visible (B,)`` (1 = a sun is visible)."""
+    return F.binary_cross_entropy_with_logits(logit, (visible > 0.5).to(logit.dtype))
+
+
 def sun_energy_loss(log_energy: torch.Tensor, energy: torch.Tensor, eps: float = SUN_ENERGY_EPS) -> torch.Tensor:
     """L1 between ``log(E~ + eps)`` (from the predicted ``log E~ (B, C)``) and ``log(E + eps)``."""
     pred = torch.logaddexp(log_energy, torch.full_like(log_energy, math.log(eps)))
@@ -252,11 +279,13 @@ def hdr_l1_loss(pred_log: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
     return (pred_log - log_from_radiance(target)).abs().mean()
 
 
-def sup1_loss(out: dict[str, torch.Tensor], batch: dict[str, torch.Tensor], variant: str = "paper") -> dict[str, torch.Tensor]:
+def sup1_loss(out: dict[str, torch.Tensor], batch: dict[str, torch.Tensor], variant: str = "paper",
+              sun_sigma: float = SUN_TARGET_SIGMA) -> dict[str, torch.Tensor]:
     """The terms of ``L_sup1`` (keys ``albedo, normal, distance, shadow, sky``) that both the
     model output and the batch provide (a sky-only baseline gets ``sky`` alone).
 
-    ``variant="located"`` adds the sun terms and uses the relative plane distance (module docstring).
+    ``variant="located"`` adds the sun terms and uses the relative plane distance (module docstring);
+    ``sun_sigma`` (radians) is the width of the sun-direction target.
     """
     mask = batch.get("geometry_mask")
     located = variant == "located"
@@ -267,8 +296,15 @@ def sup1_loss(out: dict[str, torch.Tensor], batch: dict[str, torch.Tensor], vari
         if located and "sun_logits" in out and "sun_dir" in batch:
             sky, sd, vis = batch["sky"], batch["sun_dir"], batch["sun_visible"]
             terms["sky"] = sky_away_from_sun_loss(out["sky_np_log"], sky, sd, vis)
-            terms["sun_dir"] = sun_direction_loss(out["sun_logits"], sd, vis)
-            terms["sun_energy"] = sun_energy_loss(out["sun_log_energy"], sun_energy(sky, sd, vis))
+            terms["sun_dir"] = sun_direction_loss(out["sun_logits"], sd, vis, sun_sigma)
+            terms["sun_cos"] = sun_cosine_loss(out["sun_logits"], sd, vis)
+            if "sun_visible_logit" in out:
+                terms["sun_vis"] = sun_visibility_loss(out["sun_visible_logit"], vis)
+                keep = vis > 0.5
+                terms["sun_energy"] = (sun_energy_loss(out["sun_log_energy"][keep], sun_energy(sky[keep], sd[keep]))
+                                       if keep.any() else out["sun_log_energy"].sum() * 0.0)
+            else:
+                terms["sun_energy"] = sun_energy_loss(out["sun_log_energy"], sun_energy(sky, sd, vis))
             terms["sun_peak"] = sun_peak_loss(out["sky_log"], sky)
             terms["sun_size"] = sun_size_loss(out["sun_sigma"], sky, sd, vis)
         else:
@@ -364,17 +400,18 @@ def solidnet_losses(
     batch: dict[str, torch.Tensor],
     weights: dict[str, float] | None = None,
     variant: str = "paper",
+    sun_sigma: float = SUN_TARGET_SIGMA,
 ) -> dict[str, torch.Tensor]:
     """All terms of ``L_I = L_sup1 + L_dif + L_rec`` and ``L_P = L_sup2 + L_tom`` for one batch.
 
     ``out`` is :meth:`SolidNet.forward`'s output; ``batch`` holds the ground truth (see
     :mod:`solidkit.model.solidnet`). Terms whose inputs are absent are skipped (e.g. P-Net terms
-    when ``out`` has no ``local_log``). Returns every weighted term plus ``inet``, ``pnet`` and
-    ``total``.
+    when ``out`` has no ``local_log``). ``sun_sigma``: width of the sun-direction target (radians).
+    Returns every weighted term plus ``inet``, ``pnet`` and ``total``.
     """
     w = weights or {}
     terms: dict[str, torch.Tensor] = {}
-    terms.update(sup1_loss(out, batch, variant))
+    terms.update(sup1_loss(out, batch, variant, sun_sigma))
     if "sh" in out and "sky" in out:
         terms["dif"] = diffuse_loss(out["sky"], out["sh"])
     if "sh" in out and "albedo" in out and "image" in batch and "geometry_mask" in batch:

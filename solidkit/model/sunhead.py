@@ -13,7 +13,15 @@ three quantities, each with a loss it can learn from (:mod:`solidkit.model.losse
 - **energy** ``E`` (RGB, radiance x steradian, the integral over the sun's disk) from the global
   lighting features, trained in log space;
 - **angular size**: a spherical Gaussian of standard deviation ``sigma`` in
-  ``[SIGMA_MIN, SIGMA_MAX]``.
+  ``[SIGMA_MIN, SIGMA_MAX]``;
+- **visibility** (``visibility=True``): the probability that the sky has a visible sun at all, from
+  the global lighting features. In evaluation mode a sun is rendered only where it is at least 0.5
+  (an overcast sky gets none); while training the rendered sun is scaled by the probability.
+
+With ``fine=False`` the logits are the coarse global map alone. The sky decoder's features are the
+image's features mirror-tiled around the panorama (:func:`solidkit.model.inet.flip_pad`), so a 1x1
+convolution of them repeats any motif every two image widths and cannot place one sun behind the
+camera; the global map, a function of the pooled features, can.
 
 :func:`render_sun` writes ``E`` into the panorama as a normalised spherical Gaussian (its discrete
 integral ``sum L Omega`` is exactly ``E``, however small ``sigma`` is against a pixel), and I-Net
@@ -91,29 +99,40 @@ class SunHead(nn.Module):
         Height of the coarse global logit map (width twice that).
     hidden : int
         Width of the hidden layer.
+    visibility : bool
+        Also predict the probability that a sun is visible (module docstring).
+    fine : bool
+        Add a 1x1 convolution of the sky decoder's features to the coarse global logits.
     """
 
-    def __init__(self, global_features: int, sky_features: int, coarse_height: int = 16, hidden: int = 128) -> None:
+    def __init__(self, global_features: int, sky_features: int, coarse_height: int = 16, hidden: int = 128,
+                 visibility: bool = False, fine: bool = True) -> None:
         super().__init__()
         self.coarse_height = coarse_height
         self.mlp = nn.Sequential(nn.Linear(global_features, hidden), nn.ELU(inplace=True))
         self.coarse = nn.Linear(hidden, 2 * coarse_height**2)
         self.params = nn.Linear(hidden, 4)
-        self.fine = nn.Conv2d(sky_features, 1, 1)
+        self.fine = nn.Conv2d(sky_features, 1, 1) if fine else None
+        self.visible = nn.Linear(hidden, 1) if visibility else None
 
     def forward(self, global_feat: torch.Tensor, sky_feats: torch.Tensor) -> dict[str, torch.Tensor]:
         """Returns ``sun_logits (B, 1, H, 2H)``, ``sun_dir (B, 3)``, ``sun_energy (B, 3)``,
-        ``sun_log_energy (B, 3)`` and ``sun_sigma (B,)`` (radians)."""
+        ``sun_log_energy (B, 3)``, ``sun_sigma (B,)`` (radians) and, with ``visibility``,
+        ``sun_visible_logit (B,)`` and ``sun_visible (B,)`` (its probability)."""
         b, _, h, w = sky_feats.shape
         hid = self.mlp(global_feat)
         coarse = self.coarse(hid).view(b, 1, self.coarse_height, 2 * self.coarse_height)
         coarse = F.pad(coarse, (1, 1, 0, 0), mode="circular")  # the azimuth seam is continuous
         scale = w // (2 * self.coarse_height)
         up = F.interpolate(coarse, scale_factor=float(scale), mode="bilinear", align_corners=False)[..., scale:-scale]
-        logits = self.fine(sky_feats) + up
+        logits = up if self.fine is None else self.fine(sky_feats) + up
         par = self.params(hid)
         log_energy = par[:, :3]
         sigma = SIGMA_MIN + (SIGMA_MAX - SIGMA_MIN) * torch.sigmoid(par[:, 3])
         direction = local_soft_argmax(logits)
-        return {"sun_logits": logits, "sun_dir": direction, "sun_log_energy": log_energy,
-                "sun_energy": torch.exp(log_energy.clamp(max=20.0)), "sun_sigma": sigma}
+        out = {"sun_logits": logits, "sun_dir": direction, "sun_log_energy": log_energy,
+               "sun_energy": torch.exp(log_energy.clamp(max=20.0)), "sun_sigma": sigma}
+        if self.visible is not None:
+            vis = self.visible(hid)[:, 0]
+            out.update(sun_visible_logit=vis, sun_visible=torch.sigmoid(vis))
+        return out

@@ -90,7 +90,14 @@ class StageConfig:
 
 @dataclass
 class TrainConfig:
-    """A training run (the TOML file's keys; stages are ``[inet]`` and ``[pnet]`` tables)."""
+    """A training run (the TOML file's keys; stages are ``[inet]`` and ``[pnet]`` tables).
+
+    ``init``: a model checkpoint or training state to start from; tensors whose name and shape match
+    the configured model are copied, the others keep their fresh initialisation (logged).
+    ``sun_target_deg``: width (degrees) of the sun-direction target (:func:`solidkit.model.losses.
+    sun_direction_loss`); two values ``[start, end]`` anneal it geometrically over
+    ``sun_target_anneal_steps`` I-Net steps (0: the whole stage), coarse to fine.
+    """
 
     out: str = "runs/solidnet"
     model: str = "small"
@@ -110,6 +117,8 @@ class TrainConfig:
     threads: int = 1
     device: str = "cpu"
     max_minutes: float = 0.0
+    sun_target_deg: list[float] = field(default_factory=lambda: [2.0])
+    sun_target_anneal_steps: int = 0
     inet: StageConfig = field(default_factory=lambda: StageConfig(steps=1000, batch_size=8))
     pnet: StageConfig = field(default_factory=lambda: StageConfig(steps=0, batch_size=4))
 
@@ -171,6 +180,8 @@ def load_train_config(path: str | os.PathLike, **overrides: Any) -> TrainConfig:
         st = getattr(cfg, name)
         if st.steps < 0 or st.batch_size < 1 or not st.lr > 0 or not 0.0 <= st.crop_fraction <= 1.0:
             raise InputError(f"{path}: [{name}] needs steps >= 0, batch_size >= 1, lr > 0, 0 <= crop_fraction <= 1")
+    if not 1 <= len(cfg.sun_target_deg) <= 2 or not all(0.0 < float(v) <= 90.0 for v in cfg.sun_target_deg):
+        raise InputError(f"{path}: sun_target_deg must be one or two widths in (0, 90] degrees, got {cfg.sun_target_deg}")
     if cfg.inet.steps and cfg.inet.crop_fraction > 0 and not cfg.crops:
         raise InputError(f"{path}: [inet] crop_fraction > 0 needs crops = [folders of panoramas]")
     if (cfg.inet.steps and cfg.inet.crop_fraction < 1 or cfg.pnet.steps) and not cfg.synth:
@@ -223,14 +234,15 @@ class _Data:
         """Rescan the crop folders (or restore the list ``names`` saved in a checkpoint)."""
         from solidkit.synth.panocrops import load_sources
 
-        found = [s for d in self.crop_dirs for s in load_sources(d, self.exclude)]
+        # keyed by folder too: two source folders both hold a 000000
+        found = [(f"{Path(d).name}/{s.name}", s) for d in self.crop_dirs for s in load_sources(d, self.exclude)]
         if names is not None:
-            by = {s.name: s for s in found}
+            by = dict(found)
             missing = [n for n in names if n not in by]
             if missing:
                 raise InputError(f"crop sources of the checkpoint are gone: {missing[:3]}...")
-            found = [by[n] for n in names]
-        self.sources, self.source_names = found, [s.name for s in found]
+            found = [(n, by[n]) for n in names]
+        self.sources, self.source_names = [s for _, s in found], [n for n, _ in found]
 
     def batch(self, stage: str, step: int, size: int, crop_fraction: float, rank: int = 0, world: int = 1
               ) -> tuple[str, dict[str, torch.Tensor]]:
@@ -300,29 +312,36 @@ def _flip_item(it: dict[str, Any]) -> dict[str, Any]:
 
 @torch.no_grad()
 def evaluate_lighting(model: SolidNet, batches: list[dict[str, torch.Tensor]]) -> dict[str, float]:
-    """Global-lighting metrics over ``batches``: sky L1 (log1p), and for skies whose truth has a visible
+    """Global-lighting metrics over ``batches``: sky L1 (log1p); for skies whose truth has a visible
     sun: found rate of the default detector in the prediction, median angular error (degrees, found
-    ones), median azimuth / elevation errors, median predicted / true sun energy."""
+    ones), median azimuth / elevation errors, median predicted / true sun energy, and the sun head's
+    own direction error (``head_err_deg``, every such sky); for skies without one: their count
+    (``sunless``) and the fraction where the detector finds a sun in the prediction (``false_suns``)."""
     from solidkit.envmap import angles_from_direction, detect_sun
+    from solidkit.envmap.coords import angular_distance
     from solidkit.model.losses import sun_energy
 
     model.eval()
     dev = next(model.parameters()).device
-    l1, found, ang, daz, del_, ratio, n_sun = [], 0, [], [], [], [], 0
+    l1, found, ang, daz, del_, ratio, n_sun, head, n_none, false = [], 0, [], [], [], [], 0, [], 0, 0
     for b in batches:
         b = {k: v.cpu() for k, v in b.items()}
         out = {k: v.cpu() for k, v in model.inet(b["image"].to(dev), intrinsics=False).items()}
         l1.append(float((out["sky_log"] - torch.log1p(b["sky"].clamp_min(0))).abs().mean()))
         for i in range(b["image"].shape[0]):
+            det = detect_sun(out["sky"][i].permute(1, 2, 0).numpy())
             if b["sun_visible"][i] < 0.5:
+                n_none += 1
+                false += int(det.found)
                 continue
             n_sun += 1
-            det = detect_sun(out["sky"][i].permute(1, 2, 0).numpy())
+            t = b["sun_dir"][i].numpy().astype(np.float64)
+            if "sun_dir" in out:
+                head.append(math.degrees(float(angular_distance(out["sun_dir"][i].double().numpy(), t))))
             if not det.found:
                 continue
             found += 1
-            t = b["sun_dir"][i].numpy().astype(np.float64)
-            ang.append(math.degrees(math.acos(float(np.clip(det.direction @ t, -1, 1)))))
+            ang.append(math.degrees(float(angular_distance(np.asarray(det.direction, dtype=np.float64), t))))
             taz, tel = (float(a) for a in angles_from_direction(t))
             d = abs(det.azimuth - taz) % (2 * math.pi)
             daz.append(math.degrees(min(d, 2 * math.pi - d)))
@@ -334,7 +353,8 @@ def evaluate_lighting(model: SolidNet, batches: list[dict[str, torch.Tensor]]) -
     med = lambda v: float(np.median(v)) if v else float("nan")  # noqa: E731
     return {"sky_l1": float(np.mean(l1)) if l1 else float("nan"), "suns": n_sun,
             "sun_found_rate": found / n_sun if n_sun else float("nan"), "sun_err_deg": med(ang),
-            "sun_az_err_deg": med(daz), "sun_el_err_deg": med(del_), "sun_energy_ratio": med(ratio)}
+            "sun_az_err_deg": med(daz), "sun_el_err_deg": med(del_), "sun_energy_ratio": med(ratio),
+            "head_err_deg": med(head), "sunless": n_none, "false_suns": false / n_none if n_none else float("nan")}
 
 
 # ----------------------------------------------------------------------------------------- trainer
@@ -392,9 +412,16 @@ class Trainer:
             except Exception:
                 payload = None
             if isinstance(payload, dict) and payload.get("format") == "solidkit.train_state":
-                self.model.load_state_dict(payload["model"])
+                state = payload["model"]
             else:
-                self.model.load_state_dict(load_checkpoint(init)["state_dict"])
+                state = load_checkpoint(init)["state_dict"]
+            own = self.model.state_dict()
+            fit = {k: v for k, v in state.items() if k in own and own[k].shape == v.shape}
+            self.model.load_state_dict(fit, strict=False)
+            fresh = sorted(set(own) - set(fit))
+            if fresh:
+                self.log(f"init {init.name}: {len(fit)} tensors copied, {len(fresh)} fresh ({', '.join(fresh[:6])}"
+                         f"{', ...' if len(fresh) > 6 else ''})")
         self.model.to(self.device)
         self.data = _Data(cfg.crops, cfg.crops_exclude, cfg.synth, cfg.seed)
         if cfg.crops:
@@ -468,7 +495,8 @@ class Trainer:
         cols = ["time", "stage", "step", "kind", "lr", "samples_per_s", "total", "inet", "pnet", "albedo", "normal",
                 "distance", "shadow", "sky", "sun_dir", "sun_energy", "sun_peak", "sun_size", "dif", "rec", "local", "tom",
                 "sky_l1", "suns", "sun_found_rate", "sun_err_deg", "sun_az_err_deg", "sun_el_err_deg",
-                "sun_energy_ratio", "local_l1", "score"]
+                "sun_energy_ratio", "local_l1", "score", "sun_cos", "sun_vis", "sun_target_deg", "head_err_deg",
+                "sunless", "false_suns"]
         new = not path.is_file()
         with path.open("a", newline="") as f:
             w = csv.DictWriter(f, fieldnames=cols, extrasaction="ignore")
@@ -527,8 +555,9 @@ class Trainer:
         else:
             err = m.get("sun_err_deg", float("nan"))
             rate = m.get("sun_found_rate", float("nan"))
+            false = m.get("false_suns", float("nan"))
             m["score"] = m.get("sky_l1", 0.0) + (1.0 - (rate if math.isfinite(rate) else 0.0)) + (
-                (err if math.isfinite(err) else 90.0) / 90.0)
+                (err if math.isfinite(err) else 90.0) / 90.0) + (false if math.isfinite(false) else 0.0)
         self.model.train()
         return m
 
@@ -614,7 +643,8 @@ class Trainer:
                     mean = {k: float(np.mean([r[k] for r in window if k in r])) for k in set().union(*window)}
                     rate = n_win / max(time.monotonic() - t_win, 1e-9)
                     self._write_row({"time": round(time.time(), 1), "stage": stage, "step": self.state["step"],
-                                     "kind": kind, "lr": sched.get_last_lr()[0], "samples_per_s": rate, **mean})
+                                     "kind": kind, "lr": sched.get_last_lr()[0], "samples_per_s": rate,
+                                     "sun_target_deg": self.sun_target_deg(), **mean})
                     if not bar.enabled and self.is_main:
                         self.log(f"{stage} {self.state['step']}/{st.steps} total {mean['total']:.4f} "
                                  f"{rate:.2f} samples/s")
@@ -646,6 +676,15 @@ class Trainer:
         self.state["done"] = True
         return self.state
 
+    def sun_target_deg(self) -> float:
+        """Width of the sun-direction target at the current I-Net step (``TrainConfig.sun_target_deg``)."""
+        widths = [float(v) for v in self.cfg.sun_target_deg]
+        if len(widths) == 1:
+            return widths[0]
+        span = self.cfg.sun_target_anneal_steps or self.cfg.inet.steps
+        t = min(1.0, self.state["step"] / max(1, span)) if self.state["stage"] == "inet" else 1.0
+        return widths[0] * (widths[1] / widths[0]) ** t
+
     def _step(self, stage: str, kind: str, batch: dict[str, torch.Tensor], ddp: Any, st: StageConfig
               ) -> dict[str, torch.Tensor]:
         cfg = self.model.config
@@ -654,7 +693,7 @@ class Trainer:
             out = inet(batch["image"], intrinsics=kind != "crops")
             out["rotation"] = camera_rotation(batch["pitch"], batch["roll"])
             losses = solidnet_losses(out, {k: v for k, v in batch.items() if k not in ("local",)},
-                                     cfg.loss_weights, cfg.loss_variant)
+                                     cfg.loss_weights, cfg.loss_variant, math.radians(self.sun_target_deg()))
             return {**losses, "total": losses["inet"]}
         # pnet: I-Net frozen; P-Net through the model's forward (its warping), DDP on P-Net only
         g = torch.Generator().manual_seed(self.state["step"])
