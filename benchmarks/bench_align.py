@@ -95,6 +95,10 @@ def run_faults(clean: Path, work: Path, truth: Path) -> list[dict]:
     return out
 
 
+def _fmt(v, nd: int = 2) -> str:
+    return "-" if v is None else f"{v:.{nd}f}"
+
+
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("synth", type=Path)
@@ -124,9 +128,19 @@ def main() -> None:
     name = "align" + (f"-{args.name}" if args.name else "")
     (HERE / "results").mkdir(exist_ok=True)
     (HERE / "results" / f"{name}.json").write_text(json.dumps(out, indent=1, default=str))
-    lines = [f"# {name}\n", f"Campaign {args.synth} (seed {summ['seed']}, {summ['scenes']} scenes, {summ['captures']} captures); "
-             f"align {summ['align_seconds']} s (first run, features not cached).\n", "| figure | value |\n|---|---|\n"]
+    lines = [f"# {name}\n\n", f"Campaign {args.synth} (seed {summ['seed']}, {summ['scenes']} scenes, {summ['captures']} captures); "
+             f"align {summ['align_seconds']} s (first run, features not cached). Cue columns: the cue's error against "
+             "the truth (deg); compass errors are in compass_probe_*.\n\n", "| figure | value |\n|---|---|\n"]
     lines += [f"| {k} | {v if not isinstance(v, float) else round(v, 3)} |\n" for k, v in summ.items()]
+    lines.append("\n| scene/probe | yaw error (deg) | cue errors (deg) | LDR PSNR (dB) | truth noise floor (dB) | "
+                 "pixel geometry (deg) | flags |\n|---|---|---|---|---|---|---|\n")
+    for r in res["captures"]:
+        if r["role"] != "probe":
+            continue
+        cues = ", ".join(f"{k} {v:+.2f}" for k, v in r["cues"].items() if v is not None and k != "compass")
+        flags = ", ".join(sorted({f.split(":")[0] for f in r["flags"]}))
+        lines.append(f"| {r['scene']}/{r['probe']} | {_fmt(r.get('yaw_error_deg'))} | {cues or '-'} | {_fmt(r.get('psnr_db'), 1)} | "
+                     f"{_fmt(r.get('truth_noise_floor_db'), 1)} | {_fmt(r.get('pixel_geometry_error_deg'), 1)} | {flags} |\n")
     if args.faults:
         lines.append("\n| fault | injected | flagged | detail |\n|---|---|---|---|\n")
         lines += [f"| {f['fault']} | {f['injected']} | {f['flagged']} | {f['detail'].replace('|', '/')} |\n" for f in out["faults"]]

@@ -100,3 +100,14 @@ def remove_texture(campaign: Path, scene: str, probe: str) -> str:
     flat = cv2.GaussianBlur(img, (0, 0), sigmaX=img.shape[0] / 20)
     write_exr(_writable(path), flat.astype(np.float32), meta if isinstance(meta, dict) else None)
     return f"{scene}/{probe}: HDR panorama blurred flat"
+
+
+def move_probe_pixel(campaign: Path, scene: str, probe: str, dx: float, dy: float) -> str:
+    data = _manifest(campaign)
+    for sc in data["scenes"]:
+        if sc["id"] == scene:
+            for pr in sc["probes"]:
+                if pr["id"] == probe and pr.get("photo_pixel") is not None:
+                    pr["photo_pixel"] = [float(pr["photo_pixel"][0]) + dx, float(pr["photo_pixel"][1]) + dy]
+    _save(campaign, data)
+    return f"{scene}/{probe}: marked pixel moved by ({dx:+.0f}, {dy:+.0f}) px"

@@ -136,3 +136,31 @@ def test_faults_are_flagged(campaign, tmp_path) -> None:
     p = align_campaign(camp).scene(sa.id).probe(probe)
     assert any(f.startswith("features_failed") for f in p.flags) and p.cues["sun"].ok
     assert abs(wrap_deg(p.yaw_deg - true_yaw[probe])) < 1.5
+
+
+def test_two_fresh_runs_give_identical_alignments(campaign, tmp_path) -> None:
+    """Features recomputed (no cache), RANSACs seeded: two runs write byte-identical alignment.json."""
+    texts = []
+    for k in range(2):
+        camp = _copy(campaign[0], tmp_path / f"run{k}")
+        shutil.rmtree(camp / "align")
+        align_campaign(camp, labels=False, report=False)
+        texts.append((camp / "align" / "alignment.json").read_text())
+    assert texts[0] == texts[1]
+
+
+def test_a_probe_pixel_marked_a_tenth_of_the_photo_off_is_flagged(campaign, tmp_path) -> None:
+    """The field notes' pixel of a probe moved by 10 % of the photo width: the geometry check flags it."""
+    camp0, _ = campaign
+    sa = load_alignment(camp0).scenes[0]
+    checked = [p for p in sa.probes if p.role == "probe" and p.pixel_geometry is not None and p.pixel_source == "field_notes"]
+    assert checked, "no probe with a geometric pixel check"
+    assert not any(f.startswith("pixel_disagrees") for p in checked for f in p.flags)
+    probe = checked[0]
+    w = sa.photo.size[0]
+    # move the mark away from the geometry's pixel (the check's worst case is a move towards it)
+    dx = 0.1 * w * (1.0 if probe.pixel_geometry[0] <= probe.pixel_full[0] else -1.0)
+    camp = _copy(camp0, tmp_path / "moved")
+    align_faults.move_probe_pixel(camp, sa.id, probe.id, dx, 0.0)
+    p = align_campaign(camp, report=False).scene(sa.id).probe(probe.id)
+    assert any(f.startswith("pixel_disagrees") for f in p.flags), (p.pixel_error_deg, p.pixel_geometry_sigma_deg)

@@ -136,7 +136,7 @@ def test_level_pose_baseline_sigma_is_calibrated() -> None:
     """The baseline direction's sigma (``t_sigma``) covers its actual error: street-like points, 0.05 deg noise."""
     rng = np.random.default_rng(12)
     z = []
-    for _ in range(12):
+    for _ in range(6):
         pts = np.c_[rng.uniform(-15, 15, 60), rng.uniform(-6, 0.5, 60), rng.uniform(-15, 15, 60)]
         c2 = np.array([rng.uniform(3, 8), 1.4, rng.uniform(-3, 3)])
         R2 = np.asarray(rotation_y(rng.uniform(-math.pi, math.pi)))

@@ -77,6 +77,9 @@ class AlignSettings:
     pixel_tolerance_deg: float = 5.0
     pixel_n_sigma: float = 4.0
     min_pixel_check_inliers: int = 20
+    manhattan: bool = True
+    manhattan_max_ambiguity: float = 0.85
+    manhattan_model_sigma_deg: float = 0.5
     min_translation_support: int = 8
     refine_focal: bool = True
     min_pose_inliers: int = 15
@@ -318,6 +321,8 @@ def align_scene(campaign: Path, manifest: Manifest, scene: Scene, settings: Alig
     # captures whose features failed against the camera position: features against the other captures,
     # whose yaws (features, sun; never the compass) carry them over
     _chain_cues(caps, cam, s)
+    if s.manhattan:
+        _manhattan_cues(caps, s)
 
     # final yaws, probe pixels
     probes: list[ProbeAlignment] = []
@@ -337,6 +342,9 @@ def align_scene(campaign: Path, manifest: Manifest, scene: Scene, settings: Alig
         if "features" in st.cues and not st.cues["features"].ok and st.cues["features"].yaw_deg is None and yaw is not None:
             used = [k for k, c in st.cues.items() if c.ok and k != "features"]
             flags.append(f"features_failed: no match to the camera position; yaw from {', '.join(used) or 'nothing'}")
+        if "manhattan" in st.cues and st.cues["manhattan"].ok and source == "auto":
+            flags.append("yaw_from_street_lines: only the street's line directions (modulo 90 deg, quadrant from the "
+                         "compass) fix this yaw: review")
         yaw_sigma[st.cap.id] = fused.sigma_deg
         role = "camera" if st.cap.id == cam_id else "probe"
         levelling, y0 = _levelling_record(st)
@@ -459,6 +467,65 @@ def _chain_cues(caps: list[_CapState], cam: _CapState | None, s: AlignSettings) 
             if cue.yaw_deg is not None:
                 cue.detail = cue.detail.replace("the camera position", oid)
                 st.cues[f"features_via_{oid}"] = cue
+
+
+def _manhattan_cues(caps: list[_CapState], s: AlignSettings) -> None:
+    """``manhattan`` cues (:mod:`solidkit.align.manhattan`) for captures left with the compass alone.
+
+    The street's horizontal vanishing azimuth in the photo's panorama frame (modulo 90°) comes from
+    the captures whose yaw other cues fixed (a robust mean over them); a lone capture's own
+    vanishing azimuth then gives its yaw modulo 90°, the quadrant nearest to its compass.
+    """
+    from solidkit.align.manhattan import line_normals, vanishing_azimuth
+
+    def non_compass(st: _CapState) -> Any:
+        return fuse_cues({k: c.model_copy() for k, c in st.cues.items() if k != "compass" and c.yaw_deg is not None})
+
+    lone = [st for st in caps if st.normal_lin is not None and non_compass(st).yaw_deg is None
+            and st.cues.get("compass") is not None and st.cues["compass"].yaw_deg is not None]
+    if not lone:
+        return
+    fits = {}
+    for st in caps:
+        if st.normal_lin is not None:
+            fits[st.cap.id] = vanishing_azimuth(*line_normals(st.normal_lin, linear=True, C=st.C))
+    members = []
+    for st in caps:
+        f, known = fits.get(st.cap.id), non_compass(st)
+        if f is not None and known.yaw_deg is not None and f.ambiguity < 0.95:
+            members.append(((f.azimuth_deg + known.yaw_deg) % 90.0, math.hypot(f.sigma_deg, known.sigma_deg or 0.0), st.cap.id))
+    if not members:
+        for st in lone:
+            st.cues["manhattan"] = Cue(yaw_deg=None, ok=False, detail="no capture with a known yaw shows the street's lines")
+        return
+
+    def mean90(vals: list[float], w: list[float]) -> float:  # circular mean with period 90 deg
+        ang = np.radians(np.asarray(vals) * 4.0)
+        return (math.degrees(math.atan2(float(np.dot(w, np.sin(ang))), float(np.dot(w, np.cos(ang))))) / 4.0) % 90.0
+
+    def near(a: float, b: float) -> bool:
+        return abs(wrap_deg(4.0 * (a - b)) / 4.0) <= 2.0
+
+    # the largest group that agrees within 2 deg (a capture whose lines picked the wrong peak is left out)
+    centre = max(members, key=lambda m: (sum(near(m[0], o[0]) for o in members), -m[1]))[0]
+    members = [m for m in members if near(m[0], centre)]
+    w = [1.0 / max(m[1], 0.1) ** 2 for m in members]
+    ref = mean90([m[0] for m in members], w)
+    ref_sigma = 1.0 / math.sqrt(sum(w))
+    for st in lone:
+        f = fits.get(st.cap.id)
+        if f is None or f.ambiguity > s.manhattan_max_ambiguity:
+            why = "too few line segments" if f is None else f"no clear street direction (ambiguity {f.ambiguity:.2f})"
+            st.cues["manhattan"] = Cue(yaw_deg=None, ok=False, detail=f"manhattan: {why}")
+            continue
+        compass = float(st.cues["compass"].yaw_deg)
+        base = ref - f.azimuth_deg
+        yaw = wrap_deg(base + 90.0 * round((compass - base) / 90.0))
+        sigma = math.hypot(f.sigma_deg, ref_sigma, s.manhattan_model_sigma_deg)
+        st.cues["manhattan"] = Cue(
+            yaw_deg=yaw, sigma_deg=sigma, ok=True,
+            detail=(f"street lines at {f.azimuth_deg:.2f} deg (mod 90) here vs {ref:.2f} deg in the photo frame "
+                    f"(from {', '.join(m[2] for m in members)}); quadrant from the compass ({f.n_segments} segments)"))
 
 
 def _refine_levelling(st: _CapState, pano: np.ndarray, s: AlignSettings) -> None:
