@@ -13,7 +13,11 @@ processing. Figures:
 - **PSNR** of the aligned 256x128 LDR probe against the truth probe (HDR, photo panorama frame)
   in the paper's tonemap (conventions §5), the LDR converted to radiance with the campaign's
   sensor constant and the shot's exposure; beside it the same probe aligned with the true yaw
-  and with the compass yaw (the peers: perfect and naive alignment).
+  (on the metadata's levelling), with the true rotation (yaw and levelling: the chain's upper
+  bound) and with the compass yaw (the peers: perfect and naive alignment); and the truth
+  probe's own noise floor (:func:`noise_floor_db`);
+- **probe pixels**: the geometry's pixel (relative pose) against the truth's pixel (degrees,
+  pixels, fraction of the photo width).
 """
 
 from __future__ import annotations
@@ -144,8 +148,14 @@ def evaluate(campaign_dir: str | Path, truth_path: str | Path, *, peers: bool = 
                 row["psnr_db"] = psnr(np.asarray(tonemap(_radiance(ours8, md, k_sensor))), ref_t)
                 row["truth_noise_floor_db"] = noise_floor_db(ref_t)
                 if peers:
-                    for name, yaw in (("psnr_true_yaw_db", true_yaw), ("psnr_compass_db", wrap_deg(ct.recorded_heading_deg - photo_yaw))):
-                        pano = load_normal_panorama(campaign, manifest, cap.normal, level_to_pano(yaw))
+                    from solidkit.align.captures import levelling_of
+
+                    # R_extra maps the shot's metadata-levelled frame: the true rotation is R_true R_levelᵀ
+                    R_true_extra = np.asarray(ct.R_pano_from_body) @ levelling_of(cap.normal)[2].T
+                    for name, R_extra in (("psnr_true_yaw_db", level_to_pano(true_yaw)),
+                                          ("psnr_true_rotation_db", R_true_extra),
+                                          ("psnr_compass_db", level_to_pano(wrap_deg(ct.recorded_heading_deg - photo_yaw)))):
+                        pano = load_normal_panorama(campaign, manifest, cap.normal, R_extra)
                         lin = np.asarray(srgb_decode(pano.astype(np.float32) / 255.0), np.float32)
                         s8 = np.round(np.asarray(srgb_encode(np.clip(np.asarray(resize(lin, ref.shape[0])), 0, 1))) * 255).astype(np.uint8)
                         row[name] = psnr(np.asarray(tonemap(_radiance(s8, md, k_sensor))), ref_t)
@@ -208,6 +218,7 @@ def summary(result: dict[str, Any]) -> dict[str, Any]:
                                                 if "pixel_geometry_error_frac_width" in r], 50),
         "pixel_geometry_n": sum(1 for r in rows if "pixel_geometry_error_deg" in r),
         "psnr_true_yaw_median_db": _q([r["psnr_true_yaw_db"] for r in rows if "psnr_true_yaw_db" in r], 50),
+        "psnr_true_rotation_median_db": _q([r["psnr_true_rotation_db"] for r in rows if "psnr_true_rotation_db" in r], 50),
         "psnr_compass_median_db": _q([r["psnr_compass_db"] for r in rows if "psnr_compass_db" in r], 50),
     }
     return out
