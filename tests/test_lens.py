@@ -62,8 +62,10 @@ def test_project_unproject_round_trip(name):
     front = prof.lenses[0]
     x, y, _ = project(front, np.array([0.0, 0.0, 1.0]))
     assert (float(x), float(y)) == pytest.approx(front.center)
-    x, y, _ = project(front, np.array([1.0, 0.0, 0.0]))  # camera right -> image right of centre
-    assert float(x) - front.center[0] == pytest.approx(front.radius(math.pi / 2)) and float(y) == pytest.approx(front.center[1])
+    x, y, _ = project(front, np.array([1.0, 0.0, 0.0]))  # camera right -> image right of centre (turned by the lens roll)
+    ux, uy = (front.rotation.T @ np.array([1.0, 0.0, 0.0]))[:2]
+    assert float(x) - front.center[0] == pytest.approx(front.radius(math.pi / 2) * ux, abs=1e-6)
+    assert float(y) - front.center[1] == pytest.approx(front.radius(math.pi / 2) * uy, abs=1e-6)
 
 
 def test_cv2_fisheye_equivalence():

@@ -192,7 +192,8 @@ def test_cli_unwarp_and_bad_input(tmp_path, rendered, cli):
 
 @pytest.mark.real
 def test_real_theta_s_live_frame(real_data, tmp_path):
-    """The Theta S live/video frame unwarps through the theta-s-video profile: full coverage, small seam."""
+    """The Theta S live/video frame unwarps through the theta-s-video profile: full coverage, small seam, upright
+    (its circles are turned by 90°: issue 10 §2; the first shipped profile made a sideways panorama)."""
     from solidkit.capture.unwarp import unwarp_file
 
     src = real_data / "theta_s_dualfisheye" / "thetaS_dualfisheye_raw_1920x1080.jpg"
@@ -200,11 +201,18 @@ def test_real_theta_s_live_frame(real_data, tmp_path):
     assert s["coverage"] == 1.0
     img = cv2.imread(str(tmp_path / "s.png"))
     assert img.shape == (512, 1024, 3)  # every output pixel is seen by a lens (coverage 1.0)
-    print(f"theta-s-video seam disagreement (linear): median {s['seam_mad']:.5f}, rmse {s['seam_rmse']:.4f}, gains {s['gains']}")
-    assert s["seam_mad"] < 0.005
+    print(f"theta-s-video seam disagreement (linear): median {s['seam_mad']:.5f}, rmse {s['seam_rmse']:.4f}, "
+          f"seam error {s['seam_error']}, gains {s['gains']}, fit {s['profile_fit']}")
+    # the band runs through the poles of the upright panorama (ceiling lamp, floor): 0.0155 measured
+    assert s["seam_mad"] < 0.02 and s["seam_error"] < 0.6
+    assert s["profile_fit"]["ok"] and s["profile_fit"]["roll_deg"] == 0.0  # upright, no warning
     # the V-style default layout (no per-unit refinement) disagrees more on the same frame
+    from solidkit.camera.lens import rotation_to_ypr_deg
+    from solidkit.envmap.coords import rotation_from_ypr, rotation_z
+
     base = load_profile("theta-s-video")
-    ideal = [base.lenses[0], base.lenses[1].model_copy(update={"ypr_deg": (180.0, 0.0, 0.0)})]
+    back = np.asarray(rotation_z(math.pi / 2)) @ np.asarray(rotation_from_ypr(math.pi, 0.0, 0.0))
+    ideal = [base.lenses[0], base.lenses[1].model_copy(update={"ypr_deg": rotation_to_ypr_deg(back)})]
     st: dict = {}
     from solidkit.envmap.io import read_ldr
 

@@ -14,7 +14,9 @@ of ``r(theta)``, and the back lens' 3-DoF rotation (a rotation vector ``w``, app
 camera frame: ``R_1' = Exp(w) R_1``). The front lens' rotation is held fixed: it defines the
 camera frame (a common rotation of both lenses leaves the overlap unchanged).
 
-Robustness: ``scipy.optimize.least_squares`` with the Cauchy loss, its scale set from the
+Robustness: the parameters can be bounded (a wrong start cannot run across the frame) and
+:func:`refine_files` refuses a result whose seam error (:mod:`solidkit.calibration.seam`) is not
+below the start's. ``scipy.optimize.least_squares`` with the Cauchy loss, its scale set from the
 residuals' MAD at each level, so moving people (different content in the two views) and
 clipped or textureless sky (masked when saturated; zero gradient when flat) do not pull the
 solution; several images of different scenes can be stacked. Coarse to fine: images downsampled
@@ -34,6 +36,8 @@ import cv2
 import numpy as np
 from scipy.optimize import least_squares
 
+from solidkit.calibration.circles import fit_image_circle
+from solidkit.calibration.seam import ring_directions
 from solidkit.camera.dualfisheye import get_maps, match_gains, read_linear, seam_disagreement, warp_lens
 from solidkit.camera.lens import LensProfile, load_profile, project, rotation_to_ypr_deg
 from solidkit.document import make_provenance
@@ -43,16 +47,6 @@ from solidkit.envmap.sun import luminance
 from solidkit.errors import InputError
 
 __all__ = ["RefineResult", "ring_directions", "apply_params", "refine_overlap", "fit_image_circle", "refine_files"]
-
-
-def ring_directions(n: int, lo_deg: float, hi_deg: float) -> np.ndarray:
-    """``(m, 3)`` quasi-uniform directions (Fibonacci lattice) whose angle to +z is in [lo, hi] degrees."""
-    lo, hi = math.cos(math.radians(hi_deg)), math.cos(math.radians(lo_deg))
-    i = np.arange(n) + 0.5
-    z = lo + (hi - lo) * i / n
-    phi = i * math.pi * (3 - math.sqrt(5))
-    s = np.sqrt(1 - z * z)
-    return np.stack([s * np.cos(phi), s * np.sin(phi), z], axis=-1)
 
 
 def apply_params(base: LensProfile, p: np.ndarray) -> LensProfile:
@@ -70,54 +64,6 @@ def apply_params(base: LensProfile, p: np.ndarray) -> LensProfile:
             upd["ypr_deg"] = rotation_to_ypr_deg(np.asarray(rotation_from_rotvec(w)) @ lens.rotation)
         lenses.append(lens.model_copy(update=upd))
     return base.model_copy(update={"lenses": lenses})
-
-
-def fit_image_circle(
-    lum: np.ndarray, center: tuple[float, float], radius: float, *, n_rays: int = 720, search: float = 0.12,
-    rel_threshold: float = 0.1,
-) -> tuple[float, float, float, float]:
-    """Centre and radius of a fisheye's image circle (the edge between image and the dark outside).
-
-    Along ``n_rays`` rays from ``center``, the outermost radius within ``radius (1 ± search)``
-    where the luminance exceeds ``rel_threshold`` times the ray's median just inside is an edge
-    point; a circle is fitted to the edge points by linear least squares (Kasa), trimming points
-    beyond 3 MADs (rays where dark content reaches the edge, the frame border, lens glints) for
-    10 rounds. Returns ``(cx, cy, r, inlier_fraction)``; NaNs when fewer than 20 rays found an edge.
-    """
-    h, w = lum.shape[:2]
-    ang = np.linspace(0, 2 * np.pi, n_rays, endpoint=False)
-    rs = np.arange(radius * (1 - search), radius * (1 + search), 0.25)
-    X = center[0] + np.cos(ang)[:, None] * rs
-    Y = center[1] + np.sin(ang)[:, None] * rs
-    prof = sample_image(np.nan_to_num(lum.astype(np.float32)), X.ravel(), Y.ravel(), border_value=np.nan).reshape(X.shape)
-    inner = np.nanmedian(prof[:, : max(2, len(rs) // 6)], axis=1)
-    pts = []
-    for i in range(n_rays):
-        row = prof[i]
-        above = np.nonzero(np.isfinite(row) & (row > rel_threshold * inner[i]))[0]
-        if inner[i] <= 0 or not above.size or above[-1] >= len(rs) - 1:
-            continue
-        j = above[-1]  # sub-pixel: linear crossing between j and j + 1
-        t = rel_threshold * inner[i]
-        frac = (row[j] - t) / max(row[j] - row[j + 1], 1e-12) if np.isfinite(row[j + 1]) else 0.0
-        x, y = X[i, j] + frac * (X[i, j + 1] - X[i, j]), Y[i, j] + frac * (Y[i, j + 1] - Y[i, j])
-        if 1 <= x <= w - 2 and 1 <= y <= h - 2:
-            pts.append((x, y))
-    if len(pts) < 20:
-        return math.nan, math.nan, math.nan, 0.0
-    c = np.asarray(pts)
-    keep = np.ones(len(c), bool)
-    for _ in range(10):
-        A = np.column_stack([2 * c[keep, 0], 2 * c[keep, 1], np.ones(keep.sum())])
-        sol = np.linalg.lstsq(A, (c[keep] ** 2).sum(1), rcond=None)[0]
-        r = math.sqrt(max(sol[2] + sol[0] ** 2 + sol[1] ** 2, 0.0))
-        res = np.hypot(c[:, 0] - sol[0], c[:, 1] - sol[1]) - r
-        mad = float(np.median(np.abs(res[keep]))) if keep.any() else 0.0
-        new = np.abs(res) <= max(0.5, 3 * 1.4826 * mad)
-        if new.sum() < 20 or np.array_equal(new, keep):
-            break
-        keep = new
-    return float(sol[0]), float(sol[1]), r, float(keep.mean() * len(c) / n_rays)
 
 
 @dataclass
@@ -152,6 +98,10 @@ def refine_overlap(
     edge_px: float = 4.0,
     min_radius_px: float = 48.0,
     circle_sigma_px: float | None = 1.0,
+    start: np.ndarray | None = None,
+    max_center_px: float | None = None,
+    max_log_scale: float | None = None,
+    max_rotation_deg: float | None = None,
 ) -> RefineResult:
     """Refine ``base`` (a two-lens profile) on linear dual-fisheye ``images`` (all the same size).
 
@@ -172,6 +122,12 @@ def refine_overlap(
     scale_sigma : prior std of the *difference* of the lenses' log scales (a front-up/back-down scale
         change moves the seam along the ring's near-degenerate radial direction).
     fix_scale : hold the scales at 1 (refine centres and rotation only).
+    start : parameters to start from (layout: module docstring; centres in px of the images'
+        size), e.g. a coarse result or one of several starts; default: zero, centres at the fitted circles.
+    max_center_px, max_log_scale, max_rotation_deg : bounds of the parameters about ``base``
+        (centre offsets per axis in px of the images' size, |log scale|, back-lens rotation per
+        rotation-vector component in degrees); ``None``: unbounded. A wrong start (another camera's
+        profile) then cannot drag the lenses across the frame chasing a spurious photometric minimum.
 
     Returns
     -------
@@ -204,14 +160,27 @@ def refine_overlap(
     p = np.zeros(3 * L + 3 + n_img)
     # image-circle centres: start there and keep a weak prior (pins the ring's degenerate mode)
     circles: list[list[float] | None] = [None, None]
+    if start is not None:
+        p[: min(len(start), 3 * L + 3)] = np.asarray(start, np.float64)[: 3 * L + 3]
     if circle_sigma_px:
         lum_mean = np.nanmean(np.stack([np.nan_to_num(x) for x in lum_full]), axis=0)
         for i, lens in enumerate(prof.lenses):
             cx, cy, rad, inl = fit_image_circle(lum_mean, lens.center, lens.max_radius())
             if math.isfinite(cx) and inl > 0.3 and math.hypot(cx - lens.center[0], cy - lens.center[1]) < 0.1 * lens.max_radius():
                 circles[i] = [cx, cy, rad, inl]
-                p[3 * i], p[3 * i + 1] = cx - lens.center[0], cy - lens.center[1]
-    circle_target = np.array([p[0], p[1], p[3], p[4]])
+                if start is None:
+                    p[3 * i], p[3 * i + 1] = cx - lens.center[0], cy - lens.center[1]
+    circle_target = np.array([(c[0] - lens.center[0], c[1] - lens.center[1]) if c is not None else (p[3 * i], p[3 * i + 1])
+                              for i, (c, lens) in enumerate(zip(circles, prof.lenses))]).ravel()
+    lower = np.full_like(p, -np.inf)
+    if max_center_px is not None:
+        lower[[0, 1, 3, 4]] = -max_center_px
+    if max_log_scale is not None:
+        lower[[2, 5]] = -max_log_scale
+    if max_rotation_deg is not None:
+        lower[3 * L : 3 * L + 3] = -math.radians(max_rotation_deg)
+    upper = -lower
+    p = np.clip(p, lower, upper)
     has_circle = np.array([circles[0] is not None] * 2 + [circles[1] is not None] * 2)
     if fix_scale:
         free = np.array([True, True, False, True, True, False] + [True] * (3 + n_img))
@@ -286,10 +255,14 @@ def refine_overlap(
             return np.stack(cols, axis=1)
 
         q0 = p[free] / unit
+        lb, ub = lower[free] / unit, upper[free] / unit
+        span = np.where(np.isfinite(ub - lb), ub - lb, 0.0)
+        q0 = np.clip(q0, lb + 1e-6 * span, ub - 1e-6 * span)
         r0 = residuals(q0, robust_only=True)
         nz = r0[r0 != 0]
         f_scale = max(1.4826 * float(np.median(np.abs(nz - np.median(nz)))) if nz.size else 0.05, 1e-3)
-        sol = least_squares(residuals, q0, jac=jacobian, loss="cauchy", f_scale=f_scale, max_nfev=max_nfev, method="trf")
+        sol = least_squares(residuals, q0, jac=jacobian, loss="cauchy", f_scale=f_scale, max_nfev=max_nfev, method="trf",
+                            bounds=(lb, ub))
         r1 = residuals(sol.x, robust_only=True)
         p[free] = sol.x * unit
         report.append({
@@ -315,6 +288,12 @@ def refine_overlap(
     )
 
 
+#: Bounds of ``solidkit calibrate overlap`` about the base profile: centre offsets (fraction of the
+#: image-circle radius, per axis), |log scale|, back-lens rotation (degrees per rotation-vector axis).
+#: Real units stay well inside (a Theta SC measured in Hugin: back lens 1.2° off; centres a few px).
+BOUNDS = {"center_frac": 0.03, "log_scale": 0.03, "rotation_deg": 3.0}
+
+
 def refine_files(
     paths: list,
     base: str,
@@ -326,10 +305,19 @@ def refine_files(
 ) -> dict:
     """``solidkit calibrate overlap``: refine a model profile on capture files, write ``out`` (JSON).
 
-    Returns a summary: parameter changes, per-level residuals, and the seam disagreement
-    (median |difference| of the two lenses on the feather band, linear) before and after,
-    averaged over the images.
+    The refinement is bounded (:data:`BOUNDS`) and judged by the seam error
+    (:func:`solidkit.calibration.seam.seam_error`, mean over the images): when it is not lower
+    after than before, the result is **refused** and ``out`` gets the base profile's geometry with
+    ``residuals.refused`` saying why. Frames whose image circles sit elsewhere than the base
+    profile's (another camera or layout) get a ``profile_mismatch`` warning pointing to
+    ``solidkit calibrate fisheye``.
+
+    Returns a summary: parameter changes, per-level residuals, the seam error and the seam
+    disagreement (median |difference| of the two lenses on the feather band, linear) before and
+    after, averaged over the images, ``refused`` (None or the reason) and ``warnings``.
     """
+    from solidkit.calibration.seam import prepare_seam_image, seam_error
+
     if not paths:
         raise InputError("no images given")
     prof = load_profile(base)
@@ -338,36 +326,60 @@ def refine_files(
         img, s = read_linear(Path(p))
         images.append(img)
         sat = s if sat is None else sat
-    res = refine_overlap(images, prof, saturation=sat, circle_sigma_px=circle_sigma_px, scale_sigma=scale_sigma,
-                         fix_scale=fix_scale)
     h, w = images[0].shape[:2]
+    if any(im.shape[:2] != (h, w) for im in images):
+        raise InputError("all images for one refinement must have the same size")
+    scaled = prof.scaled(w, h)
+    radius = float(np.mean([lens.max_radius() for lens in scaled.lenses]))
+    warnings = []
+    lum0 = luminance(images[0])
+    for k, lens in enumerate(scaled.lenses[:2]):
+        cx, cy, r, inl = fit_image_circle(lum0, lens.center, lens.max_radius(), search=0.12, rel_threshold=0.25)
+        off = math.hypot(cx - lens.center[0], cy - lens.center[1]) if math.isfinite(cx) else math.inf
+        if not (inl >= 0.4 and off <= max(4.0, 0.05 * lens.max_radius())):
+            warnings.append(f"profile_mismatch: lens {k}: the frame's image circle is not where {prof.model!r} puts it "
+                            f"({'none found' if not math.isfinite(off) else f'{off:.0f} px away'}): another camera or "
+                            "layout? 'solidkit calibrate fisheye FRAME' makes a starting profile from the frame itself")
+    res = refine_overlap(images, prof, saturation=sat, circle_sigma_px=circle_sigma_px, scale_sigma=scale_sigma,
+                         fix_scale=fix_scale, max_center_px=BOUNDS["center_frac"] * radius,
+                         max_log_scale=BOUNDS["log_scale"], max_rotation_deg=BOUNDS["rotation_deg"])
     out_h = max(64, min(512, w // 4))
+    seams = [prepare_seam_image(img, radius, sat) for img in images]
 
-    def seam(profile: LensProfile) -> float:  # what `capture unwarp` reports as seam_mad (after gain matching)
-        vals = []
-        for img in images:
+    def seam(profile: LensProfile) -> tuple[float, float]:  # (seam error, what `capture unwarp` reports as seam_mad)
+        vals, errs = [], []
+        for img, sm in zip(images, seams):
             maps, _ = get_maps(profile, (w, h), out_h)
             warped = [warp_lens(img.astype(np.float32, copy=False), maps, i) for i in range(len(profile.lenses))]
             vals.append(seam_disagreement(warped, maps, match_gains(warped, maps, sat))["seam_mad"])
-        return float(np.mean(vals))
+            errs.append(seam_error(sm, profile)["seam_error"])
+        return float(np.mean(errs)), float(np.mean(vals))
 
-    before, after = seam(prof), seam(res.profile)
-    refined = res.profile.model_copy(update={
+    (err_before, before), (err_after, after) = seam(prof), seam(res.profile)
+    refused = None
+    if not (math.isfinite(err_after) and err_after < err_before):
+        refused = (f"refinement refused: seam error {err_after:.3f} after vs {err_before:.3f} with {prof.model!r}; "
+                   "the base profile's geometry is kept")
+        warnings.append(refused)
+    kept = prof if refused else res.profile
+    refined = kept.model_copy(update={
         "model": f"{prof.model}-unit",
         "parent": prof.model,
         "source": f"refined by solidkit calibrate overlap on {len(paths)} image(s) from the {prof.model!r} profile "
-                  f"(whose source: {prof.source})",
+                  f"(whose source: {prof.source})" + (" -- REFUSED, base geometry kept" if refused else ""),
         "residuals": {
+            "seam_error_before": err_before, "seam_error_after": err_after, "refused": refused,
             "seam_mad_linear_before": before, "seam_mad_linear_after": after,
             "center_shift_px": res.center_shift_px, "scale": res.scale,
             "back_rotation_change_deg": res.rotation_change_deg, "image_circles_px": res.circles,
             "levels": [{k: v for k, v in lv.items() if k != "params"} for lv in res.levels],
         },
         "provenance": make_provenance(paths, tool="solidkit calibrate overlap", circle_sigma_px=circle_sigma_px,
-                                      scale_sigma=scale_sigma, fix_scale=fix_scale),
+                                      scale_sigma=scale_sigma, fix_scale=fix_scale, bounds=BOUNDS),
     })
     refined.save(out)
-    return {"output": str(out), "base": prof.model, "images": len(paths), "seam_mad_before": before,
-            "seam_mad_after": after, "center_shift_px": res.center_shift_px, "scale": res.scale,
-            "back_rotation_change_deg": res.rotation_change_deg,
+    return {"output": str(out), "base": prof.model, "images": len(paths), "seam_error_before": err_before,
+            "seam_error_after": err_after, "refused": refused, "warnings": warnings,
+            "seam_mad_before": before, "seam_mad_after": after, "center_shift_px": res.center_shift_px,
+            "scale": res.scale, "back_rotation_change_deg": res.rotation_change_deg,
             "back_ypr_deg": list(refined.lenses[1].ypr_deg), "levels": refined.residuals["levels"]}

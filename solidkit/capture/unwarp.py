@@ -46,6 +46,7 @@ import cv2
 import numpy as np
 
 from solidkit.calibration.vignetting import VignettingError, VignettingProfile, falloff
+from solidkit.calibration.fitcheck import check_profile_fit, check_upright
 from solidkit.camera.dualfisheye import (  # noqa: F401  (re-exported: the remap tables are the camera model's)
     CACHE_SIZE,
     UnwarpMaps,
@@ -479,6 +480,9 @@ def unwarp_file(
     circles, circle_warnings = check_image_circles(img, prof)
     summary["image_circles"] = circles
     summary["warnings"] += circle_warnings
+    fit, fit_warnings = check_profile_fit(img, prof, saturation)  # seam error + layout (issue 10 §2)
+    summary["seam_error"], summary["profile_fit"] = fit.get("seam_error"), fit
+    summary["warnings"] += fit_warnings
     stats: dict[str, Any] = {}
     t1 = time.perf_counter()
     fast = img.dtype == np.uint8 and dst.suffix.lower() != ".exr" and len(prof.lenses) == 2
@@ -498,6 +502,7 @@ def unwarp_file(
         _write(dst, pano, meta_out)
     summary.update(mode="dual-fisheye unwarped", profile=prof.model, size=[2 * out_h, out_h], resampled=True,
                    unwarp_seconds=t2 - t1, seconds=time.perf_counter() - t0, **stats)
+    summary["warnings"] += check_upright(pano, fit)  # a sideways panorama: the layout contradicts the profile
     report_tilt(summary, pano)
     return summary
 

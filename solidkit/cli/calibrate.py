@@ -22,6 +22,7 @@ from solidkit.calibration.boards import CharucoTarget, detect_views, read_gray
 from solidkit.calibration.camera import calibrate_camera_from_board, calibrate_camera_from_photo
 from solidkit.calibration.colour import calibrate_colour, read_linear_image
 from solidkit.calibration.fisheye import calibrate_fisheye, lens_profile_from_calibrations
+from solidkit.calibration.lensfit import FAMILIES, fit_file
 from solidkit.calibration.overlap import refine_files
 from solidkit.calibration.response import ResponseProfile, calibrate_response_files, plot_response
 from solidkit.calibration.vignetting import falloff, fit_flat_field, fit_overlap, lenses_from_profile, make_profile
@@ -312,6 +313,40 @@ def vignetting(
 
 
 @app.command()
+def fisheye(
+    frame: Path = typer.Argument(..., help="One dual-fisheye frame (JPEG, PNG, DNG, EXR) of the camera: outdoors, with texture around the horizon, works best."),
+    out: Path = typer.Option(..., "-o", "--out", help="Lens profile JSON to write (use with `capture unwarp --profile`)."),
+    family: str = typer.Option("auto", "--family", help="Projection: auto (the best seam), equidistant, equisolid or theta (Ricoh's lens table)."),
+    refine: bool = typer.Option(True, "--refine/--no-refine", help="Refine centres, scales and the back lens on the overlap (refused when it does not lower the seam error)."),
+    name: Optional[str] = typer.Option(None, "--name", help="Profile 'model' name (default: the frame's file name)."),
+    as_json: bool = typer.Option(False, "--json", help="Print the summary as JSON."),
+) -> None:
+    """A starting lens profile for any dual-fisheye camera from one frame: image circles, layout, projection and field of view, then a robust overlap refinement."""
+    if family != "auto" and family not in FAMILIES:
+        raise InputError(f"--family: auto, {', '.join(FAMILIES)}; got {family!r}")
+    families = FAMILIES if family == "auto" else (family,)
+    if out.exists() and out.is_dir():
+        raise InputError(f"{out}: is a folder; give the profile's file name (e.g. {out / 'unit.json'})")
+    _, s = fit_file(frame, out, families=families, refine=refine, name=name, log=lambda m: status.print(escape(m)))
+    if as_json:
+        typer.echo(json.dumps(s, default=str))
+        return
+    table = Table(title=escape(str(out)), show_header=False)
+    table.add_row("frame", f"{escape(str(frame))} ({s['size'][0]} x {s['size'][1]})")
+    table.add_row("layout", f"{s['layout']} (up from {s['upright']['cue']}" + ("" if s["upright"]["confident"] else ", [yellow]not confident[/]") + ")")
+    table.add_row("image circles", "; ".join(f"({c['cx']:.1f}, {c['cy']:.1f}) r {c['r']:.1f} px" for c in s["circles"]))
+    table.add_row("projection / field of view", f"{s['family']} / {s['fov_deg']:.1f}°  (" + ", ".join(
+        f"{k} {v['fov_deg']:.1f}°: {v['seam_error']:.3f}" for k, v in s["families"].items()) + ")")
+    table.add_row("lens centres", "; ".join(f"({x:.2f}, {y:.2f})" for x, y in s["centers"]) + " px")
+    table.add_row("back lens ypr", ", ".join(f"{a:.2f}°" for a in s["back_ypr_deg"]))
+    refined = f"{s['seam_error_refined']:.3f}" if s["refinement"] else "-"
+    table.add_row("seam error (0 = perfect, ~0.6 = 4° off, 1 = unrelated)", f"start {s['seam_error_start']:.3f}, refined {refined}, kept {s['seam_error']:.3f}")
+    console.print(table)
+    for w in s["warnings"]:
+        console.print(f"[yellow]warning:[/] {escape(w)}")
+
+
+@app.command()
 def overlap(
     images: list[Path] = typer.Argument(..., help="Dual-fisheye captures of one camera unit (same size; outdoor scenes with texture at the horizon work best)."),
     base: str = typer.Option(..., "--base", help="Model lens profile to start from (theta-v, theta-z1, theta-s, theta-s-video or a JSON file)."),
@@ -332,7 +367,8 @@ def overlap(
         dx, dy = s["center_shift_px"][i]
         table.add_row(f"{name} centre shift / scale", f"{dx:+.2f}, {dy:+.2f} px / {s['scale'][i]:.4f}")
     table.add_row("back lens rotation change", f"{s['back_rotation_change_deg']:.3f}° (ypr now " + ", ".join(f"{a:.2f}°" for a in s["back_ypr_deg"]) + ")")
+    table.add_row("seam error", f"{s['seam_error_before']:.3f} -> {s['seam_error_after']:.3f}" + (" [yellow](refused)[/]" if s["refused"] else ""))
     table.add_row("seam disagreement (linear)", f"{s['seam_mad_before']:.4g} -> {s['seam_mad_after']:.4g}")
     console.print(table)
-    if s["seam_mad_after"] >= s["seam_mad_before"]:
-        console.print("[yellow]warning:[/] refinement did not reduce the seam disagreement; check the base profile and the images")
+    for w in s["warnings"]:
+        console.print(f"[yellow]warning:[/] {escape(w)}")
