@@ -11,19 +11,24 @@ the resulting ``cv2.remap`` tables and the feather weights (:func:`feather_weigh
 (:mod:`solidkit.calibration.overlap`) judges a lens profile by the same pieces.
 
 Remap tables are cached per (profile, input size, output size, orientation): in memory (LRU of
-:data:`CACHE_SIZE` entries) and optionally on disk (``.npz`` named by a SHA-256 of the key), as
-OpenCV fixed-point maps (1/32 px, what ``cv2.remap`` uses internally for bilinear sampling).
+:data:`CACHE_SIZE` entries) and optionally on disk (a ``.tables`` file named by a SHA-256 of the key,
+memory-mapped when read, written in the background), as OpenCV fixed-point maps (1/32 px, what
+``cv2.remap`` uses internally for bilinear sampling). Two-lens 8-bit unwarping reads
+:class:`CutMaps` (the dominant lens everywhere, both lenses on the feather band only).
 """
 
 from __future__ import annotations
 
 import hashlib
+import json
 import math
 import os
+import threading
+import warnings
 from collections import OrderedDict
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, Iterator
 
 import cv2
 import numpy as np
@@ -36,13 +41,19 @@ from solidkit.errors import InputError
 from solidkit.fsutil import atomic_path
 
 __all__ = [
-    "CACHE_SIZE", "UnwarpMaps", "feather_weights", "build_maps", "get_maps", "clear_cache", "srgb8_luts",
+    "CACHE_SIZE", "UnwarpMaps", "CutMaps", "feather_weights", "lens_samples", "build_maps", "get_maps", "build_cut_maps",
+    "get_cut_maps", "clear_cache", "srgb8_luts",
     "encode_srgb8", "warp_lens", "match_gains", "seam_disagreement", "read_input", "read_linear",
 ]
 
 CACHE_SIZE = 4
 _ROWS = 256
-_cache: "OrderedDict[str, UnwarpMaps]" = OrderedDict()
+#: Largest spacing (output px) of exactly projected table nodes (:func:`lens_samples`).
+MAX_GRID_STEP = 8
+#: Largest interpolation error of the remap tables between nodes: half their 1/32-px resolution.
+MAP_TOLERANCE_PX = 1 / 64
+_cache: "OrderedDict[str, Any]" = OrderedDict()  # UnwarpMaps and CutMaps by key
+_writing: dict[Path, threading.Thread] = {}  # cache files being written in the background
 
 
 @dataclass
@@ -59,6 +70,9 @@ class UnwarpMaps:
     map2: np.ndarray
     weight: np.ndarray
     _derived: dict = field(default_factory=dict, repr=False, compare=False)
+
+    def arrays(self) -> dict[str, np.ndarray]:
+        return {"map1": self.map1, "map2": self.map2, "weight": self.weight}
 
     def band(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Two lenses: ``(lens0_dominant (H, 2H) bool, band flat indices, lens-0 weight there)``."""
@@ -97,31 +111,87 @@ def feather_weights(margin: np.ndarray, feather_deg: float) -> np.ndarray:
     return np.where(s > 0, w / np.where(s > 0, s, 1), 0).astype(np.float32)
 
 
+def _grid_step(prof: LensProfile, out_height: int) -> int:
+    """Spacing (output px) of the exactly projected nodes of the remap tables (see :func:`lens_samples`).
+
+    Bilinear interpolation between nodes ``s`` px apart is off by about ``0.4 s² f''`` px, with
+    ``f'' ≈ (π/H)² r'`` the tables' curvature (``r'`` the lenses' px per radian); measured on the
+    Theta V at 5792 -> 5376x2688: 0.007 px at ``s = 4``, 0.011 px at ``s = 5`` (the step chosen there). The step is the largest, up to
+    :data:`MAX_GRID_STEP`, that keeps it below :data:`MAP_TOLERANCE_PX`; small outputs are exact (1).
+    """
+    px_per_rad = max(lens.max_radius() / math.radians(lens.max_angle_deg) for lens in prof.lenses)
+    curvature = (math.pi / out_height) ** 2 * px_per_rad
+    return max(1, min(MAX_GRID_STEP, int(math.sqrt(MAP_TOLERANCE_PX / (0.4 * curvature)))))
+
+
+def lens_samples(
+    profile: LensProfile, in_size: tuple[int, int], out_height: int, R_level: Any = None, block_rows: int = _ROWS
+) -> Iterator[tuple[int, int, list[tuple[np.ndarray, np.ndarray, np.ndarray]]]]:
+    """Where each lens sees every pixel of a ``(out_height, 2 out_height)`` panorama, in row blocks.
+
+    Yields ``(r0, r1, [(x, y, margin) per lens])`` for output rows ``r0:r1``: ``x, y`` ``(r1 - r0, 2H)``
+    float32 fisheye pixel coordinates (OpenCV convention; unbounded where the lens does not see) and
+    ``margin`` = ``max_angle - theta`` (radians; below 0 where the lens does not see the pixel or its
+    sample falls outside the frame). The projection (:func:`solidkit.camera.lens.project`) is evaluated
+    exactly on nodes every ``s`` output pixels (:func:`_grid_step`; the nodes extend one step beyond
+    the panorama: directions are smooth across the seam and the poles) and bilinearly in between
+    (``cv2.resize``, whose pixel-centre convention puts node ``k`` at ``(k + 0.5) s``): the map of a
+    smooth function, 25x fewer projections at Theta V size, within :data:`MAP_TOLERANCE_PX`.
+    """
+    prof = profile.scaled(*in_size)
+    R = np.eye(3) if R_level is None else np.asarray(R_level, dtype=np.float64)
+    H, W = out_height, 2 * out_height
+    w_in, h_in = in_size
+    # a lens whose whole image circle lies in the frame never samples outside it where it sees
+    framed = [min(lens.center[0] + 0.5, w_in - 0.5 - lens.center[0], lens.center[1] + 0.5, h_in - 0.5 - lens.center[1])
+              >= lens.max_radius() for lens in prof.lenses]
+
+    def project_grid(ys: np.ndarray, xs: np.ndarray) -> list[list[np.ndarray]]:
+        yy, xx = np.meshgrid(ys, xs, indexing="ij")
+        d_cam = direction_from_coords(xx, yy, H) @ R  # row vectors: (R^T d)^T
+        planes = []
+        for lens in prof.lenses:
+            x, y, theta = project(lens, d_cam)
+            planes.append([x.astype(np.float32), y.astype(np.float32),
+                           (math.radians(lens.max_angle_deg) - theta).astype(np.float32)])
+        return planes
+
+    s = _grid_step(prof, H)
+    pad = 1 if s > 1 else 0
+    if s > 1:
+        nodes = project_grid((np.arange(-(-H // s) + 2 * pad) - pad + 0.5) * s, (np.arange(-(-W // s) + 2 * pad) - pad + 0.5) * s)
+    block = max(s, block_rows // s * s)
+    for r0 in range(0, H, block):
+        r1 = min(H, r0 + block)
+        if s == 1:
+            planes = project_grid(np.arange(r0, r1) + 0.5, np.arange(W) + 0.5)
+        else:
+            n = -(-(r1 - r0) // s) + 2 * pad
+            planes = [[cv2.resize(p[r0 // s: r0 // s + n], (p.shape[1] * s, n * s), interpolation=cv2.INTER_LINEAR)
+                       [pad * s: pad * s + (r1 - r0), pad * s: pad * s + W] for p in lens_nodes] for lens_nodes in nodes]
+        out = []
+        for (x, y, m), inframe in zip(planes, framed):
+            if not inframe:
+                outside = (x < -0.5) | (x > w_in - 0.5) | (y < -0.5) | (y > h_in - 0.5)  # never sample outside the frame
+                m = np.where(outside, np.minimum(m, np.float32(-1e-6)), m)
+            out.append((x, y, m))
+        yield r0, r1, out
+
+
 def build_maps(
     profile: LensProfile, in_size: tuple[int, int], out_height: int, R_level: Any = None, feather_deg: float = 10.0
 ) -> UnwarpMaps:
     """Remap tables for unwarping a ``in_size = (W, H)`` dual-fisheye image to a ``(out_height, 2 out_height)`` panorama."""
-    prof = profile.scaled(*in_size)
-    R = np.eye(3) if R_level is None else np.asarray(R_level, dtype=np.float64)
-    H, W, L = out_height, 2 * out_height, len(prof.lenses)
+    H, W, L = out_height, 2 * out_height, len(profile.lenses)
+    w_in, h_in = in_size
     map1 = np.empty((L, H, W, 2), np.int16)
     map2 = np.empty((L, H, W), np.uint16)
-    margin = np.empty((L, H, W), np.float32)
-    xs = np.arange(W, dtype=np.float64) + 0.5
-    w_in, h_in = in_size
-    for r0 in range(0, H, _ROWS):
-        r1 = min(H, r0 + _ROWS)
-        yy, xx = np.meshgrid(np.arange(r0, r1, dtype=np.float64) + 0.5, xs, indexing="ij")
-        d_cam = direction_from_coords(xx, yy, H) @ R  # row vectors: (R^T d)^T
-        for i, lens in enumerate(prof.lenses):
-            x, y, theta = project(lens, d_cam)
-            m = math.radians(lens.max_angle_deg) - theta
-            inside = (x >= -0.5) & (x <= w_in - 0.5) & (y >= -0.5) & (y <= h_in - 0.5)  # never sample outside the frame
-            margin[i, r0:r1] = np.where(inside, m, np.minimum(m, -1e-6))
-            x = np.clip(x, -2.0, w_in + 1.0).astype(np.float32)
-            y = np.clip(y, -2.0, h_in + 1.0).astype(np.float32)
-            map1[i, r0:r1], map2[i, r0:r1] = cv2.convertMaps(x, y, cv2.CV_16SC2)
-    weight = feather_weights(margin, feather_deg)
+    weight = np.empty((L, H, W), np.float32)
+    for r0, r1, lenses in lens_samples(profile, in_size, out_height, R_level):
+        for i, (x, y, _) in enumerate(lenses):  # clipped: where a lens does not see, its coordinates are unbounded
+            map1[i, r0:r1], map2[i, r0:r1] = cv2.convertMaps(np.clip(x, -2.0, w_in + 1.0), np.clip(y, -2.0, h_in + 1.0),
+                                                             cv2.CV_16SC2)
+        weight[:, r0:r1] = feather_weights(np.stack([m for _, _, m in lenses]), feather_deg)  # per pixel: block by block
     return UnwarpMaps(map1, map2, weight)
 
 
@@ -134,8 +204,84 @@ def _key(profile: LensProfile, in_size: tuple[int, int], out_height: int, R: np.
 
 
 def clear_cache() -> None:
-    """Empty the in-memory remap cache."""
+    """Empty the in-memory remap cache (after finishing the on-disk writes under way)."""
+    while _writing:
+        _writing.popitem()[1].join()
     _cache.clear()
+
+
+_ALIGN = 4096
+
+
+def _save_tables(path: Path, arrays: dict[str, np.ndarray]) -> None:
+    """Write ``arrays`` to one file that :func:`_load_tables` memory-maps, atomically (concurrent
+    writers of one key each rename a complete file); a cache that cannot be written is only a slower
+    next run (a warning). Layout: a JSON index (name -> dtype, shape, offset) padded to 4 KiB, then
+    each array's bytes at a 4 KiB-aligned offset."""
+    try:
+        index, offset = {}, _ALIGN
+        for name, a in arrays.items():
+            index[name] = [a.dtype.str, list(a.shape), offset]
+            offset += -(-a.nbytes // _ALIGN) * _ALIGN
+        head = json.dumps({"format": "solidkit-remap-tables-1", "arrays": index}).encode()
+        if len(head) > _ALIGN:
+            raise OSError(0, "table index too long")
+        path.parent.mkdir(parents=True, exist_ok=True)
+        with atomic_path(path, suffix=".tables") as tmp:
+            with open(tmp, "wb") as f:
+                f.write(head.ljust(_ALIGN, b" "))
+                for name, a in arrays.items():
+                    f.seek(index[name][2])
+                    f.write(np.ascontiguousarray(a).data)
+                f.truncate(offset)
+    except OSError as exc:
+        warnings.warn(f"{path}: remap tables not cached ({exc.strerror or exc})", RuntimeWarning, stacklevel=1)
+
+
+def _load_tables(path: Path) -> dict[str, np.ndarray]:
+    """The arrays of a :func:`_save_tables` file, memory-mapped read-only (pages come straight from
+    the page cache: no copy, little memory of this process's own)."""
+    with open(path, "rb") as f:
+        head = json.loads(f.read(_ALIGN).decode())
+    if head.get("format") != "solidkit-remap-tables-1":
+        raise ValueError(f"{path}: not a remap table file")
+    size = path.stat().st_size
+    out = {}
+    for name, (dtype, shape, offset) in head["arrays"].items():
+        n = int(np.prod(shape, dtype=np.int64)) * np.dtype(dtype).itemsize
+        if offset + n > size:
+            raise ValueError(f"{path}: truncated")
+        out[name] = np.memmap(path, dtype=np.dtype(dtype), mode="r", offset=offset, shape=tuple(shape)) if n else \
+            np.zeros(shape, np.dtype(dtype))
+    return out
+
+
+def _cached(key: str, cache_dir: str | os.PathLike | None, build: Any, load: Any) -> tuple[Any, str]:
+    """In-memory LRU, then ``cache_dir/<key>.tables`` (memory-mapped; written atomically in the background:
+    concurrent runs are safe), then ``build()``."""
+    if key in _cache:
+        _cache.move_to_end(key)
+        return _cache[key], "memory"
+    path = Path(cache_dir) / f"{key}.tables" if cache_dir is not None else None
+    maps = None
+    source = "built"
+    if path in _writing:  # this process is still writing it
+        _writing.pop(path).join()
+    if path is not None and path.is_file():
+        try:
+            maps = load(_load_tables(path))
+            source = "disk"
+        except (OSError, ValueError, KeyError, UnicodeDecodeError):
+            maps = None  # unreadable cache file: rebuild and overwrite
+    if maps is None:
+        maps = build()
+        if path is not None:  # written while the caller goes on with the tables (the interpreter waits for it at exit)
+            _writing[path] = threading.Thread(target=_save_tables, args=(path, maps.arrays()), name="solidkit-cache-write")
+            _writing[path].start()
+    _cache[key] = maps
+    while len(_cache) > CACHE_SIZE:
+        _cache.popitem(last=False)
+    return maps, source
 
 
 def get_maps(
@@ -148,30 +294,110 @@ def get_maps(
     """
     R = np.eye(3) if R_level is None else np.asarray(R_level, dtype=np.float64)
     key = _key(profile, in_size, out_height, R, feather_deg)
-    if key in _cache:
-        _cache.move_to_end(key)
-        return _cache[key], "memory"
-    path = Path(cache_dir) / f"unwarp-{key}.npz" if cache_dir is not None else None
-    maps = None
-    source = "built"
-    if path is not None and path.is_file():
-        try:
-            with np.load(path) as z:
-                maps = UnwarpMaps(z["map1"], z["map2"], z["weight"])
-            source = "disk"
-        except (OSError, ValueError, KeyError):
-            maps = None  # unreadable cache file: rebuild and overwrite
-    if maps is None:
-        maps = build_maps(profile, in_size, out_height, R, feather_deg)
-        if path is not None:
-            path.parent.mkdir(parents=True, exist_ok=True)
-            with atomic_path(path, suffix=".npz") as tmp:
-                with open(tmp, "wb") as f:
-                    np.savez(f, map1=maps.map1, map2=maps.map2, weight=maps.weight)
-    _cache[key] = maps
-    while len(_cache) > CACHE_SIZE:
-        _cache.popitem(last=False)
-    return maps, source
+    return _cached(f"unwarp-{key}", cache_dir, lambda: build_maps(profile, in_size, out_height, R, feather_deg),
+                   lambda z: UnwarpMaps(z["map1"], z["map2"], z["weight"]))
+
+
+_BAND_COLS = 4096  # band tables are laid out (rows, 4096): cv2.remap wants both sides below 32767
+
+
+@dataclass
+class CutMaps:
+    """Two-lens remap tables for 8-bit unwarping: the dominant lens everywhere, both lenses on the feather band.
+
+    The same geometry and feather weights as :class:`UnwarpMaps`, stored for what a two-lens
+    8-bit unwarp reads (:func:`solidkit.capture.unwarp.unwarp_srgb8`): one ``cv2.remap`` of the
+    whole frame gives every output pixel its dominant lens' sample (lens 0 where its weight is
+    >= 0.5), and only the ``n`` pixels of the band (both weights > 0) are sampled from both lenses
+    and blended: 3 bytes a pixel of tables instead of 12 (two lenses' maps and weights).
+
+    ``map1`` ``(H, 2H, 2)`` int16, ``map2`` ``(H, 2H)`` uint16: fixed-point tables of the dominant
+    lens (pixels no lens sees point outside the frame: black); ``lead`` ``(H, 2H)`` uint8: 1 where
+    lens 0 dominates; ``band`` ``(n,)`` int32 flat output indices, ``band_w0`` ``(n,)`` float32 lens
+    0's weight there; ``band_map1`` ``(2, rows, 4096, 2)`` int16, ``band_map2`` ``(2, rows, 4096)``
+    uint16: each lens' tables for the band pixels in order (padded); ``coverage``: fraction of output
+    pixels some lens sees.
+    """
+    map1: np.ndarray
+    map2: np.ndarray
+    lead: np.ndarray
+    band: np.ndarray
+    band_w0: np.ndarray
+    band_map1: np.ndarray
+    band_map2: np.ndarray
+    coverage: float
+
+    def arrays(self) -> dict[str, np.ndarray]:
+        return {k: np.asarray(getattr(self, k)) for k in self.__dataclass_fields__}
+
+    @classmethod
+    def from_arrays(cls, z: Any) -> "CutMaps":
+        return cls(**{k: z[k] for k in cls.__dataclass_fields__ if k != "coverage"}, coverage=float(z["coverage"][()]))
+
+    def sample_band(self, image: np.ndarray, i: int) -> np.ndarray:
+        """Lens ``i``'s samples of ``image`` (as stored, bilinear) at the band pixels, ``(n, C)``."""
+        v = cv2.remap(image, self.band_map1[i], self.band_map2[i], cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT,
+                      borderValue=0)
+        return v.reshape(-1, image.shape[2] if image.ndim == 3 else 1)[: self.band.size]
+
+
+def build_cut_maps(
+    profile: LensProfile, in_size: tuple[int, int], out_height: int, R_level: Any = None, feather_deg: float = 10.0
+) -> CutMaps:
+    """:class:`CutMaps` of a two-lens profile (the weights of :func:`feather_weights` for two lenses, block by block)."""
+    if len(profile.lenses) != 2:
+        raise InputError(f"profile {profile.model!r} has {len(profile.lenses)} lenses; cut tables need 2")
+    H, W = out_height, 2 * out_height
+    map1 = np.empty((H, W, 2), np.int16)
+    map2 = np.empty((H, W), np.uint16)
+    lead = np.empty((H, W), np.uint8)
+    band, band_w0, band_xy, covered = [], [], ([], []), 0
+    half_inv_f = np.float32(0.5 / max(math.radians(feather_deg), 1e-6))
+    for r0, r1, ((x0, y0, m0), (x1, y1, m1)) in lens_samples(profile, in_size, out_height, R_level):
+        # feather_weights for two lenses: w0 = clip(0.5 + (m0 - m1) / 2f) where both see, 1/0 where one does
+        v0, v1 = m0 > 0, m1 > 0
+        w0 = m0 - m1
+        w0 *= half_inv_f
+        w0 += np.float32(0.5)
+        np.clip(w0, 0.0, 1.0, out=w0)
+        w0[~v1] = 1.0
+        w0[~v0] = 0.0
+        seen = v0 | v1
+        lens0 = w0 >= 0.5
+        covered += int(seen.sum())
+        x = np.where(lens0, x0, x1)
+        y = np.where(lens0, y0, y1)
+        x[~seen] = -10.0
+        y[~seen] = -10.0
+        map1[r0:r1], map2[r0:r1] = cv2.convertMaps(x, y, cv2.CV_16SC2)
+        lead[r0:r1] = lens0
+        idx = np.flatnonzero((w0 > 0) & (w0 < 1) & seen)
+        band.append(idx + r0 * W)
+        band_w0.append(w0.reshape(-1)[idx])
+        for k, (xk, yk) in enumerate(((x0, y0), (x1, y1))):
+            band_xy[k].append(np.stack([xk.reshape(-1)[idx], yk.reshape(-1)[idx]], axis=-1))
+    band_idx = np.concatenate(band).astype(np.int32 if H * W < 2**31 else np.int64)
+    n = band_idx.size
+    rows = max(1, -(-n // _BAND_COLS))
+    bm1 = np.empty((2, rows, _BAND_COLS, 2), np.int16)
+    bm2 = np.empty((2, rows, _BAND_COLS), np.uint16)
+    for k in range(2):
+        xy = np.full((rows * _BAND_COLS, 2), -10.0, np.float32)
+        xy[:n] = np.concatenate(band_xy[k])
+        xy = xy.reshape(rows, _BAND_COLS, 2)
+        bm1[k], bm2[k] = cv2.convertMaps(xy[..., 0], xy[..., 1], cv2.CV_16SC2)
+    return CutMaps(map1, map2, lead, band_idx, np.concatenate(band_w0).astype(np.float32), bm1, bm2, covered / (H * W))
+
+
+def get_cut_maps(
+    profile: LensProfile, in_size: tuple[int, int], out_height: int, R_level: Any = None, feather_deg: float = 10.0,
+    cache_dir: str | os.PathLike | None = None,
+) -> tuple[CutMaps, str]:
+    """:func:`build_cut_maps` through the in-memory LRU and the optional on-disk cache (as :func:`get_maps`)."""
+    R = np.eye(3) if R_level is None else np.asarray(R_level, dtype=np.float64)
+    key = _key(profile, in_size, out_height, R, feather_deg)
+    return _cached(f"cut-{key}", cache_dir, lambda: build_cut_maps(profile, in_size, out_height, R, feather_deg),
+                   CutMaps.from_arrays)
 
 
 # sRGB 8-bit -> linear float32 (exact per code value) and linear -> sRGB 8-bit through a 16-bit index

@@ -21,7 +21,6 @@ from pathlib import Path
 from typing import Literal
 
 import numpy as np
-from scipy import ndimage
 
 from solidkit.errors import InputError
 
@@ -165,6 +164,8 @@ def read_raw(
     # saturation on the mosaic (before demosaicing), grown to the 3x3 demosaic footprint
     black_site = black[np.clip(colors, 0, len(black) - 1)]
     level = (mosaic - black_site) / (white - black_site)
+    from scipy import ndimage  # imported on use: the CLI's JPEG paths never load SciPy
+
     sat = ndimage.maximum_filter(level, size=3) >= saturation_fraction
     if sat.shape != linear.shape[:2]:
         # LibRaw's output can differ from the visible area by a pixel or two (odd crops)

@@ -39,13 +39,13 @@ import math
 import os
 import shutil
 import time
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 from typing import Any
 
 import cv2
 import numpy as np
 
-from solidkit.calibration.vignetting import VignettingError, VignettingProfile, falloff
 from solidkit.calibration.fitcheck import check_profile_fit, check_upright
 from solidkit.camera.dualfisheye import (  # noqa: F401  (re-exported: the remap tables are the camera model's)
     CACHE_SIZE,
@@ -54,6 +54,7 @@ from solidkit.camera.dualfisheye import (  # noqa: F401  (re-exported: the remap
     clear_cache,
     encode_srgb8,
     feather_weights,
+    get_cut_maps,
     get_maps,
     match_gains,
     read_input,
@@ -66,7 +67,7 @@ from solidkit.camera.lens import LensProfile, load_profile, profile_for_metadata
 from solidkit.camera.metadata import level_rotation, read_metadata
 from solidkit.camera.raw import is_raw_file
 from solidkit.envmap.coords import angles_from_coords
-from solidkit.envmap.io import LDR_SUFFIXES, read_exr, write_exr
+from solidkit.envmap.io import LDR_SUFFIXES, imread, read_exr, write_exr
 from solidkit.envmap.resample import resize, rotate, sample_panorama
 from solidkit.errors import InputError
 from solidkit.fsutil import atomic_path, sha256_file
@@ -104,6 +105,8 @@ def default_out_height(in_width: int) -> int:
 
 def load_vignetting(path: str | os.PathLike) -> Any:
     """A :class:`~solidkit.calibration.vignetting.VignettingProfile` from its JSON file (``solidkit calibrate vignetting``)."""
+    from solidkit.calibration.vignetting import VignettingProfile  # SciPy: loaded only with a vignetting profile
+
     return VignettingProfile.load(path)
 
 
@@ -122,6 +125,8 @@ def vignetting_gains(maps: UnwarpMaps, vignetting: Any, profile: LensProfile, in
     another layout, has another number of lenses, or its falloff drops below 5 % where a lens
     is used.
     """
+    from solidkit.calibration.vignetting import VignettingError, falloff
+
     L = maps.weight.shape[0]
     vl = vignetting.scaled(*in_size)
     if len(vl) != L:
@@ -228,26 +233,28 @@ def unwarp_srgb8(
     the feather band each output pixel is one lens' sample with its gain applied exactly in
     linear light through a per-channel 8-bit table ``enc(g_c dec(v))``; inside the band the two
     samples are decoded to linear, gain-matched, blended and re-encoded. Returns uint8 sRGB.
-    With a ``vignetting`` profile (a per-pixel correction no 8-bit table can carry) or other than
-    two lenses it is :func:`unwarp` followed by :func:`encode_srgb8`.
+    The tables are :class:`~solidkit.camera.dualfisheye.CutMaps` (:func:`~solidkit.camera.dualfisheye.get_cut_maps`):
+    one ``cv2.remap`` of the whole frame samples each pixel's dominant lens, only the band is sampled
+    from both. The channels may be in any order (RGB, or OpenCV's BGR as read): ``stats["gains"]``
+    follow it. With a ``vignetting`` profile (a per-pixel correction no 8-bit table can carry) or
+    other than two lenses it is :func:`unwarp` followed by :func:`encode_srgb8`.
     """
     if image.dtype != np.uint8 or image.ndim != 3:
         raise InputError("unwarp_srgb8 needs an (H, W, C) uint8 image")
     h, w = image.shape[:2]
-    maps, source = get_maps(profile, (w, h), out_height, R_level, feather_deg, cache_dir)
-    if maps.weight.shape[0] != 2 or vignetting is not None:
+    if len(profile.lenses) != 2 or vignetting is not None:
         lin = unwarp(image, profile, out_height, R_level, feather_deg=feather_deg, gain_match=gain_match,
                      cache_dir=cache_dir, stats=stats, vignetting=vignetting)
         return encode_srgb8(lin)
-    dec, enc16 = srgb8_luts()
-    raw = [cv2.remap(image, maps.map1[i], maps.map2[i], cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
-           for i in range(2)]
+    maps, source = get_cut_maps(profile, (w, h), out_height, R_level, feather_deg, cache_dir)
+    dec, _ = srgb8_luts()
     C = image.shape[2]
-    lead, idx, w0 = maps.band()
-    band = [r.reshape(-1, C)[idx] for r in raw]  # (n, C) uint8 samples in the feather band
-    lin = [dec[b] for b in band]
+    band = [maps.sample_band(image, i) for i in range(2)]  # (n, C) codes of each lens in the feather band
+    # gains and seam statistics from an even subsample of the band (at most ~2^18 pixels: medians to 1e-3)
+    k = max(1, band[0].shape[0] >> 18)
+    lin = [dec[b[::k]] for b in band]
     gains = np.ones((2, C))
-    if gain_match and idx.size:
+    if gain_match and maps.band.size:
         sat = float(dec[250])
         ok = np.all((lin[0] > 1e-3) & (lin[1] > 1e-3) & (lin[0] < sat) & (lin[1] < sat), axis=-1)
         if ok.sum() >= 100:
@@ -256,21 +263,32 @@ def unwarp_srgb8(
     if stats is not None:
         d0 = (lin[0] - lin[1]).mean(-1)
         d1 = (lin[0] * gains[0] - lin[1] * gains[1]).mean(-1)
-        stats.update(gains=gains.tolist(), cache=source, coverage=float(maps.coverage.mean()), overlap_px=int(idx.size),
+        stats.update(gains=gains.tolist(), cache=source, coverage=maps.coverage, overlap_px=int(maps.band.size),
                      seam_mad_before_gain=float(np.median(np.abs(d0))) if d0.size else math.nan,
                      seam_mad=float(np.median(np.abs(d1))) if d1.size else math.nan,
                      seam_rmse=float(np.sqrt(np.mean(d1**2))) if d1.size else math.nan)
-    if not np.allclose(gains, 1.0):
-        for i in range(2):
-            table = encode_srgb8(dec[:, None] * gains[i].astype(np.float32)[None, :])  # (256, C): enc(g dec(v))
-            raw[i] = cv2.LUT(raw[i], table.reshape(256, 1, C) if C > 1 else table.reshape(256, 1))
-            if raw[i].ndim == 2:
-                raw[i] = raw[i][..., None]
-    out = raw[1]
-    cv2.copyTo(raw[0], lead.astype(np.uint8), out)
-    if idx.size:
-        blended = (lin[0] * gains[0].astype(np.float32)) * w0[:, None] + (lin[1] * gains[1].astype(np.float32)) * (1 - w0)[:, None]
-        out.reshape(-1, C)[idx] = encode_srgb8(blended)
+    out = cv2.remap(image, maps.map1, maps.map2, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
+    if out.ndim == 2:
+        out = out[..., None]
+    if not np.allclose(gains, 1.0):  # each lens' gain, exactly in linear light, through an 8-bit table enc(g dec(v))
+        tables = [encode_srgb8(dec[:, None] * gains[i].astype(np.float32)[None, :]).reshape(256, 1, C) for i in range(2)]
+        if C == 1:
+            tables = [t.reshape(256, 1) for t in tables]
+        lens0 = cv2.LUT(out, tables[0])
+        cv2.LUT(out, tables[1], dst=out)
+        cv2.copyTo(lens0.reshape(out.shape), maps.lead, out)
+        del lens0
+    if maps.band.size:  # blend in linear light: g0 w0 dec(v0) + g1 (1 - w0) dec(v1)
+        w0 = maps.band_w0[:, None]
+        blended = dec[band[0]]
+        blended *= w0
+        blended *= gains[0].astype(np.float32)
+        other = dec[band[1]]
+        other *= 1 - w0
+        other *= gains[1].astype(np.float32)
+        blended += other
+        del other
+        out.reshape(-1, C)[maps.band] = encode_srgb8(blended)
     return out
 
 
@@ -304,12 +322,16 @@ def render_fisheye(
     return out
 
 
-def _write_srgb8(path: Path, enc: np.ndarray) -> None:
-    """8-bit sRGB RGB image -> PNG (fast compression) / JPEG (q95) / other LDR, atomically."""
-    params = {".png": [cv2.IMWRITE_PNG_COMPRESSION, 1], ".jpg": [cv2.IMWRITE_JPEG_QUALITY, 95],
+def _write_srgb8(path: Path, enc: np.ndarray, bgr: bool = False) -> None:
+    """8-bit sRGB RGB (``bgr``: OpenCV's order) image -> PNG (fast compression) / JPEG (q95) / other LDR, atomically."""
+    # PNG: zlib level 1, run-length strategy on the "Sub" filter: at Theta V size half the time of
+    # zlib's default strategy with adaptive filters, and a smaller file (6.6 vs 7.1 MB)
+    png = [cv2.IMWRITE_PNG_COMPRESSION, 1, cv2.IMWRITE_PNG_STRATEGY, cv2.IMWRITE_PNG_STRATEGY_RLE,
+           cv2.IMWRITE_PNG_FILTER, cv2.IMWRITE_PNG_FILTER_SUB]
+    params = {".png": png, ".jpg": [cv2.IMWRITE_JPEG_QUALITY, 95],
               ".jpeg": [cv2.IMWRITE_JPEG_QUALITY, 95]}.get(path.suffix.lower(), [])
     with atomic_path(path) as tmp:
-        if not cv2.imwrite(str(tmp), cv2.cvtColor(enc, cv2.COLOR_RGB2BGR), params):
+        if not cv2.imwrite(str(tmp), enc if bgr else cv2.cvtColor(enc, cv2.COLOR_RGB2BGR), params):
             raise InputError(f"{path}: OpenCV cannot write this image format")
 
 
@@ -322,8 +344,8 @@ def _write(path: Path, linear: np.ndarray, meta: dict) -> None:
 
 
 def check_image_circles(image: np.ndarray, profile: LensProfile, *, max_offset: float = 0.05,
-                        radius_range: tuple[float, float] = (0.85, 1.2), min_inliers: float = 0.4
-                        ) -> tuple[list[dict[str, float]], list[str]]:
+                        radius_range: tuple[float, float] = (0.85, 1.2), min_inliers: float = 0.4,
+                        max_width: int = 1536, bgr: bool = False) -> tuple[list[dict[str, float]], list[str]]:
     """Does the frame show its image circles where the lens profile puts them? (issue 10 §2)
 
     Each lens's circle is fitted from the profile's position
@@ -337,31 +359,43 @@ def check_image_circles(image: np.ndarray, profile: LensProfile, *, max_offset: 
     The tolerances are loose on purpose: on noisy JPEGs of the right camera (virtual Theta V
     brackets, 1920 px) bright content at the circle's edge pulls the fit up to 16 px / +5 % off;
     the real Theta S frame fits within 4 px / +3 %; the Gear 360 case of issue 10 §2 is 130 px off.
+
+    Frames wider than ``max_width`` are fitted reduced by an integer factor (area averaging; at
+    Theta V size 1/4: 0.02 s instead of 4 s, circles within about a pixel); results are in
+    full-size pixels. ``bgr``: the channels are OpenCV's order.
     """
-    from solidkit.calibration.overlap import fit_image_circle
-    from solidkit.envmap.io import srgb_decode
-    from solidkit.envmap.sun import luminance
+    from solidkit.calibration.circles import fit_image_circle
+    from solidkit.envmap.perspective import scale_pixel_coordinates
+    from solidkit.envmap.sun import LUMINANCE_WEIGHTS
 
     h, w = image.shape[:2]
-    prof = profile.scaled(w, h) if tuple(profile.reference_size) != (w, h) else profile
+    k = max(1, -(-w // max_width))
+    if k > 1:
+        image = cv2.resize(image, (w // k, h // k), interpolation=cv2.INTER_AREA)
+    prof = profile.scaled(*image.shape[1::-1]) if tuple(profile.reference_size) != image.shape[1::-1] else profile
     # linear light: sRGB-encoded sensor noise outside the circles (a few codes) would pass for image
-    img = np.asarray(srgb_decode(image.astype(np.float32) / 255.0)) if image.dtype == np.uint8 else image.astype(np.float32)
-    lum = luminance(img) if img.ndim == 3 else img
+    img = srgb8_luts()[0][image] if image.dtype == np.uint8 else np.asarray(image, np.float32)
+    weights = np.asarray(LUMINANCE_WEIGHTS, np.float32)
+    lum = img[..., :3] @ (weights[::-1] if bgr else weights) if img.ndim == 3 else img
     fits, warnings = [], []
-    for k, lens in enumerate(prof.lenses):
+    full = profile.scaled(w, h) if tuple(profile.reference_size) != (w, h) else profile
+
+    for i, lens in enumerate(full.lenses):
         r0 = lens.max_radius()
+        small = prof.lenses[i]
         # search +-12 %: wider, a ray from one lens reaches into the other's circle (Theta V side by side)
-        cx, cy, r, frac = fit_image_circle(lum, lens.center, r0, search=0.12, rel_threshold=0.25)
+        cx, cy, r, frac = fit_image_circle(lum, small.center, small.max_radius(), search=0.12, rel_threshold=0.25)
+        cx, cy, r = scale_pixel_coordinates(cx, k), scale_pixel_coordinates(cy, k), r * k  # full-size pixels
         fits.append({"center": [round(cx, 2), round(cy, 2)], "radius": round(r, 2), "inliers": round(frac, 3),
                      "profile_center": [round(lens.center[0], 2), round(lens.center[1], 2)], "profile_radius": round(r0, 2)})
         if not (math.isfinite(r) and frac >= min_inliers):
-            warnings.append(f"profile_mismatch: lens {k}: no image circle edge near the profile's circle "
+            warnings.append(f"profile_mismatch: lens {i}: no image circle edge near the profile's circle "
                             f"(centre ({lens.center[0]:.0f}, {lens.center[1]:.0f}), radius {r0:.0f} px): another camera "
                             "or layout? (check --profile; 'solidkit calibrate overlap' fits a unit's profile)")
             continue
         off = math.hypot(cx - lens.center[0], cy - lens.center[1])
         if off > max(4.0, max_offset * r0) or not radius_range[0] <= r / r0 <= radius_range[1]:
-            warnings.append(f"profile_mismatch: lens {k}: image circle at ({cx:.0f}, {cy:.0f}) radius {r:.0f} px, the "
+            warnings.append(f"profile_mismatch: lens {i}: image circle at ({cx:.0f}, {cy:.0f}) radius {r:.0f} px, the "
                             f"profile expects ({lens.center[0]:.0f}, {lens.center[1]:.0f}) radius {r0:.0f} px "
                             f"({off:.0f} px apart): another camera or layout? (check --profile; 'solidkit calibrate "
                             "overlap' fits a unit's profile)")
@@ -384,16 +418,17 @@ def report_tilt(summary: dict, pano: Any) -> None:
     """Add the output's residual tilt (:func:`solidkit.envmap.tilt.residual_tilt`) to ``summary``,
     and a warning when it is reliably above :data:`~solidkit.envmap.tilt.TILT_FLAG_DEG`.
 
-    ``pano``: the panorama array, or the written file (read at half size: edges survive).
+    ``pano``: the panorama array, the written file (read at half size: edges survive), or its
+    :class:`~solidkit.envmap.tilt.TiltEstimate` already made.
     """
-    from solidkit.envmap.tilt import TILT_FLAG_DEG, residual_tilt
+    from solidkit.envmap.tilt import TILT_FLAG_DEG, TiltEstimate, residual_tilt
 
     if isinstance(pano, (str, os.PathLike)):
         path = Path(pano)
         pano = read_exr(path)[0] if path.suffix.lower() == ".exr" else cv2.imread(str(path), cv2.IMREAD_REDUCED_COLOR_2)
         if pano is None:
             return
-    est = residual_tilt(np.asarray(pano))
+    est = pano if isinstance(pano, TiltEstimate) else residual_tilt(np.asarray(pano))
     summary["residual_tilt"] = est.to_json()
     if est.reliable and est.tilt_deg > TILT_FLAG_DEG:
         summary["warnings"].append(
@@ -467,20 +502,23 @@ def unwarp_file(
         report_tilt(summary, dst)
         summary["seconds"] = time.perf_counter() - t0
         return summary
-    img, saturation = read_input(src)
-    h, w = img.shape[:2]
     if profile is not None:
         prof = load_profile(profile)
-    else:
+    img, saturation, bgr = _read_for_unwarp(src, len(prof.lenses) == 2 if profile is not None else True,
+                                            dst.suffix.lower() != ".exr" and vprof is None)
+    h, w = img.shape[:2]
+    if profile is None:
         prof = profile_for_metadata(meta.model if meta else None, w, h)
+        if bgr and len(prof.lenses) != 2:  # the 8-bit path needs two lenses: RGB for the general one
+            img, bgr = cv2.cvtColor(img, cv2.COLOR_BGR2RGB), False
     if meta is not None and meta.image_type == "dual_fisheye_upright":
         summary["warnings"].append("upright_dual_fisheye: the camera already rotated the circles upright; no gravity applied")
         R = np.eye(3)
     out_h = out_h or default_out_height(w)
-    circles, circle_warnings = check_image_circles(img, prof)
+    circles, circle_warnings = check_image_circles(img, prof, bgr=bgr)
     summary["image_circles"] = circles
     summary["warnings"] += circle_warnings
-    fit, fit_warnings = check_profile_fit(img, prof, saturation)  # seam error + layout (issue 10 §2)
+    fit, fit_warnings = check_profile_fit(img, prof, saturation, bgr=bgr)  # seam error + layout (issue 10 §2)
     summary["seam_error"], summary["profile_fit"] = fit.get("seam_error"), fit
     summary["warnings"] += fit_warnings
     stats: dict[str, Any] = {}
@@ -489,22 +527,47 @@ def unwarp_file(
     if fast:  # 8-bit in and out: blend in linear light only where two lenses overlap
         pano = unwarp_srgb8(img, prof, out_h, R, feather_deg=feather_deg, gain_match=gain_match, cache_dir=cache_dir,
                             stats=stats, vignetting=vprof)
+        if bgr:
+            stats["gains"] = [g[::-1] for g in stats["gains"]]
     else:
         pano = unwarp(img, prof, out_h, R, feather_deg=feather_deg, gain_match=gain_match, saturation=saturation,
                       cache_dir=cache_dir, stats=stats, vignetting=vprof)
+    del img
     t2 = time.perf_counter()
-    meta_out = {"source": str(src), "source_sha256": sha256_file(src), "profile": prof.model,
-                "profile_key": prof.key(), "rotation": R.tolist(), "gains": stats["gains"],
-                "vignetting": None if vignetting is None else {"path": str(vignetting), "sha256": sha256_file(vignetting)}}
-    if fast:
-        _write_srgb8(dst, pano)
-    else:
-        _write(dst, pano, meta_out)
+    with ThreadPoolExecutor(1) as pool:  # the tilt estimate (LSD) runs on the other core while the file is encoded
+        tilt = pool.submit(_tilt_of, pano)
+        if fast:
+            _write_srgb8(dst, pano, bgr=bgr)
+        else:
+            meta_out = {"source": str(src), "source_sha256": sha256_file(src), "profile": prof.model,
+                        "profile_key": prof.key(), "rotation": R.tolist(), "gains": stats["gains"],
+                        "vignetting": None if vignetting is None else {"path": str(vignetting), "sha256": sha256_file(vignetting)}}
+            _write(dst, pano, meta_out)
+        est = tilt.result()
     summary.update(mode="dual-fisheye unwarped", profile=prof.model, size=[2 * out_h, out_h], resampled=True,
-                   unwarp_seconds=t2 - t1, seconds=time.perf_counter() - t0, **stats)
+                   unwarp_seconds=t2 - t1, **stats)
     summary["warnings"] += check_upright(pano, fit)  # a sideways panorama: the layout contradicts the profile
-    report_tilt(summary, pano)
+    report_tilt(summary, est)
+    summary["seconds"] = time.perf_counter() - t0
     return summary
+
+
+def _read_for_unwarp(src: Path, two_lenses: bool, srgb8_out: bool) -> tuple[np.ndarray, float | None, bool]:
+    """The capture as :func:`~solidkit.camera.dualfisheye.read_input` reads it, except that an 8-bit
+    colour file bound for the 8-bit path stays in OpenCV's BGR order (no full-size channel swap);
+    returns ``(image, clipping level, bgr)``."""
+    if srgb8_out and two_lenses and src.suffix.lower() != ".exr" and not is_raw_file(src):
+        raw = imread(src)
+        if raw.dtype == np.uint8 and raw.ndim == 3 and raw.shape[2] == 3:
+            return raw, float(srgb8_luts()[0][250]), True
+    img, saturation = read_input(src)
+    return img, saturation, False
+
+
+def _tilt_of(pano: np.ndarray) -> Any:
+    from solidkit.envmap.tilt import residual_tilt
+
+    return residual_tilt(pano)
 
 
 def cut_columns(maps: UnwarpMaps) -> list[np.ndarray]:

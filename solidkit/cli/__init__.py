@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import functools
+import importlib
 import os
 import sys
 import traceback
@@ -11,41 +12,51 @@ from pathlib import Path
 import typer
 from typer._click.exceptions import ClickException, NoArgsIsHelpError, UsageError  # typer >= 0.16 vendors click
 
-from solidkit.cli.align import align_cli
-from solidkit.cli.calibrate import app as calibrate_app
-from solidkit.cli.ingest import ingest_cli
-from solidkit.cli.label import app as label_app
-from solidkit.cli.capture import app as capture_app
-from solidkit.cli.envmap import app as envmap_app
-from solidkit.cli.demo import demo_command
-from solidkit.cli.eval import eval_command
-from solidkit.cli.finetune import finetune_command
 from solidkit.errors import InputError, SolidkitError
-from solidkit.cli.predict import predict_command
-from solidkit.cli.synth import app as synth_app
-from solidkit.cli.train import train_command
-from solidkit.cli.testset import app as testset_app
 
-app = typer.Typer(
-    name="solidkit",
-    help="Real outdoor 360° captures -> a SOLID-Net real test set; evaluate and fine-tune SOLID-Net.",
-    no_args_is_help=True,
-    pretty_exceptions_enable=False,
-    add_completion=False,
-)
-app.add_typer(envmap_app, name="envmap", help="Inspect, rotate, crop panoramas and find the sun.")
-app.add_typer(capture_app, name="capture", help="Theta captures: metadata, dual-fisheye unwarping.")
-app.add_typer(calibrate_app, name="calibrate", help="Lens, response-curve, colour, vignetting and photo-camera profiles.")
-app.add_typer(synth_app, name="synth", help="Synthetic SOLID-Img-style data and a virtual campaign (Mitsuba 3).")
-app.add_typer(testset_app, name="testset", help="Build, validate, inspect and export a real test set.")
-app.add_typer(label_app, name="label", help="Browser labeling app (sun, probe pixels, headings, review) and label export.")
-app.command("ingest")(ingest_cli)
-app.command("align")(align_cli)
-app.command("predict")(predict_command)
-app.command("train")(train_command)
-app.command("eval")(eval_command)
-app.command("finetune")(finetune_command)
-app.command("demo")(demo_command)
+# Sub-commands are imported only when invoked (``solidkit capture unwarp`` must not pay for torch,
+# SciPy or FastAPI at start-up): name -> (module, attribute, help of a group; None for a command).
+_GROUPS = {
+    "envmap": ("solidkit.cli.envmap", "app", "Inspect, rotate, crop panoramas and find the sun."),
+    "capture": ("solidkit.cli.capture", "app", "Theta captures: metadata, dual-fisheye unwarping."),
+    "calibrate": ("solidkit.cli.calibrate", "app", "Lens, response-curve, colour, vignetting and photo-camera profiles."),
+    "synth": ("solidkit.cli.synth", "app", "Synthetic SOLID-Img-style data and a virtual campaign (Mitsuba 3)."),
+    "testset": ("solidkit.cli.testset", "app", "Build, validate, inspect and export a real test set."),
+    "label": ("solidkit.cli.label", "app", "Browser labeling app (sun, probe pixels, headings, review) and label export."),
+}
+_COMMANDS = {
+    "ingest": ("solidkit.cli.ingest", "ingest_cli"),
+    "align": ("solidkit.cli.align", "align_cli"),
+    "predict": ("solidkit.cli.predict", "predict_command"),
+    "train": ("solidkit.cli.train", "train_command"),
+    "eval": ("solidkit.cli.eval", "eval_command"),
+    "finetune": ("solidkit.cli.finetune", "finetune_command"),
+    "demo": ("solidkit.cli.demo", "demo_command"),
+}
+_HELP = "Real outdoor 360° captures -> a SOLID-Net real test set; evaluate and fine-tune SOLID-Net."
+
+
+def build_app(only: str | None = None) -> typer.Typer:
+    """The ``solidkit`` typer app with every sub-command, or with only the one named ``only`` (what
+    :func:`main` runs: the other sub-commands' modules are not imported)."""
+    root = typer.Typer(name="solidkit", help=_HELP, no_args_is_help=True, pretty_exceptions_enable=False,
+                       add_completion=False)
+    root.callback()(lambda: None)  # a group even when one sub-command is registered
+    for name, (module, attr, help_text) in _GROUPS.items():
+        if only in (None, name):
+            root.add_typer(getattr(importlib.import_module(module), attr), name=name, help=help_text)
+    for name, (module, attr) in _COMMANDS.items():
+        if only in (None, name):
+            root.command(name)(getattr(importlib.import_module(module), attr))
+    _guard(root)
+    return root
+
+
+def __getattr__(name: str):
+    if name == "app":  # ``from solidkit.cli import app`` (tests, CliRunner): every sub-command
+        globals()["app"] = build_app()
+        return globals()["app"]
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
 _OUTPUTS = ("out", "ghost_mask")  # the parameters naming what a command writes
@@ -83,12 +94,11 @@ def refuse_overwriting_inputs(callback):
 
 def _guard(typer_app: typer.Typer) -> None:
     for info in typer_app.registered_commands:
-        info.callback = refuse_overwriting_inputs(info.callback)
+        if not getattr(info.callback, "_refuses_overwriting", False):  # sub-apps are shared by every build_app
+            info.callback = refuse_overwriting_inputs(info.callback)
+            info.callback._refuses_overwriting = True
     for group in typer_app.registered_groups:
         _guard(group.typer_instance)
-
-
-_guard(app)
 
 
 DEBUG_ENV = "SOLIDKIT_DEBUG"  # SOLIDKIT_DEBUG=1: the traceback behind the one-line error, on stderr
@@ -104,8 +114,9 @@ def _fail(message: str, code: int) -> None:
 def main() -> None:
     """Entry point: user errors become one line on stderr and exit code 2 (unforeseen ones exit 1), never a
     traceback unless ``SOLIDKIT_DEBUG=1`` asks for it."""
+    first = next((a for a in sys.argv[1:] if not a.startswith("-")), None)
     try:
-        code = app(standalone_mode=False)  # a typer.Exit(n) raised in a command comes back as n here
+        code = build_app(first if first in _GROUPS or first in _COMMANDS else None)(standalone_mode=False)  # a typer.Exit(n) raised in a command comes back as n here
     except SolidkitError as exc:
         _fail(str(exc), 2)
     except (typer.Abort, KeyboardInterrupt):

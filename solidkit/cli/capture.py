@@ -14,7 +14,6 @@ from rich.markup import escape
 from rich.table import Table
 
 from solidkit.camera.metadata import read_metadata
-from solidkit.capture.bracket_hdr import merge_files
 from solidkit.capture.unwarp import unwarp_file
 from solidkit.cli.parsing import parse_angle, parse_exposures, parse_floats, parse_size
 from solidkit.errors import InputError
@@ -93,6 +92,8 @@ def merge(
     as_json: bool = typer.Option(False, "--json", help="Print the merge statistics as JSON."),
 ) -> None:
     """Merge exposure brackets into linear HDR EXR (weights, saturation/black exclusion, ghost report)."""
+    from solidkit.capture.bracket_hdr import merge_files  # on use: the other capture commands start without it
+
     t = parse_exposures(times, "--times") if times else None
     wb_arg: object = tuple(parse_floats(wb, "--wb", 3, positive=True)) if "," in wb else wb
     if isinstance(wb_arg, str) and wb_arg not in ("camera", "daylight", "none"):

@@ -13,7 +13,6 @@ from typing import Any
 
 import cv2
 import numpy as np
-import OpenEXR
 
 from solidkit.envmap.coords import CONVENTIONS_VERSION, namespace
 from solidkit.errors import InputError, PanoramaError
@@ -62,6 +61,8 @@ def read_exr(path: str | os.PathLike) -> tuple[np.ndarray, dict[str, Any]]:
     path = Path(path)
     if not path.is_file():
         raise InputError(f"{path}: no such file")
+    import OpenEXR  # imported on use: commands that never touch EXR start faster
+
     try:
         with OpenEXR.File(str(path)) as f:
             header = dict(f.header())
@@ -120,6 +121,8 @@ def write_exr(
     channels = {names: data if data.shape[2] > 1 else data[..., 0]}
     attrs = dict(meta or {})
     attrs.setdefault("conventions_version", CONVENTIONS_VERSION)
+    import OpenEXR
+
     header = {
         "compression": OpenEXR.ZIP_COMPRESSION,
         "type": OpenEXR.scanlineimage,

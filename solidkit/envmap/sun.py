@@ -30,9 +30,6 @@ from typing import Any, Literal
 
 import cv2
 import numpy as np
-from scipy import ndimage
-from scipy.sparse import coo_matrix
-from scipy.sparse.csgraph import connected_components
 
 from solidkit.envmap.coords import (
     angles_from_coords,
@@ -180,6 +177,10 @@ def label_spherical(mask: np.ndarray) -> tuple[np.ndarray, int]:
     >>> n, bool(labels[3, 0] == labels[3, 15])  # one component across the seam
     (1, True)
     """
+    from scipy import ndimage  # SciPy on use: commands that only need the weights/constants start faster
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+
     mask = np.asarray(mask, dtype=bool)
     labels, n = ndimage.label(mask, structure=np.ones((3, 3), dtype=bool))
     if n == 0:
@@ -272,6 +273,8 @@ def _blur(lum: np.ndarray, sigma_px: float) -> np.ndarray:
     """Gaussian blur that wraps across the azimuth seam (rows clamp at the poles)."""
     if sigma_px < 0.3:
         return lum
+    from scipy import ndimage
+
     return ndimage.gaussian_filter(lum, sigma_px, mode=("nearest", "wrap"), truncate=3.0)
 
 

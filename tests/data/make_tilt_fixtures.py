@@ -1,6 +1,9 @@
 """Render level city panoramas for the tilt estimator's tests (scene frame = level by construction).
 
 Sun-and-sky lighting only: an HDR photo environment adds its own (not necessarily level) edges.
+Usage: ``[H=1024] python tests/data/make_tilt_fixtures.py OUT_DIR K:BLOCK ...`` writes
+OUT_DIR/level_street_K_H.jpg (level_street_{0,1,2}.jpg: H=512, renamed; level_street_3_1024.jpg:
+H=1024, K:BLOCK 3:3).
 """
 import os
 import sys
