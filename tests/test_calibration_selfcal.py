@@ -88,6 +88,7 @@ def test_start_profile_recovers_family_fov_layout(city, family, half_fov, roll, 
     assert fit.seam_final["seam_error"] < 0.15
 
 
+@pytest.mark.slow  # ~5 s; the default suite's perturbation test is test_calibration_overlap's
 def test_refinement_brings_back_a_perturbed_profile(city, tmp_path, cli):
     """calibrate overlap from a perturbed correct profile (back lens 1.5° off, front centre 4 px off) improves it."""
     truth = truth_profile("equidistant", 97.0)
@@ -120,14 +121,15 @@ def test_refinement_from_another_cameras_profile_is_bounded_and_flagged(city, tm
     write_ldr(src, camera_frame(city, truth_profile("equidistant", 97.5, circles=GEAR)), encode_srgb=True)
     s = refine_files([src], "theta-v", tmp_path / "unit.json")
     shift = [math.hypot(*c) for c in s["center_shift_px"]]  # px at theta-v's 5792-px reference size
-    print(f"theta-v on a Gear-like frame: seam error {s['seam_error_before']:.3f} -> {s['seam_error_after']:.3f}, "
+    print(f"theta-v on a Gear-like frame: seam error {s['seam_error_before']} -> {s['seam_error_after']}, "
           f"refused {s['refused']}, centre shifts {shift} px, back lens {s['back_rotation_change_deg']:.2f}°")
     bound = 0.03 * load_profile("theta-v").lenses[0].max_radius() * math.sqrt(2)
     assert max(shift) <= bound + 1e-6 and s["back_rotation_change_deg"] <= 3.0 * math.sqrt(3) + 1e-6
     assert sum(w.startswith("profile_mismatch") for w in s["warnings"]) == 2
     kept = load_profile(tmp_path / "unit.json")
-    assert kept.residuals["seam_error_after"] < kept.residuals["seam_error_before"] or (
-        s["refused"] and kept.lenses == load_profile("theta-v").lenses)  # never worse than the start
+    r = kept.residuals  # never worse than the start: better, or refused and the start kept (NaN: unmeasurable)
+    assert (r["seam_error_before"] is not None and r["seam_error_after"] is not None
+            and r["seam_error_after"] < r["seam_error_before"]) or (s["refused"] and kept.lenses == load_profile("theta-v").lenses)
 
 
 def test_profile_fit_checks_correct_wrong_and_turned(city):

@@ -24,8 +24,8 @@ Steps (each recorded in the result):
 4. **Which way is up** (:func:`solidkit.calibration.upright.estimate_upright`): the roll that makes
    the panorama upright goes into both lenses' rotations.
 5. **Per-unit refinement** (:func:`solidkit.calibration.overlap.refine_overlap`), made robust:
-   bounded (centres ±:data:`MAX_CENTER_FRAC` of the radius, scales ±3 %, back-lens rotation ±3°
-   per axis), multi-start (the back lens turned ±1° about x and y, on the coarsest level, the
+   bounded (centres ±:data:`MAX_CENTER_FRAC` of the radius, scales ±3 %, back-lens rotation
+   ±:data:`MAX_BACK_OFFSET_DEG` per axis: one frame pins the aim poorly), multi-start (the back lens turned ±1° about x and y, on the coarsest level, the
    best continued coarse to fine), and **refused** when the seam error
    (:func:`solidkit.calibration.seam.seam_error`) after is not below the start's: the start is
    kept and the result says so.
@@ -60,7 +60,7 @@ __all__ = ["FAMILIES", "MIN_HALF_FOV_DEG", "MAX_HALF_FOV_DEG", "MAX_CENTER_FRAC"
            "start_profile", "upright_of", "fit_dual_fisheye", "fit_file"]
 
 FAMILIES = ("equidistant", "equisolid", "theta")
-MIN_HALF_FOV_DEG = 92.0
+MIN_HALF_FOV_DEG = 94.0
 MAX_HALF_FOV_DEG = 115.0
 MAX_CENTER_FRAC = 0.03
 MAX_BACK_OFFSET_DEG = 10.0
@@ -196,7 +196,7 @@ def _refine(images: list[np.ndarray], start: LensProfile, saturation: float | No
     """Bounded multi-start refinement (module docstring, step 5)."""
     r = float(np.mean([l.max_radius() for l in start.lenses]))
     levels = tuple(f for f in (8, 4, 2, 1) if r / f >= 48 and r / f <= 700) or (1,)
-    bounds = dict(max_center_px=MAX_CENTER_FRAC * r, max_log_scale=0.03, max_rotation_deg=3.0)
+    bounds = dict(max_center_px=MAX_CENTER_FRAC * r, max_log_scale=0.03, max_rotation_deg=MAX_BACK_OFFSET_DEG)
     starts = [np.zeros(9)]
     for axis in (0, 1):
         for sgn in (-1, 1):
@@ -270,7 +270,7 @@ def fit_dual_fisheye(image: np.ndarray, saturation: float | None = None, *, fami
     for _ in range(2):
         hf_eq = _scan_fov((seam_coarse, seam), circles, size, "equidistant", back_turn, offset)[0]
         aims = {off: _finite(seam_error(seam_coarse, start_profile(circles, size, "equidistant", hf_eq, back_turn,
-                                                                   back_offset_deg=off), n=3000, edge_px=1.0))
+                                                                   back_offset_deg=off), n=6000, edge_px=1.0))
                 for off in grid}
         best = min(aims, key=aims.get)
         new = best if aims[best] <= 0.97 * aims[(0.0, 0.0)] else (0.0, 0.0)  # an off-axis aim must earn its place

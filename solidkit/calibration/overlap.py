@@ -357,7 +357,10 @@ def refine_files(
 
     (err_before, before), (err_after, after) = seam(prof), seam(res.profile)
     refused = None
-    if not (math.isfinite(err_after) and err_after < err_before):
+    if not (math.isfinite(err_after) and math.isfinite(err_before)):
+        refused = (f"refinement refused: the seam error cannot be measured with {prof.model!r} or the result (the overlap "
+                   "ring falls on black or clipped pixels); the base profile's geometry is kept")
+    elif not err_after < err_before:
         refused = (f"refinement refused: seam error {err_after:.3f} after vs {err_before:.3f} with {prof.model!r}; "
                    "the base profile's geometry is kept")
         warnings.append(refused)

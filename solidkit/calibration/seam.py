@@ -19,8 +19,9 @@ lenses (tests/test_calibration_selfcal.py): 0.06 for the true profile (8-bit noi
 
 Images are compared at a working resolution where the image circles are about
 :data:`WORK_RADIUS_PX` px in radius (area reduced, then a 1-px Gaussian blur), in log(luminance +
-1 % of its median); saturated pixels and directions within ``edge_px`` of an image circle are left
-out.
+1 % of its median); saturated pixels, for 8-bit frames pixels darker than code 10
+(:data:`LDR_FLOOR`), and directions within ``edge_px`` of an image circle are left out. With less
+than :data:`MIN_USABLE` of the ring (or 200 samples) usable the seam error is NaN (unmeasured).
 """
 
 from __future__ import annotations
@@ -35,7 +36,7 @@ from solidkit.camera.lens import LensProfile, project
 from solidkit.envmap.resample import sample_image
 from solidkit.envmap.sun import luminance
 
-__all__ = ["NULL_SHIFT_DEG", "WORK_RADIUS_PX", "SeamImage", "prepare_seam_image", "ring_directions", "seam_error",
+__all__ = ["NULL_SHIFT_DEG", "WORK_RADIUS_PX", "LDR_FLOOR", "SeamImage", "prepare_seam_image", "ring_directions", "seam_error",
            "sample_lens_view"]
 
 #: Angle (degrees) between the directions compared for the null disagreement.
@@ -66,10 +67,20 @@ def ring_directions(n: int, lo_deg: float, hi_deg: float) -> np.ndarray:
     return np.stack([s * np.cos(phi), s * np.sin(phi), z], axis=-1)
 
 
-def prepare_seam_image(image: np.ndarray, radius_px: float, saturation: float | None = None) -> SeamImage:
+#: The seam error needs this fraction of the overlap ring usable (neither clipped nor black).
+MIN_USABLE = 0.2
+#: 8-bit frames: pixels darker than code 10 (linear, sRGB) are noise and quantisation, left out.
+LDR_FLOOR = 0.003
+
+
+def prepare_seam_image(image: np.ndarray, radius_px: float, saturation: float | None = None,
+                       floor: float | None = None) -> SeamImage:
     """Reduce a linear frame ``(H, W[, C])`` so that a circle of ``radius_px`` becomes ~:data:`WORK_RADIUS_PX`.
 
-    ``saturation``: linear level at/above which a pixel (any channel) is clipped (``None``: HDR).
+    ``saturation``: linear level at/above which a pixel (any channel) is clipped (``None``: HDR);
+    ``floor``: luminance below which a pixel is left out too (default :data:`LDR_FLOOR` when a
+    ``saturation`` is given, i.e. for 8-bit frames, else none): the seam of a dark frame (a 1/25000 s
+    sun frame) is then unmeasured (NaN) instead of a comparison of noise.
     """
     img = np.asarray(image, np.float32)
     H, W = img.shape[:2]
@@ -77,6 +88,9 @@ def prepare_seam_image(image: np.ndarray, radius_px: float, saturation: float | 
     valid = np.isfinite(lum)
     if saturation is not None:
         valid &= ~(np.any(img >= saturation, axis=-1) if img.ndim == 3 else img >= saturation)
+        floor = LDR_FLOOR if floor is None else floor
+    if floor is not None:
+        valid &= lum >= floor
     s = min(1.0, WORK_RADIUS_PX / max(radius_px, 1.0))
     w, h = max(8, round(W * s)), max(8, round(H * s))
     x = np.where(valid, lum, 0.0).astype(np.float32)
@@ -155,7 +169,7 @@ def seam_error(seam: SeamImage, profile: LensProfile, *, n: int = 20000, edge_px
     bn = sample_image(seam.log_lum, xy_n[1][0], xy_n[1][1], border_value=np.nan)
     good = ok & np.isfinite(a) & np.isfinite(b)
     good_n = good & ok_n & np.isfinite(bn)
-    if good.sum() < 200 or good_n.sum() < 200:
+    if good.sum() < max(200, MIN_USABLE * ok.sum()) or good_n.sum() < 200:
         out["samples"] = int(good.sum())
         return out
     diff = a[good] - b[good]
