@@ -315,24 +315,47 @@ def estimate_level_pose(a: np.ndarray, b: np.ndarray, *, threshold: float = math
     if len(near) >= 6:
         cn = np.cross(Ra_all[near], b[near])
         cn /= np.linalg.norm(cn, axis=1, keepdims=True)
-        ii, jj = rng.integers(0, len(near), 400), rng.integers(0, len(near), 400)
+        if len(near) <= 120:  # every pair (a few thousand hypotheses) beats 400 random ones at low inlier rates
+            ii, jj = np.triu_indices(len(near), 1)
+        else:
+            ii, jj = rng.integers(0, len(near), 4000), rng.integers(0, len(near), 4000)
         tc = np.cross(cn[ii], cn[jj])
         ok = np.linalg.norm(tc, axis=1) > 1e-3
         if max_ty is not None:
             ok &= np.abs(tc[:, 1]) <= max_ty * np.maximum(np.linalg.norm(tc, axis=1), 1e-12)
         if ok.any():
             tc = tc[ok] / np.linalg.norm(tc[ok], axis=1, keepdims=True)
-            errs = _epipolar_error(Ra_all[near][None], b[near][None], tc[:, None])  # (K, n)
-            best_t = tc[int(np.argmax((errs <= s).sum(1)))]
-            sup = _epipolar_error(Ra_all[near], b[near], best_t) <= s
-            if sup.sum() >= 6:
-                tt, _ = _constrained_t(cn[sup], max_ty)
-                t_support = int(sup.sum())
-                t_sigma = _null_vector_sigma(cn[sup], tt)
-                sel = near[sup]
-                d = _depths(Ra_all[sel], b[sel], tt)
-                if np.sum((d > 0).all(-1)) < np.sum((d < 0).all(-1)):
-                    tt = -tt
+            Rn, bn = Ra_all[near], b[near]
+
+            def support(tv: np.ndarray) -> tuple[int, np.ndarray, float]:
+                """Matches on their epipolar plane AND in front of both views, for +tv or -tv (the larger)."""
+                on = _epipolar_error(Rn, bn, tv) <= s
+                dd = _depths(Rn, bn, tv)
+                pos, neg = on & (dd > 0).all(-1), on & (dd < 0).all(-1)
+                return (int(pos.sum()), pos, 1.0) if pos.sum() >= neg.sum() else (int(neg.sum()), neg, -1.0)
+
+            # the same count for all hypotheses at once: depths are linear in t (least squares per match)
+            A = np.stack([-Rn, bn], axis=-1)  # (n, 3, 2)
+            pinv = np.linalg.pinv(A)  # (n, 2, 3)
+            depth = np.einsum("nij,kj->kni", pinv, tc)  # (K, n, 2)
+            on = _epipolar_error(Rn[None], bn[None], tc[:, None]) <= s  # (K, n)
+            scores = np.maximum((on & (depth > 0).all(-1)).sum(1), (on & (depth < 0).all(-1)).sum(1))
+            best_t = tc[int(np.argmax(scores))]
+            n_sup, sup, sgn = support(best_t)
+            # least squares on the supporters, kept only while it does not lose any (measured: a one-shot refit
+            # drifted 26 deg away from a translation with more supporters)
+            for _ in range(3):
+                if n_sup < 6:
+                    break
+                t_new, _ = _constrained_t(cn[sup], max_ty)
+                n_new, sup_new, sgn_new = support(t_new)
+                if n_new < n_sup:
+                    break
+                best_t, n_sup, sup, sgn = t_new, n_new, sup_new, sgn_new
+            if n_sup >= 6:
+                tt = sgn * best_t
+                t_support = n_sup
+                t_sigma = _null_vector_sigma(cn[sup], best_t)
     Ra_in = a[inl] @ np.asarray(rotation_y(yaw)).T
     d = _depths(Ra_in, b[inl], tt)
     if t_support == 0 and np.sum((d > 0).all(-1)) < np.sum((d < 0).all(-1)):
