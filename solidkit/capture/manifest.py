@@ -6,28 +6,34 @@
 files and the per-file errors. It holds no timestamps of the run: it is a pure function of the
 cards' files, the field notes and the grouping parameters (see :mod:`solidkit.capture.campaign`).
 
-Schema history: version 1 (no field notes, roles or photo pose) is read and upgraded in memory
-(the new fields take their defaults until the next ``ingest`` regroups); version 2 adds
-``Scene.camera_probe``, ``Scene.notes``, ``Scene.photo``, ``Scene.photo_heading_deg`` /
-``photo_pitch_deg`` / ``photo_roll_deg`` (+ their sources), ``Scene.warnings``,
-``Probe.role``, ``Probe.photo_pixel``, ``Probe.note`` and ``Manifest.fieldnotes``.
+The manifest is a :class:`~solidkit.document.VersionedDocument` (``"kind": "manifest"``,
+``format_version``; no ``provenance``: the manifest carries no run timestamp, its
+``solidkit_version``/``conventions_version`` say what wrote it). Format history: version 1 (no
+field notes, roles or photo pose) is read and upgraded in memory (the new fields take their
+defaults until the next ``ingest`` regroups); version 2 adds ``Scene.camera_probe``,
+``Scene.notes``, ``Scene.photo``, ``Scene.photo_heading_deg`` / ``photo_pitch_deg`` /
+``photo_roll_deg`` (+ their sources), ``Scene.warnings``, ``Probe.role``, ``Probe.photo_pixel``,
+``Probe.note`` and ``Manifest.fieldnotes``; version 3 is version 2 on the document base (``kind``,
+``format_version`` instead of ``schema_version``). Versions 1 and 2 (files without ``kind``) are
+read; any other version is refused with a one-line :class:`ManifestError`.
 """
 
 from __future__ import annotations
 
-import json
 import os
 from datetime import datetime
 from pathlib import Path
-from typing import Any, Literal
+from typing import Any, ClassVar, Literal
 
-from pydantic import BaseModel, Field, ValidationError
+from pydantic import BaseModel, ConfigDict, Field
 
-from solidkit.errors import InputError, validation_message
+from solidkit.document import DocumentError, VersionedDocument, read_json_object
 from solidkit.fsutil import atomic_write_text
 
 __all__ = [
     "SCHEMA_VERSION",
+    "FORMAT_VERSION",
+    "ManifestError",
     "MANIFEST_NAME",
     "ShotKind",
     "GroupingParams",
@@ -45,8 +51,9 @@ __all__ = [
     "save_manifest",
 ]
 
-SCHEMA_VERSION = 2
-_READABLE_VERSIONS = (1, 2)
+FORMAT_VERSION = 3
+SCHEMA_VERSION = FORMAT_VERSION  # the name before the document base
+_LEGACY_VERSIONS = (1, 2)  # files with "schema_version" and no "kind"
 MANIFEST_NAME = "manifest.json"
 ShotKind = Literal["photo", "probe", "low_exposure", "bracket_member"]
 
@@ -186,10 +193,19 @@ class FieldNotesRecord(BaseModel):
     error: str | None = Field(None, description="why the file was refused (then nothing of it is applied)")
 
 
-class Manifest(BaseModel):
+class ManifestError(DocumentError):
+    """A manifest.json that is not JSON, of another kind or an unknown format version, or invalid."""
+
+
+class Manifest(VersionedDocument):
     """The campaign manifest (``manifest.json``)."""
 
-    schema_version: int = SCHEMA_VERSION
+    model_config = ConfigDict(extra="forbid")
+    KIND: ClassVar[str] = "manifest"
+    FORMAT_VERSION: ClassVar[int] = FORMAT_VERSION
+    ERROR: ClassVar[type[DocumentError]] = ManifestError
+    WHAT: ClassVar[str] = "manifest"
+
     solidkit_version: str = ""
     conventions_version: int = 0
     grouping: GroupingParams = Field(default_factory=GroupingParams)
@@ -209,6 +225,11 @@ class Manifest(BaseModel):
     errors: list[FileError] = Field(default_factory=list)
     skipped: list[SkippedFile] = Field(default_factory=list, description="card entries not ingested, with the reason")
 
+    @property
+    def schema_version(self) -> int:
+        """The format version (its name before the document base)."""
+        return self.format_version
+
     def shot(self, sha: str) -> Shot:
         for s in self.shots:
             if s.sha256 == sha:
@@ -225,7 +246,8 @@ class Manifest(BaseModel):
 def load_manifest(campaign_dir: str | os.PathLike) -> Manifest:
     """Read and validate ``CAMPAIGN_DIR/manifest.json`` (an empty manifest when absent).
 
-    A version-1 manifest is upgraded in memory (new fields at their defaults).
+    A version-1 or -2 manifest (written before the document base: ``schema_version``, no ``kind``) is
+    upgraded in memory (new fields at their defaults); other versions raise :class:`ManifestError`.
     """
     from solidkit import __version__
     from solidkit.envmap.coords import CONVENTIONS_VERSION
@@ -233,21 +255,17 @@ def load_manifest(campaign_dir: str | os.PathLike) -> Manifest:
     path = Path(campaign_dir) / MANIFEST_NAME
     if not path.exists():
         return Manifest(solidkit_version=__version__, conventions_version=CONVENTIONS_VERSION)
-    try:
-        data = json.loads(path.read_text(encoding="utf-8"))
-    except (OSError, ValueError) as exc:
-        raise InputError(f"{path}: unreadable manifest ({exc})") from None
-    version = data.get("schema_version") if isinstance(data, dict) else None
-    if version not in _READABLE_VERSIONS:
-        raise InputError(f"{path}: manifest schema version {version!r}; this solidkit reads versions "
-                         f"{', '.join(map(str, _READABLE_VERSIONS))}")
-    data["schema_version"] = SCHEMA_VERSION
-    if isinstance(data.get("response"), dict) and data["response"].get("kind") == "srgb_inverse":
-        data["response"] = {"kind": "auto"}  # version 1 silently assumed sRGB; now it is estimated or warned
-    try:
-        return Manifest.model_validate(data)
-    except ValidationError as exc:
-        raise InputError(f"{path}: invalid manifest: {validation_message(exc)}") from None
+    data = read_json_object(path, ManifestError, "manifest")
+    if "kind" not in data:
+        version = data.get("schema_version")
+        if version not in _LEGACY_VERSIONS:
+            raise ManifestError(f"{path}: manifest schema version {version!r}; this solidkit reads format version "
+                                f"{FORMAT_VERSION} and the older schema versions {', '.join(map(str, _LEGACY_VERSIONS))}")
+        data = {"kind": Manifest.KIND, "format_version": FORMAT_VERSION,
+                **{k: v for k, v in data.items() if k != "schema_version"}}
+        if isinstance(data.get("response"), dict) and data["response"].get("kind") == "srgb_inverse":
+            data["response"] = {"kind": "auto"}  # version 1 silently assumed sRGB; now it is estimated or warned
+    return Manifest.from_dict(data, str(path))
 
 
 def save_manifest(campaign: Path, manifest: Manifest) -> None:

@@ -11,18 +11,22 @@ from __future__ import annotations
 import datetime as dt
 import os
 from pathlib import Path
-from typing import Any, Literal
+from typing import Any, ClassVar, Literal
 
 from pydantic import BaseModel, Field
 
+from solidkit.document import DocumentError, VersionedDocument, read_json_object
 from solidkit.envmap import CONVENTIONS_VERSION
-from solidkit.errors import InputError, validation_message
+from solidkit.errors import ConventionsError
 from solidkit.synth.solar import TEMPERATURE_C
 
-__all__ = ["SCHEMA_VERSION", "PRESETS", "CampaignConfig", "Shot", "ProbeTruth", "CaptureTruth", "PhotoTruth",
+__all__ = ["SCHEMA_VERSION", "FORMAT_VERSION", "TruthError", "PRESETS", "CampaignConfig", "Shot", "ProbeTruth", "CaptureTruth", "PhotoTruth",
            "SolarTruth", "SceneTruth", "CampaignTruth", "load_truth"]
 
-SCHEMA_VERSION = 3
+SCHEMA_VERSION = 3  # of the campaign settings file (truth/campaign.json); truth files before format 4
+FORMAT_VERSION = 4  # of truth files (CampaignTruth)
+_LEGACY_KIND = "solidkit-synth-campaign-truth"
+_LEGACY_VERSIONS = (3,)  # schema 2 (camp_v0) lacks ProbeTruth.marked_pixel: never read by this schema
 
 
 class CampaignConfig(BaseModel):
@@ -161,9 +165,20 @@ class SceneTruth(BaseModel):
     glass_panels: list[dict[str, float]] = Field(default_factory=list, description="curtain-wall glass (fieldwork.GlassPanel)")
 
 
-class CampaignTruth(BaseModel):
-    kind: Literal["solidkit-synth-campaign-truth"] = "solidkit-synth-campaign-truth"
-    schema_version: int = SCHEMA_VERSION
+class TruthError(DocumentError):
+    """A truth file that is missing, not JSON, of another kind or an unknown format version, or invalid."""
+
+
+class CampaignTruth(VersionedDocument):
+    """The hidden truth of a virtual campaign (``truth/truth.json``): a :class:`~solidkit.document.VersionedDocument`
+    (``"kind": "campaign-truth"``). Format 4 is schema 3 on the document base; files of schema 3
+    (``"kind": "solidkit-synth-campaign-truth"``, ``schema_version``) are read as format 4."""
+
+    KIND: ClassVar[str] = "campaign-truth"
+    FORMAT_VERSION: ClassVar[int] = FORMAT_VERSION
+    ERROR: ClassVar[type[DocumentError]] = TruthError
+    WHAT: ClassVar[str] = "truth file"
+
     conventions_version: int = CONVENTIONS_VERSION
     seed: int
     scenes_requested: int
@@ -176,18 +191,19 @@ class CampaignTruth(BaseModel):
 
 
 def load_truth(path: str | os.PathLike) -> CampaignTruth:
-    """Read and validate a truth file."""
-    from pydantic import ValidationError
-
+    """Read and validate a truth file (formats: :class:`CampaignTruth`); one-line :class:`TruthError` else."""
     p = Path(path)
     if not p.is_file():
-        raise InputError(f"{p}: no such truth file")
-    try:
-        truth = CampaignTruth.model_validate_json(p.read_text())
-    except ValidationError as exc:
-        raise InputError(f"{p}: not a campaign truth file: {validation_message(exc)}") from None
+        raise TruthError(f"{p}: no such truth file")
+    data = read_json_object(p, TruthError, "truth file")
+    if data.get("kind") == _LEGACY_KIND:
+        version = data.get("schema_version")
+        if version not in _LEGACY_VERSIONS:
+            raise TruthError(f"{p}: campaign truth schema version {version!r}; this solidkit reads format version "
+                             f"{FORMAT_VERSION} and the older schema versions {', '.join(map(str, _LEGACY_VERSIONS))}")
+        data = {"kind": CampaignTruth.KIND, "format_version": FORMAT_VERSION,
+                **{k: v for k, v in data.items() if k not in ("kind", "schema_version")}}
+    truth = CampaignTruth.from_dict(data, str(p))
     if truth.conventions_version != CONVENTIONS_VERSION:
-        from solidkit.errors import ConventionsError
-
         raise ConventionsError(f"{p}: written under conventions version {truth.conventions_version}")
     return truth
