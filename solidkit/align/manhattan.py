@@ -13,8 +13,8 @@ around the horizon (straight lines stay straight there), each made a unit great-
 the panorama's frame with its angular length. :func:`vanishing_azimuth`: segments that are
 neither vertical (their circle passes through the zenith) nor on the horizon vote for ``a`` in
 ``[0°, 90°)`` with Tukey's biweight of ``min(|n·v(a)|, |n·v(a+90°)|)`` over the end-point
-noise, weighted by length; the best ``a`` is refined on a fine grid and its 1-sigma taken from
-the curvature of the robust cost. ``ambiguity`` is the best score elsewhere (5°+ away) over the
+noise, weighted by length; the best ``a`` is refined on a fine grid and its 1-sigma comes from
+weighted least squares on the inliers (linearised about ``a``). ``ambiguity`` is the best score elsewhere (5°+ away) over the
 best: near 1 means a second street direction or clutter competes.
 
 Measured on virtual campaigns (seed 0, 11 captures): vanishing azimuths agree across a scene's
