@@ -249,12 +249,13 @@ def unwarp_srgb8(
     maps, source = get_cut_maps(profile, (w, h), out_height, R_level, feather_deg, cache_dir)
     dec, _ = srgb8_luts()
     C = image.shape[2]
-    band = [maps.sample_band(image, i) for i in range(2)]  # (n, C) codes of each lens in the feather band
+    n = maps.band.size
+    band = [maps.sample_band(image, i) for i in range(2)]  # (rows, 4096, C) codes of each lens in the feather band
     # gains and seam statistics from an even subsample of the band (at most ~2^18 pixels: medians to 1e-3)
-    k = max(1, band[0].shape[0] >> 18)
-    lin = [dec[b[::k]] for b in band]
+    k = max(1, n >> 18)
+    lin = [dec[b.reshape(-1, C)[:n:k]] for b in band]
     gains = np.ones((2, C))
-    if gain_match and maps.band.size:
+    if gain_match and n:
         sat = float(dec[250])
         ok = np.all((lin[0] > 1e-3) & (lin[1] > 1e-3) & (lin[0] < sat) & (lin[1] < sat), axis=-1)
         if ok.sum() >= 100:
@@ -278,17 +279,13 @@ def unwarp_srgb8(
         cv2.LUT(out, tables[1], dst=out)
         cv2.copyTo(lens0.reshape(out.shape), maps.lead, out)
         del lens0
-    if maps.band.size:  # blend in linear light: g0 w0 dec(v0) + g1 (1 - w0) dec(v1)
-        w0 = maps.band_w0[:, None]
-        blended = dec[band[0]]
-        blended *= w0
-        blended *= gains[0].astype(np.float32)
-        other = dec[band[1]]
-        other *= 1 - w0
-        other *= gains[1].astype(np.float32)
-        blended += other
-        del other
-        out.reshape(-1, C)[maps.band] = encode_srgb8(blended)
+    if n:  # blend in linear light, w0 g0 dec(v0) + (1 - w0) g1 dec(v1): g_i dec through a float table per lens
+        lin_tables = [(dec[:, None] * gains[i][None, :]).astype(np.float32).reshape(256, 1, C) for i in range(2)]
+        if C == 1:
+            lin_tables = [t.reshape(256, 1) for t in lin_tables]
+        w0 = maps.band_w0
+        blended = cv2.blendLinear(cv2.LUT(band[0], lin_tables[0]), cv2.LUT(band[1], lin_tables[1]), w0, 1 - w0)
+        out.reshape(-1, C)[maps.band] = encode_srgb8(blended).reshape(-1, C)[:n]
     return out
 
 
@@ -515,24 +512,25 @@ def unwarp_file(
         summary["warnings"].append("upright_dual_fisheye: the camera already rotated the circles upright; no gravity applied")
         R = np.eye(3)
     out_h = out_h or default_out_height(w)
-    circles, circle_warnings = check_image_circles(img, prof, bgr=bgr)
-    summary["image_circles"] = circles
-    summary["warnings"] += circle_warnings
-    fit, fit_warnings = check_profile_fit(img, prof, saturation, bgr=bgr)  # seam error + layout (issue 10 §2)
-    summary["seam_error"], summary["profile_fit"] = fit.get("seam_error"), fit
-    summary["warnings"] += fit_warnings
     stats: dict[str, Any] = {}
     t1 = time.perf_counter()
     fast = img.dtype == np.uint8 and dst.suffix.lower() != ".exr" and len(prof.lenses) == 2
-    if fast:  # 8-bit in and out: blend in linear light only where two lenses overlap
-        pano = unwarp_srgb8(img, prof, out_h, R, feather_deg=feather_deg, gain_match=gain_match, cache_dir=cache_dir,
-                            stats=stats, vignetting=vprof)
-        if bgr:
-            stats["gains"] = [g[::-1] for g in stats["gains"]]
-    else:
-        pano = unwarp(img, prof, out_h, R, feather_deg=feather_deg, gain_match=gain_match, saturation=saturation,
-                      cache_dir=cache_dir, stats=stats, vignetting=vprof)
+    with ThreadPoolExecutor(1) as pool:  # the frame's checks run on the other core while the tables are applied
+        checks = pool.submit(_frame_checks, img, prof, saturation, bgr)
+        if fast:  # 8-bit in and out: blend in linear light only where two lenses overlap
+            pano = unwarp_srgb8(img, prof, out_h, R, feather_deg=feather_deg, gain_match=gain_match, cache_dir=cache_dir,
+                                stats=stats, vignetting=vprof)
+            if bgr:
+                stats["gains"] = [g[::-1] for g in stats["gains"]]
+        else:
+            pano = unwarp(img, prof, out_h, R, feather_deg=feather_deg, gain_match=gain_match, saturation=saturation,
+                          cache_dir=cache_dir, stats=stats, vignetting=vprof)
+        circles, circle_warnings, fit, fit_warnings = checks.result()
     del img
+    summary["image_circles"] = circles
+    summary["warnings"] += circle_warnings
+    summary["seam_error"], summary["profile_fit"] = fit.get("seam_error"), fit
+    summary["warnings"] += fit_warnings
     t2 = time.perf_counter()
     with ThreadPoolExecutor(1) as pool:  # the tilt estimate (LSD) runs on the other core while the file is encoded
         tilt = pool.submit(_tilt_of, pano)
@@ -550,6 +548,14 @@ def unwarp_file(
     report_tilt(summary, est)
     summary["seconds"] = time.perf_counter() - t0
     return summary
+
+
+def _frame_checks(img: np.ndarray, prof: LensProfile, saturation: float | None, bgr: bool) -> tuple:
+    """Does the frame fit the profile: image circles (:func:`check_image_circles`), then seam error and
+    layout (:func:`~solidkit.calibration.fitcheck.check_profile_fit`, issue 10 §2)."""
+    circles, circle_warnings = check_image_circles(img, prof, bgr=bgr)
+    fit, fit_warnings = check_profile_fit(img, prof, saturation, bgr=bgr)
+    return circles, circle_warnings, fit, fit_warnings
 
 
 def _read_for_unwarp(src: Path, two_lenses: bool, srgb8_out: bool) -> tuple[np.ndarray, float | None, bool]:
