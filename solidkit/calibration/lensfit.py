@@ -6,7 +6,7 @@ Steps (each recorded in the result):
    :func:`solidkit.calibration.circles.find_image_circles`.
 2. **Relative layout**: the back lens looks the other way (yaw 180°) with its circle turned by
    0, 90, 180 or 270° relative to the front's; the turn whose overlap agrees best (seam error of
-   an equidistant start at 95/100/105° half-field) is kept.
+   an equidistant start, half-field in 1° steps, on the frame reduced to ~64 px radius) is kept.
 3. **Projection family and field of view**: for each family of :data:`FAMILIES`, ``r(theta) =
    k g(theta)`` with the scale ``k`` set so that the half-field ``theta_edge`` falls on the fitted
    circle (``r(theta_edge) = R``, per lens); ``theta_edge`` is scanned over
@@ -252,10 +252,11 @@ def fit_dual_fisheye(image: np.ndarray, saturation: float | None = None, *, fami
     seam = prepare_seam_image(img, radius, saturation)
     seam_coarse = prepare_seam_image(img, radius * WORK_RADIUS_PX / 128.0, saturation)
 
+    seam_rough = prepare_seam_image(img, radius * WORK_RADIUS_PX / 64.0, saturation)
     turns, turn_hf = {}, {}
-    for turn in (0.0, 90.0, 180.0, -90.0):
-        vals = {hf: _finite(seam_error(seam_coarse, start_profile(circles, size, "equidistant", hf, turn), n=6000,
-                                       edge_px=1.0)) for hf in (95.0, 100.0, 105.0)}
+    for turn in (0.0, 90.0, 180.0, -90.0):  # every field of view in 1° steps at ~64 px radius (a wide valley)
+        vals = {hf: _finite(seam_error(seam_rough, start_profile(circles, size, "equidistant", hf, turn), n=4000,
+                                       edge_px=0.5)) for hf in np.arange(MIN_HALF_FOV_DEG, MAX_HALF_FOV_DEG + 1e-9, 1.0)}
         turn_hf[turn] = min(vals, key=vals.get)
         turns[turn] = vals[turn_hf[turn]]
     back_turn = min(turns, key=turns.get)
@@ -266,9 +267,10 @@ def fit_dual_fisheye(image: np.ndarray, saturation: float | None = None, *, fami
     # degrees); the aim and the field of view trade off, so they alternate (equidistant), twice
     grid = [(0.0, 0.0)] + [(float(y), float(p)) for y in np.arange(-MAX_BACK_OFFSET_DEG, MAX_BACK_OFFSET_DEG + 1e-9, 2.0)
                            for p in np.arange(-MAX_BACK_OFFSET_DEG, MAX_BACK_OFFSET_DEG + 1e-9, 2.0) if (y, p) != (0.0, 0.0)]
-    offset, aims = (0.0, 0.0), {}
+    offset, aims, scanned = (0.0, 0.0), {}, {}
     for _ in range(2):
-        hf_eq = _scan_fov((seam_coarse, seam), circles, size, "equidistant", back_turn, offset)[0]
+        scanned[offset] = _scan_fov((seam_coarse, seam), circles, size, "equidistant", back_turn, offset)
+        hf_eq = scanned[offset][0]
         aims = {off: _finite(seam_error(seam_coarse, start_profile(circles, size, "equidistant", hf_eq, back_turn,
                                                                    back_offset_deg=off), n=6000, edge_px=1.0))
                 for off in grid}
@@ -282,7 +284,8 @@ def fit_dual_fisheye(image: np.ndarray, saturation: float | None = None, *, fami
 
     fam_scores = {}
     for fam in families:
-        hf, val, curve = _scan_fov((seam_coarse, seam), circles, size, fam, back_turn, offset)
+        hf, val, curve = (scanned[offset] if fam == "equidistant" and offset in scanned
+                          else _scan_fov((seam_coarse, seam), circles, size, fam, back_turn, offset))
         fam_scores[fam] = {"half_fov_deg": hf, "seam_error": val, "scan": curve}
         log(f"family {fam}: best field of view {2 * hf:.1f}° (seam {val:.4f})")
     family = min(fam_scores, key=lambda f: fam_scores[f]["seam_error"])

@@ -18,10 +18,12 @@ The scene can, through three cues, each scored for the rolls 0, +90° and -90° 
   sun, lamps) projected on each roll's up direction.
 
 The roll with the highest sum wins; it is *confident* when it leads the next by
-:data:`CONFIDENT_MARGIN`. Measured (benchmarks/results/selfcal.md): right on three real outdoor HDR
-panoramas upright and turned, and on the real Theta S kitchen frame both ways, except a covered
-courtyard turned by 90° (bright floor, dark roof: wrong sign, not confident). An upside-down
-camera is not told apart (not a candidate).
+:data:`CONFIDENT_MARGIN` (``capture unwarp`` warns only then). Measured (benchmarks/results/selfcal.md,
+each panorama as it is and turned by ±90°): right and confident on city, courtyard and the real
+Theta S kitchen (9/9); on sunrise (an open field at dawn: no vertical edges, the sun low on one
+side) right when turned by -90°, wrong but not confident upright (no false warning), wrong and
+confident when turned by +90° (a missed warning). An upside-down camera is not told apart (not a
+candidate).
 
 The result is the roll ``rho`` (degrees, about the camera's front axis +z) by which the camera
 frame of the profile must turn so that the panorama is upright: unwarping with every lens rotation
