@@ -26,9 +26,9 @@ import os
 import threading
 import warnings
 from collections import OrderedDict
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields
 from pathlib import Path
-from typing import Any, Iterator
+from typing import Any, ClassVar, Iterator
 
 import cv2
 import numpy as np
@@ -314,10 +314,11 @@ class CutMaps:
     ``map1`` ``(H, 2H, 2)`` int16, ``map2`` ``(H, 2H)`` uint16: fixed-point tables of the dominant
     lens (pixels no lens sees point outside the frame: black); ``lead`` ``(H, 2H)`` uint8: 1 where
     lens 0 dominates; ``band`` ``(n,)`` int32 flat output indices, ``band_w0`` ``(n,)`` float32 lens
-    0's weight there; ``band_map1`` ``(2, rows, 4096, 2)`` int16, ``band_map2`` ``(2, rows, 4096)``
-    uint16: each lens' tables for the band pixels in order (padded); ``coverage``: fraction of output
-    pixels some lens sees.
+    0's weight there, laid out ``(rows, 4096)`` (padded with 0); ``band_map1`` ``(2, rows, 4096, 2)`` int16,
+    ``band_map2`` ``(2, rows, 4096)`` uint16: each lens' tables for the band pixels in order (padded);
+    ``coverage``: fraction of output pixels some lens sees.
     """
+    LAYOUT: ClassVar[int] = 2  # in the cache file names: tables of an earlier layout are never read
     map1: np.ndarray
     map2: np.ndarray
     lead: np.ndarray
@@ -328,17 +329,23 @@ class CutMaps:
     coverage: float
 
     def arrays(self) -> dict[str, np.ndarray]:
-        return {k: np.asarray(getattr(self, k)) for k in self.__dataclass_fields__}
+        return {f.name: np.asarray(getattr(self, f.name)) for f in fields(self)}
 
     @classmethod
     def from_arrays(cls, z: Any) -> "CutMaps":
-        return cls(**{k: z[k] for k in cls.__dataclass_fields__ if k != "coverage"}, coverage=float(z["coverage"][()]))
+        """From :meth:`arrays` (a cache file); ``ValueError`` when the layout is not this one."""
+        m = cls(**{f.name: z[f.name] for f in fields(cls) if f.name != "coverage"}, coverage=float(z["coverage"][()]))
+        rows = m.band_map2.shape[1] if m.band_map2.ndim == 3 else -1
+        if m.map1.shape[:2] != m.lead.shape or m.band_w0.shape != (rows, _BAND_COLS) or m.band.size > rows * _BAND_COLS:
+            raise ValueError("cut tables of another layout")
+        return m
 
     def sample_band(self, image: np.ndarray, i: int) -> np.ndarray:
-        """Lens ``i``'s samples of ``image`` (as stored, bilinear) at the band pixels, ``(n, C)``."""
+        """Lens ``i``'s samples of ``image`` (as stored, bilinear) at the band pixels, in the band tables'
+        padded layout ``(rows, 4096, C)``: pixel ``k`` of :attr:`band` is ``.reshape(-1, C)[k]``."""
         v = cv2.remap(image, self.band_map1[i], self.band_map2[i], cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT,
                       borderValue=0)
-        return v.reshape(-1, image.shape[2] if image.ndim == 3 else 1)[: self.band.size]
+        return v if v.ndim == 3 else v[..., None]
 
 
 def build_cut_maps(
@@ -386,7 +393,9 @@ def build_cut_maps(
         xy[:n] = np.concatenate(band_xy[k])
         xy = xy.reshape(rows, _BAND_COLS, 2)
         bm1[k], bm2[k] = cv2.convertMaps(xy[..., 0], xy[..., 1], cv2.CV_16SC2)
-    return CutMaps(map1, map2, lead, band_idx, np.concatenate(band_w0).astype(np.float32), bm1, bm2, covered / (H * W))
+    w0 = np.zeros(rows * _BAND_COLS, np.float32)
+    w0[:n] = np.concatenate(band_w0)
+    return CutMaps(map1, map2, lead, band_idx, w0.reshape(rows, _BAND_COLS), bm1, bm2, covered / (H * W))
 
 
 def get_cut_maps(
@@ -396,7 +405,7 @@ def get_cut_maps(
     """:func:`build_cut_maps` through the in-memory LRU and the optional on-disk cache (as :func:`get_maps`)."""
     R = np.eye(3) if R_level is None else np.asarray(R_level, dtype=np.float64)
     key = _key(profile, in_size, out_height, R, feather_deg)
-    return _cached(f"cut-{key}", cache_dir, lambda: build_cut_maps(profile, in_size, out_height, R, feather_deg),
+    return _cached(f"cut{CutMaps.LAYOUT}-{key}", cache_dir, lambda: build_cut_maps(profile, in_size, out_height, R, feather_deg),
                    CutMaps.from_arrays)
 
 
