@@ -362,27 +362,27 @@ def build_cut_maps(
     half_inv_f = np.float32(0.5 / max(math.radians(feather_deg), 1e-6))
     for r0, r1, ((x0, y0, m0), (x1, y1, m1)) in lens_samples(profile, in_size, out_height, R_level):
         # feather_weights for two lenses: w0 = clip(0.5 + (m0 - m1) / 2f) where both see, 1/0 where one does
-        v0, v1 = m0 > 0, m1 > 0
         w0 = m0 - m1
         w0 *= half_inv_f
         w0 += np.float32(0.5)
         np.clip(w0, 0.0, 1.0, out=w0)
-        w0[~v1] = 1.0
-        w0[~v0] = 0.0
-        seen = v0 | v1
+        np.copyto(w0, np.float32(1.0), where=m1 <= 0)
+        np.copyto(w0, np.float32(0.0), where=m0 <= 0)
         lens0 = w0 >= 0.5
-        covered += int(seen.sum())
         x = np.where(lens0, x0, x1)
         y = np.where(lens0, y0, y1)
-        x[~seen] = -10.0
-        y[~seen] = -10.0
-        map1[r0:r1], map2[r0:r1] = cv2.convertMaps(x, y, cv2.CV_16SC2)
+        unseen = (m0 <= 0) & (m1 <= 0)
+        if unseen.any():
+            x[unseen] = -10.0
+            y[unseen] = -10.0
+        covered += unseen.size - int(np.count_nonzero(unseen))
+        cv2.convertMaps(x, y, cv2.CV_16SC2, dstmap1=map1[r0:r1], dstmap2=map2[r0:r1])
         lead[r0:r1] = lens0
-        idx = np.flatnonzero((w0 > 0) & (w0 < 1) & seen)
-        band.append(idx + r0 * W)
-        band_w0.append(w0.reshape(-1)[idx])
+        rows_i, cols_i = np.divmod(np.flatnonzero((w0 > 0) & (w0 < 1)), W)  # the band: both lenses weigh in
+        band.append(rows_i * W + cols_i + r0 * W)
+        band_w0.append(w0[rows_i, cols_i])
         for k, (xk, yk) in enumerate(((x0, y0), (x1, y1))):
-            band_xy[k].append(np.stack([xk.reshape(-1)[idx], yk.reshape(-1)[idx]], axis=-1))
+            band_xy[k].append(np.stack([xk[rows_i, cols_i], yk[rows_i, cols_i]], axis=-1))
     band_idx = np.concatenate(band).astype(np.int32 if H * W < 2**31 else np.int64)
     n = band_idx.size
     rows = max(1, -(-n // _BAND_COLS))
