@@ -98,18 +98,26 @@ def _max_half_fov(family: str) -> float:
     return math.degrees(_theta_table()[0][-1]) + 3.0 if family == "theta" else MAX_HALF_FOV_DEG
 
 
+@lru_cache(maxsize=4096)
+def _unit_poly(family: str, half_fov_deg: float) -> tuple[float, ...]:
+    """Odd polynomial of ``g(theta)`` on [0, half_fov] (``k = 1``; scans reuse it for every circle)."""
+    if family == "equidistant":
+        return (1.0,)
+    grid = np.linspace(0.0, math.radians(half_fov_deg), 200)
+    return tuple(fit_odd_poly(grid, _shape(family, grid), 11))
+
+
 def family_lens(name: str, family: str, circle: Circle, half_fov_deg: float, R: np.ndarray) -> LensModel:
     """A lens of ``family`` whose half field ``half_fov_deg`` falls on ``circle`` (rotation ``R`` lens -> camera)."""
-    te = math.radians(half_fov_deg)
-    k = circle.r / float(_shape(family, np.array(te)))
-    grid = np.linspace(0.0, te, 200)
-    poly = [k] if family == "equidistant" else fit_odd_poly(grid, k * _shape(family, grid), 11)
+    k = circle.r / float(_shape(family, np.array(math.radians(half_fov_deg))))
+    poly = [k * c for c in _unit_poly(family, round(float(half_fov_deg), 6))]
     usable = circle.r * (1 - _EDGE_MARGIN)
     lens = LensModel(name=name, center=(circle.cx, circle.cy), poly=poly, max_angle_deg=half_fov_deg,
                      ypr_deg=rotation_to_ypr_deg(R))
     return lens.model_copy(update={"max_angle_deg": float(math.degrees(lens.angle(usable)))})
 
 
+@lru_cache(maxsize=1024)
 def _rotations(back_turn_deg: float, roll_deg: float, back_offset_deg: tuple[float, float] = (0.0, 0.0)
                ) -> tuple[np.ndarray, np.ndarray]:
     Rr = np.asarray(rotation_z(math.radians(roll_deg)), np.float64)
@@ -126,7 +134,7 @@ def start_profile(circles: list[Circle], size: tuple[int, int], family: str, hal
     pitch ``back_offset_deg[1]``, its circle turned by ``back_turn_deg``) on ``circles[1]``, the
     camera rolled by ``roll_deg``."""
     fovs = (half_fov_deg, half_fov_deg) if np.isscalar(half_fov_deg) else tuple(half_fov_deg)
-    R0, R1 = _rotations(back_turn_deg, roll_deg, back_offset_deg)
+    R0, R1 = _rotations(float(back_turn_deg), float(roll_deg), tuple(float(a) for a in back_offset_deg))
     lenses = [family_lens("front", family, circles[0], float(fovs[0]), R0),
               family_lens("back", family, circles[1], float(fovs[1]), R1)]
     return LensProfile(model=model, source="solidkit calibrate fisheye", reference_size=tuple(size), lenses=lenses)

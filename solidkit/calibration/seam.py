@@ -28,6 +28,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from functools import lru_cache
 
 import cv2
 import numpy as np
@@ -59,6 +60,11 @@ class SeamImage:
 
 def ring_directions(n: int, lo_deg: float, hi_deg: float) -> np.ndarray:
     """``(m, 3)`` quasi-uniform directions (Fibonacci lattice) whose angle to +z is in [lo, hi] degrees."""
+    return _ring(int(n), float(lo_deg), float(hi_deg)).copy()
+
+
+@lru_cache(maxsize=256)
+def _ring(n: int, lo_deg: float, hi_deg: float) -> np.ndarray:
     lo, hi = math.cos(math.radians(hi_deg)), math.cos(math.radians(lo_deg))
     i = np.arange(n) + 0.5
     z = lo + (hi - lo) * i / n

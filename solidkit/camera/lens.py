@@ -147,7 +147,7 @@ class LensModel(BaseModel):
     @property
     def rotation(self) -> np.ndarray:
         """``R_lens`` (3, 3): lens-frame vectors -> camera-frame vectors."""
-        return np.asarray(rotation_from_ypr(*(math.radians(a) for a in self.ypr_deg)), dtype=np.float64)
+        return _rotation(tuple(float(a) for a in self.ypr_deg)).copy()
 
     def radius(self, theta: Any) -> Any:
         """Image height r (px, reference size) at incidence angle ``theta`` (radians)."""
@@ -182,6 +182,11 @@ class LensModel(BaseModel):
 
     def max_radius(self) -> float:
         return float(self.radius(math.radians(self.max_angle_deg)))
+
+
+@lru_cache(maxsize=1024)
+def _rotation(ypr_deg: tuple[float, float, float]) -> np.ndarray:
+    return np.asarray(rotation_from_ypr(*(math.radians(a) for a in ypr_deg)), dtype=np.float64)
 
 
 @lru_cache(maxsize=32)
