@@ -155,6 +155,11 @@ def unwarp(
         table.add_row("vignetting", "corrected before blending" if s.get("vignetting") else "not corrected (no --vignetting)")
         table.add_row("lens gains (R,G,B)", "; ".join(", ".join(f"{g:.3f}" for g in lg) for lg in s["gains"]))
         table.add_row("seam disagreement", f"median |diff| {s['seam_mad']:.4g} (before gain match {s['seam_mad_before_gain']:.4g}), rmse {s['seam_rmse']:.4g}")
+        fit = s.get("profile_fit") or {}
+        if fit:
+            seam = "unmeasured (dark or clipped frame)" if fit.get("seam_error") is None else f"{fit['seam_error']:.3f}"
+            table.add_row("profile fit", f"seam error {seam} (warns above {fit['seam_error_warn']}; 0 = the lenses agree, "
+                          f"1 = unrelated), layout {'ok' if fit.get('ok') else '[yellow]see warnings[/]'}")
         table.add_row("coverage", f"{100 * s['coverage']:.2f} % of output pixels")
         table.add_row("remap tables", s["cache"])
     if s.get("level_pitch_roll_deg"):
