@@ -115,3 +115,23 @@ def test_unwarp_command_imports_no_heavy_library(tmp_path):
     assert {"typer", "cv2", "numpy"} <= loaded
     assert not loaded & set(HEAVY), sorted(loaded & set(HEAVY))
     assert (tmp_path / "pano.png").is_file()
+
+
+def test_disk_cache_is_bounded_least_recently_used_first(tmp_path):
+    """Each levelling has its own tables (~150 MB at Theta V size): the folder is kept under a size bound."""
+    prof = load_profile("theta-v")
+    D.clear_cache()
+    keys = []
+    for k, pitch in enumerate((0.0, 1.0, 2.0)):
+        R = np.asarray(rotation_from_ypr(0.0, math.radians(pitch), 0.0))
+        D.get_cut_maps(prof, (512, 256), 128, R, cache_dir=tmp_path)
+        D.clear_cache()
+        keys.append({f.name for f in tmp_path.glob("*.tables")} - {n for kk in keys for n in kk})
+        if k == 1:  # the first file is read again: it becomes the most recently used
+            D.get_cut_maps(prof, (512, 256), 128, np.eye(3), cache_dir=tmp_path)
+            D.clear_cache()
+    files = sorted(tmp_path.glob("*.tables"))
+    one = files[0].stat().st_size
+    D._evict(tmp_path, keep=tmp_path / "none", max_bytes=2 * one)
+    left = {f.name for f in tmp_path.glob("*.tables")}
+    assert left == keys[0] | keys[2], (left, keys)  # the one built second and never read again went

@@ -52,6 +52,8 @@ _ROWS = 256
 MAX_GRID_STEP = 8
 #: Largest interpolation error of the remap tables between nodes: half their 1/32-px resolution.
 MAP_TOLERANCE_PX = 1 / 64
+#: Size bound of an on-disk table cache folder (least recently used files go first).
+DISK_CACHE_MAX_BYTES = 2 << 30
 _cache: "OrderedDict[str, Any]" = OrderedDict()  # UnwarpMaps and CutMaps by key
 _writing: dict[Path, threading.Thread] = {}  # cache files being written in the background
 
@@ -234,8 +236,30 @@ def _save_tables(path: Path, arrays: dict[str, np.ndarray]) -> None:
                     f.seek(index[name][2])
                     f.write(np.ascontiguousarray(a).data)
                 f.truncate(offset)
+        _evict(path.parent, keep=path)
     except OSError as exc:
         warnings.warn(f"{path}: remap tables not cached ({exc.strerror or exc})", RuntimeWarning, stacklevel=1)
+
+
+def _evict(folder: Path, keep: Path, max_bytes: int | None = None) -> None:
+    """Delete the least recently used table files of ``folder`` beyond :data:`DISK_CACHE_MAX_BYTES` (each
+    levelling has its own tables: without a bound the cache would grow by ~150 MB per Theta V capture).
+    A file another process has mapped stays readable to it after the unlink."""
+    limit = DISK_CACHE_MAX_BYTES if max_bytes is None else max_bytes
+    files = []
+    for f in folder.glob("*.tables"):
+        try:
+            st = f.stat()
+        except OSError:
+            continue
+        files.append((st.st_mtime, st.st_size, f))
+    total = sum(size for _, size, _ in files)
+    for _, size, f in sorted(files):
+        if total <= limit:
+            break
+        if f != keep:
+            f.unlink(missing_ok=True)
+            total -= size
 
 
 def _load_tables(path: Path) -> dict[str, np.ndarray]:
@@ -271,6 +295,7 @@ def _cached(key: str, cache_dir: str | os.PathLike | None, build: Any, load: Any
         try:
             maps = load(_load_tables(path))
             source = "disk"
+            os.utime(path)  # recently used: evicted last
         except (OSError, ValueError, KeyError, UnicodeDecodeError):
             maps = None  # unreadable cache file: rebuild and overwrite
     if maps is None:
