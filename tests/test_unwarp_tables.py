@@ -47,12 +47,19 @@ def test_interpolated_tables_within_tolerance_of_exact_projection():
         assert err.max() < D.MAP_TOLERANCE_PX, (i, err.max())
 
 
-@pytest.mark.parametrize("feather", [10.0, 0.0])
-def test_cut_tables_are_the_full_tables_of_the_dominant_lens(feather):
+@pytest.mark.parametrize("feather, in_size, H", [(10.0, (1024, 512), 256), (0.0, (1024, 512), 256), (10.0, (1920, 960), 960)])
+def test_cut_tables_are_the_full_tables_of_the_dominant_lens(feather, in_size, H):
+    """Exact projection (256 rows) and the node grid, where the weights come from the interpolated
+    margin difference alone (960 rows: every block passes _clip_is_exact)."""
     prof = load_profile("theta-v")
     R = np.asarray(rotation_from_ypr(0.2, 0.1, -0.05))
-    full = D.build_maps(prof, (1024, 512), 256, R, feather)
-    cut = D.build_cut_maps(prof, (1024, 512), 256, R, feather)
+    grid = D._NodeGrid(prof, in_size, H, R)
+    assert (grid.s > 1) == (H == 960)
+    if grid.s > 1:
+        (_, _, m0), (_, _, m1) = grid.nodes
+        assert all(D._clip_is_exact(m0[grid.slab(a, b)], m1[grid.slab(a, b)], math.radians(feather)) for a, b in grid.blocks())
+    full = D.build_maps(prof, in_size, H, R, feather)
+    cut = D.build_cut_maps(prof, in_size, H, R, feather)
     lead, idx, w0 = full.band()
     assert np.array_equal(cut.lead.astype(bool), lead) and np.array_equal(cut.band, idx)
     assert np.allclose(cut.band_w0.reshape(-1)[: idx.size], w0, atol=1e-6)
@@ -60,7 +67,7 @@ def test_cut_tables_are_the_full_tables_of_the_dominant_lens(feather):
     assert cut.coverage == pytest.approx(float(cov.mean()))
     assert np.array_equal(np.where(lead[..., None], full.map1[0], full.map1[1])[cov], cut.map1[cov])
     assert np.array_equal(np.where(lead, full.map2[0], full.map2[1])[cov], cut.map2[cov])
-    img = np.random.default_rng(0).integers(0, 256, (512, 1024, 3), dtype=np.uint8)
+    img = np.random.default_rng(0).integers(0, 256, (in_size[1], in_size[0], 3), dtype=np.uint8)
     for i in range(2):  # the band tables sample what each lens' full table samples there
         whole = cv2.remap(img, full.map1[i], full.map2[i], cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT)
         assert np.array_equal(cut.sample_band(img, i).reshape(-1, 3)[: idx.size], whole.reshape(-1, 3)[idx])

@@ -140,44 +140,70 @@ def lens_samples(
     (``cv2.resize``, whose pixel-centre convention puts node ``k`` at ``(k + 0.5) s``): the map of a
     smooth function, 25x fewer projections at Theta V size, within :data:`MAP_TOLERANCE_PX`.
     """
-    prof = profile.scaled(*in_size)
-    R = np.eye(3) if R_level is None else np.asarray(R_level, dtype=np.float64)
-    H, W = out_height, 2 * out_height
-    w_in, h_in = in_size
-    # a lens whose whole image circle lies in the frame never samples outside it where it sees
-    framed = [min(lens.center[0] + 0.5, w_in - 0.5 - lens.center[0], lens.center[1] + 0.5, h_in - 0.5 - lens.center[1])
-              >= lens.max_radius() for lens in prof.lenses]
+    grid = _NodeGrid(profile, in_size, out_height, R_level)
+    for r0, r1 in grid.blocks(block_rows):
+        yield r0, r1, grid.samples(r0, r1)
 
-    def project_grid(ys: np.ndarray, xs: np.ndarray) -> list[list[np.ndarray]]:
+
+class _NodeGrid:
+    """The projection of :func:`lens_samples` on its node grid, interpolated block by block."""
+
+    def __init__(self, profile: LensProfile, in_size: tuple[int, int], out_height: int, R_level: Any = None):
+        self.prof = profile.scaled(*in_size)
+        self.R = np.eye(3) if R_level is None else np.asarray(R_level, dtype=np.float64)
+        self.H, self.W = out_height, 2 * out_height
+        self.in_size = in_size
+        w_in, h_in = in_size
+        # a lens whose whole image circle lies in the frame never samples outside it where it sees
+        self.framed = [min(lens.center[0] + 0.5, w_in - 0.5 - lens.center[0], lens.center[1] + 0.5,
+                           h_in - 0.5 - lens.center[1]) >= lens.max_radius() for lens in self.prof.lenses]
+        self.s = _grid_step(self.prof, self.H)
+        self.pad = 1 if self.s > 1 else 0
+        if self.s > 1:
+            s, pad = self.s, self.pad
+            self.nodes = self._project((np.arange(-(-self.H // s) + 2 * pad) - pad + 0.5) * s,
+                                       (np.arange(-(-self.W // s) + 2 * pad) - pad + 0.5) * s)
+
+    def _project(self, ys: np.ndarray, xs: np.ndarray) -> list[list[np.ndarray]]:
         yy, xx = np.meshgrid(ys, xs, indexing="ij")
-        d_cam = direction_from_coords(xx, yy, H) @ R  # row vectors: (R^T d)^T
+        d_cam = direction_from_coords(xx, yy, self.H) @ self.R  # row vectors: (R^T d)^T
         planes = []
-        for lens in prof.lenses:
+        for lens in self.prof.lenses:
             x, y, theta = project(lens, d_cam)
             planes.append([x.astype(np.float32), y.astype(np.float32),
                            (math.radians(lens.max_angle_deg) - theta).astype(np.float32)])
         return planes
 
-    s = _grid_step(prof, H)
-    pad = 1 if s > 1 else 0
-    if s > 1:
-        nodes = project_grid((np.arange(-(-H // s) + 2 * pad) - pad + 0.5) * s, (np.arange(-(-W // s) + 2 * pad) - pad + 0.5) * s)
-    block = max(s, block_rows // s * s)
-    for r0 in range(0, H, block):
-        r1 = min(H, r0 + block)
-        if s == 1:
-            planes = project_grid(np.arange(r0, r1) + 0.5, np.arange(W) + 0.5)
+    def blocks(self, block_rows: int = _ROWS) -> Iterator[tuple[int, int]]:
+        block = max(self.s, block_rows // self.s * self.s)
+        for r0 in range(0, self.H, block):
+            yield r0, min(self.H, r0 + block)
+
+    def slab(self, r0: int, r1: int) -> slice:
+        """The node rows whose interpolation covers output rows ``r0:r1`` (``s > 1``)."""
+        return slice(r0 // self.s, r0 // self.s + -(-(r1 - r0) // self.s) + 2 * self.pad)
+
+    def interpolate(self, plane: np.ndarray, r0: int, r1: int) -> np.ndarray:
+        """A node plane at output rows ``r0:r1`` (bilinear; see :func:`lens_samples`)."""
+        s, pad = self.s, self.pad
+        p = plane[self.slab(r0, r1)]
+        return cv2.resize(p, (p.shape[1] * s, p.shape[0] * s), interpolation=cv2.INTER_LINEAR)[
+            pad * s: pad * s + (r1 - r0), pad * s: pad * s + self.W]
+
+    def samples(self, r0: int, r1: int) -> list[tuple[np.ndarray, np.ndarray, np.ndarray]]:
+        """``[(x, y, margin) per lens]`` at output rows ``r0:r1`` (see :func:`lens_samples`)."""
+        if self.s == 1:
+            planes = self._project(np.arange(r0, r1) + 0.5, np.arange(self.W) + 0.5)
         else:
-            n = -(-(r1 - r0) // s) + 2 * pad
-            planes = [[cv2.resize(p[r0 // s: r0 // s + n], (p.shape[1] * s, n * s), interpolation=cv2.INTER_LINEAR)
-                       [pad * s: pad * s + (r1 - r0), pad * s: pad * s + W] for p in lens_nodes] for lens_nodes in nodes]
+            planes = [[self.interpolate(p, r0, r1) for p in lens_nodes] for lens_nodes in self.nodes]
+        w_in, h_in = self.in_size
         out = []
-        for (x, y, m), inframe in zip(planes, framed):
+        for (x, y, m), inframe in zip(planes, self.framed):
             if not inframe:
                 outside = (x < -0.5) | (x > w_in - 0.5) | (y < -0.5) | (y > h_in - 0.5)  # never sample outside the frame
                 m = np.where(outside, np.minimum(m, np.float32(-1e-6)), m)
             out.append((x, y, m))
-        yield r0, r1, out
+        return out
 
 
 def build_maps(
@@ -373,6 +399,22 @@ class CutMaps:
         return v if v.ndim == 3 else v[..., None]
 
 
+def _clip_is_exact(m0: np.ndarray, m1: np.ndarray, f: float) -> bool:
+    """Is the two-lens weight ``clip(0.5 + (m0 - m1) / 2f)`` alone exact everywhere between these nodes?
+
+    Bilinear values lie between a cell's four corners, so per cell: both lenses see throughout, or
+    one sees throughout and leads the other by at least ``f`` (its weight saturates at 1, as it is
+    where the other does not see). Then no pixel is unseen either.
+    """
+    def lo(a: np.ndarray) -> np.ndarray:
+        return np.minimum(np.minimum(a[:-1, :-1], a[1:, :-1]), np.minimum(a[:-1, 1:], a[1:, 1:]))
+
+    m0_lo, m1_lo = lo(m0), lo(m1)
+    d_lo, d_hi = lo(m0 - m1), -lo(m1 - m0)
+    ok = ((m0_lo > 0) & (m1_lo > 0)) | ((m0_lo > 0) & (d_lo >= f)) | ((m1_lo > 0) & (d_hi <= -f))
+    return bool(ok.all())
+
+
 def build_cut_maps(
     profile: LensProfile, in_size: tuple[int, int], out_height: int, R_level: Any = None, feather_deg: float = 10.0
 ) -> CutMaps:
@@ -384,23 +426,43 @@ def build_cut_maps(
     map2 = np.empty((H, W), np.uint16)
     lead = np.empty((H, W), np.uint8)
     band, band_w0, band_xy, covered = [], [], ([], []), 0
-    half_inv_f = np.float32(0.5 / max(math.radians(feather_deg), 1e-6))
-    for r0, r1, ((x0, y0, m0), (x1, y1, m1)) in lens_samples(profile, in_size, out_height, R_level):
-        # feather_weights for two lenses: w0 = clip(0.5 + (m0 - m1) / 2f) where both see, 1/0 where one does
-        w0 = m0 - m1
-        w0 *= half_inv_f
-        w0 += np.float32(0.5)
-        np.clip(w0, 0.0, 1.0, out=w0)
-        np.copyto(w0, np.float32(1.0), where=m1 <= 0)
-        np.copyto(w0, np.float32(0.0), where=m0 <= 0)
-        lens0 = w0 >= 0.5
-        x = np.where(lens0, x0, x1)
-        y = np.where(lens0, y0, y1)
-        unseen = (m0 <= 0) & (m1 <= 0)
-        if unseen.any():
-            x[unseen] = -10.0
-            y[unseen] = -10.0
-        covered += unseen.size - int(np.count_nonzero(unseen))
+    f = max(math.radians(feather_deg), 1e-6)
+    half_inv_f = np.float32(0.5 / f)
+    grid = _NodeGrid(profile, in_size, out_height, R_level)
+    if grid.s > 1 and all(grid.framed):
+        (_, _, m0_nodes), (_, _, m1_nodes) = grid.nodes
+        dm_nodes = m0_nodes - m1_nodes
+    for r0, r1 in grid.blocks():
+        if grid.s > 1 and all(grid.framed) and _clip_is_exact(m0_nodes[grid.slab(r0, r1)], m1_nodes[grid.slab(r0, r1)], f):
+            # every pixel of the block is seen, and where a lens does not see the other one's weight
+            # saturates: w0 = clip(0.5 + (m0 - m1) / 2f) alone, from the interpolated margin difference
+            (x0n, y0n, _), (x1n, y1n, _) = grid.nodes
+            x0, y0, x1, y1 = (grid.interpolate(p, r0, r1) for p in (x0n, y0n, x1n, y1n))
+            w0 = grid.interpolate(dm_nodes, r0, r1)
+            w0 *= half_inv_f
+            w0 += np.float32(0.5)
+            np.clip(w0, 0.0, 1.0, out=w0)
+            lens0 = w0 >= 0.5
+            x = np.where(lens0, x0, x1)
+            y = np.where(lens0, y0, y1)
+            covered += lens0.size
+        else:
+            (x0, y0, m0), (x1, y1, m1) = grid.samples(r0, r1)
+            # feather_weights for two lenses: w0 = clip(0.5 + (m0 - m1) / 2f) where both see, 1/0 where one does
+            w0 = m0 - m1
+            w0 *= half_inv_f
+            w0 += np.float32(0.5)
+            np.clip(w0, 0.0, 1.0, out=w0)
+            np.copyto(w0, np.float32(1.0), where=m1 <= 0)
+            np.copyto(w0, np.float32(0.0), where=m0 <= 0)
+            lens0 = w0 >= 0.5
+            x = np.where(lens0, x0, x1)
+            y = np.where(lens0, y0, y1)
+            unseen = (m0 <= 0) & (m1 <= 0)
+            if unseen.any():
+                x[unseen] = -10.0
+                y[unseen] = -10.0
+            covered += unseen.size - int(np.count_nonzero(unseen))
         cv2.convertMaps(x, y, cv2.CV_16SC2, dstmap1=map1[r0:r1], dstmap2=map2[r0:r1])
         lead[r0:r1] = lens0
         rows_i, cols_i = np.divmod(np.flatnonzero((w0 > 0) & (w0 < 1)), W)  # the band: both lenses weigh in
