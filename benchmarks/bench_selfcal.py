@@ -301,7 +301,7 @@ def markdown(res: dict) -> str:
     L += [f"- `calibrate fisheye`: layout **{c['layout']}**, {c['family']} {c['fov_deg']}°, back lens ypr {c['back_ypr_deg']}, "
           f"seam error start {c['seam_error_start']:.3f} → refined {c['seam_error_refined']:.3f} → kept {c['seam_error']:.3f}"
           f"{' (refinement refused)' if c['refusal'] else ''}; the shipped theta-s-video profile (refined unbounded on this very "
-          f"frame) scores {c['shipped_profiles_seam_error']} and the command says so ({c['seconds']} s).",
+          f"frame) scores {c['shipped_profiles_seam_error']}, listed in the summary ({c['seconds']} s at this load).",
           f"- `calibrate overlap --base theta-s-video`: seam error {rf['calibrate overlap --base theta-s-video']['seam_error_before']:.3f}"
           f" → {rf['calibrate overlap --base theta-s-video']['seam_error_after']:.3f}, refused: "
           f"{rf['calibrate overlap --base theta-s-video']['refused'] or 'no'}.",

@@ -14,7 +14,8 @@ Steps (each recorded in the result):
    ~128 px radius, then in 0.05° steps within ±0.4° of the best at ~256 px,
    minimising the seam error (:func:`solidkit.calibration.seam.seam_error`, scale free, so
    candidates with overlap rings of different widths compare). The family with the lowest error
-   wins; the field of view is ``2 theta_edge``.
+   wins the start; the field of view is ``2 theta_edge``. With refinement on, every family within
+   15 % of the best start is refined and the lowest refined (or kept) seam error decides.
 
    ``g``: ``equidistant`` theta (``r = f theta``), ``equisolid`` ``2 sin(theta/2)``, ``theta``:
    Ricoh's design table of the Theta V/S lens unit (the ``theta-v`` profile's, up to 100°;
@@ -304,27 +305,40 @@ def fit_dual_fisheye(image: np.ndarray, saturation: float | None = None, *, fami
 
     up = upright_of(seam, start_profile(circles, size, family, half_fov, back_turn, back_offset_deg=offset))
     log(f"upright: roll {up.roll_deg:+.0f}° ({up.cue}{'' if up.confident else ', not confident'})")
-    start = start_profile(circles, size, family, half_fov, back_turn, up.roll_deg, back_offset_deg=offset)
-    e0 = seam_error(seam, start)
-    log(f"start profile: {family}, field of view {2 * half_fov:.1f}°, seam error {e0['seam_error']:.3f}")
-    final, refused, info, e1 = start, None, {}, e0
-    if refine:
-        log("refining on the overlap (bounded, 5 starts, coarse to fine)")
-        refined, info = _refine([img], start, saturation, seam, log)
-        refined = _with_edge(refined, circles)
-        e1 = seam_error(seam, refined)
-        if math.isfinite(e1["seam_error"]) and e1["seam_error"] < e0["seam_error"]:
-            final = refined
-        else:
-            refused = (f"refinement refused: seam error {e1['seam_error']:.3f} after vs {e0['seam_error']:.3f} at the "
-                       "start; the start profile is kept")
-            log(refused)
+    # refine every family whose start is within 15 % of the best: the overlap ring is narrow, so the
+    # families' shapes differ little there and the refined seam decides
+    best_start = fam_scores[family]["seam_error"]
+    tried = [family] + [f for f in fam_scores if f != family and refine
+                        and fam_scores[f]["seam_error"] <= 1.15 * best_start]
+    outcomes = []
+    for fam in tried:
+        hf = fam_scores[fam]["half_fov_deg"]
+        start = start_profile(circles, size, fam, hf, back_turn, up.roll_deg, back_offset_deg=offset)
+        e0 = seam_error(seam, start)
+        log(f"start profile: {fam}, field of view {2 * hf:.1f}°, seam error {e0['seam_error']:.3f}")
+        final, refused, info, e1 = start, None, {}, e0
+        if refine:
+            log("refining on the overlap (bounded, 5 starts, coarse to fine)")
+            refined, info = _refine([img], start, saturation, seam, log)
+            refined = _with_edge(refined, circles)
+            e1 = seam_error(seam, refined)
+            if math.isfinite(e1["seam_error"]) and e1["seam_error"] < e0["seam_error"]:
+                final = refined
+            else:
+                refused = (f"refinement refused: seam error {e1['seam_error']:.3f} after vs {e0['seam_error']:.3f} at "
+                           "the start; the start profile is kept")
+                log(refused)
+        kept = e1 if refused is None else e0
+        outcomes.append((_finite({**kept, "coverage": 1.0}), fam, hf, start, e0, final, refused, info, e1))
+    _, family, half_fov, start, e0, final, refused, info, e1 = min(outcomes, key=lambda o: o[0])
+    if len(outcomes) > 1:
+        log(f"kept {family}: seam error " + ", ".join(f"{o[1]} {o[0]:.3f}" for o in outcomes))
     return LensFit(profile=final, start=start, circles=circles, arrangement=arrangement, back_turn_deg=back_turn,
                    family=family, half_fov_deg=half_fov, upright=up, seam_start=e0,
                    seam_final=e1 if refused is None else e0, refined=refine and refused is None, refusal=refused,
                    scans={"back_turn_seam_error": {str(k): v for k, v in turns.items()}, "back_offset_deg": list(offset), "families": fam_scores,
                           "refined_seam": e1},
-                   refinement=info)
+                   refinement={**info, "families_refined": {o[1]: o[0] for o in outcomes}})
 
 
 def fit_file(path: str | Path, out: str | Path, *, families: tuple[str, ...] = FAMILIES, refine: bool = True,
