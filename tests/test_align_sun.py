@@ -135,3 +135,23 @@ def test_no_sun_anywhere() -> None:
     sun = scene_sun(caps, photo_ephemeris=PHOTO_EPH, photo_heading_deg=180.0, settings=STATIC)
     assert not sun.found and not any(c.found for c in sun.captures)
     assert "occluded or overcast" in sun.captures[0].reason
+
+
+def test_without_any_yaw_the_compass_and_ephemeris_rank_a_glint_below_the_sun() -> None:
+    """No capture has a yaw from features (all failed) and the glint of a vertical glass wall has the sun's
+    elevation (even a closer one): through the compasses, the ephemeris azimuth tells them apart (virtual
+    campaign seed 11 scene02: a glint 35 deg off was chosen on elevation alone)."""
+    from dataclasses import replace
+
+    caps = []
+    for pid, yaw, compass_err in (("cam", 0.0, 2.0), ("p01", 70.0, -4.0)):
+        c = _capture(pid, yaw, glint=(wrap_deg(SUN_P[0] - yaw - 35.0), SUN_P[1] + 0.05))
+        sun_el = next(b.elevation_deg for b in c.blobs if abs(wrap_deg(b.azimuth_deg - (SUN_P[0] - yaw))) < 1.0)
+        # the real sun 0.3 deg lower than the glint: elevation alone prefers the glint
+        c.blobs = [replace(b, elevation_deg=b.elevation_deg - 0.3) if abs(b.elevation_deg - sun_el) < 1e-9
+                   and abs(wrap_deg(b.azimuth_deg - (SUN_P[0] - yaw))) < 1.0 else b for b in c.blobs]
+        c.yaw_deg, c.yaw_sigma_deg, c.compass_yaw_deg = None, None, yaw + compass_err
+        caps.append(c)
+    sun = scene_sun(caps, photo_ephemeris=PHOTO_EPH, photo_heading_deg=180.0, settings=STATIC)
+    for cs, yaw in zip(sun.captures, (0.0, 70.0)):
+        assert cs.found and abs(wrap_deg(cs.azimuth_deg - (SUN_P[0] - yaw))) < 0.5, (cs.probe, cs.azimuth_deg)

@@ -274,6 +274,10 @@ def scene_sun(captures: list[CaptureSunInput], *, photo_ephemeris: Ephemeris | N
             eph_el_ok = eph_p is not None and abs(h_el - eph_p[1]) <= s.ephemeris_tolerance_deg
             eph_az_ok = (eph_p is not None and eph_p[0] is not None and h_az is not None
                          and abs(wrap_deg(h_az - eph_p[0])) <= 3.0 * s.compass_sigma_deg)
+            if h_az is None and eph_p is not None and eph_p[0] is not None and cap.compass_yaw_deg is not None:
+                # no yaw but the capture's compass: a tie-breaker only (never a rejection: a compass can be 90 deg off)
+                az_c, _ = _sun_in_photo_time(cap.blobs[bi], cap, photo_ephemeris, s)
+                eph_az_ok = abs(wrap_deg(az_c + cap.compass_yaw_deg - eph_p[0])) <= 3.0 * s.compass_sigma_deg
             eph_az_bad = (eph_p is not None and eph_p[0] is not None and h_az is not None and not eph_az_ok)
             if support == 1.0 and eph_az_bad:
                 # seen from one position only and not where the ephemeris and the compass put the sun:
@@ -300,6 +304,11 @@ def scene_sun(captures: list[CaptureSunInput], *, photo_ephemeris: Ephemeris | N
                 az, el = p_frame(ci, bi)
                 chi2 = ((el - h_el) / (el_tol / 3.0)) ** 2
                 cos_el = max(math.cos(math.radians(h_el)), 0.2)
+                ref_az = h_az
+                if ref_az is None and eph_p is not None and eph_p[0] is not None and cap.compass_yaw_deg is not None:
+                    ref_az = eph_p[0]  # no capture has a yaw: the ephemeris through the compasses ranks them
+                    az_c, _ = _sun_in_photo_time(cap.blobs[bi], cap, photo_ephemeris, s)
+                    return chi2 + (wrap_deg(az_c + cap.compass_yaw_deg - ref_az) / s.compass_sigma_deg) ** 2
                 if h_az is None:
                     return chi2
                 if az is not None:
