@@ -155,3 +155,17 @@ def test_without_any_yaw_the_compass_and_ephemeris_rank_a_glint_below_the_sun() 
     sun = scene_sun(caps, photo_ephemeris=PHOTO_EPH, photo_heading_deg=180.0, settings=STATIC)
     for cs, yaw in zip(sun.captures, (0.0, 70.0)):
         assert cs.found and abs(wrap_deg(cs.azimuth_deg - (SUN_P[0] - yaw))) < 0.5, (cs.probe, cs.azimuth_deg)
+
+
+def test_a_glint_wider_than_the_sun_is_rejected_without_a_yaw() -> None:
+    """A capture without a yaw (features failed) whose only candidate is a glint at the sun's elevation, spread to
+    1.6x the sun's width (seed 11 scene01/p02: its 'sun' was 48 deg off and turned its yaw 180 deg)."""
+    from dataclasses import replace
+
+    cam = _capture("cam", 0.0)
+    p01 = _capture("p01", 70.0, sun=False, glint=(wrap_deg(SUN_P[0] - 70.0 + 120.0), SUN_P[1]))
+    p01.blobs = [replace(b, size_deg=1.6 * cam.blobs[0].size_deg) for b in p01.blobs]
+    p01.yaw_deg, p01.yaw_sigma_deg, p01.compass_yaw_deg = None, None, 72.0
+    sun = scene_sun([cam, p01], photo_ephemeris=PHOTO_EPH, photo_heading_deg=180.0, settings=STATIC)
+    assert sun.captures[0].found and not sun.captures[1].found
+    assert any("larger than the sun" in r for c in sun.captures[1].candidates for r in c.reasons)

@@ -10,7 +10,9 @@ Per scene (:func:`scene_sun`), the tests a glint fails (a mirror image of the su
 as bright and as small as the sun, so brightness and confidence cannot tell them apart):
 
 1. **Size**: the sun's disk is 0.53° wide; a saturated core wider than ``max_size_deg`` is a
-   bright surface or cloud.
+   bright surface or cloud. Within a scene (one exposure, minutes apart) the sun's core keeps its
+   size (within 20 % on virtual campaigns); a candidate accepted without a yaw (elevation only)
+   that is ``max_size_ratio`` times wider than the winning hypothesis' is a glint (1.5-2x measured).
 2. **Sky, not facade**: in the capture's normal exposure (HDR or LDR panorama) the ring 1.5-6°
    around the candidate must be mostly sky-bright (a glint sits on a dark facade).
 3. **Same world direction everywhere**: the sun is at infinity, so once each capture is turned
@@ -61,6 +63,7 @@ class SunSettings:
 
     saturation: float = 0.9
     max_size_deg: float = 3.0
+    max_size_ratio: float = 1.35
     min_sky_fraction: float = 0.35
     level_sigma_deg: float = 0.4
     centroid_sigma_deg: float = 0.1
@@ -319,8 +322,16 @@ def scene_sun(captures: list[CaptureSunInput], *, photo_ephemeris: Ephemeris | N
                 return chi2
 
             cands = sorted((bi for bi in range(len(cap.blobs)) if not hard[ci, bi]), key=closeness)
+            ref_size = captures[ci0].blobs[bi0].size_deg
             for bi in cands:
                 ok, _ = agrees(h_az, h_el, h_sig, ci, bi)
+                if ok and ci != ci0 and (h_az is None or cap.yaw_deg is None) \
+                        and cap.blobs[bi].size_deg > s.max_size_ratio * ref_size:
+                    # accepted on elevation alone, but the sun's saturated core has one size in one scene (same
+                    # exposure, minutes apart: within 20 % measured); a glint on glass spreads (1.5-2x measured)
+                    hard[ci, bi] = [f"larger than the sun seen from {captures[ci0].probe}: {cap.blobs[bi].size_deg:.2f} deg vs "
+                                    f"{ref_size:.2f} deg wide (a glint on glass?)"]
+                    continue
                 if ok:
                     pick = bi
                     break
