@@ -8,11 +8,11 @@ import cv2
 import numpy as np
 import pytest
 
-from solidkit.align.manhattan import line_normals, vanishing_azimuth
+from solidkit.align.manhattan import line_normals, photo_line_normals, vanishing_azimuth
 from solidkit.envmap.coords import coords_from_direction, direction_from_angles
 
 
-def _street(az0_deg: float, h: int = 256, seed: int = 0) -> np.ndarray:
+def _street(az0_deg: float, h: int = 256, seed: int = 0, n_lines: int = 14) -> np.ndarray:
     """A level panorama (linear, grey) of two facades' horizontal lines along ``az0`` and ``az0 + 90`` deg,
     some vertical edges, and noise: the lines are drawn as dense polylines of their projections."""
     rng = np.random.default_rng(seed)
@@ -20,7 +20,7 @@ def _street(az0_deg: float, h: int = 256, seed: int = 0) -> np.ndarray:
     for fam in (0.0, 90.0):
         d = np.asarray(direction_from_angles(math.radians(az0_deg + fam), 0.0))
         side = np.cross(d, [0.0, 1.0, 0.0])
-        for _ in range(14):
+        for _ in range(n_lines):
             off = side * rng.choice([-1.0, 1.0]) * rng.uniform(4.0, 12.0) + np.array([0.0, rng.uniform(-6.0, 1.2), 0.0])
             t = np.linspace(-40.0, 40.0, 4000)
             pts = off[None] + t[:, None] * d[None]
@@ -58,3 +58,21 @@ def test_no_lines_no_answer() -> None:
     rng = np.random.default_rng(3)
     flat = np.clip(0.4 + rng.normal(0.0, 0.01, (128, 256, 3)), 0, 1).astype(np.float32)
     assert vanishing_azimuth(*line_normals(flat, linear=False)) is None
+
+
+def test_the_photo_gives_the_street_direction_in_its_panorama_frame() -> None:
+    """A pinhole view (pitched 8 deg down, yawed 20 deg) of the drawn street: its lines, levelled by its pitch,
+    give the street's vanishing azimuth in the panorama frame (mod 90 deg), the reference of the manhattan cue."""
+    from solidkit.envmap.coords import rotation_from_ypr
+    from solidkit.envmap.perspective import intrinsics_from_fov, perspective_crop
+
+    pano = _street(33.0, h=1024, seed=4, n_lines=40)
+    R = np.asarray(rotation_from_ypr(math.radians(20.0), math.radians(-8.0), 0.0))
+    K = intrinsics_from_fov(math.radians(70.0), 640, 480)
+    photo = np.clip(perspective_crop(pano, R, (640, 480), K=K), 0, 1)
+    photo8 = np.round(photo * 255).astype(np.uint8)
+    # the photo's rays -> its level panorama frame: the pitch/roll part of R only (its yaw is the frame's 0)
+    R_level = np.asarray(rotation_from_ypr(0.0, math.radians(-8.0), 0.0))
+    fit = vanishing_azimuth(*photo_line_normals(photo8, K, R_level))
+    assert fit is not None
+    assert abs(((fit.azimuth_deg - (33.0 - 20.0)) + 45.0) % 90.0 - 45.0) < 0.5, fit

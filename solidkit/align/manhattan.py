@@ -33,7 +33,7 @@ from solidkit.align.features import rays_from_pixels, to_grey8
 from solidkit.envmap.coords import angles_from_direction, direction_from_angles, rotation_from_ypr
 from solidkit.envmap.perspective import intrinsics_from_fov, perspective_crop
 
-__all__ = ["VanishingFit", "line_normals", "vanishing_azimuth"]
+__all__ = ["VanishingFit", "line_normals", "photo_line_normals", "vanishing_azimuth"]
 
 
 @dataclass(frozen=True)
@@ -85,6 +85,30 @@ def line_normals(pano: np.ndarray, *, linear: bool = True, C: np.ndarray | None 
     if not normals:
         return np.zeros((0, 3)), np.zeros(0)
     return np.concatenate(normals), np.concatenate(lengths)
+
+
+def photo_line_normals(photo: np.ndarray, K: np.ndarray, R_level: np.ndarray, *, min_length_px: float = 15.0
+                       ) -> tuple[np.ndarray, np.ndarray]:
+    """Great-circle normals ``(N, 3)`` and angular lengths ``(N,)`` of a pinhole photo's line segments, in its
+    level panorama frame.
+
+    ``K`` (3, 3): the photo's intrinsics; ``R_level`` (3, 3): camera rays -> the level panorama frame
+    (``R(0, pitch, roll)``, conventions §4). The photo's own yaw is 0 in its panorama frame, so its
+    vanishing azimuth is already the street's in that frame (modulo 90°).
+    """
+    grey = to_grey8(np.asarray(photo), linear=False, clahe=False)
+    lines = cv2.createLineSegmentDetector(cv2.LSD_REFINE_STD).detect(grey)[0]
+    if lines is None:
+        return np.zeros((0, 3)), np.zeros(0)
+    x1, y1, x2, y2 = lines.reshape(-1, 4).astype(np.float64).T
+    keep = np.hypot(x2 - x1, y2 - y1) >= min_length_px
+    R = np.asarray(R_level, np.float64)
+    r1 = rays_from_pixels(np.c_[x1[keep], y1[keep]], K) @ R.T
+    r2 = rays_from_pixels(np.c_[x2[keep], y2[keep]], K) @ R.T
+    n = np.cross(r1, r2)
+    norm = np.linalg.norm(n, axis=1)
+    ok = norm > 1e-9
+    return n[ok] / norm[ok, None], np.arcsin(np.clip(norm[ok], 0.0, 1.0))
 
 
 def vanishing_azimuth(normals: np.ndarray, lengths: np.ndarray, *, endpoint_deg: float = 0.15, c: float = 3.0,

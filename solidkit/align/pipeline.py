@@ -322,7 +322,7 @@ def align_scene(campaign: Path, manifest: Manifest, scene: Scene, settings: Alig
     # whose yaws (features, sun; never the compass) carry them over
     _chain_cues(caps, cam, s)
     if s.manhattan:
-        _manhattan_cues(caps, s)
+        _manhattan_cues(caps, s, photo_lines=lambda: _photo_lines(campaign, photo))
 
     # final yaws, probe pixels
     probes: list[ProbeAlignment] = []
@@ -469,12 +469,25 @@ def _chain_cues(caps: list[_CapState], cam: _CapState | None, s: AlignSettings) 
                 st.cues[f"features_via_{oid}"] = cue
 
 
-def _manhattan_cues(caps: list[_CapState], s: AlignSettings) -> None:
+def _photo_lines(campaign: Path, photo: PhotoInfo | None) -> tuple[np.ndarray, np.ndarray] | None:
+    """The photo's line segments as great-circle normals in its level panorama frame (its pitch/roll)."""
+    if photo is None:
+        return None
+    from solidkit.align.manhattan import photo_line_normals
+    from solidkit.envmap.io import read_ldr
+
+    R = np.asarray(rotation_from_ypr(0.0, math.radians(photo.pitch_deg or 0.0), math.radians(photo.roll_deg or 0.0)))
+    return photo_line_normals(read_ldr(campaign / photo.path), np.asarray(photo.K_full), R)
+
+
+def _manhattan_cues(caps: list[_CapState], s: AlignSettings,
+                    photo_lines: Callable[[], tuple[np.ndarray, np.ndarray] | None] | None = None) -> None:
     """``manhattan`` cues (:mod:`solidkit.align.manhattan`) for captures left with the compass alone.
 
     The street's horizontal vanishing azimuth in the photo's panorama frame (modulo 90°) comes from
-    the captures whose yaw other cues fixed (a robust mean over them); a lone capture's own
-    vanishing azimuth then gives its yaw modulo 90°, the quadrant nearest to its compass.
+    the captures whose yaw other cues fixed and from the photo itself (yaw 0 in its own frame; its
+    pitch/roll level its lines): a robust mean over them. A lone capture's own vanishing azimuth
+    then gives its yaw modulo 90°, the quadrant nearest to its compass.
     """
     from solidkit.align.manhattan import line_normals, vanishing_azimuth
 
@@ -494,9 +507,14 @@ def _manhattan_cues(caps: list[_CapState], s: AlignSettings) -> None:
         f, known = fits.get(st.cap.id), non_compass(st)
         if f is not None and known.yaw_deg is not None and f.ambiguity < 0.95:
             members.append(((f.azimuth_deg + known.yaw_deg) % 90.0, math.hypot(f.sigma_deg, known.sigma_deg or 0.0), st.cap.id))
+    lines = photo_lines() if photo_lines is not None else None
+    fp = vanishing_azimuth(*lines) if lines is not None else None
+    if fp is not None and fp.ambiguity < 0.95:
+        # the photo's pitch/roll (features or field notes) tilt its lines: a floor of 0.5 deg
+        members.append((fp.azimuth_deg % 90.0, math.hypot(fp.sigma_deg, 0.5), "the photo"))
     if not members:
         for st in lone:
-            st.cues["manhattan"] = Cue(yaw_deg=None, ok=False, detail="no capture with a known yaw shows the street's lines")
+            st.cues["manhattan"] = Cue(yaw_deg=None, ok=False, detail="neither the photo nor a capture with a known yaw shows the street's lines")
         return
 
     def mean90(vals: list[float], w: list[float]) -> float:  # circular mean with period 90 deg
