@@ -26,6 +26,7 @@ import os
 import threading
 import warnings
 from collections import OrderedDict
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field, fields
 from pathlib import Path
 from typing import Any, ClassVar, Iterator
@@ -425,18 +426,19 @@ def build_cut_maps(
     map1 = np.empty((H, W, 2), np.int16)
     map2 = np.empty((H, W), np.uint16)
     lead = np.empty((H, W), np.uint8)
-    band, band_w0, band_xy, covered = [], [], ([], []), 0
     f = max(math.radians(feather_deg), 1e-6)
     half_inv_f = np.float32(0.5 / f)
     grid = _NodeGrid(profile, in_size, out_height, R_level)
     if grid.s > 1 and all(grid.framed):
-        (_, _, m0_nodes), (_, _, m1_nodes) = grid.nodes
+        (x0n, y0n, m0_nodes), (x1n, y1n, m1_nodes) = grid.nodes
         dm_nodes = m0_nodes - m1_nodes
-    for r0, r1 in grid.blocks():
+
+    def block(rows: tuple[int, int]) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, int]:
+        """Rows ``r0:r1`` of the tables (written in place); returns the block's band and its covered count."""
+        r0, r1 = rows
         if grid.s > 1 and all(grid.framed) and _clip_is_exact(m0_nodes[grid.slab(r0, r1)], m1_nodes[grid.slab(r0, r1)], f):
             # every pixel of the block is seen, and where a lens does not see the other one's weight
             # saturates: w0 = clip(0.5 + (m0 - m1) / 2f) alone, from the interpolated margin difference
-            (x0n, y0n, _), (x1n, y1n, _) = grid.nodes
             x0, y0, x1, y1 = (grid.interpolate(p, r0, r1) for p in (x0n, y0n, x1n, y1n))
             w0 = grid.interpolate(dm_nodes, r0, r1)
             w0 *= half_inv_f
@@ -445,7 +447,7 @@ def build_cut_maps(
             lens0 = w0 >= 0.5
             x = np.where(lens0, x0, x1)
             y = np.where(lens0, y0, y1)
-            covered += lens0.size
+            covered = lens0.size
         else:
             (x0, y0, m0), (x1, y1, m1) = grid.samples(r0, r1)
             # feather_weights for two lenses: w0 = clip(0.5 + (m0 - m1) / 2f) where both see, 1/0 where one does
@@ -462,14 +464,19 @@ def build_cut_maps(
             if unseen.any():
                 x[unseen] = -10.0
                 y[unseen] = -10.0
-            covered += unseen.size - int(np.count_nonzero(unseen))
+            covered = unseen.size - int(np.count_nonzero(unseen))
         cv2.convertMaps(x, y, cv2.CV_16SC2, dstmap1=map1[r0:r1], dstmap2=map2[r0:r1])
         lead[r0:r1] = lens0
         rows_i, cols_i = np.divmod(np.flatnonzero((w0 > 0) & (w0 < 1)), W)  # the band: both lenses weigh in
-        band.append(rows_i * W + cols_i + r0 * W)
-        band_w0.append(w0[rows_i, cols_i])
-        for k, (xk, yk) in enumerate(((x0, y0), (x1, y1))):
-            band_xy[k].append(np.stack([xk[rows_i, cols_i], yk[rows_i, cols_i]], axis=-1))
+        return (rows_i * W + cols_i + r0 * W, w0[rows_i, cols_i],
+                np.stack([x0[rows_i, cols_i], y0[rows_i, cols_i]], axis=-1),
+                np.stack([x1[rows_i, cols_i], y1[rows_i, cols_i]], axis=-1), covered)
+
+    with ThreadPoolExecutor(2) as pool:  # blocks are independent; NumPy and OpenCV release the GIL on them
+        parts = list(pool.map(block, grid.blocks()))
+    band, band_w0 = [p[0] for p in parts], [p[1] for p in parts]
+    band_xy = ([p[2] for p in parts], [p[3] for p in parts])
+    covered = sum(p[4] for p in parts)
     band_idx = np.concatenate(band).astype(np.int32 if H * W < 2**31 else np.int64)
     n = band_idx.size
     rows = max(1, -(-n // _BAND_COLS))
