@@ -169,3 +169,18 @@ def test_a_glint_wider_than_the_sun_is_rejected_without_a_yaw() -> None:
     sun = scene_sun([cam, p01], photo_ephemeris=PHOTO_EPH, photo_heading_deg=180.0, settings=STATIC)
     assert sun.captures[0].found and not sun.captures[1].found
     assert any("larger than the sun" in r for c in sun.captures[1].candidates for r in c.reasons)
+
+
+def test_a_somewhat_wider_glint_far_from_the_compass_is_rejected() -> None:
+    """1.3x the sun's width (under the 1.35x limit) and 32 deg from where the compass puts the sun: rejected
+    (seed 11 scene02/p04: this glint's 'sun' turned four probes 32 deg); the same blob where the compass puts
+    the sun is kept."""
+    from dataclasses import replace
+
+    for off, kept in ((32.0, False), (3.0, True)):
+        cam = _capture("cam", 0.0)
+        p01 = _capture("p01", 70.0, sun=False, glint=(wrap_deg(SUN_P[0] - 70.0 + off), SUN_P[1]))
+        p01.blobs = [replace(b, size_deg=1.3 * cam.blobs[0].size_deg) for b in p01.blobs]
+        p01.yaw_deg, p01.yaw_sigma_deg, p01.compass_yaw_deg = None, None, 70.0
+        sun = scene_sun([cam, p01], photo_ephemeris=PHOTO_EPH, photo_heading_deg=180.0, settings=STATIC)
+        assert sun.captures[1].found == kept, off

@@ -12,7 +12,9 @@ as bright and as small as the sun, so brightness and confidence cannot tell them
 1. **Size**: the sun's disk is 0.53° wide; a saturated core wider than ``max_size_deg`` is a
    bright surface or cloud. Within a scene (one exposure, minutes apart) the sun's core keeps its
    size (within 20 % on virtual campaigns); a candidate accepted without a yaw (elevation only)
-   that is ``max_size_ratio`` times wider than the winning hypothesis' is a glint (1.5-2x measured).
+   that is ``max_size_ratio`` times wider than the winning hypothesis' is a glint (1.3-2x measured),
+   and so is one ``wide_size_ratio`` times wider that lies more than two compass sigmas from
+   where the compass and the ephemeris put the sun.
 2. **Sky, not facade**: in the capture's normal exposure (HDR or LDR panorama) the ring 1.5-6°
    around the candidate must be mostly sky-bright (a glint sits on a dark facade).
 3. **Same world direction everywhere**: the sun is at infinity, so once each capture is turned
@@ -64,6 +66,7 @@ class SunSettings:
     saturation: float = 0.9
     max_size_deg: float = 3.0
     max_size_ratio: float = 1.35
+    wide_size_ratio: float = 1.2
     min_sky_fraction: float = 0.35
     level_sigma_deg: float = 0.4
     centroid_sigma_deg: float = 0.1
@@ -325,13 +328,22 @@ def scene_sun(captures: list[CaptureSunInput], *, photo_ephemeris: Ephemeris | N
             ref_size = captures[ci0].blobs[bi0].size_deg
             for bi in cands:
                 ok, _ = agrees(h_az, h_el, h_sig, ci, bi)
-                if ok and ci != ci0 and (h_az is None or cap.yaw_deg is None) \
-                        and cap.blobs[bi].size_deg > s.max_size_ratio * ref_size:
+                if ok and ci != ci0 and (h_az is None or cap.yaw_deg is None):
                     # accepted on elevation alone, but the sun's saturated core has one size in one scene (same
-                    # exposure, minutes apart: within 20 % measured); a glint on glass spreads (1.5-2x measured)
-                    hard[ci, bi] = [f"larger than the sun seen from {captures[ci0].probe}: {cap.blobs[bi].size_deg:.2f} deg vs "
-                                    f"{ref_size:.2f} deg wide (a glint on glass?)"]
-                    continue
+                    # exposure, minutes apart: within 20 % measured); a glint on glass spreads (1.3-2x measured).
+                    # Somewhat wider AND far from where the compass puts the sun: both weak signs together
+                    ratio = cap.blobs[bi].size_deg / max(ref_size, 1e-6)
+                    ref_az = h_az if h_az is not None else (eph_p[0] if eph_p is not None else None)
+                    off = None
+                    if ref_az is not None and cap.compass_yaw_deg is not None:
+                        az_c, _ = _sun_in_photo_time(cap.blobs[bi], cap, photo_ephemeris, s)
+                        off = abs(wrap_deg(az_c + cap.compass_yaw_deg - ref_az))
+                    if ratio > s.max_size_ratio or (ratio > s.wide_size_ratio and off is not None
+                                                    and off > 2.0 * s.compass_sigma_deg):
+                        hard[ci, bi] = [f"larger than the sun seen from {captures[ci0].probe}: {cap.blobs[bi].size_deg:.2f} deg vs "
+                                        f"{ref_size:.2f} deg wide" + ("" if off is None else
+                                        f", {off:.0f} deg from where the compass puts the sun") + " (a glint on glass?)"]
+                        continue
                 if ok:
                     pick = bi
                     break
