@@ -85,7 +85,9 @@ def main() -> int:
     (OUT / "tilt.json").write_text(json.dumps(out, indent=1) + "\n")
     lines = ["# Residual tilt of rendered panoramas with known tilts", "",
              f"Machine: {out['machine']}. Cases per panorama: level + {args.tilts} random tilts (yaw ±180°, pitch/roll ±4°, seed 5).",
-             "Error = angle between the estimated and the true gravity (degrees). Goal (issue 10 §3): < 0.2°.", "",
+             "Error = angle between the estimated and the true gravity (degrees). Goal (issue 10 §3): < 0.2°.",
+             *([f"Extra renders (tests/data/make_tilt_fixtures.py, H=1024, not in the repo): "
+                f"{', '.join(p.name for p in args.extra)}."] if args.extra else []), "",
              "| panorama | size | measured at (px high) | median (°) | max (°) | time per estimate (s) |", "|---|---|---|---|---|---|"]
     for r in rows:
         lines.append(f"| {r['panorama']} | {2 * r['height']}x{r['height']} | {r['measured_at']} | {r['median_deg']:.3f} | "
