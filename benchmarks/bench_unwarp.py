@@ -148,7 +148,11 @@ def main() -> int:
         src, truth8 = make_input(tmp)
         size = ["--size", f"{OUT_SIZE[0]}x{OUT_SIZE[1]}"]
         cli = [*SOLIDKIT, "capture", "unwarp", str(src), "--profile", "theta-v", *size]
-        warm_env = {**os.environ, "SOLIDKIT_CACHE_DIR": str(tmp / "cache-warm")}
+        # as installed: bytecode compiled once (pip compiles wheels; an editable install writes it on first
+        # use), so a PYTHONDONTWRITEBYTECODE in the calling shell must not make every run recompile
+        base_env = {k: v for k, v in os.environ.items() if k != "PYTHONDONTWRITEBYTECODE"}
+        subprocess.run([sys.executable, "-m", "compileall", "-q", str(REPO / "solidkit")], check=True, env=base_env)
+        warm_env = {**base_env, "SOLIDKIT_CACHE_DIR": str(tmp / "cache-warm")}
         ff_cmd = None
         if has_ffmpeg:  # v360's FOV by PSNR (untimed), then the timed command
             best = None
@@ -171,12 +175,12 @@ def main() -> int:
         start = [sys.executable, "-c", "from solidkit.cli import build_app; build_app('capture')"]
         starts = []
         for r in range(args.runs + 1):
-            cold_env = {**os.environ, "SOLIDKIT_CACHE_DIR": str(tmp / f"cache-cold-{r}")}
+            cold_env = {**base_env, "SOLIDKIT_CACHE_DIR": str(tmp / f"cache-cold-{r}")}
             got = {"solidkit CLI, cold": timed([*cli, "-o", str(tmp / "cold.png")], cold_env),
                    "solidkit CLI, warm": timed([*cli, "-o", str(tmp / "warm.png")], warm_env)}
             if ff_cmd:
                 got["ffmpeg v360 (peer)"] = timed(ff_cmd)
-            starts.append(timed(start)["wall_s"])
+            starts.append(timed(start, base_env)["wall_s"])
             shutil.rmtree(tmp / f"cache-cold-{r}", ignore_errors=True)
             if r:  # round 0 warms the page cache and fills the warm cache
                 for k, v in got.items():
@@ -203,7 +207,8 @@ def main() -> int:
     lines = ["# Unwarp benchmark: the CLI as users run it, against ffmpeg's v360", "",
              f"Machine: {results['machine']}; load average (1, 5, 15 min) before {tuple(round(x, 1) for x in results['load_before'])}, "
              f"after {tuple(round(x, 1) for x in results['load_after'])} (shared machine: medians of {args.runs} alternating rounds).", "",
-             f"Input {results['input']}; output {results['output']}; each row a whole process, decode to encode.", "",
+             f"Input {results['input']}; output {results['output']}; each row a whole process, decode to encode; "
+             "solidkit's bytecode compiled once beforehand, as an installed package has it.", "",
              "| command | wall (s): median (min-max) | wall vs ffmpeg (ratio of medians / median of round ratios) | CPU (s) | peak RSS (MiB) | RSS vs ffmpeg |",
              "|---|---|---|---|---|---|"]
     for k, v in results["rows"].items():
