@@ -184,3 +184,18 @@ def test_a_somewhat_wider_glint_far_from_the_compass_is_rejected() -> None:
         p01.yaw_deg, p01.yaw_sigma_deg, p01.compass_yaw_deg = None, None, 70.0
         sun = scene_sun([cam, p01], photo_ephemeris=PHOTO_EPH, photo_heading_deg=180.0, settings=STATIC)
         assert sun.captures[1].found == kept, off
+
+
+def test_a_partly_hidden_sun_is_no_size_reference() -> None:
+    """The winning core may be a sun partly hidden behind an edge (2 px, 0.23 deg: the shipped mini campaign's
+    scene03/p01); the other positions' whole suns are not 'glints larger than the sun' (they were, and the
+    camera position lost its sun: p01's yaw then came from the compasses, 15.6 deg off)."""
+    from dataclasses import replace
+
+    cam = _capture("cam", 0.0)
+    p01 = _capture("p01", 70.0)
+    p01.blobs = [replace(b, size_deg=0.23, contrast=1e3) for b in p01.blobs]
+    p01.yaw_deg, p01.yaw_sigma_deg, p01.compass_yaw_deg = None, None, 72.0
+    sun = scene_sun([cam, p01], photo_ephemeris=PHOTO_EPH, photo_heading_deg=180.0, settings=STATIC)
+    assert sun.captures[0].found and sun.captures[1].found
+    assert not any("larger than the sun" in r for c in sun.captures[0].candidates for r in c.reasons)

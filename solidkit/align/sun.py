@@ -12,7 +12,8 @@ as bright and as small as the sun, so brightness and confidence cannot tell them
 1. **Size**: the sun's disk is 0.53° wide; a saturated core wider than ``max_size_deg`` is a
    bright surface or cloud. Within a scene (one exposure, minutes apart) the sun's core keeps its
    size (within 20 % on virtual campaigns); a candidate accepted without a yaw (elevation only)
-   that is ``max_size_ratio`` times wider than the winning hypothesis' is a glint (1.3-2x measured),
+   that is ``max_size_ratio`` times wider than the winning hypothesis' is a glint (1.3-2x measured;
+   only when the winner's core is at least the disk's 0.53°: a narrower one is a partly hidden sun),
    and so is one ``wide_size_ratio`` times wider that lies more than two compass sigmas from
    where the compass and the ephemeris put the sun.
 2. **Sky, not facade**: in the capture's normal exposure (HDR or LDR panorama) the ring 1.5-6°
@@ -338,8 +339,12 @@ def scene_sun(captures: list[CaptureSunInput], *, photo_ephemeris: Ephemeris | N
                     if ref_az is not None and cap.compass_yaw_deg is not None:
                         az_c, _ = _sun_in_photo_time(cap.blobs[bi], cap, photo_ephemeris, s)
                         off = abs(wrap_deg(az_c + cap.compass_yaw_deg - ref_az))
-                    if ratio > s.max_size_ratio or (ratio > s.wide_size_ratio and off is not None
-                                                    and off > 2.0 * s.compass_sigma_deg):
+                    # a reference core narrower than the sun's disk is a partly hidden sun (or a small glint):
+                    # no measure of the sun's size (the shipped mini campaign's scene03: a 0.23 deg core at p01
+                    # made the camera position's unhidden 0.9 deg sun a "glint")
+                    sized = ref_size >= math.degrees(SUN_ANGULAR_DIAMETER)
+                    if sized and (ratio > s.max_size_ratio or (ratio > s.wide_size_ratio and off is not None
+                                                               and off > 2.0 * s.compass_sigma_deg)):
                         hard[ci, bi] = [f"larger than the sun seen from {captures[ci0].probe}: {cap.blobs[bi].size_deg:.2f} deg vs "
                                         f"{ref_size:.2f} deg wide" + ("" if off is None else
                                         f", {off:.0f} deg from where the compass puts the sun") + " (a glint on glass?)"]
