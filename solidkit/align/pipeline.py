@@ -67,12 +67,10 @@ class AlignSettings:
     """Settings of a run (recorded in ``alignment.json``)."""
 
     sun: SunSettings = field(default_factory=SunSettings)
-    compass_sigma_deg: float = 8.0
     photo_compass_sigma_deg: float = 5.0
     feature_fov_deg: float = 75.0
     feature_pitches_deg: tuple[float, ...] = (0.0, 45.0, -45.0)
     photo_scale: float | None = None
-    level_sigma_deg: float = 0.4
     refine_levelling: bool = True
     pixel_tolerance_deg: float = 5.0
     pixel_n_sigma: float = 4.0
@@ -267,7 +265,7 @@ def align_scene(campaign: Path, manifest: Manifest, scene: Scene, settings: Alig
     # compass cues
     for st in caps:
         if st.heading is not None and heading_p is not None:
-            st.cues["compass"] = Cue(yaw_deg=wrap_deg(float(st.heading) - float(heading_p)), sigma_deg=s.compass_sigma_deg,
+            st.cues["compass"] = Cue(yaw_deg=wrap_deg(float(st.heading) - float(heading_p)), sigma_deg=s.sun.compass_sigma_deg,
                                      ok=True, detail=f"Theta heading {float(st.heading):.1f} deg - photo heading "
                                                      f"{float(heading_p):.1f} deg")
         else:
@@ -283,7 +281,7 @@ def align_scene(campaign: Path, manifest: Manifest, scene: Scene, settings: Alig
         if st.features is None:
             st.cues["features"] = Cue(yaw_deg=None, ok=False, detail="features failed: no panorama")
             continue
-        cue, fit = feature_cue(cam.features, st.features, yaw_cam, yaw_cam_sigma, level_sigma_deg=s.level_sigma_deg,
+        cue, fit = feature_cue(cam.features, st.features, yaw_cam, yaw_cam_sigma, level_sigma_deg=s.sun.level_sigma_deg,
                                max_baseline_elevation_deg=s.max_baseline_elevation_deg, ratio=s.match_ratio)
         st.cues["features"], st.fit = cue, fit
 
@@ -403,7 +401,7 @@ def _sun_with_motion(caps: list[_CapState], inputs: list[CaptureSunInput], photo
 
             moved = [_sun_in_photo_time(Blob(np.zeros(3), 0.0, e, 0.0, 0, 0.0), CaptureSunInput(st.cap.id, [], st.ephemeris),
                                         photo_eph, ss.sun)[1] for e, st in els]
-            sig_el = math.hypot(s.level_sigma_deg, s.sun.centroid_sigma_deg)
+            sig_el = math.hypot(s.sun.level_sigma_deg, s.sun.centroid_sigma_deg)
             chi2 += float(np.sum((np.array(moved) - np.mean(moved)) ** 2)) / sig_el**2
             n += len(els) - 1
         results[moves] = (chi2, n, sun, {st.cap.id: st.cues.get("sun") for st in caps})
@@ -462,7 +460,7 @@ def _chain_cues(caps: list[_CapState], cam: _CapState | None, s: AlignSettings) 
         for oid, (yaw_o, sig_o, other) in known.items():
             if other is st or other is cam or other.features is None:
                 continue
-            cue, _ = feature_cue(other.features, st.features, yaw_o, sig_o, level_sigma_deg=s.level_sigma_deg,
+            cue, _ = feature_cue(other.features, st.features, yaw_o, sig_o, level_sigma_deg=s.sun.level_sigma_deg,
                                  max_baseline_elevation_deg=s.max_baseline_elevation_deg, ratio=s.match_ratio)
             if cue.yaw_deg is not None:
                 cue.detail = cue.detail.replace("the camera position", oid)
@@ -559,7 +557,7 @@ def _refine_levelling(st: _CapState, pano: np.ndarray, s: AlignSettings) -> None
     st.tilt = est
     if not est.reliable:
         return
-    w = s.level_sigma_deg**2 / (s.level_sigma_deg**2 + max(est.uncertainty_deg, 0.05) ** 2)
+    w = s.sun.level_sigma_deg**2 / (s.sun.level_sigma_deg**2 + max(est.uncertainty_deg, 0.05) ** 2)
     st.C = np.asarray(rotation_from_ypr(0.0, math.radians(w * est.pitch_deg), math.radians(w * est.roll_deg)))
 
 
@@ -624,7 +622,7 @@ def _sun_cues(caps: list[_CapState], sun: SceneSun, photo_eph: Any, s: AlignSett
             st.cues["sun"] = Cue(yaw_deg=None, ok=False, detail=f"no sun here: {cs.reason}")
             continue
         az_c, el_c, unc_c = pts[st.cap.id]
-        tilt = s.level_sigma_deg * math.tan(math.radians(min(abs(el_c), 80.0)))
+        tilt = s.sun.level_sigma_deg * math.tan(math.radians(min(abs(el_c), 80.0)))
         own = math.hypot(unc_c / max(math.cos(math.radians(el_c)), 0.1), tilt)
         others = []
         for other in caps:
@@ -635,7 +633,7 @@ def _sun_cues(caps: list[_CapState], sun: SceneSun, photo_eph: Any, s: AlignSett
                 continue
             az_o, el_o, unc_o = pts[other.cap.id]
             sig_o = math.hypot(y_other.sigma_deg or 0.0, unc_o / max(math.cos(math.radians(el_o)), 0.1),
-                               s.level_sigma_deg * math.tan(math.radians(min(abs(el_o), 80.0))))
+                               s.sun.level_sigma_deg * math.tan(math.radians(min(abs(el_o), 80.0))))
             others.append((wrap_deg(az_o + y_other.yaw_deg), sig_o, other.cap.id))
         if others:
             w = np.array([1.0 / max(o[1], 0.05) ** 2 for o in others])
