@@ -56,6 +56,24 @@ def free_port() -> int:
         return s.getsockname()[1]
 
 
+def start_server(app) -> tuple[object, threading.Thread, int]:
+    """Serve ``app`` with uvicorn on a free port in a daemon thread; returns ``(server, thread, port)``."""
+    import uvicorn
+
+    port = free_port()
+    server = uvicorn.Server(uvicorn.Config(app, port=port, log_level="warning"))
+    th = threading.Thread(target=server.run, daemon=True)
+    th.start()
+    while not server.started:
+        time.sleep(0.05)
+    return server, th, port
+
+
+def stop_server(server, th: threading.Thread) -> None:
+    server.should_exit = True
+    th.join(5)
+
+
 def rss_mb(pid: int) -> dict[str, float]:
     status = Path(f"/proc/{pid}/status").read_text()
     out = {}
@@ -141,20 +159,13 @@ def bench_serving(tmp: Path) -> dict:
         proc.terminate()
         proc.wait(10)
     # the peer: the whole JPEG from a static file server, decoded like a browser must on each pan
-    import uvicorn
     from starlette.applications import Starlette
     from starlette.routing import Mount
     from starlette.staticfiles import StaticFiles
 
-    port = free_port()
-    server = uvicorn.Server(uvicorn.Config(Starlette(routes=[Mount("/", StaticFiles(directory=camp))]), port=port, log_level="warning"))
-    th = threading.Thread(target=server.run, daemon=True)
-    th.start()
-    while not server.started:
-        time.sleep(0.05)
+    server, th, port = start_server(Starlette(routes=[Mount("/", StaticFiles(directory=camp))]))
     whole = [get(f"http://127.0.0.1:{port}/products/s1/p1/sun.jpg") for _ in range(3)]
-    server.should_exit = True
-    th.join(5)
+    stop_server(server, th)
     res["peer_whole_jpeg_s"] = min(t for t, _ in whole)
     data = whole[0][1]
     t0 = time.perf_counter()
@@ -193,7 +204,6 @@ def sun_campaign(root: Path, n_scenes: int = 5, per_scene: int = 4, seed: int = 
 
 
 def bench_annotator(tmp: Path) -> dict:
-    import uvicorn
     from playwright.sync_api import sync_playwright
 
     from solidkit.labeling.app import create_app
@@ -203,12 +213,7 @@ def bench_annotator(tmp: Path) -> dict:
         camp = tmp / f"sun_{mode}"
         camp.mkdir()
         truth, align = sun_campaign(camp)
-        port = free_port()
-        server = uvicorn.Server(uvicorn.Config(create_app(camp, alignment=align), port=port, log_level="warning"))
-        th = threading.Thread(target=server.run, daemon=True)
-        th.start()
-        while not server.started:
-            time.sleep(0.05)
+        server, th, port = start_server(create_app(camp, alignment=align))
         with sync_playwright() as pw:
             browser = pw.chromium.launch(executable_path=CHROMIUM, args=["--no-sandbox"])
             ctx = browser.new_context(viewport={"width": 1366, "height": 768})
@@ -238,8 +243,7 @@ def bench_annotator(tmp: Path) -> dict:
                 page.wait_for_selector(f"body[data-saved^='sun:{key}:']", timeout=30000)
             elapsed = time.perf_counter() - t0
             browser.close()
-        server.should_exit = True
-        th.join(5)
+        stop_server(server, th)
         store = LabelStore(camp)
         errs = []
         for key, (az, el) in truth.items():
@@ -284,7 +288,6 @@ def bench_virtual_campaign(campaign: Path, truth_json: Path, tmp: Path) -> dict:
     """A scripted annotator labels every sun frame of an ingested + aligned virtual campaign in the
     browser (brightest blob, clicked at its centre in the rectilinear view; "no sun" when nothing is
     saturated); its labels and align/'s automatic ones against the truth."""
-    import uvicorn
     from playwright.sync_api import sync_playwright
 
     from solidkit.align.schema import load_alignment
@@ -297,12 +300,7 @@ def bench_virtual_campaign(campaign: Path, truth_json: Path, tmp: Path) -> dict:
     align = load_alignment(camp).model_dump(mode="json")
     auto = {f"{s['id']}/{c['probe']}": c for s in align["scenes"] for c in s["sun"]["captures"]}
     truth = truth_suns(truth_json)
-    port = free_port()
-    server = uvicorn.Server(uvicorn.Config(create_app(camp, alignment=align), port=port, log_level="warning"))
-    th = threading.Thread(target=server.run, daemon=True)
-    th.start()
-    while not server.started:
-        time.sleep(0.05)
+    server, th, port = start_server(create_app(camp, alignment=align))
     keys = [q["key"] for q in json.loads(get(f"http://127.0.0.1:{port}/api/queue/sun")[1])["items"]]
     with sync_playwright() as pw:
         browser = pw.chromium.launch(executable_path=CHROMIUM, args=["--no-sandbox"])
@@ -339,8 +337,7 @@ def bench_virtual_campaign(campaign: Path, truth_json: Path, tmp: Path) -> dict:
         browser.close()
     review = json.loads(get(f"http://127.0.0.1:{port}/api/queue/review")[1])["items"]
     flagged = {r["key"] for r in review if r["kind"] == "sun" and any(f.startswith("differs_from_auto") for f in r["flags"])}
-    server.should_exit = True
-    th.join(5)
+    stop_server(server, th)
     store = LabelStore(camp)
 
     def err(v: dict, t: tuple) -> float | None:
