@@ -298,6 +298,9 @@ CASES: list[tuple[str, list[str], str, tuple]] = [
      "--brackets: '1/0' is not an exposure time in seconds (e.g. 1/8, 0.004 or 2)", SLOW),
     ("campaign-variant-bogus", ["synth", "campaign", "--out", "{d}/camp", "--variant", "bogus_rgb", "--scenes", "1", "--probes", "0"],
      "no usable Mitsuba variant: bogus_rgb: not built", SLOW),
+    ("campaign-truth-not-a-campaign", ["synth", "campaign-truth", "{d}/sub"],
+     "{d}/sub: not a complete virtual campaign (needs truth/campaign.json and truth/truth.json from 'solidkit synth campaign')", ()),
+    ("campaign-truth-missing", ["synth", "campaign-truth", "{d}/missing"], "{d}/missing: no such folder", SLOW),
     ("campaign-out-is-file", ["synth", "campaign", "--out", "{d}/notes.txt", "--scenes", "1", "--probes", "0"],
      "{d}/notes.txt: exists and is not a folder (--out {d}/notes.txt)", SLOW),
     # ---- ingest

@@ -32,14 +32,9 @@ from solidkit.align.schema import load_alignment, wrap_deg
 from solidkit.envmap.coords import angular_distance, angles_from_direction, direction_from_angles, rotation_from_ypr
 from solidkit.envmap.io import read_exr, read_ldr, srgb_decode, srgb_encode, tonemap
 from solidkit.envmap.perspective import rays_through_pixels
+from solidkit.synth.truth_probes import psnr  # one home: the truth probes' noise is measured with it too
 
 __all__ = ["evaluate", "summary", "psnr", "noise_floor_db"]
-
-
-def psnr(a: np.ndarray, b: np.ndarray) -> float:
-    """PSNR (dB) of two images in ``[0, 1]``."""
-    mse = float(np.mean((np.asarray(a, np.float64) - np.asarray(b, np.float64)) ** 2))
-    return math.inf if mse == 0 else 10.0 * math.log10(1.0 / mse)
 
 
 def noise_floor_db(image: np.ndarray) -> float:
@@ -147,6 +142,7 @@ def evaluate(campaign_dir: str | Path, truth_path: str | Path, *, peers: bool = 
                 ours8 = np.round(ours * 255).astype(np.uint8)
                 row["psnr_db"] = psnr(np.asarray(tonemap(_radiance(ours8, md, k_sensor))), ref_t)
                 row["truth_noise_floor_db"] = noise_floor_db(ref_t)
+                row["truth_spp"] = getattr(getattr(ct.probe, "render", None), "spp", None)  # None: before truth recipe 2
                 if peers:
                     from solidkit.align.captures import levelling_of
 

@@ -53,6 +53,15 @@ quantised to 8 bits and JPEG-compressed. Renders go through
 isolated caustic would otherwise saturate even the 1/25000 s frame and pass for the sun. The photo uses f/2.8, ISO 100 and an automatic
 exposure putting the mean at 0.18.
 
+Truth probes (:mod:`solidkit.synth.truth_probes`): the HDR probe each capture position's aligned
+probe is held against, rendered from the same scene, lighting and position as its Theta shots, with
+``probe_spp`` samples per pixel (default 256, times ``glass_spp_factor`` in glass scenes; about
+30 s per probe, 2 min per glass probe, on one busy CPU thread), so that its own Monte Carlo noise
+(~40 dB PSNR in the paper's tonemap) stays below the aligned probes' errors; the render record
+(spp, passes, seed, fireflies replaced, recipe version) goes into :attr:`ProbeTruth.render` and the
+EXR header. ``solidkit synth campaign-truth DIR`` (:mod:`solidkit.synth.truth_rerender`)
+re-renders only the truth probes of an existing campaign, leaving its card untouched.
+
 Frames (truth): the scene frame of :mod:`solidkit.synth.scene` (x east, y down, z north); a
 Theta body frame is our camera frame with z = front lens; ``R_scene_from_body =
 R(yaw, pitch, roll)``; ``R_pano_from_body = R_y(photo yaw)^T R_scene_from_body`` is what aligning
@@ -107,6 +116,7 @@ from solidkit.synth.fieldwork import GlassPanel, add_glass_facades, glint_direct
 from solidkit.synth.sample import (Generator, SampleConfig, derive_seed, render_buffers, render_panorama, render_rgb,
                                    sun_mask_image, sun_mask_panorama, suppress_fireflies)
 from solidkit.synth.scene import CATEGORIES, to_mitsuba
+from solidkit.synth.truth_probes import render_truth_probe
 from solidkit.synth.campaign_truth import (PRESETS, SCHEMA_VERSION, CampaignConfig, CampaignTruth, CaptureTruth,
                                            PhotoTruth, ProbeTruth, SceneTruth, Shot, SolarTruth, load_truth)
 from solidkit.synth.solar import direction_angles, place_sun, solar_direction, solar_position, utc_offset_text
@@ -258,6 +268,43 @@ def generate_campaign(out: str | os.PathLike, scenes: int, probes: int, *, seed:
     return truth
 
 
+def _scene_block(gen: Generator, s: int, sector: int, seed: int, cfg: CampaignConfig) -> tuple[Any, Any, list[GlassPanel], bool]:
+    """Scene ``s``'s city block (with its glass facades in a glass scene), photo camera, glass panels, glass flag."""
+    block, (cam, _) = gen.block_and_view(s, sector)
+    glass = cfg.glass_every > 0 and s % cfg.glass_every == min(1, cfg.glass_every - 1)
+    panels: list[GlassPanel] = []
+    if glass:
+        block, panels = add_glass_facades(block, np.random.default_rng(derive_seed(seed, s, 81)))
+    return block, cam, panels, glass
+
+
+def _scene_lighting(mi: Any, gen: Generator, geometry: Any, cam: Any, positions: list[np.ndarray],
+                    panels: list[GlassPanel], glass: bool, s: int, seed: int, cfg: CampaignConfig, sid: str) -> Any:
+    """A sunny spot (and, for a glass scene, a sun whose glint some position sees), as a team would pick."""
+    attempts = cfg.sun_attempts * (4 if glass else 1)  # a glint needs the sun on the glass and at a position
+    for attempt in range(attempts):
+        light = gen.lighting(derive_seed(seed, s, 300 + attempt))
+        if light.sun is not None and direction_angles(light.sun)[1] < -0.5:
+            continue  # a sun below the horizon (an odd HDR map) has no place and time
+        if glass and light.sun is None:
+            continue
+        if light.sun is not None and occluded(mi, geometry, cam.position, light.sun):
+            continue
+        if glass and not any(glint_direction(mi, geometry, pos, light.sun, panels) is not None for pos in positions):
+            continue
+        break
+    else:
+        log.warning("%s: no lighting in %d attempts met the protocol (sun at the camera%s); kept the last",
+                    sid, attempts, ", a visible glint" if glass else "")
+    return light
+
+
+def probe_exr_meta(sid: str, cid: str, record: dict[str, Any]) -> dict[str, Any]:
+    """The EXR header attributes of a truth probe (its render record among them)."""
+    return {"scene": sid, "probe": cid, "frame": "photo panorama frame",
+            **{f"truth_{k}": v for k, v in record.items()}}
+
+
 def _render_scene(out: Path, s: int, sid: str, seed: int, cfg: CampaignConfig, gen: Generator, n_probes: int,
                   shot_no: int, profile: Any, mi: Any, progress: Any) -> SceneTruth:
     """Render scene ``s`` (photo, probes, Theta captures, field notes) into ``out``; returns its truth (not yet written)."""
@@ -265,11 +312,7 @@ def _render_scene(out: Path, s: int, sid: str, seed: int, cfg: CampaignConfig, g
     model = profile.camera_models[0] if profile.camera_models else "RICOH THETA V"
     rng = np.random.default_rng(derive_seed(seed, s, 77))
     sector = int(rng.integers(6))
-    block, (cam, _) = gen.block_and_view(s, sector)
-    glass = cfg.glass_every > 0 and s % cfg.glass_every == min(1, cfg.glass_every - 1)
-    panels: list[GlassPanel] = []
-    if glass:
-        block, panels = add_glass_facades(block, np.random.default_rng(derive_seed(seed, s, 81)))
+    block, cam, panels, glass = _scene_block(gen, s, sector, seed, cfg)
     geometry = to_mitsuba(block, None, tex_size=4)
     # --- where the team can put the Theta: the photo camera's position, then probes on reachable surfaces
     buf = render_buffers(geometry, cam, spp=1, shadows=False)
@@ -288,22 +331,7 @@ def _render_scene(out: Path, s: int, sid: str, seed: int, cfg: CampaignConfig, g
                 "depth": float(buf["depth"][y, x]), "category": CATEGORIES[block.category_of(np.array([p["label"]]))[0]],
                 "surface_height_m": float(-point[1]) + 0.0}
         positions.append((f"p{k + 1:02d}", p["position"], info))
-    # --- a sunny spot (and, for a glass scene, a sun whose glint some position sees), as a team would pick
-    attempts = cfg.sun_attempts * (4 if glass else 1)  # a glint needs the sun on the glass and at a position
-    for attempt in range(attempts):
-        light = gen.lighting(derive_seed(seed, s, 300 + attempt))
-        if light.sun is not None and direction_angles(light.sun)[1] < -0.5:
-            continue  # a sun below the horizon (an odd HDR map) has no place and time
-        if glass and light.sun is None:
-            continue
-        if light.sun is not None and occluded(mi, geometry, cam.position, light.sun):
-            continue
-        if glass and not any(glint_direction(mi, geometry, pos, light.sun, panels) is not None for _, pos, _ in positions):
-            continue
-        break
-    else:
-        log.warning("%s: no lighting in %d attempts met the protocol (sun at the camera%s); kept the last",
-                    sid, attempts, ", a visible glint" if glass else "")
+    light = _scene_lighting(mi, gen, geometry, cam, [pos for _, pos, _ in positions], panels, glass, s, seed, cfg, sid)
     scene = to_mitsuba(block, light.emitter())
     # place and time: pvlib's sun = the rendered sun (overcast: a daytime sun hidden by the clouds)
     srng = np.random.default_rng(derive_seed(seed, s, 79))
@@ -370,15 +398,13 @@ def _render_scene(out: Path, s: int, sid: str, seed: int, cfg: CampaignConfig, g
             shots.append(Shot(file=f, exposure_time=t_exp, f_number=2.0, iso=iso_c, time=when, role=role))
         probe = None
         if info is not None:
-            local = render_panorama(scene, pos, cam.pano_rotation, cfg.probe_height, cfg.probe_spp * spp_scale,
-                                    seed=derive_seed(seed, s, 200 + c))
-            local, _ = suppress_fireflies(local, sun_mask_panorama(light.sun, cam.pano_rotation, cfg.probe_height),
-                                          cfg.firefly_k, wrap=True)
-            _write_truth_exr(truth_dir / sid / f"{cid}.exr", local,
-                             {"scene": sid, "probe": cid, "frame": "photo panorama frame"})
+            local, record = render_truth_probe(scene, pos, cam.pano_rotation, cfg.probe_height, cfg.probe_spp * spp_scale,
+                                               seed=derive_seed(seed, s, 200 + c), sun=light.sun, glint=glint,
+                                               firefly_k=cfg.firefly_k)
+            _write_truth_exr(truth_dir / sid / f"{cid}.exr", local, probe_exr_meta(sid, cid, record))
             marked = np.asarray(info["pixel"], np.float64) + rng.normal(0.0, cfg.mark_noise_px, 2)
             marked = np.round(np.clip(marked, 0.0, [cam.width - 1, cam.height - 1]) * 2.0) / 2.0  # a tablet's half pixels
-            probe = ProbeTruth(**info, marked_pixel=marked.tolist(), hdr_file=f"truth/{sid}/{cid}.exr")
+            probe = ProbeTruth(**info, marked_pixel=marked.tolist(), hdr_file=f"truth/{sid}/{cid}.exr", render=record)
         sun_body = sun_drift = None
         if light.sun is not None:
             sun_body = (Rb.T @ light.sun).tolist()

@@ -39,7 +39,8 @@ class CampaignConfig(BaseModel):
     pano_height: int = 512
     pano_spp: int = 16
     probe_height: int = 128
-    probe_spp: int = 32
+    probe_spp: int = Field(256, description="samples per pixel of the truth probes (solidkit.synth.truth_probes); "
+                                            "campaigns before session 4: 32 (16 in older ones)")
     fisheye_width: int = 1920
     lens_profile: str = "theta-v"
     normal_exposure_s: float = 1 / 2500
@@ -71,8 +72,9 @@ class CampaignConfig(BaseModel):
 PRESETS: dict[str, dict[str, Any]] = {
     "default": {},
     # the campaign shipped in solidkit/assets/campaign_mini (a few MB): small photo, panoramas and fisheyes
+    # (truth probes at the default probe_spp: a truth is not where a small campaign saves)
     "mini": {"photo_width": 320, "photo_height": 240, "photo_spp": 16, "pano_height": 256, "pano_spp": 8,
-             "probe_spp": 16, "fisheye_width": 640, "brackets_s": [1 / 250], "jpeg_quality": 85},
+             "fisheye_width": 640, "brackets_s": [1 / 250], "jpeg_quality": 85},
 }
 
 
@@ -96,6 +98,9 @@ class ProbeTruth(BaseModel):
     depth: float
     category: str
     hdr_file: str
+    render: dict[str, Any] | None = Field(None, description="how the truth probe was rendered (solidkit.synth.truth_probes: "
+                                                            "spp, passes, seed, fireflies replaced, version); None: "
+                                                            "version 1, config.probe_spp in one pass")
 
 
 class CaptureTruth(BaseModel):

@@ -4,7 +4,8 @@ Measured on this project's machines: drjit's LLVM backend crashes with the syste
 and works with Debian's ``libllvm19`` (``make system-deps`` installs it). When a
 ``libLLVM-19.so`` is found, ``DRJIT_LIBLLVM_PATH`` is set to it before drjit is imported;
 without it the LLVM variant is skipped. ``SOLIDKIT_MITSUBA_VARIANT`` forces a variant
-(e.g. ``scalar_rgb`` to test the fallback). The chosen variant is logged once.
+(e.g. ``scalar_rgb`` to test the fallback). The chosen variant is logged once. ``DRJIT_NUM_THREADS``
+(a positive integer) sets drjit's worker threads (``drjit.set_thread_count``; drjit does not read it itself).
 
 Everything in :mod:`solidkit.synth` gets the module through :func:`mitsuba`, which also
 registers the solidkit plugins (:mod:`solidkit.synth.plugins`) for the active variant.
@@ -26,6 +27,7 @@ log = logging.getLogger("solidkit.synth")
 
 VARIANTS = ("cuda_ad_rgb", "llvm_ad_rgb", "scalar_rgb")
 ENV_VARIANT = "SOLIDKIT_MITSUBA_VARIANT"
+ENV_THREADS = "DRJIT_NUM_THREADS"
 _LLVM_GLOBS = (
     "/usr/lib/x86_64-linux-gnu/libLLVM-19.so*",
     "/usr/lib/aarch64-linux-gnu/libLLVM-19.so*",
@@ -96,6 +98,9 @@ def select_variant(prefer: str | None = None) -> str:
         except Exception as exc:  # drjit raises RuntimeError/ImportError for missing backends
             errors.append(f"{name}: {exc}")
             continue
+        threads = os.environ.get(ENV_THREADS, "").strip()
+        if threads.isdigit() and int(threads) > 0 and dr.thread_count() != int(threads):
+            dr.set_thread_count(int(threads))  # drjit itself does not read this variable
         if _state.get("variant") != name:
             log.info("mitsuba %s: variant %s%s", mi.__version__, name, f" (LLVM {llvm})" if name.startswith("llvm") else "")
         _state["variant"] = name

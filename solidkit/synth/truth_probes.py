@@ -1,0 +1,113 @@
+"""The virtual campaign's truth probes: HDR panoramas clean enough to hold an aligned probe against.
+
+A truth probe is the scene's radiance seen from a probe position (a ``(H, 2H)`` equirect in the
+photo's panorama frame; :mod:`solidkit.synth.campaign`). It is what an aligned probe is scored
+against, so its own Monte Carlo noise caps every score: an aligned 256x128 probe is averaged
+down from a 1920x960 unwarp of a 512-px rendered panorama (16 samples per pixel, so ~16 x 16 =
+256 samples per truth pixel) and is much smoother than a truth rendered directly with 32
+samples. Measured on campaign seed 11 (``benchmarks/results/align-truth.md``): the truth's
+noise PSNR (two independent renders, paper tonemap) was ~30 dB in glass scenes and 34-40 dB
+elsewhere at 32 spp, below the aligned probes' own level.
+
+:func:`render_truth_probe` renders with ``spp`` samples per pixel (box filter, each sample
+jittered in its pixel: ``spp`` samples are an ``spp``-fold supersampled box average) in passes of
+at most ``pass_samples`` samples (memory: Mitsuba's LLVM backend holds a whole pass as one
+wavefront; always an even number, ``spp >= 2``), each pass with its own seed; the passes' mean is an
+unbiased estimate, and the difference of the even and the odd passes' means measures its noise
+(``record['noise_psnr_db']``, :func:`noise_psnr_db`) at no extra cost. Then the
+campaign's firefly treatment (:func:`solidkit.synth.sample.suppress_fireflies`, ``k`` times the
+3x3 median): at a few hundred samples it replaces almost no pixel (the count is recorded); the
+directly seen sun and the sun's glint on glass (:func:`solidkit.synth.fieldwork.glint_direction`)
+are protected from it, being real sharp peaks.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import numpy as np
+
+from solidkit.envmap import tonemap
+from solidkit.synth.sample import derive_seed, render_panorama, sun_mask_panorama, suppress_fireflies
+
+__all__ = ["PASS_SAMPLES", "TRUTH_RENDER_VERSION", "noise_psnr_db", "pass_plan", "psnr", "render_truth_probe"]
+
+PASS_SAMPLES = 1 << 23
+"""Most samples (pixels x spp) of one Mitsuba pass (8.4 M: a 512-px campaign panorama at 16 spp)."""
+
+TRUTH_RENDER_VERSION = 2
+"""Version of the truth-probe recipe: 1 = one pass of ``probe_spp``, firefly treatment with only the sun
+protected (campaigns before session 4); 2 = this module (passes, glints protected, recorded per probe)."""
+
+
+def pass_plan(height: int, spp: int, pass_samples: int = PASS_SAMPLES) -> list[int]:
+    """Samples per pixel of each pass for a ``(height, 2 height)`` panorama: ``spp`` in the fewest passes that
+    fit ``pass_samples``, and an even number of them (two halves for the noise estimate) when ``spp >= 2``."""
+    if spp < 1:
+        raise ValueError(f"spp must be >= 1, got {spp}")
+    per = max(1, pass_samples // (2 * height * height))
+    n = math.ceil(spp / per)
+    n = min(spp, n + n % 2)
+    return [spp // n + (1 if i < spp % n else 0) for i in range(n)]
+
+
+def psnr(a: np.ndarray, b: np.ndarray) -> float:
+    """PSNR (dB) of two images in ``[0, 1]`` (e.g. in the paper's tonemap): ``10 log10(1 / MSE)``; inf if equal."""
+    mse = float(np.mean((np.asarray(a, np.float64) - np.asarray(b, np.float64)) ** 2))
+    return math.inf if mse == 0 else 10.0 * math.log10(1.0 / mse)
+
+
+def noise_psnr_db(half_a: np.ndarray, half_b: np.ndarray) -> float:
+    """Monte Carlo noise of the mean of two independent renders, as a PSNR (dB) in the paper's tonemap.
+
+    ``half_a`` and ``half_b`` (HDR, same shape) are independent estimates of one image with the same
+    number of samples; their difference is pure noise with 4 times the variance of their mean, so
+    the mean's noise PSNR is ``PSNR(tonemap(a), tonemap(b)) + 10 log10(4)`` (the tonemap linearised
+    around the image: exact for small noise).
+    """
+    return psnr(tonemap(np.asarray(half_a, np.float32)), tonemap(np.asarray(half_b, np.float32))) + 10.0 * math.log10(4.0)
+
+
+def render_truth_probe(scene: Any, position: np.ndarray, rotation: np.ndarray, height: int, spp: int, *,
+                       seed: int, sun: np.ndarray | None = None, glint: np.ndarray | None = None,
+                       firefly_k: float = 10.0, pass_samples: int = PASS_SAMPLES) -> tuple[np.ndarray, dict[str, Any]]:
+    """One truth probe (module doc): HDR ``(height, 2 height, 3)`` float32 and its render record.
+
+    Parameters
+    ----------
+    scene : the Mitsuba scene (geometry and the lighting's emitter).
+    position : ``(3,)`` scene-frame position of the probe's lens, metres.
+    rotation : ``(3, 3)`` frame of the panorama (the photo's panorama frame, conventions §3).
+    height : panorama height in pixels (width ``2 height``).
+    spp : samples per pixel in all.
+    seed : the first pass's sampler seed (later passes: ``derive_seed(seed, pass)``).
+    sun, glint : scene-frame unit directions of the sun and of its glint on glass seen from
+        ``position`` (None: none): protected from the firefly treatment.
+    firefly_k : the firefly threshold (``<= 0``: no treatment).
+
+    Returns
+    -------
+    image : ``(height, 2 height, 3)`` linear radiance, float32.
+    record : ``spp``, ``passes``, ``seed``, ``firefly_k``, ``fireflies_replaced`` (pixels),
+        ``noise_psnr_db`` (:func:`noise_psnr_db` of the even and the odd passes, before the firefly
+        treatment; None for an odd ``spp``), ``version`` (:data:`TRUTH_RENDER_VERSION`).
+    """
+    plan = pass_plan(height, spp, pass_samples)
+    halves = np.zeros((2, height, 2 * height, 3), np.float64)  # even and odd passes: two independent estimates
+    for i, n in enumerate(plan):
+        s = seed if i == 0 else derive_seed(seed, i)
+        halves[i % 2] += n * render_panorama(scene, position, rotation, height, n, seed=s).astype(np.float64)
+    img = (halves.sum(0) / sum(plan)).astype(np.float32)
+    noise = None
+    if len(plan) >= 2 and sum(plan[0::2]) == sum(plan[1::2]):
+        noise = round(noise_psnr_db(halves[0] / sum(plan[0::2]), halves[1] / sum(plan[1::2])), 2)
+    keep = sun_mask_panorama(sun, rotation, height)
+    if glint is not None:
+        g = sun_mask_panorama(glint, rotation, height, 2.0)
+        keep = g if keep is None else keep | g
+    img, replaced = suppress_fireflies(img, keep, firefly_k, wrap=True)
+    record = {"version": TRUTH_RENDER_VERSION, "spp": int(sum(plan)), "passes": len(plan), "seed": int(seed),
+              "firefly_k": float(firefly_k), "fireflies_replaced": int(replaced), "height": int(height),
+              "noise_psnr_db": noise}
+    return img, record
