@@ -84,7 +84,11 @@ def test_gradients_reach_every_parameter(name):
         out = model(batch["image"], batch["K"], batch["pixels"], batch["pitch"], batch["roll"])
     losses = solidnet_losses(out, batch)
     losses["total"].backward()
-    missing = [n for n, p in model.named_parameters() if p.grad is None or not torch.isfinite(p.grad).all() or p.grad.abs().sum() == 0]
+    # the sun logits' 1x1-convolution bias shifts every logit alike: the softmax-based sun losses are
+    # invariant to it, so its gradient is zero up to rounding
+    shift_invariant = {"inet.sun.fine.bias"}
+    missing = [n for n, p in model.named_parameters() if n not in shift_invariant and (
+        p.grad is None or not torch.isfinite(p.grad).all() or p.grad.abs().sum() == 0)]
     assert not missing, missing
     expected = {"sky"} if name == "lenet_reg" else {"albedo", "normal", "distance", "shadow", "sky", "dif", "rec", "local", "tom"}
     assert expected <= set(losses)

@@ -22,7 +22,7 @@ from typing import Any
 
 from solidkit.errors import SolidkitError
 
-__all__ = ["LOSS_VARIANTS", "PNET_INPUTS", "ConfigError", "SolidNetConfig", "preset", "PRESETS"]
+__all__ = ["LOSS_VARIANTS", "PNET_INPUTS", "SKY_FOOTPRINTS", "ConfigError", "SolidNetConfig", "preset", "PRESETS"]
 
 # Sky losses: "paper" = the paper's L1 on log1p(H_g) alone; "located" = a parametric sun (sun head)
 # with location, energy and peak terms, the L1 on the sky away from the sun, and plane distance
@@ -32,6 +32,9 @@ LOSS_VARIANTS = ("paper", "located")
 # Inputs P-Net may receive (paper Table 2): warped colour W_col (+ its observed mask), warped
 # shadow W_sha, the Lambertian sphere relit with P_SH (W_SH) and the global sky H_g (W_sky).
 PNET_INPUTS = ("col", "sha", "sh", "sky")
+
+# Placement of the image's features on the sky decoder's panorama (SolidNetConfig.sky_footprint).
+SKY_FOOTPRINTS = ("level", "camera")
 
 
 class ConfigError(SolidkitError):
@@ -82,6 +85,18 @@ class SolidNetConfig:
     sun_fine : bool
         The sun logits add a 1x1 convolution of the sky decoder's (mirror-tiled) features to the
         global coarse map; False: the global map alone.
+    exposure_key : float
+        The log-average luminance the network's inputs are exposed to (a camera's average metering;
+        :func:`solidkit.synth.panocrops.metered_gain`): training crops are metered to it and
+        :meth:`SolidNet.predict` re-exposes a photo to it (radiance returned in the photo's own units).
+        0: the paper's fixed exposure (the HDR values as stored, the first checkpoints).
+    sky_footprint : str
+        Where the image's sky features sit on the panorama in the sky decoder: ``"level"`` (an
+        ``hfov_deg`` x ``vfov_deg`` box centred at the horizon, the first checkpoints) or ``"camera"``
+        (the image's own field of view, pitch and roll: :func:`solidkit.model.inet.camera_footprint_grid`).
+    sun_visibility_threshold : float
+        Visibility probability at or above which a sun is rendered in evaluation (tuned on a validation
+        split when a checkpoint is exported; 0.5 untuned).
     loss_variant : str
         One of :data:`LOSS_VARIANTS`.
     loss_weights : dict
@@ -104,6 +119,9 @@ class SolidNetConfig:
     sun_head: bool = False
     sun_visibility: bool = False
     sun_fine: bool = True
+    exposure_key: float = 0.0
+    sky_footprint: str = "level"
+    sun_visibility_threshold: float = 0.5
     loss_variant: str = "paper"
     loss_weights: dict[str, float] = field(
         default_factory=lambda: {
@@ -151,6 +169,12 @@ class SolidNetConfig:
             )
         if not 1.0 < self.hfov_deg < 179.0:
             raise ConfigError(f"hfov_deg must be in (1, 179), got {self.hfov_deg}")
+        if not self.exposure_key >= 0.0:
+            raise ConfigError(f"exposure_key must be >= 0 (0: fixed exposure), got {self.exposure_key}")
+        if self.sky_footprint not in SKY_FOOTPRINTS:
+            raise ConfigError(f"sky_footprint must be one of {SKY_FOOTPRINTS}, got {self.sky_footprint!r}")
+        if not 0.0 < self.sun_visibility_threshold < 1.0:
+            raise ConfigError(f"sun_visibility_threshold must be in (0, 1), got {self.sun_visibility_threshold}")
         if self.loss_variant not in LOSS_VARIANTS:
             raise ConfigError(f"loss_variant must be one of {LOSS_VARIANTS}, got {self.loss_variant!r}")
         if (self.sun_visibility or not self.sun_fine) and not self.sun_head:
@@ -187,13 +211,14 @@ class SolidNetConfig:
 
 
 _SUN = {"sun_head": True, "sun_visibility": True, "loss_variant": "located", "sky_feature_width": 16, "sky_stages": 3,
+        "exposure_key": 0.18, "sky_footprint": "camera",
         "loss_weights": {**SolidNetConfig.__dataclass_fields__["loss_weights"].default_factory(), "sun_cos": 1.0}}
 
 PRESETS: dict[str, SolidNetConfig] = {
     # the shipped model: small widths, the sun head and the located losses
     "small": SolidNetConfig(**_SUN),
     # the paper's sky decoder and losses at the small widths (the ablation of the sun head)
-    "small-paper": SolidNetConfig(name="small-paper", sky_feature_width=16),
+    "small-paper": SolidNetConfig(name="small-paper", sky_feature_width=16, exposure_key=0.18, sky_footprint="camera"),
     "paper": SolidNetConfig(
         name="paper",
         widths=(32, 64, 128, 256, 512),

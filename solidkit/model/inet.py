@@ -10,10 +10,13 @@ Sky decoder (the paper: "we reshape this vector and upsample it 8 times, and the
 flipping padded sky features"). Here ``P_SH`` is rendered (``L b(d)``, :func:`sh_render`) on the
 panorama grid at 1/8 of the output height (16 x 32 for H = 128) and upsampled 8x by three
 (x2 upsample, conv) stages. At every stage it is concatenated with *flip-padded sky features*:
-the lighting branch's image feature map resized to the image's footprint on the panorama
-(``hfov x vfov`` around the forward direction at the horizon) and extended to the whole panorama
-by mirror tiling (alternately flipped copies, horizontally and vertically), plus a
-``sin(elevation)`` channel. The head outputs ``y = log1p(H_g)`` (see
+the lighting branch's image feature map placed on the image's footprint on the panorama and
+extended to the whole panorama by mirror tiling (alternately flipped copies, horizontally and
+vertically), plus a ``sin(elevation)`` channel. The footprint (``config.sky_footprint``) is either
+an ``hfov x vfov`` box around the forward direction at the horizon (``"level"``, the first
+checkpoints: a camera pitched 15° up has its features 15° too low) or the image's own field of view,
+pitch and roll (``"camera"``, :func:`camera_footprint_grid`), so a sun or a glow in the image lands
+on its direction. The head outputs ``y = log1p(H_g)`` (see
 :data:`solidkit.model.blocks.HDR_PARAMETERISATION`).
 
 Frames: N is predicted in the camera frame (OpenCV: x right, y down, z forward); ``P_SH`` and
@@ -23,17 +26,20 @@ the camera rotation (done in :mod:`solidkit.model.losses`).
 
 from __future__ import annotations
 
+import math
+
 import torch
 import torch.nn.functional as F
 from torch import nn
 
-from solidkit.envmap.coords import angles_grid, direction_grid
+from solidkit.envmap.coords import angles_from_direction, angles_grid, direction_grid, rotation_from_ypr
+from solidkit.envmap.perspective import intrinsics_from_fov
 from solidkit.envmap.sh import sh_basis
 from solidkit.model.blocks import ConvBlock, Encoder, UNetDecoder, radiance_from_log, resize_to
 from solidkit.model.config import SolidNetConfig
 from solidkit.model.sunhead import SunHead, render_sun
 
-__all__ = ["INet", "flip_pad", "image_footprint", "sh_panorama"]
+__all__ = ["INet", "camera_footprint_grid", "flip_pad", "image_footprint", "sh_panorama"]
 
 
 def flip_pad(x: torch.Tensor, out_size: tuple[int, int], top: int, left: int) -> torch.Tensor:
@@ -60,6 +66,32 @@ def image_footprint(pano_height: int, hfov_deg: float, vfov_deg: float) -> tuple
     fw = max(1, round(W * hfov_deg / 360.0))
     fh = max(1, round(pano_height * vfov_deg / 180.0))
     return fh, fw, (pano_height - fh) // 2, (W - fw) // 2
+
+
+def _mirror(t: torch.Tensor) -> torch.Tensor:
+    """Reflect normalised coordinates into ``[-1, 1]`` with period 4 (alternately flipped copies)."""
+    return 1.0 - torch.abs(torch.remainder(t + 1.0, 4.0) - 2.0)
+
+
+def camera_footprint_grid(pano_height: int, K: torch.Tensor, pitch: torch.Tensor, roll: torch.Tensor,
+                          image_size: tuple[int, int]) -> torch.Tensor:
+    """``grid_sample`` grid ``(B, H, 2H, 2)`` that places an image's features on the panorama at their directions.
+
+    Every panorama direction ``d`` (panorama frame, conventions §2) is turned into the camera frame,
+    ``c = R_cam^T d`` with ``R_cam = R(0, pitch, roll)``; its azimuth / elevation in that frame, divided by
+    the image's half fields of view (``atan(W / 2 fx)``, ``atan(H / 2 fy)`` from ``K (B, 3, 3)``,
+    pixels of an image of ``image_size = (H, W)``), are the normalised image coordinates, mirror-reflected
+    outside the image. With ``pitch = roll = 0`` and the config's ``hfov`` this is the ``"level"`` box
+    of :func:`image_footprint` (up to the resampling).
+    """
+    h, w = image_size
+    dirs = direction_grid(pano_height, torch, dtype=K.dtype, device=K.device)  # (H, 2H, 3)
+    R = rotation_from_ypr(torch.zeros_like(pitch), pitch, roll).to(K.dtype)  # (B, 3, 3) camera -> panorama
+    cam = torch.einsum("bji,hwj->bhwi", R, dirs)
+    phi, theta = angles_from_direction(cam)
+    half_h = torch.atan(0.5 * w / K[:, 0, 0])[:, None, None]
+    half_v = torch.atan(0.5 * h / K[:, 1, 1])[:, None, None]
+    return torch.stack([_mirror(phi / half_h), _mirror(-theta / half_v)], dim=-1)
 
 
 def sh_panorama(L: torch.Tensor, height: int) -> torch.Tensor:
@@ -129,18 +161,38 @@ class INet(nn.Module):
             image_footprint(config.pano_height >> (3 - k), config.hfov_deg, config.vfov_deg) for k in range(4)
         ]
 
-    def _sky_stage_inputs(self, L: torch.Tensor, feats: torch.Tensor, k: int) -> torch.Tensor:
+    def _sky_stage_inputs(self, L: torch.Tensor, feats: torch.Tensor, k: int, camera: tuple | None) -> torch.Tensor:
         h = self.config.pano_height >> (3 - k)
-        fh, fw, top, left = self._footprints[k]
         shading = torch.log1p(sh_panorama(L, h).clamp_min(0.0))
-        padded = flip_pad(resize_to(feats, (fh, fw)), (h, 2 * h), top, left)
+        if camera is None:
+            fh, fw, top, left = self._footprints[k]
+            padded = flip_pad(resize_to(feats, (fh, fw)), (h, 2 * h), top, left)
+        else:
+            grid = camera_footprint_grid(h, *camera)
+            padded = F.grid_sample(feats, grid.to(feats.dtype), mode="bilinear", padding_mode="border",
+                                   align_corners=False)
         _, theta = angles_grid(h, torch, dtype=L.dtype, device=L.device)
         elev = torch.sin(theta).expand(L.shape[0], 1, h, 2 * h)
         return torch.cat([shading, padded, elev], dim=1)
 
-    def forward(self, image: torch.Tensor, intrinsics: bool = True) -> dict[str, torch.Tensor]:
-        """``intrinsics=False`` skips the A/N/G/S decoders (lighting outputs only: sky-only training)."""
+    def forward(self, image: torch.Tensor, intrinsics: bool = True, K: torch.Tensor | None = None,
+                pitch: torch.Tensor | None = None, roll: torch.Tensor | None = None) -> dict[str, torch.Tensor]:
+        """``intrinsics=False`` skips the A/N/G/S decoders (lighting outputs only: sky-only training).
+
+        ``K (B, 3, 3)`` (pixels of ``image``), ``pitch``, ``roll`` ``(B,)`` (radians, conventions §4) place
+        the sky features with ``config.sky_footprint = "camera"``; missing ones default to the config's
+        ``hfov_deg`` and a level camera. The ``"level"`` footprint ignores them.
+        """
         size = tuple(image.shape[-2:])
+        camera = None
+        if self.config.sky_footprint == "camera":
+            b = image.shape[0]
+            if K is None:
+                K = torch.as_tensor(intrinsics_from_fov(math.radians(self.config.hfov_deg), size[1], size[0]),
+                                    dtype=image.dtype, device=image.device).expand(b, 3, 3)
+            zeros = image.new_zeros(b)
+            camera = (K.to(image), zeros if pitch is None else pitch.to(image),
+                      zeros if roll is None else roll.to(image), size)
         x = image * 2.0 - 1.0
         feats = self.encoder(x)
         out: dict[str, torch.Tensor] = {}
@@ -155,10 +207,10 @@ class INet(nn.Module):
         out["sh"] = L
         mid = feats[self._sky_level]
         sky_feats = self.sky_features(torch.cat([mid, resize_to(light, mid.shape[-2:])], dim=1))
-        y = self.sky_in(self._sky_stage_inputs(L, sky_feats, 0))
+        y = self.sky_in(self._sky_stage_inputs(L, sky_feats, 0, camera))
         for k, up in enumerate(self.sky_ups, start=1):
             y = F.interpolate(y, scale_factor=2.0, mode="bilinear", align_corners=False)
-            y = up(torch.cat([y, self._sky_stage_inputs(L, sky_feats, k)], dim=1))
+            y = up(torch.cat([y, self._sky_stage_inputs(L, sky_feats, k, camera)], dim=1))
         sky_log = _upsample_panorama(F.softplus(self.sky_head(y)), self.config.pano_height)
         if self.sun is None:
             out["sky_log"] = sky_log
@@ -170,7 +222,8 @@ class INet(nn.Module):
         sun = render_sun(out["sun_dir"], out["sun_energy"], out["sun_sigma"].detach(), self.config.pano_height)
         if "sun_visible" in out:
             # a sun only in skies that have one: soft while training, a decision at evaluation
-            gate = out["sun_visible"] if self.training else (out["sun_visible"] >= 0.5).to(sun.dtype)
+            gate = (out["sun_visible"] if self.training
+                    else (out["sun_visible"] >= self.config.sun_visibility_threshold).to(sun.dtype))
             sun = sun * gate[:, None, None, None]
         out["sky_np_log"] = sky_log
         out["sky"] = radiance_from_log(sky_log) + sun

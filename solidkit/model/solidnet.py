@@ -110,7 +110,7 @@ class SolidNet(nn.Module):
         zeros = image.new_zeros(b)
         pitch = zeros if pitch is None else pitch.to(image)
         roll = zeros if roll is None else roll.to(image)
-        out = self.inet(image)
+        out = self.inet(image, K=K.to(image), pitch=pitch, roll=roll)
         out["rotation"] = camera_rotation(pitch, roll)
         if pixels is None:
             return out
@@ -192,6 +192,12 @@ class SolidNet(nn.Module):
         pitch, roll : camera pitch and roll in radians (conventions §4); default level.
         sun_method : passed to :func:`solidkit.envmap.sun.detect_sun`.
 
+        With ``config.exposure_key`` (the model's inputs were metered to it while training) the photo is
+        first re-exposed the same way: its linear values under the paper's tonemap (exact below
+        saturation) times :func:`solidkit.synth.panocrops.metered_gain`, tonemapped again; the predicted
+        radiance is divided by that gain, so it stays in the photo's own units (``tonemap(H)`` = the photo).
+        The gain is ``extra["exposure_gain"]``.
+
         Returns
         -------
         Prediction with ``sky (Hp, 2Hp, 3)`` and ``local`` (list of ``(Hp, 2Hp, 3)``) as float32
@@ -224,6 +230,14 @@ class SolidNet(nn.Module):
         H, W = self.config.image_size
         sx, sy = W / w0, H / h0
         resized = cv2.resize(image, (W, H), interpolation=cv2.INTER_AREA if sx < 1 else cv2.INTER_LINEAR)
+        gain = 1.0
+        if self.config.exposure_key > 0:
+            from solidkit.envmap.io import tonemap
+            from solidkit.synth.panocrops import metered_gain
+
+            linear = _linear_from_ldr(resized)
+            gain = metered_gain(linear, self.config.exposure_key)
+            resized = np.clip(np.asarray(tonemap(linear * np.float32(gain))), 0.0, 1.0).astype(np.float32)
         K_net = scale_intrinsics(K, sx, sy)
         pix_net = np.stack([scale_pixel_coordinates(pix[:, 0], sx), scale_pixel_coordinates(pix[:, 1], sy)], axis=-1)
         pix_net = np.clip(pix_net, 0, [W - 1, H - 1])
@@ -236,21 +250,29 @@ class SolidNet(nn.Module):
             t([pitch]),
             t([roll]),
         )
-        sky = out["sky"][0].permute(1, 2, 0).cpu().numpy()
-        local = [x.permute(1, 2, 0).cpu().numpy() for x in out["local"][0]]
+        sky = out["sky"][0].permute(1, 2, 0).cpu().numpy() / np.float32(gain)
+        local = [x.permute(1, 2, 0).cpu().numpy() / np.float32(gain) for x in out["local"][0]]
         return Prediction(
             sky=sky,
             sun=detect_sun(sky, method=sun_method),
             local=local,
             pixels=pix,
             centres=out["centres"][0].cpu().numpy(),
-            extra={"probe_valid": out["probe_valid"][0].cpu().numpy().tolist()},
+            extra={"probe_valid": out["probe_valid"][0].cpu().numpy().tolist(), "exposure_gain": float(gain)},
         )
+
+
+def _linear_from_ldr(image: np.ndarray) -> np.ndarray:
+    """Linear values ``(H, W, 3)`` behind an LDR image under the paper's tonemap (its inverse; a clipped
+    pixel gives the clip level)."""
+    from solidkit.envmap.io import PAPER_EXPOSURE, PAPER_GAMMA
+
+    return (np.clip(image, 0.0, 1.0) ** PAPER_GAMMA / 2.0**PAPER_EXPOSURE).astype(np.float32)
 
 
 @dataclass
 class Prediction:
-    """Result of :meth:`SolidNet.predict` (radiance in the training data's units, panorama frame)."""
+    """Result of :meth:`SolidNet.predict` (radiance in the photo's units: ``tonemap(H)`` is the photo; panorama frame)."""
 
     sky: np.ndarray
     sun: Any

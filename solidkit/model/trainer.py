@@ -52,7 +52,8 @@ from solidkit.model.losses import solidnet_losses
 from solidkit.model.solidnet import SolidNet, save_checkpoint
 from solidkit.model.warp import camera_rotation
 
-__all__ = ["StageConfig", "TrainConfig", "load_train_config", "Trainer", "crop_batch", "synth_batch", "evaluate_lighting"]
+__all__ = ["StageConfig", "TrainConfig", "load_train_config", "Trainer", "crop_batch", "synth_batch", "evaluate_lighting",
+           "best_visibility_threshold", "tune_visibility_threshold", "set_visibility_threshold", "export_checkpoint"]
 
 STAGES = ("inet", "pnet")
 
@@ -219,10 +220,12 @@ def synth_batch(items: list[dict[str, Any]]) -> dict[str, torch.Tensor]:
 class _Data:
     """The crop sources and synthetic datasets of a run, with deterministic batch drawing."""
 
-    def __init__(self, crops: list[str], exclude: list[str], synth: list[str], seed: int) -> None:
+    def __init__(self, crops: list[str], exclude: list[str], synth: list[str], seed: int,
+                 exposure_key: float = 0.0) -> None:
         from solidkit.synth.dataset import SynthDataset
 
         self.crop_dirs, self.exclude, self.seed = list(crops), tuple(exclude), seed
+        self.exposure_key = exposure_key or None  # the model's input exposure (SolidNetConfig.exposure_key)
         self.sources: list[Any] = []
         self.source_names: list[str] = []
         self.synth = [SynthDataset(d) for d in synth]
@@ -246,14 +249,14 @@ class _Data:
 
     def batch(self, stage: str, step: int, size: int, crop_fraction: float, rank: int = 0, world: int = 1
               ) -> tuple[str, dict[str, torch.Tensor]]:
-        from solidkit.synth.panocrops import CropSampler
+        from solidkit.synth.panocrops import CropConfig, CropSampler
         from solidkit.synth.sample import derive_seed
 
         rng = np.random.default_rng(derive_seed(self.seed, STAGES.index(stage), step))
         use_crops = bool(self.sources) and (not self.synth_index or rng.random() < crop_fraction)
         if use_crops:
             idx = rng.integers(0, 2**31 - 1, size)[rank::world]
-            sampler = CropSampler(self.sources, derive_seed(self.seed, 7))
+            sampler = CropSampler(self.sources, derive_seed(self.seed, 7), CropConfig(exposure_key=self.exposure_key))
             return "crops", crop_batch([sampler(int(i)) for i in idx])
         pick = rng.integers(0, len(self.synth_index), size)[rank::world]
         items = [self.synth[k][i] for k, i in (self.synth_index[int(j)] for j in pick)]
@@ -326,7 +329,8 @@ def evaluate_lighting(model: SolidNet, batches: list[dict[str, torch.Tensor]]) -
     l1, found, ang, daz, del_, ratio, n_sun, head, n_none, false = [], 0, [], [], [], [], 0, [], 0, 0
     for b in batches:
         b = {k: v.cpu() for k, v in b.items()}
-        out = {k: v.cpu() for k, v in model.inet(b["image"].to(dev), intrinsics=False).items()}
+        out = {k: v.cpu() for k, v in model.inet(b["image"].to(dev), intrinsics=False, K=b["K"].to(dev),
+                                                 pitch=b["pitch"].to(dev), roll=b["roll"].to(dev)).items()}
         l1.append(float((out["sky_log"] - torch.log1p(b["sky"].clamp_min(0))).abs().mean()))
         for i in range(b["image"].shape[0]):
             det = detect_sun(out["sky"][i].permute(1, 2, 0).numpy())
@@ -423,10 +427,12 @@ class Trainer:
                 self.log(f"init {init.name}: {len(fit)} tensors copied, {len(fresh)} fresh ({', '.join(fresh[:6])}"
                          f"{', ...' if len(fresh) > 6 else ''})")
         self.model.to(self.device)
-        self.data = _Data(cfg.crops, cfg.crops_exclude, cfg.synth, cfg.seed)
+        key = self.model.config.exposure_key
+        self.data = _Data(cfg.crops, cfg.crops_exclude, cfg.synth, cfg.seed, key)
         if cfg.crops:
             self.data.refresh()  # bad data folders fail here, before the run folder is created
-        self.val = _Data(cfg.val_crops, [], cfg.val_synth, cfg.seed + 1) if (cfg.val_crops or cfg.val_synth) else None
+        self.val = (_Data(cfg.val_crops, [], cfg.val_synth, cfg.seed + 1, key) if (cfg.val_crops or cfg.val_synth)
+                    else None)
         self.state: dict[str, Any] = {"stage": STAGES[0], "step": 0, "best": None, "seconds": 0.0, "samples": 0,
                                       "sources": None}
         self._tb = None
@@ -690,7 +696,7 @@ class Trainer:
         cfg = self.model.config
         if stage == "inet":
             inet = ddp if ddp is not None else self.model.inet
-            out = inet(batch["image"], intrinsics=kind != "crops")
+            out = inet(batch["image"], intrinsics=kind != "crops", K=batch["K"], pitch=batch["pitch"], roll=batch["roll"])
             out["rotation"] = camera_rotation(batch["pitch"], batch["roll"])
             losses = solidnet_losses(out, {k: v for k, v in batch.items() if k not in ("local",)},
                                      cfg.loss_weights, cfg.loss_variant, math.radians(self.sun_target_deg()))
@@ -735,14 +741,64 @@ class _Bar:
             self.p.stop()
 
 
-def export_checkpoint(src: str | os.PathLike, dst: str | os.PathLike, extra: dict[str, Any] | None = None) -> dict[str, Any]:
+def best_visibility_threshold(probs: np.ndarray, truth: np.ndarray, grid: np.ndarray | None = None) -> dict[str, Any]:
+    """The threshold on sun-visibility probabilities ``probs (N,)`` that best matches ``truth (N,)`` (bool).
+
+    Over ``grid`` (default 0.05, 0.10, ..., 0.95) the threshold with the highest balanced accuracy (the
+    mean of the rate of suns kept in skies that have one and of skies left sunless that have none) wins;
+    ties go to the one closest to 0.5. Returns ``threshold``, ``balanced_accuracy``, the same at 0.5 and
+    the counts of skies with / without a sun.
+    """
+    p, t = np.asarray(probs, dtype=np.float64), np.asarray(truth, dtype=bool)
+    if t.all() or not t.any():
+        raise InputError("tuning the visibility threshold needs skies with and without a sun")
+    grid = np.round(np.arange(0.05, 0.951, 0.05), 2) if grid is None else np.asarray(grid, dtype=np.float64)
+    balanced = lambda th: 0.5 * (float(np.mean(p[t] >= th)) + float(np.mean(p[~t] < th)))  # noqa: E731
+    scores = np.array([balanced(th) for th in grid])
+    best = np.flatnonzero(scores >= scores.max() - 1e-12)
+    th = float(grid[best[np.argmin(np.abs(grid[best] - 0.5))]])
+    return {"threshold": th, "balanced_accuracy": round(balanced(th), 4),
+            "balanced_accuracy_at_0.5": round(balanced(0.5), 4), "with_sun": int(t.sum()), "without_sun": int((~t).sum())}
+
+
+@torch.no_grad()
+def tune_visibility_threshold(model: SolidNet, batches: list[dict[str, torch.Tensor]],
+                              grid: np.ndarray | None = None) -> dict[str, Any]:
+    """:func:`best_visibility_threshold` of ``model``'s sun-visibility output on crop ``batches``
+    (:func:`crop_batch`) of a *validation* split (never the test split)."""
+    if not model.config.sun_visibility:
+        raise InputError("the model has no sun-visibility output to tune")
+    model.eval()
+    dev = next(model.parameters()).device
+    probs, truth = [], []
+    for b in batches:
+        out = model.inet(b["image"].to(dev), intrinsics=False, K=b["K"].to(dev), pitch=b["pitch"].to(dev),
+                         roll=b["roll"].to(dev))
+        probs.append(out["sun_visible"].cpu().numpy())
+        truth.append(b["sun_visible"].cpu().numpy() > 0.5)
+    return best_visibility_threshold(np.concatenate(probs), np.concatenate(truth), grid)
+
+
+def set_visibility_threshold(model: SolidNet, threshold: float) -> None:
+    """Use ``threshold`` for the sun-visibility decision in evaluation (stored in the config, hence in checkpoints)."""
+    cfg = model.config.replace(sun_visibility_threshold=float(threshold))
+    model.config = cfg
+    model.inet.config = cfg
+    model.pnet.config = cfg
+
+
+def export_checkpoint(src: str | os.PathLike, dst: str | os.PathLike, extra: dict[str, Any] | None = None,
+                      visibility_threshold: float | None = None) -> dict[str, Any]:
     """Write the model checkpoint ``src`` to ``dst`` (float16 weights) with ``extra`` merged into its card,
-    and ``dst``'s ``.card.json`` beside it (sha256, bytes, config, parameters, card); returns that JSON."""
+    and ``dst``'s ``.card.json`` beside it (sha256, bytes, config, parameters, card); returns that JSON.
+    ``visibility_threshold`` (e.g. from :func:`tune_visibility_threshold`) replaces the configured one."""
     from solidkit.envmap.coords import CONVENTIONS_VERSION
     from solidkit.fsutil import sha256_file
     from solidkit.model.solidnet import CHECKPOINT_VERSION
 
     model = SolidNet.from_checkpoint(src)
+    if visibility_threshold is not None:
+        set_visibility_threshold(model, visibility_threshold)
     card = {**getattr(model, "card", {}), **(extra or {})}
     dst = Path(dst)
     save_checkpoint(model, dst, card, half=True)

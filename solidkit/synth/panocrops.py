@@ -19,7 +19,11 @@ y down, z forward):
 A crop (:class:`CropSampler`) draws a camera ``R = rotation_from_ypr(yaw, pitch, roll)``, a
 horizontal FOV, an exposure and a white balance (applied to the scene *and* the target: a brighter
 scene is a brighter sky, so the HDR scale stays tied to the image) and a horizontal flip (the
-target is mirrored in azimuth, the roll negated). The image is the paper's tonemap of the
+target is mirrored in azimuth, the roll negated). With ``CropConfig.exposure_key`` the exposure is
+metered first, as a camera's auto-exposure does (:func:`metered_gain`: the view's log-average
+luminance brought to the key, Reinhard et al. 2002), then jittered; without it the gain is 1 (the
+session-3 crops: rendered street canyons came out 2.5-5 stops darker than the real panoramas, whose
+log-average is ~0.18, so their shadows and facades were near black). The image is the paper's tonemap of the
 perspective view (:func:`solidkit.envmap.perspective_crop`); the target is the lighting seen from
 the camera's panorama frame ``R_y(yaw)`` (conventions §2). Each crop is a pure function of
 ``(seed, index)``, so an epoch is reproducible and resumable.
@@ -40,16 +44,34 @@ import numpy as np
 from solidkit.envmap import (detect_sun, downsample, perspective_crop, read_exr, rotate, rotation_from_ypr, rotation_y,
                              tonemap, write_exr)
 from solidkit.envmap.perspective import intrinsics_from_fov
+from solidkit.envmap.sun import luminance
 from solidkit.errors import InputError
 from solidkit.fsutil import atomic_write_text
 
-__all__ = ["SourceConfig", "render_source", "real_source", "render_sources", "Source", "load_sources", "CropSampler",
+__all__ = ["metered_gain", "SourceConfig", "render_source", "real_source", "render_sources", "Source", "load_sources", "CropSampler",
            "CropConfig"]
 
 CACHE_SIZE = 720
 """Rendered sources kept in memory (least recently used first out; ~3.5 MB each at 512 x 1024 as
 float16, ~7.5 MB at 768 x 1536): a run's sources are read from disk once, not once per crop."""
 _CACHE: OrderedDict[str, tuple[np.ndarray, np.ndarray]] = OrderedDict()
+
+METER_EPS = 1e-4
+"""Luminance added inside the log of :func:`metered_gain` (radiance units), so black pixels stay finite."""
+
+
+def metered_gain(view: np.ndarray, key: float, limit: float = 2.0**10) -> float:
+    """Gain that brings the log-average luminance of linear ``view (H, W, 3)`` to ``key``.
+
+    ``key / exp(mean(log(METER_EPS + Y)))`` (Reinhard et al., "Photographic tone reproduction",
+    SIGGRAPH 2002), clipped to ``[1/limit, limit]``: a camera's average metering that a visible sun
+    (a handful of pixels) does not throw off. ``key = 0.18`` is the log-average of crops of the real
+    HDR panoramas in ``../shared/data/real`` at their stored scale (0.15-0.37 for city, sunrise, courtyard).
+    """
+    y = luminance(np.asarray(view, dtype=np.float32))
+    logavg = float(np.exp(np.mean(np.log(METER_EPS + np.clip(y, 0.0, None)))))
+    return float(np.clip(key / logavg, 1.0 / limit, limit))
+
 
 SOURCE_FILES = {"scene": "scene.exr", "light": "light.exr", "meta": "source.json"}
 
@@ -213,7 +235,11 @@ def load_sources(root: str | os.PathLike, exclude: tuple[str, ...] = ()) -> list
 
 @dataclass
 class CropConfig:
-    """Ranges of the crop parameters (degrees, stops)."""
+    """Ranges of the crop parameters (degrees, stops).
+
+    ``exposure_key``: metered exposure (:func:`metered_gain`) before the ``exposure_stops`` jitter;
+    ``None`` keeps the gain at 1 (the paper's fixed exposure of the HDR values as stored).
+    """
 
     width: int = 320
     height: int = 240
@@ -223,6 +249,7 @@ class CropConfig:
     exposure_stops: tuple[float, float] = (-0.5, 0.5)
     white_balance: float = 0.08
     flip: bool = True
+    exposure_key: float | None = None
 
 
 class CropSampler:
@@ -231,7 +258,8 @@ class CropSampler:
     ``__call__(i)`` returns a dict of numpy arrays: ``image (240, 320, 3)`` in [0, 1] (tonemapped),
     ``K (3, 3)``, ``pitch``, ``roll``, ``yaw`` (radians), ``sky (128, 256, 3)`` radiance in the
     camera's panorama frame, ``sun_dir (3,)`` and ``sun_visible`` (the default detector,
-    :func:`solidkit.envmap.detect_sun`, on the target), ``source`` (name).
+    :func:`solidkit.envmap.detect_sun`, on the target), ``source`` (name), ``gain`` (the mean of the
+    exposure x white-balance gain applied to scene and target).
     """
 
     def __init__(self, sources: list[Source], seed: int = 0, config: CropConfig | None = None) -> None:
@@ -261,6 +289,8 @@ class CropSampler:
         K = intrinsics_from_fov(hfov, c.width, c.height)
         scene, light = src.load()
         view = perspective_crop(scene, R, (c.width, c.height), K=K, interp="linear")
+        if c.exposure_key is not None:
+            gain = gain * metered_gain(view, c.exposure_key)
         image = np.clip(np.asarray(tonemap(np.clip(view, 0, None) * gain.astype(np.float32))), 0.0, 1.0)
         sky = np.asarray(rotate(light, np.asarray(rotation_y(yaw)).T), dtype=np.float32) * gain.astype(np.float32)
         if flip:
@@ -274,4 +304,5 @@ class CropSampler:
                 "pitch": np.float32(pitch), "roll": np.float32(roll), "yaw": np.float32(yaw),
                 "sky": np.ascontiguousarray(sky, dtype=np.float32),
                 "sun_dir": (sun.direction if sun.found else np.zeros(3)).astype(np.float32),
-                "sun_visible": np.float32(sun.found), "source": src.name}
+                "sun_visible": np.float32(sun.found), "source": src.name,
+                "gain": np.float32(np.mean(gain))}
