@@ -151,3 +151,23 @@ def test_torchrun_two_processes_share_each_batch(tmp_path, sources):
     states = [json.loads(line) for line in res.stdout.splitlines() if line.startswith("{")]
     assert len(states) == 2 and all(s["step"] == 2 and s["samples"] == 4 for s in states)  # 2 steps x global batch 2
     assert (tmp_path / "ddp" / "model.pt").is_file() and (tmp_path / "ddp" / "last.pt").is_file()
+
+
+def test_a_run_is_not_resumed_with_another_model_configuration(tmp_path, sources):
+    # the run's model configuration is stored with its state: a preset changed since (a newer solidkit) is refused
+    Trainer(load_train_config(_config(tmp_path, sources, tmp_path / "run", steps=1)), progress=False).run()
+    state = tmp_path / "run" / "last.pt"
+    payload = torch.load(state, map_location="cpu", weights_only=True)
+    stored = json.loads(payload["model_config"])
+    assert stored["sky_footprint"] == "camera" and stored["exposure_key"] == 0.18
+    payload["model_config"] = json.dumps({**stored, "sky_footprint": "level"})
+    torch.save(payload, state)
+    with pytest.raises(InputError, match="sky_footprint"):
+        Trainer(load_train_config(_config(tmp_path, sources, tmp_path / "run", steps=2)), progress=False).run()
+    # a state from before the configuration was stored resumes (with a note in the log)
+    del payload["model_config"]
+    torch.save(payload, state)
+    lines: list[str] = []
+    t = Trainer(load_train_config(_config(tmp_path, sources, tmp_path / "run", steps=2)), progress=False, log=lines.append)
+    t.run()
+    assert t.state["step"] == 2 and any("without its model configuration" in x for x in lines)

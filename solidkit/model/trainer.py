@@ -462,6 +462,7 @@ class Trainer:
         import io
 
         payload = {"format": "solidkit.train_state", "config": self.cfg.to_toml(), "state": json.dumps(self.state),
+                   "model_config": json.dumps(self.model.config.to_dict()),
                    "model": {k: v.detach().cpu() for k, v in self.model.state_dict().items()},
                    "optimizer": opt.state_dict(), "scheduler": sched.state_dict()}
         buf = io.BytesIO()
@@ -488,6 +489,16 @@ class Trainer:
             raise InputError(f"{self.out}: holds a run with other settings ({', '.join(fixed)}); use another out folder")
         if changed:
             self.log(f"resuming with changed settings: {', '.join(changed)} (later batches follow the new ones)")
+        mine = self.model.config.to_dict()
+        if "model_config" in payload:
+            stored = json.loads(payload["model_config"])
+            differ = sorted(k for k in set(stored) | set(mine) if stored.get(k) != mine.get(k))
+            if differ:
+                raise InputError(f"{self.out}: holds a run of another model configuration ({', '.join(differ)}: "
+                                 f"the preset changed?); start a new run with init = its last.pt")
+        else:
+            self.log(f"{path}: a training state without its model configuration (before session 4); resuming with "
+                     f"the current preset's: exposure_key {mine['exposure_key']}, sky_footprint {mine['sky_footprint']}")
         self.model.load_state_dict(payload["model"])
         self.state = state
         return payload
@@ -744,7 +755,7 @@ class _Bar:
 def best_visibility_threshold(probs: np.ndarray, truth: np.ndarray, grid: np.ndarray | None = None) -> dict[str, Any]:
     """The threshold on sun-visibility probabilities ``probs (N,)`` that best matches ``truth (N,)`` (bool).
 
-    Over ``grid`` (default 0.05, 0.10, ..., 0.95) the threshold with the highest balanced accuracy (the
+    Over ``grid`` (default 0.05, 0.10, ..., 0.95, 0.97, 0.99) the threshold with the highest balanced accuracy (the
     mean of the rate of suns kept in skies that have one and of skies left sunless that have none) wins;
     ties go to the one closest to 0.5. Returns ``threshold``, ``balanced_accuracy``, the same at 0.5 and
     the counts of skies with / without a sun.
@@ -752,7 +763,8 @@ def best_visibility_threshold(probs: np.ndarray, truth: np.ndarray, grid: np.nda
     p, t = np.asarray(probs, dtype=np.float64), np.asarray(truth, dtype=bool)
     if t.all() or not t.any():
         raise InputError("tuning the visibility threshold needs skies with and without a sun")
-    grid = np.round(np.arange(0.05, 0.951, 0.05), 2) if grid is None else np.asarray(grid, dtype=np.float64)
+    grid = (np.r_[np.round(np.arange(0.05, 0.951, 0.05), 2), 0.97, 0.99] if grid is None
+            else np.asarray(grid, dtype=np.float64))
     balanced = lambda th: 0.5 * (float(np.mean(p[t] >= th)) + float(np.mean(p[~t] < th)))  # noqa: E731
     scores = np.array([balanced(th) for th in grid])
     best = np.flatnonzero(scores >= scores.max() - 1e-12)
