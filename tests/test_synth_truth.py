@@ -15,11 +15,11 @@ pytest.importorskip("mitsuba")
 
 from solidkit.envmap import read_exr, tonemap  # noqa: E402
 from solidkit.synth.campaign import CampaignConfig, generate_campaign, load_truth  # noqa: E402
-from solidkit.synth.truth_probes import PASS_SAMPLES, pass_plan  # noqa: E402
+from solidkit.synth.truth_probes import PASS_SAMPLES, needed_spp, pass_plan  # noqa: E402
 from solidkit.synth.truth_rerender import rerender_truth  # noqa: E402
 
 TINY = dict(photo_width=32, photo_height=24, photo_spp=1, pano_height=16, pano_spp=1, probe_height=8, probe_spp=4,
-            fisheye_width=64, candidates=2, block_length=25.0, p_sunsky=1.0, glass_every=0)
+            fisheye_width=64, candidates=2, block_length=25.0, p_sunsky=1.0, glass_every=0, probe_noise_db=0.0)
 
 
 @pytest.fixture(scope="module")
@@ -37,6 +37,8 @@ def _digests(folder: Path) -> dict[str, str]:
 def test_pass_plan_splits_the_samples_into_passes_that_fit() -> None:
     assert pass_plan(128, 256) == [128, 128]  # fits one pass (8.4 M samples); two halves for the noise estimate
     assert pass_plan(128, 1) == [1]
+    assert needed_spp(34.0, 256, 40.0, 4096) == 1020 and needed_spp(34.0, 256, 40.0, 512) == 512
+    assert needed_spp(41.0, 256, 40.0, 4096) is None and needed_spp(30.0, 256, 0.0, 4096) is None
     plan = pass_plan(128, 1000)
     assert sum(plan) == 1000 and max(plan) * 2 * 128 * 128 <= PASS_SAMPLES and max(plan) - min(plan) <= 1
     assert len(plan) % 2 == 0
@@ -58,13 +60,14 @@ def test_truth_rerender_keeps_the_card_records_its_spp_and_is_idempotent(tiny: P
     card = _digests(camp / "card")
     truth0 = load_truth(camp / "truth" / "truth.json")
     probe = next(c for c in truth0.scenes[0].captures if c.probe is not None)
-    assert probe.probe.render["spp"] == 4 and probe.probe.render["version"] == 2  # new campaigns record theirs
-    res = rerender_truth(camp, spp=12)
+    assert probe.probe.render["spp"] == 4 and probe.probe.render["version"] == 3  # new campaigns record theirs
+    res = rerender_truth(camp, spp=12, noise_db=0.0)
     assert res["rendered"] == 1 and res["skipped"] == 0 and res["complete"]
     assert _digests(camp / "card") == card  # the captures are not touched
     truth = load_truth(camp / "truth" / "truth.json")
     rec = next(c for c in truth.scenes[0].captures if c.probe is not None).probe.render
     assert rec["spp"] == 12 and rec["previous"]["spp"] == 4 and rec["check_psnr_db"] >= 25.0
+    assert rec["noise_psnr_db"] > rec["previous"]["noise_psnr_db"]
     assert truth.config.probe_spp == 12 and truth.renderer["truth_probes"]["probe_spp"] == 12
     assert json.loads((camp / "truth" / "campaign.json").read_text())["config"]["probe_spp"] == 12
     assert read_exr(camp / probe.probe.hdr_file)[1]["truth_spp"] == 12
@@ -72,7 +75,7 @@ def test_truth_rerender_keeps_the_card_records_its_spp_and_is_idempotent(tiny: P
     strip = truth.model_dump(mode="json")
     old = truth0.model_dump(mode="json")
     for t in (strip, old):
-        t["config"].pop("probe_spp"), t["renderer"].pop("truth_probes", None)
+        t["config"].pop("probe_spp"), t["config"].pop("probe_noise_db"), t["renderer"].pop("truth_probes", None)
         for sc in t["scenes"]:
             for c in sc["captures"]:
                 if c["probe"]:
@@ -80,9 +83,17 @@ def test_truth_rerender_keeps_the_card_records_its_spp_and_is_idempotent(tiny: P
     assert strip == old
     # a second run changes nothing
     stamps = {p: p.stat().st_mtime_ns for p in camp.rglob("*") if p.is_file()}
-    again = rerender_truth(camp, spp=12)
+    again = rerender_truth(camp, spp=12, noise_db=0.0)
     assert again["rendered"] == 0 and again["skipped"] == 1
     assert all(p.stat().st_mtime_ns == t for p, t in stamps.items())
+    # a noise target the stored render meets keeps it; one it misses gets a fresh render with more samples
+    pixels = read_exr(camp / probe.probe.hdr_file)[0]
+    kept = rerender_truth(camp, spp=12, noise_db=1.0)
+    assert kept["kept"] == 1 and np.array_equal(read_exr(camp / probe.probe.hdr_file)[0], pixels)
+    more = rerender_truth(camp, spp=12, noise_db=80.0, max_spp=120)
+    rec = more["probes"][0]
+    assert more["rendered"] == 1 and rec["spp"] == 120 and rec["pilot"]["spp"] == 12  # capped at max_spp
+    assert rec["noise_psnr_db"] > rec["pilot"]["noise_psnr_db"]
 
 
 def test_truth_rerender_refuses_a_scene_it_cannot_rebuild(tiny: Path, tmp_path: Path) -> None:

@@ -206,9 +206,14 @@ def campaign(
 @app.command(name="campaign-truth")
 def campaign_truth(
     campaign: Path = typer.Argument(..., help="A folder of 'solidkit synth campaign' (card/ and truth/)."),
-    spp: Optional[int] = typer.Option(None, "--spp", min=1, help="Samples per pixel of a truth probe (glass scenes: "
-                                                                 "x the campaign's glass factor); default: the "
-                                                                 "campaign default (256)."),
+    spp: Optional[int] = typer.Option(None, "--spp", min=1, help="Samples per pixel of a truth probe's first render "
+                                                                 "(glass scenes: x the campaign's glass factor); "
+                                                                 "default 256."),
+    noise_db: Optional[float] = typer.Option(None, "--noise-db", min=0.0,
+                                             help="Noise target (PSNR dB, paper tonemap): probes whose first render is "
+                                                  "noisier get a fresh render with more samples; 0: none; default 40."),
+    max_spp: Optional[int] = typer.Option(None, "--max-spp", min=1, help="Most samples per pixel for the noise target "
+                                                                         "(default 2048)."),
     scene: list[str] = typer.Option([], "--scene", help="Only this scene (repeatable); default: all."),
     variant: Optional[str] = typer.Option(None, "--variant", help="Force a Mitsuba variant."),
     as_json: bool = typer.Option(False, "--json", help="Print the summary as JSON."),
@@ -229,17 +234,23 @@ def campaign_truth(
     t0 = time.perf_counter()
     with _progress() as bar:
         task = bar.add_task(f"truth probes [{used}]", total=None)
-        res = rerender_truth(campaign, spp=spp, scenes=scene or None,
+        res = rerender_truth(campaign, spp=spp, noise_db=noise_db, max_spp=max_spp, scenes=scene or None,
                              progress=lambda sid, cid, what: bar.advance(task))
     res["seconds"] = time.perf_counter() - t0
     if as_json:
         typer.echo(json.dumps(res))
         return
     table = Table(title=f"solidkit synth campaign-truth {campaign}", show_header=False)
-    table.add_row("truth probes rendered / up to date", f"{res['rendered']} / {res['skipped']}")
-    table.add_row("samples per pixel (non-glass)", str(res["spp"]))
+    table.add_row("truth probes rendered / kept / up to date", f"{res['rendered']} / {res['kept']} / {res['skipped']}")
+    table.add_row("first render spp (non-glass) / noise target / max spp",
+                  f"{res['spp']} / {res['noise_db']:g} dB / {res['max_spp']}")
+    if res["probes"]:
+        noise = [p["noise_psnr_db"] for p in res["probes"] if p["noise_psnr_db"] is not None]
+        if noise:
+            table.add_row("noise of these probes (min / median)", f"{min(noise):.1f} / {sorted(noise)[len(noise) // 2]:.1f} dB")
     if res["rendered"]:
-        table.add_row("seconds per probe", f"{res['seconds_per_probe']:.1f}")
-        table.add_row("new vs stored probe at 1/4 size (min)", f"{min(c['check_psnr_db'] for c in res['checks']):.1f} dB")
-    table.add_row("all probes at this spp", "yes" if res["complete"] else "no")
+        table.add_row("seconds per rendered probe", f"{res['seconds_per_probe']:.1f}")
+        table.add_row("new vs stored probe at 1/4 size (min)",
+                      f"{min(p['check_psnr_db'] for p in res['probes'] if p['what'] == 'rendered'):.1f} dB")
+    table.add_row("all probes done with this recipe", "yes" if res["complete"] else "no")
     summary.print(table)

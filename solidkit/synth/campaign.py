@@ -55,11 +55,12 @@ exposure putting the mean at 0.18.
 
 Truth probes (:mod:`solidkit.synth.truth_probes`): the HDR probe each capture position's aligned
 probe is held against, rendered from the same scene, lighting and position as its Theta shots, with
-``probe_spp`` samples per pixel (default 256, times ``glass_spp_factor`` in glass scenes; about
-30 s per probe, 2 min per glass probe, on one busy CPU thread), so that its own Monte Carlo noise
-(~40 dB PSNR in the paper's tonemap) stays below the aligned probes' errors; the render record
-(spp, passes, seed, fireflies replaced, recipe version) goes into :attr:`ProbeTruth.render` and the
-EXR header. ``solidkit synth campaign-truth DIR`` (:mod:`solidkit.synth.truth_rerender`)
+``probe_spp`` samples per pixel (default 256, times ``glass_spp_factor`` in glass scenes), and more
+(up to ``probe_max_spp``, 2048) where that first render's measured noise is under ``probe_noise_db``
+(40 dB PSNR in the paper's tonemap), so that the truth's own Monte Carlo noise stays below the
+aligned probes' errors; the render record (spp, passes, seed, measured noise, fireflies replaced,
+recipe version) goes into :attr:`ProbeTruth.render` and the EXR header. Cost on one busy CPU
+thread: ~30 s for 256 spp, ~70 s for 1024 (``benchmarks/results/align-truth.md``). ``solidkit synth campaign-truth DIR`` (:mod:`solidkit.synth.truth_rerender`)
 re-renders only the truth probes of an existing campaign, leaving its card untouched.
 
 Frames (truth): the scene frame of :mod:`solidkit.synth.scene` (x east, y down, z north); a
@@ -116,7 +117,7 @@ from solidkit.synth.fieldwork import GlassPanel, add_glass_facades, glint_direct
 from solidkit.synth.sample import (Generator, SampleConfig, derive_seed, render_buffers, render_panorama, render_rgb,
                                    sun_mask_image, sun_mask_panorama, suppress_fireflies)
 from solidkit.synth.scene import CATEGORIES, to_mitsuba
-from solidkit.synth.truth_probes import render_truth_probe
+from solidkit.synth.truth_probes import clean_truth_probe
 from solidkit.synth.campaign_truth import (PRESETS, SCHEMA_VERSION, CampaignConfig, CampaignTruth, CaptureTruth,
                                            PhotoTruth, ProbeTruth, SceneTruth, Shot, SolarTruth, load_truth)
 from solidkit.synth.solar import direction_angles, place_sun, solar_direction, solar_position, utc_offset_text
@@ -398,9 +399,11 @@ def _render_scene(out: Path, s: int, sid: str, seed: int, cfg: CampaignConfig, g
             shots.append(Shot(file=f, exposure_time=t_exp, f_number=2.0, iso=iso_c, time=when, role=role))
         probe = None
         if info is not None:
-            local, record = render_truth_probe(scene, pos, cam.pano_rotation, cfg.probe_height, cfg.probe_spp * spp_scale,
-                                               seed=derive_seed(seed, s, 200 + c), sun=light.sun, glint=glint,
-                                               firefly_k=cfg.firefly_k)
+            base = cfg.probe_spp * spp_scale
+            local, record = clean_truth_probe(scene, pos, cam.pano_rotation, cfg.probe_height, base,
+                                              seed=derive_seed(seed, s, 200 + c), noise_target_db=cfg.probe_noise_db,
+                                              max_spp=max(base, cfg.probe_max_spp), sun=light.sun, glint=glint,
+                                              firefly_k=cfg.firefly_k)
             _write_truth_exr(truth_dir / sid / f"{cid}.exr", local, probe_exr_meta(sid, cid, record))
             marked = np.asarray(info["pixel"], np.float64) + rng.normal(0.0, cfg.mark_noise_px, 2)
             marked = np.round(np.clip(marked, 0.0, [cam.width - 1, cam.height - 1]) * 2.0) / 2.0  # a tablet's half pixels

@@ -39,8 +39,11 @@ class CampaignConfig(BaseModel):
     pano_height: int = 512
     pano_spp: int = 16
     probe_height: int = 128
-    probe_spp: int = Field(256, description="samples per pixel of the truth probes (solidkit.synth.truth_probes); "
-                                            "campaigns before session 4: 32 (16 in older ones)")
+    probe_spp: int = Field(256, description="samples per pixel of a truth probe's first render (solidkit.synth."
+                                            "truth_probes); campaigns before session 4: 32 (16 in older ones), all")
+    probe_noise_db: float = Field(40.0, description="noise target of the truth probes (PSNR, paper tonemap): more "
+                                                    "samples where the first render is noisier; 0: none")
+    probe_max_spp: int = Field(2048, description="most samples per pixel a truth probe gets for its noise target")
     fisheye_width: int = 1920
     lens_profile: str = "theta-v"
     normal_exposure_s: float = 1 / 2500

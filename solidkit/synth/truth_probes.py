@@ -31,14 +31,16 @@ import numpy as np
 from solidkit.envmap import tonemap
 from solidkit.synth.sample import derive_seed, render_panorama, sun_mask_panorama, suppress_fireflies
 
-__all__ = ["PASS_SAMPLES", "TRUTH_RENDER_VERSION", "noise_psnr_db", "pass_plan", "psnr", "render_truth_probe"]
+__all__ = ["PASS_SAMPLES", "TRUTH_RENDER_VERSION", "clean_truth_probe", "needed_spp", "noise_psnr_db", "pass_plan", "psnr",
+           "render_truth_probe"]
 
 PASS_SAMPLES = 1 << 23
 """Most samples (pixels x spp) of one Mitsuba pass (8.4 M: a 512-px campaign panorama at 16 spp)."""
 
-TRUTH_RENDER_VERSION = 2
+TRUTH_RENDER_VERSION = 3
 """Version of the truth-probe recipe: 1 = one pass of ``probe_spp``, firefly treatment with only the sun
-protected (campaigns before session 4); 2 = this module (passes, glints protected, recorded per probe)."""
+protected (campaigns before session 4); 2 = passes, glints protected, recorded per probe; 3 = 2 plus the
+noise target (:func:`clean_truth_probe`)."""
 
 
 def pass_plan(height: int, spp: int, pass_samples: int = PASS_SAMPLES) -> list[int]:
@@ -110,4 +112,54 @@ def render_truth_probe(scene: Any, position: np.ndarray, rotation: np.ndarray, h
     record = {"version": TRUTH_RENDER_VERSION, "spp": int(sum(plan)), "passes": len(plan), "seed": int(seed),
               "firefly_k": float(firefly_k), "fireflies_replaced": int(replaced), "height": int(height),
               "noise_psnr_db": noise}
+    return img, record
+
+
+def needed_spp(noise_db: float | None, spp: int, target_db: float | None, max_spp: int) -> int | None:
+    """Samples per pixel that bring a render of ``spp`` samples with noise ``noise_db`` to ``target_db``.
+
+    Monte Carlo noise power falls as ``1 / spp``: ``spp 10^((target - noise) / 10)``, rounded up to an
+    even number and capped at ``max_spp``. None when no more samples are needed (no target, the
+    noise already at or above it, or the cap at ``spp``).
+    """
+    if not target_db or noise_db is None or noise_db >= target_db:
+        return None
+    n = min(int(max_spp), math.ceil(spp * 10.0 ** ((target_db - noise_db) / 10.0)))
+    n += n % 2
+    return n if n > spp else None
+
+
+def clean_truth_probe(scene: Any, position: np.ndarray, rotation: np.ndarray, height: int, spp: int, *, seed: int,
+                      noise_target_db: float | None, max_spp: int, sun: np.ndarray | None = None,
+                      glint: np.ndarray | None = None, firefly_k: float = 10.0, pilot: dict[str, Any] | None = None,
+                      pass_samples: int = PASS_SAMPLES) -> tuple[np.ndarray | None, dict[str, Any]]:
+    """A truth probe whose noise reaches ``noise_target_db`` where ``max_spp`` allows (recipe version 3).
+
+    A pilot of ``spp`` samples (:func:`render_truth_probe`, ``seed``) measures the probe's noise; when
+    it is under the target a **fresh** render of :func:`needed_spp` samples (seed ``derive_seed(seed,
+    1000)``) replaces it: the pilot's samples are not mixed in, so the choice of the sample count,
+    made on the pilot alone, leaves the final render's expectation unbiased. Glass caustics
+    converge slower than ``1 / spp`` (heavy-tailed paths): their records show the noise reached.
+
+    ``pilot``: the render record of an existing render of this probe at ``spp`` with this seed
+    (what the pilot would be, sample for sample): used instead of rendering it again.
+
+    Returns
+    -------
+    image : ``(height, 2 height, 3)`` float32, or None when ``pilot`` was given and is kept.
+    record : the kept render's record (:func:`render_truth_probe`) plus ``version`` 3, ``base_spp``,
+        ``noise_target_db``, ``max_spp`` and ``pilot`` (its ``spp`` and ``noise_psnr_db``).
+    """
+    kw = dict(sun=sun, glint=glint, firefly_k=firefly_k, pass_samples=pass_samples)
+    img: np.ndarray | None = None
+    if pilot is None:
+        img, record = render_truth_probe(scene, position, rotation, height, spp, seed=seed, **kw)
+    else:
+        record = {k: v for k, v in pilot.items() if k not in ("previous", "check_psnr_db", "rendered_utc")}
+    first = {"spp": record["spp"], "noise_psnr_db": record["noise_psnr_db"]}
+    n = needed_spp(record["noise_psnr_db"], spp, noise_target_db, max_spp)
+    if n is not None:
+        img, record = render_truth_probe(scene, position, rotation, height, n, seed=derive_seed(seed, 1000), **kw)
+    record.update(version=TRUTH_RENDER_VERSION, base_spp=int(spp), noise_target_db=noise_target_db,
+                  max_spp=int(max_spp), pilot=first)
     return img, record

@@ -42,7 +42,7 @@ from solidkit.synth.campaign import (SCENE_FILE, SETTINGS_FILE, _scene_block, _s
                                      probe_exr_meta)
 from solidkit.synth.campaign_truth import CampaignConfig, SceneTruth, TruthError, load_truth
 from solidkit.synth.sample import Generator, SampleConfig, derive_seed
-from solidkit.synth.truth_probes import PASS_SAMPLES, TRUTH_RENDER_VERSION, psnr, render_truth_probe
+from solidkit.synth.truth_probes import PASS_SAMPLES, TRUTH_RENDER_VERSION, clean_truth_probe, psnr
 
 __all__ = ["read_campaign", "rerender_truth", "check_psnr_db"]
 
@@ -121,24 +121,29 @@ def read_campaign(campaign: str | os.PathLike) -> tuple[dict[str, Any], Any]:
     return settings, truth
 
 
-def rerender_truth(campaign: str | os.PathLike, *, spp: int | None = None, scenes: list[str] | None = None,
-                   min_check_db: float = 25.0, pass_samples: int = PASS_SAMPLES,
+def rerender_truth(campaign: str | os.PathLike, *, spp: int | None = None, noise_db: float | None = None,
+                   max_spp: int | None = None, scenes: list[str] | None = None, min_check_db: float = 25.0,
+                   pass_samples: int = PASS_SAMPLES,
                    progress: Callable[[str, str, str], None] | None = None) -> dict[str, Any]:
-    """Re-render the truth probes of ``campaign`` (module doc) with ``spp`` samples per pixel.
+    """Re-render the truth probes of ``campaign`` (module doc) with the recipe of :func:`clean_truth_probe`.
 
     Parameters
     ----------
     campaign : a folder of ``solidkit synth campaign`` (``truth/campaign.json`` and ``truth/truth.json``).
-    spp : samples per pixel of a truth probe (glass scenes: times ``config.glass_spp_factor``);
-        default: :class:`CampaignConfig`'s ``probe_spp``.
-    scenes : scene ids to re-render (default: all); the settings' ``probe_spp`` changes only when all are done.
+    spp, noise_db, max_spp : samples per pixel of a probe's first render (glass scenes: times
+        ``config.glass_spp_factor``), its noise target (PSNR dB, paper tonemap; 0: none) and the most
+        samples per pixel for it; defaults: :class:`CampaignConfig`'s ``probe_spp``, ``probe_noise_db``
+        and ``probe_max_spp``.
+    scenes : scene ids to re-render (default: all); the settings change only when all are done.
     min_check_db : least PSNR of a new probe against the stored one at 1/4 size (module doc).
-    progress : called ``(scene, probe, "rendered" | "skipped")`` per probe.
+    progress : called ``(scene, probe, "rendered" | "kept" | "skipped")`` per probe.
 
     Returns
     -------
-    dict : ``rendered``, ``skipped`` (probe counts), ``spp``, ``seconds_per_probe`` (rendered ones),
-        ``checks`` (per rendered probe: scene, probe, spp, PSNR against the stored probe).
+    dict : ``rendered``, ``kept`` (an existing render at ``spp`` that meets the target: record
+        updated), ``skipped`` (up to date) probe counts, ``spp``, ``noise_db``, ``max_spp``,
+        ``seconds_per_probe`` (rendered ones), ``complete``, ``probes`` (per probe: scene, probe,
+        spp, noise, check against the stored probe).
     """
     import time
 
@@ -149,9 +154,12 @@ def rerender_truth(campaign: str | os.PathLike, *, spp: int | None = None, scene
     settings_path, truth_path = truth_dir / SETTINGS_FILE, truth_dir / "truth.json"
     settings, truth = read_campaign(root)
     cfg = truth.config
-    spp = int(spp if spp is not None else CampaignConfig().probe_spp)
-    if spp < 1:
-        raise InputError(f"--spp must be >= 1, got {spp}")
+    defaults = CampaignConfig()
+    spp = int(spp if spp is not None else defaults.probe_spp)
+    noise_db = float(noise_db if noise_db is not None else defaults.probe_noise_db)
+    max_spp = int(max_spp if max_spp is not None else defaults.probe_max_spp)
+    if spp < 1 or max_spp < 1 or noise_db < 0:
+        raise InputError(f"--spp and --max-spp must be >= 1 and --noise-db >= 0 (got {spp}, {max_spp}, {noise_db:g})")
     wanted = set(scenes) if scenes else None
     known = {st.id for st in truth.scenes}
     if wanted and not wanted <= known:
@@ -159,10 +167,21 @@ def rerender_truth(campaign: str | os.PathLike, *, spp: int | None = None, scene
     scfg = SampleConfig(width=cfg.photo_width, height=cfg.photo_height, hfov_deg=cfg.hfov_deg, candidates=cfg.candidates,
                         p_sunsky=cfg.p_sunsky, probe_height=cfg.probe_height, block_length=cfg.block_length)
     gen = Generator(truth.seed, scfg)
+    target = noise_db or None
     mi = None
-    rendered = skipped = 0
+    counts = {"rendered": 0, "kept": 0, "skipped": 0}
     seconds = 0.0
-    checks: list[dict[str, Any]] = []
+    probes: list[dict[str, Any]] = []
+
+    def plan(st: SceneTruth) -> tuple[int, int]:
+        glass = cfg.glass_every > 0 and _scene_index(st.id) % cfg.glass_every == min(1, cfg.glass_every - 1)
+        base = spp * (cfg.glass_spp_factor if glass else 1)
+        return base, max(base, max_spp)
+
+    def up_to_date(rec: dict[str, Any], base: int, cap: int) -> bool:
+        return (rec.get("version") == TRUTH_RENDER_VERSION and rec.get("base_spp") == base
+                and rec.get("noise_target_db") == target and rec.get("max_spp") == cap)
+
     new_scenes = []
     for st0 in truth.scenes:
         marker = truth_dir / st0.id / SCENE_FILE
@@ -170,16 +189,15 @@ def rerender_truth(campaign: str | os.PathLike, *, spp: int | None = None, scene
         if wanted is not None and st.id not in wanted:
             new_scenes.append(st)
             continue
-        glass = cfg.glass_every > 0 and _scene_index(st.id) % cfg.glass_every == min(1, cfg.glass_every - 1)
-        target = spp * (cfg.glass_spp_factor if glass else 1)
+        base, cap = plan(st)
         built = None
         for c, ct in enumerate(st.captures):
             if ct.probe is None:
                 continue
             rec = ct.probe.render or {}
             exr = root / ct.probe.hdr_file
-            if rec.get("spp") == target and rec.get("version") == TRUTH_RENDER_VERSION and exr.is_file():
-                skipped += 1
+            if up_to_date(rec, base, cap) and exr.is_file():
+                counts["skipped"] += 1
                 if progress:
                     progress(st.id, ct.id, "skipped")
                 continue
@@ -187,43 +205,56 @@ def rerender_truth(campaign: str | os.PathLike, *, spp: int | None = None, scene
                 mi = mi or mitsuba()
                 built = _rebuild(mi, gen, st, truth.seed, cfg)
             t0 = time.perf_counter()
-            sun = built["light"].sun
+            pseed = derive_seed(truth.seed, built["s"], 200 + c)
+            # the stored probe is this recipe's first render when it was made at `base` spp with this seed
+            pilot = rec if (rec.get("version", 1) >= 2 and rec.get("spp") == base and rec.get("seed") == pseed
+                            and rec.get("noise_psnr_db") is not None and exr.is_file()) else None
             glint = None if ct.glint_body is None else np.asarray(ct.R_scene_from_body) @ np.asarray(ct.glint_body)
-            img, record = render_truth_probe(built["scene"], np.asarray(ct.position), built["cam"].pano_rotation,
-                                             cfg.probe_height, target, seed=derive_seed(truth.seed, built["s"], 200 + c),
-                                             sun=sun, glint=glint, firefly_k=cfg.firefly_k, pass_samples=pass_samples)
+            img, record = clean_truth_probe(built["scene"], np.asarray(ct.position), built["cam"].pano_rotation,
+                                            cfg.probe_height, base, seed=pseed, noise_target_db=target, max_spp=cap,
+                                            sun=built["light"].sun, glint=glint, firefly_k=cfg.firefly_k, pilot=pilot,
+                                            pass_samples=pass_samples)
             old, _ = read_exr(exr)
-            check = check_psnr_db(img, old[..., :3])
-            if check < min_check_db:
-                raise InputError(f"{st.id}/{ct.id}: the re-rendered truth probe disagrees with the stored one "
-                                 f"({check:.1f} dB < {min_check_db:g} dB at 1/4 size): not the scene the captures show; "
-                                 "truth left unchanged")
-            record.update(previous={"spp": rec.get("spp", cfg.probe_spp * (cfg.glass_spp_factor if glass else 1)),
-                                    "version": rec.get("version", 1)},
-                          check_psnr_db=round(check, 2), rendered_utc=dt.datetime.now(dt.timezone.utc).isoformat(timespec="seconds"))
+            if img is None:  # the stored render is kept: only its record changes
+                what, img, check = "kept", old[..., :3], rec.get("check_psnr_db")
+                record.update(previous=rec.get("previous"), check_psnr_db=check, rendered_utc=rec.get("rendered_utc"))
+            else:
+                what, check = "rendered", round(check_psnr_db(img, old[..., :3]), 2)
+                if check < min_check_db:
+                    raise InputError(f"{st.id}/{ct.id}: the re-rendered truth probe disagrees with the stored one "
+                                     f"({check:.1f} dB < {min_check_db:g} dB at 1/4 size): not the scene the captures "
+                                     "show; truth left unchanged")
+                record.update(previous={"spp": rec.get("spp", cfg.probe_spp * base // spp),
+                                        "version": rec.get("version", 1),
+                                        "noise_psnr_db": rec.get("noise_psnr_db")},
+                              check_psnr_db=check,
+                              rendered_utc=dt.datetime.now(dt.timezone.utc).isoformat(timespec="seconds"))
+                seconds += time.perf_counter() - t0
             _write_truth_exr(exr, img, probe_exr_meta(st.id, ct.id, record))
             ct.probe.render = record
-            atomic_write_text(marker, st.model_dump_json(indent=1))  # after the EXR: a killed run renders it again
-            seconds += time.perf_counter() - t0
-            rendered += 1
-            checks.append({"scene": st.id, "probe": ct.id, "spp": target, "check_psnr_db": check,
-                           "fireflies_replaced": record["fireflies_replaced"]})
-            log.info("%s/%s: %d spp in %.1f s (stored probe within %.1f dB)", st.id, ct.id, target,
-                     time.perf_counter() - t0, check)
+            atomic_write_text(marker, st.model_dump_json(indent=1))  # after the EXR: a killed run redoes this probe
+            counts[what] += 1
+            probes.append({"scene": st.id, "probe": ct.id, "what": what, "spp": record["spp"],
+                           "noise_psnr_db": record["noise_psnr_db"], "pilot": record["pilot"], "check_psnr_db": check,
+                           "fireflies_replaced": record["fireflies_replaced"],
+                           "seconds": round(time.perf_counter() - t0, 1)})
+            log.info("%s/%s: %s, %d spp, noise %.1f dB (first render %.1f dB), %.1f s", st.id, ct.id, what,
+                     record["spp"], record["noise_psnr_db"], record["pilot"]["noise_psnr_db"], time.perf_counter() - t0)
             if progress:
-                progress(st.id, ct.id, "rendered")
+                progress(st.id, ct.id, what)
         new_scenes.append(st)
-    done_all = all((ct.probe.render or {}).get("spp") == spp * (cfg.glass_spp_factor if cfg.glass_every > 0 and
-                   _scene_index(st.id) % cfg.glass_every == min(1, cfg.glass_every - 1) else 1)
-                   and (ct.probe.render or {}).get("version") == TRUTH_RENDER_VERSION
+    done_all = all(up_to_date(ct.probe.render or {}, *plan(st))
                    for st in new_scenes for ct in st.captures if ct.probe is not None)
-    recorded = (truth.renderer.get("truth_probes") or {}).get("probe_spp") == spp and cfg.probe_spp == spp
-    if rendered or (done_all and not recorded):
+    wanted_cfg = {"probe_spp": spp, "probe_noise_db": noise_db, "probe_max_spp": max_spp}
+    recorded = (all(getattr(cfg, k) == v for k, v in wanted_cfg.items())
+                and (truth.renderer.get("truth_probes") or {}).get("version") == TRUTH_RENDER_VERSION)
+    changed = counts["rendered"] + counts["kept"]
+    if changed or (done_all and not recorded):
         new_truth = truth.model_copy(update={"scenes": new_scenes})
         if done_all:
-            new_truth.config = cfg.model_copy(update={"probe_spp": spp})
+            new_truth.config = cfg.model_copy(update=wanted_cfg)
             renderer = dict(truth.renderer)
-            renderer["truth_probes"] = {"version": TRUTH_RENDER_VERSION, "probe_spp": spp,
+            renderer["truth_probes"] = {"version": TRUTH_RENDER_VERSION, **wanted_cfg,
                                         "glass_spp_factor": cfg.glass_spp_factor,
                                         "mitsuba": mi.__version__ if mi is not None else truth.renderer.get("mitsuba"),
                                         "variant": variant() if mi is not None else truth.renderer.get("variant")}
@@ -231,8 +262,8 @@ def rerender_truth(campaign: str | os.PathLike, *, spp: int | None = None, scene
         text = new_truth.model_dump_json(indent=1)
         if text != truth_path.read_text():
             atomic_write_text(truth_path, text)
-        if done_all and settings.get("config", {}).get("probe_spp") != spp:
-            settings["config"]["probe_spp"] = spp
+        if done_all and any(settings.get("config", {}).get(k) != v for k, v in wanted_cfg.items()):
+            settings["config"].update(wanted_cfg)
             atomic_write_text(settings_path, json.dumps(settings, indent=1))
-    return {"campaign": str(root), "spp": spp, "rendered": rendered, "skipped": skipped, "complete": done_all,
-            "seconds_per_probe": seconds / rendered if rendered else None, "checks": checks}
+    return {"campaign": str(root), "spp": spp, "noise_db": noise_db, "max_spp": max_spp, **counts, "complete": done_all,
+            "seconds_per_probe": seconds / counts["rendered"] if counts["rendered"] else None, "probes": probes}
