@@ -13,6 +13,9 @@ Cues (degrees; ``yaw_c``: capture level frame -> photo panorama frame, ``d_P = R
 - ``sun``: the scene's sun (consensus of the other captures, photo panorama frame) minus the
   capture's own sun azimuth (after the ephemeris drift between their times).
 - ``compass``: ``heading_c - photo_heading`` (weak: a compass is good to several degrees).
+- ``features_via_<id>``, ``manhattan``, ``linked``: fallbacks for captures the cues above leave
+  with the compass alone (:mod:`solidkit.align.pipeline`, :mod:`solidkit.align.manhattan`,
+  :mod:`solidkit.align.links`, :mod:`solidkit.align.sky`).
 - ``label``: a human ``heading`` label; it overrides every cue and is recorded as such.
 
 :func:`fuse_cues` forms the consensus: the weighted circular mean of the cues that agree with

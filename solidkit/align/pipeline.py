@@ -16,7 +16,11 @@ label store):
    are tested on elevation: a compass may be 90° off); the sun's motion between the captures'
    times applied or not as the images say (``AlignSettings.sun_motion``); then the ``sun`` cue of
    every capture that saw it (leave-one-out: the scene's sun from the *other* captures).
-   Captures left with the compass alone get ``features_via_<id>`` cues through the other captures.
+   Captures left with the compass alone get ``features_via_<id>`` cues through the other captures,
+   then ``manhattan`` cues (:mod:`solidkit.align.manhattan`), then a ``linked`` cue
+   (:mod:`solidkit.align.links`): features between them and every other capture, and their skies
+   (:mod:`solidkit.align.sky`), tie them to captures of known yaw or, failing that, to each
+   other's compasses (flagged ``yaw_from_compasses``; ``yaw_from_sky`` when only skies link them).
    The final consensus per capture (:func:`~solidkit.align.heading.fuse_cues`); a human ``heading``
    label overrides it; human ``sun`` labels replace the automatic choice of their capture.
 5. Probe pixels (field notes, else a human label, else the geometry) checked against the
@@ -78,6 +82,11 @@ class AlignSettings:
     manhattan: bool = True
     manhattan_max_ambiguity: float = 0.85
     manhattan_model_sigma_deg: float = 0.5
+    links: bool = True
+    sky: bool = True
+    sky_correlation_px: float = 18.0
+    sky_min_delta_chi2: float = 9.0
+    sky_min_overlap: float = 0.005
     min_translation_support: int = 8
     refine_focal: bool = True
     min_pose_inliers: int = 15
@@ -171,6 +180,8 @@ class _CapState:
     ephemeris: Any = None
     C: np.ndarray = field(default_factory=lambda: np.eye(3))  # product's level frame -> refined level frame
     tilt: Any = None
+    link_flags: list[str] = field(default_factory=list)
+    linear: bool = False  # normal_lin from an HDR product (else a decoded LDR shot, clipped at 1)
 
 
 def align_scene(campaign: Path, manifest: Manifest, scene: Scene, settings: AlignSettings, store: Any = None,
@@ -206,6 +217,7 @@ def align_scene(campaign: Path, manifest: Manifest, scene: Scene, settings: Alig
             pano, fov_deg=s.feature_fov_deg, pitches_deg=s.feature_pitches_deg, linear=linear))
         st.feature_src = src
         st.normal_lin = pano if linear else srgb_decode(pano.astype(np.float32) / 255.0)
+        st.linear = linear
         if s.refine_levelling:
             _refine_levelling(st, pano, s)
             f = st.features
@@ -321,6 +333,8 @@ def align_scene(campaign: Path, manifest: Manifest, scene: Scene, settings: Alig
     _chain_cues(caps, cam, s)
     if s.manhattan:
         _manhattan_cues(caps, s, photo_lines=lambda: _photo_lines(campaign, photo))
+    if s.links:
+        _link_cues(caps, s, log)
 
     # final yaws, probe pixels
     probes: list[ProbeAlignment] = []
@@ -343,6 +357,8 @@ def align_scene(campaign: Path, manifest: Manifest, scene: Scene, settings: Alig
         if "manhattan" in st.cues and st.cues["manhattan"].ok and source == "auto":
             flags.append("yaw_from_street_lines: only the street's line directions (modulo 90 deg, quadrant from the "
                          "compass) fix this yaw: review")
+        if "linked" in st.cues and st.cues["linked"].ok and source == "auto":
+            flags.extend(st.link_flags)
         yaw_sigma[st.cap.id] = fused.sigma_deg
         role = "camera" if st.cap.id == cam_id else "probe"
         levelling, y0 = _levelling_record(st)
@@ -465,6 +481,96 @@ def _chain_cues(caps: list[_CapState], cam: _CapState | None, s: AlignSettings) 
             if cue.yaw_deg is not None:
                 cue.detail = cue.detail.replace("the camera position", oid)
                 st.cues[f"features_via_{oid}"] = cue
+
+
+def _link_cues(caps: list[_CapState], s: AlignSettings, log: Callable[[str], None] = lambda s: None) -> None:
+    """The ``linked`` cue (:mod:`solidkit.align.links`) for captures still left with the compass alone.
+
+    Links: features between every such capture and every other capture (level relative pose), and
+    their skies (:mod:`solidkit.align.sky`); the yaws of the other captures (any cue but the
+    compass) and every lone capture's compass are the absolute links. A lone capture whose group
+    holds no capture of known yaw gets the mean of the group's compasses (flagged
+    ``yaw_from_compasses``); one whose anchors are street lines only stays flagged
+    ``yaw_from_street_lines``.
+    """
+    from solidkit.align.links import GROUND, Link, solve_links
+    from solidkit.align.sky import relative_sky_yaw, sky_layer
+
+    def non_compass(st: _CapState) -> Any:
+        return fuse_cues({k: c.model_copy() for k, c in st.cues.items() if k != "compass" and c.yaw_deg is not None})
+
+    lone = [st for st in caps if st.features is not None and non_compass(st).yaw_deg is None
+            and st.cues.get("compass") is not None and st.cues["compass"].yaw_deg is not None]
+    if not lone:
+        return
+    known = {}
+    for st in caps:
+        if st.features is not None and st not in lone:
+            f = non_compass(st)
+            if f.yaw_deg is not None:
+                street = "manhattan" in st.cues and st.cues["manhattan"].ok and len([c for k, c in st.cues.items()
+                                                                                      if c.ok and k != "compass"]) == 1
+                known[st.cap.id] = (f.yaw_deg, f.sigma_deg or 0.0, street)
+    sky = {}
+    if s.sky:
+        from solidkit.envmap.resample import rotate
+
+        for st in caps:
+            if st.normal_lin is not None and (st in lone or st.cap.id in known):
+                lin = np.asarray(st.normal_lin, np.float32)
+                small = rotate(lin, st.C, "linear", 512) if not np.allclose(st.C, np.eye(3)) else lin
+                sky[st.cap.id] = sky_layer(small, saturation=None if st.linear else 0.98)
+    links: list[Link] = []
+    lone_ids = [st.cap.id for st in lone]
+    pairs = [(a, b) for i, a in enumerate(caps) for b in caps[i + 1:]
+             if (a in lone or b in lone) and (a.cap.id in known or a in lone) and (b.cap.id in known or b in lone)]
+    for a, b in pairs:
+        if b.cap.id not in lone_ids:
+            a, b = b, a  # b is lone
+        rel = []
+        cue, fit = feature_cue(a.features, b.features, 0.0, 0.0, level_sigma_deg=s.sun.level_sigma_deg,
+                               max_baseline_elevation_deg=s.max_baseline_elevation_deg, ratio=s.match_ratio)
+        if cue.yaw_deg is not None:
+            rel.append(("features", cue.yaw_deg, cue.sigma_deg, f"{fit.n_inliers} inliers"))
+        if a.cap.id in sky and b.cap.id in sky:
+            r, why = relative_sky_yaw(sky[a.cap.id], sky[b.cap.id], min_overlap=s.sky_min_overlap,
+                                      correlation_px=s.sky_correlation_px, min_delta_chi2=s.sky_min_delta_chi2)
+            if r is not None:
+                rel.append(("sky", r.yaw_deg, r.sigma_deg, f"sigma {r.sigma_deg:.2f} deg"))
+        for kind, yaw, sig, what in rel:
+            if a.cap.id in known:
+                ya, sa, street = known[a.cap.id]
+                links.append(Link(GROUND, b.cap.id, wrap_deg(ya + yaw), math.hypot(sig, sa), f"{kind}_via_{a.cap.id}",
+                                  f"{kind} {b.cap.id} to {a.cap.id} ({what})"
+                                  f"{', whose yaw is from street lines' if street else ''}"))
+            else:
+                links.append(Link(a.cap.id, b.cap.id, yaw, sig, kind, f"{kind} {a.cap.id}-{b.cap.id} ({what})"))
+        log(f"links {a.cap.id}-{b.cap.id}: " + (", ".join(f"{k} {y:+.2f}+-{g:.2f}" for k, y, g, _ in rel) or "none"))
+    for st in lone:
+        c = st.cues["compass"]
+        links.append(Link(GROUND, st.cap.id, float(c.yaw_deg), float(c.sigma_deg or s.sun.compass_sigma_deg), "compass"))
+    solved = solve_links(lone_ids, links)
+    for st in lone:
+        r = solved.get(st.cap.id)
+        if r is None:
+            st.cues["linked"] = Cue(yaw_deg=None, ok=False, detail="no feature or sky link to another capture")
+            continue
+        parts = [e.detail for e in r.used] + [e.detail for e in r.anchors]
+        detail = "; ".join(dict.fromkeys(parts))
+        if r.compasses:
+            detail += f"; compasses of {', '.join(r.compasses)}"
+        if r.rejected:
+            detail += f"; inconsistent, left out: {', '.join(e.detail for e in r.rejected)}"
+        st.cues["linked"] = Cue(yaw_deg=r.yaw_deg, sigma_deg=r.sigma_deg, ok=True, detail=detail)
+        if not r.anchors:
+            st.link_flags.append(f"yaw_from_compasses: the compasses of {', '.join(r.compasses)} linked by features or "
+                                 "sky to this capture fix its yaw (no capture of known yaw in its group): review")
+        elif all(e.kind.startswith("sky") for e in r.used + r.anchors):
+            st.link_flags.append(f"yaw_from_sky: only the sky's radiance pattern ({len(r.used) + len(r.anchors)} sky "
+                                 f"link(s), sigma {r.sigma_deg:.2f} deg) fixes this yaw beside the compass: review")
+        elif all("street lines" in e.detail for e in r.anchors):
+            st.link_flags.append("yaw_from_street_lines: linked to captures whose yaw only street lines fix "
+                                 f"({', '.join(e.kind for e in r.anchors)}): review")
 
 
 def _photo_lines(campaign: Path, photo: PhotoInfo | None) -> tuple[np.ndarray, np.ndarray] | None:
