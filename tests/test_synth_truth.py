@@ -18,7 +18,7 @@ from solidkit.synth.campaign import CampaignConfig, generate_campaign, load_trut
 from solidkit.synth.truth_probes import PASS_SAMPLES, needed_spp, pass_plan  # noqa: E402
 from solidkit.synth.truth_rerender import rerender_truth  # noqa: E402
 
-TINY = dict(photo_width=32, photo_height=24, photo_spp=1, pano_height=16, pano_spp=1, probe_height=8, probe_spp=4,
+TINY = dict(photo_width=32, photo_height=24, photo_spp=1, pano_height=16, pano_spp=4, probe_height=8, probe_spp=4,
             fisheye_width=64, candidates=2, block_length=25.0, p_sunsky=1.0, glass_every=0, probe_noise_db=0.0)
 
 
@@ -60,7 +60,7 @@ def test_truth_rerender_keeps_the_card_records_its_spp_and_is_idempotent(tiny: P
     card = _digests(camp / "card")
     truth0 = load_truth(camp / "truth" / "truth.json")
     probe = next(c for c in truth0.scenes[0].captures if c.probe is not None)
-    assert probe.probe.render["spp"] == 4 and probe.probe.render["version"] == 3  # new campaigns record theirs
+    assert probe.probe.render["spp"] == 4 and probe.probe.render["version"] == 4  # new campaigns record theirs
     res = rerender_truth(camp, spp=12, noise_db=0.0)
     assert res["rendered"] == 1 and res["skipped"] == 0 and res["complete"]
     assert _digests(camp / "card") == card  # the captures are not touched
@@ -90,9 +90,9 @@ def test_truth_rerender_keeps_the_card_records_its_spp_and_is_idempotent(tiny: P
     pixels = read_exr(camp / probe.probe.hdr_file)[0]
     kept = rerender_truth(camp, spp=12, noise_db=1.0)
     assert kept["kept"] == 1 and np.array_equal(read_exr(camp / probe.probe.hdr_file)[0], pixels)
-    more = rerender_truth(camp, spp=12, noise_db=80.0, max_spp=120)
+    more = rerender_truth(camp, spp=12, noise_db=80.0, max_spp=48)
     rec = more["probes"][0]
-    assert more["rendered"] == 1 and rec["spp"] == 120 and rec["pilot"]["spp"] == 12  # capped at max_spp
+    assert more["rendered"] == 1 and rec["spp"] == 48 and rec["pilot"]["spp"] == 12  # capped at max_spp
     assert rec["noise_psnr_db"] > rec["pilot"]["noise_psnr_db"]
 
 

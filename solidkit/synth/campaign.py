@@ -403,7 +403,7 @@ def _render_scene(out: Path, s: int, sid: str, seed: int, cfg: CampaignConfig, g
             local, record = clean_truth_probe(scene, pos, cam.pano_rotation, cfg.probe_height, base,
                                               seed=derive_seed(seed, s, 200 + c), noise_target_db=cfg.probe_noise_db,
                                               max_spp=max(base, cfg.probe_max_spp), sun=light.sun, glint=glint,
-                                              firefly_k=cfg.firefly_k)
+                                              firefly_k=cfg.firefly_k, firefly_spp=cfg.pano_spp * spp_scale)
             _write_truth_exr(truth_dir / sid / f"{cid}.exr", local, probe_exr_meta(sid, cid, record))
             marked = np.asarray(info["pixel"], np.float64) + rng.normal(0.0, cfg.mark_noise_px, 2)
             marked = np.round(np.clip(marked, 0.0, [cam.width - 1, cam.height - 1]) * 2.0) / 2.0  # a tablet's half pixels

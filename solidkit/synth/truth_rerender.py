@@ -207,13 +207,15 @@ def rerender_truth(campaign: str | os.PathLike, *, spp: int | None = None, noise
             t0 = time.perf_counter()
             pseed = derive_seed(truth.seed, built["s"], 200 + c)
             # the stored probe is this recipe's first render when it was made at `base` spp with this seed
-            pilot = rec if (rec.get("version", 1) >= 2 and rec.get("spp") == base and rec.get("seed") == pseed
-                            and rec.get("noise_psnr_db") is not None and exr.is_file()) else None
+            fspp = cfg.pano_spp * base // spp  # the captures' samples per pixel (glass: times the factor)
+            pilot = rec if (rec.get("version", 1) >= 4 and rec.get("spp") == base and rec.get("seed") == pseed
+                            and rec.get("firefly_spp") == fspp and rec.get("noise_psnr_db") is not None
+                            and exr.is_file()) else None
             glint = None if ct.glint_body is None else np.asarray(ct.R_scene_from_body) @ np.asarray(ct.glint_body)
             img, record = clean_truth_probe(built["scene"], np.asarray(ct.position), built["cam"].pano_rotation,
                                             cfg.probe_height, base, seed=pseed, noise_target_db=target, max_spp=cap,
-                                            sun=built["light"].sun, glint=glint, firefly_k=cfg.firefly_k, pilot=pilot,
-                                            pass_samples=pass_samples)
+                                            sun=built["light"].sun, glint=glint, firefly_k=cfg.firefly_k,
+                                            firefly_spp=fspp, pilot=pilot, pass_samples=pass_samples)
             old, _ = read_exr(exr)
             if img is None:  # the stored render is kept: only its record changes
                 what, img, check = "kept", old[..., :3], rec.get("check_psnr_db")
