@@ -110,3 +110,6 @@ def test_links_without_an_anchor_average_the_group_compasses_leaving_each_own_ou
     lone = solve_links(["a", "d"], [Link(GROUND, "a", 0.0, 5.0, "compass"), Link(GROUND, "d", 3.0, 5.0, "compass"),
                                     Link(GROUND, "a", 1.0, 0.5, "sky_via_cam")])
     assert "d" not in lone and lone["a"].yaw_deg == pytest.approx(1.0)
+    # a node nothing ties to the ground (no compass, no link) does not stop the others
+    free = solve_links(["a", "e"], [Link(GROUND, "a", 0.0, 5.0, "compass"), Link(GROUND, "a", 1.0, 0.5, "sky_via_cam")])
+    assert list(free) == ["a"] and free["a"].yaw_deg == pytest.approx(1.0)

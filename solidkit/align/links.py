@@ -138,6 +138,15 @@ def solve_links(nodes: list[str], links: list[Link], *, n_sigma: float = 3.0, fl
     """
     nodes = list(dict.fromkeys(nodes))
     links = [e for e in links if e.b in nodes and (e.a == GROUND or e.a in nodes) and e.a != e.b]
+    reach, grew = {GROUND}, True  # a node no chain of links ties to the ground has no yaw here
+    while grew:
+        grew = False
+        for e in links:
+            if (e.a in reach) != (e.b in reach):
+                reach |= {e.a, e.b}
+                grew = True
+    nodes = [n for n in nodes if n in reach]
+    links = [e for e in links if e.b in reach]
     compass = [e for e in links if e.kind == "compass"]
     others = sorted((e for e in links if e.kind != "compass"), key=lambda e: e.sigma_deg)
     links = compass + others[: max(max_links - len(compass), 0)]
