@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from solidkit.align.links import GROUND, Link, solve_links
-from solidkit.align.sky import relative_sky_yaw, sky_layer
+from solidkit.align.sky import relative_sky_yaw, sky_layer, without_sun_drift
 from solidkit.envmap.coords import angles_grid, direction_from_angles, direction_grid
 
 
@@ -47,6 +47,16 @@ def test_sky_gives_the_relative_yaw_of_two_panoramas_seeing_a_hidden_sun_sky():
     # swapping the two gives the opposite yaw
     r2, _ = relative_sky_yaw(b, a)
     assert abs(r2.yaw_deg + r.yaw_deg) < 0.3
+
+
+def test_the_sun_drift_between_two_captures_is_taken_out_of_the_sky_shift():
+    # world: the sun at azimuth 100 at capture a's time, 101.5 three minutes later at b's; headings 60 and 130.2
+    a = sky_layer(_panorama(100.0 - 60.0, seed=8))
+    b = sky_layer(_panorama(101.5 - 130.2, seed=9))
+    r, why = relative_sky_yaw(a, b)
+    assert r is not None, why
+    assert abs(r.yaw_deg - (130.2 - 60.0 - 1.5)) < 0.3  # the raw shift carries the drift
+    assert abs(without_sun_drift(r.yaw_deg, 100.0, 101.5) - (130.2 - 60.0)) < 0.3
 
 
 def test_sky_layer_keeps_the_sky_and_drops_walls_and_ground():

@@ -326,7 +326,7 @@ def align_scene(campaign: Path, manifest: Manifest, scene: Scene, settings: Alig
         compass = st.cues.get("compass")
         inputs.append(CaptureSunInput(st.cap.id, st.blobs, st.ephemeris, y, ys, st.heading, note, human,
                                       compass_yaw_deg=None if compass is None else compass.yaw_deg))
-    sun, _ = _sun_with_motion(caps, inputs, photo_eph, heading_p, s)
+    sun, _, sun_moves = _sun_with_motion(caps, inputs, photo_eph, heading_p, s)
 
     # captures whose features failed against the camera position: features against the other captures,
     # whose yaws (features, sun; never the compass) carry them over
@@ -334,7 +334,7 @@ def align_scene(campaign: Path, manifest: Manifest, scene: Scene, settings: Alig
     if s.manhattan:
         _manhattan_cues(caps, s, photo_lines=lambda: _photo_lines(campaign, photo))
     if s.links:
-        _link_cues(caps, s, log)
+        _link_cues(caps, s, sun_moves, log)
 
     # final yaws, probe pixels
     probes: list[ProbeAlignment] = []
@@ -380,7 +380,7 @@ def align_scene(campaign: Path, manifest: Manifest, scene: Scene, settings: Alig
 
 
 def _sun_with_motion(caps: list[_CapState], inputs: list[CaptureSunInput], photo_eph: Any, heading_p: float | None,
-                     s: AlignSettings) -> tuple[SceneSun, str]:
+                     s: AlignSettings) -> tuple[SceneSun, str, bool]:
     """The scene's sun and the captures' sun cues, with the sun moving (ephemeris drift between the
     captures' times) or static, as ``s.sun_motion`` says; ``"auto"`` lets the images decide.
 
@@ -434,7 +434,7 @@ def _sun_with_motion(caps: list[_CapState], inputs: list[CaptureSunInput], photo
         if cues[st.cap.id] is not None:
             st.cues["sun"] = cues[st.cap.id]
     sun.motion = why
-    return sun, why
+    return sun, why, bool(moves)
 
 
 def _explain_rejections(sun: SceneSun, probes: list[ProbeAlignment]) -> None:
@@ -483,7 +483,8 @@ def _chain_cues(caps: list[_CapState], cam: _CapState | None, s: AlignSettings) 
                 st.cues[f"features_via_{oid}"] = cue
 
 
-def _link_cues(caps: list[_CapState], s: AlignSettings, log: Callable[[str], None] = lambda s: None) -> None:
+def _link_cues(caps: list[_CapState], s: AlignSettings, sun_moves: bool = False,
+               log: Callable[[str], None] = lambda s: None) -> None:
     """The ``linked`` cue (:mod:`solidkit.align.links`) for captures still left with the compass alone.
 
     Links: features between every such capture and every other capture (level relative pose), and
@@ -491,10 +492,13 @@ def _link_cues(caps: list[_CapState], s: AlignSettings, log: Callable[[str], Non
     compass) and every lone capture's compass are the absolute links. A lone capture whose group
     holds no capture of known yaw gets the mean of the group's compasses (flagged
     ``yaw_from_compasses``); one whose anchors are street lines only stays flagged
-    ``yaw_from_street_lines``.
+    ``yaw_from_street_lines``. The sky's pattern turns with the sun: when the scene's sun moves
+    (``sun_moves``, as chosen for the sun cues), a sky link is corrected by the ephemeris' azimuth
+    drift between the two captures' times.
     """
     from solidkit.align.links import GROUND, Link, solve_links
-    from solidkit.align.sky import relative_sky_yaw, sky_layer
+    from solidkit.align.sky import relative_sky_yaw, sky_layer, without_sun_drift
+    from solidkit.align.sun import _hours_apart
 
     def non_compass(st: _CapState) -> Any:
         return fuse_cues({k: c.model_copy() for k, c in st.cues.items() if k != "compass" and c.yaw_deg is not None})
@@ -536,7 +540,12 @@ def _link_cues(caps: list[_CapState], s: AlignSettings, log: Callable[[str], Non
             r, why = relative_sky_yaw(sky[a.cap.id], sky[b.cap.id], min_overlap=s.sky_min_overlap,
                                       correlation_px=s.sky_correlation_px, min_delta_chi2=s.sky_min_delta_chi2)
             if r is not None:
-                rel.append(("sky", r.yaw_deg, r.sigma_deg, f"sigma {r.sigma_deg:.2f} deg"))
+                drift, what = 0.0, f"sigma {r.sigma_deg:.2f} deg"
+                if sun_moves and a.ephemeris is not None and b.ephemeris is not None and _hours_apart(a.ephemeris, b.ephemeris) <= 1.0:
+                    drift = wrap_deg(b.ephemeris.azimuth_deg - a.ephemeris.azimuth_deg)
+                    what += f", sun drift {drift:+.2f} deg applied"
+                yaw = without_sun_drift(r.yaw_deg, 0.0, drift)
+                rel.append(("sky", yaw, r.sigma_deg, what))
         for kind, yaw, sig, what in rel:
             if a.cap.id in known:
                 ya, sa, street = known[a.cap.id]

@@ -25,6 +25,11 @@ Uncertainty (:func:`relative_sky_yaw`): least squares on the cost's curvature,
 refused when the overlap is small, the curvature flat (a sky too uniform in azimuth: no sun
 gradient, only the elevation gradient) or another shift fits almost as well
 (``min_delta_chi2`` between the best and the best outside its peak).
+
+The sky's pattern is fixed to the sun, which moves (up to ~0.25° of azimuth a minute): between
+captures minutes apart the shift includes the sun's azimuth drift (:func:`without_sun_drift`).
+Clouds drift with the wind and change shape: on real captures minutes apart they are no
+fixed pattern either (not measured here: no such real set).
 """
 
 from __future__ import annotations
@@ -35,10 +40,11 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
+from solidkit.align.schema import wrap_deg
 from solidkit.envmap.coords import angles_grid, solid_angle
 from solidkit.envmap.sun import luminance
 
-__all__ = ["SkyLayer", "SkyYaw", "sky_layer", "relative_sky_yaw"]
+__all__ = ["SkyLayer", "SkyYaw", "sky_layer", "relative_sky_yaw", "without_sun_drift"]
 
 
 @dataclass(frozen=True)
@@ -171,3 +177,12 @@ def relative_sky_yaw(a: SkyLayer, b: SkyLayer, *, min_overlap: float = 0.01, cor
         return None, f"sky too uniform in azimuth: sigma {sigma:.1f} deg (> {max_sigma_deg:g})"
     return res, (f"sky relative yaw {yaw:+.2f} deg (sigma {sigma:.2f}; overlap {res.overlap:.3f} of the sphere, "
                  f"RMS {res.rms:.3f} in log radiance, next best {delta:.0f} chi2 worse)")
+
+
+def without_sun_drift(yaw_deg: float, sun_azimuth_a_deg: float, sun_azimuth_b_deg: float) -> float:
+    """The relative yaw ``yaw_b - yaw_a`` from a sky shift measured while the sun moved.
+
+    The sky's pattern turns with the sun: with world (solar) azimuths ``A_a``, ``A_b`` of the sun
+    at the two captures' times, the measured shift is ``(yaw_b - yaw_a) + (A_a - A_b)``.
+    """
+    return wrap_deg(yaw_deg + wrap_deg(sun_azimuth_b_deg - sun_azimuth_a_deg))
