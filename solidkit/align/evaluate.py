@@ -15,7 +15,9 @@ processing. Figures:
   sensor constant and the shot's exposure; beside it the same probe aligned with the true yaw
   (on the metadata's levelling), with the true rotation (yaw and levelling: the chain's upper
   bound) and with the compass yaw (the peers: perfect and naive alignment); and the truth
-  probe's own noise floor (:func:`noise_floor_db`);
+  probe's own noise: measured when it was rendered (``truth_noise_db``: two independent halves
+  of its samples, :mod:`solidkit.synth.truth_probes`; truths of recipe 2 and later) and the rough
+  ceiling :func:`noise_floor_db` (its own 3x3 median: counts edges too);
 - **probe pixels**: the geometry's pixel (relative pose) against the truth's pixel (degrees,
   pixels, fraction of the photo width).
 """
@@ -142,7 +144,9 @@ def evaluate(campaign_dir: str | Path, truth_path: str | Path, *, peers: bool = 
                 ours8 = np.round(ours * 255).astype(np.uint8)
                 row["psnr_db"] = psnr(np.asarray(tonemap(_radiance(ours8, md, k_sensor))), ref_t)
                 row["truth_noise_floor_db"] = noise_floor_db(ref_t)
-                row["truth_spp"] = getattr(getattr(ct.probe, "render", None), "spp", None)  # None: before truth recipe 2
+                render = getattr(ct.probe, "render", None)  # None: truth recipe 1 (campaigns before session 4)
+                row["truth_spp"] = getattr(render, "spp", None)
+                row["truth_noise_db"] = getattr(render, "noise_psnr_db", None)  # measured (split halves)
                 if peers:
                     from solidkit.align.captures import levelling_of
 
@@ -208,6 +212,8 @@ def summary(result: dict[str, Any]) -> dict[str, Any]:
         "psnr_median_db": _q(ps, 50), "psnr_min_db": min(ps) if ps else None, "psnr_n": len(ps),
         "truth_noise_floor_median_db": _q([r["truth_noise_floor_db"] for r in rows if "truth_noise_floor_db" in r], 50),
         "truth_noise_floor_min_db": min([r["truth_noise_floor_db"] for r in rows if "truth_noise_floor_db" in r], default=None),
+        "truth_noise_median_db": _q([r["truth_noise_db"] for r in rows if r.get("truth_noise_db") is not None], 50),
+        "truth_noise_min_db": min([r["truth_noise_db"] for r in rows if r.get("truth_noise_db") is not None], default=None),
         "pixel_geometry_median_deg": _q([r["pixel_geometry_error_deg"] for r in rows if "pixel_geometry_error_deg" in r], 50),
         "pixel_geometry_p95_deg": _q([r["pixel_geometry_error_deg"] for r in rows if "pixel_geometry_error_deg" in r], 95),
         "pixel_geometry_median_frac_width": _q([r["pixel_geometry_error_frac_width"] for r in rows

@@ -229,11 +229,12 @@ def campaign_truth(
     logging.basicConfig(level=logging.INFO, format="%(message)s")
     if not campaign.is_dir():
         raise InputError(f"{campaign}: no such folder")
-    read_campaign(campaign)  # a one-line error before Mitsuba loads
+    _, truth = read_campaign(campaign)  # a one-line error before Mitsuba loads
+    total = sum(c.probe is not None for st in truth.scenes if not scene or st.id in scene for c in st.captures)
     used = select_variant(variant)
     t0 = time.perf_counter()
     with _progress() as bar:
-        task = bar.add_task(f"truth probes [{used}]", total=None)
+        task = bar.add_task(f"truth probes [{used}]", total=total)
         res = rerender_truth(campaign, spp=spp, noise_db=noise_db, max_spp=max_spp, scenes=scene or None,
                              progress=lambda sid, cid, what: bar.advance(task))
     res["seconds"] = time.perf_counter() - t0

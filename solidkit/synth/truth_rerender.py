@@ -14,12 +14,17 @@ is averaged away, at least ``min_check_db``): a solidkit whose generator changed
 campaign was made would render another scene, and is refused (one-line :class:`InputError`,
 nothing changed).
 
-Writes, each atomically: ``truth/<scene>/<probe>.exr``, then that scene's ``scene.json`` (the
-probe's :attr:`ProbeTruth.render` record), and at the end ``truth/truth.json`` (records, the
-config's ``probe_spp`` and ``renderer['truth_probes']``) and ``truth/campaign.json``'s
-``config.probe_spp`` (so that the settings describe the campaign as it now is). Idempotent and
-resumable: a probe whose record already has the asked spp and the current recipe version is
-skipped. Nothing under ``card/`` is opened for writing.
+The recipe is :func:`solidkit.synth.truth_probes.clean_truth_probe` (a first render of ``spp``,
+glass scenes x ``glass_spp_factor``; a fresh one with more samples where it is noisier than the
+noise target), with the campaign's own ``pano_spp`` as the firefly treatment's samples per pass.
+
+Writes, each atomically: ``truth/<scene>/<probe>.exr`` (render record in its header), then that
+scene's ``scene.json`` (the probe's :attr:`ProbeTruth.render` record: spp, measured noise, the
+previous render's spp, version and noise, the check), and at the end ``truth/truth.json`` (records,
+the config's ``probe_spp``/``probe_noise_db``/``probe_max_spp`` and ``renderer['truth_probes']``)
+and the same settings in ``truth/campaign.json`` (so that they describe the campaign as it now is).
+Idempotent and resumable: a probe whose record has this recipe and these settings is skipped; a
+stored first render of this recipe is reused. Nothing under ``card/`` is opened for writing.
 """
 
 from __future__ import annotations
