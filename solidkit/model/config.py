@@ -4,7 +4,8 @@ The paper (Zhu et al., CVPR 2021, §4.2 and supplementary) gives the structure o
 P-Net but no layer widths. Two presets are provided:
 
 - ``small``: a CPU-friendly configuration (≈1.5 M parameters) with the sun head (and its visibility
-  output) and the located losses, used by the shipped checkpoint; ``small-paper``: the same widths with the paper's sky
+  output) and the located losses, metered inputs (``exposure_key``) and the camera's own sky-feature
+  footprint (``sky_footprint``); ``small-paper``: the same widths, inputs and footprint with the paper's sky
   decoder and losses (the ablation);
 - ``paper``: a paper-sized configuration (standard U-Net widths 32..512, paper losses) for GPU training;
 - ``tiny`` / ``tiny-paper``: a few thousand parameters, for tests.
@@ -241,6 +242,8 @@ PRESETS: dict[str, SolidNetConfig] = {
         light_width=16,
         sky_widths=(8, 8, 4, 4),
         pnet_widths=(4, 8, 8, 16),
+        exposure_key=0.18,
+        sky_footprint="camera",
     ),
 }
 
