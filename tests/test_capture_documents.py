@@ -16,7 +16,8 @@ from solidkit.document import VersionedDocument
 from solidkit.errors import InputError
 from solidkit.synth.campaign_truth import CampaignTruth, TruthError, load_truth
 
-MINI_TRUTH = Path(__file__).resolve().parents[1] / "solidkit" / "assets" / "campaign_mini" / "truth" / "truth.json"
+# the shipped mini campaign's truth as schema 3 wrote it (the asset's own truth has since been re-rendered as format 4)
+MINI_TRUTH = Path(__file__).resolve().parent / "data" / "campaign_truth_schema3.json"
 
 
 def _write(folder: Path, data: dict) -> Path:
@@ -61,7 +62,7 @@ def test_manifest_errors_are_one_line(tmp_path, data, message):
 
 
 def test_truth_of_schema_3_is_read_and_rewritten_as_a_document(tmp_path):
-    """The shipped mini campaign's truth (schema 3, ``solidkit-synth-campaign-truth``) reads as format 4."""
+    """The shipped mini campaign's first truth (schema 3, ``solidkit-synth-campaign-truth``) reads as format 4."""
     truth = load_truth(MINI_TRUTH)
     assert isinstance(truth, CampaignTruth) and (truth.kind, truth.format_version) == ("campaign-truth", 4)
     out = truth.save(tmp_path / "truth.json")

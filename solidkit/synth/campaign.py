@@ -60,7 +60,8 @@ probe is held against, rendered from the same scene, lighting and position as it
 (40 dB PSNR in the paper's tonemap), so that the truth's own Monte Carlo noise stays below the
 aligned probes' errors; the render record (spp, passes, seed, measured noise, fireflies replaced,
 recipe version) goes into :attr:`ProbeTruth.render` and the EXR header. Cost on one busy CPU
-thread: ~30 s for 256 spp, ~70 s for 1024 (``benchmarks/results/align-truth.md``). ``solidkit synth campaign-truth DIR`` (:mod:`solidkit.synth.truth_rerender`)
+thread: 15-70 s per probe, 1-5 min in a glass scene (seed 11: 24 probes in 18 min;
+``benchmarks/results/align-truth.md``). ``solidkit synth campaign-truth DIR`` (:mod:`solidkit.synth.truth_rerender`)
 re-renders only the truth probes of an existing campaign, leaving its card untouched.
 
 Frames (truth): the scene frame of :mod:`solidkit.synth.scene` (x east, y down, z north); a

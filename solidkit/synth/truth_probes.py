@@ -5,9 +5,9 @@ photo's panorama frame; :mod:`solidkit.synth.campaign`). It is what an aligned p
 against, so its own Monte Carlo noise caps every score: an aligned 256x128 probe is averaged
 down from a 1920x960 unwarp of a 512-px rendered panorama (16 samples per pixel, so ~16 x 16 =
 256 samples per truth pixel) and is much smoother than a truth rendered directly with 32
-samples. Measured on campaign seed 11 (``benchmarks/results/align-truth.md``): the truth's
-noise PSNR (two independent renders, paper tonemap) was ~30 dB in glass scenes and 34-40 dB
-elsewhere at 32 spp, below the aligned probes' own level.
+samples. Measured on campaign seed 11 (``benchmarks/results/align-truth.md``): the old truths'
+noise (32 spp, glass scenes 128; paper tonemap) was 27-35 dB PSNR (median 34), while the capture's
+own probe at the true rotation reaches 34-42 dB against this module's truths (noise 39-48 dB).
 
 :func:`render_truth_probe` renders with ``spp`` samples per pixel (box filter, each sample
 jittered in its pixel: ``spp`` samples are an ``spp``-fold supersampled box average) in passes of
