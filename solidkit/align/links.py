@@ -72,9 +72,8 @@ def _tree_yaws(nodes: list[str], tree: tuple[Link, ...]) -> dict[str, float] | N
     return y if len(y) == len(nodes) + 1 else None
 
 
-def _least_squares(nodes: list[str], links: list[Link], start: dict[str, float], floor_deg: float
-                   ) -> tuple[dict[str, float], dict[str, float]] | None:
-    """Weighted least squares of the nodes the links tie to the ground (others get no value)."""
+def _grounded(nodes: list[str], links: list[Link]) -> tuple[list[str], list[Link]]:
+    """The nodes some chain of links ties to the ground, and the links among them."""
     reach, grew = {GROUND}, True
     while grew:
         grew = False
@@ -82,8 +81,13 @@ def _least_squares(nodes: list[str], links: list[Link], start: dict[str, float],
             if (e.a in reach) != (e.b in reach):
                 reach |= {e.a, e.b}
                 grew = True
-    nodes = [n for n in nodes if n in reach]
-    links = [e for e in links if e.b in reach]
+    return [n for n in nodes if n in reach], [e for e in links if e.b in reach]
+
+
+def _least_squares(nodes: list[str], links: list[Link], start: dict[str, float], floor_deg: float
+                   ) -> tuple[dict[str, float], dict[str, float]] | None:
+    """Weighted least squares of the nodes the links tie to the ground (others get no value)."""
+    nodes, links = _grounded(nodes, links)
     if not nodes:
         return {}, {}
     idx = {n: i for i, n in enumerate(nodes)}
@@ -138,15 +142,7 @@ def solve_links(nodes: list[str], links: list[Link], *, n_sigma: float = 3.0, fl
     """
     nodes = list(dict.fromkeys(nodes))
     links = [e for e in links if e.b in nodes and (e.a == GROUND or e.a in nodes) and e.a != e.b]
-    reach, grew = {GROUND}, True  # a node no chain of links ties to the ground has no yaw here
-    while grew:
-        grew = False
-        for e in links:
-            if (e.a in reach) != (e.b in reach):
-                reach |= {e.a, e.b}
-                grew = True
-    nodes = [n for n in nodes if n in reach]
-    links = [e for e in links if e.b in reach]
+    nodes, links = _grounded(nodes, links)  # a node no chain of links ties to the ground has no yaw here
     compass = [e for e in links if e.kind == "compass"]
     others = sorted((e for e in links if e.kind != "compass"), key=lambda e: e.sigma_deg)
     links = compass + others[: max(max_links - len(compass), 0)]
