@@ -28,6 +28,7 @@ __all__ = [
     "read_image",
     "validate_panorama",
     "tonemap",
+    "inverse_tonemap",
     "srgb_encode",
     "srgb_decode",
 ]
@@ -175,6 +176,20 @@ def tonemap(hdr: Any, exposure: float = PAPER_EXPOSURE, gamma: float = PAPER_GAM
     xp = namespace(hdr)
     scaled = xp.clip(hdr * (2.0**exposure), 1e-12, None)
     return xp.clip(scaled ** (1.0 / gamma), 0.0, 1.0) * (hdr > 0)
+
+
+def inverse_tonemap(ldr: Any, exposure: float = PAPER_EXPOSURE, gamma: float = PAPER_GAMMA) -> Any:
+    """The radiance behind an LDR image under :func:`tonemap`: ``clip(T, 0, 1)^gamma / 2^e``; NumPy or torch.
+
+    Exact below saturation; a clipped pixel (``T = 1``) gives the clip level ``2^-e``.
+
+    Examples
+    --------
+    >>> np.round(inverse_tonemap(tonemap(np.array([0.0, 0.5, 1.0]))), 6)
+    array([0. , 0.5, 1. ])
+    """
+    xp = namespace(ldr)
+    return xp.clip(ldr, 0.0, 1.0) ** gamma / (2.0**exposure)
 
 
 def imread(path: str | os.PathLike, flags: int = cv2.IMREAD_UNCHANGED) -> np.ndarray:

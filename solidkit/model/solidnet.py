@@ -232,10 +232,10 @@ class SolidNet(nn.Module):
         resized = cv2.resize(image, (W, H), interpolation=cv2.INTER_AREA if sx < 1 else cv2.INTER_LINEAR)
         gain = 1.0
         if self.config.exposure_key > 0:
-            from solidkit.envmap.io import tonemap
+            from solidkit.envmap.io import inverse_tonemap, tonemap
             from solidkit.synth.panocrops import metered_gain
 
-            linear = _linear_from_ldr(resized)
+            linear = np.asarray(inverse_tonemap(resized), dtype=np.float32)
             gain = metered_gain(linear, self.config.exposure_key)
             resized = np.clip(np.asarray(tonemap(linear * np.float32(gain))), 0.0, 1.0).astype(np.float32)
         K_net = scale_intrinsics(K, sx, sy)
@@ -260,14 +260,6 @@ class SolidNet(nn.Module):
             centres=out["centres"][0].cpu().numpy(),
             extra={"probe_valid": out["probe_valid"][0].cpu().numpy().tolist(), "exposure_gain": float(gain)},
         )
-
-
-def _linear_from_ldr(image: np.ndarray) -> np.ndarray:
-    """Linear values ``(H, W, 3)`` behind an LDR image under the paper's tonemap (its inverse; a clipped
-    pixel gives the clip level)."""
-    from solidkit.envmap.io import PAPER_EXPOSURE, PAPER_GAMMA
-
-    return (np.clip(image, 0.0, 1.0) ** PAPER_GAMMA / 2.0**PAPER_EXPOSURE).astype(np.float32)
 
 
 @dataclass
