@@ -32,12 +32,13 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from solidkit.envmap.coords import angles_from_direction, angles_grid, direction_grid, rotation_from_ypr
+from solidkit.envmap.coords import angles_from_direction, angles_grid, direction_grid
 from solidkit.envmap.perspective import intrinsics_from_fov
 from solidkit.envmap.sh import sh_basis
 from solidkit.model.blocks import ConvBlock, Encoder, UNetDecoder, radiance_from_log, resize_to
 from solidkit.model.config import SolidNetConfig
 from solidkit.model.sunhead import SunHead, render_sun
+from solidkit.model.warp import camera_rotation
 
 __all__ = ["INet", "camera_footprint_grid", "flip_pad", "image_footprint", "sh_panorama"]
 
@@ -86,7 +87,7 @@ def camera_footprint_grid(pano_height: int, K: torch.Tensor, pitch: torch.Tensor
     """
     h, w = image_size
     dirs = direction_grid(pano_height, torch, dtype=K.dtype, device=K.device)  # (H, 2H, 3)
-    R = rotation_from_ypr(torch.zeros_like(pitch), pitch, roll).to(K.dtype)  # (B, 3, 3) camera -> panorama
+    R = camera_rotation(pitch, roll).to(K.dtype)  # (B, 3, 3) camera -> panorama
     cam = torch.einsum("bji,hwj->bhwi", R, dirs)
     phi, theta = angles_from_direction(cam)
     half_h = torch.atan(0.5 * w / K[:, 0, 0])[:, None, None]
