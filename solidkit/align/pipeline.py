@@ -483,6 +483,17 @@ def _chain_cues(caps: list[_CapState], cam: _CapState | None, s: AlignSettings) 
                 st.cues[f"features_via_{oid}"] = cue
 
 
+def _non_compass(st: _CapState) -> Any:
+    """The fusion of a capture's yaw cues other than its compass."""
+    return fuse_cues({k: c.model_copy() for k, c in st.cues.items() if k != "compass" and c.yaw_deg is not None})
+
+
+def _compass_only(st: _CapState) -> bool:
+    """True when the compass is the only cue that gives the capture a yaw."""
+    compass = st.cues.get("compass")
+    return compass is not None and compass.yaw_deg is not None and _non_compass(st).yaw_deg is None
+
+
 def _link_cues(caps: list[_CapState], s: AlignSettings, sun_moves: bool = False,
                log: Callable[[str], None] = lambda s: None) -> None:
     """The ``linked`` cue (:mod:`solidkit.align.links`) for captures still left with the compass alone.
@@ -500,17 +511,13 @@ def _link_cues(caps: list[_CapState], s: AlignSettings, sun_moves: bool = False,
     from solidkit.align.sky import relative_sky_yaw, sky_layer, without_sun_drift
     from solidkit.align.sun import _hours_apart
 
-    def non_compass(st: _CapState) -> Any:
-        return fuse_cues({k: c.model_copy() for k, c in st.cues.items() if k != "compass" and c.yaw_deg is not None})
-
-    lone = [st for st in caps if st.features is not None and non_compass(st).yaw_deg is None
-            and st.cues.get("compass") is not None and st.cues["compass"].yaw_deg is not None]
+    lone = [st for st in caps if st.features is not None and _compass_only(st)]
     if not lone:
         return
     known = {}
     for st in caps:
         if st.features is not None and st not in lone:
-            f = non_compass(st)
+            f = _non_compass(st)
             if f.yaw_deg is not None:
                 street = "manhattan" in st.cues and st.cues["manhattan"].ok and len([c for k, c in st.cues.items()
                                                                                       if c.ok and k != "compass"]) == 1
@@ -604,11 +611,7 @@ def _manhattan_cues(caps: list[_CapState], s: AlignSettings,
     """
     from solidkit.align.manhattan import line_normals, vanishing_azimuth
 
-    def non_compass(st: _CapState) -> Any:
-        return fuse_cues({k: c.model_copy() for k, c in st.cues.items() if k != "compass" and c.yaw_deg is not None})
-
-    lone = [st for st in caps if st.normal_lin is not None and non_compass(st).yaw_deg is None
-            and st.cues.get("compass") is not None and st.cues["compass"].yaw_deg is not None]
+    lone = [st for st in caps if st.normal_lin is not None and _compass_only(st)]
     if not lone:
         return
     fits = {}
@@ -617,7 +620,7 @@ def _manhattan_cues(caps: list[_CapState], s: AlignSettings,
             fits[st.cap.id] = vanishing_azimuth(*line_normals(st.normal_lin, linear=True, C=st.C))
     members = []
     for st in caps:
-        f, known = fits.get(st.cap.id), non_compass(st)
+        f, known = fits.get(st.cap.id), _non_compass(st)
         if f is not None and known.yaw_deg is not None and f.ambiguity < 0.95:
             members.append(((f.azimuth_deg + known.yaw_deg) % 90.0, math.hypot(f.sigma_deg, known.sigma_deg or 0.0), st.cap.id))
     lines = photo_lines() if photo_lines is not None else None
