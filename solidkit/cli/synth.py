@@ -89,6 +89,8 @@ def sources(
     spp: int = typer.Option(12, "--spp", min=1, help="Samples per pixel."),
     exclude_hdr: list[str] = typer.Option([], "--exclude-hdr", help="HDR lighting maps to leave out (e.g. a held-out real test)."),
     variant: Optional[str] = typer.Option(None, "--variant", help="Force a Mitsuba variant (default: cuda > llvm > scalar)."),
+    positions_per_block: int = typer.Option(8, "--positions-per-block", min=1,
+                                            help="Consecutive panoramas that share one city block (1: every panorama a new block)."),
 ) -> None:
     """Render city-block HDR panoramas + their lighting: sources of the crop path of I-Net training."""
     from solidkit.synth.dataset import parse_shard
@@ -98,7 +100,7 @@ def sources(
     output_folder(out)
     sh = parse_shard(shard)
     used = select_variant(variant)
-    cfg = SourceConfig(height=height, spp=spp, exclude_hdr=tuple(exclude_hdr))
+    cfg = SourceConfig(height=height, spp=spp, exclude_hdr=tuple(exclude_hdr), positions_per_block=positions_per_block)
     t0 = time.perf_counter()
     with _progress() as bar:
         task = bar.add_task(f"sources {sh[0]}/{sh[1]} [{used}]", total=None)

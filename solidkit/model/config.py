@@ -95,6 +95,11 @@ class SolidNetConfig:
         Where the image's sky features sit on the panorama in the sky decoder: ``"level"`` (an
         ``hfov_deg`` x ``vfov_deg`` box centred at the horizon, the first checkpoints) or ``"camera"``
         (the image's own field of view, pitch and roll: :func:`solidkit.model.inet.camera_footprint_grid`).
+    sun_net : tuple of int
+        Encoder widths of a separate low-resolution sun network (:class:`solidkit.model.sunnet.SunNet`)
+        that replaces the sun head on I-Net's features; empty: the sun head (the first checkpoints).
+    sun_net_size : (int, int)
+        ``(height, width)`` the sun network resizes the image to.
     sun_visibility_threshold : float
         Visibility probability at or above which a sun is rendered in evaluation (tuned on a validation
         split when a checkpoint is exported; 0.5 untuned).
@@ -122,6 +127,8 @@ class SolidNetConfig:
     sun_fine: bool = True
     exposure_key: float = 0.0
     sky_footprint: str = "level"
+    sun_net: tuple[int, ...] = ()
+    sun_net_size: tuple[int, int] = (96, 128)
     sun_visibility_threshold: float = 0.5
     loss_variant: str = "paper"
     loss_weights: dict[str, float] = field(
@@ -150,6 +157,8 @@ class SolidNetConfig:
         object.__setattr__(self, "pnet_widths", tuple(int(w) for w in self.pnet_widths))
         object.__setattr__(self, "pnet_inputs", tuple(self.pnet_inputs))
         object.__setattr__(self, "image_size", tuple(int(s) for s in self.image_size))
+        object.__setattr__(self, "sun_net", tuple(int(w) for w in self.sun_net))
+        object.__setattr__(self, "sun_net_size", tuple(int(s) for s in self.sun_net_size))
         if len(self.widths) < 2 or min(self.widths) < 1:
             raise ConfigError(f"widths must list at least two positive channel counts, got {self.widths}")
         if len(self.pnet_widths) < 2 or min(self.pnet_widths) < 1:
@@ -180,6 +189,10 @@ class SolidNetConfig:
             raise ConfigError(f"loss_variant must be one of {LOSS_VARIANTS}, got {self.loss_variant!r}")
         if (self.sun_visibility or not self.sun_fine) and not self.sun_head:
             raise ConfigError("sun_visibility / sun_fine=False need sun_head=True")
+        if self.sun_net and (not (self.sun_head and self.sun_visibility) or len(self.sun_net) < 3 or min(self.sun_net) < 1
+                             or len(self.sun_net_size) != 2 or min(self.sun_net_size) < 16):
+            raise ConfigError(f"sun_net needs sun_head and sun_visibility, at least 3 positive widths and a size of at "
+                              f"least 16 x 16; got {self.sun_net}, {self.sun_net_size}")
         if self.loss_variant == "located" and not self.sun_head:
             raise ConfigError("loss_variant 'located' needs sun_head=True (its sun terms read the sun head)")
         unknown = set(self.loss_weights) - set(SolidNetConfig.__dataclass_fields__["loss_weights"].default_factory())

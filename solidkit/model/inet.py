@@ -38,6 +38,7 @@ from solidkit.envmap.sh import sh_basis
 from solidkit.model.blocks import ConvBlock, Encoder, UNetDecoder, radiance_from_log, resize_to
 from solidkit.model.config import SolidNetConfig
 from solidkit.model.sunhead import SunHead, render_sun
+from solidkit.model.sunnet import SunNet
 from solidkit.model.warp import camera_rotation
 
 __all__ = ["INet", "camera_footprint_grid", "flip_pad", "image_footprint", "sh_panorama"]
@@ -156,8 +157,13 @@ class INet(nn.Module):
         stages = config.sky_stages
         self.sky_ups = nn.ModuleList(ConvBlock(sw[i] + 3 + sf + 1, sw[i + 1], panorama=True) for i in range(stages - 1))
         self.sky_head = nn.Conv2d(sw[stages - 1], 3, 1)
-        self.sun = (SunHead(lw * 12, sw[stages - 1], visibility=config.sun_visibility, fine=config.sun_fine)
-                    if config.sun_head else None)
+        if config.sun_net:
+            self.sun: nn.Module | None = SunNet(config.sun_net, config.sun_net_size, logit_height=config.pano_height // 2,
+                                                       coarse_height=min(16, config.pano_height // 2))
+        elif config.sun_head:
+            self.sun = SunHead(lw * 12, sw[stages - 1], visibility=config.sun_visibility, fine=config.sun_fine)
+        else:
+            self.sun = None
         self._footprints = [
             image_footprint(config.pano_height >> (3 - k), config.hfov_deg, config.vfov_deg) for k in range(4)
         ]
@@ -185,15 +191,13 @@ class INet(nn.Module):
         ``hfov_deg`` and a level camera. The ``"level"`` footprint ignores them.
         """
         size = tuple(image.shape[-2:])
-        camera = None
-        if self.config.sky_footprint == "camera":
-            b = image.shape[0]
-            if K is None:
-                K = torch.as_tensor(intrinsics_from_fov(math.radians(self.config.hfov_deg), size[1], size[0]),
-                                    dtype=image.dtype, device=image.device).expand(b, 3, 3)
-            zeros = image.new_zeros(b)
-            camera = (K.to(image), zeros if pitch is None else pitch.to(image),
-                      zeros if roll is None else roll.to(image), size)
+        b = image.shape[0]
+        if K is None:
+            K = torch.as_tensor(intrinsics_from_fov(math.radians(self.config.hfov_deg), size[1], size[0]),
+                                dtype=image.dtype, device=image.device).expand(b, 3, 3)
+        zeros = image.new_zeros(b)
+        view = (K.to(image), zeros if pitch is None else pitch.to(image), zeros if roll is None else roll.to(image))
+        camera = (*view, size) if self.config.sky_footprint == "camera" else None
         x = image * 2.0 - 1.0
         feats = self.encoder(x)
         out: dict[str, torch.Tensor] = {}
@@ -217,7 +221,7 @@ class INet(nn.Module):
             out["sky_log"] = sky_log
             out["sky"] = radiance_from_log(sky_log)
             return out
-        out.update(self.sun(pooled, y))
+        out.update(self.sun(image, *view) if self.config.sun_net else self.sun(pooled, y))
         # the size is learnt from its own loss only (losses.sun_size_loss): through the radiance terms it
         # would grow to hedge an uncertain direction
         sun = render_sun(out["sun_dir"], out["sun_energy"], out["sun_sigma"].detach(), self.config.pano_height)

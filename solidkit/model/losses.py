@@ -72,6 +72,7 @@ __all__ = [
     "shadow_loss",
     "hdr_l1_loss",
     "sup1_loss",
+    "sun_terms",
     "sup2_loss",
     "diffuse_loss",
     "sh_shading",
@@ -196,19 +197,43 @@ def sun_size(sky: torch.Tensor, direction: torch.Tensor, cap: float = SUN_CAP,
     ring = (cos < math.cos(annulus[0])) & (cos > math.cos(annulus[1]))
     bg = torch.stack([lum[i][ring[i]].median() if ring[i].any() else lum.new_zeros(()) for i in range(b)])
     wgt = (lum - bg[:, None, None]).clamp_min(0.0) * (cos > math.cos(cap)).to(sky.dtype) * omega
-    return torch.sqrt((wgt * (1.0 - cos)).sum(dim=(1, 2)) / wgt.sum(dim=(1, 2)).clamp_min(1e-12))
+    # float32 rounding makes 1 - cos slightly negative at a one-pixel sun's own centre
+    return torch.sqrt(((wgt * (1.0 - cos)).sum(dim=(1, 2)) / wgt.sum(dim=(1, 2)).clamp_min(1e-12)).clamp_min(0.0))
 
 
 def sun_size_loss(sigma: torch.Tensor, sky: torch.Tensor, direction: torch.Tensor, visible: torch.Tensor) -> torch.Tensor:
     """L1 between ``log sigma~ (B,)`` and the log of the true sun's :func:`sun_size` (clamped to the head's
     range), over skies with a visible sun."""
-    from solidkit.model.sunhead import SIGMA_MAX, SIGMA_MIN
-
     keep = visible > 0.5
     if not keep.any():
         return sigma.sum() * 0.0
-    true = sun_size(sky[keep], direction[keep]).clamp(SIGMA_MIN, SIGMA_MAX).detach()
-    return (torch.log(sigma[keep]) - torch.log(true)).abs().mean()
+    return _size_l1(sigma[keep], sun_size(sky[keep], direction[keep]).detach())
+
+
+def _size_l1(sigma: torch.Tensor, true: torch.Tensor) -> torch.Tensor:
+    """Mean ``|log sigma - log true|``, ``true`` clamped to the sun head's range of sizes."""
+    from solidkit.model.sunhead import SIGMA_MAX, SIGMA_MIN
+
+    return (torch.log(sigma) - torch.log(true.clamp(SIGMA_MIN, SIGMA_MAX))).abs().mean()
+
+
+def sun_terms(out: dict[str, torch.Tensor], direction: torch.Tensor, visible: torch.Tensor, energy: torch.Tensor,
+              size: torch.Tensor, sun_sigma: float = SUN_TARGET_SIGMA) -> dict[str, torch.Tensor]:
+    """The sun head's own terms from known targets (the sun stage of training, whose crops carry their
+    sun's ``direction (B, 3)``, ``visible (B,)``, ``energy (B, 3)`` and angular ``size (B,)`` radians instead
+    of a sky): ``sun_dir``, ``sun_cos``, ``sun_vis``, ``sun_energy`` (skies with a sun) and ``sun_size``
+    (:func:`sun_size_loss`'s log L1)."""
+    keep = visible > 0.5
+    zero = out["sun_log_energy"].sum() * 0.0
+    terms = {"sun_dir": sun_direction_loss(out["sun_logits"], direction, visible, sun_sigma),
+             "sun_cos": sun_cosine_loss(out["sun_logits"], direction, visible),
+             "sun_vis": sun_visibility_loss(out["sun_visible_logit"], visible)}
+    if keep.any():
+        terms["sun_energy"] = sun_energy_loss(out["sun_log_energy"][keep], energy[keep])
+        terms["sun_size"] = _size_l1(out["sun_sigma"][keep], size[keep])
+    else:
+        terms["sun_energy"] = terms["sun_size"] = zero
+    return terms
 
 
 def sun_direction_loss(logits: torch.Tensor, direction: torch.Tensor, visible: torch.Tensor,

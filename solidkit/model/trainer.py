@@ -2,6 +2,10 @@
 
 Stages (paper supplementary §1: I-Net first, then P-Net; Adam, lr 5e-4 halved every 5 epochs):
 
+- ``sun`` (models with ``sun_net``, before I-Net): the low-resolution sun network
+  (:mod:`solidkit.model.sunnet`) alone on its own terms (:func:`solidkit.model.losses.sun_terms`), from
+  crops of the same panoramas held in memory with their sun measured once (:mod:`solidkit.model.suncrops`);
+  the ``inet`` stage then leaves it frozen.
 - ``inet``: I-Net alone on ``L_I`` (intrinsics, SH, sky and, with the sun head, the sun terms).
   A batch is either panorama crops (:mod:`solidkit.synth.panocrops`, sky targets only, the lighting
   decoders alone run) or full synthetic samples (:class:`solidkit.synth.dataset.SynthDataset`),
@@ -53,9 +57,10 @@ from solidkit.model.solidnet import SolidNet, save_checkpoint
 from solidkit.model.warp import camera_rotation
 
 __all__ = ["StageConfig", "TrainConfig", "load_train_config", "Trainer", "crop_batch", "synth_batch", "evaluate_lighting",
-           "best_visibility_threshold", "tune_visibility_threshold", "set_visibility_threshold", "export_checkpoint"]
+           "evaluate_sun", "best_visibility_threshold", "tune_visibility_threshold", "set_visibility_threshold", "export_checkpoint"]
 
-STAGES = ("inet", "pnet")
+STAGES = ("sun", "inet", "pnet")
+_STAGE_SEED = {"inet": 0, "pnet": 1, "sun": 2}  # batch seeds of a stage (fixed when the sun stage came)
 
 
 @dataclass
@@ -120,6 +125,7 @@ class TrainConfig:
     max_minutes: float = 0.0
     sun_target_deg: list[float] = field(default_factory=lambda: [2.0])
     sun_target_anneal_steps: int = 0
+    sun: StageConfig = field(default_factory=lambda: StageConfig(steps=0, batch_size=32))
     inet: StageConfig = field(default_factory=lambda: StageConfig(steps=1000, batch_size=8))
     pnet: StageConfig = field(default_factory=lambda: StageConfig(steps=0, batch_size=4))
 
@@ -183,6 +189,8 @@ def load_train_config(path: str | os.PathLike, **overrides: Any) -> TrainConfig:
             raise InputError(f"{path}: [{name}] needs steps >= 0, batch_size >= 1, lr > 0, 0 <= crop_fraction <= 1")
     if not 1 <= len(cfg.sun_target_deg) <= 2 or not all(0.0 < float(v) <= 90.0 for v in cfg.sun_target_deg):
         raise InputError(f"{path}: sun_target_deg must be one or two widths in (0, 90] degrees, got {cfg.sun_target_deg}")
+    if cfg.sun.steps and not (cfg.crops and cfg.model_config().sun_net):
+        raise InputError(f"{path}: [sun] steps need a model with a sun_net and crops = [folders of panoramas]")
     if cfg.inet.steps and cfg.inet.crop_fraction > 0 and not cfg.crops:
         raise InputError(f"{path}: [inet] crop_fraction > 0 needs crops = [folders of panoramas]")
     if (cfg.inet.steps and cfg.inet.crop_fraction < 1 or cfg.pnet.steps) and not cfg.synth:
@@ -228,6 +236,7 @@ class _Data:
         self.exposure_key = exposure_key or None  # the model's input exposure (SolidNetConfig.exposure_key)
         self.sources: list[Any] = []
         self.source_names: list[str] = []
+        self.bank: Any = None  # the sun stage's SunCropBank, filled on its first batch
         self.synth = [SynthDataset(d) for d in synth]
         self.synth_index = [(k, i) for k, ds in enumerate(self.synth) for i in range(len(ds))]
         if synth and not self.synth_index:
@@ -252,7 +261,16 @@ class _Data:
         from solidkit.synth.panocrops import CropConfig, CropSampler
         from solidkit.synth.sample import derive_seed
 
-        rng = np.random.default_rng(derive_seed(self.seed, STAGES.index(stage), step))
+        if stage == "sun":
+            from solidkit.model.suncrops import SunCropBank
+
+            if self.bank is None:
+                self.bank = SunCropBank()
+            if self.bank.names != self.source_names:
+                self.bank.sync(self.source_names, self.sources)
+            return "suncrops", self.bank.batch(derive_seed(self.seed, 7), step, size,
+                                               CropConfig(exposure_key=self.exposure_key), rank, world)
+        rng = np.random.default_rng(derive_seed(self.seed, _STAGE_SEED[stage], step))
         use_crops = bool(self.sources) and (not self.synth_index or rng.random() < crop_fraction)
         if use_crops:
             idx = rng.integers(0, 2**31 - 1, size)[rank::world]
@@ -370,6 +388,35 @@ RESUME_FIXED = ("model", "model_overrides", "init", "seed", "batch_size", "lr", 
 crop fraction, logging) may change, and the batches after the resumption follow the new values."""
 
 
+@torch.no_grad()
+def evaluate_sun(net: torch.nn.Module, batches: list[dict[str, torch.Tensor]]) -> dict[str, float]:
+    """The sun network's figures on sun-stage batches (:meth:`solidkit.model.suncrops.SunCropBank.batch`):
+    median angular / azimuth / elevation error (degrees) of its direction over crops with a sun, the
+    balanced accuracy of its visibility at 0.5, and ``score = err / 90 + (1 - balanced accuracy)``."""
+    from solidkit.envmap.coords import angles_from_direction
+
+    dirs, true, vis, prob = [], [], [], []
+    for b in batches:
+        out = net(b["image"], b["K"], b["pitch"], b["roll"])
+        dirs.append(out["sun_dir"].cpu())
+        prob.append(out["sun_visible"].cpu())
+        true.append(b["sun_dir"].cpu())
+        vis.append(b["sun_visible"].cpu() > 0.5)
+    d, t, v, p = torch.cat(dirs), torch.cat(true), torch.cat(vis), torch.cat(prob)
+    m: dict[str, float] = {"suns": float(v.sum()), "sunless": float((~v).sum())}
+    if v.any():
+        err = torch.rad2deg(torch.arccos((d[v] * t[v]).sum(-1).clamp(-1.0, 1.0)))
+        (pa, pe), (ta, te) = angles_from_direction(d[v]), angles_from_direction(t[v])
+        daz = torch.rad2deg(torch.remainder(pa - ta + math.pi, 2 * math.pi) - math.pi).abs()
+        m.update(head_err_deg=float(err.median()), sun_az_err_deg=float(daz.median()),
+                 sun_el_err_deg=float(torch.rad2deg(pe - te).abs().median()))
+    rates = [float((p[v] >= 0.5).float().mean())] if v.any() else []
+    rates += [float((p[~v] < 0.5).float().mean())] if (~v).any() else []
+    m["vis_balanced_accuracy"] = float(np.mean(rates))
+    m["score"] = m.get("head_err_deg", 90.0) / 90.0 + (1.0 - m["vis_balanced_accuracy"])
+    return m
+
+
 def _changed_settings(old: dict[str, Any], new: dict[str, Any]) -> list[str]:
     out = []
     for k in sorted(set(old) | set(new)):
@@ -444,7 +491,7 @@ class Trainer:
         return self.rank == 0
 
     def _stage_modules(self, stage: str) -> torch.nn.Module:
-        return self.model.inet if stage == "inet" else self.model.pnet
+        return {"sun": self.model.inet.sun, "inet": self.model.inet, "pnet": self.model.pnet}[stage]
 
     def _make_opt(self, stage: str) -> tuple[torch.optim.Optimizer, Any]:
         st = getattr(self.cfg, stage)
@@ -452,7 +499,10 @@ class Trainer:
             p.requires_grad_(False)
         for p in self._stage_modules(stage).parameters():
             p.requires_grad_(True)
-        opt = torch.optim.Adam(self._stage_modules(stage).parameters(), lr=st.lr)
+        if stage == "inet" and self.cfg.sun.steps and self.model.config.sun_net:
+            for p in self.model.inet.sun.parameters():  # trained in its own stage
+                p.requires_grad_(False)
+        opt = torch.optim.Adam([p for p in self._stage_modules(stage).parameters() if p.requires_grad], lr=st.lr)
         sched = torch.optim.lr_scheduler.StepLR(opt, st.lr_halve_every or 10**12, gamma=0.5)
         return opt, sched
 
@@ -513,7 +563,7 @@ class Trainer:
                 "distance", "shadow", "sky", "sun_dir", "sun_energy", "sun_peak", "sun_size", "dif", "rec", "local", "tom",
                 "sky_l1", "suns", "sun_found_rate", "sun_err_deg", "sun_az_err_deg", "sun_el_err_deg",
                 "sun_energy_ratio", "local_l1", "score", "sun_cos", "sun_vis", "sun_target_deg", "head_err_deg",
-                "sunless", "false_suns"]
+                "sunless", "false_suns", "vis_balanced_accuracy"]
         new = not path.is_file()
         with path.open("a", newline="") as f:
             w = csv.DictWriter(f, fieldnames=cols, extrasaction="ignore")
@@ -522,7 +572,7 @@ class Trainer:
             w.writerow({k: (round(v, 6) if isinstance(v, float) else v) for k, v in row.items()})
         if self._tb is not None:
             tag = "val" if row.get("kind") == "val" else "train"
-            gstep = row["step"] + (self.cfg.inet.steps if row["stage"] == "pnet" else 0)
+            gstep = row["step"] + sum(getattr(self.cfg, s).steps for s in STAGES[: STAGES.index(row["stage"])])
             for k, v in row.items():
                 if isinstance(v, (int, float)) and k not in ("step",) and math.isfinite(v):
                     self._tb.add_scalar(f"{tag}/{k}", v, gstep)
@@ -544,6 +594,8 @@ class Trainer:
         if not self.val.sources and self.val.crop_dirs:
             self.val.refresh()
         n, bs = self.cfg.val_samples, 4
+        if stage == "sun":
+            return [self.val.batch("sun", k, min(32, n - k), 0.0)[1] for k in range(0, n, 32)]
         out = []
         for k in range(math.ceil(n / bs)):
             if stage == "inet" or not self.val.synth_index:
@@ -559,6 +611,10 @@ class Trainer:
         """Validation metrics on the held-out split; ``score`` (lower is better) picks ``best.pt``."""
         batches = [{k: v.to(self.device) for k, v in b.items()} for b in self._val_batches(stage)]
         self.model.eval()
+        if stage == "sun":
+            m = evaluate_sun(self.model.inet.sun, batches)
+            self.model.train()
+            return m
         m = evaluate_lighting(self.model, batches)
         if stage == "pnet":
             l1 = []
@@ -622,7 +678,7 @@ class Trainer:
                 ddp = torch.nn.parallel.DistributedDataParallel(
                     module, device_ids=[self.device.index] if self.device.type == "cuda" else None,
                     find_unused_parameters=True)
-            if self.data.crop_dirs and stage == "inet":
+            if self.data.crop_dirs and stage in ("sun", "inet"):
                 self.data.refresh(self.state.get("sources"))
                 self.state["sources"] = self.data.source_names
             self.model.train()
@@ -636,7 +692,7 @@ class Trainer:
                     self.log(f"stopped after {limit / 60:.1f} min at {stage} step {self.state['step']} (resume: run again)")
                     return self.state
                 step = self.state["step"]
-                if stage == "inet" and self.data.crop_dirs and step and step % cfg.refresh_sources_every == 0:
+                if stage in ("sun", "inet") and self.data.crop_dirs and step and step % cfg.refresh_sources_every == 0:
                     self.data.refresh()
                     self.state["sources"] = self.data.source_names
                 t0 = time.monotonic()
@@ -682,7 +738,8 @@ class Trainer:
                 if self.world > 1:
                     torch.distributed.barrier()
             bar.close()
-            if stage == STAGES[-1] or (stage == "inet" and cfg.pnet.steps == 0):
+            if stage == STAGES[-1] or (stage == "inet" and cfg.pnet.steps == 0) or (stage == "sun" and not (
+                    cfg.inet.steps or cfg.pnet.steps)):
                 break
             self.state.update(stage=STAGES[STAGES.index(stage) + 1], step=0, best=None)
             self.save_state(*self._make_opt(self.state["stage"]))
@@ -699,12 +756,23 @@ class Trainer:
         if len(widths) == 1:
             return widths[0]
         span = self.cfg.sun_target_anneal_steps or self.cfg.inet.steps
-        t = min(1.0, self.state["step"] / max(1, span)) if self.state["stage"] == "inet" else 1.0
+        if self.state["stage"] == "sun":
+            span = self.cfg.sun_target_anneal_steps or self.cfg.sun.steps
+        t = min(1.0, self.state["step"] / max(1, span)) if self.state["stage"] in ("sun", "inet") else 1.0
         return widths[0] * (widths[1] / widths[0]) ** t
 
     def _step(self, stage: str, kind: str, batch: dict[str, torch.Tensor], ddp: Any, st: StageConfig
               ) -> dict[str, torch.Tensor]:
         cfg = self.model.config
+        if stage == "sun":
+            from solidkit.model.losses import sun_terms
+
+            net = ddp if ddp is not None else self.model.inet.sun
+            out = net(batch["image"], batch["K"], batch["pitch"], batch["roll"])
+            terms = sun_terms(out, batch["sun_dir"], batch["sun_visible"], batch["sun_energy"], batch["sun_size"],
+                              math.radians(self.sun_target_deg()))
+            weighted = {k: v * cfg.loss_weights.get(k, 1.0) for k, v in terms.items()}
+            return {**weighted, "total": sum(weighted.values())}
         if stage == "inet":
             inet = ddp if ddp is not None else self.model.inet
             out = inet(batch["image"], intrinsics=kind != "crops", K=batch["K"], pitch=batch["pitch"], roll=batch["roll"])
