@@ -3,10 +3,13 @@
 Model steps (Adam, batch 4, one torch thread, toy batches in the model's format so the data path is not
 timed): I-Net on panorama crops (lighting decoders only), I-Net on full samples (all decoders), and
 P-Net (I-Net frozen, 2 probes per image), for ``small`` (sun head, located losses) and its peer in the
-same run, ``small-paper`` (the paper's sky decoder and losses at the same widths).
+same run, ``small-paper`` (the paper's sky decoder and losses at the same widths); for ``small-sun``
+(``small`` with the low-resolution sun network, ``sun_net``) also the ``sun`` stage's step (the sun
+network alone on ``192 x 256`` crops).
 
 Data paths: a crop of a real HDR panorama (:class:`solidkit.synth.panocrops.CropSampler`), a crop of a
-rendered source (EXR read + crop; cached in memory after the first read), and the rendering costs
+rendered source (EXR read + crop; cached in memory after the first read), a sun-stage crop
+(:class:`solidkit.model.suncrops.SunCropBank`, sources held in memory), and the rendering costs
 recorded by the generators (``seconds`` of rendered sources, the dataset card's seconds per full
 sample), whose ratio is the point of the crop path.
 
@@ -26,6 +29,7 @@ import sys
 import time
 from pathlib import Path
 
+SUN_NET = (16, 32, 64, 128)  # the sun network of docs/train_sun_s5.toml
 RESULTS = Path(__file__).resolve().parent / "results"
 REAL = Path(__file__).resolve().parents[2] / "shared" / "data" / "real" / "hdr_panoramas"
 
@@ -51,7 +55,7 @@ def model_steps(name: str) -> tuple[dict, float]:
     from solidkit.model.warp import camera_rotation
 
     torch.manual_seed(0)
-    cfg = preset(name)
+    cfg = preset("small", sun_net=SUN_NET) if name == "small-sun" else preset(name)
     model = SolidNet(cfg)
     b = toy_batch(cfg, 4, 2, seed=0)
     crop = {k: b[k] for k in ("image", "K", "pitch", "roll", "sky", "sun_dir", "sun_visible")}
@@ -79,6 +83,27 @@ def model_steps(name: str) -> tuple[dict, float]:
             p.requires_grad_(True)
 
     steps = {"inet_crops": lambda: inet_step(crop, False), "inet_full": lambda: inet_step(full, True), "pnet": pnet_step}
+    if cfg.sun_net:
+        import math
+
+        from solidkit.envmap.perspective import intrinsics_from_fov
+        from solidkit.model.losses import sun_terms
+        from solidkit.model.suncrops import CROP_SIZE
+
+        h, w = CROP_SIZE
+        K = torch.as_tensor(intrinsics_from_fov(math.radians(60.0), w, h), dtype=torch.float32).expand(4, 3, 3)
+        sb = {"image": torch.rand(4, 3, h, w), "K": K, "pitch": b["pitch"], "roll": b["roll"], "sun_dir": b["sun_dir"],
+              "sun_visible": b["sun_visible"], "sun_energy": torch.ones(4, 3), "sun_size": torch.full((4,), 0.005)}
+        opt_s = torch.optim.Adam(model.inet.sun.parameters(), 1e-3)
+
+        def sun_step():
+            out = model.inet.sun(sb["image"], sb["K"], sb["pitch"], sb["roll"])
+            loss = sum(sun_terms(out, sb["sun_dir"], sb["sun_visible"], sb["sun_energy"], sb["sun_size"]).values())
+            opt_s.zero_grad()
+            loss.backward()
+            opt_s.step()
+
+        steps["sun"] = sun_step
     return steps, sum(p.numel() for p in model.parameters()) / 1e6
 
 
@@ -91,8 +116,10 @@ def model_rates(names: list[str], repeats: int) -> dict[str, dict[str, float]]:
         for fn in built[n][0].values():
             fn()  # warm-up
     for _ in range(repeats):
-        for kind in ("inet_crops", "inet_full", "pnet"):
+        for kind in ("inet_crops", "inet_full", "pnet", "sun"):
             for n in names:
+                if kind not in built[n][0]:
+                    continue
                 t = time.perf_counter()
                 built[n][0][kind]()
                 times[n][kind].append(time.perf_counter() - t)
@@ -120,6 +147,15 @@ def data_rates(sources: str | None, repeats: int) -> dict[str, float | None]:
         secs = [json.loads((p / "source.json").read_text())["seconds"] for p in sorted(Path(sources).glob("*/"))
                 if (p / "source.json").is_file()]
         out["render_source_seconds_median"] = statistics.median(secs) if secs else None
+        from solidkit.model.suncrops import SunCropBank
+        from solidkit.synth.panocrops import CropConfig
+
+        bank = SunCropBank()
+        t = time.perf_counter()
+        bank.sync([s.name for s in srcs], srcs)
+        out["sun_bank_add_per_s"] = len(srcs) / (time.perf_counter() - t)
+        step = iter(range(10**6))
+        out["sun_crop_per_s"] = _rate(lambda: bank.batch(0, next(step), 8, CropConfig(exposure_key=0.18)), 8, repeats)
     return out
 
 
@@ -135,18 +171,20 @@ def main(argv: list[str]) -> int:
     torch.set_num_threads(1)
     res = {"machine": f"{platform.machine()}, {os.cpu_count()} shared cores, 1 torch thread, "
                       f"load average {os.getloadavg()[0]:.1f} at start", "torch": torch.__version__,
-           "models": model_rates(["small", "small-paper"], a.repeats),
+           "models": model_rates(["small", "small-paper", "small-sun"], a.repeats),
            "data": data_rates(a.sources, a.repeats), "full_sample_seconds": a.full_sample_seconds}
     res["load_average_end"] = round(os.getloadavg()[0], 1)
     m, d = res["models"], res["data"]
     lines = ["# SOLID-Net training throughput (CPU, samples/s, batch 4)", "",
              f"{res['machine']}; load average {res['load_average_end']} at the end. Peer in the same run: "
              "`small-paper` (the paper's sky decoder and losses, same widths).", "",
-             "| config | params (M) | I-Net on crops | I-Net on full samples | P-Net (2 probes) | I-Net on crops vs small-paper |",
-             "|---|---|---|---|---|---|"]
+             "| config | params (M) | I-Net on crops | I-Net on full samples | P-Net (2 probes) | I-Net on crops vs small-paper "
+             "| sun stage (sun network alone) | sun stage vs small-paper's I-Net on crops |",
+             "|---|---|---|---|---|---|---|---|"]
     for n, r in m.items():
+        sun = (f"{r['sun']:.2f} | {r['sun'] / m['small-paper']['inet_crops']:.1f}x" if "sun" in r else "- | -")
         lines.append(f"| {n} | {r['parameters_M']:.2f} | {r['inet_crops']:.2f} | {r['inet_full']:.2f} | {r['pnet']:.2f} | "
-                     f"{r['inet_crops'] / m['small-paper']['inet_crops']:.2f}x |")
+                     f"{r['inet_crops'] / m['small-paper']['inet_crops']:.2f}x | {sun} |")
     lines += ["", "| data path | samples/s |", "|---|---|"]
     for k, v in d.items():
         if v is not None:

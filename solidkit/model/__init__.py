@@ -29,6 +29,8 @@ _EXPORTS = {
     "INet": "inet",
     "SunHead": "sunhead",
     "render_sun": "sunhead",
+    "SunNet": "sunnet",
+    "SunCropBank": "suncrops",
     "Trainer": "trainer",
     "load_train_config": "trainer",
     "PNet": "pnet",

@@ -124,7 +124,8 @@ class INet(nn.Module):
     - ``sh`` (B, 3, 9) the SH coefficients ``L`` (the paper's ``P_SH`` reshaped)
     - ``sky_log`` (B, 3, Hp, 2Hp) ``log1p(H_g)``; ``sky`` (B, 3, Hp, 2Hp) the radiance ``H_g``
 
-    With ``config.sun_head`` (:mod:`solidkit.model.sunhead`) also ``sun_logits (B, 1, Hp, 2Hp)``,
+    With ``config.sun_head`` (:mod:`solidkit.model.sunhead`; with ``config.sun_net`` the separate
+    low-resolution :mod:`solidkit.model.sunnet` instead) also ``sun_logits (B, 1, Hp, 2Hp)``,
     ``sun_dir (B, 3)``, ``sun_energy``, ``sun_log_energy (B, 3)``, ``sun_sigma (B,)`` and
     ``sky_np_log`` (the non-parametric sky without the sun); ``sky`` is then the non-parametric sky
     plus the rendered sun. With ``config.sun_visibility`` also ``sun_visible (B,)`` (probability) and
