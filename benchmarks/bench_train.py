@@ -4,7 +4,7 @@ Model steps (Adam, batch 4, one torch thread, toy batches in the model's format 
 timed): I-Net on panorama crops (lighting decoders only), I-Net on full samples (all decoders), and
 P-Net (I-Net frozen, 2 probes per image), for ``small`` (sun head, located losses) and its peer in the
 same run, ``small-paper`` (the paper's sky decoder and losses at the same widths); for ``small-sun``
-(``small`` with the low-resolution sun network, ``sun_net``) also the ``sun`` stage's step (the sun
+(``small`` with the low-resolution sun network, ``sun_net``, as docs/train_sun_s5.toml) also the ``sun`` stage's step (the sun
 network alone on ``192 x 256`` crops).
 
 Data paths: a crop of a real HDR panorama (:class:`solidkit.synth.panocrops.CropSampler`), a crop of a
@@ -29,7 +29,6 @@ import sys
 import time
 from pathlib import Path
 
-SUN_NET = (16, 32, 64, 128)  # the sun network of docs/train_sun_s5.toml
 RESULTS = Path(__file__).resolve().parent / "results"
 REAL = Path(__file__).resolve().parents[2] / "shared" / "data" / "real" / "hdr_panoramas"
 
@@ -55,7 +54,7 @@ def model_steps(name: str) -> tuple[dict, float]:
     from solidkit.model.warp import camera_rotation
 
     torch.manual_seed(0)
-    cfg = preset("small", sun_net=SUN_NET) if name == "small-sun" else preset(name)
+    cfg = preset(name)
     model = SolidNet(cfg)
     b = toy_batch(cfg, 4, 2, seed=0)
     crop = {k: b[k] for k in ("image", "K", "pitch", "roll", "sky", "sun_dir", "sun_visible")}

@@ -1,11 +1,12 @@
 """SOLID-Net configuration: widths, input sizes, P-Net inputs, loss weights (one frozen dataclass).
 
 The paper (Zhu et al., CVPR 2021, §4.2 and supplementary) gives the structure of I-Net and
-P-Net but no layer widths. Two presets are provided:
+P-Net but no layer widths. The presets:
 
 - ``small``: a CPU-friendly configuration (≈1.5 M parameters) with the sun head (and its visibility
   output) and the located losses, metered inputs (``exposure_key``) and the camera's own sky-feature
-  footprint (``sky_footprint``); ``small-paper``: the same widths, inputs and footprint with the paper's sky
+  footprint (``sky_footprint``); ``small-sun``: the same with the low-resolution sun network
+  (``sun_net``, :mod:`solidkit.model.sunnet`, +0.9 M parameters) instead of the sun head; ``small-paper``: the same widths, inputs and footprint with the paper's sky
   decoder and losses (the ablation);
 - ``paper``: a paper-sized configuration (standard U-Net widths 32..512, paper losses) for GPU training;
 - ``tiny`` / ``tiny-paper``: a few thousand parameters, for tests.
@@ -229,8 +230,10 @@ _SUN = {"sun_head": True, "sun_visibility": True, "loss_variant": "located", "sk
         "loss_weights": {**SolidNetConfig.__dataclass_fields__["loss_weights"].default_factory(), "sun_cos": 1.0}}
 
 PRESETS: dict[str, SolidNetConfig] = {
-    # the shipped model: small widths, the sun head and the located losses
+    # small widths, the sun head and the located losses
     "small": SolidNetConfig(**_SUN),
+    # the same with the low-resolution sun network instead of the sun head (session 5)
+    "small-sun": SolidNetConfig(**{**_SUN, "name": "small-sun", "sun_net": (16, 32, 64, 128)}),
     # the paper's sky decoder and losses at the small widths (the ablation of the sun head)
     "small-paper": SolidNetConfig(name="small-paper", sky_feature_width=16, exposure_key=0.18, sky_footprint="camera"),
     "paper": SolidNetConfig(
