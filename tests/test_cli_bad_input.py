@@ -390,6 +390,10 @@ CASES: list[tuple[str, list[str], str, tuple]] = [
     ("train-config-not-toml", ["train", "{d}/notes.txt"], "{d}/notes.txt: not valid TOML", SLOW),
     ("sources-bad-shard", ["synth", "sources", "--n", "2", "-o", "{d}/src", "--shard", "3/2"],
      "--shard 3/2: need 0 <= i < N", SLOW),
+    ("sources-no-positions", ["synth", "sources", "--n", "2", "-o", "{d}/src", "--positions-per-block", "0"],
+     "Invalid value for '--positions-per-block'", ()),
+    ("train-sun-without-sun-net", ["train", "{d}/sun.toml"],
+     "{d}/sun.toml: [sun] steps need a model with a sun_net and crops = [folders of panoramas]", ()),
 ]
 
 
@@ -405,6 +409,7 @@ def make_bad_inputs(d: Path) -> None:
     d.mkdir(parents=True, exist_ok=True)
     (d / "sub").mkdir()
     (d / "notes.txt").write_text("not an image\n")
+    (d / "sun.toml").write_text('crops = ["x"]\n[sun]\nsteps = 5\n')  # the small preset has no sun network
     for name in ("empty.jpg", "empty.exr"):
         (d / name).write_bytes(b"")
     for name in ("text.jpg", "text.exr"):
