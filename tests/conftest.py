@@ -31,6 +31,27 @@ def torch_one_thread():
 
 
 @pytest.fixture
+def write_sources():
+    """``write(root, pairs)``: one crop-path source folder (``solidkit.synth.panocrops`` layout) per
+    ``(scene, light)`` pair of panoramas under ``root``; returns ``root``."""
+    import json
+
+    def write(root: Path, pairs) -> Path:
+        from solidkit.envmap import write_exr
+        from solidkit.synth.panocrops import SOURCE_FILES
+
+        for i, (scene, light) in enumerate(pairs):
+            d = root / f"{i:06d}"
+            d.mkdir(parents=True)
+            write_exr(d / SOURCE_FILES["scene"], scene)
+            write_exr(d / SOURCE_FILES["light"], light)
+            (d / SOURCE_FILES["meta"]).write_text(json.dumps({"kind": "test"}))
+        return root
+
+    return write
+
+
+@pytest.fixture
 def cli(monkeypatch, capsys):
     """Run ``solidkit ARGS`` in-process through the real entry point (``solidkit.cli.main``, with
     its error handling, without a subprocess's start-up cost): returns ``(exit code, stdout, stderr)``."""

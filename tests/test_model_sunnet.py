@@ -4,14 +4,13 @@ proof, and a stage that trains the sun network alone and leaves it frozen afterw
 
 from __future__ import annotations
 
-import json
 import math
 
 import numpy as np
 import pytest
 import torch
 
-from solidkit.envmap import angular_distance, detect_sun, direction_from_angles, write_exr
+from solidkit.envmap import angular_distance, detect_sun, direction_from_angles
 from solidkit.envmap.coords import angles_from_direction, rotation_from_ypr, rotation_y
 from solidkit.envmap.perspective import intrinsics_from_fov, project_to_pixels
 from solidkit.envmap.resample import rotate
@@ -20,7 +19,7 @@ from solidkit.model.losses import sun_terms
 from solidkit.model.suncrops import CROP_SIZE, SunCropBank
 from solidkit.model.sunhead import render_sun
 from solidkit.model.sunnet import SunNet, image_grid_on_panorama, ray_directions
-from solidkit.synth.panocrops import SOURCE_FILES, CropConfig, Source
+from solidkit.synth.panocrops import CropConfig, Source
 
 pytestmark = pytest.mark.usefixtures("torch_one_thread")
 
@@ -153,14 +152,9 @@ def test_overfitting_eight_crops_finds_each_sun_even_behind_the_camera():
     assert bool(((ratio > 0.5) & (ratio < 2.0)).all()), ratio
 
 
-def test_sun_stage_trains_the_sun_net_alone_and_inet_leaves_it_frozen(tmp_path):
-    root = tmp_path / "sources"
-    for i, (az, el) in enumerate(((30.0, 40.0), (-100.0, 20.0))):
-        d = root / f"{i:06d}"
-        d.mkdir(parents=True)
-        write_exr(d / SOURCE_FILES["scene"], _sky(256, az, el))
-        write_exr(d / SOURCE_FILES["light"], _sky(128, az, el))
-        (d / SOURCE_FILES["meta"]).write_text(json.dumps({"kind": "test"}))
+def test_sun_stage_trains_the_sun_net_alone_and_inet_leaves_it_frozen(tmp_path, write_sources):
+    root = write_sources(tmp_path / "sources", [(_sky(256, az, el), _sky(128, az, el))
+                                                for az, el in ((30.0, 40.0), (-100.0, 20.0))])
     conf = tmp_path / "run.toml"
     conf.write_text("\n".join([
         f'out = "{tmp_path / "run"}"', 'model = "tiny"', 'model_overrides = {sun_head = true, sun_visibility = true, '

@@ -11,11 +11,11 @@ import numpy as np
 import pytest
 import torch
 
-from solidkit.envmap import angular_distance, detect_sun, direction_from_angles, write_exr
+from solidkit.envmap import angular_distance, detect_sun, direction_from_angles
 from solidkit.errors import InputError
 from solidkit.model.sunhead import render_sun
 from solidkit.model.trainer import Trainer, load_train_config
-from solidkit.synth.panocrops import SOURCE_FILES, CropConfig, CropSampler, load_sources
+from solidkit.synth.panocrops import CropConfig, CropSampler, load_sources
 
 pytestmark = pytest.mark.usefixtures("torch_one_thread")
 
@@ -34,15 +34,8 @@ def _sky(height: int, az_deg: float, el_deg: float, energy: float = 2.0) -> np.n
 
 
 @pytest.fixture
-def sources(tmp_path) -> Path:
-    root = tmp_path / "sources"
-    for i, (az, el) in enumerate(((30.0, 40.0), (-100.0, 20.0))):
-        d = root / f"{i:06d}"
-        d.mkdir(parents=True)
-        write_exr(d / SOURCE_FILES["scene"], _sky(256, az, el))
-        write_exr(d / SOURCE_FILES["light"], _sky(128, az, el))
-        (d / SOURCE_FILES["meta"]).write_text(json.dumps({"kind": "test"}))
-    return root
+def sources(tmp_path, write_sources) -> Path:
+    return write_sources(tmp_path / "sources", [(_sky(256, az, el), _sky(128, az, el)) for az, el in ((30.0, 40.0), (-100.0, 20.0))])
 
 
 def test_crops_are_reproducible_and_their_sun_follows_the_yaw(sources):

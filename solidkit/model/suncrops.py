@@ -15,16 +15,13 @@ the energy is scaled by the exposure x white-balance gain applied to the image.
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
 import torch
 
-from solidkit.envmap.coords import rotation_from_ypr, rotation_y
-from solidkit.envmap.io import tonemap
-from solidkit.envmap.perspective import intrinsics_from_fov, perspective_crop
+from solidkit.envmap.coords import rotation_y
 from solidkit.envmap.resample import downsample
 from solidkit.envmap.sun import detect_sun
 from solidkit.errors import InputError
@@ -110,35 +107,19 @@ class SunCropBank:
 
     def crop(self, rng: np.random.Generator, config: Any) -> dict[str, Any]:
         """One crop drawn with ``rng`` (ranges of a :class:`solidkit.synth.panocrops.CropConfig`)."""
-        from solidkit.synth.panocrops import metered_gain
+        from solidkit.synth.panocrops import draw_view, render_view
 
-        c = config
         k = int(rng.integers(len(self.names)))
-        yaw = rng.uniform(-math.pi, math.pi)
-        pitch = math.radians(rng.uniform(*c.pitch_deg))
-        roll = math.radians(rng.uniform(*c.roll_deg))
-        hfov = math.radians(rng.uniform(*c.hfov_deg))
-        gain = 2.0 ** rng.uniform(*c.exposure_stops) * np.exp(rng.uniform(-c.white_balance, c.white_balance, 3))
-        flip = bool(c.flip and rng.random() < 0.5)
-        K = intrinsics_from_fov(hfov, c.width, c.height)
-        view = perspective_crop(self._panos[k].astype(np.float32), np.asarray(rotation_from_ypr(yaw, pitch, roll)),
-                                (c.width, c.height), K=K, interp="linear")
-        if c.exposure_key is not None:
-            gain = gain * metered_gain(view, c.exposure_key)
-        image = np.clip(np.asarray(tonemap(np.clip(view, 0, None) * gain.astype(np.float32))), 0.0, 1.0)
+        view = draw_view(rng, config)
+        image, K, roll, gain = render_view(self._panos[k].astype(np.float32), view, config)
         sun = self._suns[k]
-        d = np.asarray(rotation_y(yaw)).T @ sun.direction.astype(np.float64)
-        if flip:
-            image = image[:, ::-1]
-            K = K.copy()
-            K[0, 2] = c.width - 1 - K[0, 2]
-            roll = -roll
+        d = np.asarray(rotation_y(view.yaw)).T @ sun.direction.astype(np.float64)
+        if view.flip:
             d[0] = -d[0]
-        return {"image": np.ascontiguousarray(image, dtype=np.float32), "K": K.astype(np.float32),
-                "pitch": np.float32(pitch), "roll": np.float32(roll), "yaw": np.float32(yaw),
-                "sun_dir": (d if sun.visible else np.zeros(3)).astype(np.float32),
+        return {"image": image, "K": K, "pitch": np.float32(view.pitch), "roll": np.float32(roll),
+                "yaw": np.float32(view.yaw), "sun_dir": (d if sun.visible else np.zeros(3)).astype(np.float32),
                 "sun_visible": np.float32(sun.visible), "sun_energy": (sun.energy * gain).astype(np.float32),
-                "sun_size": np.float32(sun.size), "source": self.names[k], "flip": flip}
+                "sun_size": np.float32(sun.size), "source": self.names[k], "flip": view.flip}
 
     def batch(self, seed: int, step: int, size: int, config: Any, rank: int = 0, world: int = 1
               ) -> dict[str, torch.Tensor]:

@@ -49,7 +49,7 @@ from solidkit.errors import InputError
 from solidkit.fsutil import atomic_write_text
 
 __all__ = ["metered_gain", "SourceConfig", "render_source", "real_source", "render_sources", "Source", "load_sources", "CropSampler",
-           "CropConfig"]
+           "CropConfig", "View", "draw_view", "render_view"]
 
 CACHE_SIZE = 720
 """Rendered sources kept in memory (least recently used first out; ~3.5 MB each at 512 x 1024 as
@@ -278,31 +278,57 @@ class CropSampler:
         c = self.config
         rng = np.random.default_rng(derive_seed(self.seed, int(index), 11))
         src = self.sources[int(index) % len(self.sources)]
-        yaw = rng.uniform(-math.pi, math.pi)
-        pitch = math.radians(rng.uniform(*c.pitch_deg))
-        roll = math.radians(rng.uniform(*c.roll_deg))
-        hfov = math.radians(rng.uniform(*c.hfov_deg))
-        gain = 2.0 ** rng.uniform(*c.exposure_stops) * np.exp(rng.uniform(-c.white_balance, c.white_balance, 3))
-        flip = bool(c.flip and rng.random() < 0.5)
-        # conventions §4: pitch positive = up; R maps camera rays to the scene frame
-        R = np.asarray(rotation_from_ypr(yaw, pitch, roll))
-        K = intrinsics_from_fov(hfov, c.width, c.height)
+        view = draw_view(rng, c)
         scene, light = src.load()
-        view = perspective_crop(scene, R, (c.width, c.height), K=K, interp="linear")
-        if c.exposure_key is not None:
-            gain = gain * metered_gain(view, c.exposure_key)
-        image = np.clip(np.asarray(tonemap(np.clip(view, 0, None) * gain.astype(np.float32))), 0.0, 1.0)
-        sky = np.asarray(rotate(light, np.asarray(rotation_y(yaw)).T), dtype=np.float32) * gain.astype(np.float32)
-        if flip:
-            image = image[:, ::-1]
+        image, K, roll, gain = render_view(scene, view, c)
+        sky = np.asarray(rotate(light, np.asarray(rotation_y(view.yaw)).T), dtype=np.float32) * gain.astype(np.float32)
+        if view.flip:
             sky = sky[:, ::-1]
-            K = K.copy()
-            K[0, 2] = c.width - 1 - K[0, 2]
-            roll = -roll
         sun = detect_sun(sky)
-        return {"image": np.ascontiguousarray(image, dtype=np.float32), "K": K.astype(np.float32),
-                "pitch": np.float32(pitch), "roll": np.float32(roll), "yaw": np.float32(yaw),
-                "sky": np.ascontiguousarray(sky, dtype=np.float32),
+        return {"image": image, "K": K, "pitch": np.float32(view.pitch), "roll": np.float32(roll),
+                "yaw": np.float32(view.yaw), "sky": np.ascontiguousarray(sky, dtype=np.float32),
                 "sun_dir": (sun.direction if sun.found else np.zeros(3)).astype(np.float32),
                 "sun_visible": np.float32(sun.found), "source": src.name,
                 "gain": np.float32(np.mean(gain))}
+
+
+@dataclass(frozen=True)
+class View:
+    """A crop's camera and photometry: ``yaw``, ``pitch``, ``roll``, ``hfov`` (radians), ``gain (3,)`` (exposure x
+    white balance before metering) and ``flip`` (mirror the result horizontally)."""
+
+    yaw: float
+    pitch: float
+    roll: float
+    hfov: float
+    gain: np.ndarray
+    flip: bool
+
+
+def draw_view(rng: np.random.Generator, c: CropConfig) -> View:
+    """A :class:`View` drawn with ``rng`` within the ranges of ``c``."""
+    yaw = rng.uniform(-math.pi, math.pi)
+    pitch = math.radians(rng.uniform(*c.pitch_deg))
+    roll = math.radians(rng.uniform(*c.roll_deg))
+    hfov = math.radians(rng.uniform(*c.hfov_deg))
+    gain = 2.0 ** rng.uniform(*c.exposure_stops) * np.exp(rng.uniform(-c.white_balance, c.white_balance, 3))
+    return View(yaw, pitch, roll, hfov, gain, bool(c.flip and rng.random() < 0.5))
+
+
+def render_view(scene: np.ndarray, view: View, c: CropConfig) -> tuple[np.ndarray, np.ndarray, float, np.ndarray]:
+    """The crop of ``scene (H, 2H, 3)`` (linear, scene frame) seen by ``view`` at ``c.width x c.height``:
+    ``(image (h, w, 3)`` tonemapped in [0, 1], ``K (3, 3)``, ``roll``, ``gain (3,))`` with the flip applied
+    (image mirrored, principal point mirrored, roll negated) and ``gain`` metered when ``c.exposure_key`` is set."""
+    # conventions §4: pitch positive = up; R maps camera rays to the scene frame
+    R = np.asarray(rotation_from_ypr(view.yaw, view.pitch, view.roll))
+    K = intrinsics_from_fov(view.hfov, c.width, c.height)
+    linear = perspective_crop(scene, R, (c.width, c.height), K=K, interp="linear")
+    gain = view.gain * metered_gain(linear, c.exposure_key) if c.exposure_key is not None else view.gain
+    image = np.clip(np.asarray(tonemap(np.clip(linear, 0, None) * gain.astype(np.float32))), 0.0, 1.0)
+    roll = view.roll
+    if view.flip:
+        image = image[:, ::-1]
+        K = K.copy()
+        K[0, 2] = c.width - 1 - K[0, 2]
+        roll = -roll
+    return np.ascontiguousarray(image, dtype=np.float32), K.astype(np.float32), roll, gain
