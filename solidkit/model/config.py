@@ -5,9 +5,10 @@ P-Net but no layer widths. The presets:
 
 - ``small``: a CPU-friendly configuration (≈1.5 M parameters) with the sun head (and its visibility
   output) and the located losses, metered inputs (``exposure_key``) and the camera's own sky-feature
-  footprint (``sky_footprint``); ``small-sun``: the same with the low-resolution sun network
-  (``sun_net``, :mod:`solidkit.model.sunnet`, +0.9 M parameters) instead of the sun head; ``small-paper``: the same widths, inputs and footprint with the paper's sky
-  decoder and losses (the ablation);
+  footprint (``sky_footprint``);
+- ``small-sun``: the same with the low-resolution sun network (``sun_net``, :mod:`solidkit.model.sunnet`,
+  +0.9 M parameters) instead of the sun head (the shipped checkpoint since session 5);
+- ``small-paper``: the same widths, inputs and footprint with the paper's sky decoder and losses (the ablation);
 - ``paper``: a paper-sized configuration (standard U-Net widths 32..512, paper losses) for GPU training;
 - ``tiny`` / ``tiny-paper``: a few thousand parameters, for tests.
 

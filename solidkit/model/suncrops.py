@@ -103,6 +103,7 @@ class SunCropBank:
         self._index = {n: i for i, n in enumerate(self.names)}
 
     def sun(self, name: str) -> SourceSun:
+        """The :class:`SourceSun` of the source held under ``name``."""
         return self._suns[self._index[name]]
 
     def crop(self, rng: np.random.Generator, config: Any) -> dict[str, Any]:

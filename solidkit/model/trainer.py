@@ -365,8 +365,7 @@ def evaluate_lighting(model: SolidNet, batches: list[dict[str, torch.Tensor]]) -
             found += 1
             ang.append(math.degrees(float(angular_distance(np.asarray(det.direction, dtype=np.float64), t))))
             taz, tel = (float(a) for a in angles_from_direction(t))
-            d = abs(det.azimuth - taz) % (2 * math.pi)
-            daz.append(math.degrees(min(d, 2 * math.pi - d)))
+            daz.append(math.degrees(_azimuth_gap(det.azimuth, taz)))
             del_.append(math.degrees(abs(det.elevation - tel)))
             pd = torch.as_tensor(det.direction, dtype=torch.float32)[None]
             e_p = sun_energy(out["sky"][i : i + 1], pd).sum()
@@ -388,12 +387,17 @@ RESUME_FIXED = ("model", "model_overrides", "init", "seed", "batch_size", "lr", 
 crop fraction, logging) may change, and the batches after the resumption follow the new values."""
 
 
+def _azimuth_gap(a: Any, b: Any) -> Any:
+    """``|a - b|`` of azimuths (radians; floats or tensors) wrapped into ``[0, pi]``."""
+    return abs((a - b + math.pi) % (2 * math.pi) - math.pi)
+
+
 @torch.no_grad()
 def evaluate_sun(net: torch.nn.Module, batches: list[dict[str, torch.Tensor]]) -> dict[str, float]:
     """The sun network's figures on sun-stage batches (:meth:`solidkit.model.suncrops.SunCropBank.batch`):
     median angular / azimuth / elevation error (degrees) of its direction over crops with a sun, the
     balanced accuracy of its visibility at 0.5, and ``score = err / 90 + (1 - balanced accuracy)``."""
-    from solidkit.envmap.coords import angles_from_direction
+    from solidkit.envmap.coords import angles_from_direction, angular_distance
 
     dirs, true, vis, prob = [], [], [], []
     for b in batches:
@@ -405,10 +409,9 @@ def evaluate_sun(net: torch.nn.Module, batches: list[dict[str, torch.Tensor]]) -
     d, t, v, p = torch.cat(dirs), torch.cat(true), torch.cat(vis), torch.cat(prob)
     m: dict[str, float] = {"suns": float(v.sum()), "sunless": float((~v).sum())}
     if v.any():
-        err = torch.rad2deg(torch.arccos((d[v] * t[v]).sum(-1).clamp(-1.0, 1.0)))
+        err = torch.rad2deg(angular_distance(d[v].double(), t[v].double()))
         (pa, pe), (ta, te) = angles_from_direction(d[v]), angles_from_direction(t[v])
-        daz = torch.rad2deg(torch.remainder(pa - ta + math.pi, 2 * math.pi) - math.pi).abs()
-        m.update(head_err_deg=float(err.median()), sun_az_err_deg=float(daz.median()),
+        m.update(head_err_deg=float(err.median()), sun_az_err_deg=float(torch.rad2deg(_azimuth_gap(pa, ta)).median()),
                  sun_el_err_deg=float(torch.rad2deg(pe - te).abs().median()))
     rates = [float((p[v] >= 0.5).float().mean())] if v.any() else []
     rates += [float((p[~v] < 0.5).float().mean())] if (~v).any() else []
