@@ -22,6 +22,8 @@ __all__ = [
     "PAPER_EXPOSURE",
     "PAPER_GAMMA",
     "read_exr",
+    "read_hdr",
+    "read_panorama",
     "write_exr",
     "read_ldr",
     "write_ldr",
@@ -86,6 +88,44 @@ def read_exr(path: str | os.PathLike) -> tuple[np.ndarray, dict[str, Any]]:
             meta = {}
     meta["header"] = header
     return np.ascontiguousarray(img, dtype=np.float32), meta
+
+
+def read_hdr(path: str | os.PathLike) -> np.ndarray:
+    """Read a Radiance RGBE file (``.hdr``, ``.pic``) as linear RGB float32 ``(H, W, 3)``.
+
+    Reference: G. Ward, "Real Pixels", Graphics Gems II (1991): the RGBE encoding, decoded by OpenCV's
+    Radiance codec. Values are as stored (the publisher's scale, not absolute radiance).
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise InputError(f"{path}: no such file")
+    with open(path, "rb") as f:
+        magic = f.read(10)
+    if not (magic.startswith(b"#?RADIANCE") or magic.startswith(b"#?RGBE")):
+        raise InputError(f"{path}: not a Radiance HDR file (no '#?RADIANCE' signature)")
+    img = cv2.imread(str(path), cv2.IMREAD_ANYDEPTH | cv2.IMREAD_COLOR)
+    if img is None or img.ndim != 3:
+        raise InputError(f"{path}: not a readable Radiance HDR file")
+    return np.ascontiguousarray(img[..., ::-1], dtype=np.float32)
+
+
+HDR_SUFFIXES = {".exr", ".hdr", ".pic"}
+
+
+def read_panorama(path: str | os.PathLike) -> np.ndarray:
+    """Read a linear HDR panorama (EXR or Radiance HDR) as RGB float32 ``(H, W, 3)``, negatives and
+    non-finite values set to 0; refuses an image that is not ``(H, 2H)``."""
+    path = Path(path)
+    suffix = path.suffix.lower()
+    if suffix == ".exr":
+        img, _ = read_exr(path)
+        img = np.repeat(img, 3, axis=2) if img.shape[2] == 1 else img[..., :3]
+    elif suffix in (".hdr", ".pic"):
+        img = read_hdr(path)
+    else:
+        raise InputError(f"{path}: unknown HDR panorama type '{path.suffix}' (expected .exr or .hdr)")
+    validate_panorama(np.nan_to_num(img), path.name)
+    return np.clip(np.nan_to_num(img, nan=0.0, posinf=0.0, neginf=0.0), 0.0, None).astype(np.float32)
 
 
 def write_exr(
@@ -275,11 +315,13 @@ def read_image(path: str | os.PathLike) -> tuple[np.ndarray, dict[str, Any]]:
         if img.shape[2] == 1:
             img = np.repeat(img, 3, axis=2)
         return img[..., :3], meta
+    if path.suffix.lower() in (".hdr", ".pic"):
+        return read_hdr(path), {}
     if path.suffix.lower() in LDR_SUFFIXES:
         return read_ldr(path, linear=True), {"ldr": True}
     if path.is_dir():
         raise InputError(f"{path}: is a folder, not an image file")
-    raise InputError(f"{path}: unknown image type '{path.suffix}' (expected .exr or an LDR format)")
+    raise InputError(f"{path}: unknown image type '{path.suffix}' (expected .exr, .hdr or an LDR format)")
 
 
 def validate_panorama(image: np.ndarray, name: str = "panorama") -> np.ndarray:

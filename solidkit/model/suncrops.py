@@ -46,18 +46,22 @@ class SourceSun:
     size: float
 
 
-def source_sun(light: np.ndarray) -> SourceSun:
-    """:class:`SourceSun` of a lighting panorama ``light (h, 2h, 3)`` (the crop targets' detector,
-    :func:`solidkit.envmap.detect_sun`)."""
+def source_sun(light: np.ndarray, known: Any = None) -> SourceSun:
+    """:class:`SourceSun` of a lighting panorama ``light (h, 2h, 3)``: the crop targets' detector
+    (:func:`solidkit.envmap.detect_sun`), or ``known`` (a :class:`solidkit.synth.panocrops.CatalogSun`:
+    visibility and direction measured independently) with energy and size measured at its direction."""
     from solidkit.model.losses import sun_energy, sun_size
 
-    sun = detect_sun(light)
-    if not sun.found:
+    if known is not None:
+        found, direction = bool(known.visible), np.asarray(known.direction, np.float64)
+    else:
+        sun = detect_sun(light)
+        found, direction = sun.found, np.asarray(sun.direction if sun.found else np.zeros(3))
+    if not found:
         return SourceSun(np.zeros(3, np.float32), False, np.zeros(3, np.float32), 0.0)
     sky = torch.as_tensor(np.ascontiguousarray(light), dtype=torch.float32).permute(2, 0, 1)[None]
-    d = torch.as_tensor(np.asarray(sun.direction), dtype=torch.float32)[None]
-    return SourceSun(np.asarray(sun.direction, np.float32), True, sun_energy(sky, d)[0].numpy(),
-                     float(sun_size(sky, d)[0]))
+    d = torch.as_tensor(direction, dtype=torch.float32)[None]
+    return SourceSun(direction.astype(np.float32), True, sun_energy(sky, d)[0].numpy(), float(sun_size(sky, d)[0]))
 
 
 class SunCropBank:
@@ -73,6 +77,8 @@ class SunCropBank:
         self._index: dict[str, int] = {}
         self._panos: list[np.ndarray] = []
         self._suns: list[SourceSun] = []
+        self.weights: np.ndarray | None = None
+        """Probability of drawing each held source (in the order of :attr:`names`); ``None``: uniform."""
 
     def __len__(self) -> int:
         return len(self.names)
@@ -90,7 +96,7 @@ class SunCropBank:
         self._index[name] = len(self.names)
         self.names.append(name)
         self._panos.append(np.minimum(scene, 6.0e4).astype(np.float16))
-        self._suns.append(source_sun(light))
+        self._suns.append(source_sun(light, getattr(source, "sun", None)))
 
     def sync(self, names: list[str], sources: list[Any]) -> None:
         """Add every ``(name, source)`` not held yet; the bank's order is that of ``names`` afterwards."""
@@ -110,7 +116,7 @@ class SunCropBank:
         """One crop drawn with ``rng`` (ranges of a :class:`solidkit.synth.panocrops.CropConfig`)."""
         from solidkit.synth.panocrops import draw_view, render_view
 
-        k = int(rng.integers(len(self.names)))
+        k = int(rng.integers(len(self.names)) if self.weights is None else rng.choice(len(self.names), p=self.weights))
         view = draw_view(rng, config)
         image, K, roll, gain = render_view(self._panos[k].astype(np.float32), view, config)
         sun = self._suns[k]

@@ -98,6 +98,11 @@ class StageConfig:
 class TrainConfig:
     """A training run (the TOML file's keys; stages are ``[inet]`` and ``[pnet]`` tables).
 
+    ``crops`` take the ``train`` split of a folder of real panoramas and ``val_crops`` its ``val`` split
+    (:func:`solidkit.synth.panocrops.load_sources`: split by whole panorama, so no crop of a validation or
+    test panorama is trained on). ``crop_weights``: one weight per ``crops`` folder, the share of the sun stage's crops
+    drawn from it (a folder of 16 real panoramas beside 2400 rendered ones would otherwise give ~1 % of the
+    crops); empty: every source equally likely.
     ``init``: a model checkpoint or training state to start from; tensors whose name and shape match
     the configured model are copied, the others keep their fresh initialisation (logged).
     ``sun_target_deg``: width (degrees) of the sun-direction target (:func:`solidkit.model.losses.
@@ -112,6 +117,7 @@ class TrainConfig:
     seed: int = 0
     crops: list[str] = field(default_factory=list)
     crops_exclude: list[str] = field(default_factory=list)
+    crop_weights: list[float] = field(default_factory=list)
     synth: list[str] = field(default_factory=list)
     val_crops: list[str] = field(default_factory=list)
     val_synth: list[str] = field(default_factory=list)
@@ -189,6 +195,9 @@ def load_train_config(path: str | os.PathLike, **overrides: Any) -> TrainConfig:
             raise InputError(f"{path}: [{name}] needs steps >= 0, batch_size >= 1, lr > 0, 0 <= crop_fraction <= 1")
     if not 1 <= len(cfg.sun_target_deg) <= 2 or not all(0.0 < float(v) <= 90.0 for v in cfg.sun_target_deg):
         raise InputError(f"{path}: sun_target_deg must be one or two widths in (0, 90] degrees, got {cfg.sun_target_deg}")
+    if cfg.crop_weights and (len(cfg.crop_weights) != len(cfg.crops) or not all(float(w) >= 0 for w in cfg.crop_weights)
+                             or not sum(cfg.crop_weights) > 0):
+        raise InputError(f"{path}: crop_weights needs one weight >= 0 per crops folder (not all 0), got {cfg.crop_weights}")
     if cfg.sun.steps and not (cfg.crops and cfg.model_config().sun_net):
         raise InputError(f"{path}: [sun] steps need a model with a sun_net and crops = [folders of panoramas]")
     if cfg.inet.steps and cfg.inet.crop_fraction > 0 and not cfg.crops:
@@ -229,10 +238,12 @@ class _Data:
     """The crop sources and synthetic datasets of a run, with deterministic batch drawing."""
 
     def __init__(self, crops: list[str], exclude: list[str], synth: list[str], seed: int,
-                 exposure_key: float = 0.0) -> None:
+                 exposure_key: float = 0.0, *, split: str = "train", weights: list[float] | None = None) -> None:
         from solidkit.synth.dataset import SynthDataset
 
         self.crop_dirs, self.exclude, self.seed = list(crops), tuple(exclude), seed
+        self.split, self.folder_weights = split, list(weights or [])
+        self.source_folders: list[int] = []
         self.exposure_key = exposure_key or None  # the model's input exposure (SolidNetConfig.exposure_key)
         self.sources: list[Any] = []
         self.source_names: list[str] = []
@@ -247,14 +258,25 @@ class _Data:
         from solidkit.synth.panocrops import load_sources
 
         # keyed by folder too: two source folders both hold a 000000
-        found = [(f"{Path(d).name}/{s.name}", s) for d in self.crop_dirs for s in load_sources(d, self.exclude)]
+        found = [(f"{Path(d).name}/{s.name}", (k, s)) for k, d in enumerate(self.crop_dirs)
+                 for s in load_sources(d, self.exclude, self.split)]
         if names is not None:
             by = dict(found)
             missing = [n for n in names if n not in by]
             if missing:
                 raise InputError(f"crop sources of the checkpoint are gone: {missing[:3]}...")
             found = [(n, by[n]) for n in names]
-        self.sources, self.source_names = [s for _, s in found], [n for n, _ in found]
+        self.sources, self.source_names = [s for _, (_, s) in found], [n for n, _ in found]
+        self.source_folders = [k for _, (k, _) in found]
+
+    def source_weights(self) -> np.ndarray | None:
+        """Probability of each source (``folder_weights`` shared evenly within a folder); ``None``: uniform."""
+        if not self.folder_weights:
+            return None
+        folders = np.asarray(self.source_folders)
+        counts = np.bincount(folders, minlength=len(self.crop_dirs))
+        w = np.asarray(self.folder_weights, np.float64)[folders] / counts[folders]
+        return w / w.sum()
 
     def batch(self, stage: str, step: int, size: int, crop_fraction: float, rank: int = 0, world: int = 1
               ) -> tuple[str, dict[str, torch.Tensor]]:
@@ -268,6 +290,7 @@ class _Data:
                 self.bank = SunCropBank()
             if self.bank.names != self.source_names:
                 self.bank.sync(self.source_names, self.sources)
+                self.bank.weights = self.source_weights()
             return "suncrops", self.bank.batch(derive_seed(self.seed, 7), step, size,
                                                CropConfig(exposure_key=self.exposure_key), rank, world)
         rng = np.random.default_rng(derive_seed(self.seed, _STAGE_SEED[stage], step))
@@ -478,11 +501,11 @@ class Trainer:
                          f"{', ...' if len(fresh) > 6 else ''})")
         self.model.to(self.device)
         key = self.model.config.exposure_key
-        self.data = _Data(cfg.crops, cfg.crops_exclude, cfg.synth, cfg.seed, key)
+        self.data = _Data(cfg.crops, cfg.crops_exclude, cfg.synth, cfg.seed, key, weights=cfg.crop_weights)
         if cfg.crops:
             self.data.refresh()  # bad data folders fail here, before the run folder is created
-        self.val = (_Data(cfg.val_crops, [], cfg.val_synth, cfg.seed + 1, key) if (cfg.val_crops or cfg.val_synth)
-                    else None)
+        self.val = (_Data(cfg.val_crops, [], cfg.val_synth, cfg.seed + 1, key, split="val")
+                    if (cfg.val_crops or cfg.val_synth) else None)
         self.state: dict[str, Any] = {"stage": STAGES[0], "step": 0, "best": None, "seconds": 0.0, "samples": 0,
                                       "sources": None}
         self._tb = None
@@ -646,7 +669,8 @@ class Trainer:
             "config_file": c.to_toml(),
             "model": c.model, "stage": stage, "step": self.state["step"],
             "inet_steps": c.inet.steps, "pnet_steps": c.pnet.steps,
-            "data": {"crops": c.crops, "crops_exclude": c.crops_exclude, "crop_sources": len(self.data.sources),
+            "data": {"crops": c.crops, "crops_exclude": c.crops_exclude, "crop_weights": c.crop_weights,
+                     "crop_split": self.data.split, "crop_sources": len(self.data.sources),
                      "synth": c.synth, "synth_samples": len(self.data.synth_index)},
             "samples_seen": self.state["samples"], "seconds": round(self.state["seconds"], 1),
             "hardware": f"{platform.machine()}, {os.cpu_count()} CPU cores, {c.threads} torch thread(s), "

@@ -43,13 +43,16 @@ import numpy as np
 
 from solidkit.envmap import (detect_sun, downsample, perspective_crop, read_exr, rotate, rotation_from_ypr, rotation_y,
                              tonemap, write_exr)
+from solidkit.envmap.coords import direction_from_angles
+from solidkit.envmap.io import read_panorama
 from solidkit.envmap.perspective import intrinsics_from_fov
 from solidkit.envmap.sun import luminance
 from solidkit.errors import InputError
 from solidkit.fsutil import atomic_write_text
 
-__all__ = ["metered_gain", "SourceConfig", "render_source", "real_source", "render_sources", "Source", "load_sources", "CropSampler",
-           "CropConfig", "View", "draw_view", "render_view"]
+__all__ = ["metered_gain", "SourceConfig", "render_source", "real_source", "render_sources", "Source", "CatalogSun",
+           "load_sources", "read_catalog", "real_split", "SPLITS", "CropSampler", "CropConfig", "View", "draw_view",
+           "render_view"]
 
 CACHE_SIZE = 720
 """Rendered sources kept in memory (least recently used first out; ~3.5 MB each at 512 x 1024 as
@@ -173,6 +176,46 @@ def render_sources(root: str | os.PathLike, n: int, *, seed: int = 0, shard: tup
     return counts
 
 
+@dataclass(frozen=True)
+class CatalogSun:
+    """A panorama's sun as its catalogue states it: ``visible`` and, when visible, the unit ``direction (3,)``
+    in the panorama's own (scene) frame (conventions §2)."""
+
+    visible: bool
+    direction: np.ndarray
+
+
+SPLITS = ("train", "val", "test")
+SPLIT_FILE = Path(__file__).resolve().parents[1] / "assets" / "hdr_outdoor_split.json"
+"""The split by whole panorama of the real outdoor panoramas (``../shared/data/real/hdr_outdoor``)."""
+
+
+def real_split(path: Path = SPLIT_FILE) -> dict[str, str]:
+    """``{panorama name: "train" | "val" | "test"}`` of the shipped split file."""
+    data = json.loads(Path(path).read_text())
+    return {name: split for split in SPLITS for name in data[split]}
+
+
+def read_catalog(root: str | os.PathLike) -> dict[str, CatalogSun]:
+    """``{file stem: CatalogSun}`` from ``root/catalog.json`` (records with ``file``, ``sun_visible`` and, when
+    visible, ``sun_azimuth_deg`` / ``sun_elevation_deg`` in the project's convention); ``{}`` when absent."""
+    path = Path(root) / "catalog.json"
+    if not path.is_file():
+        return {}
+    try:
+        records = json.loads(path.read_text())
+        out = {}
+        for r in records:
+            visible = bool(r["sun_visible"])
+            d = (np.asarray(direction_from_angles(math.radians(float(r["sun_azimuth_deg"])),
+                                                  math.radians(float(r["sun_elevation_deg"]))), np.float32)
+                 if visible else np.zeros(3, np.float32))
+            out[Path(r["file"]).stem] = CatalogSun(visible, d)
+    except (ValueError, KeyError, TypeError) as exc:
+        raise InputError(f"{path}: not a panorama catalogue ({type(exc).__name__}: {exc})") from None
+    return out
+
+
 @dataclass
 class Source:
     """One panorama to crop: ``scene (H, 2H, 3)`` and ``light (h, 2h, 3)`` linear, both in the scene frame.
@@ -186,6 +229,8 @@ class Source:
     path: Path | None = None
     scene: np.ndarray | None = None
     light: np.ndarray | None = None
+    sun: CatalogSun | None = None
+    """The sun measured independently of this module (a folder's ``catalog.json``); ``None``: detect it."""
 
     def load(self) -> tuple[np.ndarray, np.ndarray]:
         """``(scene, light)`` float32 arrays."""
@@ -207,30 +252,41 @@ class Source:
         return hit[0].astype(np.float32), hit[1]
 
 
-def real_source(path: str | os.PathLike, target_height: int = 128) -> Source:
-    """A real HDR panorama as its own scene and global target (area-downsampled to ``target_height``)."""
-    pano, _ = read_exr(path)
-    pano = np.clip(np.nan_to_num(pano[..., :3]), 0.0, None).astype(np.float32)
-    if pano.shape[1] != 2 * pano.shape[0] or pano.shape[0] % target_height:
+def real_source(path: str | os.PathLike, target_height: int = 128, sun: CatalogSun | None = None) -> Source:
+    """A real HDR panorama (EXR or Radiance HDR) as its own scene and global target (area-downsampled to
+    ``target_height``); ``sun``: its catalogued sun, if any."""
+    pano = read_panorama(path)
+    if pano.shape[0] % target_height:
         raise InputError(f"{path}: need an equirect panorama whose height is a multiple of {target_height}")
-    return Source(Path(path).stem, "real", Path(path), pano, downsample(pano, pano.shape[0] // target_height))
+    return Source(Path(path).stem, "real", Path(path), pano, downsample(pano, pano.shape[0] // target_height), sun)
 
 
-def load_sources(root: str | os.PathLike, exclude: tuple[str, ...] = ()) -> list[Source]:
-    """Every complete rendered source under ``root`` (sorted; read lazily), or the real EXR panoramas in it.
+def load_sources(root: str | os.PathLike, exclude: tuple[str, ...] = (), split: str | None = None) -> list[Source]:
+    """Every complete rendered source under ``root`` (sorted; read lazily), or the real HDR panoramas in it
+    (``*.exr``, ``*.hdr``; with their sun from ``root/catalog.json`` when there is one).
 
-    ``exclude``: names (folder names or EXR stems) to leave out, e.g. a held-out real panorama.
+    ``exclude``: names (folder names or file stems) to leave out, e.g. a held-out real panorama.
+    ``split``: one of :data:`SPLITS`: keep only the real panoramas of that split of the shipped split
+    file (:func:`real_split`; a panorama it does not list is kept whatever the split, as are rendered
+    sources, which are split by folder).
     """
     root = Path(root)
     if not root.is_dir():
         raise InputError(f"{root}: no such folder of panoramas")
+    if split is not None and split not in SPLITS:
+        raise InputError(f"unknown split '{split}' (expected one of {', '.join(SPLITS)})")
     metas = sorted(root.glob(f"*/{SOURCE_FILES['meta']}"))
     if metas:
         return [Source(m.parent.name, "rendered", m.parent) for m in metas if m.parent.name not in exclude]
-    exrs = [p for p in sorted(root.glob("*.exr")) if p.stem not in exclude]
-    if not exrs:
-        raise InputError(f"{root}: no rendered sources (*/source.json) and no EXR panoramas")
-    return [real_source(p) for p in exrs]
+    files = [p for p in sorted(root.iterdir()) if p.suffix.lower() in (".exr", ".hdr") and p.stem not in exclude]
+    if split is not None:
+        table = real_split()
+        files = [p for p in files if table.get(p.stem, split) == split]
+    if not files:
+        raise InputError(f"{root}: no rendered sources (*/source.json) and no HDR panoramas"
+                         + (f" of the '{split}' split" if split else ""))
+    catalog = read_catalog(root)
+    return [real_source(p, sun=catalog.get(p.stem)) for p in files]
 
 
 @dataclass
@@ -284,11 +340,18 @@ class CropSampler:
         sky = np.asarray(rotate(light, np.asarray(rotation_y(view.yaw)).T), dtype=np.float32) * gain.astype(np.float32)
         if view.flip:
             sky = sky[:, ::-1]
-        sun = detect_sun(sky)
+        if src.sun is not None:  # the catalogue's sun, turned as the crop turned the panorama
+            found = src.sun.visible
+            direction = np.asarray(rotation_y(view.yaw)).T @ src.sun.direction.astype(np.float64)
+            if view.flip:
+                direction[0] = -direction[0]
+        else:
+            sun = detect_sun(sky)
+            found, direction = sun.found, np.asarray(sun.direction if sun.found else np.zeros(3))
         return {"image": image, "K": K, "pitch": np.float32(view.pitch), "roll": np.float32(roll),
                 "yaw": np.float32(view.yaw), "sky": np.ascontiguousarray(sky, dtype=np.float32),
-                "sun_dir": (sun.direction if sun.found else np.zeros(3)).astype(np.float32),
-                "sun_visible": np.float32(sun.found), "source": src.name,
+                "sun_dir": (direction if found else np.zeros(3)).astype(np.float32),
+                "sun_visible": np.float32(found), "source": src.name,
                 "gain": np.float32(np.mean(gain))}
 
 

@@ -1,0 +1,125 @@
+"""Real HDR panoramas as crop sources: Radiance files, a catalogue's sun, the split by whole panorama, weights."""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+from solidkit.envmap.coords import angles_from_direction, coords_from_direction, direction_from_angles
+from solidkit.envmap.io import read_hdr, read_image, read_panorama
+from solidkit.errors import InputError
+from solidkit.model.suncrops import SunCropBank
+from solidkit.synth.panocrops import CropConfig, CropSampler, SPLIT_FILE, load_sources, read_catalog, real_split
+
+REAL = Path(__file__).resolve().parents[2] / "shared" / "data" / "real" / "hdr_outdoor"
+
+
+def _sky_with_sun(h: int, az_deg: float, el_deg: float, peak: float = 5.0e4) -> np.ndarray:
+    pano = np.full((h, 2 * h, 3), 0.2, np.float32)
+    pano[h // 2:] = 0.05
+    x, y = coords_from_direction(direction_from_angles(math.radians(az_deg), math.radians(el_deg)), h)
+    c, r = int(x), int(y)
+    pano[r - 1:r + 2, c - 1:c + 2] = peak
+    return pano
+
+
+def _write_hdr(path: Path, pano: np.ndarray) -> Path:
+    assert cv2.imwrite(str(path), np.ascontiguousarray(pano[..., ::-1]))
+    return path
+
+
+def test_a_radiance_file_reads_back_as_linear_rgb_within_rgbe_precision(tmp_path):
+    pano = _sky_with_sun(32, 40.0, 20.0)
+    pano[..., 0] *= 2.0  # red twice green: channel order must survive
+    img = read_hdr(_write_hdr(tmp_path / "sky.hdr", pano))
+    assert img.shape == (32, 64, 3) and img.dtype == np.float32
+    np.testing.assert_allclose(img, pano, rtol=1 / 128)
+    np.testing.assert_allclose(read_image(tmp_path / "sky.hdr")[0], img)
+    np.testing.assert_allclose(read_panorama(tmp_path / "sky.hdr"), img)
+
+
+def test_a_file_that_is_not_radiance_is_a_one_line_error(tmp_path):
+    bad = tmp_path / "bad.hdr"
+    bad.write_bytes(b"P6 not a radiance file")
+    with pytest.raises(InputError, match="not a Radiance HDR"):
+        read_hdr(bad)
+    cv2.imwrite(str(tmp_path / "wide.hdr"), np.ones((8, 8, 3), np.float32))
+    with pytest.raises(Exception, match="equirectangular"):
+        read_panorama(tmp_path / "wide.hdr")
+
+
+def _folder(tmp_path: Path) -> Path:
+    root = tmp_path / "real"
+    root.mkdir()
+    _write_hdr(root / "sunny.hdr", _sky_with_sun(128, 36.0, 25.0))
+    _write_hdr(root / "grey.hdr", np.full((128, 256, 3), 0.3, np.float32))
+    (root / "catalog.json").write_text(json.dumps([
+        {"file": "sunny.hdr", "sun_visible": True, "sun_azimuth_deg": 36.0, "sun_elevation_deg": 25.0},
+        {"file": "grey.hdr", "sun_visible": False}]))
+    return root
+
+
+def test_the_catalogue_sun_is_the_crop_target_turned_with_the_crop(tmp_path):
+    srcs = load_sources(_folder(tmp_path))
+    by = {s.name: s for s in srcs}
+    assert by["sunny"].sun.visible and not by["grey"].sun.visible
+    az, el = angles_from_direction(by["sunny"].sun.direction)
+    assert math.degrees(az) == pytest.approx(36.0) and math.degrees(el) == pytest.approx(25.0)
+    sampler = CropSampler([by["sunny"]], seed=3, config=CropConfig(exposure_key=0.18))
+    bank = SunCropBank(height=128)
+    bank.add("sunny", by["sunny"])
+    for i in range(6):
+        it = sampler(i)
+        # the target sky carries the sun where the catalogue's direction, turned by the crop, says
+        x, y = coords_from_direction(it["sun_dir"], 128)
+        peak = np.unravel_index(np.argmax(it["sky"].sum(-1)), it["sky"].shape[:2])
+        assert abs(peak[0] - y) <= 1.5 and min(abs(peak[1] - x), 256 - abs(peak[1] - x)) <= 1.5
+        crop = bank.crop(np.random.default_rng(i), CropConfig(exposure_key=0.18))
+        assert crop["sun_visible"] == 1.0 and np.linalg.norm(crop["sun_dir"]) == pytest.approx(1.0, abs=1e-5)
+    grey = SunCropBank(height=128)
+    grey.add("grey", by["grey"])
+    assert not grey.sun("grey").visible
+
+
+def test_the_shipped_split_covers_the_shared_catalogue_once_and_splits_keep_panoramas_apart():
+    table = real_split()
+    data = json.loads(SPLIT_FILE.read_text())
+    names = data["train"] + data["val"] + data["test"]
+    assert len(names) == len(set(names)) == len(table)
+    if (REAL / "catalog.json").is_file():
+        assert set(read_catalog(REAL)) == set(table)
+
+
+@pytest.mark.real
+def test_real_outdoor_splits_are_disjoint_and_every_split_has_suns_and_negatives():
+    if not REAL.is_dir():
+        pytest.skip("no ../shared/data/real/hdr_outdoor")
+    seen: dict[str, set[str]] = {}
+    for split in ("train", "val", "test"):
+        srcs = load_sources(REAL, split=split)
+        seen[split] = {s.name for s in srcs}
+        assert any(s.sun.visible for s in srcs) and any(not s.sun.visible for s in srcs)
+    assert not (seen["train"] & seen["val"]) and not (seen["train"] & seen["test"]) and not (seen["val"] & seen["test"])
+
+
+def test_an_unknown_split_and_a_bad_catalogue_are_one_line_errors(tmp_path):
+    root = _folder(tmp_path)
+    with pytest.raises(InputError, match="unknown split"):
+        load_sources(root, split="holdout")
+    (root / "catalog.json").write_text('[{"file": "sunny.hdr"}]')
+    with pytest.raises(InputError, match="not a panorama catalogue"):
+        load_sources(root)
+
+
+def test_bank_weights_set_the_share_of_crops_per_source(tmp_path):
+    srcs = load_sources(_folder(tmp_path))
+    bank = SunCropBank(height=128)
+    bank.sync([s.name for s in srcs], srcs)
+    bank.weights = np.array([0.9, 0.1]) if bank.names[0] == "sunny" else np.array([0.1, 0.9])
+    picks = [bank.crop(np.random.default_rng(i), CropConfig())["source"] for i in range(200)]
+    assert 0.8 < picks.count("sunny") / 200 < 0.97
