@@ -105,6 +105,14 @@ class SolidNetConfig:
     sun_visibility_threshold : float
         Visibility probability at or above which a sun is rendered in evaluation (tuned on a validation
         split when a checkpoint is exported; 0.5 untuned).
+    sun_in_image : bool
+        At evaluation, put the sun on a sun-like saturated blob of the image when the sun network says
+        a sun is visible and points near it (:mod:`solidkit.model.imagesun`); needs ``sun_head``.
+    sun_cone_scale : (float, float)
+        Calibrated 68 % / 90 % sun-direction cones (:mod:`solidkit.model.sununcertainty`): factors on the
+        radii holding 68 % / 90 % of the sun network's direction distribution; ``()``: uncalibrated.
+    sun_cone_in_image_deg : (float, float)
+        The 68 % / 90 % cones (degrees) of a sun put on an image blob; ``()``: uncalibrated.
     loss_variant : str
         One of :data:`LOSS_VARIANTS`.
     loss_weights : dict
@@ -132,6 +140,9 @@ class SolidNetConfig:
     sun_net: tuple[int, ...] = ()
     sun_net_size: tuple[int, int] = (96, 128)
     sun_visibility_threshold: float = 0.5
+    sun_in_image: bool = False
+    sun_cone_scale: tuple[float, ...] = ()
+    sun_cone_in_image_deg: tuple[float, ...] = ()
     loss_variant: str = "paper"
     loss_weights: dict[str, float] = field(
         default_factory=lambda: {
@@ -161,6 +172,14 @@ class SolidNetConfig:
         object.__setattr__(self, "image_size", tuple(int(s) for s in self.image_size))
         object.__setattr__(self, "sun_net", tuple(int(w) for w in self.sun_net))
         object.__setattr__(self, "sun_net_size", tuple(int(s) for s in self.sun_net_size))
+        object.__setattr__(self, "sun_cone_scale", tuple(float(s) for s in self.sun_cone_scale))
+        object.__setattr__(self, "sun_cone_in_image_deg", tuple(float(s) for s in self.sun_cone_in_image_deg))
+        for key in ("sun_cone_scale", "sun_cone_in_image_deg"):
+            v = getattr(self, key)
+            if v and (len(v) != 2 or not 0.0 < v[0] <= v[1]):
+                raise ConfigError(f"{key} must be () or two values 0 < c68 <= c90, got {v}")
+        if self.sun_in_image and not self.sun_head:
+            raise ConfigError("sun_in_image needs sun_head=True")
         if len(self.widths) < 2 or min(self.widths) < 1:
             raise ConfigError(f"widths must list at least two positive channel counts, got {self.widths}")
         if len(self.pnet_widths) < 2 or min(self.pnet_widths) < 1:

@@ -38,7 +38,9 @@ from solidkit.envmap.sh import sh_basis
 from solidkit.model.blocks import ConvBlock, Encoder, UNetDecoder, radiance_from_log, resize_to
 from solidkit.model.config import SolidNetConfig
 from solidkit.model.sunhead import SunHead, render_sun
+from solidkit.model.imagesun import put_sun_on_blob
 from solidkit.model.sunnet import SunNet
+from solidkit.model.sununcertainty import cone_radii, cones_deg
 from solidkit.model.warp import camera_rotation
 
 __all__ = ["INet", "camera_footprint_grid", "flip_pad", "image_footprint", "sh_panorama"]
@@ -223,6 +225,8 @@ class INet(nn.Module):
             out["sky"] = radiance_from_log(sky_log)
             return out
         out.update(self.sun(image, *view) if self.config.sun_net else self.sun(pooled, y))
+        if not self.training:
+            self.finish_sun(out, image, view)
         # the size is learnt from its own loss only (losses.sun_size_loss): through the radiance terms it
         # would grow to hedge an uncertain direction
         sun = render_sun(out["sun_dir"], out["sun_energy"], out["sun_sigma"].detach(), self.config.pano_height)
@@ -235,6 +239,24 @@ class INet(nn.Module):
         out["sky"] = radiance_from_log(sky_log) + sun
         out["sky_log"] = torch.log1p(out["sky"])
         return out
+
+    def finish_sun(self, out: dict[str, torch.Tensor], image: torch.Tensor,
+                           view: tuple[torch.Tensor, torch.Tensor, torch.Tensor]) -> None:
+        """The network's sun moved onto a sun-like image blob (``config.sun_in_image``; ``sun_on_blob (B,)``)
+        and its cones (``sun_cone_deg (B, 2)``: 68 % / 90 %, calibrated where the config has the scales)."""
+        on = torch.zeros(image.shape[0], dtype=torch.bool, device=image.device)
+        if self.config.sun_in_image and "sun_visible" in out:
+            out["sun_dir"], on = put_sun_on_blob(out["sun_dir"], out["sun_visible"], image, *view,
+                                                 threshold=self.config.sun_visibility_threshold,
+                                                 logits=out.get("sun_logits"))
+        out["sun_on_blob"] = on
+        if "sun_logits" in out:
+            radii = cone_radii(out["sun_logits"], out["sun_dir"])
+            cones = cones_deg(radii, self.config.sun_cone_scale) if self.config.sun_cone_scale else radii
+            if self.config.sun_cone_in_image_deg:
+                cones = torch.where(on[:, None], torch.as_tensor(self.config.sun_cone_in_image_deg).to(cones), cones)
+            out["sun_cone_radius_deg"] = radii
+            out["sun_cone_deg"] = cones
 
     @property
     def num_parameters(self) -> int:

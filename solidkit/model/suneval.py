@@ -1,0 +1,176 @@
+"""The sun on limited-field-of-view crops with a known sun: a fixed protocol, the model and its baselines.
+
+Protocol (after Hold-Geoffroy et al. 2017, who crop SUN360 panoramas): every panorama is seen by a
+camera at ``PITCH_DEG`` up with a ``HFOV_DEG`` horizontal field of view, turned so that the true sun sits
+at each of ``RELATIVE_AZIMUTHS_DEG`` from the view's forward direction (in view, beside, behind); a
+panorama without a sun is seen at the same yaws from its own forward direction. Crops are metered as a
+camera's auto-exposure would (:func:`solidkit.synth.panocrops.metered_gain`), with no jitter or flip, so
+the figures are a pure function of the panoramas.
+
+Predictors (each returns a direction in the camera's level panorama frame and whether it says "sun"):
+the model's sun (network, moved onto an image blob where its config says so, with its cones), and two
+baselines that need no training: ``constant`` (straight ahead at a fixed elevation, always "sun") and
+``brightest_column`` (the azimuth of the image column of highest mean luminance at a fixed elevation,
+always "sun").
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+import torch
+
+from solidkit.envmap.coords import (angles_from_direction, angular_distance, direction_from_angles, rotation_from_ypr,
+                                    rotation_y)
+from solidkit.envmap.perspective import project_to_pixels, rays_through_pixels
+from solidkit.envmap.sun import luminance
+from solidkit.model.suncrops import source_sun
+from solidkit.synth.panocrops import CropConfig, View, render_view
+
+__all__ = ["RELATIVE_AZIMUTHS_DEG", "PITCH_DEG", "HFOV_DEG", "BASELINE_ELEVATION_DEG", "ProtocolCrop",
+           "protocol_crops", "predict_model", "predict_constant", "predict_brightest_column", "sun_figures",
+           "wrap_deg"]
+
+RELATIVE_AZIMUTHS_DEG = (0.0, 30.0, -30.0, 90.0, -90.0, 150.0)
+PITCH_DEG = 5.0
+HFOV_DEG = 60.0
+BASELINE_ELEVATION_DEG = 20.0
+"""Elevation of the constant and brightest-column baselines (about the median sun of the training panoramas)."""
+
+
+def wrap_deg(a: Any) -> Any:
+    """Angle differences (degrees) wrapped into ``[-180, 180)``."""
+    return (np.asarray(a, np.float64) + 180.0) % 360.0 - 180.0
+
+
+@dataclass(frozen=True)
+class ProtocolCrop:
+    """A crop of the protocol: ``image (H, W, 3)`` tonemapped, ``K``, ``pitch``, ``roll`` (radians), the source
+    ``name``, the relative azimuth asked for, and the truth: ``sun (3,)`` (camera's level panorama frame;
+    zero without a sun), ``visible`` and ``in_view`` (the sun projects inside the image)."""
+
+    image: np.ndarray
+    K: np.ndarray
+    pitch: float
+    roll: float
+    name: str
+    relative_azimuth_deg: float
+    sun: np.ndarray
+    visible: bool
+    in_view: bool
+
+
+def protocol_crops(sources: list[Any], size: tuple[int, int] = (240, 320), *, exposure_key: float = 0.18,
+                   relative_azimuths_deg: tuple[float, ...] = RELATIVE_AZIMUTHS_DEG, pitch_deg: float = PITCH_DEG,
+                   hfov_deg: float = HFOV_DEG) -> list[ProtocolCrop]:
+    """The protocol's crops of ``sources`` (:class:`solidkit.synth.panocrops.Source`; the sun is the
+    catalogue's where the source has one, else the crop path's detector on its lighting)."""
+    cfg = CropConfig(width=size[1], height=size[0], exposure_key=exposure_key)
+    out = []
+    for src in sources:
+        scene, light = src.load()
+        sun = source_sun(light, getattr(src, "sun", None))
+        base = math.degrees(float(angles_from_direction(sun.direction)[0])) if sun.visible else 0.0
+        for rel in relative_azimuths_deg:
+            yaw = math.radians(base - rel)
+            view = View(yaw, math.radians(pitch_deg), 0.0, math.radians(hfov_deg), np.ones(3), False)
+            image, K, roll, _ = render_view(scene, view, cfg)
+            d = np.asarray(rotation_y(yaw)).T @ sun.direction.astype(np.float64) if sun.visible else np.zeros(3)
+            in_view = False
+            if sun.visible:
+                cam = np.asarray(rotation_from_ypr(0.0, view.pitch, 0.0)).T @ d
+                x, y, front = project_to_pixels(K.astype(np.float64), cam)
+                in_view = bool(front) and 0 <= float(x) < size[1] and 0 <= float(y) < size[0]
+            out.append(ProtocolCrop(image, K, view.pitch, roll, src.name, rel, d.astype(np.float32),
+                                    bool(sun.visible), in_view))
+    return out
+
+
+def _batch(crops: list[ProtocolCrop]) -> tuple[torch.Tensor, ...]:
+    image = torch.as_tensor(np.stack([c.image for c in crops]), dtype=torch.float32).permute(0, 3, 1, 2)
+    K = torch.as_tensor(np.stack([c.K for c in crops]), dtype=torch.float32)
+    pitch = torch.as_tensor([c.pitch for c in crops], dtype=torch.float32)
+    roll = torch.as_tensor([c.roll for c in crops], dtype=torch.float32)
+    return image, K, pitch, roll
+
+
+@torch.no_grad()
+def predict_model(model: Any, crops: list[ProtocolCrop], batch_size: int = 16) -> dict[str, np.ndarray]:
+    """The model's sun on ``crops``: ``direction (N, 3)``, ``says_sun (N,)``, ``visible_prob``, ``on_blob`` and
+    ``cone_deg (N, 2)`` (68 % / 90 %); only the sun branch runs (a model with ``config.sun_net``)."""
+    inet = model.inet
+    inet.eval()
+    keys = ("sun_dir", "sun_visible", "sun_on_blob", "sun_cone_deg")
+    acc: dict[str, list[np.ndarray]] = {k: [] for k in keys}
+    for s in range(0, len(crops), batch_size):
+        image, K, pitch, roll = _batch(crops[s:s + batch_size])
+        out = dict(inet.sun(image, K, pitch, roll))
+        inet.finish_sun(out, image, (K, pitch, roll))
+        for k in keys:
+            acc[k].append(out[k].float().numpy() if k != "sun_on_blob" else out[k].numpy())
+    prob = np.concatenate(acc["sun_visible"])
+    return {"direction": np.concatenate(acc["sun_dir"]), "visible_prob": prob,
+            "says_sun": prob >= model.config.sun_visibility_threshold,
+            "on_blob": np.concatenate(acc["sun_on_blob"]), "cone_deg": np.concatenate(acc["sun_cone_deg"])}
+
+
+def predict_constant(crops: list[ProtocolCrop], elevation_deg: float = BASELINE_ELEVATION_DEG) -> dict[str, np.ndarray]:
+    """Straight ahead at ``elevation_deg``, always "sun"."""
+    d = np.asarray(direction_from_angles(0.0, math.radians(elevation_deg)), np.float32)
+    return {"direction": np.tile(d, (len(crops), 1)), "says_sun": np.ones(len(crops), bool)}
+
+
+def predict_brightest_column(crops: list[ProtocolCrop], elevation_deg: float = BASELINE_ELEVATION_DEG
+                             ) -> dict[str, np.ndarray]:
+    """The azimuth of the image column of highest mean luminance (its ray at the principal point's row,
+    turned by the camera's pitch and roll) at ``elevation_deg``, always "sun"."""
+    from solidkit.envmap.coords import rotation_from_ypr
+
+    dirs = []
+    for c in crops:
+        col = int(np.argmax(luminance(c.image).mean(axis=0)))
+        ray = np.asarray(rays_through_pixels(c.K.astype(np.float64), np.array([col + 0.0]),
+                                             np.array([float(c.K[1, 2])])))[0]
+        az, _ = angles_from_direction(np.asarray(rotation_from_ypr(0.0, c.pitch, c.roll)) @ ray)
+        dirs.append(direction_from_angles(float(az), math.radians(elevation_deg)))
+    return {"direction": np.asarray(dirs, np.float32), "says_sun": np.ones(len(crops), bool)}
+
+
+def sun_figures(crops: list[ProtocolCrop], pred: dict[str, np.ndarray]) -> dict[str, Any]:
+    """Figures of a predictor on ``crops``: crops with a sun (``suns``) and without (``sunless``); ``found``
+    (says "sun" where there is one); the median angular / azimuth / elevation error (degrees) over the
+    found suns and over all suns (``angular_all_deg``: the direction is read even where it says no sun),
+    the median angular error by where the sun is (in the image, beside: within 100° of the view, behind);
+    ``false_suns`` over sunless crops; with cones, their coverage of the found suns' errors."""
+    vis = np.array([c.visible for c in crops])
+    in_view = np.array([c.in_view for c in crops])
+    rel = np.abs(np.array([c.relative_azimuth_deg for c in crops]))
+    true = np.stack([c.sun for c in crops]).astype(np.float64)
+    d = np.asarray(pred["direction"], np.float64)
+    says = np.asarray(pred["says_sun"], bool)
+    err = np.degrees(np.asarray(angular_distance(d, np.where(vis[:, None], true, d))))
+    (pa, pe), (ta, te) = angles_from_direction(d), angles_from_direction(np.where(vis[:, None], true, d))
+    daz, delv = np.abs(wrap_deg(np.degrees(pa - ta))), np.abs(np.degrees(pe - te))
+    found = vis & says
+    med = lambda x: float(np.median(x)) if len(x) else None  # noqa: E731
+    f: dict[str, Any] = {
+        "suns": int(vis.sum()), "sunless": int((~vis).sum()), "found": int(found.sum()),
+        "found_rate": float(found.sum() / vis.sum()) if vis.any() else None,
+        "angular_deg": med(err[found]), "azimuth_deg": med(daz[found]), "elevation_deg": med(delv[found]),
+        "angular_all_deg": med(err[vis]),
+        "in_view_deg": med(err[vis & in_view]), "in_view_n": int((vis & in_view).sum()),
+        "in_view_max_deg": float(err[vis & in_view].max()) if (vis & in_view).any() else None,
+        "beside_deg": med(err[vis & ~in_view & (rel <= 100)]), "behind_deg": med(err[vis & ~in_view & (rel > 100)]),
+        "false_suns": int((~vis & says).sum()),
+        "false_sun_rate": float((~vis & says).sum() / (~vis).sum()) if (~vis).any() else None,
+    }
+    if "cone_deg" in pred and found.any():
+        cones = np.asarray(pred["cone_deg"], np.float64)[found]
+        f["cone_coverage"] = [float(np.mean(err[found] <= cones[:, k])) for k in range(cones.shape[1])]
+        f["cone_median_deg"] = [float(np.median(cones[:, k])) for k in range(cones.shape[1])]
+    if "on_blob" in pred:
+        f["on_blob"] = int(np.asarray(pred["on_blob"])[found].sum())
+    return f
