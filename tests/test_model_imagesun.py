@@ -113,3 +113,23 @@ def test_the_protocol_puts_the_sun_where_asked_and_the_baselines_read_it():
     assert f["in_view_max_deg"] < 10.0  # elevation is fixed at 20°, the sun is at 12°
     const = suneval.sun_figures(crops, suneval.predict_constant(crops))
     assert const["behind_deg"] > 100.0
+
+
+def test_calibration_picks_settings_from_its_grids_and_leaves_the_model_as_it_was():
+    from solidkit.model.config import preset
+    from solidkit.model.solidnet import SolidNet
+
+    torch.manual_seed(0)
+    model = SolidNet(preset("small-sun")).eval()
+    before = model.config
+    srcs = [_sunny_source(az, 15.0) for az in (0.0, 90.0)]
+    grey = Source("grey", "real", None, np.full((128, 256, 3), 0.3, np.float32), np.full((128, 256, 3), 0.3, np.float32),
+                  CatalogSun(False, np.zeros(3, np.float32)))
+    domains = {"a": suneval.protocol_crops(srcs + [grey], size=(120, 160)),
+               "b": suneval.protocol_crops(srcs[:1] + [grey], size=(120, 160))}
+    cal = suneval.calibrate_sun(model, domains)
+    assert 0.05 <= cal["threshold"] <= 0.99 and 0.0 <= cal["balanced_accuracy"] <= 1.0
+    assert cal["gate_deg"] in suneval.GATE_GRID_DEG or not cal["sun_in_image"]
+    assert len(cal["trials"]) == 1 + len(suneval.GATE_GRID_DEG)
+    assert cal["n"]["a"] == {"crops": 18, "suns": 12}
+    assert model.config == before and model.inet.config == before

@@ -111,8 +111,8 @@ class SolidNetConfig:
     sun_cone_scale : (float, float)
         Calibrated 68 % / 90 % sun-direction cones (:mod:`solidkit.model.sununcertainty`): factors on the
         radii holding 68 % / 90 % of the sun network's direction distribution; ``()``: uncalibrated.
-    sun_cone_in_image_deg : (float, float)
-        The 68 % / 90 % cones (degrees) of a sun put on an image blob; ``()``: uncalibrated.
+    sun_blob_gate_deg : float
+        With ``sun_in_image``: the largest angle between the network's sun and a blob it is moved onto.
     loss_variant : str
         One of :data:`LOSS_VARIANTS`.
     loss_weights : dict
@@ -142,7 +142,7 @@ class SolidNetConfig:
     sun_visibility_threshold: float = 0.5
     sun_in_image: bool = False
     sun_cone_scale: tuple[float, ...] = ()
-    sun_cone_in_image_deg: tuple[float, ...] = ()
+    sun_blob_gate_deg: float = 60.0
     loss_variant: str = "paper"
     loss_weights: dict[str, float] = field(
         default_factory=lambda: {
@@ -173,11 +173,11 @@ class SolidNetConfig:
         object.__setattr__(self, "sun_net", tuple(int(w) for w in self.sun_net))
         object.__setattr__(self, "sun_net_size", tuple(int(s) for s in self.sun_net_size))
         object.__setattr__(self, "sun_cone_scale", tuple(float(s) for s in self.sun_cone_scale))
-        object.__setattr__(self, "sun_cone_in_image_deg", tuple(float(s) for s in self.sun_cone_in_image_deg))
-        for key in ("sun_cone_scale", "sun_cone_in_image_deg"):
-            v = getattr(self, key)
-            if v and (len(v) != 2 or not 0.0 < v[0] <= v[1]):
-                raise ConfigError(f"{key} must be () or two values 0 < c68 <= c90, got {v}")
+        v = self.sun_cone_scale
+        if v and (len(v) != 2 or not 0.0 < v[0] <= v[1]):
+            raise ConfigError(f"sun_cone_scale must be () or two values 0 < s68 <= s90, got {v}")
+        if not 0.0 < self.sun_blob_gate_deg <= 180.0:
+            raise ConfigError(f"sun_blob_gate_deg must be in (0, 180], got {self.sun_blob_gate_deg}")
         if self.sun_in_image and not self.sun_head:
             raise ConfigError("sun_in_image needs sun_head=True")
         if len(self.widths) < 2 or min(self.widths) < 1:

@@ -248,13 +248,11 @@ class INet(nn.Module):
         if self.config.sun_in_image and "sun_visible" in out:
             out["sun_dir"], on = put_sun_on_blob(out["sun_dir"], out["sun_visible"], image, *view,
                                                  threshold=self.config.sun_visibility_threshold,
-                                                 logits=out.get("sun_logits"))
+                                                 logits=out.get("sun_logits"), gate_deg=self.config.sun_blob_gate_deg)
         out["sun_on_blob"] = on
         if "sun_logits" in out:
             radii = cone_radii(out["sun_logits"], out["sun_dir"])
             cones = cones_deg(radii, self.config.sun_cone_scale) if self.config.sun_cone_scale else radii
-            if self.config.sun_cone_in_image_deg:
-                cones = torch.where(on[:, None], torch.as_tensor(self.config.sun_cone_in_image_deg).to(cones), cones)
             out["sun_cone_radius_deg"] = radii
             out["sun_cone_deg"] = cones
 

@@ -82,6 +82,14 @@ class SolidNet(nn.Module):
         self.inet = INet(self.config)
         self.pnet = PNet(self.config)
 
+    def reconfigure(self, **changes: Any) -> SolidNetConfig:
+        """Change evaluation-time settings of the config (``sun_visibility_threshold``, ``sun_in_image``, the
+        sun cones; stored in checkpoints) in the model and both networks; returns the previous config."""
+        old = self.config
+        cfg = old.replace(**changes)
+        self.config = self.inet.config = self.pnet.config = cfg
+        return old
+
     @property
     def num_parameters(self) -> int:
         return sum(p.numel() for p in self.parameters())

@@ -32,7 +32,7 @@ from solidkit.synth.panocrops import CropConfig, View, render_view
 
 __all__ = ["RELATIVE_AZIMUTHS_DEG", "PITCH_DEG", "HFOV_DEG", "BASELINE_ELEVATION_DEG", "ProtocolCrop",
            "protocol_crops", "predict_model", "predict_constant", "predict_brightest_column", "sun_figures",
-           "wrap_deg"]
+           "wrap_deg", "evaluate_sun_crops", "calibrate_sun"]
 
 RELATIVE_AZIMUTHS_DEG = (0.0, 30.0, -30.0, 90.0, -90.0, 150.0)
 PITCH_DEG = 5.0
@@ -174,3 +174,76 @@ def sun_figures(crops: list[ProtocolCrop], pred: dict[str, np.ndarray]) -> dict[
     if "on_blob" in pred:
         f["on_blob"] = int(np.asarray(pred["on_blob"])[found].sum())
     return f
+
+
+def evaluate_sun_crops(model: Any, crops: list[ProtocolCrop]) -> dict[str, dict[str, Any]]:
+    """:func:`sun_figures` of the model (as configured; with ``sun_in_image`` also the network alone) and of
+    the two baselines on ``crops``: ``{method: figures}``."""
+    out = {"model": sun_figures(crops, predict_model(model, crops))}
+    if model.config.sun_in_image:
+        saved = model.reconfigure(sun_in_image=False)
+        try:
+            out["model, network only"] = sun_figures(crops, predict_model(model, crops))
+        finally:
+            model.reconfigure(**saved.to_dict())
+    out["constant"] = sun_figures(crops, predict_constant(crops))
+    out["brightest column"] = sun_figures(crops, predict_brightest_column(crops))
+    return out
+
+
+GATE_GRID_DEG = (15.0, 30.0, 60.0)
+"""Blob gates tried by :func:`calibrate_sun` (besides no in-image sun at all)."""
+
+
+def _balanced_accuracy(prob: np.ndarray, vis: np.ndarray, t: float) -> float:
+    rates = ([float(np.mean(prob[vis] >= t))] if vis.any() else []) + ([float(np.mean(prob[~vis] < t))] if (~vis).any() else [])
+    return float(np.mean(rates))
+
+
+def calibrate_sun(model: Any, domains: dict[str, list[ProtocolCrop]], levels: tuple[float, ...] = (0.68, 0.90)
+                  ) -> dict[str, Any]:
+    """The sun settings of a checkpoint from validation crops of one or more ``domains`` (e.g. real and rendered
+    panoramas; each counts equally, whatever its number of crops):
+
+    1. the visibility threshold of the highest balanced accuracy (mean over domains) on a 0.05-0.99 grid;
+    2. the in-image sun (:mod:`solidkit.model.imagesun`): off, or the gate of :data:`GATE_GRID_DEG` with the
+       lowest median angular error of the found suns (mean over domains);
+    3. at those settings, the conformal 68 % / 90 % cone scales (:mod:`solidkit.model.sununcertainty`) on
+       the pooled found suns.
+
+    Returns ``{"threshold", "balanced_accuracy", "sun_in_image", "gate_deg", "cone_scale", "n", "trials"}``;
+    the model is left as it was.
+    """
+    from solidkit.model.sununcertainty import calibrate_cone_scales
+
+    saved = model.reconfigure(sun_cone_scale=(), sun_in_image=False)
+    try:
+        probs = {d: predict_model(model, c)["visible_prob"] for d, c in domains.items()}
+        vis = {d: np.array([x.visible for x in c]) for d, c in domains.items()}
+        grid = np.round(np.arange(0.05, 0.991, 0.01), 2)
+        acc = [np.mean([_balanced_accuracy(probs[d], vis[d], t) for d in domains]) for t in grid]
+        threshold = float(grid[int(np.argmax(acc))])
+        model.reconfigure(sun_visibility_threshold=threshold)
+        trials = []
+        for on, gate in [(False, saved.sun_blob_gate_deg)] + [(True, g) for g in GATE_GRID_DEG]:
+            model.reconfigure(sun_in_image=on, sun_blob_gate_deg=gate)
+            errs = [sun_figures(c, predict_model(model, c))["angular_deg"] for c in domains.values()]
+            trials.append({"sun_in_image": on, "gate_deg": gate, "angular_deg": [e for e in errs],
+                           "score": float(np.mean([90.0 if e is None else e for e in errs]))})
+        best = min(trials, key=lambda t: t["score"])
+        model.reconfigure(sun_in_image=best["sun_in_image"], sun_blob_gate_deg=best["gate_deg"])
+        errs, radii = [], []
+        for c in domains.values():
+            pred = predict_model(model, c)
+            found = np.array([x.visible for x in c]) & pred["says_sun"]
+            true = np.stack([x.sun for x in c]).astype(np.float64)
+            e = np.degrees(np.asarray(angular_distance(np.asarray(pred["direction"], np.float64), true)))
+            errs.append(e[found])
+            radii.append(pred["cone_deg"][found])  # uncalibrated: the radii themselves
+        err, rad = np.concatenate(errs), np.concatenate(radii)
+        scale = calibrate_cone_scales(err, rad, levels) if len(err) >= 10 else ()
+    finally:
+        model.reconfigure(**saved.to_dict())
+    return {"threshold": threshold, "balanced_accuracy": float(max(acc)), "sun_in_image": best["sun_in_image"],
+            "gate_deg": best["gate_deg"], "cone_scale": tuple(float(s) for s in scale), "trials": trials,
+            "n": {d: {"crops": len(c), "suns": int(vis[d].sum())} for d, c in domains.items()} | {"found_suns": int(len(err))}}

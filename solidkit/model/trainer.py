@@ -888,10 +888,7 @@ def tune_visibility_threshold(model: SolidNet, batches: list[dict[str, torch.Ten
 
 def set_visibility_threshold(model: SolidNet, threshold: float) -> None:
     """Use ``threshold`` for the sun-visibility decision in evaluation (stored in the config, hence in checkpoints)."""
-    cfg = model.config.replace(sun_visibility_threshold=float(threshold))
-    model.config = cfg
-    model.inet.config = cfg
-    model.pnet.config = cfg
+    model.reconfigure(sun_visibility_threshold=float(threshold))
 
 
 def export_checkpoint(src: str | os.PathLike, dst: str | os.PathLike, extra: dict[str, Any] | None = None,
