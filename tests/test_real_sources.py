@@ -123,3 +123,23 @@ def test_bank_weights_set_the_share_of_crops_per_source(tmp_path):
     bank.weights = np.array([0.9, 0.1]) if bank.names[0] == "sunny" else np.array([0.1, 0.9])
     picks = [bank.crop(np.random.default_rng(i), CropConfig())["source"] for i in range(200)]
     assert 0.8 < picks.count("sunny") / 200 < 0.97
+
+
+def test_eval_sun_crops_reports_the_model_beside_its_baselines(tmp_path, cli):
+    from solidkit.model.config import preset
+    from solidkit.model.solidnet import SolidNet
+
+    root = _folder(tmp_path)
+    import torch
+
+    torch.manual_seed(0)
+    SolidNet(preset("small-sun")).save(tmp_path / "m.pt", {"what": "untrained (test)"})
+    code, out, err = cli("eval", "--model", tmp_path / "m.pt", "--sun-crops", root, "-o", tmp_path / "rep", "--json")
+    assert code == 0, err
+    res = json.loads((tmp_path / "rep" / "results.json").read_text())["sun_crops"]
+    figs = res[f"{root.name} (test)"]["figures"]
+    assert set(figs) >= {"model", "constant", "brightest column"}
+    assert figs["constant"]["suns"] == 6 and figs["constant"]["sunless"] == 6 and figs["constant"]["false_suns"] == 6
+    assert "brightest column" in (tmp_path / "rep" / "report.md").read_text()
+    code, _, err = cli("eval", "--sun-crops", tmp_path / "nope", "-o", tmp_path / "rep2")
+    assert code == 2 and "not a folder" in err

@@ -34,6 +34,10 @@ def eval_command(
     panoramas: list[Path] | None = typer.Option(None, "--panoramas", help="Real HDR panorama (EXR) or a folder of them: photos "
                                                 "cropped at 8 headings, global map and sun only (repeatable)."),
     shipped_panoramas: bool = typer.Option(False, "--shipped-panoramas", help="Add the real HDR panoramas shipped with solidkit."),
+    sun_crops: list[Path] | None = typer.Option(None, "--sun-crops", help="Folder of HDR panoramas with a known sun (real "
+                                                "ones with catalog.json, e.g. ../shared/data/real/hdr_outdoor, or rendered "
+                                                "sources): the sun protocol with baselines and cone coverage (repeatable)."),
+    sun_split: str = typer.Option("test", "--sun-split", help="Split of the --sun-crops panoramas (train, val, test)."),
     limit: int | None = typer.Option(None, min=1, help="Evaluate only the first N photos of each dataset."),
     grids: int | None = typer.Option(None, min=0, help="Qualitative grids per dataset (default: every scene of a real "
                                      "test set, 6 of the other datasets)."),
@@ -56,9 +60,14 @@ def eval_command(
         from solidkit.finetune.evaluate import SHIPPED_PANORAMAS
 
         panos += sorted(SHIPPED_PANORAMAS.glob("*.exr"))
-    if testset is None and synthetic is None and not panos:
-        raise InputError("give a real test set (--testset DIR), a synthetic split (--synthetic DIR) and/or HDR panoramas "
-                         "(--panoramas, --shipped-panoramas)")
+    if testset is None and synthetic is None and not panos and not sun_crops:
+        raise InputError("give a real test set (--testset DIR), a synthetic split (--synthetic DIR), HDR panoramas "
+                         "(--panoramas, --shipped-panoramas) and/or --sun-crops FOLDER")
+    for p in sun_crops or []:
+        if not p.is_dir():
+            raise InputError(f"--sun-crops {p}: not a folder")
+    if sun_split not in ("train", "val", "test"):
+        raise InputError(f"--sun-split {sun_split!r}: expected train, val or test")
     for p in [model, *extra.values()]:
         if p is not None and not p.is_file():
             raise InputError(f"{p}: no such checkpoint")
@@ -71,7 +80,8 @@ def eval_command(
     from solidkit.finetune.report import evaluation_report
 
     res = evaluation_report(out, model, testset, synthetic, extra, limit=limit, max_grids=grids,
-                            log=lambda s: typer.echo(s, err=True), panoramas=panos)
+                            log=lambda s: typer.echo(s, err=True), panoramas=panos,
+                              sun_crops=sun_crops, sun_split=sun_split)
     if as_json:
         typer.echo(json.dumps({ds: r["summary"] for ds, r in res["results"].items()}, indent=1, default=float))
     typer.echo(f"report: {res['report']}", err=True)

@@ -337,11 +337,16 @@ def evaluation_report(
     log: Any = None,
     ablations: bool = True,
     panoramas: Sequence[str | os.PathLike] | None = None,
+    sun_crops: Sequence[str | os.PathLike] | None = None,
+    sun_split: str = "test",
 ) -> dict[str, Any]:
     """``solidkit eval``: evaluate ``model`` (default: the shipped checkpoint) and the baselines on a
     real test set and/or a synthetic split and/or photos cropped from real HDR ``panoramas`` (with ``ablations``,
     also every checkpoint shipped beside the default one); write ``results.json``, ``report.md``, ``report.html``
-    and ``figures/`` into ``out``. Returns ``{"results": {dataset: result}, "report": path}``."""
+    and ``figures/`` into ``out``. ``sun_crops``: folders of HDR panoramas (real ones with a ``catalog.json``, or
+    rendered sources) whose ``sun_split`` is seen by the sun protocol (:mod:`solidkit.model.suneval`: the model,
+    its network alone, the constant and brightest-column baselines, with the cones' coverage).
+    Returns ``{"results": {dataset: result}, "report": path}``."""
     import torch
 
     from solidkit.errors import InputError
@@ -349,8 +354,9 @@ def evaluation_report(
                                             items_from_testset, load_model, save_json, shipped_ablations)
 
     log = log or (lambda s: None)
-    if testset is None and synthetic is None and not panoramas:
-        raise InputError("give a real test set (--testset DIR), a synthetic split (--synthetic DIR) and/or HDR panoramas")
+    if testset is None and synthetic is None and not panoramas and not sun_crops:
+        raise InputError("give a real test set (--testset DIR), a synthetic split (--synthetic DIR), HDR panoramas "
+                         "and/or sun-crop folders")
     torch.set_num_threads(1)  # a 2-core machine shared with other jobs; inference is small
     datasets: dict[str, Any] = {}
     if testset is not None:
@@ -374,6 +380,15 @@ def evaluation_report(
         methods = default_methods(net, extra=extra)
         results[ds] = evaluate(items, methods, log=log)
         qual[ds] = (items, methods[0])
+    sun_results = {}
+    if sun_crops:
+        from solidkit.model.suneval import evaluate_sun_crops, protocol_crops
+        from solidkit.synth.panocrops import load_sources
+
+        for folder in sun_crops:
+            crops = protocol_crops(load_sources(folder, split=sun_split))
+            log(f"sun protocol on {folder} ({sun_split}): {len(crops)} crops")
+            sun_results[f"{Path(folder).name} ({sun_split})"] = {"crops": len(crops), "figures": evaluate_sun_crops(net, crops)}
     card = getattr(net, "card", {}) or {}
     intro = [
         f"Model: `{model or 'shipped checkpoint'}` ({net.config.name}, {net.num_parameters / 1e6:.2f} M parameters)"
@@ -382,14 +397,48 @@ def evaluation_report(
         markdown_table(["dataset", "photos", "probes", "photos with a true sun", "with a true global HDR map"],
                        [[ds, str(len(it)), str(sum(len(i.probe_ids) for i in it)), str(sum(i.sun is not None for i in it)),
                          str(sum(i.global_hdr is not None for i in it))] for ds, it in datasets.items()]),
-        "Methods: " + "; ".join(f"**{m['name']}**: {m['description']}" for m in next(iter(results.values()))["methods"]) + ".",
+        ("Methods: " + "; ".join(f"**{m['name']}**: {m['description']}" for m in next(iter(results.values()))["methods"])
+         + ".") if results else "",
     ]
+    if not results:
+        intro = intro[:1]
     sections = [("What was evaluated", "\n".join(intro))]
-    sections += evaluation_sections(results, out, qual, max_grids=max_grids)
+    sections += evaluation_sections(results, out, qual, max_grids=max_grids) if results else []
+    if sun_results:
+        sections.append(("The sun on crops with a known sun", sun_crop_section(sun_results, net.config)))
     out.mkdir(parents=True, exist_ok=True)
-    save_json(out / "results.json", {"model": str(model) if model else "shipped", "results": results})
+    save_json(out / "results.json", {"model": str(model) if model else "shipped", "results": results,
+                                     "sun_crops": sun_results})
     md, page = write_report(out, "SOLID-Net evaluation", sections)
     return {"results": results, "report": str(page), "markdown": str(md)}
+
+
+def _num(v: Any, nd: int = 1) -> str:
+    if v is None:
+        return "–"
+    if isinstance(v, (list, tuple)):
+        return " / ".join(_num(x, nd) for x in v)
+    return f"{v:.{nd}f}" if isinstance(v, float) else str(v)
+
+
+def sun_crop_section(results: dict[str, Any], config: Any) -> str:
+    """Markdown of :func:`solidkit.model.suneval.evaluate_sun_crops` results, one table per crop set."""
+    head = ["method", "sun found", "median angular ° (found)", "az / el °", "in view ° (n; max)", "beside °", "behind °",
+            "suns put in sunless crops", "68 / 90 % cone coverage", "cone median °"]
+    parts = ["Crops at pitch +5°, 60° hfov, the sun at relative azimuths 0, ±30, ±90, 150° (panoramas without a sun "
+             "at the same yaws), metered exposure (`solidkit.model.suneval`). The model: visibility threshold "
+             f"{config.sun_visibility_threshold:.2f}, in-image sun {'on' if config.sun_in_image else 'off'}, cones "
+             f"{'calibrated (scales ' + _num(list(config.sun_cone_scale), 2) + ')' if config.sun_cone_scale else 'uncalibrated'}."]
+    for name, r in results.items():
+        rows = []
+        for m, f in r["figures"].items():
+            cov = " / ".join(f"{round(100 * c)} %" for c in f["cone_coverage"]) if "cone_coverage" in f else "–"
+            rows.append([m, f"{f['found']}/{f['suns']}", _num(f["angular_deg"]),
+                         f"{_num(f['azimuth_deg'])} / {_num(f['elevation_deg'])}",
+                         f"{_num(f['in_view_deg'])} ({f['in_view_n']}; {_num(f['in_view_max_deg'])})", _num(f["beside_deg"]),
+                         _num(f["behind_deg"]), f"{f['false_suns']}/{f['sunless']}", cov, _num(f.get("cone_median_deg"))])
+        parts.append(f"**{name}**: {r['crops']} crops\n\n" + markdown_table(head, rows))
+    return "\n\n".join(parts)
 
 
 def loss_curves(result: dict[str, Any], path: Path) -> Path:
