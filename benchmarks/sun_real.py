@@ -60,6 +60,7 @@ def main() -> None:
 
     from solidkit.model.solidnet import SolidNet
     from solidkit.model.suneval import calibrate_sun, evaluate_sun_crops, protocol_crops
+    from solidkit.model.trainer import model_from_state
     from solidkit.synth.panocrops import load_sources
 
     torch.set_num_threads(1)
@@ -72,7 +73,7 @@ def main() -> None:
         "real: city.exr (held out)": protocol_crops([s for s in load_sources(REAL / "hdr_panoramas") if s.name == "city"]),
         "synthetic: rendered test sources": protocol_crops(load_sources(a.test_sources)),
     }
-    model = SolidNet.from_checkpoint(a.checkpoint)
+    model = model_from_state(a.checkpoint)
     cal = calibrate_sun(model, val)
     model.reconfigure(sun_visibility_threshold=cal["threshold"], sun_cone_scale=cal["cone_scale"],
                       sun_in_image=cal["sun_in_image"], sun_blob_gate_deg=cal["gate_deg"])

@@ -84,6 +84,7 @@ def predict_command(
         "pitch_deg": pitch,
         "roll_deg": roll,
         "sun": pred.sun.to_json(),
+        **({"sun_network": pred.extra["sun_network"]} if "sun_network" in pred.extra else {}),
         "sky": {"exr": "sky.exr", "png": "sky.png"},
         "probes": probes,
     }
@@ -99,6 +100,13 @@ def predict_command(
         if sun["found"]
         else "not found",
     )
+    net = report.get("sun_network")
+    if net and "cone_68_deg" in net:
+        table.add_row("sun network", f"azimuth {net['azimuth_deg']:.1f}°, elevation {net['elevation_deg']:.1f}°, "
+                      f"{'sun' if net.get('says_sun') else 'no sun'} (p = {net.get('visible_prob', float('nan')):.2f}), "
+                      f"68 % / 90 % cones {net['cone_68_deg']:.0f}° / {net['cone_90_deg']:.0f}°"
+                      f"{'' if net['cones_calibrated'] else ' (uncalibrated)'}"
+                      f"{', on the clipped sun in the photo' if net.get('in_image_blob') else ''}")
     for p in probes:
         table.add_row(p["exr"], f"pixel ({p['pixel'][0]:g}, {p['pixel'][1]:g}), centre {p['centre_m']} m")
     console.print(table)

@@ -95,6 +95,15 @@ def read_hdr(path: str | os.PathLike) -> np.ndarray:
 
     Reference: G. Ward, "Real Pixels", Graphics Gems II (1991): the RGBE encoding, decoded by OpenCV's
     Radiance codec. Values are as stored (the publisher's scale, not absolute radiance).
+
+    Examples
+    --------
+    >>> import tempfile
+    >>> path = Path(tempfile.mkdtemp()) / 'sky.hdr'
+    >>> rgb = np.zeros((2, 4, 3), np.float32); rgb[..., 0] = 2.0; rgb[..., 2] = 0.5
+    >>> _ = cv2.imwrite(str(path), rgb[..., ::-1].copy())
+    >>> read_hdr(path)[0, 0]  # red stays red: OpenCV's BGR is turned to RGB
+    array([2. , 0. , 0.5], dtype=float32)
     """
     path = Path(path)
     if not path.is_file():
@@ -114,7 +123,16 @@ HDR_SUFFIXES = {".exr", ".hdr", ".pic"}
 
 def read_panorama(path: str | os.PathLike) -> np.ndarray:
     """Read a linear HDR panorama (EXR or Radiance HDR) as RGB float32 ``(H, W, 3)``, negatives and
-    non-finite values set to 0; refuses an image that is not ``(H, 2H)``."""
+    non-finite values set to 0; refuses an image that is not ``(H, 2H)``.
+
+    Examples
+    --------
+    >>> import tempfile
+    >>> sky = np.full((4, 8, 3), 0.5, np.float32); sky[0, 0] = -1.0
+    >>> path = write_exr(Path(tempfile.mkdtemp()) / 'sky.exr', sky)
+    >>> float(read_panorama(path).min()), read_panorama(path).shape
+    (0.0, (4, 8, 3))
+    """
     path = Path(path)
     suffix = path.suffix.lower()
     if suffix == ".exr":

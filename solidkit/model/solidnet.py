@@ -40,7 +40,7 @@ import numpy as np
 import torch
 from torch import nn
 
-from solidkit.envmap.coords import CONVENTIONS_VERSION
+from solidkit.envmap.coords import CONVENTIONS_VERSION, angles_from_direction
 from solidkit.envmap.perspective import intrinsics_from_fov, scale_intrinsics, scale_pixel_coordinates
 from solidkit.errors import ConventionsError, InputError, SolidkitError
 from solidkit.fsutil import atomic_write_bytes
@@ -259,6 +259,19 @@ class SolidNet(nn.Module):
             t([roll]),
         )
         sky = out["sky"][0].permute(1, 2, 0).cpu().numpy() / np.float32(gain)
+        extra: dict[str, Any] = {}
+        if "sun_dir" in out:
+            az, el = angles_from_direction(out["sun_dir"][0].double().cpu().numpy())
+            net = {"azimuth_deg": math.degrees(float(az)), "elevation_deg": math.degrees(float(el))}
+            if "sun_visible" in out:
+                p = float(out["sun_visible"][0])
+                net.update(visible_prob=p, says_sun=p >= self.config.sun_visibility_threshold)
+            if "sun_cone_deg" in out:
+                c = out["sun_cone_deg"][0].cpu().numpy()
+                net.update(cone_68_deg=float(c[0]), cone_90_deg=float(c[1]), cones_calibrated=bool(self.config.sun_cone_scale))
+            if "sun_on_blob" in out:
+                net["in_image_blob"] = bool(out["sun_on_blob"][0])
+            extra["sun_network"] = net
         local = [x.permute(1, 2, 0).cpu().numpy() / np.float32(gain) for x in out["local"][0]]
         return Prediction(
             sky=sky,
@@ -266,7 +279,7 @@ class SolidNet(nn.Module):
             local=local,
             pixels=pix,
             centres=out["centres"][0].cpu().numpy(),
-            extra={"probe_valid": out["probe_valid"][0].cpu().numpy().tolist(), "exposure_gain": float(gain)},
+            extra={"probe_valid": out["probe_valid"][0].cpu().numpy().tolist(), "exposure_gain": float(gain), **extra},
         )
 
 

@@ -57,7 +57,8 @@ from solidkit.model.solidnet import SolidNet, save_checkpoint
 from solidkit.model.warp import camera_rotation
 
 __all__ = ["StageConfig", "TrainConfig", "load_train_config", "Trainer", "crop_batch", "synth_batch", "evaluate_lighting",
-           "evaluate_sun", "best_visibility_threshold", "tune_visibility_threshold", "set_visibility_threshold", "export_checkpoint"]
+           "evaluate_sun", "best_visibility_threshold", "tune_visibility_threshold", "set_visibility_threshold", "export_checkpoint",
+           "model_from_state"]
 
 STAGES = ("sun", "inet", "pnet")
 _STAGE_SEED = {"inet": 0, "pnet": 1, "sun": 2}  # batch seeds of a stage (fixed when the sun stage came)
@@ -891,16 +892,32 @@ def set_visibility_threshold(model: SolidNet, threshold: float) -> None:
     model.reconfigure(sun_visibility_threshold=float(threshold))
 
 
+def model_from_state(path: str | os.PathLike) -> SolidNet:
+    """The model of a training state (``RUN/last.pt``, resumable) or of a model checkpoint, in eval mode."""
+    path = Path(path)
+    try:
+        payload = torch.load(path, map_location="cpu", weights_only=True)
+    except Exception as exc:
+        raise InputError(f"{path}: unreadable checkpoint ({type(exc).__name__})") from None
+    if not isinstance(payload, dict) or payload.get("format") != "solidkit.train_state":
+        return SolidNet.from_checkpoint(path)
+    model = SolidNet(SolidNetConfig.from_dict(json.loads(payload["model_config"])))
+    model.load_state_dict(payload["model"])
+    model.card = {"what": "SOLID-Net trained by solidkit train", "state": json.loads(payload["state"]),
+                  "config_file": payload["config"]}
+    return model.eval()
+
+
 def export_checkpoint(src: str | os.PathLike, dst: str | os.PathLike, extra: dict[str, Any] | None = None,
                       visibility_threshold: float | None = None) -> dict[str, Any]:
-    """Write the model checkpoint ``src`` to ``dst`` (float16 weights) with ``extra`` merged into its card,
-    and ``dst``'s ``.card.json`` beside it (sha256, bytes, config, parameters, card); returns that JSON.
-    ``visibility_threshold`` (e.g. from :func:`tune_visibility_threshold`) replaces the configured one."""
+    """Write the model checkpoint or training state ``src`` to ``dst`` (float16 weights) with ``extra`` merged
+    into its card, and ``dst``'s ``.card.json`` beside it (sha256, bytes, config, parameters, card); returns that
+    JSON. ``visibility_threshold`` (e.g. from :func:`tune_visibility_threshold`) replaces the configured one."""
     from solidkit.envmap.coords import CONVENTIONS_VERSION
     from solidkit.fsutil import sha256_file
     from solidkit.model.solidnet import CHECKPOINT_VERSION
 
-    model = SolidNet.from_checkpoint(src)
+    model = model_from_state(src)
     if visibility_threshold is not None:
         set_visibility_threshold(model, visibility_threshold)
     card = {**getattr(model, "card", {}), **(extra or {})}
