@@ -31,7 +31,7 @@ import torch.nn.functional as F
 from torch import nn
 
 from solidkit.envmap.coords import direction_grid
-from solidkit.envmap.perspective import project_to_pixels, scale_intrinsics
+from solidkit.envmap.perspective import pixel_rays, project_to_pixels, scale_intrinsics
 from solidkit.model.blocks import Encoder, resize_to
 from solidkit.model.sunhead import SIGMA_MAX, SIGMA_MIN, local_soft_argmax
 from solidkit.model.warp import camera_rotation
@@ -53,10 +53,7 @@ def ray_directions(K: torch.Tensor, pitch: torch.Tensor, roll: torch.Tensor, siz
     panorama's forward direction); ``K (B, 3, 3)`` in pixels of this image.
     """
     h, w = size
-    ys, xs = torch.meshgrid(torch.arange(h, dtype=K.dtype, device=K.device),
-                            torch.arange(w, dtype=K.dtype, device=K.device), indexing="ij")
-    pix = torch.stack([xs, ys, torch.ones_like(xs)], dim=-1).reshape(-1, 3)  # (HW, 3)
-    cam = torch.einsum("bij,nj->bni", torch.linalg.inv(K), pix)
+    cam = pixel_rays(K, w, h, torch, dtype=K.dtype, device=K.device).reshape(K.shape[0], -1, 3)  # (B, HW, 3)
     world = torch.einsum("bij,bnj->bni", camera_rotation(pitch, roll).to(K.dtype), cam)
     return F.normalize(world, dim=-1).transpose(1, 2).reshape(-1, 3, h, w)
 
