@@ -112,6 +112,12 @@ def test_config_errors_are_one_line(tmp_path, sources, cli):
     bad.write_text("[inet]\nsteps = -1\n")
     with pytest.raises(InputError, match="steps >= 0"):
         load_train_config(bad)
+    bad.write_text('crops = ["a", "b"]\ncrop_weights = [1.0]\n')
+    with pytest.raises(InputError, match="one weight >= 0 per crops folder"):
+        load_train_config(bad)
+    bad.write_text('crops = ["a"]\ncrop_weights = [0.0]\n')
+    with pytest.raises(InputError, match="crop_weights"):
+        load_train_config(bad)
     bad.write_text("not toml = = 1")
     code, out, err = cli("train", bad)
     assert code == 2 and "not valid TOML" in err and len(err.strip().splitlines()) == 1
@@ -164,3 +170,14 @@ def test_a_run_is_not_resumed_with_another_model_configuration(tmp_path, sources
     t = Trainer(load_train_config(_config(tmp_path, sources, tmp_path / "run", steps=2)), progress=False, log=lines.append)
     t.run()
     assert t.state["step"] == 2 and any("without its model configuration" in x for x in lines)
+
+
+def test_folder_weights_are_shared_evenly_within_a_folder():
+    from solidkit.model.trainer import _Data
+
+    d = _Data(["a", "b"], [], [], 0, weights=[0.75, 0.25])
+    d.source_folders = [0, 0, 0, 1]
+    np.testing.assert_allclose(d.source_weights(), [0.25, 0.25, 0.25, 0.25])
+    d.source_folders = [0, 1, 1, 1]
+    np.testing.assert_allclose(d.source_weights(), [0.75, 0.25 / 3, 0.25 / 3, 0.25 / 3])
+    assert _Data(["a"], [], [], 0).source_weights() is None
