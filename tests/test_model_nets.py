@@ -53,11 +53,15 @@ def test_solidnet_shapes_and_dtypes(b):
         "sun_visible": (b,),  # the probability that a sun is visible, and its logit
         "sun_visible_logit": (b,),
         "sky_np_log": (b, 3, 128, 256),
+        # evaluation only: the sun moved onto a clipped image blob, and its 68 % / 90 % cones (degrees)
+        "sun_on_blob": (b,),
+        "sun_cone_radius_deg": (b, 2),
+        "sun_cone_deg": (b, 2),
     }
     assert set(out) == set(expect)
     for k, shape in expect.items():
         assert tuple(out[k].shape) == shape, k
-        assert out[k].dtype == (torch.bool if k == "probe_valid" else torch.float32), k
+        assert out[k].dtype == (torch.bool if k in ("probe_valid", "sun_on_blob") else torch.float32), k
         assert torch.isfinite(out[k]).all(), k
     assert ((out["albedo"] >= 0) & (out["albedo"] <= 1)).all()
     assert torch.allclose(out["normal"].norm(dim=1), torch.ones(b, 240, 320), atol=1e-4)
