@@ -46,6 +46,50 @@ def table(name: str, figures: dict) -> str:
     return "\n".join(lines) + "\n"
 
 
+def contact_sheet(crops, pred, path: Path, title: str) -> Path:
+    """The sunny crops with the true sun (green circle) and the model's (red cross; its 68 % cone dashed) where
+    they fall in the image, and the angular error; negatives with the model's answer."""
+    import math
+
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    import numpy as np
+
+    from solidkit.envmap.coords import angular_distance, rotation_from_ypr
+    from solidkit.envmap.perspective import project_to_pixels
+
+    n = len(crops)
+    cols = 6
+    rows = math.ceil(n / cols)
+    fig, axes = plt.subplots(rows, cols, figsize=(2.2 * cols, 1.75 * rows + 0.4))
+    for ax in axes.ravel():
+        ax.axis("off")
+    for k, (c, ax) in enumerate(zip(crops, axes.ravel())):
+        ax.imshow(c.image)
+        R = np.asarray(rotation_from_ypr(0.0, c.pitch, c.roll))
+        h, w = c.image.shape[:2]
+        for d, style in ((c.sun, dict(marker="o", mfc="none", mec="lime", ms=9, mew=1.5)) if c.visible else (None, None),
+                         (pred["direction"][k], dict(marker="x", color="red", ms=8, mew=1.5)) if pred["says_sun"][k] else (None, None)):
+            if d is None:
+                continue
+            x, y, front = project_to_pixels(c.K.astype(np.float64), R.T @ np.asarray(d, np.float64))
+            if front and 0 <= x < w and 0 <= y < h:
+                ax.plot([x], [y], **style)
+        if c.visible:
+            err = math.degrees(float(angular_distance(np.asarray(pred["direction"][k], np.float64), c.sun.astype(np.float64))))
+            label = f"{c.relative_azimuth_deg:+.0f}°: " + (f"{err:.0f}° off" if pred["says_sun"][k] else "missed")
+        else:
+            label = "no sun: " + ("sun put" if pred["says_sun"][k] else "none put")
+        ax.set_title(f"{c.name[:16]}\n{label}", fontsize=6.5)
+    fig.suptitle(title, fontsize=9)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--checkpoint", required=True)
@@ -90,6 +134,12 @@ def main() -> None:
         figs = evaluate_sun_crops(model, crops)
         figs["before (shipped checkpoint)"] = evaluate_sun_crops(before, crops)["model"]
         res["tests"][name] = {"crops": len(crops), "figures": figs}
+        if name.startswith("real: test"):
+            from solidkit.model.suneval import predict_model
+
+            sheet = contact_sheet(crops, predict_model(model, crops), Path(a.out + "_test_crops.png"),
+                                  "real test crops: true sun (green), the model's (red), its error")
+            md.append(f"Contact sheet: `{sheet.name}`.\n")
         md.append(table(f"{name}: {len(crops)} crops", figs))
     res["seconds"] = round(time.time() - t0, 1)
     out = Path(a.out)
