@@ -8,7 +8,8 @@ import numpy as np
 import pytest
 import torch
 
-from solidkit.envmap.coords import angles_from_direction, angular_distance, coords_from_direction, direction_from_angles
+from solidkit.envmap.coords import (angles_from_direction, angular_distance, coords_from_direction, direction_from_angles,
+                                    wrap_angle)
 from solidkit.envmap.perspective import intrinsics_from_fov
 from solidkit.model import suneval
 from solidkit.model.imagesun import image_sun_blobs, put_sun_on_blob
@@ -106,7 +107,7 @@ def test_the_protocol_puts_the_sun_where_asked_and_the_baselines_read_it():
     assert [c.relative_azimuth_deg for c in crops] == list(suneval.RELATIVE_AZIMUTHS_DEG)
     for c in crops:
         az = math.degrees(float(angles_from_direction(c.sun)[0]))
-        assert suneval.wrap_deg(az - c.relative_azimuth_deg) == pytest.approx(0.0, abs=1e-3)
+        assert wrap_angle(az - c.relative_azimuth_deg, 360.0) == pytest.approx(0.0, abs=1e-3)
     assert [c.in_view for c in crops] == [True, True, True, False, False, False]
     f = suneval.sun_figures(crops, suneval.predict_brightest_column(crops))
     assert f["suns"] == 6 and f["found"] == 6 and f["in_view_n"] == 3

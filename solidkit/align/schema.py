@@ -40,7 +40,7 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
 from solidkit.document import read_json_object, validate_versioned
-from solidkit.envmap.coords import CONVENTIONS_VERSION, rotation_from_ypr, rotation_y
+from solidkit.envmap.coords import CONVENTIONS_VERSION, rotation_from_ypr, rotation_y, wrap_angle
 from solidkit.errors import InputError
 from solidkit.fsutil import atomic_write_text
 
@@ -73,8 +73,8 @@ Matrix3 = list[list[float]]
 
 
 def wrap_deg(angle: float) -> float:
-    """``angle`` (degrees) wrapped to ``[-180, 180)``."""
-    return (float(angle) + 180.0) % 360.0 - 180.0
+    """``angle`` (degrees) wrapped to ``[-180, 180)`` (:func:`solidkit.envmap.coords.wrap_angle`)."""
+    return float(wrap_angle(float(angle), 360.0))
 
 
 def level_to_pano(yaw_deg: float) -> np.ndarray:

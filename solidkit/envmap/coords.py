@@ -25,6 +25,7 @@ CONVENTIONS_VERSION = 1
 __all__ = [
     "CONVENTIONS_VERSION",
     "namespace",
+    "wrap_angle",
     "module_namespace",
     "angles_from_coords",
     "coords_from_angles",
@@ -362,6 +363,19 @@ def rotation_from_rotvec(w: Any) -> Any:
     eye = xp.eye(3, dtype=w.dtype, device=array_api_compat.device(w))
     s, c = xp.sin(a)[..., None, None], xp.cos(a)[..., None, None]
     return eye + s * K + (1 - c) * (K @ K)
+
+
+def wrap_angle(a: Any, period: float = 2 * math.pi) -> Any:
+    """Angles (or angle differences) ``a`` wrapped into ``[-period / 2, period / 2)``; floats, arrays or
+    tensors. ``period=360.0`` for degrees; ``abs(wrap_angle(a - b))`` is the azimuth gap in ``[0, period / 2]``.
+
+    Examples
+    --------
+    >>> wrap_angle(350.0 - 10.0, 360.0), abs(wrap_angle(-179.0 - 179.0, 360.0))
+    (-20.0, 2.0)
+    """
+    half = period / 2
+    return (a + half) % period - half
 
 
 def angular_distance(a: Any, b: Any) -> Any:

@@ -24,7 +24,7 @@ import numpy as np
 import torch
 
 from solidkit.envmap.coords import (angles_from_direction, angular_distance, direction_from_angles, rotation_from_ypr,
-                                    rotation_y)
+                                    rotation_y, wrap_angle)
 from solidkit.envmap.perspective import project_to_pixels, rays_through_pixels
 from solidkit.envmap.sun import luminance
 from solidkit.model.suncrops import source_sun
@@ -32,18 +32,13 @@ from solidkit.synth.panocrops import CropConfig, View, render_view
 
 __all__ = ["RELATIVE_AZIMUTHS_DEG", "PITCH_DEG", "HFOV_DEG", "BASELINE_ELEVATION_DEG", "ProtocolCrop",
            "protocol_crops", "predict_model", "predict_constant", "predict_brightest_column", "sun_figures",
-           "wrap_deg", "evaluate_sun_crops", "calibrate_sun"]
+           "evaluate_sun_crops", "calibrate_sun"]
 
 RELATIVE_AZIMUTHS_DEG = (0.0, 30.0, -30.0, 90.0, -90.0, 150.0)
 PITCH_DEG = 5.0
 HFOV_DEG = 60.0
 BASELINE_ELEVATION_DEG = 20.0
 """Elevation of the constant and brightest-column baselines (about the median sun of the training panoramas)."""
-
-
-def wrap_deg(a: Any) -> Any:
-    """Angle differences (degrees) wrapped into ``[-180, 180)``."""
-    return (np.asarray(a, np.float64) + 180.0) % 360.0 - 180.0
 
 
 @dataclass(frozen=True)
@@ -153,7 +148,7 @@ def sun_figures(crops: list[ProtocolCrop], pred: dict[str, np.ndarray]) -> dict[
     says = np.asarray(pred["says_sun"], bool)
     err = np.degrees(np.asarray(angular_distance(d, np.where(vis[:, None], true, d))))
     (pa, pe), (ta, te) = angles_from_direction(d), angles_from_direction(np.where(vis[:, None], true, d))
-    daz, delv = np.abs(wrap_deg(np.degrees(pa - ta))), np.abs(np.degrees(pe - te))
+    daz, delv = np.abs(wrap_angle(np.degrees(pa - ta), 360.0)), np.abs(np.degrees(pe - te))
     found = vis & says
     med = lambda x: float(np.median(x)) if len(x) else None  # noqa: E731
     f: dict[str, Any] = {

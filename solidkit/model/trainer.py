@@ -413,7 +413,9 @@ crop fraction, logging) may change, and the batches after the resumption follow 
 
 def _azimuth_gap(a: Any, b: Any) -> Any:
     """``|a - b|`` of azimuths (radians; floats or tensors) wrapped into ``[0, pi]``."""
-    return abs((a - b + math.pi) % (2 * math.pi) - math.pi)
+    from solidkit.envmap.coords import wrap_angle
+
+    return abs(wrap_angle(a - b))
 
 
 @torch.no_grad()
