@@ -84,7 +84,7 @@ def contact_sheet(crops, pred, path: Path, title: str) -> Path:
             label = "no sun: " + ("sun put" if pred["says_sun"][k] else "none put")
         ax.set_title(f"{c.name[:16]}\n{label}", fontsize=6.5)
     fig.suptitle(title, fontsize=9)
-    fig.tight_layout()
+    fig.tight_layout(rect=(0, 0, 1, 0.985))
     fig.savefig(path, dpi=110)
     plt.close(fig)
     return path
