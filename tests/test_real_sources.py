@@ -143,3 +143,21 @@ def test_eval_sun_crops_reports_the_model_beside_its_baselines(tmp_path, cli):
     assert "brightest column" in (tmp_path / "rep" / "report.md").read_text()
     code, _, err = cli("eval", "--sun-crops", tmp_path / "nope", "-o", tmp_path / "rep2")
     assert code == 2 and "not a folder" in err
+
+
+@pytest.mark.real
+def test_the_shipped_checkpoint_puts_real_in_view_suns_on_the_sun_and_beats_its_baselines():
+    if not REAL.is_dir():
+        pytest.skip("no ../shared/data/real/hdr_outdoor")
+    from solidkit.model import suneval
+    from solidkit.model.solidnet import SolidNet
+
+    srcs = [s for s in load_sources(REAL, split="test") if s.sun.visible]
+    crops = suneval.protocol_crops(srcs)
+    model = SolidNet.from_checkpoint()
+    pred = suneval.predict_model(model, crops)
+    f = suneval.sun_figures(crops, pred)
+    base = suneval.sun_figures(crops, suneval.predict_brightest_column(crops))
+    assert f["in_view_n"] >= 4 and f["in_view_max_deg"] < 8.0  # found in-view suns sit on the sun
+    assert f["angular_deg"] < 0.5 * base["angular_deg"]
+    assert f["found_rate"] >= 0.75
