@@ -12,7 +12,7 @@ import pytest
 
 from solidkit.envmap.coords import angles_from_direction, coords_from_direction, direction_from_angles
 from solidkit.envmap.io import read_hdr, read_image, read_panorama
-from solidkit.errors import InputError
+from solidkit.errors import InputError, PanoramaError
 from solidkit.model.suncrops import SunCropBank
 from solidkit.synth.panocrops import CropConfig, CropSampler, SPLIT_FILE, load_sources, read_catalog, real_split
 
@@ -49,7 +49,7 @@ def test_a_file_that_is_not_radiance_is_a_one_line_error(tmp_path):
     with pytest.raises(InputError, match="not a Radiance HDR"):
         read_hdr(bad)
     cv2.imwrite(str(tmp_path / "wide.hdr"), np.ones((8, 8, 3), np.float32))
-    with pytest.raises(Exception, match="equirectangular"):
+    with pytest.raises(PanoramaError, match="equirectangular"):
         read_panorama(tmp_path / "wide.hdr")
 
 
@@ -93,6 +93,19 @@ def test_the_shipped_split_covers_the_shared_catalogue_once_and_splits_keep_pano
     assert len(names) == len(set(names)) == len(table)
     if (REAL / "catalog.json").is_file():
         assert set(read_catalog(REAL)) == set(table)
+
+
+def test_a_panorama_the_split_file_does_not_list_trains_only(tmp_path, monkeypatch):
+    import solidkit.synth.panocrops as pc
+
+    root = _folder(tmp_path)
+    monkeypatch.setattr(pc, "real_split", lambda: {"sunny": "test"})
+    assert [s.name for s in load_sources(root, split="test")] == ["sunny"]
+    assert [s.name for s in load_sources(root, split="train")] == ["grey"]
+    with pytest.raises(InputError, match="'val' split"):
+        load_sources(root, split="val")
+    monkeypatch.setattr(pc, "real_split", lambda: {"elsewhere": "test"})  # a folder the split does not cover
+    assert len(load_sources(root, split="val")) == 2
 
 
 @pytest.mark.real

@@ -241,7 +241,7 @@ class INet(nn.Module):
         return out
 
     def finish_sun(self, out: dict[str, torch.Tensor], image: torch.Tensor,
-                           view: tuple[torch.Tensor, torch.Tensor, torch.Tensor]) -> None:
+                   view: tuple[torch.Tensor, torch.Tensor, torch.Tensor]) -> None:
         """The network's sun moved onto a sun-like image blob (``config.sun_in_image``; ``sun_on_blob (B,)``)
         and its cones (``sun_cone_deg (B, 2)``: 68 % / 90 %, calibrated where the config has the scales)."""
         on = torch.zeros(image.shape[0], dtype=torch.bool, device=image.device)

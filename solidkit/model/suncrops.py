@@ -21,7 +21,6 @@ from typing import Any
 import numpy as np
 import torch
 
-from solidkit.envmap.coords import rotation_y
 from solidkit.envmap.resample import downsample
 from solidkit.envmap.sun import detect_sun
 from solidkit.errors import InputError
@@ -114,15 +113,13 @@ class SunCropBank:
 
     def crop(self, rng: np.random.Generator, config: Any) -> dict[str, Any]:
         """One crop drawn with ``rng`` (ranges of a :class:`solidkit.synth.panocrops.CropConfig`)."""
-        from solidkit.synth.panocrops import draw_view, render_view
+        from solidkit.synth.panocrops import draw_view, render_view, view_direction
 
         k = int(rng.integers(len(self.names)) if self.weights is None else rng.choice(len(self.names), p=self.weights))
         view = draw_view(rng, config)
         image, K, roll, gain = render_view(self._panos[k].astype(np.float32), view, config)
         sun = self._suns[k]
-        d = np.asarray(rotation_y(view.yaw)).T @ sun.direction.astype(np.float64)
-        if view.flip:
-            d[0] = -d[0]
+        d = view_direction(sun.direction, view)
         return {"image": image, "K": K, "pitch": np.float32(view.pitch), "roll": np.float32(roll),
                 "yaw": np.float32(view.yaw), "sun_dir": (d if sun.visible else np.zeros(3)).astype(np.float32),
                 "sun_visible": np.float32(sun.visible), "sun_energy": (sun.energy * gain).astype(np.float32),

@@ -24,11 +24,11 @@ import numpy as np
 import torch
 
 from solidkit.envmap.coords import (angles_from_direction, angular_distance, direction_from_angles, rotation_from_ypr,
-                                    rotation_y, wrap_angle)
+                                    wrap_angle)
 from solidkit.envmap.perspective import project_to_pixels, rays_through_pixels
 from solidkit.envmap.sun import luminance
 from solidkit.model.suncrops import source_sun
-from solidkit.synth.panocrops import CropConfig, View, render_view
+from solidkit.synth.panocrops import CropConfig, View, render_view, view_direction
 
 __all__ = ["RELATIVE_AZIMUTHS_DEG", "PITCH_DEG", "HFOV_DEG", "BASELINE_ELEVATION_DEG", "ProtocolCrop",
            "protocol_crops", "predict_model", "predict_constant", "predict_brightest_column", "sun_figures",
@@ -73,7 +73,7 @@ def protocol_crops(sources: list[Any], size: tuple[int, int] = (240, 320), *, ex
             yaw = math.radians(base - rel)
             view = View(yaw, math.radians(pitch_deg), 0.0, math.radians(hfov_deg), np.ones(3), False)
             image, K, roll, _ = render_view(scene, view, cfg)
-            d = np.asarray(rotation_y(yaw)).T @ sun.direction.astype(np.float64) if sun.visible else np.zeros(3)
+            d = view_direction(sun.direction, view) if sun.visible else np.zeros(3)
             in_view = False
             if sun.visible:
                 cam = np.asarray(rotation_from_ypr(0.0, view.pitch, 0.0)).T @ d

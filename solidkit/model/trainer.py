@@ -49,6 +49,7 @@ from typing import Any, Callable
 import numpy as np
 import torch
 
+from solidkit.envmap.coords import wrap_angle
 from solidkit.errors import InputError
 from solidkit.fsutil import atomic_write_bytes, atomic_write_text
 from solidkit.model.config import SolidNetConfig, preset
@@ -413,8 +414,6 @@ crop fraction, logging) may change, and the batches after the resumption follow 
 
 def _azimuth_gap(a: Any, b: Any) -> Any:
     """``|a - b|`` of azimuths (radians; floats or tensors) wrapped into ``[0, pi]``."""
-    from solidkit.envmap.coords import wrap_angle
-
     return abs(wrap_angle(a - b))
 
 

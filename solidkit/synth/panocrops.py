@@ -52,7 +52,7 @@ from solidkit.fsutil import atomic_write_text
 
 __all__ = ["metered_gain", "SourceConfig", "render_source", "real_source", "render_sources", "Source", "CatalogSun",
            "load_sources", "read_catalog", "real_split", "SPLITS", "CropSampler", "CropConfig", "View", "draw_view",
-           "render_view"]
+           "render_view", "view_direction"]
 
 CACHE_SIZE = 720
 """Rendered sources kept in memory (least recently used first out; ~3.5 MB each at 512 x 1024 as
@@ -267,8 +267,9 @@ def load_sources(root: str | os.PathLike, exclude: tuple[str, ...] = (), split: 
 
     ``exclude``: names (folder names or file stems) to leave out, e.g. a held-out real panorama.
     ``split``: one of :data:`SPLITS`: keep only the real panoramas of that split of the shipped split
-    file (:func:`real_split`; a panorama it does not list is kept whatever the split, as are rendered
-    sources, which are split by folder).
+    file (:func:`real_split`). In a folder the split file covers, a panorama it does not list (one added
+    later) belongs to ``train``, so it never leaks into validation or test; a folder it does not cover, and
+    rendered sources (split by folder), are not filtered.
     """
     root = Path(root)
     if not root.is_dir():
@@ -281,7 +282,8 @@ def load_sources(root: str | os.PathLike, exclude: tuple[str, ...] = (), split: 
     files = [p for p in sorted(root.iterdir()) if p.suffix.lower() in (".exr", ".hdr") and p.stem not in exclude]
     if split is not None:
         table = real_split()
-        files = [p for p in files if table.get(p.stem, split) == split]
+        if any(p.stem in table for p in files):  # a folder the split covers: a panorama it does not list only trains
+            files = [p for p in files if table.get(p.stem, "train") == split]
     if not files:
         raise InputError(f"{root}: no rendered sources (*/source.json) and no HDR panoramas"
                          + (f" of the '{split}' split" if split else ""))
@@ -341,10 +343,7 @@ class CropSampler:
         if view.flip:
             sky = sky[:, ::-1]
         if src.sun is not None:  # the catalogue's sun, turned as the crop turned the panorama
-            found = src.sun.visible
-            direction = np.asarray(rotation_y(view.yaw)).T @ src.sun.direction.astype(np.float64)
-            if view.flip:
-                direction[0] = -direction[0]
+            found, direction = src.sun.visible, view_direction(src.sun.direction, view)
         else:
             sun = detect_sun(sky)
             found, direction = sun.found, np.asarray(sun.direction if sun.found else np.zeros(3))
@@ -366,6 +365,15 @@ class View:
     hfov: float
     gain: np.ndarray
     flip: bool
+
+
+def view_direction(d_scene: np.ndarray, view: View) -> np.ndarray:
+    """A scene-frame direction ``d_scene (3,)`` in the camera's panorama frame of ``view``:
+    ``R_y(yaw)^T d`` (conventions §2), ``x`` negated when the view is flipped; float64 ``(3,)``."""
+    d = np.asarray(rotation_y(view.yaw)).T @ np.asarray(d_scene, np.float64)
+    if view.flip:
+        d[0] = -d[0]
+    return d
 
 
 def draw_view(rng: np.random.Generator, c: CropConfig) -> View:
