@@ -4,7 +4,7 @@ Model steps (Adam, batch 4, one torch thread, toy batches in the model's format 
 timed): I-Net on panorama crops (lighting decoders only), I-Net on full samples (all decoders), and
 P-Net (I-Net frozen, 2 probes per image), for ``small`` (sun head, located losses) and its peer in the
 same run, ``small-paper`` (the paper's sky decoder and losses at the same widths); for ``small-sun``
-(``small`` with the low-resolution sun network, ``sun_net``, as docs/train_sun_s5.toml) also the ``sun`` stage's step (the sun
+(``small`` with the low-resolution sun network, ``sun_net``, as docs/train_sun_v5.toml) also the ``sun`` stage's step (the sun
 network alone on ``192 x 256`` crops).
 
 Data paths: a crop of a real HDR panorama (:class:`solidkit.synth.panocrops.CropSampler`), a crop of a
