@@ -12,7 +12,7 @@ from solidkit.envmap.coords import direction_from_angles, direction_grid
 from solidkit.envmap.io import srgb_decode, srgb_encode
 from solidkit.errors import InputError
 from solidkit.finetune import metrics as M
-from solidkit.finetune.evaluate import EvalItem, MeanBaseline, Method, Prediction, evaluate
+from solidkit.finetune.evaluate import EvalItem, ItemPrediction, MeanBaseline, Method, evaluate
 from solidkit.finetune.finetune import FineTuneConfig, local_ldr_loss, run_finetune, scene_folds
 from solidkit.model.config import preset
 from solidkit.envmap.perspective import intrinsics_from_fov
@@ -50,7 +50,7 @@ class Oracle(Method):
     name = "oracle"
 
     def predict(self, item):
-        return Prediction(item.global_hdr, [srgb_decode(p) * 3.0 for p in item.probes_ldr])
+        return ItemPrediction(item.global_hdr, [srgb_decode(p) * 3.0 for p in item.probes_ldr])
 
 
 def test_scene_folds_never_leak_a_scene_and_test_each_once():

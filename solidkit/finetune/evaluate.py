@@ -43,7 +43,7 @@ from solidkit.finetune import metrics as M
 
 __all__ = [
     "EvalItem",
-    "Prediction",
+    "ItemPrediction",
     "Method",
     "ModelMethod",
     "GlobalAsLocal",
@@ -112,7 +112,7 @@ class EvalItem:
 
 
 @dataclass
-class Prediction:
+class ItemPrediction:
     """What a method predicts for one item: global map and local probes (linear radiance), or None."""
 
     sky: np.ndarray | None
@@ -131,7 +131,7 @@ class Method:
     def prepare(self, items: Sequence[EvalItem]) -> None:  # noqa: D401 - hook
         """Called once with the whole evaluation set before any :meth:`predict`."""
 
-    def predict(self, item: EvalItem) -> Prediction:
+    def predict(self, item: EvalItem) -> ItemPrediction:
         raise NotImplementedError
 
 
@@ -144,9 +144,9 @@ class ModelMethod(Method):
     def __init__(self, name: str, model: Any, description: str = "") -> None:
         self.name, self.model, self.kind = name, model, "model"
         self.description = description or f"{name} ({getattr(model, 'config', None) and model.config.name})"
-        self._cache: dict[str, Prediction] = {}
+        self._cache: dict[str, ItemPrediction] = {}
 
-    def predict(self, item: EvalItem) -> Prediction:
+    def predict(self, item: EvalItem) -> ItemPrediction:
         key = f"{item.scene}/{item.id}"
         if key not in self._cache:
             t0 = time.perf_counter()
@@ -154,7 +154,7 @@ class ModelMethod(Method):
             pixels = item.pixels if len(item.pixels) else np.array([[(w - 1) / 2, 0.9 * (h - 1)]])  # global map only
             pred = self.model.predict(item.image, pixels, K=item.K, pitch=item.pitch, roll=item.roll)
             local = list(pred.local)[:len(item.probe_ids)] if getattr(pred, "local", None) else None
-            self._cache[key] = Prediction(pred.sky, local, time.perf_counter() - t0,
+            self._cache[key] = ItemPrediction(pred.sky, local, time.perf_counter() - t0,
                                           {"probe_valid": (pred.extra or {}).get("probe_valid")})
         return self._cache[key]
 
@@ -169,9 +169,9 @@ class GlobalAsLocal(Method):
         self.name = f"global-as-local ({base.name})" if base.name != "solidnet" else "global-as-local"
         self.description = f"{base.name}'s predicted global map used as every local probe"
 
-    def predict(self, item: EvalItem) -> Prediction:
+    def predict(self, item: EvalItem) -> ItemPrediction:
         p = self.base.predict(item)
-        return Prediction(None, [p.sky] * len(item.pixels) if p.sky is not None else None, 0.0)
+        return ItemPrediction(None, [p.sky] * len(item.pixels) if p.sky is not None else None, 0.0)
 
 
 def _local_truth_linear(item: EvalItem, k: int) -> np.ndarray:
@@ -214,13 +214,13 @@ class MeanBaseline(Method):
         n = sum(p[1] for p in parts)
         return (sum(p[0] for p in parts) / n).astype(np.float32) if n else None
 
-    def predict(self, item: EvalItem) -> Prediction:
+    def predict(self, item: EvalItem) -> ItemPrediction:
         mean = self._mean_without(item.scene)
         if mean is None:
-            return Prediction(None, None)
+            return ItemPrediction(None, None)
         if self.what == "sky":
-            return Prediction(mean, None)
-        return Prediction(None, [mean] * len(item.pixels))
+            return ItemPrediction(mean, None)
+        return ItemPrediction(None, [mean] * len(item.pixels))
 
 
 # ------------------------------------------------------------------------------------- data sources
