@@ -68,13 +68,13 @@ def test_camera_command(tmp_path):
 
 
 def test_lens_command_writes_lens_profile(tmp_path):
-    from solidkit.calibration.boards import pixel_rays, render_board
+    from solidkit.calibration.boards import render_board, subpixel_rays
     from solidkit.camera.lens import LensModel
     from solidkit.camera.lens import load_profile as load_lens
     from solidkit.camera.lens import unproject
 
     truth = LensModel(name="t", center=(161.2, 158.7), poly=[110.0, -2.0, 1.0], max_angle_deg=95)
-    rays = pixel_rays(lambda x, y: unproject(truth, x, y)[0], (320, 320))
+    rays = subpixel_rays(lambda x, y: unproject(truth, x, y)[0], (320, 320))
     rng = np.random.default_rng(5)
     paths = []
     for i in range(6):

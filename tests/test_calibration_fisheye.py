@@ -8,7 +8,7 @@ import cv2
 import numpy as np
 import pytest
 
-from solidkit.calibration.boards import BoardView, detect_views, pixel_rays, render_board
+from solidkit.calibration.boards import BoardView, detect_views, render_board, subpixel_rays
 from solidkit.calibration.fisheye import (
     FisheyeCalibrationError,
     FisheyeProfile,
@@ -46,7 +46,7 @@ def _poses(n, seed=3):
 
 @pytest.fixture(scope="module")
 def rendered():
-    rays = pixel_rays(lambda x, y: unproject(TRUTH, x, y)[0], SIZE, supersample=2)
+    rays = subpixel_rays(lambda x, y: unproject(TRUTH, x, y)[0], SIZE, supersample=2)
     poses = _poses(9)
     imgs = [render_board(rays, SIZE, R, t, PATTERN, supersample=2) for R, t in poses]
     imgs.append(np.full(SIZE[::-1], 120, np.uint8))  # no board
@@ -170,7 +170,7 @@ def test_charuco_partial_views_recover_the_lens():
     from solidkit.calibration.boards import CharucoTarget
 
     target = CharucoTarget((7, 5))
-    rays = pixel_rays(lambda x, y: unproject(TRUTH, x, y)[0], SIZE, supersample=2)
+    rays = subpixel_rays(lambda x, y: unproject(TRUTH, x, y)[0], SIZE, supersample=2)
     rng = np.random.default_rng(7)
     imgs = []
     for _ in range(9):

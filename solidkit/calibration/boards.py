@@ -34,7 +34,7 @@ __all__ = [
     "find_corners",
     "find_charuco",
     "detect_views",
-    "pixel_rays",
+    "subpixel_rays",
     "render_board",
     "read_gray",
 ]
@@ -191,7 +191,7 @@ def detect_views(
     return views
 
 
-def pixel_rays(rays: Callable[[np.ndarray, np.ndarray], np.ndarray], size: tuple[int, int], supersample: int = 2) -> list[np.ndarray]:
+def subpixel_rays(rays: Callable[[np.ndarray, np.ndarray], np.ndarray], size: tuple[int, int], supersample: int = 2) -> list[np.ndarray]:
     """Camera rays (H, W, 3) of every sub-pixel sample used by :func:`render_board` (reuse them
     across views of one camera: the ray computation dominates rendering)."""
     w, h = size
@@ -218,7 +218,7 @@ def render_board(
     ----------
     rays : function ``(x, y) -> (..., 3)`` camera-frame ray directions of pixel coordinates
         (OpenCV convention: pixel centres at integers; rays it cannot form may be NaN), or the
-        precomputed list from :func:`pixel_rays` with the same ``size`` and ``supersample``.
+        precomputed list from :func:`subpixel_rays` with the same ``size`` and ``supersample``.
     size : (width, height).
     R, t : board pose: a board point ``X_b`` is at ``R @ X_b + t`` in the camera frame.
     pattern, square : the inner-corner count and square side (so the board has
@@ -233,7 +233,7 @@ def render_board(
     """
     w, h = size
     s = supersample
-    samples = pixel_rays(rays, size, s) if callable(rays) else list(rays)
+    samples = subpixel_rays(rays, size, s) if callable(rays) else list(rays)
     if len(samples) != s * s or samples[0].shape != (h, w, 3):
         raise ValueError("precomputed rays do not match size/supersample")
     acc = np.zeros((h, w))
