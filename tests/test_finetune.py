@@ -11,7 +11,7 @@ import torch
 from solidkit.envmap.coords import direction_from_angles, direction_grid
 from solidkit.envmap.io import srgb_decode, srgb_encode
 from solidkit.errors import InputError
-from solidkit.finetune import metrics as M
+from solidkit import metrics as M
 from solidkit.finetune.evaluate import EvalItem, ItemPrediction, MeanBaseline, Method, evaluate
 from solidkit.finetune.finetune import FineTuneConfig, local_ldr_loss, run_finetune, scene_folds
 from solidkit.model.config import preset

@@ -43,6 +43,25 @@ RULES = {
         r"-\s*\w+\[0,\s*2\]\)\s*/\s*\w+\[0,\s*0\]",
         ["np.stack([(x - K[0, 2]) / K[0, 0], (y - K[1, 2]) / K[1, 1], np.ones_like(x)], axis=-1)"],
     ),
+    "angle wrap ((a + pi) mod 2 pi - pi, (a + 180) mod 360 - 180)": (
+        "envmap/coords.py",
+        r"\+\s*(?:180(?:\.0)?|half|(?:math|np|torch)\.pi)\)\s*%\s*\(?\s*(?:360(?:\.0)?|period|2(?:\.0)?\s*\*\s*(?:math|np|torch)\.pi)",
+        ["phi = (phi + math.pi) % (2 * math.pi) - math.pi", "return (v + 180.0) % 360.0 - 180.0",
+         "daz = abs((float(phi_p) - float(phi_t) + math.pi) % (2 * math.pi) - math.pi)",
+         "own = np.abs((az - yaw + math.pi) % (2.0 * math.pi) - math.pi) <= step / 2.0",
+         "x = np.array([lat, (lon_sub + hour_angle + 180.0) % 360.0 - 180.0])"],
+    ),
+    "sun errors from the angles of two directions (azimuth gap, elevation gap)": (
+        "metrics/sun.py",
+        r"=\s*angles_from_direction\([^)]*\),\s*angles_from_direction\(",
+        ["(pa, pe), (ta, te) = angles_from_direction(d[v]), angles_from_direction(t[v])",
+         "(phi_p, th_p), (phi_t, th_t) = angles_from_direction(p), angles_from_direction(t)"],
+    ),
+    "pixel rays by inverting K": (
+        "envmap/perspective.py",
+        r"linalg\.inv\(\s*K\b|\binv\(\s*K\s*\)",
+        ["rays = pix @ torch.linalg.inv(K).transpose(-1, -2)", "Kinv = np.linalg.inv(K)"],
+    ),
     "rotation vector -> matrix (Rodrigues)": (
         "envmap/coords.py",
         r"\(1\s*-\s*(?:math|np)\.cos\(\w+\)\)\s*\*\s*\(?\s*K\s*@\s*K",

@@ -14,7 +14,7 @@ from solidkit.align.schema import body_to_pano, level_to_pano
 from solidkit.envmap.io import read_exr, read_ldr
 from solidkit.envmap.resample import resize, rotate
 from solidkit.errors import InputError
-from solidkit.finetune.metrics import exposure_scale, ldr_from_hdr
+from solidkit.metrics import exposure_scale, ldr_from_hdr
 from solidkit.labeling.store import LabelStore
 from solidkit.testset.build import build_testset, load_testset
 from solidkit.testset.schema import content_version

@@ -29,7 +29,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from solidkit.envmap.coords import angles_from_direction, coords_from_direction, rotation_from_ypr
+from solidkit.envmap.coords import angles_from_direction, coords_from_direction, rotation_from_ypr, wrap_angle
 from solidkit.envmap.io import srgb_encode
 from solidkit.envmap.perspective import intrinsics_from_fov, perspective_crop, rays_through_pixels, scale_pixel_coordinates
 from solidkit.envmap.sun import luminance
@@ -175,7 +175,7 @@ def panorama_features(pano: np.ndarray, *, n_yaw: int = 8, fov_deg: float = 75.0
             d = rays_from_pixels(pts, K) @ R.T
             # keep a keypoint only in the crop whose centre is nearest to it (within the ring)
             az, el = angles_from_direction(d)
-            own = np.abs((az - yaw + math.pi) % (2 * math.pi) - math.pi) <= step / 2.0
+            own = np.abs(wrap_angle(az - yaw)) <= step / 2.0
             if len(pitches_deg) > 1:  # and only in the ring whose pitch is nearest to its elevation
                 nearest = np.argmin([np.abs(el - math.radians(p)) for p in pitches_deg], axis=0)
                 own &= nearest == pitches_deg.index(pitch)

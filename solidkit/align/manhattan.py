@@ -30,7 +30,7 @@ import cv2
 import numpy as np
 
 from solidkit.align.features import rays_from_pixels, to_grey8
-from solidkit.envmap.coords import angles_from_direction, direction_from_angles, rotation_from_ypr
+from solidkit.envmap.coords import angles_from_direction, direction_from_angles, rotation_from_ypr, wrap_angle
 from solidkit.envmap.perspective import intrinsics_from_fov, perspective_crop, scale_intrinsics
 
 __all__ = ["VanishingFit", "line_normals", "photo_line_normals", "vanishing_azimuth"]
@@ -76,7 +76,7 @@ def line_normals(pano: np.ndarray, *, linear: bool = True, C: np.ndarray | None 
         r1 = rays_from_pixels(np.c_[x1[keep], y1[keep]], K) @ R.T @ C.T
         r2 = rays_from_pixels(np.c_[x2[keep], y2[keep]], K) @ R.T @ C.T
         az, _ = angles_from_direction(r1 + r2)
-        own = np.abs((az - yaw + math.pi) % (2.0 * math.pi) - math.pi) <= step / 2.0
+        own = np.abs(wrap_angle(az - yaw)) <= step / 2.0
         n = np.cross(r1[own], r2[own])
         norm = np.linalg.norm(n, axis=1)
         ok = norm > 1e-9

@@ -169,7 +169,7 @@ def relative_sky_yaw(a: SkyLayer, b: SkyLayer, *, min_overlap: float = 0.005, co
     local = (cost <= np.roll(cost, 1)) & (cost <= np.roll(cost, -1)) & (cost <= np.roll(cost, 2)) & (cost <= np.roll(cost, -2))
     far = local & (dist > max(3.0 * sigma, 3.0 * step)) & np.isfinite(cost)
     delta = float((cost[far].min() - c0) * n_eff / (2.0 * e_min)) if far.any() else math.inf
-    yaw = ((k + off) * step + 180.0) % 360.0 - 180.0
+    yaw = wrap_deg((k + off) * step)
     res = SkyYaw(yaw, sigma, float(n[k]) / (4.0 * math.pi), math.sqrt(e_min), delta)
     if delta < min_delta_chi2:
         return None, (f"sky ambiguous: another yaw {delta:.0f} chi2 from the best ({yaw:+.2f} deg, sigma {sigma:.2f} deg); "

@@ -3,8 +3,8 @@
 An evaluation set is a list of :class:`EvalItem` (one photo, its probe pixels and the truth), made
 from a real test set (:func:`items_from_testset`, ``testset.json`` of :mod:`solidkit.testset`) or
 from a synthetic dataset (:func:`items_from_synth`, :class:`solidkit.synth.dataset.SynthDataset`).
-Both give the same metrics (:mod:`solidkit.finetune.metrics`): synthetic probes are turned into
-LDR probes by :func:`~solidkit.finetune.metrics.simulate_ldr_probe`, so one table holds the
+Both give the same metrics (:mod:`solidkit.metrics`): synthetic probes are turned into
+LDR probes by :func:`~solidkit.metrics.simulate_ldr_probe`, so one table holds the
 sim-to-real gap.
 
 Methods (:class:`Method`), each predicting a global map and/or local probes per item:
@@ -39,7 +39,7 @@ from solidkit.envmap.coords import direction_from_angles
 from solidkit.envmap.io import read_exr, read_ldr, srgb_decode
 from solidkit.envmap.sun import luminance
 from solidkit.errors import InputError
-from solidkit.finetune import metrics as M
+from solidkit import metrics as M
 
 __all__ = [
     "EvalItem",

@@ -14,7 +14,7 @@ Protocol
         (the L1-optimal exposure, so the loss is exposure-invariant; the scale is not
         back-propagated) and compared on the unsaturated, not-too-dark pixels by an L1 of
         ``log`` radiance plus ``1 - SSIM`` of the camera tonemap (the evaluation's own comparison,
-        :func:`solidkit.finetune.metrics.local_ldr_metrics`, made differentiable);
+        :func:`solidkit.metrics.local_ldr_metrics`, made differentiable);
       * the sun direction, on photos whose label has a sun: the cross-entropy of the sun
         distribution against a 2° Gaussian at the labelled sun
         (:func:`solidkit.model.losses.sun_direction_loss`), on the sun head's logits when the model
@@ -53,7 +53,7 @@ from kornia.metrics import ssim as kornia_ssim
 from solidkit.envmap.io import srgb_decode, srgb_encode
 from solidkit.envmap.sun import LUMINANCE_WEIGHTS
 from solidkit.errors import InputError
-from solidkit.finetune import metrics as M
+from solidkit import metrics as M
 from solidkit.finetune.evaluate import EvalItem, ModelMethod, evaluate
 
 __all__ = [
@@ -169,7 +169,7 @@ def local_ldr_loss(pred: torch.Tensor, probe_ldr: torch.Tensor, saturated: torch
     """Exposure-invariant loss of HDR predictions ``(N, 3, H, W)`` against LDR probes (sRGB, [0, 1]).
 
     ``log s = median(log Y_probe - log Y_pred)`` (no gradient) over usable pixels (not
-    ``saturated (N, H, W)``, probe luminance above :data:`~solidkit.finetune.metrics.DARK_FLOOR`);
+    ``saturated (N, H, W)``, probe luminance above :data:`~solidkit.metrics.DARK_FLOOR`);
     loss = mean over them of ``|log(s pred + eps) - log(probe_lin + eps)|`` plus
     ``1 - SSIM(srgb_encode(clip(s pred)), probe)`` averaged over the unsaturated pixels, with the
     prediction replaced by the probe on saturated pixels (as the metric does).

@@ -30,7 +30,7 @@ import numpy as np
 from solidkit.envmap.coords import angles_from_direction
 from solidkit.envmap.io import tonemap
 from solidkit.envmap.sun import luminance
-from solidkit.finetune import metrics as M
+from solidkit import metrics as M
 from solidkit.finetune.evaluate import METRICS, EvalItem, Method
 from solidkit.fsutil import atomic_path, atomic_write_text
 
@@ -273,7 +273,7 @@ def write_report(folder: str | os.PathLike, title: str, sections: Sequence[tuple
 
 
 _METRIC_NOTES = """\
-How the numbers are made (`solidkit.finetune.metrics`): the sun of a predicted global map is found
+How the numbers are made (`solidkit.metrics`): the sun of a predicted global map is found
 with the paper's recipe (brightest 2 %, largest component, centroid; always answers) and with the
 package's default detector (which may say "no sun": its rate is reported, never hidden); errors
 are in degrees against the labelled sun, over the photos whose truth has a sun. Global MAE: over

@@ -21,7 +21,7 @@ from typing import Any
 
 import numpy as np
 
-from solidkit.envmap.coords import angular_distance, direction_from_angles
+from solidkit.envmap.coords import angular_distance, direction_from_angles, wrap_angle
 from solidkit.labeling.store import HUMAN_SOURCES, Change, Label, LabelStore, opinions
 from solidkit.labeling.tasks import CampaignIndex, Item
 
@@ -49,7 +49,7 @@ def distance(kind: str, a: dict[str, Any] | None, b: dict[str, Any] | None) -> f
     if kind == "probe_pixel":
         return math.hypot(a["x"] - b["x"], a["y"] - b["y"])
     if kind == "heading":
-        return abs((a["yaw_deg"] - b["yaw_deg"] + 180.0) % 360.0 - 180.0)
+        return abs(wrap_angle(a["yaw_deg"] - b["yaw_deg"], 360.0))
     raise KeyError(kind)
 
 

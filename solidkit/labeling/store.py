@@ -52,7 +52,7 @@ from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
-from solidkit.envmap.coords import CONVENTIONS_VERSION
+from solidkit.envmap.coords import CONVENTIONS_VERSION, wrap_angle
 from solidkit.errors import InputError, SolidkitError, validation_message
 
 __all__ = [
@@ -123,7 +123,7 @@ class HeadingValue(_Value):
     @field_validator("yaw_deg")
     @classmethod
     def _wrap(cls, v: float) -> float:
-        return (v + 180.0) % 360.0 - 180.0
+        return wrap_angle(v, 360.0)
 
 
 _KEYS = {

@@ -23,10 +23,10 @@ from typing import Any
 import numpy as np
 import torch
 
-from solidkit.envmap.coords import (angles_from_direction, angular_distance, direction_from_angles, rotation_from_ypr,
-                                    wrap_angle)
+from solidkit.envmap.coords import angles_from_direction, direction_from_angles, rotation_from_ypr
 from solidkit.envmap.perspective import project_to_pixels, rays_through_pixels
 from solidkit.envmap.sun import luminance
+from solidkit.metrics.sun import direction_errors
 from solidkit.model.suncrops import source_sun
 from solidkit.synth.panocrops import CropConfig, View, render_view, view_direction
 
@@ -146,9 +146,7 @@ def sun_figures(crops: list[ProtocolCrop], pred: dict[str, np.ndarray]) -> dict[
     true = np.stack([c.sun for c in crops]).astype(np.float64)
     d = np.asarray(pred["direction"], np.float64)
     says = np.asarray(pred["says_sun"], bool)
-    err = np.degrees(np.asarray(angular_distance(d, np.where(vis[:, None], true, d))))
-    (pa, pe), (ta, te) = angles_from_direction(d), angles_from_direction(np.where(vis[:, None], true, d))
-    daz, delv = np.abs(wrap_angle(np.degrees(pa - ta), 360.0)), np.abs(np.degrees(pe - te))
+    err, daz, delv = (np.degrees(e) for e in direction_errors(d, np.where(vis[:, None], true, d)))
     found = vis & says
     med = lambda x: float(np.median(x)) if len(x) else None  # noqa: E731
     f: dict[str, Any] = {
@@ -232,7 +230,7 @@ def calibrate_sun(model: Any, domains: dict[str, list[ProtocolCrop]], levels: tu
             pred = predict_model(model, c)
             found = np.array([x.visible for x in c]) & pred["says_sun"]
             true = np.stack([x.sun for x in c]).astype(np.float64)
-            e = np.degrees(np.asarray(angular_distance(np.asarray(pred["direction"], np.float64), true)))
+            e = np.degrees(direction_errors(np.asarray(pred["direction"], np.float64), true)[0])
             errs.append(e[found])
             radii.append(pred["cone_deg"][found])  # uncalibrated: the radii themselves
         err, rad = np.concatenate(errs), np.concatenate(radii)

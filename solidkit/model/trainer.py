@@ -49,11 +49,12 @@ from typing import Any, Callable
 import numpy as np
 import torch
 
-from solidkit.envmap.coords import wrap_angle
+from solidkit.envmap.sun import detect_sun
 from solidkit.errors import InputError
 from solidkit.fsutil import atomic_write_bytes, atomic_write_text
 from solidkit.model.config import SolidNetConfig, preset
-from solidkit.model.losses import solidnet_losses
+from solidkit.metrics.sun import direction_errors, sun_error
+from solidkit.model.losses import solidnet_losses, sun_energy
 from solidkit.model.solidnet import SolidNet, save_checkpoint
 from solidkit.model.warp import camera_rotation
 
@@ -363,10 +364,6 @@ def evaluate_lighting(model: SolidNet, batches: list[dict[str, torch.Tensor]]) -
     ones), median azimuth / elevation errors, median predicted / true sun energy, and the sun head's
     own direction error (``head_err_deg``, every such sky); for skies without one: their count
     (``sunless``) and the fraction where the detector finds a sun in the prediction (``false_suns``)."""
-    from solidkit.envmap import angles_from_direction, detect_sun
-    from solidkit.envmap.coords import angular_distance
-    from solidkit.model.losses import sun_energy
-
     model.eval()
     dev = next(model.parameters()).device
     l1, found, ang, daz, del_, ratio, n_sun, head, n_none, false = [], 0, [], [], [], [], 0, [], 0, 0
@@ -384,14 +381,14 @@ def evaluate_lighting(model: SolidNet, batches: list[dict[str, torch.Tensor]]) -
             n_sun += 1
             t = b["sun_dir"][i].numpy().astype(np.float64)
             if "sun_dir" in out:
-                head.append(math.degrees(float(angular_distance(out["sun_dir"][i].double().numpy(), t))))
+                head.append(math.degrees(float(direction_errors(out["sun_dir"][i].double().numpy(), t)[0])))
             if not det.found:
                 continue
             found += 1
-            ang.append(math.degrees(float(angular_distance(np.asarray(det.direction, dtype=np.float64), t))))
-            taz, tel = (float(a) for a in angles_from_direction(t))
-            daz.append(math.degrees(_azimuth_gap(det.azimuth, taz)))
-            del_.append(math.degrees(abs(det.elevation - tel)))
+            e = sun_error(det.direction, t)
+            ang.append(e.angle_deg)
+            daz.append(e.azimuth_deg)
+            del_.append(e.elevation_deg)
             pd = torch.as_tensor(det.direction, dtype=torch.float32)[None]
             e_p = sun_energy(out["sky"][i : i + 1], pd).sum()
             e_t = sun_energy(b["sky"][i : i + 1], b["sun_dir"][i : i + 1]).sum()
@@ -412,18 +409,11 @@ RESUME_FIXED = ("model", "model_overrides", "init", "seed", "batch_size", "lr", 
 crop fraction, logging) may change, and the batches after the resumption follow the new values."""
 
 
-def _azimuth_gap(a: Any, b: Any) -> Any:
-    """``|a - b|`` of azimuths (radians; floats or tensors) wrapped into ``[0, pi]``."""
-    return abs(wrap_angle(a - b))
-
-
 @torch.no_grad()
 def evaluate_sun(net: torch.nn.Module, batches: list[dict[str, torch.Tensor]]) -> dict[str, float]:
     """The sun network's figures on sun-stage batches (:meth:`solidkit.model.suncrops.SunCropBank.batch`):
     median angular / azimuth / elevation error (degrees) of its direction over crops with a sun, the
     balanced accuracy of its visibility at 0.5, and ``score = err / 90 + (1 - balanced accuracy)``."""
-    from solidkit.envmap.coords import angles_from_direction, angular_distance
-
     dirs, true, vis, prob = [], [], [], []
     for b in batches:
         out = net(b["image"], b["K"], b["pitch"], b["roll"])
@@ -434,10 +424,9 @@ def evaluate_sun(net: torch.nn.Module, batches: list[dict[str, torch.Tensor]]) -
     d, t, v, p = torch.cat(dirs), torch.cat(true), torch.cat(vis), torch.cat(prob)
     m: dict[str, float] = {"suns": float(v.sum()), "sunless": float((~v).sum())}
     if v.any():
-        err = torch.rad2deg(angular_distance(d[v].double(), t[v].double()))
-        (pa, pe), (ta, te) = angles_from_direction(d[v]), angles_from_direction(t[v])
-        m.update(head_err_deg=float(err.median()), sun_az_err_deg=float(torch.rad2deg(_azimuth_gap(pa, ta)).median()),
-                 sun_el_err_deg=float(torch.rad2deg(pe - te).abs().median()))
+        err, daz, delv = (torch.rad2deg(e) for e in direction_errors(d[v].double(), t[v].double()))
+        m.update(head_err_deg=float(err.median()), sun_az_err_deg=float(daz.median()),
+                 sun_el_err_deg=float(delv.median()))
     rates = [float((p[v] >= 0.5).float().mean())] if v.any() else []
     rates += [float((p[~v] < 0.5).float().mean())] if (~v).any() else []
     m["vis_balanced_accuracy"] = float(np.mean(rates))

@@ -31,16 +31,16 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from solidkit.envmap.coords import angles_from_direction, angular_distance, direction_from_angles
+from solidkit.envmap.coords import angles_from_direction, angular_distance, direction_from_angles, wrap_angle
 from solidkit.errors import InputError
 
-__all__ = ["SolarFix", "solar_position", "solar_direction", "direction_angles", "place_sun", "utc_offset_text"]
+__all__ = ["SolarFix", "solar_position", "solar_direction", "solar_angles_deg", "place_sun", "utc_offset_text"]
 
 TEMPERATURE_C = 12.0
 OBLIQUITY_DEG = 23.44
 
 
-def direction_angles(d: np.ndarray) -> tuple[float, float]:
+def solar_angles_deg(d: np.ndarray) -> tuple[float, float]:
     """Scene-frame unit direction ``(3,)`` -> (solar azimuth clockwise from north, elevation), degrees."""
     phi, theta = angles_from_direction(np.asarray(d, np.float64))  # the scene frame is laid out like §2
     return math.degrees(float(phi)) % 360.0, math.degrees(float(theta))
@@ -107,7 +107,7 @@ def _latitudes(sin_el: float, cos_el: float, cos_az: float, decl: np.ndarray) ->
     ok = np.abs(s) <= 1.0
     base = np.arcsin(np.clip(s, -1.0, 1.0))
     phi = np.stack([base - alpha, math.pi - base - alpha], -1)
-    phi = (phi + math.pi) % (2 * math.pi) - math.pi
+    phi = wrap_angle(phi)
     phi[~ok] = np.nan
     phi[np.abs(phi) > math.pi / 2] = np.nan
     return phi
@@ -124,7 +124,7 @@ def place_sun(direction: np.ndarray, rng: np.random.Generator, *, year: int = 20
     import pvlib
 
     target = np.asarray(direction, np.float64) / np.linalg.norm(direction)
-    az_deg, el_deg = direction_angles(target)
+    az_deg, el_deg = solar_angles_deg(target)
     if el_deg < -0.5:
         raise InputError(f"place_sun: the sun is below the horizon (elevation {el_deg:.2f}°)")
     el, az = math.radians(max(el_deg, 0.0)), math.radians(az_deg)
@@ -153,7 +153,7 @@ def place_sun(direction: np.ndarray, rng: np.random.Generator, *, year: int = 20
         eot_min = float(np.asarray(pvlib.solarposition.equation_of_time_spencer71(day)))
         utc_h = second / 3600.0
         lon_sub = -15.0 * (utc_h - 12.0 + eot_min / 60.0)
-        x = np.array([math.degrees(lat0), (lon_sub + hour_angle + 180.0) % 360.0 - 180.0])
+        x = np.array([math.degrees(lat0), wrap_angle(lon_sub + hour_angle, 360.0)])
         fix = _refine(x, when, alt, target, tol_deg)
         if fix is not None:
             return fix
@@ -168,7 +168,7 @@ def _refine(x: np.ndarray, when: dt.datetime, alt: float, target: np.ndarray, to
 
     for _ in range(12):
         x[0] = float(np.clip(x[0], -89.0, 89.0))
-        x[1] = (x[1] + 180.0) % 360.0 - 180.0
+        x[1] = wrap_angle(x[1], 360.0)
         cur = f(x)
         err = _angle(cur, target)
         if err < tol_deg:

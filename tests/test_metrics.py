@@ -1,4 +1,4 @@
-"""The evaluation metrics on hand-made cases (solidkit.finetune.metrics)."""
+"""The evaluation metrics on hand-made cases (solidkit.metrics)."""
 
 from __future__ import annotations
 
@@ -10,7 +10,8 @@ import pytest
 from solidkit.envmap.coords import direction_from_angles, direction_grid, rotation_from_ypr
 from solidkit.envmap.io import srgb_encode
 from solidkit.envmap.resample import rotate
-from solidkit.finetune import metrics as M
+from solidkit import metrics as M
+from solidkit.metrics.stats import _cluster_bootstrap
 
 H = 64
 
@@ -49,6 +50,26 @@ def test_sun_error_wraps_across_the_seam_and_counts_no_sun():
     stats = M.sun_statistics([e, M.sun_error(None, b), M.sun_error(None, b), e])
     assert stats["no_sun_rate"] == pytest.approx(0.5)
     assert stats["azimuth_deg"]["median"] == pytest.approx(10.0, abs=1e-6)
+
+
+def test_direction_errors_by_hand_and_alike_in_numpy_and_torch():
+    import torch
+
+    # 10 deg up straight ahead against level 170 deg to the right: azimuth gap 170 deg, elevation 10 deg
+    up10 = np.array([0.0, -math.sin(math.radians(10)), math.cos(math.radians(10))])
+    right170 = np.array([math.sin(math.radians(170)), 0.0, math.cos(math.radians(170))])
+    ang, az, el = (math.degrees(float(e)) for e in M.direction_errors(up10, right170))
+    assert (az, el) == (pytest.approx(170.0, abs=1e-9), pytest.approx(10.0, abs=1e-9))
+    assert ang == pytest.approx(math.degrees(math.acos(float(up10 @ right170))), abs=1e-9)
+    # across the seam: -179 deg against +179 deg is 2 deg, and the lengths of the vectors do not matter
+    a = 3.0 * np.array([math.sin(math.radians(-179)), 0.0, math.cos(math.radians(-179))])
+    b = np.array([math.sin(math.radians(179)), 0.0, math.cos(math.radians(179))])
+    assert math.degrees(float(M.direction_errors(a, b)[1])) == pytest.approx(2.0, abs=1e-9)
+    batch = np.stack([up10, a]), np.stack([right170, b])
+    got_np = M.direction_errors(*batch)
+    got_t = M.direction_errors(*(torch.as_tensor(x) for x in batch))
+    for n, t in zip(got_np, got_t):
+        assert np.allclose(n, t.numpy(), atol=1e-12)
 
 
 def test_core_detector_says_no_sun_on_an_overcast_map_where_the_paper_recipe_answers():
@@ -162,7 +183,7 @@ def test_vectorised_cluster_bootstrap_matches_the_concatenated_statistic():
     gi = np.array([0, 0, 1, 2, 2, 2, 3, 4, 4, 5, 6, 6, 6, 6, 7, 8, 8])
     boot_rng = np.random.default_rng(11)
     for stat in (np.median, np.mean):
-        got = M._cluster_bootstrap(v, gi, 9, stat, 50, np.random.default_rng(11))
+        got = _cluster_bootstrap(v, gi, 9, stat, 50, np.random.default_rng(11))
         idx = boot_rng.integers(0, 9, size=(50, 9)) if stat is np.median else np.random.default_rng(11).integers(0, 9, size=(50, 9))
         want = [stat(np.concatenate([v[gi == k] for k in row])) for row in idx]
         assert np.allclose(got, want)
