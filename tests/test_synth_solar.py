@@ -11,7 +11,7 @@ import pvlib
 import pytest
 
 from solidkit.errors import InputError
-from solidkit.synth.solar import direction_angles, place_sun, solar_direction, utc_offset_text
+from solidkit.synth.solar import place_sun, solar_angles_deg, solar_direction, utc_offset_text
 
 
 def _pvlib_direction(when: dt.datetime, lat: float, lon: float, alt: float) -> np.ndarray:
@@ -21,11 +21,11 @@ def _pvlib_direction(when: dt.datetime, lat: float, lon: float, alt: float) -> n
 
 def test_frames() -> None:
     # scene frame x east, y down, z north; azimuth clockwise from north
-    assert direction_angles(np.array([1.0, 0.0, 0.0])) == pytest.approx((90.0, 0.0))
-    assert direction_angles(np.array([0.0, 0.0, 1.0])) == pytest.approx((0.0, 0.0))
-    assert direction_angles(np.array([0.0, -1.0, 1.0]))[1] == pytest.approx(45.0)
+    assert solar_angles_deg(np.array([1.0, 0.0, 0.0])) == pytest.approx((90.0, 0.0))
+    assert solar_angles_deg(np.array([0.0, 0.0, 1.0])) == pytest.approx((0.0, 0.0))
+    assert solar_angles_deg(np.array([0.0, -1.0, 1.0]))[1] == pytest.approx(45.0)
     for az, el in [(0.0, 10.0), (123.4, 56.7), (271.0, 3.0)]:
-        assert direction_angles(solar_direction(az, el)) == pytest.approx((az, el))
+        assert solar_angles_deg(solar_direction(az, el)) == pytest.approx((az, el))
     assert utc_offset_text(-330) == "-05:30" and utc_offset_text(120) == "+02:00"
 
 

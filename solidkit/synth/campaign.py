@@ -121,7 +121,7 @@ from solidkit.synth.scene import CATEGORIES, to_mitsuba
 from solidkit.synth.truth_probes import clean_truth_probe
 from solidkit.synth.campaign_truth import (PRESETS, SCHEMA_VERSION, CampaignConfig, CampaignTruth, CaptureTruth,
                                            PhotoTruth, ProbeTruth, SceneTruth, Shot, SolarTruth, load_truth)
-from solidkit.synth.solar import direction_angles, place_sun, solar_direction, solar_position, utc_offset_text
+from solidkit.synth.solar import place_sun, solar_angles_deg, solar_direction, solar_position, utc_offset_text
 
 __all__ = ["K_SENSOR", "PRESETS", "CampaignConfig", "Shot", "ProbeTruth", "CaptureTruth", "PhotoTruth", "SceneTruth",
            "SolarTruth", "CampaignTruth", "expose", "generate_campaign", "load_truth", "open_campaign"]
@@ -286,7 +286,7 @@ def _scene_lighting(mi: Any, gen: Generator, geometry: Any, cam: Any, positions:
     attempts = cfg.sun_attempts * (4 if glass else 1)  # a glint needs the sun on the glass and at a position
     for attempt in range(attempts):
         light = gen.lighting(derive_seed(seed, s, 300 + attempt))
-        if light.sun is not None and direction_angles(light.sun)[1] < -0.5:
+        if light.sun is not None and solar_angles_deg(light.sun)[1] < -0.5:
             continue  # a sun below the horizon (an odd HDR map) has no place and time
         if glass and light.sun is None:
             continue
