@@ -284,6 +284,7 @@ def test_torch_dataset_keys_match_synth(built):
     assert batch["probe_pixels"][0].tolist() == [list(p.pixel) for p in s.probes]
     np.testing.assert_allclose(batch["sun"][0].numpy(), s.sun.direction, atol=1e-6)
     assert batch["sun_found"].tolist() == [1.0, 0.0] and batch["sun"][1].abs().sum() == 0
+    assert batch["sun_uncertainty_deg"][0].item() == pytest.approx(s.sun.uncertainty_deg or float("nan"), nan_ok=True)
     assert batch["pitch"][0].item() == pytest.approx(math.radians(s.pitch_deg))
     shared = {"image", "probes", "probe_pixels", "probe_valid", "global", "sun", "sun_found", "K", "pitch", "roll", "index"}
     assert shared <= set(batch)

@@ -45,7 +45,7 @@ class TestsetDataset(torch.utils.data.Dataset):
     probe is clipped, ``probe_pixels`` (P, 2) ``(x, y)`` in the 320x240 photo, ``probe_valid`` (P,),
     ``probe_hdr_valid`` (P,); ``global`` (3, 128, 256) HDR of the capture at the camera position
     (zeros when absent; ``global_valid``); ``sun`` (3,) unit direction in the photo's panorama
-    frame (zeros if no sun), ``sun_found`` (), ``sun_uncertainty`` () degrees (NaN if unknown);
+    frame (zeros if no sun), ``sun_found`` (), ``sun_uncertainty_deg`` () degrees (NaN if unknown);
     ``K`` (3, 3), ``pitch``, ``roll`` (radians); ``index`` (int), ``scene`` (str), ``probe_ids``
     (list of str, padded with "").
 
@@ -130,7 +130,7 @@ class TestsetDataset(torch.utils.data.Dataset):
         sun = s.sun
         item["sun"] = torch.tensor(sun.direction if sun.found and sun.direction else [0.0, 0.0, 0.0], dtype=torch.float32)
         item["sun_found"] = torch.tensor(float(sun.found))
-        item["sun_uncertainty"] = torch.tensor(float("nan") if sun.uncertainty_deg is None else sun.uncertainty_deg)
+        item["sun_uncertainty_deg"] = torch.tensor(float("nan") if sun.uncertainty_deg is None else sun.uncertainty_deg)
         item["K"] = torch.tensor(s.K, dtype=torch.float32)
         item["pitch"] = torch.tensor(math.radians(s.pitch_deg), dtype=torch.float32)
         item["roll"] = torch.tensor(math.radians(s.roll_deg), dtype=torch.float32)

@@ -67,9 +67,9 @@ def fov_outline(K: np.ndarray, size: tuple[int, int], pitch_deg: float, roll_deg
     return [ln for ln in lines if len(ln) > 1]
 
 
-def _sun_px(az: float, el: float, height: int) -> tuple[float, float]:
+def _sun_px(az_deg: float, el_deg: float, height: int) -> tuple[float, float]:
     """OpenCV drawing coordinates (pixel centres at integers) of a direction given in degrees."""
-    u, v = coords_from_angles(math.radians(az), math.radians(el), height)
+    u, v = coords_from_angles(math.radians(az_deg), math.radians(el_deg), height)
     return float(u) - 0.5, float(v) - 0.5
 
 
