@@ -161,7 +161,8 @@ def data_rates(sources: str | None, repeats: int) -> dict[str, float | None]:
 def main(argv: list[str]) -> int:
     ap = argparse.ArgumentParser()
     ap.add_argument("--repeats", type=int, default=4)
-    ap.add_argument("--sources", default="/work/data/train/src_train")
+    ap.add_argument("--sources", default=None,
+                    help="rendered sources (solidkit synth sources); without it the rendered-crop and sun-bank rates are skipped")
     ap.add_argument("--full-sample-seconds", type=float, default=25.7,
                     help="seconds per full synthetic sample (solidnet_small card: 25.7 s at 16 spp)")
     a = ap.parse_args(argv)

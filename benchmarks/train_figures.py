@@ -20,7 +20,7 @@ model with a visibility output, how often it says "sun" (probability >= its thre
 and the sun head's median azimuth error split by where the true sun is: in the image, beside it (within 100°
 of the view's azimuth) or behind the camera.
 
-    .venv/bin/python benchmarks/train_figures.py [--checkpoint PT] [--test-sources DIR] [--crops 96]
+    .venv/bin/python benchmarks/train_figures.py --test-sources DIR [--checkpoint PT] [--crops 96]
         [--synth DIR] [--exposure model|fixed|KEY] [--out benchmarks/results/train_figures.json]
 """
 
@@ -126,7 +126,7 @@ def crop_metrics(model, sampler, indices, batch_size: int = 8) -> dict:
 def main(argv: list[str]) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--checkpoint", default=None)
-    ap.add_argument("--test-sources", default="/work/data/train/src_test")
+    ap.add_argument("--test-sources", required=True, help="rendered test sources (solidkit synth sources)")
     ap.add_argument("--crops", type=int, default=96)
     ap.add_argument("--real-crops", type=int, default=48)
     ap.add_argument("--synth", default=None, help="synthetic dataset with probes for the local metrics")

@@ -102,7 +102,7 @@ def summarise(rows: list[dict]) -> dict:
 def main(argv: list[str]) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--checkpoint", default=None)
-    ap.add_argument("--sources", default="/work/data/train/src_test")
+    ap.add_argument("--sources", required=True, help="rendered sources with a known sun (solidkit synth sources)")
     ap.add_argument("--crops", type=int, default=96)
     ap.add_argument("--seed", type=int, default=99)
     ap.add_argument("--exposure", default="model", help="'model', 'fixed' or a key (as train_figures.py)")
