@@ -144,7 +144,7 @@ def evaluate(campaign_dir: str | Path, truth_path: str | Path, *, peers: bool = 
                 ours8 = np.round(ours * 255).astype(np.uint8)
                 row["psnr_db"] = psnr(np.asarray(tonemap(_radiance(ours8, md, k_sensor))), ref_t)
                 row["truth_noise_floor_db"] = noise_floor_db(ref_t)
-                render = getattr(ct.probe, "render", None)  # None: truth recipe 1 (campaigns before session 4)
+                render = getattr(ct.probe, "render", None)  # None: a truth of recipe 1 (no render record)
                 row["truth_spp"] = getattr(render, "spp", None)
                 row["truth_noise_db"] = getattr(render, "noise_psnr_db", None)  # measured (split halves)
                 if peers:

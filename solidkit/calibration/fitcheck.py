@@ -1,4 +1,4 @@
-"""Does a lens profile fit this dual-fisheye frame? The checks ``capture unwarp`` reports (issue 10 §2).
+"""Does a lens profile fit this dual-fisheye frame? The checks ``capture unwarp`` reports.
 
 Three questions, each answered from the frame itself:
 

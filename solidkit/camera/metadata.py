@@ -139,7 +139,7 @@ def level_rotation(meta: CaptureMetadata) -> np.ndarray:
 
     Ricoh stitched stills: their pose tags (maker note ``0x0003``, mirrored in GPano) record the
     body's attitude, which the camera's stitcher has already used, whatever the zenith flag
-    says. Evidence (issue 10 §3, :func:`solidkit.envmap.tilt.residual_tilt` on the shared Theta S
+    says. Evidence (:func:`solidkit.envmap.tilt.residual_tilt` on the shared Theta S
     still ``Jobsite1.JPG``, 1087 vertical edges, ±0.03°): as stored it is 1.74° off level;
     rotated by the recorded pose (pitch -0.5°, roll 0.7°) it is 2.10° off. The recorded pose
     does not describe what is left, so it is not applied; ingest and ``capture unwarp`` measure

@@ -1,1 +1,1 @@
-"""Ingest Ricoh Theta cards: metadata, dual-fisheye unwarping, HDR merging (see the Capture issue)."""
+"""Ingest Ricoh Theta cards: metadata, dual-fisheye unwarping, HDR merging."""

@@ -1,7 +1,7 @@
 """Registering the frames of a bracket before merging: global sub-pixel shifts, recorded.
 
-A handheld or bumped bracket is shifted by a pixel or so between frames (issue 10 §1: one
-frame of a real bracket was off by about (−0.7, +0.8) px and was merged unaligned, smearing
+A handheld or bumped bracket is shifted by a pixel or so between frames (on a real
+bracket one frame was off by about (−0.7, +0.8) px and was merged unaligned, smearing
 every edge into a "ghost"). Each frame is registered to the reference frame (the middle
 exposure) in two steps:
 

@@ -1,7 +1,7 @@
 """The camera's response curve estimated from the bracket being merged (no sRGB assumption).
 
 Without a calibrated curve (``--response``), merging a bracket through the sRGB inverse biases
-every frame differently (issue 10 §1: on a real film bracket the per-frame colour bias drifted
+every frame differently (on a real film bracket the per-frame colour bias drifted
 from −0.45 to +0.96 stops). With three or more 8-bit frames the bracket itself constrains the
 curve: Debevec & Malik's least-squares fit (SIGGRAPH 1997; OpenCV's ``CalibrateDebevec``
 through :func:`solidkit.calibration.response.calibrate_response`) on pixels chosen to cover the

@@ -343,7 +343,7 @@ def _write(path: Path, linear: np.ndarray, meta: dict) -> None:
 def check_image_circles(image: np.ndarray, profile: LensProfile, *, max_offset: float = 0.05,
                         radius_range: tuple[float, float] = (0.85, 1.2), min_inliers: float = 0.4,
                         max_width: int = 1536, bgr: bool = False) -> tuple[list[dict[str, float]], list[str]]:
-    """Does the frame show its image circles where the lens profile puts them? (issue 10 §2)
+    """Does the frame show its image circles where the lens profile puts them?
 
     Each lens's circle is fitted from the profile's position
     (:func:`solidkit.calibration.overlap.fit_image_circle` on linear luminance, robust to a start
@@ -355,7 +355,7 @@ def check_image_circles(image: np.ndarray, profile: LensProfile, *, max_offset: 
 
     The tolerances are loose on purpose: on noisy JPEGs of the right camera (virtual Theta V
     brackets, 1920 px) bright content at the circle's edge pulls the fit up to 16 px / +5 % off;
-    the real Theta S frame fits within 4 px / +3 %; the Gear 360 case of issue 10 §2 is 130 px off.
+    the real Theta S frame fits within 4 px / +3 %; a Gear 360 frame under a Theta V profile is 130 px off.
 
     Frames wider than ``max_width`` are fitted reduced by an integer factor (area averaging; at
     Theta V size 1/4: 0.02 s instead of 4 s, circles within about a pixel); results are in
@@ -552,7 +552,7 @@ def unwarp_file(
 
 def _frame_checks(img: np.ndarray, prof: LensProfile, saturation: float | None, bgr: bool) -> tuple:
     """Does the frame fit the profile: image circles (:func:`check_image_circles`), then seam error and
-    layout (:func:`~solidkit.calibration.fitcheck.check_profile_fit`, issue 10 §2)."""
+    layout (:func:`~solidkit.calibration.fitcheck.check_profile_fit`)."""
     circles, circle_warnings = check_image_circles(img, prof, bgr=bgr)
     fit, fit_warnings = check_profile_fit(img, prof, saturation, bgr=bgr)
     return circles, circle_warnings, fit, fit_warnings

@@ -7,7 +7,7 @@ P-Net but no layer widths. The presets:
   output) and the located losses, metered inputs (``exposure_key``) and the camera's own sky-feature
   footprint (``sky_footprint``);
 - ``small-sun``: the same with the low-resolution sun network (``sun_net``, :mod:`solidkit.model.sunnet`,
-  +0.9 M parameters) instead of the sun head (the shipped checkpoint since session 5);
+  +0.9 M parameters) instead of the sun head (the shipped checkpoint's);
 - ``small-paper``: the same widths, inputs and footprint with the paper's sky decoder and losses (the ablation);
 - ``paper``: a paper-sized configuration (standard U-Net widths 32..512, paper losses) for GPU training;
 - ``tiny`` / ``tiny-paper``: a few thousand parameters, for tests.
@@ -252,7 +252,7 @@ _SUN = {"sun_head": True, "sun_visibility": True, "loss_variant": "located", "sk
 PRESETS: dict[str, SolidNetConfig] = {
     # small widths, the sun head and the located losses
     "small": SolidNetConfig(**_SUN),
-    # the same with the low-resolution sun network instead of the sun head (session 5)
+    # the same with the low-resolution sun network instead of the sun head (the shipped checkpoint's)
     "small-sun": SolidNetConfig(**{**_SUN, "name": "small-sun", "sun_net": (16, 32, 64, 128)}),
     # the paper's sky decoder and losses at the small widths (the ablation of the sun head)
     "small-paper": SolidNetConfig(name="small-paper", sky_feature_width=16, exposure_key=0.18, sky_footprint="camera"),

@@ -6,8 +6,8 @@ after 35-48k training samples (docs/training.md), and each sample costs a pass o
 sky decoder at 240 x 320. The cues to a hidden sun (which facades are lit, where cast shadows fall, the
 sky's gradient) are large and low in frequency, so :class:`SunNet` reads them at ``96 x 128``, ~6x fewer
 pixels, in its own small encoder, trainable on its own (stage ``sun`` of :mod:`solidkit.model.trainer`):
-5.5x the samples per second of I-Net's crop step in the same benchmark run, ~15x in session 5's training
-run (``benchmarks/results/train.md``).
+5.5x the samples per second of I-Net's crop step in the same benchmark run, ~15x in the training run of
+checkpoint v5 (``benchmarks/results/train.md``).
 
 Inputs: the image resized to ``config.sun_net_size`` plus, per pixel, the unit direction of its ray in
 the camera's level panorama frame (``R_cam K^-1 (x, y, 1)``, conventions §2/§4), so the network knows

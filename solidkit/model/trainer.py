@@ -564,7 +564,7 @@ class Trainer:
                 raise InputError(f"{self.out}: holds a run of another model configuration ({', '.join(differ)}: "
                                  f"the preset changed?); start a new run with init = its last.pt")
         else:
-            self.log(f"{path}: a training state without its model configuration (before session 4); resuming with "
+            self.log(f"{path}: a training state without its model configuration (an older trainer's); resuming with "
                      f"the current preset's: exposure_key {mine['exposure_key']}, sky_footprint {mine['sky_footprint']}")
         self.model.load_state_dict(payload["model"])
         self.state = state

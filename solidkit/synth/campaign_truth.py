@@ -40,7 +40,7 @@ class CampaignConfig(BaseModel):
     pano_spp: int = 16
     probe_height: int = 128
     probe_spp: int = Field(256, description="samples per pixel of a truth probe's first render (solidkit.synth."
-                                            "truth_probes); campaigns before session 4: 32 (16 in older ones), all")
+                                            "truth_probes); truth recipe 1: 32 (16 in its first campaigns), all")
     probe_noise_db: float = Field(40.0, description="noise target of the truth probes (PSNR, paper tonemap): more "
                                                     "samples where the first render is noisier; 0: none")
     probe_max_spp: int = Field(2048, description="most samples per pixel a truth probe gets for its noise target")

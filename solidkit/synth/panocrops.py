@@ -22,7 +22,7 @@ scene is a brighter sky, so the HDR scale stays tied to the image) and a horizon
 target is mirrored in azimuth, the roll negated). With ``CropConfig.exposure_key`` the exposure is
 metered first, as a camera's auto-exposure does (:func:`metered_gain`: the view's log-average
 luminance brought to the key, Reinhard et al. 2002), then jittered; without it the gain is 1 (the
-session-3 crops: rendered street canyons came out 2.5-5 stops darker than the real panoramas, whose
+crops of checkpoints v1-v4: rendered street canyons came out 2.5-5 stops darker than the real panoramas, whose
 log-average is ~0.18, so their shadows and facades were near black). The image is the paper's tonemap of the
 perspective view (:func:`solidkit.envmap.perspective_crop`); the target is the lighting seen from
 the camera's panorama frame ``R_y(yaw)`` (conventions §2). Each crop is a pure function of
