@@ -21,7 +21,7 @@ from solidkit.calibration.camera import (
     intrinsics_from_exif,
     resize_crop,
 )
-from solidkit.calibration.profile import load_profile
+from solidkit.calibration.profile import load_calibration_profile
 from solidkit.camera.metadata import CaptureMetadata, read_metadata
 from solidkit.envmap.perspective import ideal_intrinsics, intrinsics_from_fov, scale_intrinsics
 from solidkit.errors import InputError
@@ -115,7 +115,7 @@ def test_exif_photo_profile_written_by_pillow(tmp_path):
     assert prof.source == "exif-focal-plane" and prof.matrix()[0, 0] == pytest.approx(500.0)
     assert prof.model_input_size == (320, 240) and prof.matrix(True)[0, 0] == pytest.approx(400.0)
     assert prof.hfov_deg == pytest.approx(2 * math.degrees(math.atan(200 / 500)))
-    back = load_profile(prof.save(tmp_path / "camera.json"))
+    back = load_calibration_profile(prof.save(tmp_path / "camera.json"))
     assert isinstance(back, CameraProfile) and back.K == prof.K
     assert calibrate_camera_from_photo(p, fov_deg=60).source == "fov"
     png = tmp_path / "crop.png"  # no EXIF container: only the FOV route applies

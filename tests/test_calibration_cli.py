@@ -11,7 +11,7 @@ import pytest
 from PIL import Image
 from typer.testing import CliRunner
 
-from solidkit.calibration.profile import load_profile
+from solidkit.calibration.profile import load_calibration_profile
 from solidkit.cli import app
 from solidkit.envmap.io import write_exr
 
@@ -34,7 +34,7 @@ def test_response_command(tmp_path):
         paths.append(tmp_path / f"f{i}.png")
     out = _ok(["response", *paths, "-o", tmp_path / "resp.json", "--times", "0.0625,0.25,1,4"])
     assert "monotonic" in out and (tmp_path / "resp.png").is_file()
-    prof = load_profile(tmp_path / "resp.json")
+    prof = load_calibration_profile(tmp_path / "resp.json")
     assert prof.kind == "response" and prof.array().shape == (256, 3)
     # the HDR merge reads this profile as its response curve
     from solidkit.capture.merge import load_response
@@ -50,7 +50,7 @@ def test_colour_command_with_corners(tmp_path):
     corners = ",".join(f"{v:g}" for v in CORNERS.ravel())
     out = _ok(["colour", tmp_path / "chart.exr", "-o", tmp_path / "colour.json", "--corners", corners])
     assert "CIEDE2000 ccm" in out
-    prof = load_profile(tmp_path / "colour.json")
+    prof = load_calibration_profile(tmp_path / "colour.json")
     assert prof.residuals["ciede2000_mean"]["ccm"] < 2 and prof.detection == "corners"
 
 
@@ -62,7 +62,7 @@ def test_camera_command(tmp_path):
     Image.new("RGB", (4032, 3024)).save(p, exif=exif)
     out = _ok(["camera", p, "-o", tmp_path / "cam.json"])
     assert "exif-sensor-table" in out
-    prof = load_profile(tmp_path / "cam.json")
+    prof = load_calibration_profile(tmp_path / "cam.json")
     assert prof.matrix()[0, 0] == pytest.approx(4.2 * 4032 / 5.6)
     assert prof.model_input_size == (320, 240)
 
@@ -89,7 +89,7 @@ def test_lens_command_writes_lens_profile(tmp_path):
     lp = load_lens(tmp_path / "lens.json")
     assert lp.model == "unit" and lp.reference_size == (320, 320)
     assert abs(lp.lenses[0].poly[0] / 110 - 1) < 0.01 and abs(lp.lenses[0].center[0] - 161.2) < 1
-    rec = load_profile(tmp_path / "lens.front.calibration.json")
+    rec = load_calibration_profile(tmp_path / "lens.front.calibration.json")
     assert rec.kind == "fisheye" and len(rec.provenance.inputs) == 6
     # a dual-fisheye layout: the same view in both halves of 640x320 frames -> front and back lenses
     wide = []
@@ -125,7 +125,7 @@ def test_vignetting_command_flat(tmp_path):
     write_exr(tmp_path / "flat.exr", np.repeat(flat[..., None], 3, 2).astype(np.float32))
     out = _ok(["vignetting", tmp_path / "flat.exr", "--lens-profile", "theta-s", "--method", "flat", "--degree", "1", "-o", tmp_path / "v.json"])
     assert "front" in out and "back" in out
-    prof = load_profile(tmp_path / "v.json")
+    prof = load_calibration_profile(tmp_path / "v.json")
     assert all(abs(l.coeffs[0] + 0.25) < 0.005 for l in prof.lenses)
 
 
@@ -157,7 +157,7 @@ def test_camera_command_charuco(tmp_path):
         paths.append(tmp_path / f"c{i}.png")
     out = _ok(["camera", *paths, "--charuco", "7x5", "-o", tmp_path / "cam.json"])
     assert "charuco" in out
-    prof = load_profile(tmp_path / "cam.json")
+    prof = load_calibration_profile(tmp_path / "cam.json")
     Kf = prof.matrix()
     # measured: f +0.3 %, centre off by (-0.63, +0.87) px, RMS 0.11 px (small board, 48 px/square texture)
     assert abs(Kf[0, 0] / 400 - 1) < 0.01 and abs(Kf[0, 2] - 321.0) < 1.5 and abs(Kf[1, 2] - 238.5) < 1.5

@@ -20,7 +20,7 @@ from solidkit.calibration.colour import (
     reference_linear_srgb,
     sample_patches,
 )
-from solidkit.calibration.profile import load_profile
+from solidkit.calibration.profile import load_calibration_profile
 
 MIX = np.array([[0.80, 0.15, 0.05], [0.10, 0.80, 0.10], [0.05, 0.25, 0.70]])
 CAST = np.array([1.35, 1.0, 0.55])  # warm illuminant
@@ -137,7 +137,7 @@ def test_errors_and_roundtrip(tmp_path):
     with pytest.raises(ChartError, match="clipped"):
         calibrate_colour(np.clip(img * 4, 0, 1), corners=CORNERS)
     prof = calibrate_colour(img, corners=CORNERS)
-    back = load_profile(prof.save(tmp_path / "colour.json"))
+    back = load_calibration_profile(prof.save(tmp_path / "colour.json"))
     assert isinstance(back, ColourProfile)
     np.testing.assert_allclose(back.matrix(), prof.matrix())
 

@@ -19,7 +19,7 @@ from solidkit.calibration.fisheye import (
     lens_model_from_fit,
     lens_profile_from_calibrations,
 )
-from solidkit.calibration.profile import load_profile
+from solidkit.calibration.profile import load_calibration_profile
 from solidkit.camera.lens import LensModel
 from solidkit.camera.lens import load_profile as load_lens_profile
 from solidkit.camera.lens import project, unproject
@@ -110,7 +110,7 @@ def test_exported_lens_matches_truth(calibrated, tmp_path):
     assert back.lenses[0].name == "front" and back.reference_size == SIZE
     assert back.residuals["front"]["model"] == calibrated.chosen_model
     # and the calibration record itself (versioned, with provenance) round-trips
-    rec = load_profile(calibrated.save(tmp_path / "front.calibration.json"))
+    rec = load_calibration_profile(calibrated.save(tmp_path / "front.calibration.json"))
     assert isinstance(rec, FisheyeProfile) and rec.chosen_model == calibrated.chosen_model
     assert json.loads((tmp_path / "front.calibration.json").read_text())["kind"] == "fisheye"
 

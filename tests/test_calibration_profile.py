@@ -6,7 +6,7 @@ import json
 
 import pytest
 
-from solidkit.calibration.profile import Profile, ProfileError, load_profile, make_provenance
+from solidkit.calibration.profile import Profile, ProfileError, load_calibration_profile, make_provenance
 from solidkit.calibration.response import ResponseProfile
 from solidkit.errors import ConventionsError
 from solidkit.fsutil import sha256_file
@@ -26,7 +26,7 @@ def test_provenance_and_roundtrip(tmp_path):
     assert prof.provenance.created.endswith("Z") and prof.provenance.parameters == {"answer": 42}
     path = prof.save(tmp_path / "p.json")
     assert not list(tmp_path.glob(".p.json*"))  # atomic write leaves no temporary file
-    back = load_profile(path)
+    back = load_calibration_profile(path)
     assert isinstance(back, ResponseProfile) and back == prof
 
 
@@ -55,8 +55,8 @@ def test_load_profile_errors(tmp_path):
         ResponseProfile.load(tmp_path / "missing.json")
     (tmp_path / "x.json").write_text("{not json")
     with pytest.raises(ProfileError, match="not a JSON profile"):
-        load_profile(tmp_path / "x.json")
+        load_calibration_profile(tmp_path / "x.json")
     (tmp_path / "y.json").write_text(json.dumps({"kind": "teapot"}))
     with pytest.raises(ProfileError, match="unknown profile kind 'teapot'"):
-        load_profile(tmp_path / "y.json")
+        load_calibration_profile(tmp_path / "y.json")
     assert Profile.KIND == "profile"

@@ -8,7 +8,7 @@ import cv2
 import numpy as np
 import pytest
 
-from solidkit.calibration.profile import ProfileError, load_profile
+from solidkit.calibration.profile import ProfileError, load_calibration_profile
 from solidkit.calibration.response import (
     ResponseError,
     ResponseProfile,
@@ -110,7 +110,7 @@ def test_files_profile_roundtrip_and_plot(tmp_path):
         read_brackets(paths)
     prof = calibrate_response_files(paths, times=TIMES.tolist())
     out = prof.save(tmp_path / "response.json")
-    back = load_profile(out)
+    back = load_calibration_profile(out)
     assert isinstance(back, ResponseProfile) and back.array().shape == (256, 3)
     np.testing.assert_allclose(back.array(), prof.array())
     doc = json.loads(out.read_text())

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from solidkit.calibration.profile import load_profile
+from solidkit.calibration.profile import load_calibration_profile
 from solidkit.calibration.vignetting import (
     VignettingError,
     VignettingProfile,
@@ -85,7 +85,7 @@ def test_overlap_recovers_falloff_and_gain(lens_profile, noise):
 def test_profile_roundtrip_scaling_and_errors(lens_profile, tmp_path):
     prof = _with_falloff(lens_profile, [-0.2, 0.01])
     prof = make_profile("flat-field", prof.lenses, SIZE, {"x": 1}, lens_profile=lens_profile)
-    back = load_profile(prof.save(tmp_path / "vig.json"))
+    back = load_calibration_profile(prof.save(tmp_path / "vig.json"))
     assert isinstance(back, VignettingProfile) and back.lenses == prof.lenses
     big = vignetting_map(back, (2 * SIZE[0], 2 * SIZE[1]))
     small = vignetting_map(back, SIZE)

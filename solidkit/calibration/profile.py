@@ -32,7 +32,7 @@ from solidkit.document import (  # noqa: F401  (re-exported: the profiles' prove
     read_json_object,
 )
 
-__all__ = ["ProfileError", "InputFile", "Provenance", "Profile", "make_provenance", "load_profile"]
+__all__ = ["ProfileError", "InputFile", "Provenance", "Profile", "make_provenance", "load_calibration_profile"]
 
 
 class ProfileError(DocumentError):
@@ -63,7 +63,7 @@ _KIND_MODULES = {
 }
 
 
-def load_profile(path: str | os.PathLike) -> Profile:
+def load_calibration_profile(path: str | os.PathLike) -> Profile:
     """Load any calibration profile, dispatching on its ``kind`` field."""
     path = Path(path)
     kind = read_json_object(path, ProfileError, "profile").get("kind")
