@@ -39,6 +39,7 @@ import hashlib
 import json
 import math
 import os
+import re
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any, Callable
@@ -59,6 +60,7 @@ from solidkit.envmap.coords import (angles_from_direction, angular_distance, dir
                                     ypr_from_rotation)
 from solidkit.envmap.io import srgb_decode
 from solidkit.errors import InputError, SolidkitError
+from solidkit.flags import flag_codes
 from solidkit.fsutil import atomic_path, sha256_file
 
 __all__ = ["AlignSettings", "align_campaign", "align_scene"]
@@ -928,12 +930,10 @@ def _write_labels(store: Any, sa: SceneAlignment, kinds: tuple[str, ...] | None 
 
 
 def _flag_names(flags: list[str]) -> list[str]:
-    """Store flags are names: the part before the colon of each message."""
-    import re
-
+    """Store flags are names: the code of each flag (:class:`~solidkit.flags.Flag`), each once."""
     names = []
-    for f in flags:
-        n = re.sub(r"[^A-Za-z0-9_.-]", "_", f.split(":", 1)[0].strip())[:64]
+    for code in flag_codes(flags):
+        n = re.sub(r"[^A-Za-z0-9_.-]", "_", code)[:64]
         if n and n not in names:
             names.append(n)
     return names

@@ -22,6 +22,7 @@ from solidkit.capture.manifest import Manifest
 from solidkit.envmap.coords import coords_from_direction, direction_from_angles, rotation_from_ypr
 from solidkit.envmap.io import imread, write_ldr
 from solidkit.envmap.perspective import scale_pixel_coordinates
+from solidkit.flags import flag_codes
 from solidkit.fsutil import atomic_write_text
 
 __all__ = ["write_report", "scene_picture"]
@@ -101,7 +102,7 @@ def scene_picture(campaign: Path, sa: SceneAlignment) -> np.ndarray:
                     _mark(img, wrap_deg(cand.azimuth_deg + pa.yaw_deg), cand.elevation_deg, "x", _RED)
             if cs.found:
                 _mark(img, wrap_deg(cs.azimuth_deg + pa.yaw_deg), cs.elevation_deg, "cross", _GREEN)
-        flags = ", ".join(f.split(":")[0] for f in pa.flags)
+        flags = ", ".join(flag_codes(pa.flags))
         _label(img, f"{pa.id} ({pa.role}) yaw {pa.yaw_deg:+.2f} deg" + (f"  [{flags}]" if flags else ""),
                _WHITE if not pa.flags else (255, 180, 80))
         panels.append(img)

@@ -33,6 +33,7 @@ def _run(campaign: Path, scenes: list[str] | None, products: bool, report: bool,
     from rich.table import Table
 
     from solidkit.align.pipeline import AlignSettings, align_campaign
+    from solidkit.flags import flag_codes
 
     if not campaign.is_dir():
         raise InputError(f"{campaign}: campaign directory not found")
@@ -54,12 +55,12 @@ def _run(campaign: Path, scenes: list[str] | None, products: bool, report: bool,
             cs = suns.get(p.id)
             sun = "-" if cs is None or not cs.found else f"{cs.azimuth_deg:+.2f}, {cs.elevation_deg:.2f}"
             yaw = "-" if p.yaw_deg is None else f"{p.yaw_deg:+.2f}" + ("" if p.yaw_source == "auto" else f" ({p.yaw_source})")
-            flags = [f.split(":")[0] for f in p.flags + (cs.flags if cs else [])]
+            flags = flag_codes(p.flags + (cs.flags if cs else []))
             t.add_row(sa.id, p.id + (" (camera)" if p.role == "camera" else ""), sun, yaw,
                       ", ".join(sorted(k for k, c in p.cues.items() if c.ok)), escape(", ".join(flags)))
         s = sa.sun
         scene_sun = "no sun" if not s.found or s.azimuth_deg is None else f"{s.azimuth_deg:+.2f}, {s.elevation_deg:.2f} (photo frame)"
-        t.add_row(sa.id, "[b]scene[/]", scene_sun, "", "", escape(", ".join(f.split(":")[0] for f in sa.flags + s.flags)))
+        t.add_row(sa.id, "[b]scene[/]", scene_sun, "", "", escape(", ".join(flag_codes(sa.flags + s.flags))))
     out.print(t)
     if not only_sun:
         out.print(f"wrote {escape(str(campaign / 'align' / 'alignment.json'))}"

@@ -22,6 +22,7 @@ from typing import Any
 import numpy as np
 
 from solidkit.envmap.coords import angular_distance, direction_from_angles, wrap_angle
+from solidkit.flags import Flag, FlagCode, has_code
 from solidkit.labeling.store import HUMAN_SOURCES, Change, Label, LabelStore, opinions
 from solidkit.labeling.tasks import CampaignIndex, Item
 
@@ -66,7 +67,7 @@ def disagreement_flag(kind: str, annotator: str, value: dict[str, Any], history:
     if who is None:
         return None
     size = "found vs no sun" if math.isinf(worst) else f"{worst:.1f} {'deg' if UNITS[kind] == 'deg' else 'px'}"
-    return f"annotators_disagree: {size} ({who})"[:64]
+    return str(Flag(FlagCode.ANNOTATORS_DISAGREE, f"{size} ({who})"))[:64]
 
 
 @dataclass
@@ -107,14 +108,14 @@ def review_item(item: Item, label: Label | None, history: list[Change]) -> Revie
     if auto is None:
         auto = next((c.value for c in reversed(history) if c.source == "auto" and c.value), None)
     vs_auto = distance(item.kind, label.value, auto) if human and auto else None
-    # store flags are the names of align's messages ("name: detail"): keep the message only
-    extra = [f for f in (label.flags if label else []) if not any(a == f or a.startswith(f + ":") for a in item.flags)]
+    # store flags are the codes of align's flags (or whole flags): keep align's flag only
+    extra = [f for f in (label.flags if label else []) if not any(f in (a, Flag.parse(a).code) for a in item.flags)]
     flags = list(dict.fromkeys([*item.flags, *extra]))
     open_dis = dis is not None and dis > THRESHOLDS[item.kind]
-    if open_dis and not any(f.startswith("annotators_disagree") for f in flags):
-        flags.append("annotators_disagree")
+    if open_dis and not has_code(flags, FlagCode.ANNOTATORS_DISAGREE):
+        flags.append(FlagCode.ANNOTATORS_DISAGREE.value)
     if vs_auto is not None and vs_auto > THRESHOLDS[item.kind]:
-        flags.append("differs_from_auto")
+        flags.append(FlagCode.DIFFERS_FROM_AUTO.value)
     if human and not open_dis:
         status = "done"
     elif open_dis or item.flags:

@@ -32,6 +32,7 @@ from solidkit.camera.metadata import CaptureMetadata
 from solidkit.capture.manifest import Manifest, load_manifest
 from solidkit.envmap.coords import angles_from_direction, rotation_from_ypr
 from solidkit.errors import InputError, SolidkitError
+from solidkit.flags import Flag
 from solidkit.labeling.images import ImageRef
 
 __all__ = ["TASKS", "Item", "CampaignIndex", "fov_outline", "inside"]
@@ -86,8 +87,8 @@ def fov_outline(K: np.ndarray, size: tuple[int, int], pitch_deg: float, roll_deg
 
 
 def _flags(aprobe: dict[str, Any], *, pixel: bool) -> list[str]:
-    """align/'s flags of a probe that concern its pixel (``pixel_...``) or the rest (yaw, cues)."""
-    return [f for f in aprobe.get("flags", []) if f.split(":", 1)[0].strip().startswith("pixel") == pixel]
+    """align/'s flags of a probe that concern its pixel (codes ``pixel_...``) or the rest (yaw, cues)."""
+    return [f for f in aprobe.get("flags", []) if Flag.parse(f).code.startswith("pixel") == pixel]
 
 
 @dataclass

@@ -65,6 +65,7 @@ from solidkit.envmap.coords import CONVENTIONS_VERSION, direction_from_angles, s
 from solidkit.envmap.io import imread, read_exr, read_ldr, write_exr, write_ldr
 from solidkit.envmap.resample import rotate
 from solidkit.errors import InputError
+from solidkit.flags import Flag, FlagCode
 from solidkit.fsutil import atomic_path, sha256_file
 from solidkit.testset.schema import (
     FORMAT,
@@ -111,19 +112,20 @@ class Candidate:
 
 
 def merge_flags(*lists: Any) -> list[str]:
-    """Union of flag lists, one entry per flag name (the text before ':'), the most descriptive kept."""
-    by_name: dict[str, str] = {}
+    """Union of flag lists (stored strings), one entry per flag code (:class:`~solidkit.flags.Flag`), the most
+    descriptive kept, ordered by code."""
+    by_code: dict[str, str] = {}
     for flags in lists:
         for f in flags or ():
-            name = f.split(":", 1)[0].strip()
-            if len(f) > len(by_name.get(name, "")):
-                by_name[name] = f
-    return [by_name[k] for k in sorted(by_name)]
+            code = Flag.parse(f).code
+            if len(f) > len(by_code.get(code, "")):
+                by_code[code] = f
+    return [by_code[k] for k in sorted(by_code)]
 
 
 def _drop(flags: Any, prefixes: tuple[str, ...]) -> list[str]:
-    """``flags`` without those about a value a human has since set (names starting with ``prefixes``)."""
-    return [f for f in flags or () if not f.split(":", 1)[0].strip().startswith(prefixes)]
+    """``flags`` without those about a value a human has since set (codes starting with ``prefixes``)."""
+    return [f for f in flags or () if not Flag.parse(f).code.startswith(prefixes)]
 
 
 def choose(*candidates: Candidate | None) -> Candidate | None:
@@ -254,7 +256,7 @@ class _Builder:
         photo_full = self._copy(src, f"{d}/photo_full{src.suffix.lower()}")
         flags = merge_flags(sa.flags)
         if photo.pitch_deg is None or photo.roll_deg is None or photo.pitch_roll_source == "assumed_zero":
-            flags.append("photo_pitch_roll_assumed_zero")
+            flags.append(FlagCode.PHOTO_PITCH_ROLL_ASSUMED_ZERO.value)
 
         yaws: dict[str, tuple[float, Candidate, float | None]] = {}
         probes, camera = [], None
@@ -448,11 +450,11 @@ class _Builder:
         if pick is not None:
             prod = self._product(sa.id, pick, "sun_frame")
             if prod is None:
-                flags.append("no_sun_frame")
+                flags.append(FlagCode.NO_SUN_FRAME.value)
             else:
                 pano = read_ldr(self._src(prod.path, f"{sa.id}/{pick}: sun frame"))
                 if pano.shape[1] != 2 * pano.shape[0]:
-                    flags.append("sun_frame_not_a_panorama")
+                    flags.append(FlagCode.SUN_FRAME_NOT_A_PANORAMA.value)
                 else:
                     panorama = f"scenes/{sa.id}/sun_panorama.png"
                     write_ldr(self.root / panorama, rotate(pano, level_to_pano(yaws[pick][0]), "linear"))
