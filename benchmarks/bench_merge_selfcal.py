@@ -4,7 +4,7 @@ Both pipelines get only the frames and their exposure times. ``solidkit`` =
 :func:`solidkit.capture.bracket_hdr.merge_bracket` (registration, curve estimated from the
 bracket, weighted merge); peer = OpenCV ``CalibrateDebevec`` (default samples) +
 ``MergeDebevec`` with that curve; ``srgb`` = solidkit's merge with the sRGB inverse assumed
-(what ``capture merge`` did before issue 10).
+(what ``capture merge`` did before it estimated the curve).
 
 Sets:
 
@@ -13,7 +13,7 @@ Sets:
   by a camera whose response is *not* sRGB (a film-like S-curve, and gamma 2.6), with 1 % noise,
   8 bits, JPEG q92, brackets of 3 and 5 frames 2 stops apart. Truth = the panorama. Error =
   median |log2(ours / truth)| after the best global scale, over pixels well exposed (codes
-  10..245) in at least one frame (the issue's measure).
+  10..245) in at least one frame.
 * **frobisher** (the real Canon bracket, 3 frames 3 stops apart, no reference HDR): a
   reference-free measure: each frame is predicted from the merged radiance through the
   pipeline's own curve (code = f(E t)) and compared with what it recorded, in pixels that frame

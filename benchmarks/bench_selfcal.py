@@ -1,4 +1,4 @@
-"""Any dual-fisheye camera from one frame, and profiles that do not fit (issue 10 §2): measured.
+"""Any dual-fisheye camera from one frame, and profiles that do not fit: measured.
 
 1. **Recovery on rendered frames** with a known truth: the real CC0 HDR panoramas city, courtyard
    and sunrise (``../shared/data/real/hdr_panoramas``) seen through two lenses of a given family
@@ -11,8 +11,8 @@
    scratch; ``calibrate overlap --base theta-s-video`` (bounded, refused if worse); the frame with
    its circles turned back by 90°.
 3. **The refinement from another camera's profile** (the Gear 360 case): a rendered Gear-like frame
-   (equidistant 195°, circles ~10 % off theta-v's) refined from ``theta-v`` by the code before this
-   issue (git ``HEAD~`` of calibration/overlap.py, ``--old REV``) and now.
+   (equidistant 195°, circles ~10 % off theta-v's) refined from ``theta-v`` by calibration/overlap.py before the
+   fit of lens families (the git revision ``--old REV``, e.g. ``e573428~1``) and now.
 4. **The warning**: seam errors of correct and wrong profiles (another camera, a back lens 1-8°
    off, centres 3 % off, the wrong field of view) on rendered Theta V frames, the virtual campaign's
    Theta V JPEGs (solidkit/assets/campaign_mini) and the real Theta S frame; and the layout check
@@ -269,7 +269,7 @@ def upright_table(panos) -> list[dict]:
 
 
 def markdown(res: dict) -> str:
-    L = ["# Any dual-fisheye camera from one frame (issue 10 §2)", "",
+    L = ["# Any dual-fisheye camera from one frame", "",
          f"Run {res['date']} on {res['machine']} (load average {res['load']}); `benchmarks/bench_selfcal.py`. "
          "Frames rendered from the real CC0 HDR panoramas with solidkit's forward model, 8-bit sRGB.", "",
          "## 1. Recovered vs truth (`calibrate fisheye`, refinement on, 960x480 / 480x960)", "",
@@ -334,7 +334,7 @@ def markdown(res: dict) -> str:
 
 def main() -> None:
     ap = argparse.ArgumentParser()
-    ap.add_argument("--old", default=None, help="git revision of calibration/overlap.py before issue 10 §2 (e.g. e573428~1)")
+    ap.add_argument("--old", default=None, help="git revision of calibration/overlap.py before the fit of lens families (e.g. e573428~1)")
     args = ap.parse_args()
     import os
 

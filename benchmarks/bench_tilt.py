@@ -7,7 +7,7 @@ and rotated by known (yaw, pitch, roll) (uniform: yaw ±180°, pitch and roll ±
 resampling). Error: the angle between the estimated and the true gravity. The 2048x1024 renders are
 measured at their size (the default ``max_height`` 1024) and reduced to 512. The shared Theta S
 stitched still (Jobsite1, no truth) is reported as stored, after applying its recorded pose, and after
-levelling by its own estimate. Issue 10's goal: error below 0.2° on rendered panoramas.
+levelling by its own estimate. Goal: error below 0.2° on rendered panoramas.
 Writes benchmarks/results/tilt.json and tilt.md. Run: ``.venv/bin/python benchmarks/bench_tilt.py``.
 """
 
@@ -85,7 +85,7 @@ def main() -> int:
     (OUT / "tilt.json").write_text(json.dumps(out, indent=1) + "\n")
     lines = ["# Residual tilt of rendered panoramas with known tilts", "",
              f"Machine: {out['machine']}. Cases per panorama: level + {args.tilts} random tilts (yaw ±180°, pitch/roll ±4°, seed 5).",
-             "Error = angle between the estimated and the true gravity (degrees). Goal (issue 10 §3): < 0.2°.",
+             "Error = angle between the estimated and the true gravity (degrees). Goal: < 0.2°.",
              *([f"Extra renders (tests/data/make_tilt_fixtures.py, H=1024, not in the repo): "
                 f"{', '.join(p.name for p in args.extra)}."] if args.extra else []), "",
              "| panorama | size | measured at (px high) | median (°) | max (°) | time per estimate (s) |", "|---|---|---|---|---|---|"]
@@ -97,7 +97,7 @@ def main() -> int:
         if k.startswith("all "):
             lines.append(f"- {k}: {v['cases']} cases, median {v['median_deg']:.3f}°, max {v['max_deg']:.3f}°, "
                          f"{v['within_0p2']}/{v['cases']} below 0.2°.")
-    lines += ["", "Session 2's estimator (end-point noise model, sigma ∝ 1/length) on the same kind of cases: "
+    lines += ["", "The estimator's earlier end-point noise model (sigma ∝ 1/length) on the same kind of cases: "
               "level_street_3_1024 0.34° off level and tilted (0.22-0.34°); the three 512-px streets median 0.07°, max 0.28°. "
               "Cause: short segments outweighed the long edges (which are vertical to 0.01°); now a line-fit noise "
               "model (sigma ∝ length^-1.5) weights them by the precision their leans show."]

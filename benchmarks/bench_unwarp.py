@@ -12,7 +12,7 @@ PNG, decode to encode. Every figure is a whole process, measured from outside wi
   of a camera and size (the tables are built, and written to the cache for the next run);
 * ``solidkit CLI, warm``: the same command again (tables read from the per-user disk cache);
 * ``solidkit in-process, 2nd image``: ``unwarp_file`` on a second image in one Python process
-  (tables in memory), the time of that call only (the figure session 2 quoted);
+  (tables in memory), the time of that call only;
 * peer ``ffmpeg -i SRC -vf v360=input=dfisheye:output=equirect:ih_fov=F:iv_fov=F:w=5376:h=2688 OUT``
   (Debian's ffmpeg; bilinear interpolation, v360's default ``interp=line``, as solidkit's; its
   equidistant model with the FOV ``F`` picked by PSNR against the ground truth from 200/207/214°).
