@@ -1,6 +1,6 @@
 """Re-render only the truth probes of an existing virtual campaign (``solidkit synth campaign-truth``).
 
-A campaign's captures cost most of its render time (s11: 54 min for 6 scenes); its truth probes
+A campaign's captures cost most of its render time (54 min for a campaign of 6 scenes, seed 11); its truth probes
 are a small part. Upgrading the truth of an existing campaign (more samples, the version-2 recipe
 of :mod:`solidkit.synth.truth_probes`) must not touch the card.
 
