@@ -1,4 +1,4 @@
-"""A lens profile for any dual-fisheye camera from one frame, and profiles that do not fit (issue 10 §2).
+"""A lens profile for any dual-fisheye camera from one frame, and profiles that do not fit.
 
 Frames are rendered from the real HDR panorama city.exr through the project's forward lens model
 (:func:`solidkit.capture.unwarp.render_fisheye`) with a known truth -- lens family, field of view,
@@ -113,8 +113,8 @@ GEAR = [Circle(171.0, 152.0, 138.0, 1.0), Circle(466.0, 171.0, 139.0, 1.0)]
 
 
 def test_refinement_from_another_cameras_profile_is_bounded_and_flagged(city, tmp_path):
-    """Issue 10 §2: a Gear 360 frame refined from theta-v moved the centres by 130-138 px and the back lens by 16°.
-    Measured before this fix on this rendered stand-in: centres moved 203/261 px (at 5792 px), back lens 23.6°."""
+    """A real Gear 360 frame refined from theta-v once moved the centres by 130-138 px and the back lens by 16°.
+    Measured without the bound on this rendered stand-in: centres moved 203/261 px (at 5792 px), back lens 23.6°."""
     from solidkit.calibration.overlap import refine_files
 
     src = tmp_path / "gear.png"

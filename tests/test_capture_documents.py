@@ -39,7 +39,7 @@ def test_manifest_is_a_versioned_document_and_round_trips(tmp_path):
 @pytest.mark.parametrize("version", [1, 2])
 def test_older_manifests_are_read(tmp_path, version):
     """Files written before the document base (``schema_version`` 1 or 2, no ``kind``) are upgraded in memory;
-    a version-1 ``srgb_inverse`` response becomes ``auto`` (issue 10 §1)."""
+    a version-1 ``srgb_inverse`` response becomes ``auto`` (the curve estimated from the bracket)."""
     extra = {"response": {"kind": "srgb_inverse"}} if version == 1 else {"fieldnotes": []}
     m = load_manifest(_write(tmp_path, {"schema_version": version, "solidkit_version": "0.0.9", "conventions_version": 1,
                                         "cards": ["C"], **extra}))

@@ -171,7 +171,7 @@ def test_response_validation_and_profile_file(tmp_path):
     with pytest.raises(InputError, match="shape"):
         validate_response(np.ones((255, 3)))
     assert validate_response(np.linspace(0, 1, 256)).shape == (256, 3)
-    # the Calibration issue's saved profile is read through its own loader
+    # a saved response profile (solidkit.calibration) is read through its own loader
     from solidkit.calibration.profile import make_provenance
     from solidkit.calibration.response import ResponseProfile
 
@@ -285,7 +285,7 @@ def test_real_frobisher_brackets_merge(real_data, tmp_path):
 
 @pytest.mark.real
 def test_real_frobisher_with_calibrated_response(real_data, tmp_path):
-    """Issue 10 §1: without --response the curve is estimated from the bracket itself (recorded as such),
+    """Without --response the curve is estimated from the bracket itself (recorded as such),
     which removes the sRGB-mismatch 'ghosts' (<= 2 % false positives on this static bracket) like a
     calibrated profile does; sRGB is only used when asked or when it must be assumed (then warned)."""
     from solidkit.calibration.response import calibrate_response_files
@@ -311,7 +311,7 @@ def test_real_frobisher_with_calibrated_response(real_data, tmp_path):
 
 
 def test_frames_read_by_content_and_registered(tmp_path, scene):
-    """Issue 10 §1: a JPEG named .png is read as the JPEG it is (and said so); a frame shifted by
+    """A JPEG named .png is read as the JPEG it is (and said so); a frame shifted by
     (-0.7, +0.8) px is registered (shift recorded and undone) instead of merged smeared."""
     paths = _write_bracket(tmp_path, scene)
     jpeg_named_png = tmp_path / "R0010009.png"

@@ -235,7 +235,7 @@ def test_overfitting_eight_rendered_crops_puts_a_detectable_sun_in_each(tmp_path
 def test_consistent_reconstruction_agrees_with_the_diffuse_term_where_eq7_does_not():
     """A constant sky c: L_dif's SH gives L b(n) = c/2 for every normal; a white-lit Lambertian pixel of
     albedo A is A E / pi = A c before the input's tonemap. The located variant's L_rec renders exactly that
-    (0 loss); eq. 7 as written, (A c/2)^(1/2.2), does not (the 1.6x scale conflict of issue 15)."""
+    (0 loss); eq. 7 as written, (A c/2)^(1/2.2), does not (a 1.6x scale conflict)."""
     from solidkit.envmap.io import tonemap
     from solidkit.envmap.sh import sh_irradiance, sh_project
     from solidkit.model.losses import diffuse_loss, reconstruction_loss

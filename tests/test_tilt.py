@@ -48,7 +48,7 @@ def _errors(k: int | str, tilts: list[tuple[float, float, float]]) -> list[float
 
 def test_tilt_of_a_rendered_panorama_within_0p2_deg():
     """A level rendered street (512 px high), as is and tilted by known rotations: gravity within 0.2°
-    (issue 10's goal; measured 0.08°, 0.10°, 0.07°; 0.12°, 0.24°, 0.02° with session 2's end-point
+    (the goal; measured 0.08°, 0.10°, 0.07°; 0.12°, 0.24°, 0.02° with the earlier end-point
     noise model), and the reported correction levels it."""
     errors = _errors(0, [(0.0, 0.0, 0.0), (40.0, -3.2, 0.5), (75.0, 0.0, -4.0)])
     assert max(errors) < 0.2, errors
@@ -59,7 +59,7 @@ def test_tilt_of_a_rendered_panorama_within_0p2_deg():
 
 
 def test_tilt_of_a_1024px_render_has_no_offset():
-    """Street 3 rendered 1024 px high (tests/data/level_street_3_1024.jpg): session 2's estimator was
+    """Street 3 rendered 1024 px high (tests/data/level_street_3_1024.jpg): the end-point noise model was
     0.34° off on it, level or tilted (short segments outweighed the long edges, which are vertical to
     0.01°); with the line-fit noise model every case is within 0.2° (measured 0.06-0.11°)."""
     errors = _errors("3_1024", [(0.0, 0.0, 0.0), (-60.0, 2.5, -1.5)])
@@ -69,7 +69,7 @@ def test_tilt_of_a_1024px_render_has_no_offset():
 @pytest.mark.slow
 def test_tilt_error_over_three_rendered_streets():
     """27 cases (3 streets x level + 8 random tilts up to 4°) at 512 px: median < 0.1°, all < 0.2° (measured:
-    median 0.056°, max 0.152°; session 2's end-point noise model: median 0.07°, max 0.28°)."""
+    median 0.056°, max 0.152°; the end-point noise model: median 0.07°, max 0.28°)."""
     rng = np.random.default_rng(5)
     tilts = [(0.0, 0.0, 0.0)] + [(rng.uniform(-180, 180), rng.uniform(-4, 4), rng.uniform(-4, 4)) for _ in range(8)]
     errors = [e for k in (0, 1, 2) for e in _errors(k, tilts)]
@@ -87,7 +87,7 @@ def test_no_structure_is_not_reliable():
 
 
 def test_ricoh_roll_of_359p6_is_minus_0p4(tmp_path):
-    """The maker note's [roll, pitch] in [0, 360): 359.6 means -0.4, not a bad_gravity warning (issue 10 §3)."""
+    """The maker note's [roll, pitch] in [0, 360): 359.6 means -0.4, not a bad_gravity warning."""
     from solidkit.camera.metadata import read_metadata
     from solidkit.synth.exif import exif_app1, insert_app1
 
@@ -104,7 +104,7 @@ def test_ricoh_roll_of_359p6_is_minus_0p4(tmp_path):
 
 @pytest.mark.real
 def test_ricoh_stitched_still_is_not_relevelled_by_its_pose(real_data):
-    """The evidence behind camera.metadata.level_rotation for Ricoh stitched stills (issue 10 §3):
+    """The evidence behind camera.metadata.level_rotation for Ricoh stitched stills:
     the Theta S still is measurably off level as stored, and its recorded pose makes it worse."""
     from solidkit.camera.metadata import level_rotation, read_metadata
 

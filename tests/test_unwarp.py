@@ -194,7 +194,7 @@ def test_cli_unwarp_and_bad_input(tmp_path, rendered, cli):
 @pytest.mark.real
 def test_real_theta_s_live_frame(real_data, tmp_path):
     """The Theta S live/video frame unwarps through the theta-s-video profile: full coverage, small seam, upright
-    (its circles are turned by 90°: issue 10 §2; the first shipped profile made a sideways panorama)."""
+    (its circles are turned by 90°; with the front roll 0 the panorama comes out sideways)."""
     from solidkit.capture.unwarp import unwarp_file
 
     src = real_data / "theta_s_dualfisheye" / "thetaS_dualfisheye_raw_1920x1080.jpg"
@@ -224,7 +224,7 @@ def test_real_theta_s_live_frame(real_data, tmp_path):
 @pytest.mark.real
 def test_real_stitched_equirect(real_data, tmp_path):
     """Jobsite1.JPG (Ricoh in-camera stitched): its recorded pose is not re-applied (camera.metadata.level_rotation:
-    doing so made it more tilted, issue 10 §3); the residual tilt of its vertical edges is reported and flagged."""
+    doing so makes it more tilted); the residual tilt of its vertical edges is reported and flagged."""
     from solidkit.capture.unwarp import unwarp_file
 
     src = real_data / "theta_s_equirect" / "Jobsite1.JPG"
@@ -395,7 +395,7 @@ def test_cli_unwarp_vignetting(tmp_path, vignetted, cli):
 
 
 def test_a_profile_that_does_not_fit_the_frame_is_not_silent(tmp_path):
-    """Issue 10 §2: the frame's image circles are checked against the profile; a unit or camera whose
+    """The frame's image circles are checked against the profile; a unit or camera whose
     circles sit elsewhere (or are another size) gets a profile_mismatch warning, the right one none."""
     from solidkit.capture.unwarp import check_image_circles
 

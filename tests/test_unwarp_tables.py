@@ -1,6 +1,6 @@
 """Remap tables of the dual-fisheye model: interpolated between exactly projected nodes, the two-lens
 cut tables of the 8-bit path, the memory-mapped disk cache, and what ``solidkit capture unwarp``
-imports (issue 10 §5: the command as users run it)."""
+imports (the command as users run it)."""
 
 from __future__ import annotations
 
@@ -105,8 +105,8 @@ print(json.dumps(sorted(sys.modules)))
 
 def test_unwarp_command_imports_no_heavy_library(tmp_path):
     """``solidkit capture unwarp`` (a whole run, 8-bit in and out) loads typer, rich, cv2, numpy, pydantic,
-    never torch/kornia/colour/pycolmap/mitsuba/fastapi, nor SciPy/OpenEXR/PIL (session 2: importing the
-    CLI took 0.77 s and loaded SciPy, PIL and OpenEXR for every command)."""
+    never torch/kornia/colour/pycolmap/mitsuba/fastapi, nor SciPy/OpenEXR/PIL (importing them made every
+    command's start 0.77 s)."""
     from solidkit.capture.unwarp import render_fisheye
 
     prof = load_profile("theta-v")
