@@ -334,7 +334,7 @@ def test_grouping_parameters_are_remembered(card, tmp_path):
 
 @pytest.mark.slow
 def test_synthetic_campaign_end_to_end(tmp_path):
-    """The synthetic campaign's card (issue 6) ingests: kinds match the truth roles and the merged,
+    """The synthetic campaign's card ingests: kinds match the truth roles and the merged,
     unwarped, levelled HDR matches the true probe panorama once the true yaw is applied."""
     pytest.importorskip("mitsuba")
     import math
@@ -481,7 +481,7 @@ def test_ingest_unit_profile_and_vignetting(tmp_path):
 
 
 def test_skipped_entries_say_why(tmp_path):
-    """Links, special files and hidden folders are skipped with their true reason (issue 10 §6)."""
+    """Links, special files and hidden folders are skipped with their true reason."""
     card = make_card(tmp_path / "card", bad=False)
     d = card / "DCIM" / "100RICOH"
     os.symlink(d / "R0010001.JPG", d / "R0010050.JPG")
@@ -535,7 +535,7 @@ def _children(pid: int) -> list[int]:
 
 @pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="needs /proc")
 def test_kill9_takes_the_workers_with_it(tmp_path):
-    """``ingest -j 2`` killed with -9: its worker processes end too (issue 10 §6), within seconds."""
+    """``ingest -j 2`` killed with -9: its worker processes end too, within seconds."""
     card = make_card(tmp_path / "card", bad=False, extra_brackets=6)
     camp = tmp_path / "camp"
     env = {**os.environ, "SOLIDKIT_INGEST_THROTTLE_S": "0.3"}
@@ -560,7 +560,7 @@ def test_kill9_takes_the_workers_with_it(tmp_path):
 
 def test_disk_full_is_retried_not_remembered(tmp_path, monkeypatch, cli):
     """ENOSPC while copying or while building products: reported per file/product (exit 2, naming the
-    final file), not remembered: the next run, with space again, completes the campaign (issue 10 §6)."""
+    final file), not remembered: the next run, with space again, completes the campaign."""
     import errno
 
     import solidkit.capture.card as card_mod

@@ -25,9 +25,9 @@ from solidkit.testset.validate import validate_testset
 
 from test_testset import psnr_ldr
 
-PSNR_MIN_DB = 30.0  # align's target for aligned LDR probes (issue 11)
+PSNR_MIN_DB = 30.0  # align's target for aligned LDR probes
 SUN_TOL_DEG = 2.0  # labeling tolerance of the sun in the photo's panorama frame
-ROTATION_MEDIAN_TOL_DEG = 1.0  # rotations are reported per probe; PSNR is the per-probe criterion (issue 13)
+ROTATION_MEDIAN_TOL_DEG = 1.0  # rotations are reported per probe; PSNR is the per-probe criterion
 
 
 def rotation_angle_deg(A, B) -> float:
