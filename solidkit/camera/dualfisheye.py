@@ -28,7 +28,7 @@ import warnings
 from collections import OrderedDict
 from dataclasses import dataclass, field, fields
 from pathlib import Path
-from typing import Any, ClassVar, Iterator
+from typing import Any, ClassVar, Iterator, cast
 
 import cv2
 import numpy as np
@@ -71,7 +71,7 @@ class UnwarpMaps:
     map1: np.ndarray
     map2: np.ndarray
     weight: np.ndarray
-    _derived: dict = field(default_factory=dict, repr=False, compare=False)
+    _derived: dict[str, Any] = field(default_factory=dict, repr=False, compare=False)
 
     def arrays(self) -> dict[str, np.ndarray]:
         return {"map1": self.map1, "map2": self.map2, "weight": self.weight}
@@ -82,17 +82,17 @@ class UnwarpMaps:
             w0 = self.weight[0]
             idx = np.flatnonzero((w0 > 0) & (self.weight[1] > 0))
             self._derived["band"] = (w0 >= 0.5, idx, w0.reshape(-1)[idx].astype(np.float32))
-        return self._derived["band"]
+        return cast(tuple[np.ndarray, np.ndarray, np.ndarray], self._derived["band"])
 
     @property
     def coverage(self) -> np.ndarray:
         """``(H, 2H)`` bool: some lens sees this output pixel."""
-        return self.weight.sum(axis=0) > 0
+        return cast(np.ndarray, self.weight.sum(axis=0) > 0)
 
     @property
     def overlap(self) -> np.ndarray:
         """``(H, 2H)`` bool: blended pixels (at least two lenses with weight > 0)."""
-        return (self.weight > 0).sum(axis=0) >= 2
+        return cast(np.ndarray, (self.weight > 0).sum(axis=0) >= 2)
 
 
 def feather_weights(margin: np.ndarray, feather_deg: float) -> np.ndarray:
@@ -247,7 +247,8 @@ def _save_tables(path: Path, arrays: dict[str, np.ndarray]) -> None:
     next run (a warning). Layout: a JSON index (name -> dtype, shape, offset) padded to 4 KiB, then
     each array's bytes at a 4 KiB-aligned offset."""
     try:
-        index, offset = {}, _ALIGN
+        index: dict[str, list[Any]] = {}
+        offset = _ALIGN
         for name, a in arrays.items():
             index[name] = [a.dtype.str, list(a.shape), offset]
             offset += -(-a.nbytes // _ALIGN) * _ALIGN
@@ -306,7 +307,7 @@ def _load_tables(path: Path) -> dict[str, np.ndarray]:
     return out
 
 
-def _cached(key: str, cache_dir: str | os.PathLike | None, build: Any, load: Any) -> tuple[Any, str]:
+def _cached(key: str, cache_dir: str | os.PathLike[str] | None, build: Any, load: Any) -> tuple[Any, str]:
     """In-memory LRU, then ``cache_dir/<key>.tables`` (memory-mapped; written atomically in the background:
     concurrent runs are safe), then ``build()``."""
     if key in _cache:
@@ -337,7 +338,7 @@ def _cached(key: str, cache_dir: str | os.PathLike | None, build: Any, load: Any
 
 def get_maps(
     profile: LensProfile, in_size: tuple[int, int], out_height: int, R_level: Any = None, feather_deg: float = 10.0,
-    cache_dir: str | os.PathLike | None = None,
+    cache_dir: str | os.PathLike[str] | None = None,
 ) -> tuple[UnwarpMaps, str]:
     """:func:`build_maps` through the in-memory LRU and the optional on-disk cache.
 
@@ -407,7 +408,7 @@ def _clip_is_exact(m0: np.ndarray, m1: np.ndarray, f: float) -> bool:
     where the other does not see). Then no pixel is unseen either.
     """
     def lo(a: np.ndarray) -> np.ndarray:
-        return np.minimum(np.minimum(a[:-1, :-1], a[1:, :-1]), np.minimum(a[:-1, 1:], a[1:, 1:]))
+        return cast(np.ndarray, np.minimum(np.minimum(a[:-1, :-1], a[1:, :-1]), np.minimum(a[:-1, 1:], a[1:, 1:])))
 
     m0_lo, m1_lo = lo(m0), lo(m1)
     d_lo, d_hi = lo(m0 - m1), -lo(m1 - m0)
@@ -481,9 +482,9 @@ def build_cut_maps(
     bm1 = np.empty((2, rows, _BAND_COLS, 2), np.int16)
     bm2 = np.empty((2, rows, _BAND_COLS), np.uint16)
     for k in range(2):
-        xy = np.full((rows * _BAND_COLS, 2), -10.0, np.float32)
-        xy[:n] = np.concatenate(band_xy[k])
-        xy = xy.reshape(rows, _BAND_COLS, 2)
+        flat = np.full((rows * _BAND_COLS, 2), -10.0, np.float32)
+        flat[:n] = np.concatenate(band_xy[k])
+        xy = flat.reshape(rows, _BAND_COLS, 2)
         bm1[k], bm2[k] = cv2.convertMaps(xy[..., 0], xy[..., 1], cv2.CV_16SC2)
     w0 = np.zeros(rows * _BAND_COLS, np.float32)
     w0[:n] = np.concatenate(band_w0)
@@ -492,7 +493,7 @@ def build_cut_maps(
 
 def get_cut_maps(
     profile: LensProfile, in_size: tuple[int, int], out_height: int, R_level: Any = None, feather_deg: float = 10.0,
-    cache_dir: str | os.PathLike | None = None,
+    cache_dir: str | os.PathLike[str] | None = None,
 ) -> tuple[CutMaps, str]:
     """:func:`build_cut_maps` through the in-memory LRU and the optional on-disk cache (as :func:`get_maps`)."""
     R = np.eye(3) if R_level is None else np.asarray(R_level, dtype=np.float64)
@@ -512,7 +513,7 @@ def srgb8_luts() -> tuple[np.ndarray, np.ndarray]:
         _DECODE_LUT = np.asarray(srgb_decode(np.arange(256, dtype=np.float64) / 255.0), np.float32)
         enc = np.asarray(srgb_encode(np.arange(65536, dtype=np.float64) / 65535.0))
         _ENCODE_LUT = np.round(np.clip(enc, 0, 1) * 255.0).astype(np.uint8)
-    return _DECODE_LUT, _ENCODE_LUT
+    return _DECODE_LUT, cast(np.ndarray, _ENCODE_LUT)
 
 
 def encode_srgb8(linear: np.ndarray) -> np.ndarray:
@@ -521,7 +522,7 @@ def encode_srgb8(linear: np.ndarray) -> np.ndarray:
     x = np.clip(linear, 0.0, 1.0).astype(np.float32, copy=False)
     x *= 65535.0
     np.rint(x, out=x)
-    return enc[x.astype(np.uint16)]
+    return cast(np.ndarray, enc[x.astype(np.uint16)])
 
 
 def warp_lens(image: np.ndarray, maps: UnwarpMaps, i: int) -> np.ndarray:
@@ -535,7 +536,7 @@ def warp_lens(image: np.ndarray, maps: UnwarpMaps, i: int) -> np.ndarray:
         w = w[..., None]
     if image.dtype == np.uint8:
         dec, _ = srgb8_luts()
-        return dec[w]
+        return cast(np.ndarray, dec[w])
     return w.astype(np.float32, copy=False)
 
 

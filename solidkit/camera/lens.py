@@ -133,7 +133,7 @@ class LensModel(BaseModel):
 
     @classmethod
     def from_table(
-        cls, name: str, center: tuple[float, float], theta_deg: Any, r_px: Any, *, ypr_deg=(0.0, 0.0, 0.0),
+        cls, name: str, center: tuple[float, float], theta_deg: Any, r_px: Any, *, ypr_deg: tuple[float, float, float] = (0.0, 0.0, 0.0),
         max_angle_deg: float | None = None, degree: int = 13,
     ) -> "LensModel":
         """Fit the odd polynomial to a table of image height ``r_px`` vs incidence angle ``theta_deg``."""
@@ -267,7 +267,7 @@ def list_profiles() -> list[str]:
     return sorted(p.name[:-5] for p in _builtin_dir().iterdir() if p.name.endswith(".json"))
 
 
-def load_profile(name_or_path: str | os.PathLike) -> LensProfile:
+def load_profile(name_or_path: str | os.PathLike[str]) -> LensProfile:
     """A shipped profile by name (``theta-v``) or a profile JSON file (e.g. a per-unit ``unit.json``)."""
     s = str(name_or_path)
     p = Path(s)

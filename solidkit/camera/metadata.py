@@ -57,7 +57,7 @@ import os
 import re
 import struct
 from pathlib import Path
-from typing import Any, Literal
+from typing import Any, Literal, cast
 
 import exifread
 import numpy as np
@@ -109,7 +109,7 @@ class CaptureMetadata(BaseModel):
     exif_height: int | None = Field(None, description="EXIF PixelYDimension")
     datetime_original: _dt.datetime | None = Field(None, description="naive, camera clock")
     utc_offset: str | None = Field(None, description="e.g. '+09:00', as recorded")
-    gps: dict | None = Field(None, description="lat_deg, lon_deg (signed), alt_m (may be None); img_direction_deg, "
+    gps: dict[str, Any] | None = Field(None, description="lat_deg, lon_deg (signed), alt_m (may be None); img_direction_deg, "
                                                "img_direction_ref ('T' true / 'M' magnetic north) when recorded")
     image_type: ImageType = "unknown"
     zenith_corrected: bool | None = None
@@ -120,9 +120,9 @@ class CaptureMetadata(BaseModel):
     pitch_deg: float | None = None
     roll_deg: float | None = None
     heading_deg: float | None = Field(None, description="compass heading of the front lens, degrees")
-    gpano: dict = Field(default_factory=dict)
+    gpano: dict[str, Any] = Field(default_factory=dict)
     sequence: int | None = None
-    ricoh: dict = Field(default_factory=dict, description="decoded RICOH THETA IFD tags, by hex tag id")
+    ricoh: dict[str, Any] = Field(default_factory=dict, description="decoded RICOH THETA IFD tags, by hex tag id")
     file_format: Literal["jpeg", "dng", "tiff"] = "jpeg"
     warnings: list[str] = Field(default_factory=list)
 
@@ -179,7 +179,7 @@ def _ratio(tag: Any) -> list[float]:
 _FOCAL_PLANE_UNIT_MM = {2: 25.4, 3: 10.0, 4: 1.0, 5: 0.001}
 
 
-def _focal_geometry(tags: dict, warnings: list[str]) -> dict[str, Any]:
+def _focal_geometry(tags: dict[str, Any], warnings: list[str]) -> dict[str, Any]:
     """Focal length (mm), its 35 mm equivalent, focal-plane resolution (px/mm) and the recorded size."""
     out: dict[str, Any] = {
         "focal_length_mm": _first_number(tags, ("EXIF FocalLength",), "focal_length", warnings),
@@ -203,7 +203,7 @@ def _focal_geometry(tags: dict, warnings: list[str]) -> dict[str, Any]:
     return out
 
 
-def _first_number(tags: dict, keys: tuple[str, ...], name: str, warnings: list[str], positive: bool = True) -> float | None:
+def _first_number(tags: dict[str, Any], keys: tuple[str, ...], name: str, warnings: list[str], positive: bool = True) -> float | None:
     for key in keys:
         if key not in tags:
             continue
@@ -218,7 +218,7 @@ def _first_number(tags: dict, keys: tuple[str, ...], name: str, warnings: list[s
     return None
 
 
-def _text(tags: dict, key: str) -> str | None:
+def _text(tags: dict[str, Any], key: str) -> str | None:
     if key not in tags:
         return None
     s = str(tags[key].printable if hasattr(tags[key], "printable") else tags[key]).strip().strip("\x00").strip()
@@ -233,13 +233,14 @@ def _parse_datetime(s: str | None, warnings: list[str]) -> _dt.datetime | None:
         warnings.append(f"bad_datetime: {s[:40]!r}")
         return None
     try:
-        return _dt.datetime(*(int(g) for g in m.groups()))
+        y, mo, d, hh, mi, ss = (int(g) for g in m.groups())
+        return _dt.datetime(y, mo, d, hh, mi, ss)
     except ValueError:
         warnings.append(f"bad_datetime: {s[:40]!r}")
         return None
 
 
-def _gps(tags: dict, warnings: list[str]) -> dict | None:
+def _gps(tags: dict[str, Any], warnings: list[str]) -> dict[str, Any] | None:
     if "GPS GPSLatitude" not in tags or "GPS GPSLongitude" not in tags:
         return None
     try:
@@ -261,7 +262,7 @@ def _gps(tags: dict, warnings: list[str]) -> dict | None:
             a = _ratio(tags["GPS GPSAltitude"])
             if a and math.isfinite(a[0]):
                 alt = -a[0] if str(tags.get("GPS GPSAltitudeRef", "0")).strip() in ("1", "Below Sea Level") else a[0]
-        out = {"lat_deg": lat, "lon_deg": lon, "alt_m": alt}
+        out: dict[str, Any] = {"lat_deg": lat, "lon_deg": lon, "alt_m": alt}
     except (ValueError, TypeError, ZeroDivisionError, IndexError) as exc:
         warnings.append(f"bad_gps: {exc}"[:80])
         return None
@@ -278,7 +279,7 @@ def _gps(tags: dict, warnings: list[str]) -> dict | None:
     return out
 
 
-def read_metadata(path: str | os.PathLike) -> CaptureMetadata:
+def read_metadata(path: str | os.PathLike[str]) -> CaptureMetadata:
     """Read the capture metadata of a JPEG or DNG/TIFF file.
 
     Parameters
@@ -409,7 +410,7 @@ def _read_metadata_bytes(data: bytes, name: str) -> CaptureMetadata:
     image_type: ImageType = "unknown"
     t = theta.get(0x0001)
     if isinstance(t, list) and t:
-        image_type = RICOH_IMAGE_TYPES.get(int(t[0]), "unknown")
+        image_type = cast(ImageType, RICOH_IMAGE_TYPES.get(int(t[0]), "unknown"))
         if image_type == "unknown":
             warnings.append(f"unsupported_image_type: Ricoh image type {t[0]} (single fisheye or unknown)")
     elif str(gpano.get("ProjectionType", "")).lower() == "equirectangular":

@@ -7,7 +7,7 @@ ours x right, y down, z forward).
 from __future__ import annotations
 
 import math
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 
@@ -26,7 +26,7 @@ def gravity_from_pitch_roll(pitch: float, roll: float) -> np.ndarray:
     ``g_ricoh = RICOH_TO_OURSᵀ g_ours_cam``.
     """
     R = np.asarray(rotation_from_ypr(0.0, float(pitch), float(roll)))
-    return RICOH_TO_OURS.T @ (R.T @ np.array([0.0, 1.0, 0.0]))
+    return cast(np.ndarray, RICOH_TO_OURS.T @ (R.T @ np.array([0.0, 1.0, 0.0])))
 
 
 def pitch_roll_from_gravity(g_ricoh: Any) -> tuple[float, float]:

@@ -18,7 +18,7 @@ from __future__ import annotations
 import os
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Literal
+from typing import Literal, Sequence, cast
 
 import numpy as np
 
@@ -60,21 +60,21 @@ class RawImage:
     warnings: list[str] = field(default_factory=list)
 
 
-def is_raw_file(path: str | os.PathLike) -> bool:
+def is_raw_file(path: str | os.PathLike[str]) -> bool:
     """Whether ``path`` has a raw-file suffix (``.dng``, ``.cr2``, ...)."""
     return Path(path).suffix.lower() in RAW_SUFFIXES
 
 
-def _normalised_wb(mult: list[float] | np.ndarray) -> np.ndarray:
+def _normalised_wb(mult: Sequence[float] | np.ndarray) -> np.ndarray:
     """RGB(G) multipliers -> RGB with green = 1 (LibRaw reports RGBG; G2 = 0 means 'same as G')."""
     m = np.asarray(list(mult)[:3], dtype=np.float64)
     if m.shape != (3,) or not np.all(np.isfinite(m)) or np.any(m <= 0):
         raise ValueError(f"bad white-balance multipliers {list(mult)}")
-    return m / m[1]
+    return cast(np.ndarray, m / m[1])
 
 
 def read_raw(
-    path: str | os.PathLike,
+    path: str | os.PathLike[str],
     *,
     wb: Literal["camera", "daylight", "none"] | tuple[float, float, float] = "camera",
     color: Literal["srgb", "camera"] = "srgb",

@@ -14,7 +14,7 @@ GPANO_NS = "http://ns.google.com/photos/1.0/panorama/"
 XMP_APP1 = b"http://ns.adobe.com/xap/1.0/\x00"
 
 
-def parse_gpano(packet: bytes, warnings: list[str]) -> dict:
+def parse_gpano(packet: bytes, warnings: list[str]) -> dict[str, Any]:
     """GPano fields of an XMP packet, as attributes or elements; numbers converted."""
     start = packet.find(b"<x:xmpmeta")
     end = packet.find(b"</x:xmpmeta>")

@@ -7,11 +7,12 @@ coordinates does not pay for SciPy (``sun``) or OpenEXR (``io``) at start-up.
 
 import importlib
 import importlib.util
+from typing import Any
 
 _SUBMODULES = ("coords", "io", "resample", "perspective", "cubemap", "sh", "sun")
 
 
-def __getattr__(name: str):
+def __getattr__(name: str) -> Any:
     if name == "__all__":  # ``from solidkit.envmap import *``: every public name (imports every sub-module)
         return [n for sub in _SUBMODULES for n in importlib.import_module(f"{__name__}.{sub}").__all__]
     if name.startswith("__"):

@@ -54,8 +54,8 @@ def namespace(*arrays: Any) -> Any:
     >>> namespace(np.zeros(3), 2.0).__name__
     'numpy'
     """
-    arrays = [a for a in arrays if not isinstance(a, (int, float))]
-    if all(isinstance(a, (np.ndarray, np.generic)) for a in arrays):
+    tensors = [a for a in arrays if not isinstance(a, (int, float))]
+    if all(isinstance(a, (np.ndarray, np.generic)) for a in tensors):
         # NumPy >= 2 is an array-API namespace itself; array_api_compat's numpy wrapper costs ~0.1 s to import
         return np
     return array_api_compat.array_namespace(*arrays)

@@ -32,7 +32,7 @@ from __future__ import annotations
 
 import math
 from functools import lru_cache
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 
@@ -133,7 +133,7 @@ def _equirect_to_cube_maps(size: int, height: int) -> tuple[np.ndarray, np.ndarr
     maps = _cv2_maps(lambda a, b: d[a:b], d.shape[:-1], height)
     for m in maps:
         m.setflags(write=False)
-    return maps
+    return cast(tuple[np.ndarray, np.ndarray], maps)
 
 
 def _face_lookup(d: Any, size: int) -> tuple[Any, Any, Any]:

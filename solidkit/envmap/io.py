@@ -9,7 +9,7 @@ from __future__ import annotations
 import json
 import os
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 import cv2
 import numpy as np
@@ -41,7 +41,7 @@ LDR_SUFFIXES = {".jpg", ".jpeg", ".png", ".tif", ".tiff", ".bmp", ".webp"}
 _META_KEY = "solidkit"
 
 
-def read_exr(path: str | os.PathLike) -> tuple[np.ndarray, dict[str, Any]]:
+def read_exr(path: str | os.PathLike[str]) -> tuple[np.ndarray, dict[str, Any]]:
     """Read an EXR image as float32.
 
     Returns
@@ -90,7 +90,7 @@ def read_exr(path: str | os.PathLike) -> tuple[np.ndarray, dict[str, Any]]:
     return np.ascontiguousarray(img, dtype=np.float32), meta
 
 
-def read_hdr(path: str | os.PathLike) -> np.ndarray:
+def read_hdr(path: str | os.PathLike[str]) -> np.ndarray:
     """Read a Radiance RGBE file (``.hdr``, ``.pic``) as linear RGB float32 ``(H, W, 3)``.
 
     Reference: G. Ward, "Real Pixels", Graphics Gems II (1991): the RGBE encoding, decoded by OpenCV's
@@ -121,7 +121,7 @@ def read_hdr(path: str | os.PathLike) -> np.ndarray:
 HDR_SUFFIXES = {".exr", ".hdr", ".pic"}
 
 
-def read_panorama(path: str | os.PathLike) -> np.ndarray:
+def read_panorama(path: str | os.PathLike[str]) -> np.ndarray:
     """Read a linear HDR panorama (EXR or Radiance HDR) as RGB float32 ``(H, W, 3)``, negatives and
     non-finite values set to 0; refuses an image that is not ``(H, 2H)``.
 
@@ -143,11 +143,11 @@ def read_panorama(path: str | os.PathLike) -> np.ndarray:
     else:
         raise InputError(f"{path}: unknown HDR panorama type '{path.suffix}' (expected .exr or .hdr)")
     validate_panorama(np.nan_to_num(img), path.name)
-    return np.clip(np.nan_to_num(img, nan=0.0, posinf=0.0, neginf=0.0), 0.0, None).astype(np.float32)
+    return cast(np.ndarray, np.clip(np.nan_to_num(img, nan=0.0, posinf=0.0, neginf=0.0), 0.0, None).astype(np.float32))
 
 
 def write_exr(
-    path: str | os.PathLike,
+    path: str | os.PathLike[str],
     image: np.ndarray,
     meta: dict[str, Any] | None = None,
     *,
@@ -250,7 +250,7 @@ def inverse_tonemap(ldr: Any, exposure: float = PAPER_EXPOSURE, gamma: float = P
     return xp.clip(ldr, 0.0, 1.0) ** gamma / (2.0**exposure)
 
 
-def imread(path: str | os.PathLike, flags: int = cv2.IMREAD_UNCHANGED) -> np.ndarray:
+def imread(path: str | os.PathLike[str], flags: int = cv2.IMREAD_UNCHANGED) -> np.ndarray:
     """``cv2.imread`` that refuses missing, undecodable and truncated files with an :class:`InputError`.
 
     OpenCV decodes a truncated JPEG without complaint (the missing rows come out grey), hence
@@ -267,7 +267,7 @@ def imread(path: str | os.PathLike, flags: int = cv2.IMREAD_UNCHANGED) -> np.nda
     return img
 
 
-def read_ldr(path: str | os.PathLike, *, linear: bool = False) -> np.ndarray:
+def read_ldr(path: str | os.PathLike[str], *, linear: bool = False) -> np.ndarray:
     """Read an 8/16-bit image as RGB float32 in [0, 1]; ``linear=True`` undoes sRGB.
 
     Examples
@@ -288,7 +288,7 @@ def read_ldr(path: str | os.PathLike, *, linear: bool = False) -> np.ndarray:
     return srgb_decode(img).astype(np.float32) if linear else img
 
 
-def write_ldr(path: str | os.PathLike, image: np.ndarray, *, encode_srgb: bool = False, quality: int = 95) -> Path:
+def write_ldr(path: str | os.PathLike[str], image: np.ndarray, *, encode_srgb: bool = False, quality: int = 95) -> Path:
     """Write RGB float in [0, 1] (or uint8) as 8-bit PNG/JPEG atomically.
 
     ``encode_srgb=True`` applies the sRGB transfer function to linear input first.
@@ -316,7 +316,7 @@ def write_ldr(path: str | os.PathLike, image: np.ndarray, *, encode_srgb: bool =
     return path
 
 
-def read_image(path: str | os.PathLike) -> tuple[np.ndarray, dict[str, Any]]:
+def read_image(path: str | os.PathLike[str]) -> tuple[np.ndarray, dict[str, Any]]:
     """Read an EXR (linear HDR) or an LDR file (sRGB decoded to linear); ``(H, W, 3)`` float32.
 
     Examples

@@ -17,7 +17,7 @@ torch functions are differentiable w.r.t. the images and ``R``.
 from __future__ import annotations
 
 import math
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 
@@ -192,7 +192,7 @@ def project_to_pixels(K: Any, c: Any) -> tuple[Any, Any, Any]:
 def _intrinsics(K: Any, fov: float | None, size: tuple[int, int]) -> np.ndarray:
     if (K is None) == (fov is None):
         raise InputError("give exactly one of K or fov")
-    return intrinsics_from_fov(fov, *size) if K is None else K
+    return intrinsics_from_fov(cast(float, fov), *size) if K is None else np.asarray(K)
 
 
 def perspective_crop(

@@ -132,7 +132,10 @@ def pad_panorama(pano: Any, pad: int = PAD) -> Any:
         def idx(a: int, b: int) -> Any:
             return torch.arange(a, b, device=pano.device)
     else:
-        xp, rows, cols, idx = module_namespace(np), 0, 1, np.arange
+        xp, rows, cols = module_namespace(np), 0, 1
+
+        def idx(a: int, b: int) -> Any:
+            return np.arange(a, b)
     w = 2 * h
     # across a pole: padded row -1-k is row k, shifted by W/2 (likewise below the bottom)
     top = xp.roll(xp.flip(xp.take(pano, idx(0, pad), axis=rows), axis=rows), w // 2, axis=cols)
@@ -274,7 +277,9 @@ def _blockwise_maps(
     return map_x, map_y
 
 
-def _cv2_maps(direction_rows: Callable[[int, int], np.ndarray], shape: tuple[int, ...], height: int):
+def _cv2_maps(
+    direction_rows: Callable[[int, int], np.ndarray], shape: tuple[int, ...], height: int
+) -> tuple[np.ndarray, np.ndarray]:
     """float32 ``cv2.remap`` maps into the ``PAD``-padded panorama for directions of ``shape + (3,)``.
 
     ``direction_rows(a, b)`` returns the directions of rows ``a:b`` (float64). Computed in
@@ -334,7 +339,7 @@ def _torch_remap(img: Any, x: Any, y: Any, interp: str, border: str = "constant"
 
 @lru_cache(maxsize=2)
 def _cached_direction_grid(height: int) -> np.ndarray:
-    grid = direction_grid(height)
+    grid: np.ndarray = direction_grid(height)
     grid.setflags(write=False)
     return grid
 

@@ -148,7 +148,7 @@ def _to_layout(x_cf: Any, like: Any, xp: Any) -> Any:
     return x_cf if _is_torch(like) else xp.moveaxis(x_cf, -3, -1)
 
 
-_CACHE: OrderedDict[tuple, Any] = OrderedDict()
+_CACHE: OrderedDict[tuple[Any, ...], Any] = OrderedDict()
 _CACHE_SIZE = 16
 
 
@@ -162,7 +162,9 @@ def _cached(name: str, height: int, builder: Callable[[int], Any], like: Any, xp
         _CACHE.move_to_end(key)
         return hit
     value = builder(height)
-    conv = lambda a: xp.asarray(a, dtype=like.dtype, device=dev)  # noqa: E731
+    def conv(a: Any) -> Any:
+        return xp.asarray(a, dtype=like.dtype, device=dev)
+
     value = tuple(conv(a) for a in value) if isinstance(value, tuple) else conv(value)
     _CACHE[key] = value
     if len(_CACHE) > _CACHE_SIZE:

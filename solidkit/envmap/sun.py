@@ -26,7 +26,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Any, Literal
+from typing import Any, Literal, cast
 
 import cv2
 import numpy as np
@@ -148,10 +148,10 @@ def luminance(image: Any, dtype: Any = np.float32) -> np.ndarray:
     """
     image = np.asarray(image)
     if image.ndim == 2:
-        return image.astype(dtype, copy=False)
+        return cast(np.ndarray, image.astype(dtype, copy=False))
     if image.shape[2] == 1:
-        return image[..., 0].astype(dtype, copy=False)
-    return image[..., :3].astype(dtype, copy=False) @ np.asarray(REC709_LUMINANCE, dtype=dtype)
+        return cast(np.ndarray, image[..., 0].astype(dtype, copy=False))
+    return cast(np.ndarray, image[..., :3].astype(dtype, copy=False) @ np.asarray(REC709_LUMINANCE, dtype=dtype))
 
 
 def label_spherical(mask: np.ndarray) -> tuple[np.ndarray, int]:
@@ -241,12 +241,12 @@ def spherical_centroid(weights: np.ndarray, mask: np.ndarray | None = None) -> n
     norm = float(np.linalg.norm(s))
     if not np.isfinite(norm) or norm <= 1e-300 * max(float(np.abs(w).sum()), 1e-300):
         return None
-    return s / norm
+    return cast(np.ndarray, s / norm)
 
 
 def _pixel_directions(rows: np.ndarray, cols: np.ndarray, h: int) -> np.ndarray:
     """Unit directions ``(n, 3)`` float64 of the centres of pixels ``(rows, cols)``."""
-    return direction_from_coords(cols + 0.5, rows + 0.5, h)
+    return cast(np.ndarray, direction_from_coords(cols + 0.5, rows + 0.5, h))
 
 
 def _cos_to(h: int, centre: np.ndarray) -> np.ndarray:
@@ -254,7 +254,7 @@ def _cos_to(h: int, centre: np.ndarray) -> np.ndarray:
     from per-row and per-column factors instead of a full direction grid (large panoramas)."""
     phi, theta = angles_from_coords(np.arange(2 * h) + 0.5, np.arange(h) + 0.5, h)
     cols = (np.sin(phi) * centre[0] + np.cos(phi) * centre[2]).astype(np.float32)
-    return np.cos(theta).astype(np.float32)[:, None] * cols[None, :] - (
+    return np.cos(theta).astype(np.float32)[:, None] * cols[None, :] - (  # type: ignore[no-any-return]
         np.sin(theta) * centre[1]
     ).astype(np.float32)[:, None]
 
@@ -275,7 +275,7 @@ def _blur(lum: np.ndarray, sigma_px: float) -> np.ndarray:
         return lum
     from scipy import ndimage
 
-    return ndimage.gaussian_filter(lum, sigma_px, mode=("nearest", "wrap"), truncate=3.0)
+    return cast(np.ndarray, ndimage.gaussian_filter(lum, sigma_px, mode=("nearest", "wrap"), truncate=3.0))
 
 
 def _background(lum: np.ndarray, centre: np.ndarray, exclude: float, q: float, max_height: int = 512) -> float:
@@ -431,7 +431,7 @@ def sun_core(
     saturated = mask is not None and bool(mask.any())
     if not saturated:
         mask = lum_b >= rel_threshold * float(lum_b.max())
-    labels, n = label_spherical(mask)
+    labels, n = label_spherical(cast(np.ndarray, mask))
     peaks, areas = _component_stats(labels, n, lum_b, omega)
     best = int(np.lexsort((areas, peaks))[-1]) + 1
     core = labels == best
@@ -536,7 +536,8 @@ def sun_paper(
         reason = f"largest bright component peaks only {contrast:.3g}x the bright sky (< {min_contrast:g}x)"
         return _result("paper", None, h, confidence=0.0, reason=reason, **common)
     energy = (lum * omega)[region]
-    near = _pixel_directions(*np.nonzero(region), h) @ direction >= math.cos(concentration_radius)
+    rows, cols = np.nonzero(region)
+    near = _pixel_directions(rows, cols, h) @ direction >= math.cos(concentration_radius)
     frac = float(energy[near].sum() / energy.sum())
     confidence = float(np.clip(1.0 - min_contrast / contrast, 0.0, 1.0) * frac)
     reason = f"largest component above the {percentile:g}th percentile: {int(region.sum())} px"

@@ -34,6 +34,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import asdict, dataclass
+from typing import Any
 
 import cv2
 import numpy as np
@@ -65,7 +66,7 @@ class TiltEstimate:
     reliable: bool
     gravity: tuple[float, float, float]
 
-    def to_json(self) -> dict:
+    def to_json(self) -> dict[str, Any]:
         return {k: (round(v, 4) if isinstance(v, float) else list(v) if isinstance(v, tuple) else v)
                 for k, v in asdict(self).items()}
 

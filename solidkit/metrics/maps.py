@@ -39,6 +39,8 @@ Local probes against HDR (synthetic only)
 
 from __future__ import annotations
 
+from typing import cast
+
 import numpy as np
 import torch
 from kornia.metrics import ssim as kornia_ssim
@@ -98,7 +100,7 @@ def saturation_mask(probe_ldr: np.ndarray, mask: np.ndarray | None = None, level
     if mask is not None:
         m = np.asarray(mask)
         sat |= (m[..., 0] if m.ndim == 3 else m).astype(bool)
-    return sat
+    return cast(np.ndarray, sat)
 
 
 def exposure_scale(predicted_hdr: np.ndarray, probe_ldr: np.ndarray, saturated: np.ndarray) -> float:
@@ -118,7 +120,7 @@ def exposure_scale(predicted_hdr: np.ndarray, probe_ldr: np.ndarray, saturated: 
 
 def ldr_from_hdr(hdr: np.ndarray, scale: float) -> np.ndarray:
     """``srgb_encode(clip(scale * H, 0, 1))``: an HDR panorama as the LDR camera would record it."""
-    return srgb_encode(np.clip(np.asarray(hdr, dtype=np.float32) * np.float32(scale), 0.0, 1.0)).astype(np.float32)
+    return cast(np.ndarray, srgb_encode(np.clip(np.asarray(hdr, dtype=np.float32) * np.float32(scale), 0.0, 1.0)).astype(np.float32))
 
 
 def _chw(a: np.ndarray) -> torch.Tensor:

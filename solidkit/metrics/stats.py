@@ -8,7 +8,7 @@ probes of one scene are not independent.
 from __future__ import annotations
 
 import math
-from typing import Any, Callable, Sequence
+from typing import Any, Callable, Sequence, cast
 
 import numpy as np
 from scipy import stats
@@ -16,7 +16,7 @@ from scipy import stats
 __all__ = ["bootstrap_ci", "summarise"]
 
 
-def _cluster_bootstrap(v: np.ndarray, group_index: np.ndarray, n_groups: int, statistic: Callable, n: int,
+def _cluster_bootstrap(v: np.ndarray, group_index: np.ndarray, n_groups: int, statistic: Callable[..., Any], n: int,
                        rng: np.random.Generator) -> np.ndarray | None:
     """``statistic`` (``np.mean`` or ``np.median``) of ``n`` cluster resamples, vectorised: each
     resample draws ``n_groups`` groups with replacement and takes every value of each drawn group
@@ -26,19 +26,19 @@ def _cluster_bootstrap(v: np.ndarray, group_index: np.ndarray, n_groups: int, st
     np.add.at(counts, (np.arange(n)[:, None], idx), 1.0)
     w = counts[:, group_index]  # (n, N): how often each value is in each resample
     if statistic is np.mean:
-        return (w @ v) / w.sum(axis=1)
+        return cast(np.ndarray, (w @ v) / w.sum(axis=1))
     if statistic is np.median:
         order = np.argsort(v, kind="stable")
         vs, cum = v[order], np.cumsum(w[:, order], axis=1)
         total = cum[:, -1].astype(np.int64)
         lo = (cum <= ((total - 1) // 2)[:, None]).sum(axis=1)  # first sorted value past position (T-1)//2
         hi = (cum <= (total // 2)[:, None]).sum(axis=1)
-        return 0.5 * (vs[lo] + vs[hi])
+        return cast(np.ndarray, 0.5 * (vs[lo] + vs[hi]))
     return None
 
 
 def bootstrap_ci(
-    values: Sequence[float],
+    values: Sequence[float] | np.ndarray,
     statistic: Callable[[np.ndarray], float] = np.median,
     groups: Sequence[Any] | None = None,
     *,
@@ -87,7 +87,7 @@ def bootstrap_ci(
     return float(lo), float(hi)
 
 
-def summarise(values: Sequence[float], groups: Sequence[Any] | None = None, seed: int = 0) -> dict[str, Any]:
+def summarise(values: Sequence[float] | np.ndarray, groups: Sequence[Any] | None = None, seed: int = 0) -> dict[str, Any]:
     """``n``, median and mean of ``values`` (NaNs dropped), each with its 95 % bootstrap interval."""
     v = np.asarray(values, dtype=np.float64)
     finite = np.isfinite(v)

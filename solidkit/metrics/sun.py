@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Any, Sequence
+from typing import Any, Literal, Sequence
 
 import numpy as np
 
@@ -30,7 +30,7 @@ SUN_METHODS = ("paper", "core")
 
 
 
-def find_sun(sky: np.ndarray, method: str) -> SunDetection:
+def find_sun(sky: np.ndarray, method: Literal["paper", "core"]) -> SunDetection:
     """The sun of a predicted global map ``(H, 2H, 3)`` linear radiance, by ``method``.
 
     ``"paper"`` runs :func:`~solidkit.envmap.sun.sun_paper` as the paper computes it: every map
