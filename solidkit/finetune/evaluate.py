@@ -60,6 +60,8 @@ __all__ = [
     "evaluate_item",
     "summarise_records",
     "METRICS",
+    "Evaluation",
+    "evaluate_testset",
 ]
 
 
@@ -519,3 +521,98 @@ def save_json(path: str | os.PathLike, result: dict[str, Any]) -> None:
     from solidkit.fsutil import atomic_write_text
 
     atomic_write_text(path, json.dumps(result, indent=1, default=float, allow_nan=True))
+
+
+# ------------------------------------------------------------------------------------ from Python
+
+
+@dataclass(frozen=True)
+class Evaluation:
+    """The numbers of one evaluation, as ``solidkit eval`` reports them (:func:`evaluate_testset`).
+
+    Attributes
+    ----------
+    result : dict
+        :func:`evaluate`'s JSON-able result (``methods``, ``items``, ``records``, ``summary``,
+        ``timing``): what ``results.json`` holds for one dataset.
+    """
+
+    result: dict[str, Any]
+
+    @property
+    def methods(self) -> list[str]:
+        """The methods' names, the model first (then e.g. ``global-as-local``, ``mean-sky``, ``mean-probe``)."""
+        return [m["name"] for m in self.result["methods"]]
+
+    @property
+    def records(self) -> list[dict[str, Any]]:
+        """One record per (method, item): the sun errors under both recipes, the global MAE, one record per probe."""
+        return self.result["records"]
+
+    @property
+    def summary(self) -> dict[str, dict[str, Any]]:
+        """Per method, per metric (a key of :data:`METRICS`): ``n``, ``median``, ``mean``, ``median_ci``,
+        ``mean_ci``; per recipe ``no_sun_rate/<recipe>``: ``n``, ``no_sun``, ``rate``."""
+        return self.result["summary"]
+
+    def _metric(self, metric: str, method: str | None) -> dict[str, Any] | None:
+        if metric not in METRICS:
+            raise KeyError(f"unknown metric {metric!r}; one of {', '.join(METRICS)}")
+        name = self.methods[0] if method is None else method
+        if name not in self.summary:
+            raise KeyError(f"no method {name!r} in this evaluation; one of {', '.join(self.methods)}")
+        return self.summary[name].get(metric)
+
+    def median(self, metric: str, method: str | None = None) -> float | None:
+        """The median of ``metric`` (a key of :data:`METRICS`; sun errors in degrees) for ``method``
+        (default: the model), as in the report's headline table; ``None`` where it was not measured
+        (e.g. the local SSIM of ``mean-sky``)."""
+        s = self._metric(metric, method)
+        return None if s is None else s["median"]
+
+    def interval(self, metric: str, method: str | None = None) -> tuple[float | None, float | None]:
+        """The scene-bootstrap 95 % interval of :meth:`median`; ``(None, None)`` where it was not measured."""
+        s = self._metric(metric, method)
+        return (None, None) if s is None else tuple(s["median_ci"])
+
+    def no_sun_rate(self, method: str | None = None, recipe: str = "core") -> float | None:
+        """The fraction of photos with a true sun where ``method`` (default: the model) predicts none,
+        under ``recipe`` (``"paper"`` or ``"core"``, the default detector); ``None`` without a true sun."""
+        s = self.summary[self.methods[0] if method is None else method].get(f"no_sun_rate/{recipe}")
+        return None if s is None else s["rate"]
+
+
+def evaluate_testset(
+    testset: str | os.PathLike,
+    checkpoint: str | os.PathLike | None = None,
+    *,
+    baselines: bool = True,
+    ablations: bool = False,
+    limit: int | None = None,
+    log: Callable[[str], Any] | None = None,
+    seed: int = 0,
+) -> Evaluation:
+    """Evaluate a SOLID-Net checkpoint on a real test set: the numbers ``solidkit eval --testset TESTSET
+    --model CHECKPOINT`` reports for it, without writing a report.
+
+    Parameters
+    ----------
+    testset : path
+        A test set folder (``testset.json``, ``solidkit testset build``).
+    checkpoint : path, optional
+        A SOLID-Net checkpoint (``.pt``); ``None``: the shipped one.
+    baselines : bool
+        Also the non-learned baselines (``global-as-local``, ``mean-sky``, ``mean-probe``).
+    ablations : bool
+        Also every checkpoint shipped beside the default one (as ``solidkit eval`` does), named ``ablation: <stem>``.
+    limit : int, optional
+        Only the first ``limit`` scenes with probes.
+    log : callable, optional
+        Called with one progress line per photo.
+    seed : int
+        Seed of the bootstrap intervals.
+    """
+    items = items_from_testset(testset)[:limit]
+    extra = {f"ablation: {k}": load_model(p) for k, p in shipped_ablations().items()} if ablations else None
+    methods = default_methods(load_model(checkpoint), extra=extra, baselines=baselines)
+    return Evaluation(evaluate(items, methods, log=log, seed=seed))
