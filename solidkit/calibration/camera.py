@@ -46,6 +46,7 @@ __all__ = [
     "resize_crop",
     "calibrate_checkerboard",
     "calibrate_camera_from_photo",
+    "calibrate_camera_from_board",
 ]
 
 MODEL_INPUT_SIZE = (320, 240)  # width, height of SOLID-Net's input (paper §4)

@@ -80,6 +80,7 @@ __all__ = [
     "feather_weights",
     "match_gains",
     "unwarp",
+    "unwarp_file",
     "seam_disagreement",
     "clear_cache",
     "default_cache_dir",

@@ -34,7 +34,8 @@ from solidkit import metrics as M
 from solidkit.finetune.evaluate import METRICS, EvalItem, Method
 from solidkit.fsutil import atomic_path, atomic_write_text
 
-__all__ = ["fmt", "headline_table", "metric_tables", "sun_figures", "qualitative_grid", "write_report", "markdown_table"]
+__all__ = ["fmt", "headline_table", "metric_tables", "sun_figures", "qualitative_grid", "write_report", "markdown_table",
+           "evaluation_report"]
 
 _CSS = """body{font-family:system-ui,sans-serif;max-width:1200px;margin:2em auto;padding:0 1em;color:#222}
 table{border-collapse:collapse;margin:.6em 0 1.4em}th,td{border:1px solid #bbb;padding:3px 8px;text-align:right}
