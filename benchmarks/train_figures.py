@@ -5,7 +5,7 @@
 - Real: crops of the real HDR panoramas in ``../shared/data/real/hdr_panoramas`` (Hold-Geoffroy et al.'s
   protocol); each panorama is reported on its own and flagged ``held_out`` when the training excluded it
   (the shipped run excludes ``city`` everywhere, as lighting and as crops).
-- Local probes: ``solidkit.finetune.evaluate`` (EVAL's metrics) on a synthetic dataset with probes
+- Local probes: ``solidkit.finetune.evaluate`` (the evaluation's metrics) on a synthetic dataset with probes
   (``--synth``), the model against its own global map used as every probe.
 
 Crops are exposed as the checkpoint's inputs were while training (``SolidNetConfig.exposure_key``: metered
