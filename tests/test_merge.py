@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
-from solidkit.capture.brackets import ShotInfo, format_exposure, group_brackets, sequence_from_name
+from solidkit.capture.bracket_groups import ShotInfo, format_exposure, group_brackets, sequence_from_name
 from solidkit.capture.merge import (
     dynamic_range_stops,
     frame_from_ldr,

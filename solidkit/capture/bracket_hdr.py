@@ -29,7 +29,7 @@ from PIL import Image
 from solidkit import __version__
 from solidkit.camera.metadata import CaptureMetadata, read_metadata
 from solidkit.camera.raw import is_raw_file, read_raw
-from solidkit.capture.brackets import ShotInfo, gain_from, group_brackets, sequence_from_name
+from solidkit.capture.bracket_groups import ShotInfo, gain_from, group_brackets, sequence_from_name
 from solidkit.capture.merge import (DEFAULT_BLACK, DEFAULT_SATURATION, Frame, MergeResult, effective_exposure,
                                     frame_from_ldr, frame_from_raw, load_response, merge_frames, read_ldr_codes,
                                     sniff_format, validate_response)

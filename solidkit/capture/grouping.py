@@ -22,7 +22,7 @@ Two card layouts are understood, per file (:func:`solidkit.capture.card.folder_l
    time span (± ``scene_gap_s``) contains it, so a photo camera's card can be ingested after
    the Theta's card into the same campaign.
 
-Within a position, Theta shots are grouped into brackets (:mod:`solidkit.capture.brackets`:
+Within a position, Theta shots are grouped into brackets (:mod:`solidkit.capture.bracket_groups`:
 time gaps <= ``bracket_gap_s``, distinct exposures). Kinds: ``bracket_member`` (a group of two
 or more), ``low_exposure`` (a single shot at <= ``low_exposure_max_s``, default 1/4000 s: the sun
 frame), ``probe`` (any other single shot), ``photo``. A position that gets no HDR product (no
@@ -43,7 +43,7 @@ from datetime import datetime, timedelta
 from pathlib import Path
 from typing import Any
 
-from solidkit.capture.brackets import format_exposure
+from solidkit.capture.bracket_groups import format_exposure
 from solidkit.capture.card import folder_layout
 from solidkit.capture.fieldnotes import CAMERA_FOLDERS, CardNotes, FieldNotes
 from solidkit.capture.manifest import Bracket, GroupingParams, Manifest, Probe, Scene, Shot
@@ -90,7 +90,7 @@ def _order(shot: Shot) -> tuple:
 
 def group_shots(manifest: Manifest) -> None:
     """(Re)compute scenes, probes, brackets and shot kinds from the shots (deterministic)."""
-    from solidkit.capture.brackets import ShotInfo, gain_from, group_brackets, sequence_from_name
+    from solidkit.capture.bracket_groups import ShotInfo, gain_from, group_brackets, sequence_from_name
 
     g = manifest.grouping
     shots = sorted(manifest.shots, key=_order)
@@ -198,14 +198,14 @@ def _repeat_warning(prev: list[Shot], cur: list[Shot], gap_s: float, probe: Prob
     a, b = _end(prev[-1]), shot_time(cur[0])
     if a is None or b is None or (b - a).total_seconds() > gap_s:
         return
-    from solidkit.capture.brackets import gain_from
+    from solidkit.capture.bracket_groups import gain_from
 
     def eff(s: Shot) -> float | None:
         t = _exposure(s)
         return None if t is None else round(t * gain_from(s.metadata.get("iso"), s.metadata.get("f_number")), 12)
 
     if eff(cur[0]) is not None and eff(cur[0]) in {eff(s) for s in prev}:
-        from solidkit.capture.brackets import format_exposure
+        from solidkit.capture.bracket_groups import format_exposure
 
         name = min(src.path for src in cur[0].sources)
         probe.warnings.append(
