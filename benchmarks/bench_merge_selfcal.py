@@ -71,7 +71,7 @@ def opencv_pipeline(paths: list[Path], times: list[float]) -> tuple[np.ndarray, 
 
 def solidkit_pipeline(paths: list[Path], times: list[float], srgb: bool = False) -> tuple[np.ndarray, np.ndarray, dict]:
     from solidkit.capture.bracket_hdr import merge_bracket
-    from solidkit.capture.merge import srgb_response
+    from solidkit.capture.frame_merge import srgb_response
 
     given = srgb_response() if srgb else None
     result, prov = merge_bracket(paths, times, response=given, response_record={"kind": "srgb"} if srgb else None)
@@ -99,7 +99,7 @@ def code_prediction_error(hdr: np.ndarray, curve: np.ndarray, paths: list[Path],
 
 def main() -> None:
     from solidkit.camera.metadata import read_metadata
-    from solidkit.capture.merge import srgb_response
+    from solidkit.capture.frame_merge import srgb_response
     from solidkit.envmap.io import read_exr
 
     rows, frob = [], {}
@@ -131,7 +131,7 @@ def main() -> None:
             ocv, ocv_curve = opencv_pipeline(paths, times)
             from solidkit.capture.bracket_hdr import merge_bracket
             from solidkit.capture.selfcal import estimate_response
-            from solidkit.capture.merge import read_ldr_codes
+            from solidkit.capture.frame_merge import read_ldr_codes
 
             result, prov = merge_bracket(paths, times)
             curve, _ = estimate_response([read_ldr_codes(p) for p in paths], times)

@@ -37,7 +37,7 @@ def test_response_command(tmp_path):
     prof = load_calibration_profile(tmp_path / "resp.json")
     assert prof.kind == "response" and prof.array().shape == (256, 3)
     # the HDR merge reads this profile as its response curve
-    from solidkit.capture.merge import load_response
+    from solidkit.capture.frame_merge import load_response
 
     np.testing.assert_allclose(load_response(tmp_path / "resp.json"), prof.array(), rtol=1e-6)
 

@@ -41,8 +41,8 @@ def package_copy(tmp_path: Path) -> Path:
 
 @pytest.mark.parametrize("module, line, contract, expected", [
     # envmap is the bottom of the domain layers: importing capture from it runs upwards
-    ("envmap/coords.py", "from solidkit.capture import merge  # noqa", "layers",
-     "solidkit.envmap.coords -> solidkit.capture.merge"),
+    ("envmap/coords.py", "from solidkit.capture import frame_merge  # noqa", "layers",
+     "solidkit.envmap.coords -> solidkit.capture.frame_merge"),
     # an upward import hidden inside a function counts as much as one at module level
     ("calibration/profile.py", "def _lazy():\n    from solidkit.synth import scene  # noqa\n", "layers",
      "solidkit.calibration.profile -> solidkit.synth.scene"),

@@ -12,7 +12,7 @@ import pytest
 from typer.testing import CliRunner
 
 from solidkit.capture.bracket_groups import ShotInfo, format_exposure, group_brackets, sequence_from_name
-from solidkit.capture.merge import (
+from solidkit.capture.frame_merge import (
     dynamic_range_stops,
     frame_from_ldr,
     frame_from_raw,
@@ -289,7 +289,7 @@ def test_real_frobisher_with_calibrated_response(real_data, tmp_path):
     which removes the sRGB-mismatch 'ghosts' (<= 2 % false positives on this static bracket) like a
     calibrated profile does; sRGB is only used when asked or when it must be assumed (then warned)."""
     from solidkit.calibration.response import calibrate_response_files
-    from solidkit.capture.merge import srgb_response
+    from solidkit.capture.frame_merge import srgb_response
 
     frames = sorted((real_data / "brackets_frobisher").glob("IMG_26*.jpg"))
     calibrate_response_files(frames).save(tmp_path / "canon.json")

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from solidkit.capture.merge import load_frame
+from solidkit.capture.frame_merge import load_frame
 from solidkit.camera.raw import read_raw
 from solidkit.errors import InputError
 

@@ -116,7 +116,7 @@ def load_normal_panorama(campaign: Path, manifest: Manifest, shot: Shot, R_extra
     Dual-fisheye: one unwarp with ``R_extra @ R_level`` (:func:`solidkit.capture.unwarp.unwarp_srgb8`);
     equirect: one rotation of the decoded image.
     """
-    from solidkit.capture.merge import read_ldr_codes
+    from solidkit.capture.frame_merge import read_ldr_codes
     from solidkit.capture.unwarp import default_out_height, unwarp_srgb8
 
     md = shot.metadata

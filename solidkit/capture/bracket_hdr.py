@@ -2,18 +2,18 @@
 
 The steps, each recorded in the provenance:
 
-1. **Read by content**, not by file name (:func:`solidkit.capture.merge.sniff_format`): a JPEG
+1. **Read by content**, not by file name (:func:`solidkit.capture.frame_merge.sniff_format`): a JPEG
    named ``.png`` is read as the JPEG it is (and said so); raw files (DNG, ...) linearly.
 2. **Register** the frames (:mod:`solidkit.capture.register`: MTB + phase correlation),
    undo measured shifts of ``min_shift_px`` or more, warn about frames that do not register.
 3. **Response curve** (:mod:`solidkit.capture.selfcal`): the given one; else, with 3+ 8-bit
    frames, one estimated from the (registered) bracket itself; else the sRGB inverse,
    *assumed* and warned about. Raw frames are linear and need none.
-4. **Merge** (:func:`solidkit.capture.merge.merge_frames`): weights, saturation/black, ghosts.
+4. **Merge** (:func:`solidkit.capture.frame_merge.merge_frames`): weights, saturation/black, ghosts.
 
-:func:`merge_bracket` returns the :class:`~solidkit.capture.merge.MergeResult` and a
+:func:`merge_bracket` returns the :class:`~solidkit.capture.frame_merge.MergeResult` and a
 provenance dict (``inputs``, ``response``, ``registration``, ``warnings``, ``stats``) that
-:func:`solidkit.capture.merge.merge_files` and the ingest's HDR products write into the EXR
+:func:`merge_files` and the ingest's HDR products write into the EXR
 header and the manifest.
 """
 
@@ -30,9 +30,9 @@ from solidkit import __version__
 from solidkit.camera.metadata import CaptureMetadata, read_metadata
 from solidkit.camera.raw import is_raw_file, read_raw
 from solidkit.capture.bracket_groups import ShotInfo, gain_from, group_brackets, sequence_from_name
-from solidkit.capture.merge import (DEFAULT_BLACK, DEFAULT_SATURATION, Frame, MergeResult, effective_exposure,
-                                    frame_from_ldr, frame_from_raw, load_response, merge_frames, read_ldr_codes,
-                                    sniff_format, validate_response)
+from solidkit.capture.frame_merge import (DEFAULT_BLACK, DEFAULT_SATURATION, Frame, MergeResult, effective_exposure,
+                                          frame_from_ldr, frame_from_raw, load_response, merge_frames, read_ldr_codes,
+                                          sniff_format, validate_response)
 from solidkit.envmap.io import write_exr, write_ldr
 from solidkit.fsutil import sha256_file
 from solidkit.capture.register import register_frames, shift_image

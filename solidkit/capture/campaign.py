@@ -235,7 +235,7 @@ def ingest(
         if not (math.isfinite(value) and value > 0):
             raise InputError(f"--{key.removesuffix('_s').replace('_', '-')} must be a positive number of seconds, got {value}")
     if response_path is not None:
-        from solidkit.capture.merge import load_response
+        from solidkit.capture.frame_merge import load_response
 
         load_response(Path(response_path))
     if lens_profile is not None:

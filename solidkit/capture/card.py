@@ -161,7 +161,7 @@ def ingest_file(card: str, rel: str, campaign: str, throttle_s: float = 0.0) -> 
     Returns ``{"shot": ..., "copied": bool}``, ``{"error": ...}`` (a problem of the file itself:
     remembered) or ``{"transient": ...}`` (an environmental OS error: retried next run).
     """
-    from solidkit.capture.merge import sniff_format
+    from solidkit.capture.frame_merge import sniff_format
     from solidkit.camera.metadata import read_metadata
 
     src = Path(card) / rel

@@ -2,7 +2,7 @@
 
 Products (``CAMPAIGN_DIR/products/<scene>/<probe>/``):
 
-- ``hdr``: each bracket merged to linear HDR EXR (:func:`solidkit.capture.merge.merge_frames`,
+- ``hdr``: each bracket merged to linear HDR EXR (:func:`solidkit.capture.frame_merge.merge_frames`,
   response curve from ``--response`` or the sRGB inverse) in the capture's layout, then made a
   panorama in the panorama frame (:func:`to_panorama`: dual-fisheye unwarped through the shipped
   lens profile of the camera model, or the per-unit profile given with ``--profile``, each lens
@@ -195,7 +195,7 @@ def make_product(product: dict[str, Any], shots: list[dict[str, Any]], campaign:
     try:
         if p.kind == "hdr":
             from solidkit.capture.bracket_hdr import merge_bracket
-            from solidkit.capture.merge import effective_exposure, load_response
+            from solidkit.capture.frame_merge import effective_exposure, load_response
             from solidkit.envmap.io import write_exr
 
             given = given_record = None
@@ -248,7 +248,7 @@ def make_product(product: dict[str, Any], shots: list[dict[str, Any]], campaign:
                 p.path, p.sha256 = s["original"], s["sha256"]
                 p.stats = {"resampled": False}
             else:
-                from solidkit.capture.merge import load_frame
+                from solidkit.capture.frame_merge import load_frame
                 from solidkit.envmap.io import write_ldr
 
                 frame = load_frame(camp / s["original"], float(md.get("exposure_time") or 1.0))

@@ -77,7 +77,7 @@ def response_for_bracket(images: Sequence[np.ndarray] | None, times: Sequence[fl
     ``images``: the 8-bit frames (None when the frames are raw or 16-bit: linear or decoded
     otherwise); ``given``: a curve the user gave (recorded as ``given_record``).
     """
-    from solidkit.capture.merge import srgb_response
+    from solidkit.capture.frame_merge import srgb_response
 
     if given is not None:
         return given, dict(given_record or {"kind": "array"}), []

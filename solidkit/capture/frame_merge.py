@@ -1,4 +1,4 @@
-"""Merge an exposure bracket into one linear HDR image, with ghost detection.
+"""Merge the frames of an exposure bracket into one linear HDR image, with ghost detection.
 
 Model (Debevec & Malik, SIGGRAPH 1997; Robertson, Borman & Stevenson, JEI 2003): frame ``i``
 with effective exposure ``t_i`` records ``Z_i = f(E · t_i)`` (clipped, noisy, quantised). With
