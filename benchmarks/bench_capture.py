@@ -64,7 +64,7 @@ paths = [folder / f"f{i}.jpg" for i in range(3)]
 gamma = np.repeat(((np.arange(256) / 255.0) ** 2.2)[:, None], 3, axis=1)
 t0 = time.perf_counter()
 if method == "solidkit":
-    from solidkit.capture.bracket_hdr import merge_files
+    from solidkit.capture.bracket_merge import merge_files
     stats = merge_files(paths, folder / "solidkit.exr", times=TIMES, response=gamma)[0]
     out = folder / "solidkit.exr"
 else:

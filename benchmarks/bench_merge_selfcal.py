@@ -1,7 +1,7 @@
 """HDR merge without a given response curve: solidkit vs OpenCV's full Debevec pipeline, same run.
 
 Both pipelines get only the frames and their exposure times. ``solidkit`` =
-:func:`solidkit.capture.bracket_hdr.merge_bracket` (registration, curve estimated from the
+:func:`solidkit.capture.bracket_merge.merge_bracket` (registration, curve estimated from the
 bracket, weighted merge); peer = OpenCV ``CalibrateDebevec`` (default samples) +
 ``MergeDebevec`` with that curve; ``srgb`` = solidkit's merge with the sRGB inverse assumed
 (what ``capture merge`` did before it estimated the curve).
@@ -70,7 +70,7 @@ def opencv_pipeline(paths: list[Path], times: list[float]) -> tuple[np.ndarray, 
 
 
 def solidkit_pipeline(paths: list[Path], times: list[float], srgb: bool = False) -> tuple[np.ndarray, np.ndarray, dict]:
-    from solidkit.capture.bracket_hdr import merge_bracket
+    from solidkit.capture.bracket_merge import merge_bracket
     from solidkit.capture.frame_merge import srgb_response
 
     given = srgb_response() if srgb else None
@@ -129,7 +129,7 @@ def main() -> None:
         if paths:
             times = [read_metadata(p).exposure_time for p in paths]
             ocv, ocv_curve = opencv_pipeline(paths, times)
-            from solidkit.capture.bracket_hdr import merge_bracket
+            from solidkit.capture.bracket_merge import merge_bracket
             from solidkit.capture.selfcal import estimate_response
             from solidkit.capture.frame_merge import read_ldr_codes
 

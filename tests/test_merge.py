@@ -23,7 +23,7 @@ from solidkit.capture.frame_merge import (
     validate_response,
 )
 from solidkit.camera.raw import RawImage
-from solidkit.capture.bracket_hdr import merge_files
+from solidkit.capture.bracket_merge import merge_files
 from solidkit.envmap.io import read_exr
 from solidkit.errors import InputError
 

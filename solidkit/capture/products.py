@@ -65,6 +65,7 @@ def planned_products(manifest: Manifest) -> list[Product]:
         for pr in sc.probes:
             for b in pr.brackets:
                 first = manifest.shot(b.shots[0]).metadata
+                # "tool" is the name manifests record (not a module path to follow): a changed recipe remakes every product
                 recipe = {"tool": "solidkit.capture.bracket_hdr.merge_bracket", "response": manifest.response,
                           "ghost_k": 6.0, "deghost": False, "wb": "camera", "align": True, "solidkit_version": __version__,
                           **_unwarp_recipe(manifest, first)}
@@ -194,7 +195,7 @@ def make_product(product: dict[str, Any], shots: list[dict[str, Any]], campaign:
     camp = Path(campaign)
     try:
         if p.kind == "hdr":
-            from solidkit.capture.bracket_hdr import merge_bracket
+            from solidkit.capture.bracket_merge import merge_bracket
             from solidkit.capture.frame_merge import effective_exposure, load_response
             from solidkit.envmap.io import write_exr
 

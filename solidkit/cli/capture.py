@@ -92,7 +92,7 @@ def merge(
     as_json: bool = typer.Option(False, "--json", help="Print the merge statistics as JSON."),
 ) -> None:
     """Merge exposure brackets into linear HDR EXR (weights, saturation/black exclusion, ghost report)."""
-    from solidkit.capture.bracket_hdr import merge_files  # on use: the other capture commands start without it
+    from solidkit.capture.bracket_merge import merge_files  # on use: the other capture commands start without it
 
     t = parse_exposures(times, "--times") if times else None
     wb_arg: object = tuple(parse_floats(wb, "--wb", 3, positive=True)) if "," in wb else wb

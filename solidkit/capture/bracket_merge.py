@@ -174,7 +174,7 @@ def merge_files(
     capture order (``group=False`` merges all frames as one bracket). Exposure times come from
     the metadata (scaled by ISO and f-number relative to the bracket's first frame) or from
     ``times`` (seconds, in the order of ``paths``, taken as effective exposures). Each bracket
-    goes through :func:`solidkit.capture.bracket_hdr.merge_bracket` (read by content, registered
+    goes through :func:`solidkit.capture.bracket_merge.merge_bracket` (read by content, registered
     unless ``align=False``, response given / estimated from the frames / sRGB assumed with a
     warning). The EXR's ``solidkit`` attribute holds ``exposure_time`` (the reference frame's),
     ``units`` and ``provenance`` (inputs with sha256, times, response and where it came from,
