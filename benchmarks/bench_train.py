@@ -50,7 +50,7 @@ def model_steps(name: str) -> tuple[dict, float]:
     from solidkit.model.config import preset
     from solidkit.model.losses import solidnet_losses
     from solidkit.model.solidnet import SolidNet
-    from solidkit.model.train import toy_batch
+    from solidkit.model.fit import toy_batch
     from solidkit.model.warp import camera_rotation
 
     torch.manual_seed(0)

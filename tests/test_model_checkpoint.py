@@ -16,6 +16,7 @@ from solidkit.envmap.io import read_exr, write_ldr
 from solidkit.envmap.sun import detect_sun
 from solidkit.errors import ConventionsError, InputError, SolidkitError
 from solidkit.model.config import SolidNetConfig, preset
+from solidkit.model.fit import toy_batch
 from solidkit.model.solidnet import (
     CHECKPOINT_FORMAT,
     CheckpointError,
@@ -23,7 +24,6 @@ from solidkit.model.solidnet import (
     load_checkpoint,
     save_checkpoint,
 )
-from solidkit.model.train import toy_batch
 
 
 pytestmark = pytest.mark.usefixtures("torch_one_thread")

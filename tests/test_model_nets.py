@@ -7,10 +7,10 @@ import torch
 
 from solidkit.model.baselines import BASELINES, LENetReg, build_baseline
 from solidkit.model.config import ConfigError, SolidNetConfig, preset
+from solidkit.model.fit import fit, toy_batch
 from solidkit.model.inet import flip_pad
 from solidkit.model.losses import solidnet_losses
 from solidkit.model.solidnet import SolidNet
-from solidkit.model.train import fit, toy_batch
 
 
 pytestmark = pytest.mark.usefixtures("torch_one_thread")

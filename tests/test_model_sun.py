@@ -12,6 +12,7 @@ import torch
 
 from solidkit.envmap import angular_distance, detect_sun, direction_from_angles, solid_angle
 from solidkit.model.config import ConfigError, preset
+from solidkit.model.fit import fit, toy_batch
 from solidkit.model.losses import (
     relative_distance_loss,
     sky_away_from_sun_loss,
@@ -23,7 +24,6 @@ from solidkit.model.losses import (
 )
 from solidkit.model.solidnet import SolidNet
 from solidkit.model.sunhead import local_soft_argmax, render_sun
-from solidkit.model.train import fit, toy_batch
 
 pytestmark = pytest.mark.usefixtures("torch_one_thread")
 

@@ -25,7 +25,7 @@ def synth_root(tmp_path_factory):
 
 
 def test_reprojection_and_probe_centres_match_the_generator(synth_root):
-    from solidkit.model.train import batch_from_synth
+    from solidkit.model.fit import batch_from_synth
     from solidkit.envmap.perspective import pixel_rays
     from solidkit.model.warp import camera_rotation, points_from_plane_distance, warp_to_probes
     from solidkit.synth.dataset import SynthDataset
@@ -54,7 +54,7 @@ def test_reprojection_and_probe_centres_match_the_generator(synth_root):
 def test_train_checkpoint_predict_on_synth(synth_root, tmp_path):
     from solidkit.model.config import preset
     from solidkit.model.solidnet import SolidNet
-    from solidkit.model.train import train_on_synth
+    from solidkit.model.fit import train_on_synth
 
     cfg = preset("tiny", image_size=(60, 80), pano_height=32)
     card = train_on_synth(str(synth_root), str(tmp_path / "ck.pt"), cfg, steps=3, max_seconds=60, batch_size=1,

@@ -226,7 +226,7 @@ def _mean_loss(model: torch.nn.Module, items: Sequence[EvalItem], sun_weight: fl
 
 def _synthetic_batches(dataset: Any, seed: int) -> Any:
     """Endless seeded shuffled batches of one synthetic sample (the model's batch format)."""
-    from solidkit.model.train import batch_from_synth
+    from solidkit.model.fit import batch_from_synth
 
     g = torch.Generator().manual_seed(seed)
     while True:

@@ -231,8 +231,8 @@ def crop_batch(items: list[dict[str, Any]]) -> dict[str, torch.Tensor]:
 
 
 def synth_batch(items: list[dict[str, Any]]) -> dict[str, torch.Tensor]:
-    """Collate :class:`SynthDataset` items (:func:`solidkit.model.train.batch_from_synth`)."""
-    from solidkit.model.train import batch_from_synth
+    """Collate :class:`SynthDataset` items (:func:`solidkit.model.fit.batch_from_synth`)."""
+    from solidkit.model.fit import batch_from_synth
 
     return batch_from_synth(items)
 
