@@ -37,7 +37,7 @@ import numpy as np
 from solidkit.synth.sample import Generator, SampleConfig, render_rgb
 from solidkit.synth.cameras import pinhole_sensor
 from solidkit.synth.scene import to_mitsuba
-from solidkit.synth.renderer import variant
+from solidkit.synth.mitsuba_variant import variant
 g = Generator(1, SampleConfig(candidates=2))
 block, (cam, _) = g.block_and_view(0, 0)
 cam = cam.scaled(80, 60)
@@ -64,7 +64,7 @@ def main() -> None:
 
     from solidkit.envmap import tonemap
     from solidkit.synth.cameras import pinhole_sensor
-    from solidkit.synth.renderer import mitsuba, variant
+    from solidkit.synth.mitsuba_variant import mitsuba, variant
     from solidkit.synth.sample import Generator, SampleConfig, render_buffers, render_rgb
     from solidkit.synth.scene import to_mitsuba
 

@@ -25,7 +25,7 @@ from pathlib import Path
 
 import numpy as np
 
-from solidkit.synth.renderer import mitsuba, variant
+from solidkit.synth.mitsuba_variant import mitsuba, variant
 from solidkit.synth.sample import Generator, SampleConfig, derive_seed
 from solidkit.synth.truth_probes import render_truth_probe
 from solidkit.synth.truth_rerender import _rebuild, _scene_index, read_campaign

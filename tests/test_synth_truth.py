@@ -114,7 +114,7 @@ def test_truth_rerender_refuses_a_scene_it_cannot_rebuild(tiny: Path, tmp_path: 
 def test_truth_probe_noise_falls_with_samples(tiny: Path) -> None:
     """Two independent renders at 2 and at 32 spp: their difference (pure Monte Carlo noise) shrinks ~sqrt(16)."""
     from solidkit.synth.campaign_truth import load_truth as lt
-    from solidkit.synth.renderer import mitsuba
+    from solidkit.synth.mitsuba_variant import mitsuba
     from solidkit.synth.sample import Generator, SampleConfig
     from solidkit.synth.truth_probes import render_truth_probe
     from solidkit.synth.truth_rerender import _rebuild
@@ -148,7 +148,7 @@ def test_a_new_campaign_gets_a_truth_clean_to_its_noise_target(tmp_path: Path) -
     render of the same recipe (another seed) agrees with the stored truth to within that noise."""
     from solidkit.align.evaluate import psnr
     from solidkit.synth.campaign_truth import load_truth as lt
-    from solidkit.synth.renderer import mitsuba
+    from solidkit.synth.mitsuba_variant import mitsuba
     from solidkit.synth.sample import Generator, SampleConfig
     from solidkit.synth.truth_probes import clean_truth_probe
     from solidkit.synth.truth_rerender import _rebuild

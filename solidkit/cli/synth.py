@@ -47,7 +47,7 @@ def dataset(
     """Render SOLID-Img-style samples: photo (HDR+LDR), buffers, global map, 4 local probes, JSON."""
     from solidkit.synth.dataset import generate, parse_shard
     from solidkit.synth.filter import ReferenceSet
-    from solidkit.synth.renderer import select_variant
+    from solidkit.synth.mitsuba_variant import select_variant
     from solidkit.synth.sample import SampleConfig
 
     logging.basicConfig(level=logging.INFO, format="%(message)s")
@@ -95,7 +95,7 @@ def sources(
     """Render city-block HDR panoramas + their lighting: sources of the crop path of I-Net training."""
     from solidkit.synth.dataset import parse_shard
     from solidkit.synth.panocrops import SourceConfig, render_sources
-    from solidkit.synth.renderer import select_variant
+    from solidkit.synth.mitsuba_variant import select_variant
 
     output_folder(out)
     sh = parse_shard(shard)
@@ -165,7 +165,7 @@ def campaign(
 ) -> None:
     """A virtual field campaign: photos, Theta dual-fisheye shots (card layout) and a separate truth file."""
     from solidkit.synth.campaign import PRESETS, CampaignConfig, generate_campaign
-    from solidkit.synth.renderer import select_variant
+    from solidkit.synth.mitsuba_variant import select_variant
 
     if preset not in PRESETS:
         raise InputError(f"--preset: expected one of {', '.join(PRESETS)}, got '{preset}'")
@@ -225,7 +225,7 @@ def campaign_truth(
     The scene is rebuilt from the campaign's seed and settings and checked against the truth before
     anything is written; the spp and recipe version are recorded per probe and in truth.json.
     """
-    from solidkit.synth.renderer import select_variant
+    from solidkit.synth.mitsuba_variant import select_variant
     from solidkit.synth.truth_rerender import read_campaign, rerender_truth
 
     logging.basicConfig(level=logging.INFO, format="%(message)s")

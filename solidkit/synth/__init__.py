@@ -42,7 +42,7 @@ _EXPORTS = {
     "SolarFix": "solar",
     "place_sun": "solar",
     "solar_position": "solar",
-    "select_variant": "renderer",
+    "select_variant": "mitsuba_variant",
 }
 
 __all__ = sorted(_EXPORTS)

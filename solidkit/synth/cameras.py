@@ -27,7 +27,7 @@ import numpy as np
 
 from solidkit.envmap import rotation_from_ypr, rotation_y
 from solidkit.envmap.perspective import pixel_rays, scale_intrinsics
-from solidkit.synth.renderer import mitsuba
+from solidkit.synth.mitsuba_variant import mitsuba
 from solidkit.synth.scene import CityBlock
 
 __all__ = ["Camera", "pinhole_sensor", "equirect_sensor", "sample_candidate"]

@@ -218,7 +218,7 @@ def generate_campaign(out: str | os.PathLike, scenes: int, probes: int, *, seed:
     capture_id)`` is called once per capture, skipped ones included.
     """
     from solidkit.camera.lens import load_profile
-    from solidkit.synth.renderer import mitsuba, variant
+    from solidkit.synth.mitsuba_variant import mitsuba, variant
 
     if scenes < 1 or probes < 0:
         raise InputError("--scenes must be >= 1 and --probes >= 0")

@@ -67,7 +67,7 @@ class Lighting:
 
     def emitter(self) -> dict[str, Any]:
         """Mitsuba ``envmap`` plugin dict (``to_world = rotation @ M0``)."""
-        from solidkit.synth.renderer import mitsuba
+        from solidkit.synth.mitsuba_variant import mitsuba
 
         mi = mitsuba()
         m = np.eye(4)
@@ -109,7 +109,7 @@ def sunsky(sun: np.ndarray, turbidity: float = 3.0, *, height: int = 512, rng: n
     Returns a :class:`Lighting` with a ``(height, 2 height, 3)`` panorama (sky evaluated at
     256x128 and upsampled; the sun one pixel with the disk's energy).
     """
-    from solidkit.synth.renderer import is_vectorized, mitsuba
+    from solidkit.synth.mitsuba_variant import is_vectorized, mitsuba
 
     import drjit as dr
 
@@ -190,14 +190,14 @@ def random_lighting(rng: np.random.Generator, *, p_sunsky: float = 0.5, height: 
 
 def _has_sunsky() -> bool:
     """Whether the installed Mitsuba has the ``sunsky`` emitter (3.6 and later)."""
-    from solidkit.synth.renderer import variant
+    from solidkit.synth.mitsuba_variant import variant
 
     return _has_sunsky_in(variant())
 
 
 @functools.lru_cache(maxsize=None)
 def _has_sunsky_in(name: str) -> bool:
-    from solidkit.synth.renderer import mitsuba
+    from solidkit.synth.mitsuba_variant import mitsuba
 
     try:
         mitsuba().load_dict({"type": "sunsky"})

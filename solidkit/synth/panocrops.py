@@ -112,7 +112,7 @@ def render_source(seed: int, index: int, out_dir: str | os.PathLike, config: Sou
 
     from solidkit.synth.cameras import sample_candidate
     from solidkit.synth.lighting import HDR_DIR, random_lighting
-    from solidkit.synth.renderer import mitsuba, variant
+    from solidkit.synth.mitsuba_variant import mitsuba, variant
     from solidkit.synth.sample import derive_seed, render_panorama, suppress_fireflies, sun_mask_panorama
     from solidkit.synth.scene import city_block, to_mitsuba
 

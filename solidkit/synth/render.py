@@ -11,8 +11,8 @@ from typing import Any
 import numpy as np
 
 from solidkit.synth.cameras import Camera, pinhole_sensor
+from solidkit.synth.mitsuba_variant import mitsuba
 from solidkit.synth.plugins import BUFFER_AOVS
-from solidkit.synth.renderer import mitsuba
 
 __all__ = ["integrator", "render_rgb", "render_buffers"]
 

@@ -242,7 +242,7 @@ class Generator:
         """
         import time
 
-        from solidkit.synth.renderer import mitsuba, variant
+        from solidkit.synth.mitsuba_variant import mitsuba, variant
 
         mi = mitsuba()
         cfg = self.config

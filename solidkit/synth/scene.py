@@ -370,7 +370,7 @@ def to_mitsuba(block: CityBlock | None, emitter: dict[str, Any] | None, *, white
     Textures are drawn from a generator seeded by the block's seed, so the same block always
     gets the same textures. ``white=True`` makes every surface a white (0.8) Lambertian.
     """
-    from solidkit.synth.renderer import mitsuba
+    from solidkit.synth.mitsuba_variant import mitsuba
 
     mi = mitsuba()
     desc: dict[str, Any] = {"type": "scene"}

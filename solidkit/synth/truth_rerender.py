@@ -152,7 +152,7 @@ def rerender_truth(campaign: str | os.PathLike, *, spp: int | None = None, noise
     """
     import time
 
-    from solidkit.synth.renderer import mitsuba, variant
+    from solidkit.synth.mitsuba_variant import mitsuba, variant
 
     root = Path(campaign)
     truth_dir = root / "truth"
