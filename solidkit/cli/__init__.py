@@ -10,7 +10,6 @@ import traceback
 from pathlib import Path
 
 import typer
-from typer._click.exceptions import ClickException, NoArgsIsHelpError, UsageError  # typer >= 0.16 vendors click
 
 from solidkit.errors import InputError, SolidkitError
 
@@ -124,14 +123,14 @@ def main() -> None:
         sys.exit(130)
     except typer.Exit as exc:
         sys.exit(exc.exit_code)
-    except NoArgsIsHelpError as exc:  # a bare group: its help
-        exc.show()
-        sys.exit(exc.exit_code)
-    except UsageError as exc:  # bad option or argument: one line, naming where help is
-        hint = f" (see '{exc.ctx.command_path} --help')" if exc.ctx is not None else ""
-        _fail(f"{exc.format_message()}{hint}", exc.exit_code)
-    except ClickException as exc:
-        _fail(exc.format_message(), exc.exit_code)
+    except typer.TyperException as exc:  # typer's own errors (a usage error carries its context)
+        ctx = getattr(exc, "ctx", None)
+        message = exc.format_message()
+        if ctx is not None and (not message.strip() or "\n" in message.strip()):  # a bare group: its help
+            exc.show()  # (rich has printed the help already; plain typer's is the message)
+            sys.exit(exc.exit_code)
+        hint = f" (see '{ctx.command_path} --help')" if ctx is not None else ""  # bad option or argument
+        _fail(f"{message}{hint}", exc.exit_code)
     except OSError as exc:  # the file system said no: a file where a folder must be, permissions, disk full
         where = f"{exc.filename}: " if exc.filename else ""
         reason = exc.strerror or str(exc)
