@@ -38,6 +38,15 @@ from scipy.spatial.transform import Rotation
 
 from solidkit.errors import InputError
 from solidkit.fsutil import atomic_write_text
+from solidkit.align.pipeline import AlignSettings, align_campaign
+from solidkit.capture.campaign import ingest
+from solidkit.envmap.coords import angular_distance, direction_from_angles
+from solidkit.finetune.evaluate import SHIPPED_PANORAMAS, default_methods, evaluate, items_from_panoramas, items_from_testset, load_model, save_json, shipped_ablations
+from solidkit.finetune.report import evaluation_sections, finetune_sections, fmt, markdown_table, write_report
+from solidkit.synth.campaign import load_truth
+from solidkit.testset.build import build_testset, load_testset
+from solidkit.testset.show import show_testset
+from solidkit.testset.validate import validate_testset
 
 __all__ = ["MINI_CAMPAIGN", "DemoConfig", "run_demo", "truth_check"]
 
@@ -88,8 +97,6 @@ def _locate_card(cfg: DemoConfig) -> tuple[Path, Path | None]:
 
 
 def _ingest(card: Path, campaign: Path, cfg: DemoConfig, log: Callable[[str], Any]) -> dict[str, Any]:
-    from solidkit.capture.campaign import ingest
-
     rep = ingest(card, campaign, jobs=cfg.jobs)
     manifest = json.loads((campaign / "manifest.json").read_text())
     scenes = manifest.get("scenes", [])
@@ -103,7 +110,6 @@ def _label_sun(campaign: Path, cfg: DemoConfig, log: Callable[[str], Any]) -> di
     """``solidkit label sun``: sun labels only (no products, no alignment.json), as the CLI runs it."""
     import inspect
 
-    from solidkit.align.pipeline import AlignSettings, align_campaign
 
     if "label_kinds" not in inspect.signature(align_campaign).parameters:  # an align without the sun-only pass
         return {"note": "done by the alignment pass (next step)"}
@@ -120,7 +126,6 @@ def _label_sun(campaign: Path, cfg: DemoConfig, log: Callable[[str], Any]) -> di
 def _align(campaign: Path, cfg: DemoConfig, log: Callable[[str], Any]) -> dict[str, Any]:
     import importlib.util
 
-    from solidkit.align.pipeline import align_campaign
 
     report = importlib.util.find_spec("solidkit.align.report") is not None  # the alignment report, once ALIGN ships it
     al = align_campaign(campaign, report=report, log=lambda s: log(f"    {s}"))
@@ -140,11 +145,6 @@ def _as_dict(res: Any, what: str) -> dict[str, Any]:
 
 
 def _testset(campaign: Path, out: Path, log: Callable[[str], Any]) -> dict[str, Any]:
-    from solidkit.testset.build import build_testset
-    from solidkit.testset.validate import validate_testset
-
-    from solidkit.testset.show import show_testset
-
     build_testset(campaign, out)
     problems = validate_testset(out, allow_flagged=True)
     show_testset(out, out.parent / "contact_sheets")  # what an annotator checks before using it
@@ -162,8 +162,6 @@ def _testset(campaign: Path, out: Path, log: Callable[[str], Any]) -> dict[str, 
 
 
 def _angle_deg(a: np.ndarray, b: np.ndarray) -> float:
-    from solidkit.envmap.coords import angular_distance
-
     return math.degrees(float(angular_distance(np.asarray(a, float), np.asarray(b, float))))
 
 
@@ -174,10 +172,6 @@ def truth_check(testset: Path, truth_dir: Path) -> dict[str, Any]:
     probe: the full-resolution pixel error (px) and the rotation error (degrees, the angle of
     ``R_est^T R_true``). The truth is read here only, after the chain has run.
     """
-    from solidkit.envmap.coords import direction_from_angles
-    from solidkit.synth.campaign import load_truth
-    from solidkit.testset.build import load_testset
-
     truth = load_truth(Path(truth_dir) / "truth.json")
     ts = load_testset(testset)
     by_id = {s.id: s for s in truth.scenes}
@@ -220,8 +214,6 @@ def truth_check(testset: Path, truth_dir: Path) -> dict[str, Any]:
 
 
 def _truth_section(tc: dict[str, Any]) -> str:
-    from solidkit.finetune.report import fmt, markdown_table
-
     rows = [[name, str(s["n"]), fmt(s["median"]), fmt(s["p95"]), fmt(s["max"])] for name, s in
             (("sun label error (°)", tc["sun_error_deg"]), ("probe pixel error (full-res px)", tc["pixel_error_px"]),
              ("probe rotation error (°)", tc["rotation_error_deg"]))]
@@ -244,8 +236,6 @@ def _truth_section(tc: dict[str, Any]) -> str:
 
 def run_demo(out: str | Path, cfg: DemoConfig | None = None, log: Callable[[str], Any] = print) -> dict[str, Any]:
     """Run the whole chain into ``out``; returns the summary (also ``out/summary.json``)."""
-    from solidkit.finetune.report import finetune_sections, markdown_table, write_report, fmt
-
     cfg = cfg or DemoConfig()
     out = Path(out)
     card, truth = _locate_card(cfg)
@@ -277,10 +267,6 @@ def run_demo(out: str | Path, cfg: DemoConfig | None = None, log: Callable[[str]
         return data
 
     def evaluate_step() -> dict[str, Any]:
-        from solidkit.finetune.evaluate import (SHIPPED_PANORAMAS, default_methods, evaluate, items_from_panoramas,
-                                                items_from_testset, load_model, save_json, shipped_ablations)
-        from solidkit.finetune.report import evaluation_sections
-
         items = items_from_testset(testset)
         state["items"] = items
         net = load_model(cfg.model)
@@ -311,8 +297,7 @@ def run_demo(out: str | Path, cfg: DemoConfig | None = None, log: Callable[[str]
                 "seconds_per_scene": res["timing"]["seconds_per_scene_median"]}
 
     def finetune_step() -> dict[str, Any]:
-        from solidkit.finetune.evaluate import save_json
-        from solidkit.finetune.finetune import FineTuneConfig, run_finetune
+        from solidkit.finetune.finetune import FineTuneConfig, run_finetune  # lazy: pulls in kornia, torch
 
         items = state["items"]
         n_scenes = len({i.scene for i in items})

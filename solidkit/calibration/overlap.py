@@ -45,6 +45,7 @@ from solidkit.envmap.coords import rotation_from_rotvec
 from solidkit.envmap.resample import sample_image
 from solidkit.envmap.sun import luminance
 from solidkit.errors import InputError
+from solidkit.calibration.seam import prepare_seam_image, seam_error
 
 __all__ = ["RefineResult", "ring_directions", "apply_params", "refine_overlap", "fit_image_circle", "refine_files"]
 
@@ -316,8 +317,6 @@ def refine_files(
     disagreement (median |difference| of the two lenses on the feather band, linear) before and
     after, averaged over the images, ``refused`` (None or the reason) and ``warnings``.
     """
-    from solidkit.calibration.seam import prepare_seam_image, seam_error
-
     if not paths:
         raise InputError("no images given")
     prof = load_profile(base)

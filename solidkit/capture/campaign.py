@@ -1,6 +1,6 @@
 """Campaign ingest: SD cards -> content-addressed originals, a manifest, and derived products.
 
-``solidkit ingest CARD_DIR CAMPAIGN_DIR [--jobs N]`` copies every capture on a card once into
+``solidkit ingest CARD_DIR -o CAMPAIGN_DIR [--jobs N]`` copies every capture on a card once into
 ``CAMPAIGN_DIR/originals/<sha[:2]>/<sha256>.<ext>`` (read-only, byte-identical, verified),
 reads its metadata and the field notes, groups the shots into scenes, Theta positions and
 brackets, derives the products (merged HDR per bracket, the low-exposure sun frame per position)
@@ -58,6 +58,11 @@ from solidkit.capture.manifest import (MANIFEST_NAME, SCHEMA_VERSION, Bracket, F
 from solidkit.capture.products import make_product, planned_products, record_profile, tilt_warning, to_panorama
 from solidkit.errors import InputError
 from solidkit.fsutil import sha256_file
+from solidkit import __version__
+from solidkit.camera.lens import load_profile
+from solidkit.capture.frame_merge import load_response
+from solidkit.capture.unwarp import load_vignetting
+from solidkit.envmap.coords import CONVENTIONS_VERSION
 
 __all__ = [
     "SCHEMA_VERSION",
@@ -217,9 +222,6 @@ def ingest(
     Raises :class:`InputError` for a missing card or an unreadable manifest; per-file problems
     are collected in the report and the manifest instead.
     """
-    from solidkit import __version__
-    from solidkit.envmap.coords import CONVENTIONS_VERSION
-
     card = Path(card_dir).resolve()
     campaign = Path(campaign_dir).resolve()
     if not card.is_dir():
@@ -235,16 +237,10 @@ def ingest(
         if not (math.isfinite(value) and value > 0):
             raise InputError(f"--{key.removesuffix('_s').replace('_', '-')} must be a positive number of seconds, got {value}")
     if response_path is not None:
-        from solidkit.capture.frame_merge import load_response
-
         load_response(Path(response_path))
     if lens_profile is not None:
-        from solidkit.camera.lens import load_profile
-
         lp = load_profile(lens_profile)  # a file, or a shipped name
     if vignetting_path is not None:
-        from solidkit.capture.unwarp import load_vignetting
-
         load_vignetting(vignetting_path)
     scan = scan_card(card)
     captures, unrelated = scan.captures, scan.unrelated

@@ -22,6 +22,9 @@ from typing import Any
 from solidkit.capture.fieldnotes import is_notes_file
 from solidkit.errors import InputError, SolidkitError
 from solidkit.fsutil import atomic_path, is_environmental, sha256_file
+from solidkit.camera.metadata import read_metadata
+from solidkit.capture.fieldnotes import read_notes
+from solidkit.capture.frame_merge import sniff_format
 
 __all__ = ["IMAGE_SUFFIXES", "CardScan", "scan_card", "folder_layout", "ingest_file", "copy_original"]
 
@@ -161,9 +164,6 @@ def ingest_file(card: str, rel: str, campaign: str, throttle_s: float = 0.0) -> 
     Returns ``{"shot": ..., "copied": bool}``, ``{"error": ...}`` (a problem of the file itself:
     remembered) or ``{"transient": ...}`` (an environmental OS error: retried next run).
     """
-    from solidkit.capture.frame_merge import sniff_format
-    from solidkit.camera.metadata import read_metadata
-
     src = Path(card) / rel
     try:
         st = src.stat()
@@ -216,8 +216,6 @@ def ingest_notes(card: str, rel: str, campaign: str) -> dict[str, Any]:
     top level is a card-level file (``[scenes.<id>]`` tables), one in a scene folder belongs to
     that scene.
     """
-    from solidkit.capture.fieldnotes import read_notes
-
     src = Path(card) / rel
     parts = Path(rel).parts
     scene = parts[0] if len(parts) == 2 else None

@@ -47,6 +47,7 @@ from solidkit.capture.bracket_groups import format_exposure
 from solidkit.capture.card import folder_layout
 from solidkit.capture.fieldnotes import CAMERA_FOLDERS, CardNotes, FieldNotes
 from solidkit.capture.manifest import Bracket, GroupingParams, Manifest, Probe, Scene, Shot
+from solidkit.capture.bracket_groups import ShotInfo, gain_from, group_brackets, sequence_from_name
 
 __all__ = ["group_shots", "apply_notes", "shot_time"]
 
@@ -90,8 +91,6 @@ def _order(shot: Shot) -> tuple:
 
 def group_shots(manifest: Manifest) -> None:
     """(Re)compute scenes, probes, brackets and shot kinds from the shots (deterministic)."""
-    from solidkit.capture.bracket_groups import ShotInfo, gain_from, group_brackets, sequence_from_name
-
     g = manifest.grouping
     shots = sorted(manifest.shots, key=_order)
     for s in shots:
@@ -198,15 +197,12 @@ def _repeat_warning(prev: list[Shot], cur: list[Shot], gap_s: float, probe: Prob
     a, b = _end(prev[-1]), shot_time(cur[0])
     if a is None or b is None or (b - a).total_seconds() > gap_s:
         return
-    from solidkit.capture.bracket_groups import gain_from
 
     def eff(s: Shot) -> float | None:
         t = _exposure(s)
         return None if t is None else round(t * gain_from(s.metadata.get("iso"), s.metadata.get("f_number")), 12)
 
     if eff(cur[0]) is not None and eff(cur[0]) in {eff(s) for s in prev}:
-        from solidkit.capture.bracket_groups import format_exposure
-
         name = min(src.path for src in cur[0].sources)
         probe.warnings.append(
             f"duplicate_exposure: {name} repeats exposure {format_exposure(_exposure(cur[0]))} "

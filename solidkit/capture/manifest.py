@@ -29,6 +29,8 @@ from pydantic import BaseModel, ConfigDict, Field
 
 from solidkit.document import DocumentError, VersionedDocument, read_json_object
 from solidkit.fsutil import atomic_write_text
+from solidkit import __version__
+from solidkit.envmap.coords import CONVENTIONS_VERSION
 
 __all__ = [
     "SCHEMA_VERSION",
@@ -249,9 +251,6 @@ def load_manifest(campaign_dir: str | os.PathLike) -> Manifest:
     A version-1 or -2 manifest (written before the document base: ``schema_version``, no ``kind``) is
     upgraded in memory (new fields at their defaults); other versions raise :class:`ManifestError`.
     """
-    from solidkit import __version__
-    from solidkit.envmap.coords import CONVENTIONS_VERSION
-
     path = Path(campaign_dir) / MANIFEST_NAME
     if not path.exists():
         return Manifest(solidkit_version=__version__, conventions_version=CONVENTIONS_VERSION)

@@ -34,12 +34,21 @@ from typing import Any
 
 import numpy as np
 
+from solidkit.camera.metadata import CaptureMetadata
 from solidkit.capture.manifest import Manifest, Product
-from solidkit.envmap.tilt import TILT_FLAG_DEG, residual_tilt
+from solidkit.envmap.tilt import TILT_FLAG_DEG, TiltEstimate, residual_tilt
 from solidkit.errors import InputError, SolidkitError
 from solidkit.fsutil import atomic_path, is_environmental, sha256_file
+from solidkit import __version__
+from solidkit.camera.lens import load_profile, profile_for_metadata
+from solidkit.camera.metadata import level_rotation
+from solidkit.capture.bracket_merge import merge_bracket
+from solidkit.capture.frame_merge import effective_exposure, load_frame, load_response
+from solidkit.capture.unwarp import check_image_circles, default_out_height, load_vignetting, unwarp
+from solidkit.envmap.io import write_exr, write_ldr
+from solidkit.envmap.resample import rotate
 
-__all__ = ["planned_products", "to_panorama", "make_product", "record_profile", "tilt_warning"]
+__all__ = ["planned_products", "to_panorama", "make_product", "record_profile", "tilt_warning", "stored_tilt"]
 
 
 def tilt_warning(product: Product) -> str | None:
@@ -51,6 +60,18 @@ def tilt_warning(product: Product) -> str | None:
             f"(correction pitch {t['pitch_deg']:.2f}°, roll {t['roll_deg']:.2f}°; {t['segments']} vertical edges)")
 
 
+def stored_tilt(path: str | os.PathLike, meta: CaptureMetadata) -> TiltEstimate | None:
+    """The residual tilt (:func:`~solidkit.envmap.tilt.residual_tilt`) of a stitched capture as its
+    file stores it, read at half size; ``None`` unless ``meta`` says equirectangular with ``W = 2 H``,
+    or when the file cannot be decoded."""
+    if meta.image_type != "equirect" or meta.width != 2 * meta.height:
+        return None
+    import cv2
+
+    img = cv2.imread(str(path), cv2.IMREAD_REDUCED_COLOR_2)
+    return None if img is None else residual_tilt(img)
+
+
 def _recipe_hash(recipe: dict[str, Any], inputs: list[str]) -> str:
     blob = json.dumps({"recipe": recipe, "inputs": inputs}, sort_keys=True, default=str)
     return hashlib.sha256(blob.encode()).hexdigest()[:16]
@@ -58,8 +79,6 @@ def _recipe_hash(recipe: dict[str, Any], inputs: list[str]) -> str:
 
 def planned_products(manifest: Manifest) -> list[Product]:
     """The products the grouping calls for (without their outputs)."""
-    from solidkit import __version__
-
     out: list[Product] = []
     for sc in manifest.scenes:
         for pr in sc.probes:
@@ -91,7 +110,6 @@ def _unwarp_recipe(manifest: Manifest, md: dict[str, Any]) -> dict[str, Any]:
     (only those given; none for stitched captures, which they do not affect)."""
     if md.get("image_type") not in ("dual_fisheye", "dual_fisheye_upright"):
         return {}
-    from solidkit.capture.unwarp import default_out_height
 
     out: dict[str, Any] = {"pano_height": default_out_height(int(md.get("width") or 0))}
     if manifest.lens_profile is not None:
@@ -124,9 +142,6 @@ def _recorded_file(campaign: Path, record: dict[str, Any], what: str) -> Path:
 
 def _load_optics(campaign: Path, recipe: dict[str, Any]) -> tuple[Any, Any]:
     """``(lens profile or None, vignetting profile or None)`` of a product's recipe."""
-    from solidkit.camera.lens import load_profile
-    from solidkit.capture.unwarp import load_vignetting
-
     lens = vig = None
     rec = recipe.get("lens_profile")
     if rec is not None:
@@ -143,8 +158,6 @@ def _product_path(p: Product, suffix: str) -> Path:
 
 def _level_rotation(md: dict[str, Any]):
     """The metadata's levelling rotation (identity for upright dual-fisheye / corrected equirect)."""
-    from solidkit.camera.metadata import CaptureMetadata, level_rotation
-
     meta = CaptureMetadata.model_validate(md)
 
     if meta.image_type == "dual_fisheye_upright":
@@ -171,13 +184,9 @@ def to_panorama(image, md: dict[str, Any], lens_profile: Any = None, vignetting:
     if layout == "equirect":
         if identity:
             return image, {"resampled": False}
-        from solidkit.envmap.resample import rotate
 
         return rotate(image, R, "linear"), {"resampled": True, "levelled": True}
     if layout in ("dual_fisheye", "dual_fisheye_upright"):
-        from solidkit.camera.lens import profile_for_metadata
-        from solidkit.capture.unwarp import check_image_circles, default_out_height, unwarp
-
         h, w = image.shape[:2]
         prof = lens_profile if lens_profile is not None else profile_for_metadata(md.get("model"), w, h)
         stats: dict[str, Any] = {}
@@ -195,10 +204,6 @@ def make_product(product: dict[str, Any], shots: list[dict[str, Any]], campaign:
     camp = Path(campaign)
     try:
         if p.kind == "hdr":
-            from solidkit.capture.bracket_merge import merge_bracket
-            from solidkit.capture.frame_merge import effective_exposure, load_response
-            from solidkit.envmap.io import write_exr
-
             given = given_record = None
             if response.get("kind") == "file":
                 given, given_record = load_response(_recorded_file(camp, response, "response curve")), response
@@ -249,9 +254,6 @@ def make_product(product: dict[str, Any], shots: list[dict[str, Any]], campaign:
                 p.path, p.sha256 = s["original"], s["sha256"]
                 p.stats = {"resampled": False}
             else:
-                from solidkit.capture.frame_merge import load_frame
-                from solidkit.envmap.io import write_ldr
-
                 frame = load_frame(camp / s["original"], float(md.get("exposure_time") or 1.0))
                 pano, info = to_panorama(frame.linear, md, *_load_optics(camp, p.recipe))
                 rel = _product_path(p, ".png")

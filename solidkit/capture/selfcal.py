@@ -30,6 +30,7 @@ from typing import Any, Sequence
 import numpy as np
 
 from solidkit.calibration.response import ResponseError, calibrate_response, make_monotonic, response_sanity
+from solidkit.capture.frame_merge import srgb_response
 
 __all__ = ["MIN_FRAMES", "MIN_DISTINCT_CODES", "estimate_response", "response_for_bracket"]
 
@@ -77,8 +78,6 @@ def response_for_bracket(images: Sequence[np.ndarray] | None, times: Sequence[fl
     ``images``: the 8-bit frames (None when the frames are raw or 16-bit: linear or decoded
     otherwise); ``given``: a curve the user gave (recorded as ``given_record``).
     """
-    from solidkit.capture.frame_merge import srgb_response
-
     if given is not None:
         return given, dict(given_record or {"kind": "array"}), []
     why = None

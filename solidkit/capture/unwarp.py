@@ -71,6 +71,11 @@ from solidkit.envmap.io import LDR_SUFFIXES, imread, read_exr, write_exr
 from solidkit.envmap.resample import resize, rotate, sample_panorama
 from solidkit.errors import InputError
 from solidkit.fsutil import atomic_path, sha256_file
+from solidkit import __version__
+from solidkit.calibration.circles import fit_image_circle
+from solidkit.envmap.perspective import scale_pixel_coordinates
+from solidkit.envmap.sun import LUMINANCE_WEIGHTS
+from solidkit.envmap.tilt import TILT_FLAG_DEG, TiltEstimate, residual_tilt
 
 __all__ = [
     "CACHE_SIZE",
@@ -126,7 +131,7 @@ def vignetting_gains(maps: UnwarpMaps, vignetting: Any, profile: LensProfile, in
     another layout, has another number of lenses, or its falloff drops below 5 % where a lens
     is used.
     """
-    from solidkit.calibration.vignetting import VignettingError, falloff
+    from solidkit.calibration.vignetting import VignettingError, falloff  # lazy: pulls in scipy.optimize
 
     L = maps.weight.shape[0]
     vl = vignetting.scaled(*in_size)
@@ -362,10 +367,6 @@ def check_image_circles(image: np.ndarray, profile: LensProfile, *, max_offset: 
     Theta V size 1/4: 0.02 s instead of 4 s, circles within about a pixel); results are in
     full-size pixels. ``bgr``: the channels are OpenCV's order.
     """
-    from solidkit.calibration.circles import fit_image_circle
-    from solidkit.envmap.perspective import scale_pixel_coordinates
-    from solidkit.envmap.sun import LUMINANCE_WEIGHTS
-
     h, w = image.shape[:2]
     k = max(1, -(-w // max_width))
     if k > 1:
@@ -406,8 +407,6 @@ def default_cache_dir() -> Path:
     older one built). Files are keyed by profile, sizes, levelling and feather
     (:func:`solidkit.camera.dualfisheye.get_maps`) and written atomically (safe for concurrent runs).
     """
-    from solidkit import __version__
-
     root = os.environ.get("SOLIDKIT_CACHE_DIR") or Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "solidkit"
     return Path(root) / f"v{__version__}" / "unwarp"
 
@@ -419,8 +418,6 @@ def report_tilt(summary: dict, pano: Any) -> None:
     ``pano``: the panorama array, the written file (read at half size: edges survive), or its
     :class:`~solidkit.envmap.tilt.TiltEstimate` already made.
     """
-    from solidkit.envmap.tilt import TILT_FLAG_DEG, TiltEstimate, residual_tilt
-
     if isinstance(pano, (str, os.PathLike)):
         path = Path(pano)
         pano = read_exr(path)[0] if path.suffix.lower() == ".exr" else cv2.imread(str(path), cv2.IMREAD_REDUCED_COLOR_2)
@@ -572,8 +569,6 @@ def _read_for_unwarp(src: Path, two_lenses: bool, srgb8_out: bool) -> tuple[np.n
 
 
 def _tilt_of(pano: np.ndarray) -> Any:
-    from solidkit.envmap.tilt import residual_tilt
-
     return residual_tilt(pano)
 
 

@@ -40,6 +40,14 @@ from solidkit.envmap.io import read_exr, read_ldr, srgb_decode
 from solidkit.envmap.sun import luminance
 from solidkit.errors import InputError
 from solidkit import metrics as M
+from solidkit.envmap.coords import rotation_from_ypr
+from solidkit.envmap.io import read_image, tonemap, validate_panorama
+from solidkit.envmap.perspective import intrinsics_from_fov, perspective_crop
+from solidkit.envmap.resample import resize, rotate
+from solidkit.envmap.sun import detect_sun
+from solidkit.fsutil import atomic_write_text
+from solidkit.model import SolidNet
+from solidkit.testset.build import load_testset
 
 __all__ = [
     "EvalItem",
@@ -233,7 +241,7 @@ def items_from_synth(root: str | os.PathLike, indices: Iterable[int] | None = No
 
     Each sample is its own scene (samples of one city block share no lighting).
     """
-    from solidkit.synth.dataset import SynthDataset
+    from solidkit.synth.dataset import SynthDataset  # lazy: pulls in torch
 
     ds = SynthDataset(root, fields=("image", "global", "probes"), indices=indices)
     n = len(ds) if limit is None else min(limit, len(ds))
@@ -293,12 +301,6 @@ def items_from_panoramas(
     sun from the default detector (``None`` when it finds none: an occluded or overcast sky). No
     local probes. Each panorama is one scene.
     """
-    from solidkit.envmap.coords import rotation_from_ypr
-    from solidkit.envmap.io import read_image, tonemap, validate_panorama
-    from solidkit.envmap.perspective import intrinsics_from_fov, perspective_crop
-    from solidkit.envmap.resample import resize, rotate
-    from solidkit.envmap.sun import detect_sun
-
     K = intrinsics_from_fov(math.radians(hfov_deg), *size)
     items = []
     for path in paths:
@@ -334,8 +336,6 @@ def items_from_testset(root: str | os.PathLike) -> list[EvalItem]:
     one (its saturated pixels excluded from the global MAE); probes are the 256x128 LDR probes with
     their saturation masks.
     """
-    from solidkit.testset.build import load_testset
-
     root = Path(root)
     ts = load_testset(root)  # format, schema and conventions versions checked, one-line errors
     items = []
@@ -370,15 +370,13 @@ def items_from_testset(root: str | os.PathLike) -> list[EvalItem]:
 
 def load_model(path: str | os.PathLike | None) -> Any:
     """A SOLID-Net checkpoint (``None``: the shipped one), 1 torch thread on CPU."""
-    from solidkit.model import SolidNet
-
     return SolidNet.from_checkpoint(path)
 
 
 def shipped_ablations() -> dict[str, Path]:
     """Checkpoints shipped beside the default one (``solidkit/model/checkpoints/*.pt``), by file stem:
     the model's ablations (e.g. the paper's sky decoder without the sun head), evaluated side by side."""
-    from solidkit.model.solidnet import DEFAULT_CHECKPOINT
+    from solidkit.model.solidnet import DEFAULT_CHECKPOINT  # lazy: pulls in torch
 
     return {p.stem: p for p in sorted(DEFAULT_CHECKPOINT.parent.glob("*.pt")) if p.resolve() != DEFAULT_CHECKPOINT.resolve()}
 
@@ -518,8 +516,6 @@ def evaluate(
 
 def save_json(path: str | os.PathLike, result: dict[str, Any]) -> None:
     """Write an evaluation result as JSON (atomic)."""
-    from solidkit.fsutil import atomic_write_text
-
     atomic_write_text(path, json.dumps(result, indent=1, default=float, allow_nan=True))
 
 

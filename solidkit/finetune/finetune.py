@@ -55,6 +55,12 @@ from solidkit.envmap.sun import LUMINANCE_WEIGHTS
 from solidkit.errors import InputError
 from solidkit import metrics as M
 from solidkit.finetune.evaluate import EvalItem, ModelMethod, evaluate
+from solidkit.finetune.evaluate import items_from_synth, items_from_testset, load_model, summarise_records
+from solidkit.finetune.report import finetune_sections, write_report
+from solidkit.fsutil import atomic_write_text
+from solidkit.model.fit import batch_from_synth
+from solidkit.model.losses import solidnet_losses, sun_direction_loss
+from solidkit.synth.dataset import SynthDataset
 
 __all__ = [
     "TRAINABLE",
@@ -201,8 +207,6 @@ def _sun_logits(out: dict[str, torch.Tensor]) -> torch.Tensor:
 
 def real_losses(model: torch.nn.Module, item: EvalItem, sun_weight: float = 1.0) -> dict[str, torch.Tensor]:
     """The fine-tuning loss of one real photo: ``local`` (LDR probes) + ``sun_weight x sun``."""
-    from solidkit.model.losses import sun_direction_loss
-
     image, K, pixels, pitch, roll = _item_inputs(item, model.config.image_size)
     out = model(image, K, pixels, pitch, roll)
     probes = _tensor(np.stack(item.probes_ldr)).permute(0, 3, 1, 2)
@@ -226,8 +230,6 @@ def _mean_loss(model: torch.nn.Module, items: Sequence[EvalItem], sun_weight: fl
 
 def _synthetic_batches(dataset: Any, seed: int) -> Any:
     """Endless seeded shuffled batches of one synthetic sample (the model's batch format)."""
-    from solidkit.model.fit import batch_from_synth
-
     g = torch.Generator().manual_seed(seed)
     while True:
         yield from torch.utils.data.DataLoader(dataset, batch_size=1, shuffle=True, collate_fn=batch_from_synth, generator=g)
@@ -246,8 +248,6 @@ def finetune_fold(
     Returns the best model (lowest validation loss; the last one without validation) and a record
     with the loss history, the best epoch, the trainable parameter count and the time.
     """
-    from solidkit.model.losses import solidnet_losses
-
     torch.manual_seed(cfg.seed)
     rng = random.Random(cfg.seed)
     net = copy.deepcopy(model).eval()  # GroupNorm only: eval mode changes nothing but keeps it explicit
@@ -383,7 +383,6 @@ def run_finetune(
                      "description": f"fine-tuned per fold on the other scenes ({cfg.trainable}, lr {cfg.lr:g})"}],
         "records": before_all + after_all,
     }
-    from solidkit.finetune.evaluate import summarise_records
 
     pooled["summary"] = {"synthetic-only": summarise_records(before_all, cfg.seed),
                          "fine-tuned": summarise_records(after_all, cfg.seed)}
@@ -422,9 +421,6 @@ def finetune_report(
     import json
     from pathlib import Path
 
-    from solidkit.finetune.evaluate import items_from_synth, items_from_testset, load_model
-    from solidkit.finetune.report import finetune_sections, write_report
-    from solidkit.fsutil import atomic_write_text
 
     log = log or (lambda s: None)
     cfg = cfg or FineTuneConfig()
@@ -442,8 +438,6 @@ def finetune_report(
     net = load_model(model)
     mix = None
     if mix_synthetic is not None:
-        from solidkit.synth.dataset import SynthDataset
-
         mix = SynthDataset(mix_synthetic)
         if cfg.synthetic_every == 0:
             cfg = FineTuneConfig(**{**cfg.to_json(), "synthetic_every": 1})

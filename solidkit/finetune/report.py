@@ -33,6 +33,9 @@ from solidkit.envmap.sun import luminance
 from solidkit import metrics as M
 from solidkit.finetune.evaluate import METRICS, EvalItem, Method
 from solidkit.fsutil import atomic_path, atomic_write_text
+from solidkit.errors import InputError
+from solidkit.finetune.evaluate import default_methods, evaluate, items_from_panoramas, items_from_synth, items_from_testset, load_model, save_json, shipped_ablations
+from solidkit.synth.panocrops import load_sources
 
 __all__ = ["fmt", "headline_table", "metric_tables", "sun_figures", "qualitative_grid", "write_report", "markdown_table",
            "evaluation_report"]
@@ -350,9 +353,6 @@ def evaluation_report(
     Returns ``{"results": {dataset: result}, "report": path}``."""
     import torch
 
-    from solidkit.errors import InputError
-    from solidkit.finetune.evaluate import (default_methods, evaluate, items_from_panoramas, items_from_synth,
-                                            items_from_testset, load_model, save_json, shipped_ablations)
 
     log = log or (lambda s: None)
     if testset is None and synthetic is None and not panoramas and not sun_crops:
@@ -383,8 +383,7 @@ def evaluation_report(
         qual[ds] = (items, methods[0])
     sun_results = {}
     if sun_crops:
-        from solidkit.model.suneval import evaluate_sun_crops, protocol_crops
-        from solidkit.synth.panocrops import load_sources
+        from solidkit.model.suneval import evaluate_sun_crops, protocol_crops  # lazy: pulls in torch
 
         for folder in sun_crops:
             crops = protocol_crops(load_sources(folder, split=sun_split))

@@ -27,6 +27,9 @@ from solidkit.model.losses import solidnet_losses
 from solidkit.envmap.perspective import intrinsics_from_fov, pixel_rays
 from solidkit.model.solidnet import SolidNet
 from solidkit.model.sunhead import render_sun
+from solidkit.model.config import preset
+from solidkit.model.solidnet import save_checkpoint
+from solidkit.synth.dataset import SynthDataset
 
 __all__ = ["toy_batch", "fit", "batch_to", "batch_from_synth"]
 
@@ -239,9 +242,6 @@ def train_on_synth(
     import os
     import platform
 
-    from solidkit.model.config import preset
-    from solidkit.model.solidnet import save_checkpoint
-    from solidkit.synth.dataset import SynthDataset
 
     torch.manual_seed(seed)
     torch.set_num_threads(threads)

@@ -63,6 +63,7 @@ from solidkit.envmap.coords import direction_grid, solid_angle
 from solidkit.envmap.sh import diffuse_convolution, lambertian_sphere, sh_render
 from solidkit.model.blocks import log_from_radiance
 from solidkit.model.sunhead import log_solid_angle
+from solidkit.model.sunhead import SIGMA_MAX, SIGMA_MIN
 
 __all__ = [
     "masked_mean",
@@ -212,8 +213,6 @@ def sun_size_loss(sigma: torch.Tensor, sky: torch.Tensor, direction: torch.Tenso
 
 def _size_l1(sigma: torch.Tensor, true: torch.Tensor) -> torch.Tensor:
     """Mean ``|log sigma - log true|``, ``true`` clamped to the sun head's range of sizes."""
-    from solidkit.model.sunhead import SIGMA_MAX, SIGMA_MIN
-
     return (torch.log(sigma) - torch.log(true.clamp(SIGMA_MIN, SIGMA_MAX))).abs().mean()
 
 

@@ -48,6 +48,9 @@ from solidkit.model.config import ConfigError, SolidNetConfig, preset
 from solidkit.model.inet import INet
 from solidkit.model.pnet import PNet, pnet_input
 from solidkit.model.warp import camera_rotation, points_from_plane_distance, sample_at_pixels, warp_to_probes
+from solidkit.envmap.io import inverse_tonemap, read_ldr, tonemap
+from solidkit.envmap.sun import detect_sun
+from solidkit.synth.panocrops import metered_gain
 
 __all__ = [
     "CHECKPOINT_FORMAT",
@@ -213,9 +216,6 @@ class SolidNet(nn.Module):
         probe ``centres (N, 3)`` in metres; ``extra["probe_valid"]`` flags probes whose predicted
         geometry was usable (a pixel on the sky is not).
         """
-        from solidkit.envmap.io import read_ldr
-        from solidkit.envmap.sun import detect_sun
-
         if isinstance(image, (str, os.PathLike)):
             image = read_ldr(image)
         image = np.asarray(image)
@@ -240,9 +240,6 @@ class SolidNet(nn.Module):
         resized = cv2.resize(image, (W, H), interpolation=cv2.INTER_AREA if sx < 1 else cv2.INTER_LINEAR)
         gain = 1.0
         if self.config.exposure_key > 0:
-            from solidkit.envmap.io import inverse_tonemap, tonemap
-            from solidkit.synth.panocrops import metered_gain
-
             linear = np.asarray(inverse_tonemap(resized), dtype=np.float32)
             gain = metered_gain(linear, self.config.exposure_key)
             resized = np.clip(np.asarray(tonemap(linear * np.float32(gain))), 0.0, 1.0).astype(np.float32)

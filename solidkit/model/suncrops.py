@@ -24,6 +24,8 @@ import torch
 from solidkit.envmap.resample import downsample
 from solidkit.envmap.sun import detect_sun
 from solidkit.errors import InputError
+from solidkit.synth.panocrops import draw_view, render_view, view_direction
+from solidkit.synth.sample import derive_seed
 
 __all__ = ["BANK_HEIGHT", "CROP_SIZE", "SourceSun", "SunCropBank", "source_sun"]
 
@@ -49,7 +51,7 @@ def source_sun(light: np.ndarray, known: Any = None) -> SourceSun:
     """:class:`SourceSun` of a lighting panorama ``light (h, 2h, 3)``: the crop targets' detector
     (:func:`solidkit.envmap.detect_sun`), or ``known`` (a :class:`solidkit.synth.panocrops.CatalogSun`:
     visibility and direction measured independently) with energy and size measured at its direction."""
-    from solidkit.model.losses import sun_energy, sun_size
+    from solidkit.model.losses import sun_energy, sun_size  # lazy: pulls in kornia
 
     if known is not None:
         found, direction = bool(known.visible), np.asarray(known.direction, np.float64)
@@ -113,8 +115,6 @@ class SunCropBank:
 
     def crop(self, rng: np.random.Generator, config: Any) -> dict[str, Any]:
         """One crop drawn with ``rng`` (ranges of a :class:`solidkit.synth.panocrops.CropConfig`)."""
-        from solidkit.synth.panocrops import draw_view, render_view, view_direction
-
         k = int(rng.integers(len(self.names)) if self.weights is None else rng.choice(len(self.names), p=self.weights))
         view = draw_view(rng, config)
         image, K, roll, gain = render_view(self._panos[k].astype(np.float32), view, config)
@@ -129,8 +129,6 @@ class SunCropBank:
               ) -> dict[str, torch.Tensor]:
         """``size`` crops (this rank's share) collated: ``image (B, 3, H, W)``, ``K``, ``pitch``, ``roll``,
         ``sun_dir (B, 3)``, ``sun_visible``, ``sun_energy (B, 3)``, ``sun_size``."""
-        from solidkit.synth.sample import derive_seed
-
         if not self.names:
             raise InputError("the sun stage has no panoramas to crop")
         c = replace(config, height=CROP_SIZE[0], width=CROP_SIZE[1])

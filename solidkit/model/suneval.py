@@ -29,6 +29,7 @@ from solidkit.envmap.sun import luminance
 from solidkit.metrics.sun import direction_errors
 from solidkit.model.suncrops import source_sun
 from solidkit.synth.panocrops import CropConfig, View, render_view, view_direction
+from solidkit.model.sununcertainty import calibrate_cone_scales
 
 __all__ = ["RELATIVE_AZIMUTHS_DEG", "PITCH_DEG", "HFOV_DEG", "BASELINE_ELEVATION_DEG", "ProtocolCrop",
            "protocol_crops", "predict_model", "predict_constant", "predict_brightest_column", "sun_figures",
@@ -122,8 +123,6 @@ def predict_brightest_column(crops: list[ProtocolCrop], elevation_deg: float = B
                              ) -> dict[str, np.ndarray]:
     """The azimuth of the image column of highest mean luminance (its ray at the principal point's row,
     turned by the camera's pitch and roll) at ``elevation_deg``, always "sun"."""
-    from solidkit.envmap.coords import rotation_from_ypr
-
     dirs = []
     for c in crops:
         col = int(np.argmax(luminance(c.image).mean(axis=0)))
@@ -207,8 +206,6 @@ def calibrate_sun(model: Any, domains: dict[str, list[ProtocolCrop]], levels: tu
     Returns ``{"threshold", "balanced_accuracy", "sun_in_image", "gate_deg", "cone_scale", "n", "trials"}``;
     the model is left as it was.
     """
-    from solidkit.model.sununcertainty import calibrate_cone_scales
-
     saved = model.reconfigure(sun_cone_scale=(), sun_in_image=False)
     try:
         probs = {d: predict_model(model, c)["visible_prob"] for d, c in domains.items()}

@@ -57,6 +57,16 @@ from solidkit.metrics.sun import direction_errors, sun_error
 from solidkit.model.losses import solidnet_losses, sun_energy
 from solidkit.model.solidnet import SolidNet, save_checkpoint
 from solidkit.model.warp import camera_rotation
+from solidkit.envmap.coords import CONVENTIONS_VERSION
+from solidkit.envmap.io import tonemap
+from solidkit.fsutil import sha256_file
+from solidkit.model.losses import sun_terms
+from solidkit.model.solidnet import CHECKPOINT_VERSION, load_checkpoint
+from solidkit.model.suncrops import SunCropBank
+from solidkit.model.fit import batch_from_synth
+from solidkit.synth.dataset import SynthDataset
+from solidkit.synth.panocrops import CropConfig, CropSampler, load_sources
+from solidkit.synth.sample import derive_seed
 
 __all__ = ["StageConfig", "TrainConfig", "load_train_config", "Trainer", "crop_batch", "synth_batch", "evaluate_lighting",
            "evaluate_sun", "best_visibility_threshold", "tune_visibility_threshold", "set_visibility_threshold", "export_checkpoint",
@@ -232,8 +242,6 @@ def crop_batch(items: list[dict[str, Any]]) -> dict[str, torch.Tensor]:
 
 def synth_batch(items: list[dict[str, Any]]) -> dict[str, torch.Tensor]:
     """Collate :class:`SynthDataset` items (:func:`solidkit.model.fit.batch_from_synth`)."""
-    from solidkit.model.fit import batch_from_synth
-
     return batch_from_synth(items)
 
 
@@ -242,8 +250,6 @@ class _Data:
 
     def __init__(self, crops: list[str], exclude: list[str], synth: list[str], seed: int,
                  exposure_key: float = 0.0, *, split: str = "train", weights: list[float] | None = None) -> None:
-        from solidkit.synth.dataset import SynthDataset
-
         self.crop_dirs, self.exclude, self.seed = list(crops), tuple(exclude), seed
         self.split, self.folder_weights = split, list(weights or [])
         self.source_folders: list[int] = []
@@ -258,8 +264,6 @@ class _Data:
 
     def refresh(self, names: list[str] | None = None) -> None:
         """Rescan the crop folders (or restore the list ``names`` saved in a checkpoint)."""
-        from solidkit.synth.panocrops import load_sources
-
         # keyed by folder too: two source folders both hold a 000000
         found = [(f"{Path(d).name}/{s.name}", (k, s)) for k, d in enumerate(self.crop_dirs)
                  for s in load_sources(d, self.exclude, self.split)]
@@ -283,12 +287,7 @@ class _Data:
 
     def batch(self, stage: str, step: int, size: int, crop_fraction: float, rank: int = 0, world: int = 1
               ) -> tuple[str, dict[str, torch.Tensor]]:
-        from solidkit.synth.panocrops import CropConfig, CropSampler
-        from solidkit.synth.sample import derive_seed
-
         if stage == "sun":
-            from solidkit.model.suncrops import SunCropBank
-
             if self.bank is None:
                 self.bank = SunCropBank()
             if self.bank.names != self.source_names:
@@ -315,7 +314,6 @@ def _relight_item(it: dict[str, Any], gain: np.ndarray) -> dict[str, Any]:
     ``gain (3,)`` (the light, not the albedo), the LDR input re-tonemapped from the scaled HDR photo."""
     if "hdr" not in it:
         return it
-    from solidkit.envmap.io import tonemap
 
     g = torch.as_tensor(gain, dtype=torch.float32)[:, None, None]
     out = dict(it)
@@ -472,8 +470,6 @@ class Trainer:
         torch.manual_seed(cfg.seed)
         self.model = SolidNet(cfg.model_config())
         if cfg.init:
-            from solidkit.model.solidnet import load_checkpoint
-
             init = Path(cfg.init)
             try:  # a training state (RUN/last.pt) or a model checkpoint
                 payload = torch.load(init, map_location="cpu", weights_only=True)
@@ -783,8 +779,6 @@ class Trainer:
               ) -> dict[str, torch.Tensor]:
         cfg = self.model.config
         if stage == "sun":
-            from solidkit.model.losses import sun_terms
-
             net = ddp if ddp is not None else self.model.inet.sun
             out = net(batch["image"], batch["K"], batch["pitch"], batch["roll"])
             terms = sun_terms(out, batch["sun_dir"], batch["sun_visible"], batch["sun_energy"], batch["sun_size"],
@@ -903,10 +897,6 @@ def export_checkpoint(src: str | os.PathLike, dst: str | os.PathLike, extra: dic
     """Write the model checkpoint or training state ``src`` to ``dst`` (float16 weights) with ``extra`` merged
     into its card, and ``dst``'s ``.card.json`` beside it (sha256, bytes, config, parameters, card); returns that
     JSON. ``visibility_threshold`` (e.g. from :func:`tune_visibility_threshold`) replaces the configured one."""
-    from solidkit.envmap.coords import CONVENTIONS_VERSION
-    from solidkit.fsutil import sha256_file
-    from solidkit.model.solidnet import CHECKPOINT_VERSION
-
     model = model_from_state(src)
     if visibility_threshold is not None:
         set_visibility_threshold(model, visibility_threshold)

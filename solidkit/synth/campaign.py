@@ -122,6 +122,8 @@ from solidkit.synth.truth_probes import clean_truth_probe
 from solidkit.synth.campaign_truth import (PRESETS, SCHEMA_VERSION, CampaignConfig, CampaignTruth, CaptureTruth,
                                            PhotoTruth, ProbeTruth, SceneTruth, Shot, SolarTruth, load_truth)
 from solidkit.synth.solar import place_sun, solar_angles_deg, solar_direction, solar_position, utc_offset_text
+from solidkit.camera.lens import load_profile
+from solidkit.synth.mitsuba_variant import mitsuba, variant
 
 __all__ = ["K_SENSOR", "PRESETS", "CampaignConfig", "Shot", "ProbeTruth", "CaptureTruth", "PhotoTruth", "SceneTruth",
            "SolarTruth", "CampaignTruth", "expose", "generate_campaign", "load_truth", "open_campaign"]
@@ -217,9 +219,6 @@ def generate_campaign(out: str | os.PathLike, scenes: int, probes: int, *, seed:
     settings than those ``out`` was created with raise :class:`InputError`. ``progress(scene_id,
     capture_id)`` is called once per capture, skipped ones included.
     """
-    from solidkit.camera.lens import load_profile
-    from solidkit.synth.mitsuba_variant import mitsuba, variant
-
     if scenes < 1 or probes < 0:
         raise InputError("--scenes must be >= 1 and --probes >= 0")
     mi = mitsuba()

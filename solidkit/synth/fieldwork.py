@@ -31,6 +31,8 @@ import numpy as np
 from solidkit.synth.cameras import Camera
 from solidkit.synth.sample import pick_probe_pixels
 from solidkit.synth.scene import CityBlock, box
+from solidkit.synth.materials import materials_of
+from solidkit.synth.scene import CATEGORIES
 
 __all__ = ["REACHABLE_CATEGORIES", "GlassPanel", "reachable_mask", "pick_reachable_probes", "add_glass_facades",
            "glint_direction", "first_hit", "occluded"]
@@ -60,8 +62,6 @@ def reachable_mask(block: CityBlock, cam: Camera, buf: dict[str, np.ndarray], *,
 
     ``buf``: :func:`solidkit.synth.sample.render_buffers` of ``cam`` (``hit``, ``t``, ``normal_world``, ``label``).
     """
-    from solidkit.synth.scene import CATEGORIES
-
     hit = buf["hit"]
     v = cam.rays()
     d = (v / np.linalg.norm(v, axis=-1, keepdims=True)) @ cam.rotation.T
@@ -143,8 +143,6 @@ def add_glass_facades(block: CityBlock, rng: np.random.Generator, *, from_height
     roof (material ``curtainglass_*``, category ``building``, part of that building's object).
     Returns ``(block, panels)``; the input block is not modified.
     """
-    from solidkit.synth.materials import materials_of
-
     out = copy.copy(block)
     out.parts = list(block.parts)
     edge = max(max(abs(w[0]), abs(w[1])) for w in block.walkable) if block.walkable else 8.0

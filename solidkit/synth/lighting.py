@@ -41,6 +41,7 @@ import numpy as np
 from solidkit.envmap import (angles_from_direction, coords_from_direction, direction_from_angles, direction_grid, read_exr,
                              luminance, rotation_y, solid_angle, spherical_centroid)
 from solidkit.errors import InputError
+from solidkit.synth.mitsuba_variant import is_vectorized, mitsuba, variant
 
 __all__ = ["M0", "HDR_DIR", "Lighting", "sunsky", "hdr", "random_lighting", "horizontal_irradiance", "find_sun"]
 
@@ -67,8 +68,6 @@ class Lighting:
 
     def emitter(self) -> dict[str, Any]:
         """Mitsuba ``envmap`` plugin dict (``to_world = rotation @ M0``)."""
-        from solidkit.synth.mitsuba_variant import mitsuba
-
         mi = mitsuba()
         m = np.eye(4)
         m[:3, :3] = self.rotation @ M0
@@ -109,8 +108,6 @@ def sunsky(sun: np.ndarray, turbidity: float = 3.0, *, height: int = 512, rng: n
     Returns a :class:`Lighting` with a ``(height, 2 height, 3)`` panorama (sky evaluated at
     256x128 and upsampled; the sun one pixel with the disk's energy).
     """
-    from solidkit.synth.mitsuba_variant import is_vectorized, mitsuba
-
     import drjit as dr
 
     mi = mitsuba()
@@ -190,15 +187,11 @@ def random_lighting(rng: np.random.Generator, *, p_sunsky: float = 0.5, height: 
 
 def _has_sunsky() -> bool:
     """Whether the installed Mitsuba has the ``sunsky`` emitter (3.6 and later)."""
-    from solidkit.synth.mitsuba_variant import variant
-
     return _has_sunsky_in(variant())
 
 
 @functools.lru_cache(maxsize=None)
 def _has_sunsky_in(name: str) -> bool:
-    from solidkit.synth.mitsuba_variant import mitsuba
-
     try:
         mitsuba().load_dict({"type": "sunsky"})
     except Exception:  # older Mitsuba: unknown plugin

@@ -20,6 +20,7 @@ from pathlib import Path
 from types import ModuleType
 
 from solidkit.errors import SolidkitError
+from solidkit.synth.plugins import register
 
 __all__ = ["VARIANTS", "find_libllvm", "select_variant", "mitsuba", "variant", "is_vectorized"]
 
@@ -117,7 +118,6 @@ def mitsuba() -> ModuleType:
         mi.set_variant(name)
     registered = _state.setdefault("registered", set())
     if name not in registered:  # type: ignore[operator]
-        from solidkit.synth.plugins import register
 
         register(mi)
         registered.add(name)  # type: ignore[union-attr]

@@ -49,6 +49,11 @@ from solidkit.envmap.perspective import intrinsics_from_fov
 from solidkit.envmap.sun import luminance
 from solidkit.errors import InputError
 from solidkit.fsutil import atomic_write_text
+from solidkit.synth.cameras import sample_candidate
+from solidkit.synth.lighting import HDR_DIR, random_lighting
+from solidkit.synth.mitsuba_variant import mitsuba, variant
+from solidkit.synth.sample import derive_seed, render_panorama, sun_mask_panorama, suppress_fireflies
+from solidkit.synth.scene import city_block, to_mitsuba
 
 __all__ = ["metered_gain", "SourceConfig", "render_source", "real_source", "render_sources", "Source", "CatalogSun",
            "load_sources", "read_catalog", "real_split", "SPLITS", "CropSampler", "CropConfig", "View", "draw_view",
@@ -110,11 +115,6 @@ def render_source(seed: int, index: int, out_dir: str | os.PathLike, config: Sou
     """
     import time
 
-    from solidkit.synth.cameras import sample_candidate
-    from solidkit.synth.lighting import HDR_DIR, random_lighting
-    from solidkit.synth.mitsuba_variant import mitsuba, variant
-    from solidkit.synth.sample import derive_seed, render_panorama, suppress_fireflies, sun_mask_panorama
-    from solidkit.synth.scene import city_block, to_mitsuba
 
     cfg = config or SourceConfig()
     t0 = time.perf_counter()
@@ -149,7 +149,7 @@ def render_source(seed: int, index: int, out_dir: str | os.PathLike, config: Sou
 def render_sources(root: str | os.PathLike, n: int, *, seed: int = 0, shard: tuple[int, int] = (0, 1),
                    config: SourceConfig | None = None, progress: Any = None) -> dict[str, int]:
     """Render the missing sources ``0 .. n-1`` of shard ``shard`` into ``root/NNNNNN`` (resumable)."""
-    from solidkit.synth.dataset import shard_range
+    from solidkit.synth.dataset import shard_range  # lazy: pulls in torch
 
     root = Path(root)
     cfg = config or SourceConfig()
@@ -331,8 +331,6 @@ class CropSampler:
         return len(self.sources)
 
     def __call__(self, index: int) -> dict[str, Any]:
-        from solidkit.synth.sample import derive_seed
-
         c = self.config
         rng = np.random.default_rng(derive_seed(self.seed, int(index), 11))
         src = self.sources[int(index) % len(self.sources)]

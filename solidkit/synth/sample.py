@@ -40,6 +40,8 @@ from solidkit.synth.lighting import Lighting, random_lighting
 from solidkit.synth.render import render_buffers, render_rgb
 from solidkit.synth.scene import CATEGORIES, CityBlock, city_block, to_mitsuba
 from solidkit.synth.views import best_views
+from solidkit.envmap import direction_grid
+from solidkit.synth.mitsuba_variant import mitsuba, variant
 
 __all__ = ["SampleConfig", "render_rgb", "render_buffers", "render_panorama", "pick_probe_pixels", "Generator",
            "derive_seed", "FILES"]
@@ -148,7 +150,6 @@ def sun_mask_panorama(sun: np.ndarray | None, rotation: np.ndarray, height: int,
     """Pixels of a ``(height, 2 height)`` panorama in frame ``rotation`` within ``radius_deg`` of the sun."""
     if sun is None:
         return None
-    from solidkit.envmap import direction_grid
 
     d = rotation.T @ np.asarray(sun, float)
     return direction_grid(height) @ d > math.cos(math.radians(radius_deg))
@@ -242,7 +243,6 @@ class Generator:
         """
         import time
 
-        from solidkit.synth.mitsuba_variant import mitsuba, variant
 
         mi = mitsuba()
         cfg = self.config

@@ -24,6 +24,7 @@ from typing import Any
 import numpy as np
 
 from solidkit.synth.materials import FACADE, MATERIALS, materials_of, texture
+from solidkit.synth.mitsuba_variant import mitsuba
 
 __all__ = ["CATEGORIES", "Part", "CityBlock", "box", "quad", "blob", "city_block", "to_mitsuba"]
 
@@ -370,8 +371,6 @@ def to_mitsuba(block: CityBlock | None, emitter: dict[str, Any] | None, *, white
     Textures are drawn from a generator seeded by the block's seed, so the same block always
     gets the same textures. ``white=True`` makes every surface a white (0.8) Lambertian.
     """
-    from solidkit.synth.mitsuba_variant import mitsuba
-
     mi = mitsuba()
     desc: dict[str, Any] = {"type": "scene"}
     if emitter is not None:

@@ -46,7 +46,9 @@ from solidkit.fsutil import atomic_write_text
 from solidkit.synth.campaign import (SCENE_FILE, SETTINGS_FILE, _scene_block, _scene_lighting, _write_truth_exr,
                                      probe_exr_meta)
 from solidkit.synth.campaign_truth import CampaignConfig, SceneTruth, TruthError, load_truth
+from solidkit.synth.mitsuba_variant import mitsuba, variant
 from solidkit.synth.sample import Generator, SampleConfig, derive_seed
+from solidkit.synth.scene import to_mitsuba
 from solidkit.synth.truth_probes import PASS_SAMPLES, TRUTH_RENDER_VERSION, clean_truth_probe, psnr
 
 __all__ = ["read_campaign", "rerender_truth", "check_psnr_db"]
@@ -79,8 +81,6 @@ def _same(a: Any, b: Any, tol: float = 1e-6) -> bool:
 
 def _rebuild(mi: Any, gen: Generator, st: SceneTruth, seed: int, cfg: CampaignConfig) -> dict[str, Any]:
     """The scene ``st`` as the generator built it; :class:`InputError` where it differs from the truth."""
-    from solidkit.synth.scene import to_mitsuba
-
     s = _scene_index(st.id)
     block, cam, panels, glass = _scene_block(gen, s, st.sector, seed, cfg)
     problems = []
@@ -152,7 +152,6 @@ def rerender_truth(campaign: str | os.PathLike, *, spp: int | None = None, noise
     """
     import time
 
-    from solidkit.synth.mitsuba_variant import mitsuba, variant
 
     root = Path(campaign)
     truth_dir = root / "truth"

@@ -1,4 +1,4 @@
-"""``solidkit testset build CAMPAIGN OUT``: assemble a versioned real test set from a campaign.
+"""``solidkit testset build CAMPAIGN -o OUT``: assemble a versioned real test set from a campaign.
 
 Inputs (never modified): the campaign's ``manifest.json`` (ingest), ``align/alignment.json``
 (:mod:`solidkit.align.schema`) and, when present, its label store (:mod:`solidkit.labeling.store`).
@@ -90,6 +90,10 @@ from solidkit.testset.schema import (
     canonical_json,
     content_version,
 )
+from solidkit import __version__
+from solidkit.document import read_json_object, validate_versioned
+from solidkit.labeling.store import LabelStore, store_path
+from solidkit.testset.schema import SCHEMA_VERSION
 
 __all__ = ["BuildReport", "build_testset", "load_testset", "pixel_to_model", "Candidate", "choose", "merge_flags"]
 
@@ -144,8 +148,6 @@ class _Labels:
     """The label store's current labels (read-only), or nothing when the campaign has none."""
 
     def __init__(self, campaign: Path):
-        from solidkit.labeling.store import LabelStore, store_path
-
         self.labels: dict[tuple[str, str], Any] = {}
         self.used: dict[tuple[str, str], dict[str, Any]] = {}
         self.present = store_path(campaign).is_file()
@@ -536,9 +538,6 @@ def _check_out(out: Path, campaign: Path) -> None:
 
 def load_testset(root: str | os.PathLike) -> TestSet:
     """Read and validate ``ROOT/testset.json``; one-line :class:`InputError` otherwise."""
-    from solidkit.document import read_json_object, validate_versioned
-    from solidkit.testset.schema import SCHEMA_VERSION
-
     path = Path(root) / MANIFEST_FILE
     if not path.is_file():
         raise InputError(f"{root}: not a test set (no {MANIFEST_FILE})")
@@ -583,8 +582,6 @@ def _exclusive(out: Path) -> Iterator[None]:
 
 def _build(campaign: Path, out: Path, manifest: Manifest, alignment: CampaignAlignment, manifest_sha: str,
            report: BuildReport, log: Callable[[str], None] | None) -> BuildReport:
-    from solidkit import __version__
-
     for stale in out.parent.glob(f".{out.name}.build-*"):  # left by a killed build
         shutil.rmtree(stale, ignore_errors=True)
     staging = Path(tempfile.mkdtemp(prefix=f".{out.name}.build-", dir=out.parent))
