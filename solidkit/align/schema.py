@@ -34,7 +34,7 @@ from __future__ import annotations
 import math
 import os
 from pathlib import Path
-from typing import Literal
+from typing import Any, Literal
 
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
@@ -64,6 +64,7 @@ __all__ = [
     "body_to_pano",
     "load_alignment",
     "save_alignment",
+    "alignment_summary",
 ]
 
 SCHEMA_VERSION = 1
@@ -287,3 +288,23 @@ def save_alignment(alignment: CampaignAlignment, campaign_dir: str | os.PathLike
     p = Path(campaign_dir) / ALIGNMENT_FILE
     atomic_write_text(p, alignment.model_dump_json(indent=1) + "\n")
     return p
+
+
+def alignment_summary(alignment: CampaignAlignment) -> dict[str, Any]:
+    """The alignment in short, as ``solidkit align --json`` prints it: per scene its flags, its sun
+    (photo panorama frame and from true north, degrees; per capture the sun found and how many
+    candidates were rejected) and per probe its yaw (degrees), the source of that yaw, the residual,
+    the cues that agree, the probe pixel (full-size photo, pixels) and its flags."""
+    scenes = []
+    for sa in alignment.scenes:
+        scenes.append({
+            "scene": sa.id, "flags": sa.flags + sa.sun.flags,
+            "sun": {"found": sa.sun.found, "azimuth_deg": sa.sun.azimuth_deg, "elevation_deg": sa.sun.elevation_deg,
+                    "world_azimuth_deg": sa.sun.world_azimuth_deg, "uncertainty_deg": sa.sun.uncertainty_deg,
+                    "captures": {c.probe: {"found": c.found, "azimuth_deg": c.azimuth_deg, "elevation_deg": c.elevation_deg,
+                                           "rejected": sum(1 for k in c.candidates if not k.chosen)} for c in sa.sun.captures}},
+            "probes": [{"id": p.id, "role": p.role, "yaw_deg": p.yaw_deg, "yaw_source": p.yaw_source,
+                        "residual_deg": p.residual_deg, "cues_ok": sorted(k for k, c in p.cues.items() if c.ok),
+                        "pixel_full": p.pixel_full, "pixel_source": p.pixel_source, "flags": p.flags} for p in sa.probes],
+        })
+    return {"alignment": ALIGNMENT_FILE.as_posix(), "scenes": scenes}

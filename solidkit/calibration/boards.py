@@ -37,6 +37,7 @@ __all__ = [
     "subpixel_rays",
     "render_board",
     "read_gray",
+    "read_views",
 ]
 
 
@@ -125,6 +126,30 @@ def board_points(pattern: tuple[int, int], square: float = 1.0) -> np.ndarray:
 def read_gray(path: str | os.PathLike) -> np.ndarray:
     """An image file as 8-bit grey; :class:`InputError` when unreadable."""
     return imread(path, cv2.IMREAD_GRAYSCALE)
+
+
+def read_views(paths: Sequence[str | os.PathLike], crop: Sequence[float] | None = None) -> tuple[list[np.ndarray], tuple[int, int]]:
+    """Calibration views as 8-bit grey, each cut to ``crop`` (``x0, y0, w, h`` in pixels, rounded;
+    one lens of a dual-fisheye frame) when given.
+
+    Returns the views (contiguous ``(h, w)`` uint8 arrays) and the first file's full size ``(W, H)``
+    in pixels; :class:`InputError` when a file is unreadable or the crop leaves its image.
+    """
+    full_size = None
+    images = []
+    for p in paths:
+        g = read_gray(p)
+        if full_size is None:
+            full_size = (g.shape[1], g.shape[0])
+        if crop is not None:
+            x0, y0, w, h = (int(round(v)) for v in crop)
+            g = g[y0 : y0 + h, x0 : x0 + w]
+            if g.shape[:2] != (h, w):
+                raise InputError(f"{p}: crop {x0},{y0},{w},{h} exceeds the {full_size[0]}x{full_size[1]} image")
+        images.append(np.ascontiguousarray(g))
+    if full_size is None:
+        raise InputError("no calibration views given")
+    return images, full_size
 
 
 def find_corners(gray: np.ndarray, pattern: tuple[int, int], max_blur_px: float = 4.0) -> tuple[np.ndarray | None, str | None, float | None]:

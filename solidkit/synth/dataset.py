@@ -30,7 +30,7 @@ from solidkit.fsutil import atomic_write_text
 from solidkit.synth.filter import ReferenceSet
 from solidkit.synth.sample import FILES, Generator, SampleConfig
 
-__all__ = ["parse_shard", "shard_range", "open_dataset", "generate", "build_index", "SynthDataset"]
+__all__ = ["parse_shard", "shard_range", "open_dataset", "generate", "build_index", "rescore", "SynthDataset"]
 
 INDEX = "index.json"
 MANIFEST = "dataset.json"
@@ -131,6 +131,33 @@ def build_index(root: str | os.PathLike) -> list[dict[str, Any]]:
                         "keep": filt.get("keep", True), "variant": rec["renderer"]["variant"]})
     atomic_write_text(root / INDEX, json.dumps({"conventions_version": CONVENTIONS_VERSION, "samples": entries}, indent=1))
     return entries
+
+
+def rescore(root: str | os.PathLike, reference: ReferenceSet | str | os.PathLike, threshold: float = 0.7) -> dict[str, int]:
+    """Score every complete sample of the dataset at ``root`` against real photographs, in place.
+
+    ``reference``: a :class:`ReferenceSet`, or a folder of LDR photos (read once samples are found).
+
+    Each sample's JSON gets ``filter`` as :func:`generate` writes it (``score``: histogram
+    intersection in [0, 1], ``keep``: score >= ``threshold``, ``references``), then ``index.json``
+    is rebuilt. Returns ``{"samples", "kept", "references"}``; no samples: :class:`InputError`.
+    """
+    root = Path(root)
+    metas = sorted((root / "samples").glob(f"*/{FILES['meta']}"))
+    if not metas:
+        raise InputError(f"{root}: no samples (not a dataset of 'solidkit synth dataset')")
+    if not isinstance(reference, ReferenceSet):
+        reference = ReferenceSet.from_dir(reference)
+    kept = 0
+    for meta in metas:
+        rec = json.loads(meta.read_text())
+        score = reference.score(read_ldr(meta.parent / FILES["ldr"]))
+        rec["filter"] = {"score": score, "threshold": threshold, "keep": bool(score >= threshold),
+                         "references": len(reference.names)}
+        kept += int(score >= threshold)
+        atomic_write_text(meta, json.dumps(rec, indent=1))
+    build_index(root)
+    return {"samples": len(metas), "kept": kept, "references": len(reference.names)}
 
 
 def _chw(a: np.ndarray) -> Any:

@@ -80,10 +80,12 @@ def _write_image(path: Path, image: np.ndarray, params: list[int] | None = None)
 def export_sold_net(root: str | os.PathLike, dest: str | os.PathLike) -> dict[str, Any]:
     """Write the test set at ``root`` into ``dest`` in SOLD-Net's real-set layout; returns the item map.
 
-    ``dest`` must be absent, empty or an earlier export (holding ``solidkit_items.json``).
+    ``dest`` must be absent, empty or an earlier export (holding ``solidkit_items.json``), outside the test set.
     """
     root, dest = Path(root), Path(dest)
     ts = load_testset(root)
+    if dest.resolve() == root.resolve() or root.resolve() in dest.resolve().parents:
+        raise InputError(f"{dest}: write the export outside the test set (its files are checksummed)")
     if dest.exists() and (not dest.is_dir() or (any(dest.iterdir()) and not (dest / ITEMS_FILE).is_file())):
         raise InputError(f"{dest}: exists and is not an earlier SOLD-Net export (no {ITEMS_FILE}); refusing to write there")
     dest.mkdir(parents=True, exist_ok=True)
