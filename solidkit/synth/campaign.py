@@ -126,7 +126,8 @@ from solidkit.camera.lens import load_profile
 from solidkit.synth.mitsuba_variant import mitsuba, variant
 
 __all__ = ["K_SENSOR", "PRESETS", "CampaignConfig", "Shot", "ProbeTruth", "CaptureTruth", "PhotoTruth", "SceneTruth",
-           "SolarTruth", "CampaignTruth", "expose", "generate_campaign", "load_truth", "open_campaign"]
+           "SolarTruth", "CampaignTruth", "expose", "generate_campaign", "load_truth", "open_campaign", "scene_block",
+           "scene_lighting", "write_truth_exr", "SCENE_FILE", "SETTINGS_FILE"]
 
 K_SENSOR = 3500.0
 SETTINGS_FILE = "campaign.json"
@@ -146,8 +147,8 @@ def expose(radiance: np.ndarray, exposure_time: float, f_number: float, iso: flo
     return img, buf.tobytes()
 
 
-def _write_truth_exr(path: Path, image: np.ndarray, meta: dict[str, Any]) -> None:
-    """Truth radiance as half floats when it fits (0.05 % steps, half the bytes), else float32."""
+def write_truth_exr(path: Path, image: np.ndarray, meta: dict[str, Any]) -> None:
+    """Truth radiance ``(H, W, 3)`` to ``path`` as half floats when it fits (0.05 % steps, half the bytes), else float32."""
     half = bool(np.nanmax(np.abs(image)) < 0.5 * np.finfo(np.float16).max)
     write_exr(path, image, meta, half=half)
 
@@ -269,8 +270,9 @@ def generate_campaign(out: str | os.PathLike, scenes: int, probes: int, *, seed:
     return truth
 
 
-def _scene_block(gen: Generator, s: int, sector: int, seed: int, cfg: CampaignConfig) -> tuple[Any, Any, list[GlassPanel], bool]:
-    """Scene ``s``'s city block (with its glass facades in a glass scene), photo camera, glass panels, glass flag."""
+def scene_block(gen: Generator, s: int, sector: int, seed: int, cfg: CampaignConfig) -> tuple[Any, Any, list[GlassPanel], bool]:
+    """Scene ``s``'s city block (with its glass facades in a glass scene), photo camera, glass panels, glass flag
+    (the same for the same arguments: :mod:`solidkit.synth.truth_rerender` rebuilds scenes with it)."""
     block, (cam, _) = gen.block_and_view(s, sector)
     glass = cfg.glass_every > 0 and s % cfg.glass_every == min(1, cfg.glass_every - 1)
     panels: list[GlassPanel] = []
@@ -279,9 +281,10 @@ def _scene_block(gen: Generator, s: int, sector: int, seed: int, cfg: CampaignCo
     return block, cam, panels, glass
 
 
-def _scene_lighting(mi: Any, gen: Generator, geometry: Any, cam: Any, positions: list[np.ndarray],
-                    panels: list[GlassPanel], glass: bool, s: int, seed: int, cfg: CampaignConfig, sid: str) -> Any:
-    """A sunny spot (and, for a glass scene, a sun whose glint some position sees), as a team would pick."""
+def scene_lighting(mi: Any, gen: Generator, geometry: Any, cam: Any, positions: list[np.ndarray],
+                   panels: list[GlassPanel], glass: bool, s: int, seed: int, cfg: CampaignConfig, sid: str) -> Any:
+    """A sunny spot (and, for a glass scene, a sun whose glint some position sees), as a team would pick; the
+    lighting of scene ``s`` (``sid``) of :func:`scene_block`, ``positions`` its capture positions (scene frame)."""
     attempts = cfg.sun_attempts * (4 if glass else 1)  # a glint needs the sun on the glass and at a position
     for attempt in range(attempts):
         light = gen.lighting(derive_seed(seed, s, 300 + attempt))
@@ -313,7 +316,7 @@ def _render_scene(out: Path, s: int, sid: str, seed: int, cfg: CampaignConfig, g
     model = profile.camera_models[0] if profile.camera_models else "RICOH THETA V"
     rng = np.random.default_rng(derive_seed(seed, s, 77))
     sector = int(rng.integers(6))
-    block, cam, panels, glass = _scene_block(gen, s, sector, seed, cfg)
+    block, cam, panels, glass = scene_block(gen, s, sector, seed, cfg)
     geometry = to_mitsuba(block, None, tex_size=4)
     # --- where the team can put the Theta: the photo camera's position, then probes on reachable surfaces
     buf = render_buffers(geometry, cam, spp=1, shadows=False)
@@ -332,7 +335,7 @@ def _render_scene(out: Path, s: int, sid: str, seed: int, cfg: CampaignConfig, g
                 "depth": float(buf["depth"][y, x]), "category": CATEGORIES[block.category_of(np.array([p["label"]]))[0]],
                 "surface_height_m": float(-point[1]) + 0.0}
         positions.append((f"p{k + 1:02d}", p["position"], info))
-    light = _scene_lighting(mi, gen, geometry, cam, [pos for _, pos, _ in positions], panels, glass, s, seed, cfg, sid)
+    light = scene_lighting(mi, gen, geometry, cam, [pos for _, pos, _ in positions], panels, glass, s, seed, cfg, sid)
     scene = to_mitsuba(block, light.emitter())
     # place and time: pvlib's sun = the rendered sun (overcast: a daytime sun hidden by the clouds)
     srng = np.random.default_rng(derive_seed(seed, s, 79))
@@ -361,7 +364,7 @@ def _render_scene(out: Path, s: int, sid: str, seed: int, cfg: CampaignConfig, g
     photo_name = f"IMG_{s + 1:04d}.JPG"
     photo_file = f"card/{sid}/photo/{photo_name}"
     atomic_write_bytes(out / photo_file, insert_app1(jpg, app))
-    _write_truth_exr(truth_dir / sid / "photo.exr", hdr, {"scene": sid})
+    write_truth_exr(truth_dir / sid / "photo.exr", hdr, {"scene": sid})
     photo = PhotoTruth(shot=Shot(file=photo_file, exposure_time=t_photo, f_number=f_number, iso=iso, time=t0, role="photo"),
                        camera=cam.to_json(), focal_length_mm=f_mm, sensor_width_mm=sensor_w, focal_35mm=f_35,
                        hdr_file=f"truth/{sid}/photo.exr")
@@ -404,7 +407,7 @@ def _render_scene(out: Path, s: int, sid: str, seed: int, cfg: CampaignConfig, g
                                               seed=derive_seed(seed, s, 200 + c), noise_target_db=cfg.probe_noise_db,
                                               max_spp=max(base, cfg.probe_max_spp), sun=light.sun, glint=glint,
                                               firefly_k=cfg.firefly_k, firefly_spp=cfg.pano_spp * spp_scale)
-            _write_truth_exr(truth_dir / sid / f"{cid}.exr", local, probe_exr_meta(sid, cid, record))
+            write_truth_exr(truth_dir / sid / f"{cid}.exr", local, probe_exr_meta(sid, cid, record))
             marked = np.asarray(info["pixel"], np.float64) + rng.normal(0.0, cfg.mark_noise_px, 2)
             marked = np.round(np.clip(marked, 0.0, [cam.width - 1, cam.height - 1]) * 2.0) / 2.0  # a tablet's half pixels
             probe = ProbeTruth(**info, marked_pixel=marked.tolist(), hdr_file=f"truth/{sid}/{cid}.exr", render=record)

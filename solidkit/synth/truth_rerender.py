@@ -43,8 +43,8 @@ from solidkit.envmap import read_exr, tonemap
 from solidkit.envmap.resample import resize
 from solidkit.errors import InputError
 from solidkit.fsutil import atomic_write_text
-from solidkit.synth.campaign import (SCENE_FILE, SETTINGS_FILE, _scene_block, _scene_lighting, _write_truth_exr,
-                                     probe_exr_meta)
+from solidkit.synth.campaign import (SCENE_FILE, SETTINGS_FILE, probe_exr_meta, scene_block, scene_lighting,
+                                     write_truth_exr)
 from solidkit.synth.campaign_truth import CampaignConfig, SceneTruth, TruthError, load_truth
 from solidkit.synth.mitsuba_variant import mitsuba, variant
 from solidkit.synth.sample import Generator, SampleConfig, derive_seed
@@ -82,7 +82,7 @@ def _same(a: Any, b: Any, tol: float = 1e-6) -> bool:
 def _rebuild(mi: Any, gen: Generator, st: SceneTruth, seed: int, cfg: CampaignConfig) -> dict[str, Any]:
     """The scene ``st`` as the generator built it; :class:`InputError` where it differs from the truth."""
     s = _scene_index(st.id)
-    block, cam, panels, glass = _scene_block(gen, s, st.sector, seed, cfg)
+    block, cam, panels, glass = scene_block(gen, s, st.sector, seed, cfg)
     problems = []
     if block.seed != st.block_seed:
         problems.append(f"block seed {block.seed} vs {st.block_seed}")
@@ -94,7 +94,7 @@ def _rebuild(mi: Any, gen: Generator, st: SceneTruth, seed: int, cfg: CampaignCo
     geometry = to_mitsuba(block, None, tex_size=4)
     positions = [np.asarray(c.position, np.float64) for c in st.captures]
     if not problems:
-        light = _scene_lighting(mi, gen, geometry, cam, positions, panels, glass, s, seed, cfg, st.id)
+        light = scene_lighting(mi, gen, geometry, cam, positions, panels, glass, s, seed, cfg, st.id)
         if not _same(json.loads(json.dumps(light.meta, default=float)), st.lighting):
             problems.append("lighting")
         sun_ok = (light.sun is None) == (st.sun_scene is None) and (
@@ -236,7 +236,7 @@ def rerender_truth(campaign: str | os.PathLike, *, spp: int | None = None, noise
                               check_psnr_db=check,
                               rendered_utc=dt.datetime.now(dt.timezone.utc).isoformat(timespec="seconds"))
                 seconds += time.perf_counter() - t0
-            _write_truth_exr(exr, img, probe_exr_meta(st.id, ct.id, record))
+            write_truth_exr(exr, img, probe_exr_meta(st.id, ct.id, record))
             ct.probe.render = record
             atomic_write_text(marker, st.model_dump_json(indent=1))  # after the EXR: a killed run redoes this probe
             counts[what] += 1
