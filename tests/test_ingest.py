@@ -157,7 +157,7 @@ def test_second_run_does_nothing_and_says_so(card, tmp_path):
     ingest(card, camp)
     before = tree_digest(camp)
     runner = CliRunner()
-    r = runner.invoke(app, ["ingest", str(card), str(camp)])
+    r = runner.invoke(app, ["ingest", str(card), "-o", str(camp)])
     assert "nothing to do" in r.output
     assert "skipped notes.txt: not a capture" in r.output and "R0010091.JPG: cannot decode JPEG" in r.output
     assert isinstance(r.exception, InputError) and "3 file(s)" in str(r.exception)  # the bad files, again
@@ -208,7 +208,7 @@ def test_kill9_mid_run_then_resume(tmp_path):
     camp = tmp_path / "camp"
     env = {**os.environ, "SOLIDKIT_INGEST_THROTTLE_S": "0.15"}
     proc = subprocess.Popen(
-        [sys.executable, "-c", "from solidkit.cli import main; main()", "ingest", str(card), str(camp)],
+        [sys.executable, "-c", "from solidkit.cli import main; main()", "ingest", str(card), "-o", str(camp)],
         cwd=REPO, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
     )
     deadline = time.monotonic() + 60
@@ -324,11 +324,11 @@ def test_grouping_parameters_are_remembered(card, tmp_path):
 
     camp = tmp_path / "camp"
     runner = CliRunner()
-    runner.invoke(app, ["ingest", str(card), str(camp), "--probe-gap", "3600", "--no-products"])
+    runner.invoke(app, ["ingest", str(card), "-o", str(camp), "--probe-gap", "3600", "--no-products"])
     m = load_manifest(camp)
     assert m.grouping.probe_gap_s == 3600 and [p.id for p in m.scenes[0].probes] == ["p01"]  # one probe now
     before = tree_digest(camp)
-    r = runner.invoke(app, ["ingest", str(card), str(camp), "--no-products"])  # no option: the stored value holds
+    r = runner.invoke(app, ["ingest", str(card), "-o", str(camp), "--no-products"])  # no option: the stored value holds
     assert "nothing to do" in r.output and tree_digest(camp) == before
 
 
@@ -436,7 +436,7 @@ def test_ingest_unit_profile_and_vignetting(tmp_path):
 
     runner = CliRunner()
     camp = tmp_path / "camp"
-    r = runner.invoke(app, ["ingest", str(card), str(camp), "--profile", str(unit_file), "--vignetting", str(vig_file)])
+    r = runner.invoke(app, ["ingest", str(card), "-o", str(camp), "--profile", str(unit_file), "--vignetting", str(vig_file)])
     assert r.exit_code == 0, r.output
     m = load_manifest(camp)
     assert m.lens_profile["kind"] == "file" and m.lens_profile["model"] == "theta-v unit 123"
@@ -449,7 +449,7 @@ def test_ingest_unit_profile_and_vignetting(tmp_path):
     assert stats["profile_key"] == unit.key() and stats["vignetting"] is True
     # a second run without the options keeps the recorded profiles: nothing to do
     before = tree_digest(camp)
-    r = runner.invoke(app, ["ingest", str(card), str(camp)])
+    r = runner.invoke(app, ["ingest", str(card), "-o", str(camp)])
     assert "nothing to do" in r.output and tree_digest(camp) == before
 
     ingest(card, tmp_path / "no-vig", lens_profile=unit_file)
@@ -540,7 +540,7 @@ def test_kill9_takes_the_workers_with_it(tmp_path):
     camp = tmp_path / "camp"
     env = {**os.environ, "SOLIDKIT_INGEST_THROTTLE_S": "0.3"}
     proc = subprocess.Popen(
-        [sys.executable, "-c", "from solidkit.cli import main; main()", "ingest", "-j", "2", str(card), str(camp)],
+        [sys.executable, "-c", "from solidkit.cli import main; main()", "ingest", "-j", "2", str(card), "-o", str(camp)],
         cwd=REPO, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
     )
     deadline = time.monotonic() + 60
@@ -563,12 +563,15 @@ def test_disk_full_is_retried_not_remembered(tmp_path, monkeypatch, cli):
     final file), not remembered: the next run, with space again, completes the campaign."""
     import errno
 
+    import solidkit.capture.bracket_merge as merge_mod
     import solidkit.capture.card as card_mod
-    import solidkit.envmap.io as io_mod
+    import solidkit.capture.products as products_mod
+    import solidkit.capture.unwarp as unwarp_mod
 
+    exr_users = (products_mod, merge_mod, unwarp_mod)  # the modules that write product EXRs
     card = make_card(tmp_path / "card", bad=False)
     camp = tmp_path / "camp"
-    real_copy, real_exr = card_mod.copy_original, io_mod.write_exr
+    real_copy, real_exr = card_mod.copy_original, products_mod.write_exr
     calls = [0]
 
     def full_copy(src, dest, sha):
@@ -581,8 +584,9 @@ def test_disk_full_is_retried_not_remembered(tmp_path, monkeypatch, cli):
         raise OSError(errno.ENOSPC, "No space left on device", str(Path(path).parent / ".hidden.exr.tmp"))
 
     monkeypatch.setattr(card_mod, "copy_original", full_copy)
-    monkeypatch.setattr(io_mod, "write_exr", full_exr)
-    code, out, err = cli("ingest", card, camp)
+    for mod in exr_users:
+        monkeypatch.setattr(mod, "write_exr", full_exr)
+    code, out, err = cli("ingest", card, "-o", camp)
     assert code == 2, err
     flat = " ".join(out.split())
     assert "could not be copied" in flat and "No space left on device" in flat
@@ -591,7 +595,8 @@ def test_disk_full_is_retried_not_remembered(tmp_path, monkeypatch, cli):
     assert not m.errors  # nothing remembered as a bad file
     assert any(p.kind == "sun_frame" and p.path for p in m.products)  # the other products were still built
     monkeypatch.setattr(card_mod, "copy_original", real_copy)
-    monkeypatch.setattr(io_mod, "write_exr", real_exr)
+    for mod in exr_users:
+        monkeypatch.setattr(mod, "write_exr", real_exr)
     report = ingest(card, camp)  # space freed
     assert not report.errors and not report.transient_errors and report.known_errors == 0
     m = load_manifest(camp)
