@@ -121,7 +121,7 @@ def main() -> dict:
         "timing": f"seconds, best of {ROUNDS} rounds timed in alternation after one warm-up call",
     }
 
-    resample._cached_direction_grid.cache_clear()
+    resample.cached_direction_grid.cache_clear()
     t0 = time.perf_counter()
     resample.rotate(pano, R)
     cold = time.perf_counter() - t0  # includes building the direction grid for this size

@@ -40,17 +40,17 @@ from solidkit.envmap.coords import direction_grid, rotation_from_ypr
 from solidkit.envmap.perspective import intrinsics_from_fov, pixel_rays, project_to_pixels
 from solidkit.envmap.resample import (
     PAD,
-    _blockwise_maps,
-    _cached_direction_grid,
-    _check_interp,
-    _cv2_maps,
-    _is_torch,
-    _pano_height,
-    _remap,
-    _torch_remap,
-    _vecmat,
+    blockwise_maps,
+    cached_direction_grid,
+    check_interp,
+    cv2_maps,
+    is_torch,
     pad_panorama,
+    panorama_height,
+    remap,
     sample_panorama,
+    torch_remap,
+    vecmat,
 )
 from solidkit.errors import InputError
 
@@ -108,17 +108,17 @@ def cube_from_equirect(pano: Any, size: int, interp: str = "linear") -> Any:
     size = int(size)
     if size < 1:
         raise InputError(f"cube face size must be >= 1, got {size}")
-    _check_interp(interp)
-    if _is_torch(pano):
+    check_interp(interp)
+    if is_torch(pano):
         import torch  # lazy: only torch inputs need it (NumPy users never import torch)
 
         dtype = pano.dtype if pano.dtype in (torch.float32, torch.float64) else torch.float32
         d = torch.as_tensor(_face_directions(size), dtype=dtype, device=pano.device)
         out = sample_panorama(pano, d, interp, per_item=False)
         return out.transpose(-4, -3)  # (B, C, 6, S, S) -> (B, 6, C, S, S)
-    h = _pano_height(pano)
+    h = panorama_height(pano)
     map_x, map_y = _equirect_to_cube_maps(size, h)
-    return _remap(pad_panorama(pano, PAD), map_x, map_y, interp)
+    return remap(pad_panorama(pano, PAD), map_x, map_y, interp)
 
 
 def _face_directions(size: int) -> np.ndarray:
@@ -130,7 +130,7 @@ def _face_directions(size: int) -> np.ndarray:
 @lru_cache(maxsize=2)
 def _equirect_to_cube_maps(size: int, height: int) -> tuple[np.ndarray, np.ndarray]:
     d = _face_directions(size)
-    maps = _cv2_maps(lambda a, b: d[a:b], d.shape[:-1], height)
+    maps = cv2_maps(lambda a, b: d[a:b], d.shape[:-1], height)
     for m in maps:
         m.setflags(write=False)
     return cast(tuple[np.ndarray, np.ndarray], maps)
@@ -144,14 +144,14 @@ def _face_lookup(d: Any, size: int) -> tuple[Any, Any, Any]:
     """
     K = intrinsics_from_fov(math.pi / 2, size, size)
     R = _rotations()
-    if _is_torch(d):  # differentiable: every face's projection, selected per direction
+    if is_torch(d):  # differentiable: every face's projection, selected per direction
         import torch  # lazy: only torch inputs need it (NumPy users never import torch)
 
         Rt = torch.as_tensor(R.copy(), dtype=d.dtype, device=d.device)
-        face = torch.argmax(_vecmat(d, Rt[:, :, 2].T), dim=-1)
+        face = torch.argmax(vecmat(d, Rt[:, :, 2].T), dim=-1)
         x = y = None
         for k in range(6):
-            xk, yk, _ = project_to_pixels(K, _vecmat(d, Rt[k]))
+            xk, yk, _ = project_to_pixels(K, vecmat(d, Rt[k]))
             x = xk if x is None else torch.where(face == k, xk, x)
             y = yk if y is None else torch.where(face == k, yk, y)
         return face, x, y
@@ -191,14 +191,14 @@ def _padded_atlas(faces: Any, size: int, interp_pad: str = "linear") -> Any:
     """
     P, n = _FACE_PAD, size + 2 * _FACE_PAD
     ring, x, y = _ring_maps(size)
-    if _is_torch(faces):
+    if is_torch(faces):
         import torch  # lazy: only torch inputs need it (NumPy users never import torch)
 
         b, _, ch = faces.shape[:3]
         atlas = faces.transpose(1, 2).reshape(b, ch, 6 * size, size)
         xt = torch.tensor(x, dtype=faces.dtype, device=faces.device)
         yt = torch.tensor(y, dtype=faces.dtype, device=faces.device)
-        border = _torch_remap(atlas, xt.expand(b, *xt.shape), yt.expand(b, *yt.shape), interp_pad, "replicate")
+        border = torch_remap(atlas, xt.expand(b, *xt.shape), yt.expand(b, *yt.shape), interp_pad, "replicate")
         padded = faces.new_zeros(b, ch, 6, n, n)
         padded[..., P:-P, P:-P] = faces.transpose(1, 2)
         padded[..., torch.tensor(ring, device=faces.device)] = border
@@ -206,7 +206,7 @@ def _padded_atlas(faces: Any, size: int, interp_pad: str = "linear") -> Any:
     atlas = faces.reshape(6 * size, size, *faces.shape[3:])
     padded = np.empty((6, n, n, *faces.shape[3:]), faces.dtype)
     padded[:, P:-P, P:-P] = faces
-    padded[:, ring] = _remap(atlas, x, y, interp_pad, "replicate")
+    padded[:, ring] = remap(atlas, x, y, interp_pad, "replicate")
     return padded.reshape(6 * n, n, *faces.shape[3:])
 
 
@@ -233,11 +233,11 @@ def equirect_from_cube(faces: Any, height: int, interp: str = "linear") -> Any:
     >>> bool(np.abs(back - pano).max() < 0.02)  # a round trip changes a smooth panorama little
     True
     """
-    _check_interp(interp)
+    check_interp(interp)
     height = int(height)
     if height < 1:
         raise InputError(f"panorama height must be >= 1, got {height}")
-    torch_in = _is_torch(faces)
+    torch_in = is_torch(faces)
     unbatched = torch_in and faces.ndim == 4
     if torch_in:
         import torch  # lazy: only torch inputs need it (NumPy users never import torch)
@@ -261,10 +261,10 @@ def equirect_from_cube(faces: Any, height: int, interp: str = "linear") -> Any:
     if torch_in:
         b = faces.shape[0]
         x, y = _atlas_coords(d, size)
-        out = _torch_remap(atlas, x.expand(b, *x.shape), y.expand(b, *y.shape), interp)
+        out = torch_remap(atlas, x.expand(b, *x.shape), y.expand(b, *y.shape), interp)
         return out[0] if unbatched else out
     map_x, map_y = _cube_to_equirect_maps(size, height)
-    return _remap(atlas, map_x, map_y, interp)
+    return remap(atlas, map_x, map_y, interp)
 
 
 def _atlas_coords(d: Any, size: int) -> tuple[Any, Any]:
@@ -275,8 +275,8 @@ def _atlas_coords(d: Any, size: int) -> tuple[Any, Any]:
 
 @lru_cache(maxsize=2)
 def _cube_to_equirect_maps(size: int, height: int) -> tuple[np.ndarray, np.ndarray]:
-    d = _cached_direction_grid(height)
-    maps = _blockwise_maps(lambda a, b: _atlas_coords(d[a:b], size), d.shape[:-1])
+    d = cached_direction_grid(height)
+    maps = blockwise_maps(lambda a, b: _atlas_coords(d[a:b], size), d.shape[:-1])
     for m in maps:
         m.setflags(write=False)
     return maps

@@ -23,13 +23,13 @@ import numpy as np
 
 from solidkit.envmap.coords import direction_grid, module_namespace, namespace
 from solidkit.envmap.resample import (
-    _cached_direction_grid,
-    _check_interp,
-    _is_torch,
-    _vecmat,
-    _remap,
-    _torch_remap,
+    cached_direction_grid,
+    check_interp,
+    is_torch,
+    remap,
     sample_panorama,
+    torch_remap,
+    vecmat,
 )
 from solidkit.errors import InputError
 
@@ -182,7 +182,7 @@ def project_to_pixels(K: Any, c: Any) -> tuple[Any, Any, Any]:
     (array([319.5, 369.5]), array([239.5, 139.5]), array([ True,  True, False]))
     """
     xp = namespace(c)
-    p = _vecmat(c, xp.asarray(K, dtype=c.dtype, **({"device": c.device} if _is_torch(c) else {})).T)
+    p = vecmat(c, xp.asarray(K, dtype=c.dtype, **({"device": c.device} if is_torch(c) else {})).T)
     z = p[..., 2]
     in_front = c[..., 2] > 1e-12
     safe = xp.where(in_front, z, xp.ones_like(z))
@@ -236,10 +236,10 @@ def perspective_crop(
     >>> photo[:, 0, 0]  # top rows see the sky, bottom rows the ground
     array([1., 1., 1., 0., 0., 0.], dtype=float32)
     """
-    _check_interp(interp)
+    check_interp(interp)
     width, height = (int(s) for s in size)
     K = _intrinsics(K, fov, (width, height))
-    if _is_torch(pano):
+    if is_torch(pano):
         import torch  # lazy: only torch inputs need it (NumPy users never import torch)
 
         dtype = pano.dtype if pano.dtype in (torch.float32, torch.float64) else torch.float32
@@ -247,7 +247,7 @@ def perspective_crop(
         rays = pixel_rays(K, width, height, torch, dtype=dtype, device=pano.device)
         if Rt.shape[-2:] != (3, 3) or Rt.ndim not in (2, 3):
             raise InputError(f"R must be (3, 3) or (B, 3, 3), got {tuple(Rt.shape)}")
-        d = _vecmat(rays, Rt.T if Rt.ndim == 2 else Rt.transpose(-1, -2)[:, None, None])
+        d = vecmat(rays, Rt.T if Rt.ndim == 2 else Rt.transpose(-1, -2)[:, None, None])
         return sample_panorama(pano, d, interp, per_item=Rt.ndim == 3)
     R = np.asarray(R, dtype=np.float64)
     if R.shape != (3, 3):
@@ -286,11 +286,11 @@ def embed_perspective(photo: Any, K: Any, R: Any, height: int, interp: str = "li
     >>> bool(covered[8, 16]), bool(covered[8, 0])  # forward is covered, backward is not
     (True, False)
     """
-    _check_interp(interp)
+    check_interp(interp)
     height = int(height)
     if height < 1:
         raise InputError(f"panorama height must be >= 1, got {height}")
-    if _is_torch(photo):
+    if is_torch(photo):
         import torch  # lazy: only torch inputs need it (NumPy users never import torch)
 
 
@@ -300,12 +300,12 @@ def embed_perspective(photo: Any, K: Any, R: Any, height: int, interp: str = "li
         img = img.to(dtype)
         Rt = torch.as_tensor(R, dtype=dtype, device=img.device)
         d = direction_grid(height, torch, dtype=dtype, device=img.device)
-        c = _vecmat(d, Rt if Rt.ndim == 2 else Rt[:, None, None])  # Rᵀ d as row vectors
+        c = vecmat(d, Rt if Rt.ndim == 2 else Rt[:, None, None])  # Rᵀ d as row vectors
         c = c.expand(img.shape[0], *c.shape) if c.ndim == 3 else c
         x, y, front = project_to_pixels(torch.as_tensor(K, dtype=dtype), c)
         h, w = img.shape[-2:]
         inside = front & (x >= -0.5) & (x <= w - 0.5) & (y >= -0.5) & (y <= h - 0.5)
-        out = _torch_remap(img, torch.where(inside, x, 0.0), torch.where(inside, y, 0.0), interp, "replicate")
+        out = torch_remap(img, torch.where(inside, x, 0.0), torch.where(inside, y, 0.0), interp, "replicate")
         mask = inside[:, None].to(dtype)
         out = out * mask
         return (out[0], mask[0]) if unbatched else (out, mask)
@@ -318,9 +318,9 @@ def embed_perspective(photo: Any, K: Any, R: Any, height: int, interp: str = "li
     if photo.ndim not in (2, 3):
         raise InputError(f"photo must be (h, w) or (h, w, C), got shape {photo.shape}")
     h, w = photo.shape[:2]
-    x, y, front = project_to_pixels(K, _cached_direction_grid(height) @ R)
+    x, y, front = project_to_pixels(K, cached_direction_grid(height) @ R)
     inside = front & (x >= -0.5) & (x <= w - 0.5) & (y >= -0.5) & (y <= h - 0.5)
-    out = _remap(photo, np.where(inside, x, 0.0), np.where(inside, y, 0.0), interp, "replicate")
+    out = remap(photo, np.where(inside, x, 0.0), np.where(inside, y, 0.0), interp, "replicate")
     mask = inside.astype(np.float32)
     out = out * (mask if out.ndim == 2 else mask[..., None]).astype(out.dtype)
     return out, mask

@@ -21,6 +21,12 @@ Pixel centres. Panorama pixel ``(u, v)`` has its centre at continuous coordinate
 ``(u + 0.5, v + 0.5)`` (conventions §3). ``cv2.remap`` puts pixel centres at integers, so a
 continuous coordinate ``x`` of the padded image is map value ``x - 0.5``; ``grid_sample`` with
 ``align_corners=False`` spans the image edges, so ``x`` is grid value ``2 x / W_padded - 1``.
+
+Building blocks :mod:`solidkit.envmap.perspective` and :mod:`solidkit.envmap.cubemap` sample with
+too (outside ``__all__``: not part of the envmap API): :func:`is_torch`, :func:`vecmat`,
+:func:`check_interp`, :func:`panorama_height`, :func:`remap` / :func:`torch_remap` (one kernel
+call per back-end), :func:`blockwise_maps` / :func:`cv2_maps` (float32 ``cv2.remap`` maps) and
+:func:`cached_direction_grid`.
 """
 
 from __future__ import annotations
@@ -64,24 +70,26 @@ _CV2_MAX_SIDE = 32767
 _CV2_ROW = 4096
 
 
-def _is_torch(x: Any) -> bool:
+def is_torch(x: Any) -> bool:
+    """True for a torch tensor (without importing torch)."""
     return type(x).__module__.startswith("torch")
 
 
-def _vecmat(v: Any, M: Any) -> Any:
+def vecmat(v: Any, M: Any) -> Any:
     """Row vectors times matrices, ``v (..., 3) @ M (..., 3, 3)`` with broadcasting, as 3 fused
     element-wise terms: tiny torch matmuls stall on a busy multi-threaded CPU, this never does."""
     return v[..., 0:1] * M[..., 0, :] + v[..., 1:2] * M[..., 1, :] + v[..., 2:3] * M[..., 2, :]
 
 
-def _check_interp(interp: str) -> None:
+def check_interp(interp: str) -> None:
+    """:class:`~solidkit.errors.InputError` unless ``interp`` is one of :data:`INTERPOLATIONS`."""
     if interp not in INTERPOLATIONS:
         raise InputError(f"unknown interpolation '{interp}'; expected one of {', '.join(INTERPOLATIONS)}")
 
 
-def _pano_height(pano: Any) -> int:
+def panorama_height(pano: Any) -> int:
     """Height of a NumPy ``(H, W[, C])`` or torch ``(..., C, H, W)`` panorama; checks ``W = 2H``."""
-    if _is_torch(pano):
+    if is_torch(pano):
         if pano.ndim < 3:
             raise PanoramaError(f"torch panoramas are (B, C, H, W) or (C, H, W); got shape {tuple(pano.shape)}")
         h, w = pano.shape[-2:]
@@ -119,12 +127,12 @@ def pad_panorama(pano: Any, pad: int = PAD) -> Any:
     >>> padded[1, :, 0]  # the row wraps around the seam
     array([3., 0., 1., 2., 3., 0.])
     """
-    h = _pano_height(pano)
+    h = panorama_height(pano)
     if not 0 <= pad <= h:
         raise InputError(f"pad must be in [0, {h}], got {pad}")
     if pad == 0:
         return pano
-    if _is_torch(pano):
+    if is_torch(pano):
         import torch  # lazy: only torch inputs need it (NumPy users never import torch)
 
         xp, rows, cols = module_namespace(torch), -2, -1
@@ -147,8 +155,8 @@ def pad_panorama(pano: Any, pad: int = PAD) -> Any:
     return xp.concat([left, tall, right], axis=cols)
 
 
-def _remap(img: np.ndarray, map_x: np.ndarray, map_y: np.ndarray, interp: str, border: str = "constant",
-           border_value: float = 0.0) -> np.ndarray:
+def remap(img: np.ndarray, map_x: np.ndarray, map_y: np.ndarray, interp: str, border: str = "constant",
+          border_value: float = 0.0) -> np.ndarray:
     """``cv2.remap`` for maps of any shape ``(...)``; returns ``(..., [C])``.
 
     Map values are OpenCV pixel coordinates (pixel centres at integers). ``border`` is
@@ -194,11 +202,11 @@ def sample_image(image: np.ndarray, x: Any, y: Any, interp: str = "linear", *, b
     >>> sample_image(img, np.array([0.5, 5.0]), np.array([0.5, 0.0]), border_value=np.nan)
     array([1.5, nan], dtype=float32)
     """
-    _check_interp(interp)
+    check_interp(interp)
     x, y = np.asarray(x, dtype=np.float32), np.asarray(y, dtype=np.float32)
     if x.shape != y.shape:
         raise InputError(f"x and y must have one shape, got {x.shape} and {y.shape}")
-    return _remap(np.asarray(image), x, y, interp, border, border_value)
+    return remap(np.asarray(image), x, y, interp, border, border_value)
 
 
 def _padded_coords(directions: Any, height: int, pad: int) -> tuple[Any, Any]:
@@ -238,19 +246,19 @@ def sample_panorama(pano: Any, directions: Any, interp: str = "linear", *, per_i
     >>> sample_panorama(pano, np.array([[1.0, 0.0, -1.0]]) / math.sqrt(2.0))[:, 0]  # azimuth 135°
     array([1.], dtype=float32)
     """
-    _check_interp(interp)
-    h = _pano_height(pano)
-    if _is_torch(pano):
+    check_interp(interp)
+    h = panorama_height(pano)
+    if is_torch(pano):
         return _sample_torch(pano, directions, h, interp, per_item)
     directions = np.asarray(directions, dtype=np.float64)
     if directions.shape[-1:] != (3,) or directions.ndim < 1:
         raise InputError(f"directions must have shape (..., 3), got {directions.shape}")
     rows = directions if directions.ndim > 1 else directions[None]
-    map_x, map_y = _cv2_maps(lambda a, b: rows[a:b], rows.shape[:-1], h)
-    return _remap(pad_panorama(pano, PAD), map_x, map_y, interp).reshape(*directions.shape[:-1], *pano.shape[2:])
+    map_x, map_y = cv2_maps(lambda a, b: rows[a:b], rows.shape[:-1], h)
+    return remap(pad_panorama(pano, PAD), map_x, map_y, interp).reshape(*directions.shape[:-1], *pano.shape[2:])
 
 
-def _blockwise_maps(
+def blockwise_maps(
     maps_rows: Callable[[int, int], tuple[np.ndarray, np.ndarray]], shape: tuple[int, ...]
 ) -> tuple[np.ndarray, np.ndarray]:
     """float32 ``cv2.remap`` maps of ``shape``, computed by ``maps_rows(a, b)`` for rows ``a:b``.
@@ -277,7 +285,7 @@ def _blockwise_maps(
     return map_x, map_y
 
 
-def _cv2_maps(
+def cv2_maps(
     direction_rows: Callable[[int, int], np.ndarray], shape: tuple[int, ...], height: int
 ) -> tuple[np.ndarray, np.ndarray]:
     """float32 ``cv2.remap`` maps into the ``PAD``-padded panorama for directions of ``shape + (3,)``.
@@ -290,7 +298,7 @@ def _cv2_maps(
         x, y = _padded_coords(direction_rows(a, b), height, PAD)
         return x - 0.5, y - 0.5  # pixel centres: continuous x <-> cv2 x - 0.5
 
-    return _blockwise_maps(maps_rows, shape)
+    return blockwise_maps(maps_rows, shape)
 
 
 def _sample_torch(pano: Any, directions: Any, height: int, interp: str, per_item: bool | None) -> Any:
@@ -312,12 +320,12 @@ def _sample_torch(pano: Any, directions: Any, height: int, interp: str, per_item
     x, y = _padded_coords(d, height, PAD)
     if not per_item:
         x, y = x.expand(b, *x.shape), y.expand(b, *y.shape)
-    out = _torch_remap(pad_panorama(img.to(dtype), PAD), x - 0.5, y - 0.5, interp)
+    out = torch_remap(pad_panorama(img.to(dtype), PAD), x - 0.5, y - 0.5, interp)
     return out[0] if unbatched else out
 
 
-def _torch_remap(img: Any, x: Any, y: Any, interp: str, border: str = "constant") -> Any:
-    """``grid_sample`` at OpenCV pixel coordinates (centres at integers), the torch twin of :func:`_remap`.
+def torch_remap(img: Any, x: Any, y: Any, interp: str, border: str = "constant") -> Any:
+    """``grid_sample`` at OpenCV pixel coordinates (centres at integers), the torch twin of :func:`remap`.
 
     ``img (B, C, Hi, Wi)``, ``x, y (B, ...)``; returns ``(B, C, ...)``. ``align_corners=False``
     spans the pixel edges: OpenCV coordinate ``x`` is grid value ``2 (x + 0.5) / Wi - 1``.
@@ -338,7 +346,8 @@ def _torch_remap(img: Any, x: Any, y: Any, interp: str, border: str = "constant"
 
 
 @lru_cache(maxsize=2)
-def _cached_direction_grid(height: int) -> np.ndarray:
+def cached_direction_grid(height: int) -> np.ndarray:
+    """:func:`~solidkit.envmap.coords.direction_grid` of ``height`` ``(H, 2H, 3)``, read-only, the last two heights cached."""
     grid: np.ndarray = direction_grid(height)
     grid.setflags(write=False)
     return grid
@@ -379,12 +388,12 @@ def rotate(pano: Any, R: Any, interp: str = "linear", height: int | None = None)
     >>> tuple(int(i) for i in np.unravel_index(int(np.argmax(turned)), turned.shape)[:2])  # row 16, column 48
     (16, 48)
     """
-    _check_interp(interp)
-    h = _pano_height(pano)
+    check_interp(interp)
+    h = panorama_height(pano)
     out_h = h if height is None else int(height)
     if out_h < 1:
         raise InputError(f"output height must be >= 1, got {height}")
-    if _is_torch(pano):
+    if is_torch(pano):
         import torch  # lazy: only torch inputs need it (NumPy users never import torch)
 
         dtype = pano.dtype if pano.dtype in (torch.float32, torch.float64) else torch.float32
@@ -393,16 +402,16 @@ def rotate(pano: Any, R: Any, interp: str = "linear", height: int | None = None)
             raise InputError(f"R must be (3, 3) or (B, 3, 3), got {tuple(Rt.shape)}")
         d = direction_grid(out_h, torch, dtype=dtype, device=pano.device)
         # row vectors times R = (Rᵀ d)ᵀ; (B, 3, 3) -> (B, H, W, 3)
-        src = _vecmat(d, Rt if Rt.ndim == 2 else Rt[:, None, None])
+        src = vecmat(d, Rt if Rt.ndim == 2 else Rt[:, None, None])
         if Rt.ndim == 3 and pano.ndim == 3:
             raise InputError("a batch of rotations needs a batched (B, C, H, W) panorama")
         return sample_panorama(pano, src, interp, per_item=Rt.ndim == 3)
     R = np.asarray(R, dtype=np.float64)
     if R.shape != (3, 3):
         raise InputError(f"R must be a 3x3 matrix for NumPy panoramas, got shape {R.shape}")
-    grid = _cached_direction_grid(out_h)
-    map_x, map_y = _cv2_maps(lambda a, b: grid[a:b] @ R, grid.shape[:-1], h)
-    return _remap(pad_panorama(pano, PAD), map_x, map_y, interp)
+    grid = cached_direction_grid(out_h)
+    map_x, map_y = cv2_maps(lambda a, b: grid[a:b] @ R, grid.shape[:-1], h)
+    return remap(pad_panorama(pano, PAD), map_x, map_y, interp)
 
 
 # ----------------------------------------------------------------------------------------
@@ -445,7 +454,7 @@ def downsample(pano: Any, factor: int) -> Any:
     >>> bool(np.allclose(integral(small), integral(pano), rtol=1e-5))
     True
     """
-    h = _pano_height(pano)
+    h = panorama_height(pano)
     factor = int(factor)
     if factor < 1 or h % factor:
         raise InputError(f"downsampling factor must be >= 1 and divide the height {h}, got {factor}")
@@ -454,7 +463,7 @@ def downsample(pano: Any, factor: int) -> Any:
     ho, wo = h // factor, 2 * h // factor
     omega = _row_solid_angles(h)
     weight = omega / np.repeat(omega.reshape(ho, factor).sum(1), factor) / factor  # sums to 1 per block
-    if _is_torch(pano):
+    if is_torch(pano):
         import torch  # lazy: only torch inputs need it (NumPy users never import torch)
 
         x = pano.to(torch.float64) if pano.dtype != torch.float64 else pano
@@ -488,7 +497,7 @@ def _overlap_weights(edges_in: np.ndarray, edges_out: np.ndarray) -> tuple[np.nd
 
 def _apply_weights(x: Any, idx: np.ndarray, w: np.ndarray, axis: int) -> Any:
     """``out[.., o, ..] = sum_j w[o, j] x[.., idx[o, j], ..]`` along ``axis`` (NumPy or torch)."""
-    torch_in = _is_torch(x)
+    torch_in = is_torch(x)
     if torch_in:
         import torch  # lazy: only torch inputs need it (NumPy users never import torch)
 
@@ -537,7 +546,7 @@ def resize(pano: Any, height: int) -> Any:
     >>> bool(np.allclose(resize(sky, 16), downsample(sky, 4), atol=1e-6))  # a divisor: area downsampling
     True
     """
-    h = _pano_height(pano)
+    h = panorama_height(pano)
     height = int(height)
     if height < 1:
         raise InputError(f"output height must be >= 1, got {height}")
@@ -550,7 +559,7 @@ def resize(pano: Any, height: int) -> Any:
     phi_out[0], phi_out[-1] = phi_in[0], phi_in[-1]
     rows = _overlap_weights(s_in, s_out)
     cols = _overlap_weights(phi_in, phi_out)
-    if _is_torch(pano):
+    if is_torch(pano):
         import torch  # lazy: only torch inputs need it (NumPy users never import torch)
 
         x = pano.to(torch.float64)
