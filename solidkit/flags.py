@@ -17,7 +17,7 @@ Examples
 ('clock_mismatch', 'p02 taken more than an hour from the photo')
 >>> str(Flag(FlagCode.PIXEL_OUTSIDE_PHOTO)), str(f) == "clock_mismatch: p02 taken more than an hour from the photo"
 ('pixel_outside_photo', True)
->>> flag_codes(["no_yaw: no cue gave a yaw", "pixel_outside_photo", "no_yaw"])
+>>> flag_codes(["no_yaw: no cue gave a yaw", "pixel_outside_photo"])
 ['no_yaw', 'pixel_outside_photo']
 """
 
@@ -25,13 +25,13 @@ from __future__ import annotations
 
 from collections.abc import Iterable
 from dataclasses import dataclass
-from enum import StrEnum
+from enum import Enum
 
 __all__ = ["Flag", "FlagCode", "disagrees_code", "flag_codes", "has_code"]
 
 
-class FlagCode(StrEnum):
-    """The flag codes solidkit writes (the members are their own stored strings)."""
+class FlagCode(str, Enum):
+    """The flag codes solidkit writes; ``member.value``, ``str(member)`` and f-strings give the stored code."""
 
     # the scene and its photo (solidkit.align.pipeline)
     NO_PHOTO = "no_photo"
@@ -77,6 +77,12 @@ class FlagCode(StrEnum):
     ANNOTATORS_DISAGREE = "annotators_disagree"
     DIFFERS_FROM_AUTO = "differs_from_auto"
 
+    def __str__(self) -> str:
+        return str(self.value)
+
+    def __format__(self, spec: str) -> str:
+        return format(str(self.value), spec)
+
 
 def disagrees_code(cue: str) -> str:
     """``"<cue>_disagrees"``: the code of a yaw cue left out of its capture's consensus (``cue``: its key)."""
@@ -91,6 +97,8 @@ class Flag:
     detail: str = ""
 
     def __post_init__(self) -> None:
+        if isinstance(self.code, Enum):  # a FlagCode: its plain string
+            object.__setattr__(self, "code", str(self.code.value))
         if ":" in self.code or self.code != self.code.strip():
             raise ValueError(f"flag code {self.code!r}: no ':', no surrounding spaces")
 
@@ -104,12 +112,12 @@ class Flag:
         return cls(code.strip(), detail.strip() if sep else "")
 
     def __str__(self) -> str:
-        return f"{self.code}: {self.detail}" if self.detail else str(self.code)
+        return f"{self.code}: {self.detail}" if self.detail else self.code
 
 
 def flag_codes(flags: Iterable[str | Flag]) -> list[str]:
-    """The codes of ``flags`` (stored strings or :class:`Flag`), each once, in order of first appearance."""
-    return list(dict.fromkeys(str(Flag.parse(f).code) for f in flags))
+    """The code of each of ``flags`` (stored strings or :class:`Flag`), in order."""
+    return [Flag.parse(f).code for f in flags]
 
 
 def has_code(flags: Iterable[str | Flag], code: str) -> bool:

@@ -14,9 +14,13 @@ from typing import Any
 
 import numpy as np
 
+from solidkit.camera.lens import load_profile, profile_for_metadata
 from solidkit.camera.metadata import CaptureMetadata, level_rotation
+from solidkit.capture.frame_merge import read_ldr_codes
 from solidkit.capture.manifest import Manifest, Probe, Scene, Shot
+from solidkit.capture.unwarp import default_out_height, load_vignetting, unwarp_srgb8
 from solidkit.envmap.io import read_exr, read_ldr
+from solidkit.envmap.resample import rotate
 from solidkit.errors import InputError
 
 __all__ = ["Capture", "captures_of", "camera_probe_of", "photo_shot_of", "levelling_of", "load_normal_panorama",
@@ -93,8 +97,6 @@ def levelling_of(shot: Shot) -> tuple[float, float, np.ndarray]:
 
 
 def _lens(campaign: Path, manifest: Manifest, md: dict[str, Any]) -> Any:
-    from solidkit.camera.lens import load_profile, profile_for_metadata
-
     rec = manifest.lens_profile
     if rec:
         return load_profile(rec["name"] if rec.get("kind") == "shipped" else campaign / rec["path"])
@@ -104,8 +106,6 @@ def _lens(campaign: Path, manifest: Manifest, md: dict[str, Any]) -> Any:
 def _vignetting(campaign: Path, manifest: Manifest) -> Any:
     if not manifest.vignetting:
         return None
-    from solidkit.capture.unwarp import load_vignetting
-
     return load_vignetting(campaign / manifest.vignetting["path"])
 
 
@@ -116,9 +116,6 @@ def load_normal_panorama(campaign: Path, manifest: Manifest, shot: Shot, R_extra
     Dual-fisheye: one unwarp with ``R_extra @ R_level`` (:func:`solidkit.capture.unwarp.unwarp_srgb8`);
     equirect: one rotation of the decoded image.
     """
-    from solidkit.capture.frame_merge import read_ldr_codes
-    from solidkit.capture.unwarp import default_out_height, unwarp_srgb8
-
     md = shot.metadata
     _, _, R_level = levelling_of(shot)
     R = R_level if R_extra is None else np.asarray(R_extra) @ R_level
@@ -131,8 +128,6 @@ def load_normal_panorama(campaign: Path, manifest: Manifest, shot: Shot, R_extra
         out_h = height or default_out_height(w)
         return unwarp_srgb8(codes, _lens(campaign, manifest, md), out_h, R, vignetting=_vignetting(campaign, manifest))
     if layout == "equirect":
-        from solidkit.envmap.resample import rotate
-
         if np.allclose(R, np.eye(3), atol=1e-12) and (height is None or height == codes.shape[0]):
             return codes
         out = rotate(codes.astype(np.float32), R, "linear", height)

@@ -13,10 +13,14 @@ import datetime as dt
 import re
 from typing import Any
 
-from solidkit.align.schema import Ephemeris
+from solidkit.align.schema import Ephemeris, wrap_deg
 from solidkit.synth.solar import solar_position
 
-__all__ = ["capture_time", "capture_place", "ephemeris_for"]
+__all__ = ["DRIFT_HOURS", "at_photo_time", "capture_time", "capture_place", "ephemeris_for", "hours_apart"]
+
+#: Captures further apart in time (hours) get no sun drift correction between them: their clocks,
+#: not the sun, are the likely cause.
+DRIFT_HOURS = 1.0
 
 _OFFSET = re.compile(r"^([+-])(\d{2}):?(\d{2})$")
 
@@ -65,3 +69,24 @@ def ephemeris_for(metadata: dict[str, Any], place: tuple[float, float, float | N
     az, el = solar_position(when, lat, lon, alt or 0.0)
     return Ephemeris(time_utc=when.astimezone(dt.timezone.utc).isoformat(), latitude_deg=lat, longitude_deg=lon,
                      altitude_m=alt, azimuth_deg=az, elevation_deg=el, time_source=source)
+
+
+def hours_apart(a: Ephemeris, b: Ephemeris) -> float:
+    """Hours between two ephemerides' times (``>= 0``)."""
+    return abs((dt.datetime.fromisoformat(a.time_utc) - dt.datetime.fromisoformat(b.time_utc)).total_seconds()) / 3600.0
+
+
+def at_photo_time(azimuth_deg: float, elevation_deg: float, ephemeris: Ephemeris | None,
+                  photo_ephemeris: Ephemeris | None, *, sun_moves: bool = True) -> tuple[float, float]:
+    """A sun direction seen at a capture's time (its ``ephemeris``), moved to the photo's time: ``(azimuth,
+    elevation)`` in degrees, in the same frame, plus the ephemeris' drift between the two times.
+
+    Unchanged when the sun is taken as static (``sun_moves=False``), when either ephemeris is unknown,
+    or when the two times are more than :data:`DRIFT_HOURS` apart.
+    """
+    az, el = azimuth_deg, elevation_deg
+    if (sun_moves and photo_ephemeris is not None and ephemeris is not None
+            and hours_apart(photo_ephemeris, ephemeris) <= DRIFT_HOURS):
+        az += wrap_deg(photo_ephemeris.azimuth_deg - ephemeris.azimuth_deg)
+        el += photo_ephemeris.elevation_deg - ephemeris.elevation_deg
+    return az, el

@@ -24,16 +24,22 @@ processing. Figures:
 
 from __future__ import annotations
 
+import json
 import math
 from pathlib import Path
+from types import SimpleNamespace
 from typing import Any
 
+import cv2
 import numpy as np
 
-from solidkit.align.schema import load_alignment, wrap_deg
+from solidkit.align.captures import captures_of, levelling_of, load_normal_panorama
+from solidkit.align.schema import level_to_pano, load_alignment, wrap_deg
+from solidkit.capture.manifest import load_manifest
 from solidkit.envmap.coords import angular_distance, angles_from_direction, direction_from_angles, rotation_from_ypr
 from solidkit.envmap.io import read_exr, read_ldr, srgb_decode, srgb_encode, tonemap
 from solidkit.envmap.perspective import rays_through_pixels
+from solidkit.envmap.resample import resize
 from solidkit.synth.truth_probes import psnr  # one home: the truth probes' noise is measured with it too
 
 __all__ = ["evaluate", "summary", "psnr", "noise_floor_db"]
@@ -47,8 +53,6 @@ def noise_floor_db(image: np.ndarray) -> float:
     truth cannot exceed what the truth's own noise allows (measured on virtual campaigns: glass
     scenes 26-27 dB, others 31-35 dB). Edges count as "noise" too, so this is a rough ceiling.
     """
-    import cv2
-
     img = np.asarray(image, np.float32)
     return psnr(img, cv2.medianBlur(img, 3))
 
@@ -67,10 +71,6 @@ def _radiance(ldr8: np.ndarray, md: dict[str, Any], k_sensor: float) -> np.ndarr
 
 def evaluate(campaign_dir: str | Path, truth_path: str | Path, *, peers: bool = True) -> dict[str, Any]:
     """Per-capture and per-scene errors of ``CAMPAIGN/align/alignment.json`` against the truth (module doc)."""
-    from solidkit.align.captures import captures_of, load_normal_panorama
-    from solidkit.align.schema import level_to_pano
-    from solidkit.capture.manifest import load_manifest
-    from solidkit.envmap.resample import resize
     campaign = Path(campaign_dir)
     truth = _load_truth(truth_path)
     root = Path(truth_path).parent.parent
@@ -148,8 +148,6 @@ def evaluate(campaign_dir: str | Path, truth_path: str | Path, *, peers: bool = 
                 row["truth_spp"] = getattr(render, "spp", None)
                 row["truth_noise_db"] = getattr(render, "noise_psnr_db", None)  # measured (split halves)
                 if peers:
-                    from solidkit.align.captures import levelling_of
-
                     # R_extra maps the shot's metadata-levelled frame: the true rotation is R_true R_levelᵀ
                     R_true_extra = np.asarray(ct.R_pano_from_body) @ levelling_of(cap.normal)[2].T
                     for name, R_extra in (("psnr_true_yaw_db", level_to_pano(true_yaw)),
@@ -166,9 +164,6 @@ def evaluate(campaign_dir: str | Path, truth_path: str | Path, *, peers: bool = 
 
 def _load_truth(path: str | Path) -> Any:
     """The truth JSON as attribute-access objects (tolerant of older and newer truth schemas)."""
-    import json
-    from types import SimpleNamespace
-
     def ns(x: Any) -> Any:
         if isinstance(x, dict):
             return SimpleNamespace(**{k: ns(v) for k, v in x.items()})

@@ -20,7 +20,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from solidkit._imports import pycolmap as _pycolmap
-from solidkit.envmap.coords import angular_distance
+from solidkit.envmap.coords import angular_distance, rotation_y
 from solidkit.errors import InputError
 
 __all__ = ["RotationFit", "PoseFit", "LevelPoseFit", "estimate_rotation", "estimate_relative_pose", "estimate_level_pose"]
@@ -170,8 +170,6 @@ class LevelPoseFit:
 
     @property
     def R(self) -> np.ndarray:
-        from solidkit.envmap.coords import rotation_y
-
         return np.asarray(rotation_y(self.yaw), np.float64)
 
     @property
@@ -254,8 +252,6 @@ def estimate_level_pose(a: np.ndarray, b: np.ndarray, *, threshold: float = math
 
     Returns ``None`` with fewer than ``min_inliers`` inliers.
     """
-    from solidkit.envmap.coords import rotation_y
-
     a = np.asarray(a, np.float64)
     b = np.asarray(b, np.float64)
     n = len(a)

@@ -34,6 +34,7 @@ from solidkit.align.features import Features, match_features, rays_from_pixels
 from solidkit.align.geometry import estimate_level_pose, estimate_rotation
 from solidkit.align.schema import Cue, wrap_deg
 from solidkit.envmap.coords import ypr_from_rotation
+from solidkit.flags import Flag, FlagCode, disagrees_code
 
 __all__ = ["PhotoMatch", "match_photo", "refine_focal", "feature_cue", "fuse_cues", "Fused"]
 
@@ -121,8 +122,9 @@ def match_photo(photo: Features, pano: Features, *, K: np.ndarray | None = None,
 def feature_cue(cam: Features, other: Features, yaw_cam_deg: float | None, yaw_cam_sigma: float,
                 *, min_inliers: int = 12, level_sigma_deg: float = 0.3,
                 max_baseline_elevation_deg: float | None = 60.0, ratio: float = 0.85, few_inliers: int = 18,
-                few_inliers_sigma_deg: float = 2.0) -> tuple[Cue, object | None]:
-    """The ``features`` cue of a capture against the camera-position capture; also returns the fit.
+                few_inliers_sigma_deg: float = 2.0, reference: str = "the camera position") -> tuple[Cue, object | None]:
+    """The ``features`` cue of a capture against the camera-position capture (or the capture ``reference``
+    names, whose yaw is ``yaw_cam_deg``); also returns the fit.
 
     The cue's sigma adds the levelling uncertainty (a tilt error of either panorama biases the
     yaw of off-horizon matches) to the fit's own; a fit from fewer than ``few_inliers`` inliers
@@ -148,7 +150,7 @@ def feature_cue(cam: Features, other: Features, yaw_cam_deg: float | None, yaw_c
     sigma = math.hypot(own, level_sigma_deg, yaw_cam_sigma)
     yaw = None if yaw_cam_deg is None else wrap_deg(yaw_cam_deg - psi)
     detail = (f"{fit.n_inliers}/{len(m)} matches on a level relative pose (RMS {math.degrees(fit.rms):.2f} deg); "
-              f"relative yaw to the camera position {wrap_deg(-psi):+.2f} deg")
+              f"relative yaw to {reference} {wrap_deg(-psi):+.2f} deg")
     if fit.n_inliers < few_inliers:
         detail += f"; few inliers: sigma >= {few_inliers_sigma_deg:g} deg"
     return Cue(yaw_deg=yaw, sigma_deg=sigma, ok=yaw is not None, detail=detail), fit
@@ -176,7 +178,7 @@ def fuse_cues(cues: dict[str, Cue], *, n_sigma: float = 3.0, floor_deg: float = 
         if k not in usable:
             c.ok, c.weight = False, 0.0
     if not usable:
-        return Fused(None, None, None, ["no_yaw: no cue gave a yaw"])
+        return Fused(None, None, None, [str(Flag(FlagCode.NO_YAW, "no cue gave a yaw"))])
 
     def sig(c: Cue) -> float:  # for agreement: no cue is trusted below floor_deg
         return max(float(c.sigma_deg), floor_deg)
@@ -204,11 +206,12 @@ def fuse_cues(cues: dict[str, Cue], *, n_sigma: float = 3.0, floor_deg: float = 
         c.ok = k in members
         c.weight = float(1.0 / wsig(c) ** 2 / w.sum()) if c.ok else 0.0
         if not c.ok:
-            flags.append(f"{k}_disagrees: {c.residual_deg:+.1f} deg from the consensus")
+            flags.append(str(Flag(disagrees_code(k), f"{c.residual_deg:+.1f} deg from the consensus")))
     if len(members) == 1 and len(usable) == 1:
-        flags.append(f"single_cue: yaw from {members[0]} only")
+        flags.append(str(Flag(FlagCode.SINGLE_CUE, f"yaw from {members[0]} only")))
     elif len(members) == 1:
-        flags.append(f"no_agreement: no two cues agree; the most precise ({members[0]}) is used (review)")
+        flags.append(str(Flag(FlagCode.NO_AGREEMENT,
+                              f"no two cues agree; the most precise ({members[0]}) is used (review)")))
     # inverse-variance weighted RMS: a compass 5 deg off does not make a 0.1 deg alignment look bad
     rms = float(np.sqrt(np.sum(w * np.square(res)) / np.sum(w))) if len(res) > 1 else None
     return Fused(wrap_deg(yaw), sigma, rms, flags)

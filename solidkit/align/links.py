@@ -32,7 +32,10 @@ GROUND = ""
 
 @dataclass(frozen=True)
 class Link:
-    """``yaw_b - yaw_a = yaw_deg`` (1-sigma ``sigma_deg``); ``a == GROUND``: an absolute yaw of ``b``."""
+    """``yaw_b - yaw_a = yaw_deg`` (1-sigma ``sigma_deg``); ``a == GROUND``: an absolute yaw of ``b``.
+
+    ``street_lines``: the absolute yaw it carries is fixed by street lines alone (a yaw modulo 90°).
+    """
 
     a: str
     b: str
@@ -40,6 +43,7 @@ class Link:
     sigma_deg: float
     kind: str
     detail: str = ""
+    street_lines: bool = False
 
 
 @dataclass(frozen=True)

@@ -24,6 +24,7 @@ from typing import Any, Callable
 
 import numpy as np
 
+from solidkit import __version__
 from solidkit.align.captures import captures_of, levelling_of, load_normal_panorama, read_hdr
 from solidkit.align.schema import ProbeProducts, SceneAlignment, body_to_pano
 from solidkit.capture.manifest import Manifest, Scene
@@ -43,8 +44,6 @@ def _recipe_hash(recipe: dict[str, Any]) -> str:
 def write_products(campaign: Path, manifest: Manifest, scene: Scene, sa: SceneAlignment, settings: Any, previous: Any = None,
                    log: Callable[[str], None] = lambda s: None) -> None:
     """Write the aligned products of every capture of ``sa`` whose yaw is known; fills ``products``."""
-    from solidkit import __version__
-
     caps = {c.id: c for c in captures_of(manifest, scene)}
     out_h = int(settings.probe_height)
     for pa in sa.probes:

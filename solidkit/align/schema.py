@@ -60,6 +60,8 @@ __all__ = [
     "SceneAlignment",
     "CampaignAlignment",
     "wrap_deg",
+    "photo_azimuth_from_solar",
+    "solar_azimuth_from_photo",
     "level_to_pano",
     "body_to_pano",
     "load_alignment",
@@ -76,6 +78,22 @@ Matrix3 = list[list[float]]
 def wrap_deg(angle: float) -> float:
     """``angle`` (degrees) wrapped to ``[-180, 180)`` (:func:`solidkit.envmap.coords.wrap_angle`)."""
     return float(wrap_angle(float(angle), 360.0))
+
+
+def photo_azimuth_from_solar(solar_azimuth_deg: float, photo_heading_deg: float) -> float:
+    """Azimuth in the photo's panorama frame of a direction with solar azimuth ``solar_azimuth_deg``
+    (clockwise from true north), the photo's compass heading being ``photo_heading_deg``:
+    ``solar_azimuth - photo_heading`` wrapped to ``[-180, 180)`` (conventions §7); degrees.
+
+    >>> photo_azimuth_from_solar(10.0, 350.0), solar_azimuth_from_photo(20.0, 350.0)
+    (20.0, 10.0)
+    """
+    return wrap_deg(solar_azimuth_deg - photo_heading_deg)
+
+
+def solar_azimuth_from_photo(azimuth_deg: float, photo_heading_deg: float) -> float:
+    """The inverse of :func:`photo_azimuth_from_solar`: ``photo_heading + azimuth`` in ``[0, 360)``; degrees."""
+    return (azimuth_deg + photo_heading_deg) % 360.0
 
 
 def level_to_pano(yaw_deg: float) -> np.ndarray:

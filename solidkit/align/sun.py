@@ -6,7 +6,7 @@ pixels are one candidate (JPEG noise splits a saturated disk); each candidate's 
 spherical centroid (:func:`solidkit.envmap.sun.spherical_centroid`) of its saturated core and
 its partially covered rim, weighted by how far each pixel rises above the rim level.
 
-Per scene (:func:`scene_sun`), the tests a glint fails (a mirror image of the sun in glass is
+Per scene (:func:`choose_sun`, one function per step), the tests a glint fails (a mirror image of the sun in glass is
 as bright and as small as the sun, so brightness and confidence cannot tell them apart):
 
 1. **Size**: the sun's disk is 0.53° wide; a saturated core wider than ``max_size_deg`` is a
@@ -36,15 +36,23 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from functools import cached_property
+from typing import NamedTuple
 
 import cv2
 import numpy as np
 
-from solidkit.align.schema import CaptureSun, Ephemeris, SceneSun, SunCandidate, wrap_deg
-from solidkit.envmap.coords import angular_distance, angles_from_direction, direction_from_angles, direction_grid, solid_angle
+from solidkit.align.ephemeris import at_photo_time
+from solidkit.align.schema import (CaptureSun, Ephemeris, SceneSun, SunCandidate, photo_azimuth_from_solar,
+                                   solar_azimuth_from_photo, wrap_deg)
+from solidkit.envmap.coords import (angular_distance, angles_from_direction, coords_from_direction, direction_from_angles,
+                                    direction_grid, solid_angle)
 from solidkit.envmap.sun import SUN_ANGULAR_DIAMETER, label_spherical, luminance, spherical_centroid
+from solidkit.flags import Flag, FlagCode
 
-__all__ = ["Blob", "SunSettings", "CaptureSunInput", "find_candidates", "sky_fraction", "scene_sun"]
+__all__ = ["Blob", "SunSettings", "CaptureSunInput", "find_candidates", "sky_fraction", "scene_sun", "choose_sun",
+           "SunChoice", "SunScene", "PhotoDirection", "Agreement", "Hypothesis", "Rejections", "hard_rejections", "best_hypothesis",
+           "choose_candidates", "capture_results", "with_human_labels", "consensus"]
 
 
 @dataclass(frozen=True)
@@ -137,8 +145,6 @@ def find_candidates(sun_frame: np.ndarray, *, saturation: float = 0.9, merge_px:
 
 def _ring(h: int, d: np.ndarray, inner_deg: float, outer_deg: float) -> np.ndarray:
     """Pixels whose direction is ``inner..outer`` degrees from ``d`` (``(H, 2H)`` bool), computed in a window."""
-    from solidkit.envmap.coords import coords_from_direction
-
     x, y = (float(v) for v in coords_from_direction(d, h))
     r_px = outer_deg / (180.0 / h) + 2
     el = math.asin(max(-1.0, min(1.0, -float(d[1]))))
@@ -189,44 +195,114 @@ def sky_fraction(normal_pano: np.ndarray, direction: np.ndarray, *, inner_deg: f
 
 
 # --------------------------------------------------------------------------- per scene
-def _sun_in_photo_time(blob: Blob, cap: CaptureSunInput, photo_eph: Ephemeris | None, s: SunSettings) -> tuple[float, float]:
-    """(azimuth, elevation) of a blob in the capture's level frame, moved to the photo's time by the
-    ephemeris when the sun moves (the drift between the two times)."""
-    az, el = blob.azimuth_deg, blob.elevation_deg
-    if s.sun_moves and photo_eph is not None and cap.ephemeris is not None and _hours_apart(photo_eph, cap.ephemeris) <= 1.0:
-        az += wrap_deg(photo_eph.azimuth_deg - cap.ephemeris.azimuth_deg)
-        el += photo_eph.elevation_deg - cap.ephemeris.elevation_deg
-    return az, el
+class PhotoDirection(NamedTuple):
+    """A sun direction in the photo's panorama frame at the photo's time; degrees. ``azimuth_deg`` is
+    ``None`` where no yaw ties the capture it was seen from to the photo (the elevation needs none)."""
+
+    azimuth_deg: float | None
+    elevation_deg: float
 
 
-def _hours_apart(a: Ephemeris, b: Ephemeris) -> float:
-    """Hours between two ephemerides' times (a capture more than an hour from its photo gets no drift
-    correction: its clock, not the sun, is the likely cause)."""
-    import datetime as dt
+@dataclass(frozen=True)
+class Agreement:
+    """Whether a candidate agrees with a hypothesis of the sun (:meth:`SunScene.agrees`), and why.
 
-    return abs((dt.datetime.fromisoformat(a.time_utc) - dt.datetime.fromisoformat(b.time_utc)).total_seconds()) / 3600.0
-
-
-def _angle_deg(az1: float, el1: float, az2: float, el2: float) -> float:
-    a = direction_from_angles(np.radians(az1), np.radians(el1))
-    b = direction_from_angles(np.radians(az2), np.radians(el2))
-    return math.degrees(float(angular_distance(a, b)))
-
-
-def scene_sun(captures: list[CaptureSunInput], *, photo_ephemeris: Ephemeris | None, photo_heading_deg: float | None,
-              settings: SunSettings | None = None) -> SceneSun:
-    """Choose the sun in every capture of a scene and form the scene's consensus (module doc).
-
-    ``captures[i].yaw_deg``/``yaw_sigma_deg``: that capture's yaw (level -> photo panorama frame)
-    from cues other than the sun (features, compass), or ``None``. Returns the :class:`SceneSun`
-    with one :class:`CaptureSun` per capture (chosen and rejected candidates with reasons).
+    ``elevation_only``: it agrees on elevation and its capture's yaw (or the hypothesis') is unknown,
+    so the azimuth was not tested.
     """
-    s = settings or SunSettings()
-    el_tol = 3.0 * math.hypot(s.level_sigma_deg, s.centroid_sigma_deg) + 0.1
-    scene_flags: list[str] = []
 
-    # 1. hard tests on each blob
-    hard: dict[tuple[int, int], list[str]] = {}
+    ok: bool
+    why: str
+    elevation_only: bool = False
+
+
+@dataclass(frozen=True)
+class Hypothesis:
+    """The sun where candidate ``bi`` of capture ``ci`` is (:func:`best_hypothesis`), in the photo's
+    panorama frame at the photo's time; ``members``: the candidate of every capture that agrees with it
+    (``{capture index: candidate index}``); ``score``: supporting captures (half for an agreement on
+    elevation only), plus the ephemeris' elevation (1.5) and azimuth (0.5) tests, plus a contrast tie-break."""
+
+    score: float
+    ci: int
+    bi: int
+    azimuth_deg: float | None
+    elevation_deg: float
+    members: dict[int, int]
+    ephemeris_elevation_ok: bool
+    ephemeris_azimuth_ok: bool
+
+
+#: Rejection reasons of each candidate, ``{(capture index, candidate index): [reason, ...]}``
+#: (empty: not rejected).
+Rejections = dict[tuple[int, int], list[str]]
+
+
+@dataclass(frozen=True)
+class SunScene:
+    """What every stage of :func:`choose_sun` reads: the scene's captures, the photo's ephemeris and
+    compass heading, the settings, and what follows from them."""
+
+    captures: list[CaptureSunInput]
+    photo_ephemeris: Ephemeris | None
+    photo_heading_deg: float | None
+    settings: SunSettings
+
+    @cached_property
+    def el_tol(self) -> float:
+        """Elevation tolerance (degrees): three sigmas of levelling and centroid, plus 0.1."""
+        s = self.settings
+        return 3.0 * math.hypot(s.level_sigma_deg, s.centroid_sigma_deg) + 0.1
+
+    @cached_property
+    def ephemeris_in_photo(self) -> PhotoDirection | None:
+        """pvlib's sun at the photo's time in its panorama frame (azimuth through the photo's compass)."""
+        eph = self.photo_ephemeris
+        if eph is None:
+            return None
+        heading = self.photo_heading_deg
+        az = None if heading is None else photo_azimuth_from_solar(eph.azimuth_deg, heading)
+        return PhotoDirection(az, eph.elevation_deg)
+
+    def at_photo_time(self, ci: int, bi: int) -> tuple[float, float]:
+        """(azimuth, elevation) of candidate ``bi`` of capture ``ci`` in that capture's level frame, at the photo's time."""
+        cap = self.captures[ci]
+        b = cap.blobs[bi]
+        return at_photo_time(b.azimuth_deg, b.elevation_deg, cap.ephemeris, self.photo_ephemeris,
+                             sun_moves=self.settings.sun_moves)
+
+    def in_photo_frame(self, ci: int, bi: int) -> PhotoDirection:
+        """Candidate ``bi`` of capture ``ci`` in the photo's panorama frame at the photo's time (the capture's yaw)."""
+        cap = self.captures[ci]
+        az, el = self.at_photo_time(ci, bi)
+        return PhotoDirection(None if cap.yaw_deg is None else wrap_deg(az + cap.yaw_deg), el)
+
+    def compass_azimuth(self, ci: int, bi: int) -> float:
+        """Azimuth of candidate ``bi`` of capture ``ci`` in the photo's panorama frame through the capture's
+        compass yaw (unwrapped; the caller checks ``compass_yaw_deg`` is known)."""
+        az, _ = self.at_photo_time(ci, bi)
+        return az + self.captures[ci].compass_yaw_deg
+
+    def agrees(self, h_az: float | None, h_el: float, h_sig: float, ci: int, bi: int) -> Agreement:
+        """Candidate ``bi`` of capture ``ci`` against a hypothesis at ``(h_az, h_el)`` whose capture's yaw
+        has sigma ``h_sig``: elevation within :attr:`el_tol`, azimuth (when both yaws are known) within
+        three sigmas of both yaws plus the elevation tolerance at that elevation."""
+        cap = self.captures[ci]
+        az, el = self.in_photo_frame(ci, bi)
+        el_tol = self.el_tol
+        if abs(el - h_el) > el_tol:
+            return Agreement(False, f"elevation {el:.2f} deg vs {h_el:.2f} deg")
+        if h_az is None or az is None:
+            return Agreement(True, "elevation only (yaw unknown)", elevation_only=True)
+        tol = 3.0 * math.hypot(h_sig, cap.yaw_sigma_deg or 0.0) + el_tol / max(math.cos(math.radians(h_el)), 0.2)
+        d = abs(wrap_deg(az - h_az))
+        return Agreement(d <= tol, f"azimuth {az:.2f} deg vs {h_az:.2f} deg (tolerance {tol:.1f})")
+
+
+def hard_rejections(captures: list[CaptureSunInput], settings: SunSettings) -> Rejections:
+    """Step 1 (module doc): the tests a candidate fails on its own (size, sky, horizon)."""
+    s = settings
+    hard: Rejections = {}
     for ci, cap in enumerate(captures):
         for bi, b in enumerate(cap.blobs):
             r = []
@@ -238,122 +314,124 @@ def scene_sun(captures: list[CaptureSunInput], *, photo_ephemeris: Ephemeris | N
             if b.elevation_deg < -2.0:
                 r.append(f"below the horizon ({b.elevation_deg:.1f} deg)")
             hard[ci, bi] = r
+    return hard
 
-    # 2. hypotheses: every surviving blob, in the photo's panorama frame at the photo's time
-    def p_frame(ci: int, bi: int) -> tuple[float | None, float]:
-        cap = captures[ci]
-        az, el = _sun_in_photo_time(cap.blobs[bi], cap, photo_ephemeris, s)
-        return (None if cap.yaw_deg is None else wrap_deg(az + cap.yaw_deg)), el
 
-    eph_p = None
-    if photo_ephemeris is not None:
-        eph_p = (None if photo_heading_deg is None else wrap_deg(photo_ephemeris.azimuth_deg - photo_heading_deg),
-                 photo_ephemeris.elevation_deg)
-
-    def agrees(h_az: float | None, h_el: float, h_sig: float, ci: int, bi: int) -> tuple[bool, str]:
-        cap = captures[ci]
-        az, el = p_frame(ci, bi)
-        if abs(el - h_el) > el_tol:
-            return False, f"elevation {el:.2f} deg vs {h_el:.2f} deg"
-        if h_az is None or az is None:
-            return True, "elevation only (yaw unknown)"
-        tol = 3.0 * math.hypot(h_sig, cap.yaw_sigma_deg or 0.0) + el_tol / max(math.cos(math.radians(h_el)), 0.2)
-        d = abs(wrap_deg(az - h_az))
-        return d <= tol, f"azimuth {az:.2f} deg vs {h_az:.2f} deg (tolerance {tol:.1f})"
-
+def best_hypothesis(scene: SunScene, hard: Rejections) -> tuple[Hypothesis | None, Rejections]:
+    """Step 2: every candidate that passed :func:`hard_rejections` is a hypothesis, scored by the captures
+    that agree with it and by the ephemeris; returns the best one and the rejections, with candidates seen
+    from one position only and away from the ephemeris (through the compass) rejected as glints. A
+    candidate rejected so no longer supports the hypotheses scored after it."""
+    s, captures, eph_p = scene.settings, scene.captures, scene.ephemeris_in_photo
+    hard = {k: list(v) for k, v in hard.items()}
     best = None
     for ci, cap in enumerate(captures):
         for bi, _ in enumerate(cap.blobs):
             if hard[ci, bi]:
                 continue
-            h_az, h_el = p_frame(ci, bi)
+            h_az, h_el = scene.in_photo_frame(ci, bi)
             h_sig = cap.yaw_sigma_deg or 0.0
             support, members = 1.0, {ci: bi}
             for cj, other in enumerate(captures):
                 if cj == ci:
                     continue
-                fits = [(bj, agrees(h_az, h_el, h_sig, cj, bj)) for bj in range(len(other.blobs)) if not hard[cj, bj]]
-                fits = [(bj, why) for bj, (ok, why) in fits if ok]
+                fits = [(bj, scene.agrees(h_az, h_el, h_sig, cj, bj)) for bj in range(len(other.blobs)) if not hard[cj, bj]]
+                fits = [(bj, a) for bj, a in fits if a.ok]
                 if fits:
-                    full = any("only" not in why for _, why in fits)
+                    full = any(not a.elevation_only for _, a in fits)
                     support += 1.0 if full else 0.5
                     members[cj] = fits[0][0]
-            eph_el_ok = eph_p is not None and abs(h_el - eph_p[1]) <= s.ephemeris_tolerance_deg
-            eph_az_ok = (eph_p is not None and eph_p[0] is not None and h_az is not None
-                         and abs(wrap_deg(h_az - eph_p[0])) <= 3.0 * s.compass_sigma_deg)
-            if h_az is None and eph_p is not None and eph_p[0] is not None and cap.compass_yaw_deg is not None:
+            eph_el_ok = eph_p is not None and abs(h_el - eph_p.elevation_deg) <= s.ephemeris_tolerance_deg
+            eph_az_ok = (eph_p is not None and eph_p.azimuth_deg is not None and h_az is not None
+                         and abs(wrap_deg(h_az - eph_p.azimuth_deg)) <= 3.0 * s.compass_sigma_deg)
+            if h_az is None and eph_p is not None and eph_p.azimuth_deg is not None and cap.compass_yaw_deg is not None:
                 # no yaw but the capture's compass: a tie-breaker only (never a rejection: a compass can be 90 deg off)
-                az_c, _ = _sun_in_photo_time(cap.blobs[bi], cap, photo_ephemeris, s)
-                eph_az_ok = abs(wrap_deg(az_c + cap.compass_yaw_deg - eph_p[0])) <= 3.0 * s.compass_sigma_deg
-            eph_az_bad = (eph_p is not None and eph_p[0] is not None and h_az is not None and not eph_az_ok)
+                eph_az_ok = abs(wrap_deg(scene.compass_azimuth(ci, bi) - eph_p.azimuth_deg)) <= 3.0 * s.compass_sigma_deg
+            eph_az_bad = (eph_p is not None and eph_p.azimuth_deg is not None and h_az is not None and not eph_az_ok)
             if support == 1.0 and eph_az_bad:
                 # seen from one position only and not where the ephemeris and the compass put the sun:
                 # nothing confirms it (a glint in a vertical glass wall has the sun's elevation too)
-                hard[ci, bi] = [f"seen from this position only and {abs(wrap_deg(h_az - eph_p[0])):.1f} deg in azimuth from "
-                                "the ephemeris (through the photo's compass): a glint? (occluded sun elsewhere)"]
+                off = abs(wrap_deg(h_az - eph_p.azimuth_deg))
+                hard[ci, bi] = [f"seen from this position only and {off:.1f} deg in azimuth "
+                                "from the ephemeris (through the photo's compass): a glint? (occluded sun elsewhere)"]
                 continue
             score = support + 1.5 * eph_el_ok + 0.5 * eph_az_ok + 0.01 * min(cap.blobs[bi].contrast, 50) / 50
-            if best is None or score > best[0]:
-                best = (score, ci, bi, h_az, h_el, members, eph_el_ok, eph_az_ok)
+            if best is None or score > best.score:
+                best = Hypothesis(score, ci, bi, h_az, h_el, members, eph_el_ok, eph_az_ok)
+    return best, hard
 
-    # 3. per capture: chosen candidate, rejected ones with reasons
-    results: list[CaptureSun] = []
+
+def _closeness(scene: SunScene, best: Hypothesis, ci: int, bi: int) -> float:
+    """Chi-square of a candidate against the hypothesis: elevation, and azimuth through this capture's
+    yaw (features) or, failing that, its compass (a glint in a vertical glass wall has the sun's
+    elevation: only the azimuth tells them apart)."""
+    s, cap, eph_p = scene.settings, scene.captures[ci], scene.ephemeris_in_photo
+    h_az, h_el, el_tol = best.azimuth_deg, best.elevation_deg, scene.el_tol
+    az, el = scene.in_photo_frame(ci, bi)
+    chi2 = ((el - h_el) / (el_tol / 3.0)) ** 2
+    cos_el = max(math.cos(math.radians(h_el)), 0.2)
+    if h_az is None and eph_p is not None and eph_p.azimuth_deg is not None and cap.compass_yaw_deg is not None:
+        # no capture has a yaw: the ephemeris through the compasses ranks them
+        return chi2 + (wrap_deg(scene.compass_azimuth(ci, bi) - eph_p.azimuth_deg) / s.compass_sigma_deg) ** 2
+    if h_az is None:
+        return chi2
+    if az is not None:
+        return chi2 + (wrap_deg(az - h_az) * cos_el / math.hypot(cap.yaw_sigma_deg or 0.0, el_tol / 3.0)) ** 2
+    if cap.compass_yaw_deg is not None:
+        return chi2 + (wrap_deg(scene.compass_azimuth(ci, bi) - h_az) / s.compass_sigma_deg) ** 2
+    return chi2
+
+
+def choose_candidates(scene: SunScene, best: Hypothesis | None, hard: Rejections) -> tuple[dict[int, int], Rejections]:
+    """Step 3: per capture, the candidate closest to the best hypothesis that agrees with it
+    (``{capture index: candidate index}``), and the rejections, with candidates accepted on elevation
+    alone but wider than the hypothesis' core (module doc, test 1) rejected as glints."""
+    s, captures, eph_p = scene.settings, scene.captures, scene.ephemeris_in_photo
+    hard = {k: list(v) for k, v in hard.items()}
     chosen: dict[int, int] = {}
-    if best is not None:
-        _, ci0, bi0, h_az, h_el, members, eph_el_ok, eph_az_ok = best
-        h_sig = captures[ci0].yaw_sigma_deg or 0.0
-        for ci, cap in enumerate(captures):
-            pick = None
-            def closeness(bi: int) -> float:
-                """Chi-square of a candidate against the hypothesis: elevation, and azimuth through this
-                capture's yaw (features) or, failing that, its compass (a glint in a vertical glass wall
-                has the sun's elevation: only the azimuth tells them apart)."""
-                az, el = p_frame(ci, bi)
-                chi2 = ((el - h_el) / (el_tol / 3.0)) ** 2
-                cos_el = max(math.cos(math.radians(h_el)), 0.2)
-                ref_az = h_az
-                if ref_az is None and eph_p is not None and eph_p[0] is not None and cap.compass_yaw_deg is not None:
-                    ref_az = eph_p[0]  # no capture has a yaw: the ephemeris through the compasses ranks them
-                    az_c, _ = _sun_in_photo_time(cap.blobs[bi], cap, photo_ephemeris, s)
-                    return chi2 + (wrap_deg(az_c + cap.compass_yaw_deg - ref_az) / s.compass_sigma_deg) ** 2
-                if h_az is None:
-                    return chi2
-                if az is not None:
-                    return chi2 + (wrap_deg(az - h_az) * cos_el / math.hypot(cap.yaw_sigma_deg or 0.0, el_tol / 3.0)) ** 2
-                if cap.compass_yaw_deg is not None:
-                    az_c, _ = _sun_in_photo_time(cap.blobs[bi], cap, photo_ephemeris, s)
-                    return chi2 + (wrap_deg(az_c + cap.compass_yaw_deg - h_az) / s.compass_sigma_deg) ** 2
-                return chi2
+    if best is None:
+        return chosen, hard
+    ci0, bi0, h_az, h_el = best.ci, best.bi, best.azimuth_deg, best.elevation_deg
+    h_sig = captures[ci0].yaw_sigma_deg or 0.0
+    ref_size = captures[ci0].blobs[bi0].size_deg
+    for ci, cap in enumerate(captures):
+        cands = sorted((bi for bi in range(len(cap.blobs)) if not hard[ci, bi]),
+                       key=lambda bi: _closeness(scene, best, ci, bi))
+        for bi in cands:
+            ok = scene.agrees(h_az, h_el, h_sig, ci, bi).ok
+            if ok and ci != ci0 and (h_az is None or cap.yaw_deg is None):
+                # accepted on elevation alone, but the sun's saturated core has one size in one scene (same
+                # exposure, minutes apart: within 20 % measured); a glint on glass spreads (1.3-2x measured).
+                # Somewhat wider AND far from where the compass puts the sun: both weak signs together
+                ratio = cap.blobs[bi].size_deg / max(ref_size, 1e-6)
+                ref_az = h_az if h_az is not None else (eph_p.azimuth_deg if eph_p is not None else None)
+                off = None
+                if ref_az is not None and cap.compass_yaw_deg is not None:
+                    off = abs(wrap_deg(scene.compass_azimuth(ci, bi) - ref_az))
+                # a reference core narrower than the sun's disk is a partly hidden sun (or a small glint):
+                # no measure of the sun's size (the shipped mini campaign's scene03: a 0.23 deg core at p01
+                # made the camera position's unhidden 0.9 deg sun a "glint")
+                sized = ref_size >= math.degrees(SUN_ANGULAR_DIAMETER)
+                if sized and (ratio > s.max_size_ratio or (ratio > s.wide_size_ratio and off is not None
+                                                           and off > 2.0 * s.compass_sigma_deg)):
+                    hard[ci, bi] = [f"larger than the sun seen from {captures[ci0].probe}: "
+                                    f"{cap.blobs[bi].size_deg:.2f} deg vs {ref_size:.2f} deg wide" + ("" if off is None else
+                                    f", {off:.0f} deg from where the compass puts the sun") + " (a glint on glass?)"]
+                    continue
+            if ok:
+                chosen[ci] = bi
+                break
+    return chosen, hard
 
-            cands = sorted((bi for bi in range(len(cap.blobs)) if not hard[ci, bi]), key=closeness)
-            ref_size = captures[ci0].blobs[bi0].size_deg
-            for bi in cands:
-                ok, _ = agrees(h_az, h_el, h_sig, ci, bi)
-                if ok and ci != ci0 and (h_az is None or cap.yaw_deg is None):
-                    # accepted on elevation alone, but the sun's saturated core has one size in one scene (same
-                    # exposure, minutes apart: within 20 % measured); a glint on glass spreads (1.3-2x measured).
-                    # Somewhat wider AND far from where the compass puts the sun: both weak signs together
-                    ratio = cap.blobs[bi].size_deg / max(ref_size, 1e-6)
-                    ref_az = h_az if h_az is not None else (eph_p[0] if eph_p is not None else None)
-                    off = None
-                    if ref_az is not None and cap.compass_yaw_deg is not None:
-                        az_c, _ = _sun_in_photo_time(cap.blobs[bi], cap, photo_ephemeris, s)
-                        off = abs(wrap_deg(az_c + cap.compass_yaw_deg - ref_az))
-                    # a reference core narrower than the sun's disk is a partly hidden sun (or a small glint):
-                    # no measure of the sun's size (the shipped mini campaign's scene03: a 0.23 deg core at p01
-                    # made the camera position's unhidden 0.9 deg sun a "glint")
-                    sized = ref_size >= math.degrees(SUN_ANGULAR_DIAMETER)
-                    if sized and (ratio > s.max_size_ratio or (ratio > s.wide_size_ratio and off is not None
-                                                               and off > 2.0 * s.compass_sigma_deg)):
-                        hard[ci, bi] = [f"larger than the sun seen from {captures[ci0].probe}: {cap.blobs[bi].size_deg:.2f} deg vs "
-                                        f"{ref_size:.2f} deg wide" + ("" if off is None else
-                                        f", {off:.0f} deg from where the compass puts the sun") + " (a glint on glass?)"]
-                        continue
-                if ok:
-                    pick = bi
-                    break
-            if pick is not None:
-                chosen[ci] = pick
+
+def capture_results(scene: SunScene, best: Hypothesis | None, hard: Rejections, chosen: dict[int, int]
+                    ) -> tuple[list[CaptureSun], set[tuple[int, int]]]:
+    """Step 4: one :class:`CaptureSun` per capture, its chosen candidate and every rejected one with its
+    reasons; also the candidates that passed every test but another one fitted better (``{(capture
+    index, candidate index)}``: their capture's yaw was unknown, so their azimuth was not tested)."""
+    s, captures = scene.settings, scene.captures
+    results: list[CaptureSun] = []
+    outranked: set[tuple[int, int]] = set()
     for ci, cap in enumerate(captures):
         cands = []
         for bi, b in enumerate(cap.blobs):
@@ -368,8 +446,12 @@ def scene_sun(captures: list[CaptureSunInput], *, photo_ephemeris: Ephemeris | N
                 if best is None:
                     reasons.append("no consistent sun in the scene")
                 else:
-                    ok, why = agrees(best[3], best[4], captures[best[1]].yaw_sigma_deg or 0.0, ci, bi)
-                    reasons.append(f"disagrees with the scene's sun: {why}" if not ok else "another candidate fits better")
+                    a = scene.agrees(best.azimuth_deg, best.elevation_deg, captures[best.ci].yaw_sigma_deg or 0.0, ci, bi)
+                    if not a.ok:
+                        reasons.append(f"disagrees with the scene's sun: {a.why}")
+                    else:
+                        reasons.append("another candidate fits better")
+                        outranked.add((ci, bi))
             cands.append(SunCandidate(azimuth_deg=b.azimuth_deg, elevation_deg=b.elevation_deg, size_deg=b.size_deg,
                                       n_pixels=b.n_pixels, contrast=b.contrast, chosen=chosen.get(ci) == bi,
                                       reasons=reasons, scores=scores))
@@ -391,36 +473,48 @@ def scene_sun(captures: list[CaptureSunInput], *, photo_ephemeris: Ephemeris | N
             else:
                 reason = "no candidate agrees with the scene's sun: occluded here (the others are glints or surfaces)"
             if cap.blobs and best is not None:
-                flags.append("sun_candidates_rejected")
+                flags.append(FlagCode.SUN_CANDIDATES_REJECTED.value)
             results.append(CaptureSun(probe=cap.probe, found=False, reason=reason, candidates=cands,
                                       ephemeris=cap.ephemeris, flags=flags))
+    return results, outranked
 
-    # 4. human sun labels replace the automatic choice of their capture
-    for ci, cap in enumerate(captures):
+
+def with_human_labels(scene: SunScene, results: list[CaptureSun]) -> list[CaptureSun]:
+    """Step 5: a capture's human sun label replaces its automatic choice (keeping the candidates; flagged
+    ``auto_differs`` more than 1 deg from it)."""
+    out = list(results)
+    for ci, cap in enumerate(scene.captures):
         if cap.human is not None:
-            auto = results[ci]
+            auto = out[ci]
             human = cap.human.model_copy(update={"candidates": auto.candidates, "ephemeris": cap.ephemeris})
             if auto.found and human.found:
                 d = _angle_deg(auto.azimuth_deg, auto.elevation_deg, human.azimuth_deg, human.elevation_deg)
                 if d > 1.0:
-                    human.flags = [*human.flags, f"auto_differs: {d:.2f} deg from the automatic choice"]
-            results[ci] = human
+                    human.flags = [*human.flags, str(Flag(FlagCode.AUTO_DIFFERS, f"{d:.2f} deg from the automatic choice"))]
+            out[ci] = human
+    return out
 
-    # 5. consensus in the photo's panorama frame at the photo's time (yaws from non-sun cues)
+
+def consensus(scene: SunScene, results: list[CaptureSun]) -> SceneSun:
+    """Step 6: the scene's sun from every capture that found it, in the photo's panorama frame at the
+    photo's time (yaws from non-sun cues), elevation and azimuth inverse-variance weighted; each capture
+    that disagrees with it flagged, then the ephemeris and the number of positions checked."""
+    s, captures = scene.settings, scene.captures
+    photo_ephemeris, photo_heading_deg = scene.photo_ephemeris, scene.photo_heading_deg
+    el_tol, eph_p = scene.el_tol, scene.ephemeris_in_photo
+    scene_flags: list[str] = []
     pts = []
     for ci, (cap, res) in enumerate(zip(captures, results)):
         if not res.found:
             continue
-        b_az, b_el = res.azimuth_deg, res.elevation_deg
-        fake = Blob(np.zeros(3), b_az, b_el, 0.0, 0, 0.0)
-        az, el = _sun_in_photo_time(fake, cap, photo_ephemeris, s)
+        az, el = at_photo_time(res.azimuth_deg, res.elevation_deg, cap.ephemeris, photo_ephemeris, sun_moves=s.sun_moves)
         sig_dir = math.hypot(res.uncertainty_deg or s.centroid_sigma_deg, s.level_sigma_deg)
         pts.append((ci, None if cap.yaw_deg is None else wrap_deg(az + cap.yaw_deg), el,
                     cap.yaw_sigma_deg, sig_dir))
     sun = SceneSun(found=False, captures=results, ephemeris=photo_ephemeris)
     if not pts:
-        sun.flags = scene_flags + (["no_sun_found"] if any(c.blobs for c in captures) else [])
-        _ephemeris_only(sun, eph_p, photo_heading_deg)
+        sun.flags = scene_flags + ([FlagCode.NO_SUN_FOUND.value] if any(c.blobs for c in captures) else [])
+        _ephemeris_only(sun, eph_p)
         return sun
     w_el = np.array([1.0 / p[4] ** 2 for p in pts])
     el = float(np.sum(w_el * np.array([p[2] for p in pts])) / w_el.sum())
@@ -440,37 +534,80 @@ def scene_sun(captures: list[CaptureSunInput], *, photo_ephemeris: Ephemeris | N
         yaw_sig = captures[ci].yaw_sigma_deg or 0.0
         az_tol = 3.0 * math.hypot(max(unc, 0.5), yaw_sig)
         if abs(dev_el) > el_tol or (dev_az is not None and abs(dev_az) * math.cos(math.radians(el)) > az_tol):
-            r.flags = [*r.flags, f"disagrees_with_scene: d_el {dev_el:+.2f} deg" + ("" if dev_az is None else f", d_az {dev_az:+.2f} deg")]
-            scene_flags.append(f"position_disagrees: {r.probe}")
+            detail = f"d_el {dev_el:+.2f} deg" + ("" if dev_az is None else f", d_az {dev_az:+.2f} deg")
+            r.flags = [*r.flags, str(Flag(FlagCode.DISAGREES_WITH_SCENE, detail))]
+            scene_flags.append(str(Flag(FlagCode.POSITION_DISAGREES, r.probe)))
     sun.found, sun.azimuth_deg, sun.elevation_deg, sun.uncertainty_deg = True, az, el, unc
     sun.n_captures = len(pts)
     if az is not None and photo_heading_deg is not None:
-        sun.world_azimuth_deg = (az + photo_heading_deg) % 360.0
+        sun.world_azimuth_deg = solar_azimuth_from_photo(az, photo_heading_deg)
         sun.world_elevation_deg = el
         for ci, p_az, *_ in pts:
             if p_az is not None:
-                results[ci].world_azimuth_deg = (p_az + photo_heading_deg) % 360.0
+                results[ci].world_azimuth_deg = solar_azimuth_from_photo(p_az, photo_heading_deg)
     if photo_ephemeris is not None:
         d_el = el - photo_ephemeris.elevation_deg
         if abs(d_el) > s.ephemeris_tolerance_deg:
-            scene_flags.append(f"ephemeris_disagrees: image elevation {el:.2f} deg, ephemeris {photo_ephemeris.elevation_deg:.2f} deg "
-                               "(camera clock, UTC offset or GPS wrong?)")
-        if eph_p is not None and eph_p[0] is not None and az is not None:
-            d_az = wrap_deg(az - eph_p[0])
+            scene_flags.append(str(Flag(FlagCode.EPHEMERIS_DISAGREES,
+                                        f"image elevation {el:.2f} deg, ephemeris {photo_ephemeris.elevation_deg:.2f} deg "
+                                        "(camera clock, UTC offset or GPS wrong?)")))
+        if eph_p is not None and eph_p.azimuth_deg is not None and az is not None:
+            d_az = wrap_deg(az - eph_p.azimuth_deg)
             if abs(d_az) > 3.0 * s.compass_sigma_deg:
-                scene_flags.append(f"ephemeris_azimuth_disagrees: {d_az:+.1f} deg (clock, GPS or the photo's compass heading)")
+                scene_flags.append(str(Flag(FlagCode.EPHEMERIS_AZIMUTH_DISAGREES,
+                                            f"{d_az:+.1f} deg (clock, GPS or the photo's compass heading)")))
     else:
-        scene_flags.append("no_ephemeris: the photo has no time with UTC offset or no GPS")
+        scene_flags.append(str(Flag(FlagCode.NO_EPHEMERIS, "the photo has no time with UTC offset or no GPS")))
     if sun.n_captures == 1 and len(captures) > 1:
-        scene_flags.append("single_position: the sun was confirmed at one position only")
+        scene_flags.append(str(Flag(FlagCode.SINGLE_POSITION, "the sun was confirmed at one position only")))
     sun.flags = scene_flags
     return sun
 
 
-def _ephemeris_only(sun: SceneSun, eph_p: tuple[float | None, float] | None, photo_heading_deg: float | None) -> None:
+@dataclass(frozen=True)
+class SunChoice:
+    """:func:`choose_sun`'s result: the scene's sun, and the candidates that passed every test but
+    another one fitted better (``{(probe, candidate index)}``, indices into ``CaptureSun.candidates``)."""
+
+    sun: SceneSun
+    outranked: frozenset[tuple[str, int]] = frozenset()
+
+
+def choose_sun(captures: list[CaptureSunInput], *, photo_ephemeris: Ephemeris | None, photo_heading_deg: float | None,
+               settings: SunSettings | None = None) -> SunChoice:
+    """Choose the sun in every capture of a scene and form the scene's consensus (module doc), step by
+    step: :func:`hard_rejections`, :func:`best_hypothesis`, :func:`choose_candidates`,
+    :func:`capture_results`, :func:`with_human_labels`, :func:`consensus`.
+
+    ``captures[i].yaw_deg``/``yaw_sigma_deg``: that capture's yaw (level -> photo panorama frame)
+    from cues other than the sun (features, compass), or ``None``.
+    """
+    scene = SunScene(captures, photo_ephemeris, photo_heading_deg, settings or SunSettings())
+    hard = hard_rejections(captures, scene.settings)
+    best, hard = best_hypothesis(scene, hard)
+    chosen, hard = choose_candidates(scene, best, hard)
+    results, outranked = capture_results(scene, best, hard, chosen)
+    sun = consensus(scene, with_human_labels(scene, results))
+    return SunChoice(sun, frozenset((captures[ci].probe, bi) for ci, bi in outranked))
+
+
+def scene_sun(captures: list[CaptureSunInput], *, photo_ephemeris: Ephemeris | None, photo_heading_deg: float | None,
+              settings: SunSettings | None = None) -> SceneSun:
+    """The scene's sun of :func:`choose_sun`: a :class:`SceneSun` with one :class:`CaptureSun` per capture
+    (chosen and rejected candidates with reasons)."""
+    return choose_sun(captures, photo_ephemeris=photo_ephemeris, photo_heading_deg=photo_heading_deg, settings=settings).sun
+
+
+def _angle_deg(az1: float, el1: float, az2: float, el2: float) -> float:
+    a = direction_from_angles(np.radians(az1), np.radians(el1))
+    b = direction_from_angles(np.radians(az2), np.radians(el2))
+    return math.degrees(float(angular_distance(a, b)))
+
+
+def _ephemeris_only(sun: SceneSun, eph_p: PhotoDirection | None) -> None:
     """A scene whose images show no sun keeps the ephemeris direction as information (found stays False)."""
     if eph_p is None:
         return
-    sun.world_elevation_deg = eph_p[1]
+    sun.world_elevation_deg = eph_p.elevation_deg
     if sun.ephemeris is not None:
         sun.world_azimuth_deg = sun.ephemeris.azimuth_deg

@@ -1,0 +1,188 @@
+"""The steps of align's two orchestrations, each on its own: the sun's choice (solidkit.align.sun) and a
+scene's alignment (solidkit.align.pipeline), on hand-made inputs."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from solidkit.align.captures import Capture
+from solidkit.align.ephemeris import DRIFT_HOURS, at_photo_time, hours_apart
+from solidkit.align.geometry import LevelPoseFit
+from solidkit.align.pipeline import (AlignSettings, CaptureView, ProbePixel, capture_yaw, clock_mismatch, compass_cue,
+                                     explain_rejections, probe_pixel)
+from solidkit.align.schema import (Cue, Ephemeris, Levelling, PhotoInfo, ProbeAlignment, SceneSun, CaptureSun,
+                                   SunCandidate, photo_azimuth_from_solar, solar_azimuth_from_photo, wrap_deg)
+from solidkit.align.sun import (Blob, CaptureSunInput, SunScene, SunSettings, best_hypothesis, capture_results,
+                                choose_candidates, choose_sun, consensus, hard_rejections, scene_sun)
+from solidkit.capture.manifest import Probe
+from solidkit.envmap.coords import direction_from_angles
+from solidkit.flags import FlagCode, flag_codes
+
+STATIC = SunSettings(sun_moves=False)
+
+
+def _eph(az: float, el: float, time: str = "2024-06-01T12:00:00+00:00") -> Ephemeris:
+    return Ephemeris(time_utc=time, latitude_deg=45.0, longitude_deg=7.0, azimuth_deg=az, elevation_deg=el)
+
+
+def _blob(az: float, el: float, size: float = 0.9, sky: float | None = 0.9, contrast: float = 20.0) -> Blob:
+    d = direction_from_angles(math.radians(az), math.radians(el))
+    return Blob(d, az, el, size, 40, contrast, sky)
+
+
+def _cap(pid: str, blobs: list[Blob], yaw: float | None, **kw) -> CaptureSunInput:
+    return CaptureSunInput(pid, blobs, kw.pop("eph", _eph(200.0, 35.0)), yaw, None if yaw is None else 0.3, **kw)
+
+
+# --------------------------------------------------------------------------- frames and times
+def test_solar_azimuth_to_the_photo_frame_and_back() -> None:
+    assert photo_azimuth_from_solar(200.0, 180.0) == 20.0
+    assert photo_azimuth_from_solar(10.0, 350.0) == 20.0 and photo_azimuth_from_solar(350.0, 10.0) == -20.0
+    for az, h in ((200.0, 180.0), (10.0, 350.0), (-179.0, 12.5)):
+        assert solar_azimuth_from_photo(photo_azimuth_from_solar(az, h), h) == pytest.approx(az % 360.0)
+
+
+def test_the_sun_moves_to_the_photo_time_within_an_hour() -> None:
+    cap, photo = _eph(190.0, 34.0, "2024-06-01T11:40:00+00:00"), _eph(200.0, 35.0)
+    assert hours_apart(cap, photo) == pytest.approx(1 / 3)
+    assert at_photo_time(10.0, 30.0, cap, photo) == (20.0, 31.0)
+    assert at_photo_time(10.0, 30.0, cap, photo, sun_moves=False) == (10.0, 30.0)
+    assert at_photo_time(10.0, 30.0, None, photo) == (10.0, 30.0)
+    far = _eph(150.0, 20.0, "2024-06-01T09:00:00+00:00")
+    assert hours_apart(far, photo) > DRIFT_HOURS and at_photo_time(10.0, 30.0, far, photo) == (10.0, 30.0)
+
+
+# --------------------------------------------------------------------------- the sun, step by step
+def test_hard_rejections_say_why() -> None:
+    caps = [_cap("cam", [_blob(20.0, 35.0), _blob(60.0, 30.0, size=4.0), _blob(-40.0, 35.0, sky=0.1),
+                         _blob(100.0, -5.0)], 0.0)]
+    hard = hard_rejections(caps, STATIC)
+    assert hard[0, 0] == []
+    assert "too large for the sun" in hard[0, 1][0]
+    assert "not in the sky" in hard[0, 2][0]
+    assert "below the horizon" in hard[0, 3][0]
+
+
+def test_an_agreement_on_elevation_alone_counts_half() -> None:
+    """p1 has no yaw: it supports the camera's candidate on elevation only (half a capture)."""
+    caps = [_cap("cam", [_blob(20.0, 35.0)], 0.0), _cap("p1", [_blob(-50.0, 35.0)], None)]
+    scene = SunScene(caps, _eph(200.0, 35.0), 180.0, STATIC)
+    a = scene.agrees(20.0, 35.0, 0.3, 1, 0)
+    assert a.ok and a.elevation_only
+    assert not scene.agrees(20.0, 40.0, 0.3, 1, 0).ok
+    best, hard = best_hypothesis(scene, hard_rejections(caps, STATIC))
+    assert (best.ci, best.bi) == (0, 0) and best.members == {0: 0, 1: 0}
+    assert best.ephemeris_elevation_ok and best.ephemeris_azimuth_ok
+    assert best.score == pytest.approx(1.5 + 1.5 + 0.5 + 0.01 * 20 / 50)
+    assert hard == hard_rejections(caps, STATIC)  # nothing rejected on the way
+
+
+def test_a_candidate_seen_once_and_off_the_ephemeris_is_rejected_as_a_glint() -> None:
+    caps = [_cap("cam", [_blob(-30.0, 35.0)], 0.0), _cap("p1", [], 10.0)]
+    scene = SunScene(caps, _eph(200.0, 35.0), 180.0, STATIC)  # the ephemeris: azimuth +20 in the photo frame
+    best, hard = best_hypothesis(scene, hard_rejections(caps, STATIC))
+    assert best is None and "seen from this position only" in hard[0, 0][0]
+
+
+def test_an_outranked_candidate_is_named_by_index() -> None:
+    """p1 (no yaw) sees the sun and a glint at the same elevation: the closer one (through its compass) is
+    chosen, the other passed every test and is outranked."""
+    caps = [_cap("cam", [_blob(20.0, 35.0)], 0.0),
+            _cap("p1", [_blob(-60.0, 35.0), _blob(40.0, 35.0)], None, compass_yaw_deg=80.0)]
+    scene = SunScene(caps, _eph(200.0, 35.0), 180.0, STATIC)
+    best, hard = best_hypothesis(scene, hard_rejections(caps, STATIC))
+    chosen, hard = choose_candidates(scene, best, hard)
+    assert chosen == {0: 0, 1: 0}
+    results, outranked = capture_results(scene, best, hard, chosen)
+    assert outranked == {(1, 1)}
+    assert results[1].candidates[1].reasons == ["another candidate fits better"] and results[1].candidates[0].chosen
+    choice = choose_sun(caps, photo_ephemeris=_eph(200.0, 35.0), photo_heading_deg=180.0, settings=STATIC)
+    assert choice.outranked == {("p1", 1)}
+    assert choice.sun == scene_sun(caps, photo_ephemeris=_eph(200.0, 35.0), photo_heading_deg=180.0, settings=STATIC)
+
+
+def test_consensus_flags_by_code() -> None:
+    caps = [_cap("cam", [_blob(20.0, 35.0)], 0.0), _cap("p1", [], 10.0)]
+    scene = SunScene(caps, _eph(200.0, 30.0), 180.0, STATIC)
+    results = [CaptureSun(probe="cam", found=True, azimuth_deg=20.0, elevation_deg=35.0, uncertainty_deg=0.2),
+               CaptureSun(probe="p1", found=False)]
+    sun = consensus(scene, results)
+    assert sun.found and sun.n_captures == 1 and sun.azimuth_deg == pytest.approx(20.0)
+    assert sun.world_azimuth_deg == pytest.approx(200.0)
+    assert flag_codes(sun.flags) == [FlagCode.EPHEMERIS_DISAGREES, FlagCode.SINGLE_POSITION]
+    none = consensus(SunScene(caps, None, None, STATIC), [CaptureSun(probe="cam", found=False),
+                                                          CaptureSun(probe="p1", found=False)])
+    assert not none.found and none.flags == [FlagCode.NO_SUN_FOUND.value]
+
+
+# --------------------------------------------------------------------------- a scene, step by step
+def _view(pid: str, *, heading: float | None = None, eph: Ephemeris | None = None, pixel: list[float] | None = None,
+          flags: tuple[str, ...] = ()) -> CaptureView:
+    cap = Capture("s1", Probe(id=pid, shots=[], photo_pixel=pixel), None, None, None, [])
+    return CaptureView(cap, heading=heading, ephemeris=eph, flags=flags)
+
+
+def test_compass_cue_and_clock_mismatch() -> None:
+    s = AlignSettings()
+    cue = compass_cue(_view("p1", heading=350.0), 10.0, s)
+    assert cue.ok and cue.yaw_deg == -20.0 and cue.sigma_deg == s.sun.compass_sigma_deg
+    assert not compass_cue(_view("p1"), 10.0, s).ok and compass_cue(_view("p1", heading=1.0), None, s).yaw_deg is None
+    photo = _eph(200.0, 35.0)
+    views = [_view("cam", eph=photo), _view("p1", eph=_eph(150.0, 20.0, "2024-06-01T09:00:00+00:00")), _view("p2")]
+    (flag,) = clock_mismatch(photo, views)
+    assert flag.startswith("clock_mismatch: p1 taken more than an hour")
+    assert clock_mismatch(None, views) == [] and clock_mismatch(photo, views[:1]) == []
+
+
+def test_capture_yaw_fuses_and_a_human_label_wins() -> None:
+    class Label:
+        value, source, annotator = {"yaw_deg": 25.0}, "annotator", "ann"
+
+    cues = {"compass": Cue(yaw_deg=20.0, sigma_deg=8.0, ok=True), "features": Cue(yaw_deg=None, ok=False)}
+    cy = capture_yaw(_view("p1", flags=("no_normal_shot: x",)), cues, [], None)
+    assert cy.yaw_deg == pytest.approx(20.0) and cy.source == "auto"
+    assert flag_codes(cy.flags) == ["no_normal_shot", FlagCode.SINGLE_CUE, FlagCode.FEATURES_FAILED]
+    cues = {"compass": Cue(yaw_deg=20.0, sigma_deg=8.0, ok=True)}
+    cy = capture_yaw(_view("p1"), cues, ["yaw_from_sky: x"], Label())
+    assert cy.yaw_deg == 25.0 and cy.source == "annotator" and "label" in cues
+    assert flag_codes(cy.flags) == [FlagCode.SINGLE_CUE, FlagCode.LABEL_DIFFERS]  # link flags only with a linked cue
+
+
+def test_probe_pixel_from_field_notes_checked_against_the_geometry() -> None:
+    s = AlignSettings()
+    K = [[500.0, 0.0, 320.0], [0.0, 500.0, 240.0], [0.0, 0.0, 1.0]]
+    photo = PhotoInfo(path="p.jpg", sha256="0", size=[640, 480], K_full=K, pitch_deg=0.0, roll_deg=0.0)
+    # the probe straight ahead of the camera: t = -R c with c = +z (yaw 0)
+    fit = LevelPoseFit(0.0, np.array([0.0, 0.0, -1.0]), np.ones(30, bool), 0.001, 0.001, t_support=30, t_sigma=0.01)
+    px = probe_pixel(_view("p1", pixel=[320.0, 240.0]), fit, None, photo, 0.0, s)
+    assert px.pixel_source == "field_notes" and px.pixel_geometry == pytest.approx([320.0, 240.0])
+    assert px.pixel_error_px == pytest.approx(0.0) and px.flags == ()
+    px = probe_pixel(_view("p1", pixel=[620.0, 240.0]), fit, None, photo, 0.0, s)
+    assert flag_codes(px.flags) == [FlagCode.PIXEL_DISAGREES] and px.pixel_error_deg > s.pixel_tolerance_deg
+    px = probe_pixel(_view("p1"), fit, None, photo, 0.0, s)
+    assert px.pixel_source == "geometry" and flag_codes(px.flags) == [FlagCode.PIXEL_FROM_GEOMETRY]
+    px = probe_pixel(_view("p1", pixel=[700.0, 240.0]), None, None, photo, None, s)
+    assert px.pixel_geometry is None and flag_codes(px.flags) == [FlagCode.PIXEL_OUTSIDE_PHOTO]
+    assert probe_pixel(_view("p1"), None, None, photo, None, s) == ProbePixel(flags=(px.flags[0].replace(
+        "pixel_outside_photo", "no_pixel: no marked pixel and no relative pose with parallax to the camera position"),))
+
+
+def test_outranked_candidates_are_explained_once_the_yaw_is_known() -> None:
+    cands = [SunCandidate(azimuth_deg=-60.0, elevation_deg=35.0, size_deg=0.9, n_pixels=40, contrast=20.0, chosen=True),
+             SunCandidate(azimuth_deg=40.0, elevation_deg=35.0, size_deg=0.9, n_pixels=40, contrast=20.0,
+                          reasons=["another candidate fits better"])]
+    sun = SceneSun(found=True, azimuth_deg=20.0, elevation_deg=35.0,
+                   captures=[CaptureSun(probe="p1", found=True, azimuth_deg=-60.0, elevation_deg=35.0, candidates=cands)])
+    lev = Levelling(pitch_deg=0.0, roll_deg=0.0, source="none")
+    probes = [ProbeAlignment(id="p1", role="probe", levelling=lev, rotation=np.eye(3).tolist(), yaw_deg=80.0)]
+    explain_rejections(sun, frozenset(), probes)
+    assert cands[1].reasons == ["another candidate fits better"]  # not outranked: left alone
+    explain_rejections(sun, frozenset({("p1", 1)}), probes)
+    assert cands[1].reasons[0].startswith("not where the scene's sun is: ") and "glint" in cands[1].reasons[0]
+    d = math.degrees(math.acos(math.sin(math.radians(35.0)) ** 2
+                               + math.cos(math.radians(35.0)) ** 2 * math.cos(math.radians(wrap_deg(40.0 + 80.0 - 20.0)))))
+    assert cands[1].scores["distance_to_scene_sun_deg"] == pytest.approx(d)
+    assert cands[0].reasons == []
