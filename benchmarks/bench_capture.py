@@ -135,7 +135,7 @@ def bench_ingest(folder: Path, n: int = 20) -> dict:
     for jobs in (1, 2):
         camp = folder / f"camp{jobs}"
         t0 = time.perf_counter()
-        subprocess.run([str(REPO / ".venv" / "bin" / "solidkit"), "ingest", str(folder / "card"), str(camp), "--no-products",
+        subprocess.run([str(REPO / ".venv" / "bin" / "solidkit"), "ingest", str(folder / "card"), "-o", str(camp), "--no-products",
                         "--jobs", str(jobs)], check=True, capture_output=True, cwd=REPO)
         res[f"solidkit_jobs{jobs}_s"] = time.perf_counter() - t0
         res[f"solidkit_jobs{jobs}_captures_per_min"] = 60 * n / res[f"solidkit_jobs{jobs}_s"]

@@ -262,7 +262,7 @@ def chain_mini(tmp: Path) -> Path:
     """The shipped mini campaign's card -> `solidkit ingest` -> `solidkit align`; returns the campaign."""
     code = "import sys; from solidkit.cli import main; sys.argv = ['solidkit'] + sys.argv[1:]; main()"
     camp = tmp / "mini"
-    for args in (["ingest", str(MINI / "card"), str(camp)], ["align", str(camp), "--no-report"]):
+    for args in (["ingest", str(MINI / "card"), "-o", str(camp)], ["align", str(camp), "--no-report"]):
         subprocess.run([sys.executable, "-c", code, *args], check=True, capture_output=True)
     return camp
 

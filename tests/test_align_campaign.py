@@ -35,7 +35,7 @@ def campaign(tmp_path_factory) -> tuple[Path, Path]:
     steps = [["synth", "campaign", "--scenes", "1", "--probes", "3", "--out", str(synth), "--seed", "7", "--preset", "mini"]]
     if os.environ.get("SOLIDKIT_ALIGN_SYNTH"):  # an already rendered virtual campaign (card/ + truth/), to save the render
         synth, steps = Path(os.environ["SOLIDKIT_ALIGN_SYNTH"]), []
-    steps += [["ingest", str(synth / "card"), str(camp)], ["align", str(camp), "--json"]]
+    steps += [["ingest", str(synth / "card"), "-o", str(camp)], ["align", str(camp), "--json"]]
     argv = sys.argv
     try:
         for args in steps:

@@ -31,7 +31,7 @@ def test_values_as_typed():
     assert parse_exposures("1/8,1,8") == [0.125, 1.0, 8.0]
     assert parse_exposures("1/640, 1/160,1/40") == [1 / 640, 1 / 160, 1 / 40]
     assert parse_exposure("0.004") == 0.004 and parse_exposure("1/4000") == 0.00025
-    assert parse_angle(-30, "--yaw") == -30.0 and parse_angle(90, "--fov", 0, 180, open_interval=True) == 90.0
+    assert parse_angle(-30, "--yaw") == -30.0 and parse_angle(90, "--hfov-deg", 0, 180, open_interval=True) == 90.0
     assert parse_floats("1, 2.5,3", "--x") == [1.0, 2.5, 3.0]
     assert parse_pixel("160,200") == (160.0, 200.0)
     assert parse_pixels("160,200;80.5,210 1,2", "--pixels") == [(160.0, 200.0), (80.5, 210.0), (1.0, 2.0)]
@@ -49,7 +49,7 @@ def test_values_as_typed():
     (lambda: parse_exposures("1,2", count=3), "--times: 2 exposure time(s) for 3 frame(s)"),
     (lambda: parse_exposures(""), "--times: expected comma-separated exposure times in seconds"),
     (lambda: parse_angle(math.nan, "--yaw"), "--yaw: angles must be finite degrees, got nan"),
-    (lambda: parse_angle(180, "--fov", 0, 180, open_interval=True), "--fov: 180 degrees is outside (0, 180)"),
+    (lambda: parse_angle(180, "--hfov-deg", 0, 180, open_interval=True), "--hfov-deg: 180 degrees is outside (0, 180)"),
     (lambda: parse_angle(-1, "--feather", 0.0), "--feather: -1 degrees is outside [0, inf]"),
     (lambda: parse_floats("1,2", "--wb", 3), "--wb: expected 3 comma-separated numbers, got 2 in '1,2'"),
     (lambda: parse_floats("1,0,2", "--wb", 3, positive=True), "--wb: expected positive numbers, got '1,0,2'"),
@@ -84,7 +84,7 @@ def test_json_reporters_print_only_json_on_stdout(cli, tmp_path):
     code, out, _ = cli("envmap", "rotate", tmp_path / "p.exr", "-o", tmp_path / "r.exr", "--yaw", "90", "--json")
     rot = json.loads(out)
     assert code == 0 and rot["output"] == str(tmp_path / "r.exr") and rot["yaw_deg"] == 90.0 and rot["size"] == [16, 8]
-    code, out, _ = cli("envmap", "crop", tmp_path / "p.exr", "-o", tmp_path / "c.exr", "--fov", "90", "--size", "8x6",
+    code, out, _ = cli("envmap", "crop", tmp_path / "p.exr", "-o", tmp_path / "c.exr", "--hfov-deg", "90", "--size", "8x6",
                        "--json")
     crop = json.loads(out)
     assert code == 0 and crop["size"] == [8, 6] and crop["K"][0][0] == pytest.approx(4.0) and crop["K"][0][2] == 3.5

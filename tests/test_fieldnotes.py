@@ -126,7 +126,7 @@ def test_bad_notes_are_a_scene_error_not_a_crash(tmp_path, cli, text, expect):
     assert sc.fieldnotes is None and any(w.startswith("fieldnotes_invalid") and expect in w for w in sc.warnings)
     assert sc.camera_probe == "cam"  # the rest still works: the folder name marks the camera position
     assert len(m.shots) == 6 and not m.errors
-    code, out, err = cli("ingest", card, tmp_path / "camp2")
+    code, out, err = cli("ingest", card, "-o", tmp_path / "camp2")
     assert code == 2 and expect in out.replace("\n", "") and "field notes file(s)" in err
 
 

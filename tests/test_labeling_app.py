@@ -287,7 +287,7 @@ def test_the_app_on_the_mini_campaign_chain(cli, tmp_path):
     from solidkit.align.schema import load_alignment
 
     camp = tmp_path / "camp"
-    assert cli("ingest", MINI / "card", camp)[0] == 0
+    assert cli("ingest", MINI / "card", "-o", camp)[0] == 0
     assert cli("align", camp, "--no-report")[0] == 0
     alignment = load_alignment(camp).model_dump(mode="json")
     c = TestClient(create_app(camp, alignment=alignment, allowed_hosts=["testserver"]))

@@ -124,12 +124,13 @@ def test_config_errors_are_one_line(tmp_path, sources, cli):
     code, out, err = cli("train", tmp_path / "missing.toml")
     assert code == 2 and "no such training configuration" in err
     other = _config(tmp_path, sources, tmp_path / "run", steps=1)
-    assert cli("train", other, "--no-progress")[0] == 0
+    code, out, err = cli("train", other, "--no-progress")
+    assert code == 0 and "stage / step" in out and "done" in out  # the summary (--json: the state)
     changed = _config(tmp_path, sources, tmp_path / "run", steps=1, seed=6)
     code, out, err = cli("train", changed)
     assert code == 2 and "other settings (seed)" in err
     longer = _config(tmp_path, sources, tmp_path / "run", steps=2)  # a longer stage is allowed: resumes, goes on
-    code, out, err = cli("train", longer, "--no-progress")
+    code, out, err = cli("train", longer, "--no-progress", "--json")
     assert code == 0 and json.loads(out.strip().splitlines()[-1])["step"] == 2 and "inet.steps" in err
 
 

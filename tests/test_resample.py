@@ -326,7 +326,7 @@ def test_cli_crop_writes_exr_and_tonemapped_png(tmp_path):
     src = tmp_path / "in.exr"
     p = np.abs(smooth_pano(64)) + 0.1
     write_exr(src, p)
-    args = ["--fov", "80", "--yaw", "35", "--pitch", "-5", "--roll", "3", "--size", "64x48"]
+    args = ["--hfov-deg", "80", "--yaw", "35", "--pitch", "-5", "--roll", "3", "--size", "64x48"]
     assert _cli("crop", str(src), "-o", str(tmp_path / "c.exr"), *args).exit_code == 0
     assert _cli("crop", str(src), "-o", str(tmp_path / "c.png"), *args).exit_code == 0
     from solidkit.envmap.perspective import perspective_crop
@@ -357,9 +357,9 @@ def test_cli_ldr_round_trip_keeps_srgb(tmp_path):
         ["rotate", "{missing}", "-o", "{out}.exr"],
         ["rotate", "{good}", "-o", "{out}.txt"],  # unknown output type
         ["rotate", "{good}", "-o", "{good}"],  # would overwrite the input
-        ["crop", "{good}", "-o", "{out}.exr", "--fov", "90", "--size", "64"],
-        ["crop", "{good}", "-o", "{out}.exr", "--fov", "190", "--size", "64x48"],
-        ["crop", "{nan}", "-o", "{out}.exr", "--fov", "90", "--size", "64x48"],
+        ["crop", "{good}", "-o", "{out}.exr", "--hfov-deg", "90", "--size", "64"],
+        ["crop", "{good}", "-o", "{out}.exr", "--hfov-deg", "190", "--size", "64x48"],
+        ["crop", "{nan}", "-o", "{out}.exr", "--hfov-deg", "90", "--size", "64x48"],
     ],
 )
 def test_cli_bad_input_is_a_solidkit_error(tmp_path, args):
@@ -388,7 +388,7 @@ def test_cli_error_is_one_line_and_exit_code_2(tmp_path):
 
     write_exr(bad, np.ones((16, 30, 3), np.float32))
     run = subprocess.run(
-        [sys.executable, "-m", "solidkit.cli", "envmap", "crop", str(bad), "-o", str(tmp_path / "o.png"), "--fov", "60", "--size", "32x24"],
+        [sys.executable, "-m", "solidkit.cli", "envmap", "crop", str(bad), "-o", str(tmp_path / "o.png"), "--hfov-deg", "60", "--size", "32x24"],
         capture_output=True,
         text=True,
     )

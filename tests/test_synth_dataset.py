@@ -13,7 +13,7 @@ pytest.importorskip("mitsuba")
 
 from solidkit.envmap import read_exr, write_ldr  # noqa: E402
 from solidkit.errors import InputError  # noqa: E402
-from solidkit.synth.dataset import SynthDataset, build_index, generate, parse_shard, shard_range  # noqa: E402
+from solidkit.synth.dataset import SynthDataset, build_index, generate, parse_shard, rescore, shard_range  # noqa: E402
 from solidkit.synth.filter import ReferenceSet, colour_histogram, histogram_intersection  # noqa: E402
 from solidkit.synth.sample import FILES, Generator, SampleConfig  # noqa: E402
 
@@ -106,6 +106,12 @@ def test_generate_resume_index_and_torch_dataset(tmp_path: Path) -> None:
     generate(tmp_path / "f", 1, seed=4, config=TINY, reference=ref, threshold=0.99)
     build_index(tmp_path / "f")
     assert len(SynthDataset(tmp_path / "f")) == 0 and len(SynthDataset(tmp_path / "f", keep_only=False)) == 1
+    # re-scoring (`solidkit synth filter`) updates the same record in place and rebuilds the index
+    meta = next((tmp_path / "f" / "samples").glob("*/sample.json"))
+    before = json.loads(meta.read_text())["filter"]
+    assert rescore(tmp_path / "f", ref, threshold=0.0) == {"samples": 1, "kept": 1, "references": 1}
+    assert json.loads(meta.read_text())["filter"] == {**before, "threshold": 0.0, "keep": True}
+    assert len(SynthDataset(tmp_path / "f")) == 1
 
 
 def test_histogram_intersection(tmp_path: Path) -> None:
@@ -132,5 +138,5 @@ def test_histogram_intersection(tmp_path: Path) -> None:
 def test_cli_errors_are_one_line(tmp_path: Path, cli) -> None:
     code, _, err = cli("synth", "dataset", "--n", "2", "--out", str(tmp_path), "--shard", "3/2")
     assert code == 2 and "need 0 <= i < N" in err and "Traceback" not in err
-    code, _, err = cli("synth", "filter", "--out", str(tmp_path), "--reference", str(tmp_path / "none"))
+    code, _, err = cli("synth", "filter", str(tmp_path), "--reference", str(tmp_path / "none"))
     assert code == 2 and "no samples (not a dataset" in err and len(err.strip().splitlines()) == 1  # checked first

@@ -238,13 +238,17 @@ def test_show_writes_sheets_with_outline_and_sun(built, tmp_path, cli):
     assert (u.min() + 0.5) == pytest.approx(128 - 128 * 30 / 180, abs=0.5) and (u.max() + 0.5) == pytest.approx(128 + 128 * 30 / 180, abs=0.5)
     code, _, err = cli("testset", "show", built, "-o", built / "sheets")
     assert code == 2 and "outside the test set" in err
+    code, out, _ = cli("testset", "show", built, "-o", tmp_path / "sheets", "--json")
+    doc = json.loads(out)
+    assert code == 0 and doc["output"] == str(tmp_path / "sheets") and Path(doc["index"]).name == "index.html"
+    assert sorted(Path(p).name for p in doc["sheets"]) == sorted(f"{s.id}.png" for s in ts.scenes)
 
 
 def test_sold_net_export_round_trips(built, tmp_path, cli):
     from solidkit.testset.sold_net import read_sold_net
 
     dest = tmp_path / "sold"
-    code, _, err = cli("testset", "export", built, "--format", "sold-net", dest)
+    code, _, err = cli("testset", "export", built, "--format", "sold-net", "-o", dest)
     assert code == 0 and "fewer than 2 probes: 002" in err
     items = read_sold_net(dest)
     ts = load_testset(built)
@@ -264,9 +268,16 @@ def test_sold_net_export_round_trips(built, tmp_path, cli):
             assert ((col - 63.5) / 64 * 180, (31.5 - row) / 64 * 180) == pytest.approx((s.sun.azimuth_deg, s.sun.elevation_deg), abs=1e-4)
         else:
             assert not it.is_sunny and it.sun_deg is None
-    assert cli("testset", "export", built, "--format", "sold-net", dest)[0] == 0  # re-export over an earlier one
-    assert cli("testset", "export", built, "--format", "laval", tmp_path / "x")[0] == 2
-    assert cli("testset", "export", built, "--format", "sold-net", built / "scenes")[0] == 2
+    code, out, _ = cli("testset", "export", built, "--format", "sold-net", "-o", dest, "--json")  # re-export over an earlier one
+    doc = json.loads(out)
+    assert code == 0 and doc["output"] == str(dest) and sorted(doc["items"]) == ["001", "002"]
+    assert doc["skipped_by_sold_net_loader"] == ["002"] and doc["testset"] == ts.dataset_version
+    assert cli("testset", "export", built, "--format", "laval", "-o", tmp_path / "x")[0] == 2
+    assert cli("testset", "export", built, "--format", "sold-net", "-o", built / "scenes")[0] == 2
+    code, _, err = cli("testset", "export", built, "--format", "sold-net", "-o", built / "sold")  # new, but inside
+    assert code == 2 and "outside the test set" in err and not (built / "sold").exists()
+    code, _, err = cli("testset", "export", built, "--format", "sold-net")
+    assert code == 2 and "Missing option '-o' / '--out'" in err
 
 
 def test_torch_dataset_keys_match_synth(built):

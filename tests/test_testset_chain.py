@@ -82,14 +82,14 @@ def test_chain_on_a_virtual_campaign(tmp_path, cli):
     code, _, err = cli("synth", "campaign", "--scenes", "2", "--probes", "4", "--out", card_root, "--seed", "7", "--preset", "mini")
     assert code == 0, err
     camp = tmp_path / "campaign"
-    code, _, err = cli("ingest", card_root / "card", camp)
+    code, _, err = cli("ingest", card_root / "card", "-o", camp)
     assert code == 0, err
     code, _, err = cli("label", "sun", camp)  # the automatic sun labels an annotator would review
     assert code == 0, err
     code, _, err = cli("align", camp)
     assert code == 0, err
     out = tmp_path / "testset"
-    code, report, err = cli("testset", "build", camp, out, "--json")
+    code, report, err = cli("testset", "build", camp, "-o", out, "--json")
     assert code == 0, err
     assert json.loads(report)["probes"] >= 3
     check_chain(out, card_root)
@@ -126,7 +126,7 @@ def test_chain_on_the_shipped_mini_campaign(tmp_path, cli):
 
     virtual = ASSETS / "campaign_mini"
     camp, out = tmp_path / "campaign", tmp_path / "testset"
-    for argv in (("ingest", virtual / "card", camp), ("label", "sun", camp), ("align", camp), ("testset", "build", camp, out)):
+    for argv in (("ingest", virtual / "card", "-o", camp), ("label", "sun", camp), ("align", camp), ("testset", "build", camp, "-o", out)):
         code, _, err = cli(*argv)
         assert code == 0, (argv, err)
     check_chain(out, virtual)

@@ -117,7 +117,7 @@ def intrinsics_from_exif(info: CaptureMetadata, sensor_width_mm: float | None = 
     if info.focal_length_35mm:
         return ideal_intrinsics(W, H, info.focal_length_35mm * math.hypot(W, H) / FULL_FRAME_DIAGONAL_MM), "exif-35mm"
     missing = "FocalLength" if not f else f"the sensor size of {info.model!r} (pass --sensor-width-mm)"
-    raise IntrinsicsError(f"cannot derive K from EXIF: missing {missing}; give --fov-deg or a checkerboard")
+    raise IntrinsicsError(f"cannot derive K from EXIF: missing {missing}; give --hfov-deg or a checkerboard")
 
 
 def sensor_width_from_table(make: str | None, model: str | None) -> float | None:
@@ -245,7 +245,7 @@ def calibrate_camera_from_photo(
         info = _size_only(photo)  # e.g. a PNG perspective crop: no EXIF, K from the given FOV
     if fov_deg is None and info.width == 2 * info.height and "THETA" in (info.model or "").upper():
         raise IntrinsicsError(
-            f"{photo}: a {info.model} equirectangular panorama has no pinhole K; for a perspective crop of it give --fov-deg"
+            f"{photo}: a {info.model} equirectangular panorama has no pinhole K; for a perspective crop of it give --hfov-deg"
         )
     if fov_deg is not None:
         K, source = intrinsics_from_fov(math.radians(fov_deg), info.width, info.height), "fov"

@@ -2,29 +2,12 @@
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
-from typing import Any
 
 import typer
 
+from solidkit.cli.output import echo_json, json_option
 from solidkit.errors import InputError
-
-
-def _summary(al: Any) -> dict[str, Any]:
-    scenes = []
-    for sa in al.scenes:
-        scenes.append({
-            "scene": sa.id, "flags": sa.flags + sa.sun.flags,
-            "sun": {"found": sa.sun.found, "azimuth_deg": sa.sun.azimuth_deg, "elevation_deg": sa.sun.elevation_deg,
-                    "world_azimuth_deg": sa.sun.world_azimuth_deg, "uncertainty_deg": sa.sun.uncertainty_deg,
-                    "captures": {c.probe: {"found": c.found, "azimuth_deg": c.azimuth_deg, "elevation_deg": c.elevation_deg,
-                                           "rejected": sum(1 for k in c.candidates if not k.chosen)} for c in sa.sun.captures}},
-            "probes": [{"id": p.id, "role": p.role, "yaw_deg": p.yaw_deg, "yaw_source": p.yaw_source,
-                        "residual_deg": p.residual_deg, "cues_ok": sorted(k for k, c in p.cues.items() if c.ok),
-                        "pixel_full": p.pixel_full, "pixel_source": p.pixel_source, "flags": p.flags} for p in sa.probes],
-        })
-    return {"alignment": "align/alignment.json", "scenes": scenes}
 
 
 def _run(campaign: Path, scenes: list[str] | None, products: bool, report: bool, only_sun: bool, as_json: bool) -> None:
@@ -34,6 +17,7 @@ def _run(campaign: Path, scenes: list[str] | None, products: bool, report: bool,
 
     from solidkit.align.pipeline import AlignSettings, align_campaign
     from solidkit.flags import flag_codes
+    from solidkit.align.schema import alignment_summary
 
     if not campaign.is_dir():
         raise InputError(f"{campaign}: campaign directory not found")
@@ -43,7 +27,7 @@ def _run(campaign: Path, scenes: list[str] | None, products: bool, report: bool,
                         label_kinds=("sun", "sun_scene") if only_sun else None, write=not only_sun,
                         log=lambda s: err.print(f"[dim]{escape(s)}[/]"))
     if as_json:
-        typer.echo(json.dumps(_summary(al), indent=1))
+        echo_json(alignment_summary(al), indent=1)
         return
     out = Console()
     t = Table(title=f"{'label sun' if only_sun else 'align'} {escape(str(campaign))}")
@@ -72,7 +56,7 @@ def align_cli(
     scene: list[str] = typer.Option(None, "--scene", "-s", help="Align only these scenes (repeatable); the others keep their previous alignment."),
     products: bool = typer.Option(True, "--products/--no-products", help="Write the aligned probes (LDR, HDR, saturation masks)."),
     report: bool = typer.Option(True, "--report/--no-report", help="Write align/report.md, report.html and a PNG per scene."),
-    as_json: bool = typer.Option(False, "--json", help="Print a JSON summary on stdout (logs on stderr)."),
+    as_json: bool = json_option(),
 ) -> None:
     """Sun labels, every capture's yaw in the photo's view frame, probe pixels and aligned probes.
 
@@ -86,7 +70,7 @@ def align_cli(
 def label_sun(
     campaign: Path = typer.Argument(..., help="An ingested campaign directory (solidkit ingest)."),
     scene: list[str] = typer.Option(None, "--scene", "-s", help="Only these scenes (repeatable)."),
-    as_json: bool = typer.Option(False, "--json", help="Print a JSON summary on stdout (logs on stderr)."),
+    as_json: bool = json_option(),
 ) -> None:
     """Automatic sun labels: every saturated blob of each sun frame is a candidate; physics chooses.
 

@@ -8,7 +8,6 @@ this edge (conventions §6).
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 from typing import Optional
 
@@ -18,7 +17,7 @@ from rich.console import Console
 from rich.markup import escape
 from rich.table import Table
 
-from solidkit.calibration.boards import CharucoTarget, detect_views, read_gray
+from solidkit.calibration.boards import CharucoTarget, detect_views, read_views
 from solidkit.calibration.camera import calibrate_camera_from_board, calibrate_camera_from_photo
 from solidkit.calibration.colour import calibrate_colour, read_linear_image
 from solidkit.calibration.fisheye import calibrate_fisheye, lens_profile_from_calibrations
@@ -27,6 +26,7 @@ from solidkit.calibration.overlap import refine_files
 from solidkit.calibration.response import ResponseProfile, calibrate_response_files, plot_response
 from solidkit.calibration.vignetting import falloff, fit_flat_field, fit_overlap, lenses_from_profile, make_profile
 from solidkit.camera.lens import load_profile as load_lens_profile
+from solidkit.cli.output import echo_json
 from solidkit.cli.parsing import parse_angle, parse_angles, parse_exposures, parse_floats, parse_grid
 from solidkit.errors import InputError
 
@@ -37,7 +37,7 @@ JSON = typer.Option(False, "--json", help="Print the profile written as JSON (in
 
 
 def _print_json(profile, out: Path, **extra) -> None:
-    typer.echo(json.dumps({"output": str(out), **extra, "profile": profile.model_dump(mode="json")}))
+    echo_json({"output": str(out), **extra, "profile": profile.model_dump(mode="json")})
 
 
 def _target(pattern: str | None, charuco: str | None, square: float, marker_ratio: float, dictionary: str):
@@ -144,19 +144,19 @@ def camera(
     marker_ratio: float = typer.Option(0.7, "--marker-ratio", help="ChArUco marker side / square side."),
     dictionary: str = typer.Option("DICT_4X4_50", "--dictionary", help="ChArUco ArUco dictionary."),
     sensor_width_mm: Optional[float] = typer.Option(None, "--sensor-width-mm", help="Sensor width (overrides the table)."),
-    fov_deg: Optional[float] = typer.Option(None, "--fov-deg", help="Known horizontal field of view in degrees."),
+    hfov_deg: Optional[float] = typer.Option(None, "--hfov-deg", help="Known horizontal field of view in degrees."),
     as_json: bool = JSON,
 ) -> None:
     """Photo-camera intrinsics K (EXIF, field of view or checkerboard) and K at the model's 320x240 input."""
-    if fov_deg is not None:
-        fov_deg = parse_angle(fov_deg, "--fov-deg", 0.0, 180.0, open_interval=True)
+    if hfov_deg is not None:
+        hfov_deg = parse_angle(hfov_deg, "--hfov-deg", 0.0, 180.0, open_interval=True)
     if pattern or charuco:
         with status.status(f"detecting the board in {len(inputs)} views"):
             prof = calibrate_camera_from_board(inputs, _target(pattern, charuco, square, marker_ratio, dictionary), square)
     else:
         if len(inputs) != 1:
             raise InputError("give one photo (EXIF route), or --pattern COLSxROWS for checkerboard views")
-        prof = calibrate_camera_from_photo(inputs[0], sensor_width_mm, fov_deg)
+        prof = calibrate_camera_from_photo(inputs[0], sensor_width_mm, hfov_deg)
     prof.save(out)
     if as_json:
         _print_json(prof, out)
@@ -207,18 +207,7 @@ def lens(
         raise InputError(f"--model: auto, kb or mei, got {model!r}")
     box = parse_floats(crop, "--crop", 4) if crop is not None else None
     angles = parse_angles(ypr, "--ypr", 3)
-    full_size = None
-    images = []
-    for p in views:
-        g = read_gray(p)
-        if full_size is None:
-            full_size = (g.shape[1], g.shape[0])
-        if box is not None:
-            x0, y0, w, h = (int(round(v)) for v in box)
-            g = g[y0 : y0 + h, x0 : x0 + w]
-            if g.shape[:2] != (h, w):
-                raise InputError(f"{p}: --crop {crop} exceeds the {full_size[0]}x{full_size[1]} image")
-        images.append(np.ascontiguousarray(g))
+    images, full_size = read_views(views, box)
     with status.status(f"detecting the board in {len(views)} views"):
         dviews = detect_views(images, target, max_blur_px, names=[p.name for p in views])
     with status.status("fitting " + " and ".join(models) + " with held-out folds"):
@@ -329,7 +318,7 @@ def fisheye(
         raise InputError(f"{out}: is a folder; give the profile's file name (e.g. {out / 'unit.json'})")
     _, s = fit_file(frame, out, families=families, refine=refine, name=name, log=lambda m: status.print(escape(m)))
     if as_json:
-        typer.echo(json.dumps(s, default=str))
+        echo_json(s, default=str)
         return
     table = Table(title=escape(str(out)), show_header=False)
     table.add_row("frame", f"{escape(str(frame))} ({s['size'][0]} x {s['size'][1]})")
@@ -359,7 +348,7 @@ def overlap(
     """Refine lens centres, scales and the inter-lens rotation on the overlap ring (robust photometric fit)."""
     s = refine_files(images, base, out, circle_sigma_px=circle_sigma or None, scale_sigma=scale_sigma, fix_scale=fix_scale)
     if as_json:
-        typer.echo(json.dumps(s, default=str))
+        echo_json(s, default=str)
         return
     table = Table(title=escape(str(out)), show_header=False)
     table.add_row("base profile / images", f"{escape(s['base'])} / {s['images']}")

@@ -15,6 +15,7 @@ from rich.table import Table
 
 from solidkit.camera.metadata import read_metadata
 from solidkit.capture.unwarp import unwarp_file
+from solidkit.cli.output import echo_json
 from solidkit.cli.parsing import parse_angle, parse_exposures, parse_floats, parse_size
 from solidkit.errors import InputError
 from solidkit.fsutil import jpeg_truncated
@@ -23,31 +24,21 @@ app = typer.Typer(no_args_is_help=True)
 console = Console()
 
 
-def _stored_tilt(path: Path, meta):
-    """Residual tilt of a stitched (equirect) capture as stored (envmap.tilt), else None."""
-    if meta.image_type != "equirect" or meta.width != 2 * meta.height:
-        return None
-    import cv2
-
-    from solidkit.envmap.tilt import residual_tilt
-
-    img = cv2.imread(str(path), cv2.IMREAD_REDUCED_COLOR_2)
-    return None if img is None else residual_tilt(img)
-
-
 @app.command()
 def info(
     files: list[Path] = typer.Argument(..., help="JPEG or DNG captures."),
     as_json: bool = typer.Option(False, "--json", help="Print the metadata as JSON (one object per file)."),
 ) -> None:
     """Metadata of captures: EXIF exposure, GPS, GPano, Ricoh image type, zenith correction, gravity."""
+    from solidkit.capture.products import stored_tilt
+
     for path in files:
         meta = read_metadata(path)
         if meta.file_format == "jpeg" and jpeg_truncated(path):  # read_metadata reads the header only
             raise InputError(f"{path}: truncated JPEG (no end-of-image marker)")
         if as_json:
-            tilt = _stored_tilt(path, meta)
-            typer.echo(json.dumps({**meta.model_dump(mode="json"), "residual_tilt": None if tilt is None else tilt.to_json()}))
+            tilt = stored_tilt(path, meta)
+            echo_json({**meta.model_dump(mode="json"), "residual_tilt": None if tilt is None else tilt.to_json()})
             continue
         table = Table(title=str(path), show_header=False)
         table.add_row("size", f"{meta.width} x {meta.height} ({meta.file_format})")
@@ -68,7 +59,7 @@ def info(
             table.add_row("gps", json.dumps(meta.gps))
         if meta.gpano:
             table.add_row("GPano", escape(", ".join(f"{k}={v}" for k, v in meta.gpano.items())))
-        tilt = _stored_tilt(path, meta)
+        tilt = stored_tilt(path, meta)
         if tilt is not None:
             table.add_row("residual tilt (as stored)", f"{tilt.tilt_deg:.2f}° ± {tilt.uncertainty_deg:.2f}° "
                           f"(correction pitch {tilt.pitch_deg:.2f}°, roll {tilt.roll_deg:.2f}°; {tilt.segments} vertical edges"
@@ -101,7 +92,7 @@ def merge(
     summaries = merge_files(frames, out, times=t, response_path=response, group=group, deghost=deghost,
                             ghost_mask_path=ghost_mask, wb=wb_arg, align=align)
     if as_json:
-        typer.echo(json.dumps(summaries, indent=2))
+        echo_json(summaries, indent=2)
         return
     for s in summaries:
         table = Table(title=escape(s["output"]), show_header=False)
@@ -146,7 +137,7 @@ def unwarp(
     s = unwarp_file(src, out, profile=profile, out_height=out_height, feather_deg=feather, level=level, gain_match=gain,
                     cache_dir=cache_dir, vignetting=vignetting)
     if as_json:
-        typer.echo(json.dumps(s, indent=1, default=str))
+        echo_json(s, indent=1, default=str)
         return
     table = Table(title=escape(str(out)), show_header=False)
     table.add_row("mode", escape(s["mode"]))

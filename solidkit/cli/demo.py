@@ -9,6 +9,8 @@ import typer
 from rich.console import Console
 from rich.table import Table
 
+from solidkit.cli.output import echo_json, json_option
+
 __all__ = ["demo_command"]
 
 
@@ -20,6 +22,7 @@ def demo_command(
     folds: int = typer.Option(3, min=2, help="Scene-level folds of the fine-tuning."),
     epochs: int = typer.Option(3, min=1, help="Most fine-tuning epochs per fold."),
     jobs: int = typer.Option(1, min=1, help="Ingest worker processes."),
+    as_json: bool = json_option("the summary (OUT/summary.json)"),
 ) -> None:
     """The whole chain on a small virtual field campaign, into OUT/report.html."""
     from solidkit.demo import DemoConfig, run_demo
@@ -33,13 +36,16 @@ def demo_command(
     err = Console(stderr=True)
     cfg = DemoConfig(card=card, truth=truth, model=model, folds=folds, epochs=epochs, jobs=jobs)
     summary = run_demo(out, cfg, log=lambda s: err.print(s, markup=False, highlight=False))
-    table = Table(title=f"solidkit demo: {summary['seconds']:.0f} s")
-    for col in ("step", "status", "s", "result"):
-        table.add_column(col, overflow="fold")
-    for s in summary["steps"]:
-        colour = {"ok": "green", "failed": "red", "skipped": "yellow"}.get(s["status"], "white")
-        table.add_row(s["name"], f"[{colour}]{s['status']}[/]", f"{s['seconds']:.1f}", s["note"])
-    err.print(table)
-    typer.echo(f"report: {summary['report']}")
+    if as_json:
+        echo_json(summary, indent=1, default=float)
+    else:
+        table = Table(title=f"solidkit demo: {summary['seconds']:.0f} s")
+        for col in ("step", "status", "s", "result"):
+            table.add_column(col, overflow="fold")
+        for s in summary["steps"]:
+            colour = {"ok": "green", "failed": "red", "skipped": "yellow"}.get(s["status"], "white")
+            table.add_row(s["name"], f"[{colour}]{s['status']}[/]", f"{s['seconds']:.1f}", s["note"])
+        err.print(table)
+        typer.echo(f"report: {summary['report']}")
     if any(s["status"] != "ok" for s in summary["steps"]):
         raise SystemExit(1)

@@ -15,6 +15,7 @@ import typer
 from rich.console import Console
 from rich.table import Table
 
+from solidkit.cli.output import echo_json
 from solidkit.cli.parsing import parse_angle, parse_size
 from solidkit.envmap.coords import rotation_from_ypr, solid_angle
 from solidkit.envmap.io import LDR_SUFFIXES, read_image, tonemap, validate_panorama, write_exr, write_ldr
@@ -53,7 +54,7 @@ def info(
         **{k: meta[k] for k in ("exposure_time", "provenance", "conventions_version") if k in meta},
     }
     if as_json:
-        typer.echo(json.dumps(summary, default=str))
+        echo_json(summary, default=str)
         return
     table = Table(title=str(pano), show_header=False)
     table.add_row("size", f"{w} x {h} ({img.shape[2]} channels used)")
@@ -90,7 +91,7 @@ def sun(
     img, _ = load_panorama(pano)
     result = detect_sun(img, method=method.value)
     if as_json:
-        typer.echo(json.dumps(result.to_json()))
+        echo_json(result.to_json())
     elif result.found:
         console.print(
             f"[bold]sun[/bold] azimuth {result.azimuth_deg:.2f}°, elevation {result.elevation_deg:.2f}° "
@@ -154,7 +155,7 @@ def rotate(
     prov = {"op": "envmap rotate", "source": str(pano), "yaw_deg": yaw, "pitch_deg": pitch, "roll_deg": roll, "interp": interp.value}
     write(result, meta, prov)
     if as_json:
-        typer.echo(json.dumps({**prov, "output": str(out), "size": [result.shape[1], result.shape[0]]}))
+        echo_json({**prov, "output": str(out), "size": [result.shape[1], result.shape[0]]})
         return
     console.print(f"rotated {pano} by yaw {yaw}°, pitch {pitch}°, roll {roll}° -> {out}", highlight=False, soft_wrap=True)
 
@@ -163,7 +164,7 @@ def rotate(
 def crop(
     pano: Path = typer.Argument(..., help="Equirectangular panorama (EXR or LDR)."),
     out: Path = typer.Option(..., "-o", "--out", help="Output: .exr (linear HDR) or .png/.jpg (tonemapped LDR)."),
-    fov: float = typer.Option(..., "--fov", help="Horizontal field of view, degrees (0-180)."),
+    hfov_deg: float = typer.Option(..., "--hfov-deg", help="Horizontal field of view, degrees (0-180)."),
     yaw: float = typer.Option(0.0, "--yaw", help="Viewing azimuth, degrees (> 0: right)."),
     pitch: float = typer.Option(0.0, "--pitch", help="Viewing elevation, degrees (> 0: up)."),
     roll: float = typer.Option(0.0, "--roll", help="Camera roll, degrees (> 0: right axis down)."),
@@ -173,7 +174,7 @@ def crop(
 ) -> None:
     """Perspective (pinhole) view of a panorama, camera R(yaw, pitch, roll) (conventions §1, §4)."""
     width, height = parse_size(size)
-    fov = parse_angle(fov, "--fov", 0.0, 180.0, open_interval=True)
+    fov = parse_angle(hfov_deg, "--hfov-deg", 0.0, 180.0, open_interval=True)
     yaw, pitch, roll = (parse_angle(v, f"--{n}") for v, n in ((yaw, "yaw"), (pitch, "pitch"), (roll, "roll")))
     K = intrinsics_from_fov(math.radians(fov), width, height)
     write = _output_writer(pano, out)
@@ -188,7 +189,7 @@ def crop(
     }
     write(result, meta, prov)
     if as_json:
-        typer.echo(json.dumps({**prov, "output": str(out)}))
+        echo_json({**prov, "output": str(out)})
         return
     console.print(
         f"cropped {pano}: {width}x{height}, fov {fov}°, yaw {yaw}°, pitch {pitch}°, roll {roll}° -> {out}",

@@ -2,11 +2,11 @@
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 import typer
 
+from solidkit.cli.output import echo_json
 from solidkit.errors import InputError
 
 __all__ = ["eval_command", "parse_named_paths"]
@@ -83,5 +83,5 @@ def eval_command(
                             log=lambda s: typer.echo(s, err=True), panoramas=panos,
                               sun_crops=sun_crops, sun_split=sun_split)
     if as_json:
-        typer.echo(json.dumps({ds: r["summary"] for ds, r in res["results"].items()}, indent=1, default=float))
+        echo_json({ds: r["summary"] for ds, r in res["results"].items()}, indent=1, default=float)
     typer.echo(f"report: {res['report']}", err=True)

@@ -2,11 +2,11 @@
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 import typer
 
+from solidkit.cli.output import echo_json
 from solidkit.errors import InputError
 
 __all__ = ["finetune_command"]
@@ -48,6 +48,6 @@ def finetune_command(
                          sun_weight=sun_weight, seed=seed)
     res = finetune_report(out, model, testset, cfg, mix_synthetic, synthetic, log=lambda s: typer.echo(s, err=True))
     if as_json:
-        typer.echo(json.dumps({"folds": [{k: f[k] for k in ("fold", "split", "best_epoch", "seconds", "before", "after")}
-                                         for f in res["folds"]], "effect": res["effect"]}, indent=1, default=float))
+        echo_json({"folds": [{k: f[k] for k in ("fold", "split", "best_epoch", "seconds", "before", "after")}
+                             for f in res["folds"]], "effect": res["effect"]}, indent=1, default=float)
     typer.echo(f"report: {res['report']}", err=True)

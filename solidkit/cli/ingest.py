@@ -1,8 +1,7 @@
-"""``solidkit ingest CARD_DIR CAMPAIGN_DIR``: the command around :func:`solidkit.capture.campaign.ingest`."""
+"""``solidkit ingest CARD_DIR -o CAMPAIGN_DIR``: the command around :func:`solidkit.capture.campaign.ingest`."""
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 from typing import Any
 
@@ -13,6 +12,7 @@ from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, T
 from rich.table import Table
 
 from solidkit.capture.campaign import IngestReport, ingest, load_manifest, summary_rows
+from solidkit.cli.output import echo_json, json_option
 from solidkit.cli.parsing import parse_exposure
 from solidkit.capture.products import tilt_warning
 from solidkit.errors import InputError
@@ -99,7 +99,7 @@ def ingest_command(
 
 def ingest_cli(
     card_dir: Path = typer.Argument(..., help="The card (or a copy of it): DCIM/... or <scene>/<probe>/... folders."),
-    campaign_dir: Path = typer.Argument(..., help="The campaign directory (created; ingest more cards into it later)."),
+    out: Path = typer.Option(..., "-o", "--out", help="The campaign folder to write (created; ingest more cards into it later)."),
     jobs: int = typer.Option(1, "--jobs", "-j", min=1, help="Worker processes."),
     response: Path | None = typer.Option(None, "--response", help="Inverse response curve for HDR products (default sRGB inverse)."),
     products: bool = typer.Option(True, "--products/--no-products", help="Build the derived products (HDR merges, sun frames)."),
@@ -109,7 +109,7 @@ def ingest_cli(
     low_exposure_max: str | None = typer.Option(None, help="Longest exposure (s) of a sun frame, e.g. 1/4000 (the default)."),
     profile: str | None = typer.Option(None, "--profile", help="Per-unit lens profile (unit.json from 'solidkit calibrate overlap', or a shipped name) overriding the camera model's default; recorded in the campaign."),
     vignetting: Path | None = typer.Option(None, "--vignetting", help="Vignetting profile ('solidkit calibrate vignetting'): each lens divided by its falloff before the lenses are blended; recorded in the campaign."),
-    as_json: bool = typer.Option(False, "--json", help="Print what this run did as JSON (instead of the summary)."),
+    as_json: bool = json_option("what this run did"),
 ) -> None:
     """Copy a card's captures into a checksummed campaign, group scenes/probes/brackets, build products.
 
@@ -117,10 +117,10 @@ def ingest_cli(
     ingested they are listed, everything else is processed, and the exit code is 2.
     """
     low = parse_exposure(low_exposure_max, "--low-exposure-max") if low_exposure_max is not None else None
-    report = ingest_command(card_dir, campaign_dir, jobs, response, products, scene_gap, probe_gap, bracket_gap,
+    report = ingest_command(card_dir, out, jobs, response, products, scene_gap, probe_gap, bracket_gap,
                             low, lens_profile=profile, vignetting=vignetting, quiet=as_json)
     if as_json:
-        typer.echo(json.dumps({"card": str(card_dir), "campaign": str(campaign_dir), **report.model_dump(mode="json")}))
+        echo_json({"card": str(card_dir), "campaign": str(out), **report.model_dump(mode="json")})
     if report.errors or report.known_errors or report.transient_errors:
         n = len(report.errors) + report.known_errors + len(report.transient_errors)
         raise InputError(f"{n} file(s) on {card_dir} could not be ingested (listed above); everything else was")

@@ -17,6 +17,7 @@ import typer
 from rich.console import Console
 from rich.table import Table
 
+from solidkit.cli.output import echo_json
 from solidkit.cli.parsing import output_folder, parse_angle, parse_floats, parse_pixel
 from solidkit.envmap.coords import CONVENTIONS_VERSION
 from solidkit.envmap.perspective import intrinsics_from_fov
@@ -43,8 +44,8 @@ def predict_command(
     at: list[str] = typer.Option(..., "--at", help="Probe pixel X,Y in IMAGE (repeatable)."),
     out: Path = typer.Option(..., "-o", "--out", help="Output folder (created)."),
     checkpoint: Path | None = typer.Option(None, help="SOLID-Net checkpoint (default: the shipped one)."),
-    fov: float | None = typer.Option(None, help="Horizontal field of view in degrees (default: the checkpoint's)."),
-    intrinsics: str | None = typer.Option(None, help="fx,fy,cx,cy of IMAGE in pixels (overrides --fov)."),
+    hfov_deg: float | None = typer.Option(None, "--hfov-deg", help="Horizontal field of view of IMAGE in degrees (default: the checkpoint's)."),
+    intrinsics: str | None = typer.Option(None, help="fx,fy,cx,cy of IMAGE in pixels (overrides --hfov-deg)."),
     pitch: float = typer.Option(0.0, help="Camera pitch in degrees (positive = looking up)."),
     roll: float = typer.Option(0.0, help="Camera roll in degrees (positive = right side down)."),
     as_json: bool = typer.Option(False, "--json", help="Print prediction.json on stdout instead of the summary."),
@@ -56,13 +57,13 @@ def predict_command(
     output_folder(out)
     pixels = [parse_pixel(a, "--at") for a in at]
     pitch, roll = parse_angle(pitch, "--pitch", -90.0, 90.0), parse_angle(roll, "--roll", -180.0, 180.0)
-    if fov is not None:
-        fov = parse_angle(fov, "--fov", 1.0, 179.0, open_interval=True)
+    if hfov_deg is not None:
+        hfov_deg = parse_angle(hfov_deg, "--hfov-deg", 1.0, 179.0, open_interval=True)
     K = _intrinsics(intrinsics)
     photo = read_ldr(image)
     model = SolidNet.from_checkpoint(checkpoint)
-    if K is None and fov is not None:
-        K = intrinsics_from_fov(math.radians(fov), photo.shape[1], photo.shape[0])
+    if K is None and hfov_deg is not None:
+        K = intrinsics_from_fov(math.radians(hfov_deg), photo.shape[1], photo.shape[0])
     pred = model.predict(photo, pixels, K=K, pitch=math.radians(pitch), roll=math.radians(roll))
     out.mkdir(parents=True, exist_ok=True)
     meta = {"source": str(image), "hdr_parameterisation": HDR_PARAMETERISATION, "model": model.config.name}
@@ -90,7 +91,7 @@ def predict_command(
     }
     atomic_write_text(out / "prediction.json", json.dumps(report, indent=2) + "\n")
     if as_json:
-        typer.echo(json.dumps({**report, "output": str(out)}))
+        echo_json({**report, "output": str(out)})
         return
     table = Table(title=f"SOLID-Net prediction -> {out}", show_header=False)
     sun = report["sun"]

@@ -2,18 +2,17 @@
 
 from __future__ import annotations
 
-import json
 import logging
 import time
 from pathlib import Path
 from typing import Optional
 
-import click
 import typer
 from rich.console import Console
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
 from rich.table import Table
 
+from solidkit.cli.output import echo_json, json_option
 from solidkit.cli.parsing import output_folder, parse_exposures
 from solidkit.errors import InputError
 
@@ -37,12 +36,12 @@ def dataset(
     seed: int = typer.Option(0, "--seed", help="Master seed (blocks, views, lighting, noise)."),
     width: int = typer.Option(320, "--width", min=8),
     height: int = typer.Option(240, "--height", min=6),
-    hfov: float = typer.Option(60.0, "--hfov", min=10.0, max=150.0, help="Horizontal field of view, degrees."),
+    hfov_deg: float = typer.Option(60.0, "--hfov-deg", min=10.0, max=150.0, help="Horizontal field of view of the photo, degrees."),
     candidates: int = typer.Option(12, "--candidates", min=1, help="Candidate cameras per 60° sector."),
     reference: Optional[Path] = typer.Option(None, "--reference", help="Folder of real LDR photos for the colour filter."),
     threshold: float = typer.Option(0.7, "--threshold", min=0.0, max=1.0, help="Histogram-intersection threshold."),
     variant: Optional[str] = typer.Option(None, "--variant", help="Force a Mitsuba variant (default: cuda > llvm > scalar)."),
-    as_json: bool = typer.Option(False, "--json", help="Print the counts as JSON."),
+    as_json: bool = json_option("the counts"),
 ) -> None:
     """Render SOLID-Img-style samples: photo (HDR+LDR), buffers, global map, 4 local probes, JSON."""
     from solidkit.synth.dataset import generate, parse_shard
@@ -55,7 +54,7 @@ def dataset(
     sh = parse_shard(shard)
     used = select_variant(variant)
     ref = ReferenceSet.from_dir(reference) if reference is not None else None
-    cfg = SampleConfig(width=width, height=height, hfov_deg=hfov, spp=spp, probe_spp=probe_spp, candidates=candidates)
+    cfg = SampleConfig(width=width, height=height, hfov_deg=hfov_deg, spp=spp, probe_spp=probe_spp, candidates=candidates)
     t0 = time.perf_counter()
     with _progress() as bar:
         task = bar.add_task(f"synth {sh[0]}/{sh[1]} [{used}]", total=None)
@@ -66,7 +65,7 @@ def dataset(
         counts = generate(out, n, seed=seed, shard=sh, config=cfg, reference=ref, threshold=threshold, progress=report)
     dt = time.perf_counter() - t0
     if as_json:
-        typer.echo(json.dumps({"output": str(out), "variant": used, "shard": list(sh), **counts, "seconds": dt}))
+        echo_json({"output": str(out), "variant": used, "shard": list(sh), **counts, "seconds": dt})
         return
     table = Table(title=f"solidkit synth dataset -> {out}", show_header=False)
     table.add_row("variant", used)
@@ -91,6 +90,7 @@ def sources(
     variant: Optional[str] = typer.Option(None, "--variant", help="Force a Mitsuba variant (default: cuda > llvm > scalar)."),
     positions_per_block: int = typer.Option(8, "--positions-per-block", min=1,
                                             help="Consecutive panoramas that share one city block (1: every panorama a new block)."),
+    as_json: bool = json_option("the counts"),
 ) -> None:
     """Render city-block HDR panoramas + their lighting: sources of the crop path of I-Net training."""
     from solidkit.synth.dataset import parse_shard
@@ -107,51 +107,45 @@ def sources(
         counts = render_sources(out, n, seed=seed, shard=sh, config=cfg,
                                 progress=lambda done, total: bar.update(task, completed=done, total=total))
     dt = time.perf_counter() - t0
+    if as_json:
+        echo_json({"output": str(out), "variant": used, "shard": list(sh), **counts, "seconds": dt})
+        return
     summary.print(f"rendered {counts['rendered']}, skipped {counts['skipped']}"
                   + (f", {dt / counts['rendered']:.1f} s each" if counts["rendered"] else "") + f" -> {out}")
 
 
 @app.command(name="filter")
 def filter_cmd(
-    out: Path = typer.Option(..., "--out", help="Dataset folder."),
+    dataset: Path = typer.Argument(..., help="Dataset folder of 'solidkit synth dataset' (updated in place)."),
     reference: Path = typer.Option(..., "--reference", help="Folder of real LDR photos."),
-    threshold: float = typer.Option(0.7, "--threshold", min=0.0, max=1.0),
+    threshold: float = typer.Option(0.7, "--threshold", min=0.0, max=1.0, help="Histogram-intersection threshold."),
+    as_json: bool = json_option("the counts"),
 ) -> None:
-    """(Re-)score every sample of a dataset against real photos and rewrite the index."""
-    from solidkit.envmap import read_ldr
-    from solidkit.fsutil import atomic_write_text
-    from solidkit.synth.dataset import build_index
-    from solidkit.synth.filter import ReferenceSet
-    from solidkit.synth.sample import FILES
+    """Re-score every sample of a dataset against real photos, in place: each sample's filter record and the index."""
+    from solidkit.synth.dataset import rescore
 
-    metas = sorted((out / "samples").glob(f"*/{FILES['meta']}"))
-    if not metas:
-        raise InputError(f"{out}: no samples (not a dataset of 'solidkit synth dataset')")
-    ref = ReferenceSet.from_dir(reference)
-    kept = 0
-    for meta in metas:
-        rec = json.loads(meta.read_text())
-        score = ref.score(read_ldr(meta.parent / FILES["ldr"]))
-        rec["filter"] = {"score": score, "threshold": threshold, "keep": bool(score >= threshold), "references": len(ref.names)}
-        kept += int(score >= threshold)
-        atomic_write_text(meta, json.dumps(rec, indent=1))
-    build_index(out)
-    summary.print(f"kept {kept} / {len(metas)} samples (threshold {threshold}, {len(ref.names)} reference images)")
+    counts = rescore(dataset, reference, threshold)
+    if as_json:
+        echo_json({"dataset": str(dataset), "threshold": threshold, **counts})
+        return
+    summary.print(f"kept {counts['kept']} / {counts['samples']} samples (threshold {threshold}, "
+                  f"{counts['references']} reference images)")
 
 
 @app.command()
 def campaign(
-    ctx: typer.Context,
     scenes: int = typer.Option(29, "--scenes", min=1, help="Number of scenes (the paper's real set: 29)."),
     probes: int = typer.Option(67, "--probes", min=0, help="Number of probe positions in all (the paper: 67)."),
     out: Path = typer.Option(..., "-o", "--out", help="Output folder: card/ (what the field team brings) and truth/."),
     seed: int = typer.Option(0, "--seed", help="Master seed."),
-    photo_spp: int = typer.Option(32, "--photo-spp", min=1),
-    pano_height: int = typer.Option(512, "--pano-height", min=8, help="Height of the HDR panorama behind each Theta shot."),
-    pano_spp: int = typer.Option(16, "--pano-spp", min=1),
-    probe_spp: int = typer.Option(256, "--probe-spp", min=1,
-                                  help="Samples per pixel of the truth probes (glass scenes: x4); see 'campaign-truth'."),
-    fisheye_width: int = typer.Option(1920, "--fisheye-width", min=64, help="Width of the dual-fisheye JPEGs."),
+    photo_spp: Optional[int] = typer.Option(None, "--photo-spp", min=1, help="Samples per pixel of the photo (default 32)."),
+    pano_height: Optional[int] = typer.Option(None, "--pano-height", min=8,
+                                              help="Height of the HDR panorama behind each Theta shot (default 512)."),
+    pano_spp: Optional[int] = typer.Option(None, "--pano-spp", min=1, help="Samples per pixel of that panorama (default 16)."),
+    probe_spp: Optional[int] = typer.Option(None, "--probe-spp", min=1,
+                                            help="Samples per pixel of the truth probes (glass scenes: x4; default 256); see 'campaign-truth'."),
+    fisheye_width: Optional[int] = typer.Option(None, "--fisheye-width", min=64,
+                                                help="Width of the dual-fisheye JPEGs (default 1920)."),
     brackets: Optional[str] = typer.Option(None, "--brackets",
                                            help="Exposures (s) after the 1/25000 s sun frame and the 1/2500 s probe "
                                                 "shot, same bracket; default '1/640,1/160,1/40'; 'none': no more."),
@@ -161,7 +155,7 @@ def campaign(
                                               help="Every n-th scene (scene02, scene05, ...) has glass facades that glint; 0: none (default 3)."),
     photo_width: Optional[int] = typer.Option(None, "--photo-width", min=16, help="Photo width (px); height at 4:3."),
     variant: Optional[str] = typer.Option(None, "--variant", help="Force a Mitsuba variant."),
-    as_json: bool = typer.Option(False, "--json", help="Print the summary as JSON."),
+    as_json: bool = json_option(),
 ) -> None:
     """A virtual field campaign: photos, Theta dual-fisheye shots (card layout) and a separate truth file."""
     from solidkit.synth.campaign import PRESETS, CampaignConfig, generate_campaign
@@ -177,7 +171,7 @@ def campaign(
         given["brackets_s"] = [] if brackets.strip().lower() == "none" else parse_exposures(brackets, "--brackets")
     for name, value in (("photo_spp", photo_spp), ("pano_height", pano_height), ("pano_spp", pano_spp),
                         ("probe_spp", probe_spp), ("fisheye_width", fisheye_width)):
-        if ctx.get_parameter_source(name) != click.core.ParameterSource.DEFAULT:
+        if value is not None:  # else the preset's value, or CampaignConfig's default
             given[name] = value
     if glass_every is not None:
         given["glass_every"] = glass_every
@@ -193,9 +187,9 @@ def campaign(
 
         truth = generate_campaign(out, scenes, probes, seed=seed, config=cfg, progress=report)
     if as_json:
-        typer.echo(json.dumps({"output": str(out), "variant": used, "scenes": len(truth.scenes),
-                               "captures": sum(len(s.captures) for s in truth.scenes), "card": str(out / "card"),
-                               "truth": str(out / "truth" / "truth.json"), "seconds": time.perf_counter() - t0}))
+        echo_json({"output": str(out), "variant": used, "scenes": len(truth.scenes),
+                   "captures": sum(len(s.captures) for s in truth.scenes), "card": str(out / "card"),
+                   "truth": str(out / "truth" / "truth.json"), "seconds": time.perf_counter() - t0})
         return
     table = Table(title=f"solidkit synth campaign -> {out}", show_header=False)
     table.add_row("scenes / captures", f"{len(truth.scenes)} / {sum(len(s.captures) for s in truth.scenes)}")
@@ -218,7 +212,7 @@ def campaign_truth(
                                                                          "(default 2048)."),
     scene: list[str] = typer.Option([], "--scene", help="Only this scene (repeatable); default: all."),
     variant: Optional[str] = typer.Option(None, "--variant", help="Force a Mitsuba variant."),
-    as_json: bool = typer.Option(False, "--json", help="Print the summary as JSON."),
+    as_json: bool = json_option(),
 ) -> None:
     """Re-render only the truth probes of a virtual campaign (the card is not touched); idempotent, resumable.
 
@@ -241,7 +235,7 @@ def campaign_truth(
                              progress=lambda sid, cid, what: bar.advance(task))
     res["seconds"] = time.perf_counter() - t0
     if as_json:
-        typer.echo(json.dumps(res))
+        echo_json(res)
         return
     table = Table(title=f"solidkit synth campaign-truth {campaign}", show_header=False)
     table.add_row("truth probes rendered / kept / up to date", f"{res['rendered']} / {res['kept']} / {res['skipped']}")

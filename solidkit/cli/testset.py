@@ -7,17 +7,18 @@ from typing import Optional
 
 import typer
 
+from solidkit.cli.output import echo_json, json_option
+
 app = typer.Typer(no_args_is_help=True, help="Build, validate, inspect and export a real test set (testset.json).")
 
 
 @app.command("build")
 def build_command(
     campaign: Path = typer.Argument(..., help="Campaign folder (ingested, aligned; its label store is used when present)."),
-    out: Path = typer.Argument(..., help="Test set folder to create (absent, empty, or an earlier test set)."),
-    json_out: bool = typer.Option(False, "--json", help="Print the build report as JSON on stdout."),
+    out: Path = typer.Option(..., "-o", "--out", help="Test set folder to create (absent, empty, or an earlier test set)."),
+    json_out: bool = json_option("the build report"),
 ) -> None:
     """Assemble a versioned test set (photos, probes, sun, metadata) from an aligned campaign."""
-    import json
     import time
 
     from rich.console import Console
@@ -31,7 +32,7 @@ def build_command(
     report = build_testset(campaign, out, log=lambda m: console.print(f"[dim]{escape(m)}[/dim]"))
     seconds = time.perf_counter() - t0
     if json_out:
-        typer.echo(json.dumps({**report.to_json(), "seconds": round(seconds, 2)}, indent=1))
+        echo_json({**report.to_json(), "seconds": round(seconds, 2)}, indent=1)
         return
     table = Table(title=f"solidkit testset build -> {escape(str(out))}", show_header=False)
     table.add_row("dataset version", report.dataset_version + ("" if report.changed else "  (unchanged: nothing written)"))
@@ -50,11 +51,9 @@ def build_command(
 def validate_command(
     root: Path = typer.Argument(..., help="Test set folder (holding testset.json)."),
     allow_flagged: bool = typer.Option(False, "--allow-flagged", help="Do not count labels still flagged for review as problems."),
-    json_out: bool = typer.Option(False, "--json", help="Print the problems as JSON on stdout."),
+    json_out: bool = json_option("the problems"),
 ) -> None:
     """Check schema, files, checksums, geometry, exposures and flags; exit 1 when any problem is found."""
-    import json
-
     from rich.console import Console
     from rich.markup import escape
 
@@ -66,7 +65,7 @@ def validate_command(
         raise InputError(f"{root}: not a folder")
     problems = validate_testset(root, allow_flagged=allow_flagged)
     if json_out:
-        typer.echo(json.dumps({"valid": not problems, "problems": [p.to_json() for p in problems]}, indent=1))
+        echo_json({"valid": not problems, "problems": [p.to_json() for p in problems]}, indent=1)
     else:
         console = Console(stderr=True)
         for p in problems:
@@ -80,20 +79,31 @@ def validate_command(
 def show_command(
     root: Path = typer.Argument(..., help="Test set folder (holding testset.json)."),
     out: Optional[Path] = typer.Option(None, "-o", "--out", help="Folder for the sheets and index.html (default: ROOT-sheets beside it)."),
+    json_out: bool = json_option("what was written"),
 ) -> None:
     """Contact sheets per scene (PNG) and an HTML index: probe pixels, aligned probes with the photo's FOV, the sun."""
     from solidkit.testset.show import show_testset
 
     out = out or root.with_name(root.name + "-sheets")
-    index = show_testset(root, out, log=lambda m: typer.echo(f"wrote {m}", err=True))
+    sheets: list[str] = []
+
+    def wrote(path: str) -> None:
+        sheets.append(str(path))
+        typer.echo(f"wrote {path}", err=True)
+
+    index = show_testset(root, out, log=wrote)
+    if json_out:
+        echo_json({"output": str(out), "index": str(index), "sheets": sheets}, indent=1)
+        return
     typer.echo(str(index))
 
 
 @app.command("export")
 def export_command(
     root: Path = typer.Argument(..., help="Test set folder (holding testset.json)."),
-    dest: Path = typer.Argument(..., help="Folder to write (absent, empty, or an earlier export)."),
+    out: Path = typer.Option(..., "-o", "--out", help="Folder to write, outside the test set (absent, empty, or an earlier export)."),
     fmt: str = typer.Option(..., "--format", help="Target layout: sold-net (SOLD-Net's real-set folder)."),
+    json_out: bool = json_option("the exported items"),
 ) -> None:
     """Export a test set in another project's layout (sold-net: <XXX>_persp.JPG, _local.npy, _local_<i>.hdr, _sun_pos.txt)."""
     from solidkit.errors import InputError
@@ -102,26 +112,26 @@ def export_command(
         raise InputError(f"--format {fmt!r}: supported formats: sold-net")
     from solidkit.testset.sold_net import export_sold_net
 
-    doc = export_sold_net(root, dest)
-    typer.echo(f"wrote {len(doc['items'])} items to {dest}", err=True)
+    doc = export_sold_net(root, out)
+    typer.echo(f"wrote {len(doc['items'])} items to {out}", err=True)
     if doc["skipped_by_sold_net_loader"]:
         typer.echo(f"note: SOLD-Net's loader skips items with fewer than 2 probes: {', '.join(doc['skipped_by_sold_net_loader'])}", err=True)
+    if json_out:
+        echo_json({"output": str(out), **doc}, indent=1)
 
 
 @app.command("diff")
 def diff_command(
     old: Path = typer.Argument(..., help="Earlier test set folder."),
     new: Path = typer.Argument(..., help="Later test set folder."),
-    json_out: bool = typer.Option(False, "--json", help="Print the differences as JSON on stdout."),
+    json_out: bool = json_option("the differences"),
 ) -> None:
     """What changed between two test set versions: scenes, probes, sun, pixels, rotations, flags, files."""
-    import json
-
     from solidkit.testset.diff import diff_testsets
 
     d = diff_testsets(old, new)
     if json_out:
-        typer.echo(json.dumps(d.to_json(), indent=1))
+        echo_json(d.to_json(), indent=1)
     else:
         for line in d.lines():
             typer.echo(line)

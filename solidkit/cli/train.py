@@ -7,11 +7,12 @@ solidkit.cli train CONFIG --device cuda``.
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 from typing import Optional
 
 import typer
+
+from solidkit.cli.output import echo_json, json_option
 
 __all__ = ["train_command"]
 
@@ -23,6 +24,7 @@ def train_command(
     max_minutes: Optional[float] = typer.Option(None, help="Stop (resumably) after this many minutes."),
     threads: Optional[int] = typer.Option(None, help="torch CPU threads (default: the config's 'threads')."),
     progress: bool = typer.Option(True, help="Show a progress bar on a terminal."),
+    as_json: bool = json_option("the run's final state"),
 ) -> None:
     """Train I-Net then P-Net; writes last.pt (resumable state), best_*.pt, model.pt, metrics.csv, tb/."""
     # torch is imported lazily: the rest of the CLI starts without it
@@ -30,4 +32,15 @@ def train_command(
 
     cfg = load_train_config(config, out=str(out) if out else None, device=device, threads=threads)
     state = Trainer(cfg, progress=progress).run(max_minutes)
-    typer.echo(json.dumps({k: v for k, v in state.items() if k != "sources"}))
+    if as_json:
+        echo_json({k: v for k, v in state.items() if k != "sources"})
+        return
+    from rich.console import Console
+    from rich.table import Table
+
+    table = Table(title=f"solidkit train -> {cfg.out}", show_header=False)
+    table.add_row("stage / step", f"{state['stage']} / {state['step']}")
+    table.add_row("status", "done" if state.get("done") else "stopped (run the same command again to resume)")
+    table.add_row("best validation score", "-" if state.get("best") is None else f"{state['best']:.4g}")
+    table.add_row("samples / seconds", f"{state['samples']} / {state['seconds']:.0f}")
+    Console().print(table)

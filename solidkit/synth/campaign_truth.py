@@ -74,10 +74,9 @@ class CampaignConfig(BaseModel):
 
 PRESETS: dict[str, dict[str, Any]] = {
     "default": {},
-    # the campaign shipped in solidkit/assets/campaign_mini (a few MB): small photo, panoramas and fisheyes
-    # (truth probes at the default probe_spp: a truth is not where a small campaign saves)
-    "mini": {"photo_width": 320, "photo_height": 240, "photo_spp": 16, "pano_height": 256, "pano_spp": 8,
-             "fisheye_width": 640, "brackets_s": [1 / 250], "jpeg_quality": 85},
+    # the campaign shipped in solidkit/assets/campaign_mini (a few MB): a small photo, one bracket exposure, JPEG
+    # quality 85; panoramas, fisheyes and truth probes at the defaults (what its card and truth.json record)
+    "mini": {"photo_width": 320, "photo_height": 240, "brackets_s": [1 / 250], "jpeg_quality": 85},
 }
 
 
