@@ -22,3 +22,21 @@ def test_usage_errors_are_one_line(args):
     res = run(*args)
     assert res.returncode == 2
     assert "Traceback" not in res.stderr + res.stdout
+
+
+def test_demo_json_is_its_summary(cli, monkeypatch, tmp_path):
+    """``solidkit demo --json``: the summary alone on stdout (what OUT/summary.json holds); a failed step exits 1."""
+    import json
+
+    import solidkit.demo
+
+    summary = {"card": "card", "out": str(tmp_path), "seconds": 1.5, "report": str(tmp_path / "report.html"),
+               "steps": [{"name": "ingest", "status": "ok", "seconds": 0.5, "note": "3 scenes"}]}
+    monkeypatch.setattr(solidkit.demo, "run_demo", lambda out, cfg, log: summary)
+    code, out, _ = cli("demo", "-o", tmp_path, "--json")
+    assert code == 0 and json.loads(out) == summary
+    summary["steps"][0]["status"] = "failed"
+    code, out, _ = cli("demo", "-o", tmp_path, "--json")
+    assert code == 1 and json.loads(out)["steps"][0]["status"] == "failed"
+    code, out, err = cli("demo", "-o", tmp_path)
+    assert code == 1 and out.startswith("report: ") and "ingest" in err
