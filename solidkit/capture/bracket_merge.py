@@ -32,7 +32,7 @@ from solidkit.camera.raw import is_raw_file, read_raw
 from solidkit.capture.bracket_groups import ShotInfo, gain_from, group_brackets, sequence_from_name
 from solidkit.capture.frame_merge import (DEFAULT_BLACK, DEFAULT_SATURATION, Frame, MergeResult, effective_exposure,
                                           frame_from_ldr, frame_from_raw, load_response, merge_frames, read_ldr_codes,
-                                          sniff_format, validate_response)
+                                          sniff_format, sniff_frame, validate_response)
 from solidkit.envmap.io import write_exr, write_ldr
 from solidkit.fsutil import sha256_file
 from solidkit.capture.register import register_frames, shift_image
@@ -46,12 +46,7 @@ _CONTENT_SUFFIXES = {"jpeg": (".jpg", ".jpeg", ".jpe"), "png": (".png",), "tiff"
 
 def read_codes(path: Path) -> tuple[np.ndarray | None, Any, list[str]]:
     """``(codes, raw, warnings)``: an LDR frame's codes (raw None) or a raw frame (codes None), by content."""
-    path = Path(path)
-    if not path.is_file():
-        raise InputError(f"{path}: no such file")
-    if path.stat().st_size == 0:
-        raise InputError(f"{path}: empty file (0 bytes)")
-    kind = sniff_format(path)
+    path, kind = sniff_frame(path)
     warnings = []
     if kind in _CONTENT_SUFFIXES and path.suffix.lower() not in _CONTENT_SUFFIXES[kind] and not is_raw_file(path):
         warnings.append(f"content_not_suffix: {path.name} is a {kind.upper()} file named {path.suffix}; read as {kind.upper()}")

@@ -62,6 +62,7 @@ __all__ = [
     "dynamic_range_stops",
     "effective_exposure",
     "sniff_format",
+    "sniff_frame",
     "lookup",
     "BLOCK_ROWS",
 ]
@@ -387,14 +388,20 @@ def effective_exposure(
     return e
 
 
-def load_frame(path: str | os.PathLike, exposure: float, response: np.ndarray | None = None, *, wb: Any = "camera") -> Frame:
-    """Read one bracket frame from disk (JPEG/PNG/TIFF via the response, DNG/raw linearly)."""
+def sniff_frame(path: str | os.PathLike) -> tuple[Path, str]:
+    """A bracket frame's path and its format by content (:func:`sniff_format`); :class:`InputError` when
+    the file is missing or empty."""
     path = Path(path)
     if not path.is_file():
         raise InputError(f"{path}: no such file")
     if path.stat().st_size == 0:
         raise InputError(f"{path}: empty file (0 bytes)")
-    kind = sniff_format(path)
+    return path, sniff_format(path)
+
+
+def load_frame(path: str | os.PathLike, exposure: float, response: np.ndarray | None = None, *, wb: Any = "camera") -> Frame:
+    """Read one bracket frame from disk (JPEG/PNG/TIFF via the response, DNG/raw linearly)."""
+    path, kind = sniff_frame(path)
     suffix = path.suffix.lower()
     if is_raw_file(path):
         return frame_from_raw(read_raw(path, wb=wb), exposure, name=path.name)

@@ -30,7 +30,7 @@ from solidkit.fsutil import atomic_write_text
 from solidkit.synth.filter import ReferenceSet
 from solidkit.synth.sample import FILES, Generator, SampleConfig
 
-__all__ = ["parse_shard", "shard_range", "open_dataset", "generate", "build_index", "rescore", "SynthDataset"]
+__all__ = ["parse_shard", "shard_range", "open_dataset", "generate", "build_index", "rescore", "SynthDataset", "chw_tensor"]
 
 INDEX = "index.json"
 MANIFEST = "dataset.json"
@@ -160,7 +160,8 @@ def rescore(root: str | os.PathLike, reference: ReferenceSet | str | os.PathLike
     return {"samples": len(metas), "kept": kept, "references": len(reference.names)}
 
 
-def _chw(a: np.ndarray) -> Any:
+def chw_tensor(a: np.ndarray) -> Any:
+    """``(H, W)`` or ``(H, W, C)`` array as a float32 ``(C, H, W)`` tensor."""
     import torch
 
     a = np.asarray(a, dtype=np.float32)
@@ -220,13 +221,13 @@ class SynthDataset(torch.utils.data.Dataset):
                  **{k: FILES[k] for k in ("albedo", "normal", "plane_distance", "depth", "shadow", "global")}}
         for f in self.fields:
             if f == "image":
-                item["image"] = _chw(read_ldr(d / FILES["ldr"]))
+                item["image"] = chw_tensor(read_ldr(d / FILES["ldr"]))
             elif f == "probes":
                 h = int(rec["renderer"]["probe_height"])
-                item["probes"] = torch.stack([_chw(read_exr(d / p)[0][..., :3]) if (d / p).is_file()
+                item["probes"] = torch.stack([chw_tensor(read_exr(d / p)[0][..., :3]) if (d / p).is_file()
                                               else torch.zeros(3, h, 2 * h) for p in FILES["probes"]])
             else:
-                item[f] = _chw(read_exr(d / files[f])[0])
+                item[f] = chw_tensor(read_exr(d / files[f])[0])
         pix = np.zeros((4, 2), np.float32)
         valid = np.zeros(4, np.float32)
         for k, p in enumerate(rec["probes"][:4]):

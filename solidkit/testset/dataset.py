@@ -21,19 +21,11 @@ import torch.utils.data
 
 from solidkit.envmap.io import imread, read_exr, read_ldr
 from solidkit.errors import InputError
+from solidkit.synth.dataset import chw_tensor
 from solidkit.testset.build import load_testset
 from solidkit.testset.schema import PROBE_SIZE
 
 __all__ = ["TestsetDataset"]
-
-
-def _chw(a: np.ndarray) -> Any:
-    import torch
-
-    a = np.asarray(a, dtype=np.float32)
-    if a.ndim == 2:
-        a = a[..., None]
-    return torch.from_numpy(np.ascontiguousarray(a.transpose(2, 0, 1)))
 
 
 class TestsetDataset(torch.utils.data.Dataset):
@@ -94,30 +86,30 @@ class TestsetDataset(torch.utils.data.Dataset):
         probes = s.probes[:P]
         item: dict[str, Any] = {"index": i, "scene": s.id, "probe_ids": [p.id for p in probes] + [""] * (P - len(probes))}
         if "image" in self.fields:
-            item["image"] = _chw(read_ldr(self.root / s.photo))
+            item["image"] = chw_tensor(read_ldr(self.root / s.photo))
         hdr_valid = np.zeros(P, np.float32)
         if "probes" in self.fields:
             stack = torch.zeros(P, 3, h, w)
             for k, p in enumerate(probes):
                 if p.hdr is not None:
-                    stack[k] = _chw(read_exr(self.root / p.hdr)[0][..., :3])
+                    stack[k] = chw_tensor(read_exr(self.root / p.hdr)[0][..., :3])
             item["probes"] = stack
         for k, p in enumerate(probes):
             hdr_valid[k] = float(p.hdr is not None)
         if "probes_ldr" in self.fields:
             stack = torch.zeros(P, 3, h, w)
             for k, p in enumerate(probes):
-                stack[k] = _chw(read_ldr(self.root / p.ldr))
+                stack[k] = chw_tensor(read_ldr(self.root / p.ldr))
             item["probes_ldr"] = stack
         if "saturation" in self.fields:
             stack = torch.zeros(P, 1, h, w)
             for k, p in enumerate(probes):
                 m = imread(self.root / p.images.saturation)
-                stack[k] = _chw((m if m.ndim == 2 else m[..., 0]) > 0)
+                stack[k] = chw_tensor((m if m.ndim == 2 else m[..., 0]) > 0)
             item["saturation"] = stack
         if "global" in self.fields:
             g = s.camera.images.hdr if s.camera is not None else None
-            item["global"] = _chw(read_exr(self.root / g)[0][..., :3]) if g else torch.zeros(3, h, w)
+            item["global"] = chw_tensor(read_exr(self.root / g)[0][..., :3]) if g else torch.zeros(3, h, w)
             item["global_valid"] = torch.tensor(float(g is not None))
         pix = np.zeros((P, 2), np.float32)
         valid = np.zeros(P, np.float32)
