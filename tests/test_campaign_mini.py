@@ -14,7 +14,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from solidkit.capture.campaign import ingest, load_manifest
+from solidkit.capture.campaign import ingest
+from solidkit.capture.manifest import load_manifest
 from solidkit.envmap.coords import angular_distance, direction_from_angles, rotation_from_ypr
 from solidkit.synth.campaign import load_truth
 

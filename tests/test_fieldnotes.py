@@ -11,7 +11,8 @@ import pytest
 from PIL import Image
 from test_ingest import make_card, write_shot
 
-from solidkit.capture.campaign import ingest, load_manifest
+from solidkit.capture.campaign import ingest
+from solidkit.capture.manifest import load_manifest
 from solidkit.capture.fieldnotes import FieldNotes, PhotoPose, ProbeNote, notes_text, read_notes
 from solidkit.errors import InputError
 from solidkit.synth.exif import exif_app1, insert_app1

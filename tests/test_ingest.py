@@ -18,7 +18,8 @@ import pytest
 from PIL import Image, TiffImagePlugin
 from typer.testing import CliRunner
 
-from solidkit.capture.campaign import MANIFEST_NAME, SCHEMA_VERSION, ingest, load_manifest
+from solidkit.capture.campaign import ingest
+from solidkit.capture.manifest import MANIFEST_NAME, SCHEMA_VERSION, load_manifest
 from solidkit.envmap.io import read_exr
 from solidkit.errors import InputError
 
@@ -264,7 +265,7 @@ def test_real_theta_jpeg_ingests_with_metadata(real_data, tmp_path):
 
 def test_dual_fisheye_products_become_panoramas():
     """A dual-fisheye capture (Theta V layout) goes through the shipped lens profile."""
-    from solidkit.capture.campaign import to_panorama
+    from solidkit.capture.products import to_panorama
     from solidkit.camera.lens import load_profile
     from solidkit.capture.unwarp import render_fisheye
     from solidkit.envmap.coords import direction_grid

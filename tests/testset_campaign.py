@@ -32,7 +32,7 @@ from solidkit.align.schema import (
     level_to_pano,
     save_alignment,
 )
-from solidkit.capture.campaign import Bracket, Manifest, Probe, Product, Scene, Shot
+from solidkit.capture.manifest import Bracket, Manifest, Probe, Product, Scene, Shot
 from solidkit.envmap import CONVENTIONS_VERSION
 from solidkit.envmap.coords import direction_grid, rotation_from_ypr
 from solidkit.envmap.io import srgb_encode, write_exr, write_ldr

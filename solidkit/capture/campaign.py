@@ -64,31 +64,10 @@ from solidkit.capture.frame_merge import load_response
 from solidkit.capture.unwarp import load_vignetting
 from solidkit.envmap.coords import CONVENTIONS_VERSION
 
-__all__ = [
-    "SCHEMA_VERSION",
-    "MANIFEST_NAME",
-    "IMAGE_SUFFIXES",
-    "GroupingParams",
-    "SourceRef",
-    "Shot",
-    "Bracket",
-    "Probe",
-    "Scene",
-    "Product",
-    "FileError",
-    "FieldNotesRecord",
-    "Manifest",
-    "IngestReport",
-    "CardScan",
-    "ingest",
-    "load_manifest",
-    "scan_card",
-    "folder_layout",
-    "group_shots",
-    "planned_products",
-    "to_panorama",
-    "summary_rows",
-]
+__all__ = ["IMAGE_SUFFIXES", "IngestReport", "CardScan", "ingest", "scan_card", "folder_layout", "group_shots",
+           "summary_rows"]
+"""The manifest's types and loaders live in :mod:`solidkit.capture.manifest`, the products in
+:mod:`solidkit.capture.products` (all of them also in the :mod:`solidkit.capture` façade)."""
 
 
 class IngestReport(BaseModel):

@@ -60,7 +60,7 @@ from solidkit.align.schema import (
     wrap_deg,
 )
 from solidkit.calibration.camera import resize_crop
-from solidkit.capture.campaign import Manifest, load_manifest
+from solidkit.capture.manifest import Manifest, load_manifest
 from solidkit.envmap.coords import CONVENTIONS_VERSION, direction_from_angles, solid_angle
 from solidkit.envmap.io import imread, read_exr, read_ldr, write_exr, write_ldr
 from solidkit.envmap.resample import rotate
