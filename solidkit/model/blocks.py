@@ -57,7 +57,7 @@ class ConvBlock(nn.Module):
         return self.act(self.norm(self.conv(x)))
 
 
-def resize_to(x: torch.Tensor, size: tuple[int, int]) -> torch.Tensor:
+def resize_to(x: torch.Tensor, size: tuple[int, ...]) -> torch.Tensor:
     """Bilinear resize of ``(B, C, h, w)`` to ``size`` (no-op when already that size)."""
     if tuple(x.shape[-2:]) == tuple(size):
         return x

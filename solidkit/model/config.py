@@ -44,6 +44,27 @@ class ConfigError(SolidkitError):
     """A model configuration is invalid or unknown."""
 
 
+def _default_loss_weights() -> dict[str, float]:
+    """The default ``SolidNetConfig.loss_weights`` (a fresh dict per call)."""
+    return {
+        "albedo": 1.0,
+        "normal": 1.0,
+        "distance": 1.0,
+        "shadow": 1.0,
+        "sky": 1.0,
+        "dif": 1.0,
+        "rec": 1.0,
+        "local": 1.0,
+        "tom": 1.0,
+        "sun_dir": 1.0,
+        "sun_energy": 1.0,
+        "sun_peak": 0.2,
+        "sun_size": 0.2,
+        "sun_cos": 0.0,
+        "sun_vis": 1.0,
+    }
+
+
 @dataclass(frozen=True)
 class SolidNetConfig:
     """Hyper-parameters of SOLID-Net.
@@ -144,25 +165,7 @@ class SolidNetConfig:
     sun_cone_scale: tuple[float, ...] = ()
     sun_blob_gate_deg: float = 60.0
     loss_variant: str = "paper"
-    loss_weights: dict[str, float] = field(
-        default_factory=lambda: {
-            "albedo": 1.0,
-            "normal": 1.0,
-            "distance": 1.0,
-            "shadow": 1.0,
-            "sky": 1.0,
-            "dif": 1.0,
-            "rec": 1.0,
-            "local": 1.0,
-            "tom": 1.0,
-            "sun_dir": 1.0,
-            "sun_energy": 1.0,
-            "sun_peak": 0.2,
-            "sun_size": 0.2,
-            "sun_cos": 0.0,
-            "sun_vis": 1.0,
-        }
-    )
+    loss_weights: dict[str, float] = field(default_factory=_default_loss_weights)
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "widths", tuple(int(w) for w in self.widths))
@@ -216,7 +219,7 @@ class SolidNetConfig:
                               f"least 16 x 16; got {self.sun_net}, {self.sun_net_size}")
         if self.loss_variant == "located" and not self.sun_head:
             raise ConfigError("loss_variant 'located' needs sun_head=True (its sun terms read the sun head)")
-        unknown = set(self.loss_weights) - set(SolidNetConfig.__dataclass_fields__["loss_weights"].default_factory())
+        unknown = set(self.loss_weights) - set(_default_loss_weights())
         if unknown:
             raise ConfigError(f"unknown loss weights {sorted(unknown)}")
 
@@ -240,14 +243,14 @@ class SolidNetConfig:
         unknown = set(data) - set(cls.__dataclass_fields__)
         if unknown:
             raise ConfigError(f"unknown SolidNetConfig keys {sorted(unknown)} (written by a newer solidkit?)")
-        weights = dict(cls.__dataclass_fields__["loss_weights"].default_factory())
+        weights = _default_loss_weights()
         weights.update(data.get("loss_weights", {}))
         return cls(**{**data, "loss_weights": weights})
 
 
-_SUN = {"sun_head": True, "sun_visibility": True, "loss_variant": "located", "sky_feature_width": 16, "sky_stages": 3,
-        "exposure_key": 0.18, "sky_footprint": "camera",
-        "loss_weights": {**SolidNetConfig.__dataclass_fields__["loss_weights"].default_factory(), "sun_cos": 1.0}}
+_SUN: dict[str, Any] = {"sun_head": True, "sun_visibility": True, "loss_variant": "located", "sky_feature_width": 16,
+        "sky_stages": 3, "exposure_key": 0.18, "sky_footprint": "camera",
+        "loss_weights": {**_default_loss_weights(), "sun_cos": 1.0}}
 
 PRESETS: dict[str, SolidNetConfig] = {
     # small widths, the sun head and the located losses

@@ -141,11 +141,11 @@ def relative_distance_loss(pred: torch.Tensor, target: torch.Tensor, mask: torch
     """
     b = target.shape[0]
     m = torch.ones_like(target, dtype=torch.bool) if mask is None else mask.bool().expand_as(target)
-    scale = []
+    scales = []
     for i in range(b):
         vals = target[i][m[i]]
-        scale.append(vals.median() if vals.numel() else target.new_tensor(1.0))
-    scale = torch.stack(scale).clamp_min(0.5).detach()[:, None, None, None]
+        scales.append(vals.median() if vals.numel() else target.new_tensor(1.0))
+    scale = torch.stack(scales).clamp_min(0.5).detach()[:, None, None, None]
     return masked_mean((pred - target).abs() / scale, m)
 
 

@@ -15,6 +15,8 @@ axis circularly.
 
 from __future__ import annotations
 
+from typing import cast
+
 import torch
 import torch.nn.functional as F
 from torch import nn
@@ -41,7 +43,7 @@ def pnet_input(
     ``warped_image (B, 3, H, 2H)``, ``mask (B, 1, H, 2H)``, ``warped_shadow (B, 1, H, 2H)``,
     ``sh (B, 3, 9)`` and ``sky_log (B, 3, H, 2H)``; those not named may be None.
     """
-    parts = [warped_image, mask]
+    parts: list[torch.Tensor | None] = [warped_image, mask]
     height = warped_image.shape[-2]
     for name in inputs:
         if name == "sha":
@@ -52,7 +54,7 @@ def pnet_input(
             parts.append(sky_log)
     if any(p is None for p in parts):
         raise ValueError(f"P-Net inputs {inputs} need tensors that were not given")
-    return torch.cat(parts, dim=1)
+    return torch.cat(cast(list[torch.Tensor], parts), dim=1)
 
 
 class PNet(nn.Module):

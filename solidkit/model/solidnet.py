@@ -49,7 +49,7 @@ from solidkit.model.inet import INet
 from solidkit.model.pnet import PNet, pnet_input
 from solidkit.model.warp import camera_rotation, points_from_plane_distance, sample_at_pixels, warp_to_probes
 from solidkit.envmap.io import inverse_tonemap, read_ldr, tonemap
-from solidkit.envmap.sun import detect_sun
+from solidkit.envmap.sun import Method, detect_sun
 from solidkit.synth.panocrops import metered_gain
 
 __all__ = [
@@ -78,6 +78,8 @@ class SolidNet(nn.Module):
     ``config.pnet_inputs`` selects the P-Net inputs, which gives the paper's ablations on the same
     code path (see :mod:`solidkit.model.baselines`).
     """
+
+    card: dict[str, Any]  # set by from_checkpoint and solidkit.model.trainer.model_from_state
 
     def __init__(self, config: SolidNetConfig | None = None) -> None:
         super().__init__()
@@ -189,7 +191,7 @@ class SolidNet(nn.Module):
         K: np.ndarray | None = None,
         pitch: float = 0.0,
         roll: float = 0.0,
-        sun_method: str = "core",
+        sun_method: Method = "core",
     ) -> Prediction:
         """Predict the global sky, its sun direction and one local panorama per pixel.
 

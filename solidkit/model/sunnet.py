@@ -24,6 +24,7 @@ where every pixel looks whatever the field of view, pitch and roll. Outputs are 
 from __future__ import annotations
 
 import math
+from typing import cast
 
 import numpy as np
 import torch
@@ -39,7 +40,7 @@ from solidkit.model.warp import camera_rotation
 __all__ = ["SunNet", "ray_directions", "image_grid_on_panorama"]
 
 
-def _scaled_intrinsics(K: torch.Tensor, image_size: tuple[int, int], size: tuple[int, int]) -> torch.Tensor:
+def _scaled_intrinsics(K: torch.Tensor, image_size: tuple[int, ...], size: tuple[int, int]) -> torch.Tensor:
     """``K (B, 3, 3)`` of an image of ``image_size = (H, W)`` for the same view resized to ``size``."""
     sy, sx = size[0] / image_size[0], size[1] / image_size[1]
     scaled = np.stack([scale_intrinsics(k, sx, sy) for k in K.detach().cpu().double().numpy()])
@@ -98,7 +99,7 @@ class SunNet(nn.Module):
         super().__init__()
         if len(widths) < 3:
             raise ValueError(f"SunNet needs at least 3 encoder levels, got {widths}")
-        self.size = tuple(int(s) for s in size)
+        self.size = cast(tuple[int, int], tuple(int(s) for s in size))
         self.logit_height, self.coarse_height = logit_height, coarse_height
         self.encoder = Encoder(6, tuple(widths))
         self.pool = nn.AdaptiveAvgPool2d((3, 4))

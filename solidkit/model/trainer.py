@@ -44,7 +44,7 @@ import time
 import tomllib
 from dataclasses import asdict, dataclass, field, fields
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any, Callable, cast
 
 import numpy as np
 import torch
@@ -190,7 +190,7 @@ def load_train_config(path: str | os.PathLike, **overrides: Any) -> TrainConfig:
     unknown = sorted(set(data) - known)
     if unknown:
         raise InputError(f"{path}: unknown keys {unknown} (known: {sorted(known)})")
-    stages = {}
+    stages: dict[str, Any] = {}
     for name in STAGES:
         table = data.pop(name, {})
         bad = sorted(set(table) - {f.name for f in fields(StageConfig)})
@@ -495,7 +495,7 @@ class Trainer:
                     if (cfg.val_crops or cfg.val_synth) else None)
         self.state: dict[str, Any] = {"stage": STAGES[0], "step": 0, "best": None, "seconds": 0.0, "samples": 0,
                                       "sources": None}
-        self._tb = None
+        self._tb: Any = None  # a SummaryWriter once opened (tensorboard is optional)
 
     # -------------------------------------------------------------- state
 
@@ -504,7 +504,9 @@ class Trainer:
         return self.rank == 0
 
     def _stage_modules(self, stage: str) -> torch.nn.Module:
-        return {"sun": self.model.inet.sun, "inet": self.model.inet, "pnet": self.model.pnet}[stage]
+        # the "sun" stage runs only on a model with a sun network
+        sun = cast(torch.nn.Module, self.model.inet.sun)
+        return {"sun": sun, "inet": self.model.inet, "pnet": self.model.pnet}[stage]
 
     def _make_opt(self, stage: str) -> tuple[torch.optim.Optimizer, Any]:
         st = getattr(self.cfg, stage)
@@ -513,6 +515,7 @@ class Trainer:
         for p in self._stage_modules(stage).parameters():
             p.requires_grad_(True)
         if stage == "inet" and self.cfg.sun.steps and self.model.config.sun_net:
+            assert self.model.inet.sun is not None
             for p in self.model.inet.sun.parameters():  # trained in its own stage
                 p.requires_grad_(False)
         opt = torch.optim.Adam([p for p in self._stage_modules(stage).parameters() if p.requires_grad], lr=st.lr)
@@ -625,6 +628,7 @@ class Trainer:
         batches = [{k: v.to(self.device) for k, v in b.items()} for b in self._val_batches(stage)]
         self.model.eval()
         if stage == "sun":
+            assert self.model.inet.sun is not None
             m = evaluate_sun(self.model.inet.sun, batches)
             self.model.train()
             return m
@@ -780,11 +784,12 @@ class Trainer:
         cfg = self.model.config
         if stage == "sun":
             net = ddp if ddp is not None else self.model.inet.sun
+            assert net is not None
             out = net(batch["image"], batch["K"], batch["pitch"], batch["roll"])
             terms = sun_terms(out, batch["sun_dir"], batch["sun_visible"], batch["sun_energy"], batch["sun_size"],
                               math.radians(self.sun_target_deg()))
             weighted = {k: v * cfg.loss_weights.get(k, 1.0) for k, v in terms.items()}
-            return {**weighted, "total": sum(weighted.values())}
+            return {**weighted, "total": cast(torch.Tensor, sum(weighted.values()))}
         if stage == "inet":
             inet = ddp if ddp is not None else self.model.inet
             out = inet(batch["image"], intrinsics=kind != "crops", K=batch["K"], pitch=batch["pitch"], roll=batch["roll"])
