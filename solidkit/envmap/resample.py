@@ -347,7 +347,8 @@ def torch_remap(img: Any, x: Any, y: Any, interp: str, border: str = "constant")
 
 @lru_cache(maxsize=2)
 def cached_direction_grid(height: int) -> np.ndarray:
-    """:func:`~solidkit.envmap.coords.direction_grid` of ``height`` ``(H, 2H, 3)``, read-only, the last two heights cached."""
+    """:func:`~solidkit.envmap.coords.direction_grid` of ``height`` ``(H, 2H, 3)``, read-only (the last two
+    heights cached)."""
     grid: np.ndarray = direction_grid(height)
     grid.setflags(write=False)
     return grid
