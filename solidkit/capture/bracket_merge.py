@@ -32,7 +32,7 @@ from solidkit.camera.raw import is_raw_file, read_raw
 from solidkit.capture.bracket_groups import ShotInfo, gain_from, group_brackets, sequence_from_name
 from solidkit.capture.frame_merge import (DEFAULT_BLACK, DEFAULT_SATURATION, Frame, MergeResult, effective_exposure,
                                           frame_from_ldr, frame_from_raw, load_response, merge_frames, read_ldr_codes,
-                                          sniff_format, sniff_frame, validate_response)
+                                          sniff_frame, validate_response)
 from solidkit.envmap.io import write_exr, write_ldr
 from solidkit.fsutil import sha256_file
 from solidkit.capture.register import register_frames, shift_image
@@ -126,11 +126,7 @@ def _bracket_infos(paths: Sequence[Path], times: Sequence[float] | None) -> list
         raise InputError(f"--times has {len(times)} value(s) for {len(paths)} frame(s)")
     out = []
     for i, p in enumerate(paths):
-        if not p.is_file():
-            raise InputError(f"{p}: no such file")
-        if p.stat().st_size == 0:
-            raise InputError(f"{p}: empty file (0 bytes)")
-        if sniff_format(p) == "png":  # no EXIF in PNG: size only
+        if sniff_frame(p)[1] == "png":  # no EXIF in PNG: size only
             with Image.open(p) as im:
                 meta = CaptureMetadata(path=str(p), width=im.width, height=im.height, warnings=["no_exif: PNG file"])
         else:
