@@ -28,7 +28,7 @@ import warnings
 from collections import OrderedDict
 from dataclasses import dataclass, field, fields
 from pathlib import Path
-from typing import Any, ClassVar, Iterator, cast
+from typing import Any, Callable, ClassVar, Iterator, cast
 
 import cv2
 import numpy as np
@@ -75,6 +75,16 @@ class UnwarpMaps:
 
     def arrays(self) -> dict[str, np.ndarray]:
         return {"map1": self.map1, "map2": self.map2, "weight": self.weight}
+
+    def derived(self, name: str, key: Any, build: Callable[[], Any]) -> Any:
+        """A value derived from these maps (e.g. vignetting gains), built once per ``key`` and kept with
+        them: ``build()`` runs when nothing is kept under ``name`` or it was built for another key."""
+        kept = self._derived.get(name)
+        if kept is not None and kept[0] == key:
+            return kept[1]
+        value = build()
+        self._derived[name] = (key, value)
+        return value
 
     def band(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Two lenses: ``(lens0_dominant (H, 2H) bool, band flat indices, lens-0 weight there)``."""

@@ -142,20 +142,20 @@ def vignetting_gains(maps: UnwarpMaps, vignetting: Any, profile: LensProfile, in
     if sorted(by_name) == sorted(names):
         vl = [by_name[n] for n in names]
     key = ("vignetting", vignetting.model_dump_json(), tuple(in_size))
-    cached = maps._derived.get("vignetting")
-    if cached is not None and cached[0] == key:
-        return cached[1]
-    out = np.ones(maps.weight.shape, np.float32)
-    for i, v in enumerate(vl):
-        used = maps.weight[i] > 0
-        xy = cv2.convertMaps(maps.map1[i], maps.map2[i], cv2.CV_32FC2)[0]  # (H, 2H, 2) sample positions
-        rho = np.hypot(xy[..., 0][used] - v.center[0], xy[..., 1][used] - v.center[1]) / v.r_norm_px
-        V = falloff(v.coeffs, rho)
-        if V.size and (not np.all(np.isfinite(V)) or V.min() <= 0.05):
-            raise VignettingError(f"lens {v.name}: the falloff drops below 5 % inside the image circle: the profile is unusable")
-        out[i][used] = (1.0 / V).astype(np.float32)
-    maps._derived["vignetting"] = (key, out)
-    return out
+
+    def gains() -> np.ndarray:
+        out = np.ones(maps.weight.shape, np.float32)
+        for i, v in enumerate(vl):
+            used = maps.weight[i] > 0
+            xy = cv2.convertMaps(maps.map1[i], maps.map2[i], cv2.CV_32FC2)[0]  # (H, 2H, 2) sample positions
+            rho = np.hypot(xy[..., 0][used] - v.center[0], xy[..., 1][used] - v.center[1]) / v.r_norm_px
+            V = falloff(v.coeffs, rho)
+            if V.size and (not np.all(np.isfinite(V)) or V.min() <= 0.05):
+                raise VignettingError(f"lens {v.name}: the falloff drops below 5 % inside the image circle: the profile is unusable")
+            out[i][used] = (1.0 / V).astype(np.float32)
+        return out
+
+    return maps.derived("vignetting", key, gains)
 
 
 def unwarp(
