@@ -100,7 +100,7 @@ import math
 import os
 import shutil
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 import cv2
 import numpy as np
@@ -294,7 +294,8 @@ def scene_lighting(mi: Any, gen: Generator, geometry: Any, cam: Any, positions: 
             continue
         if light.sun is not None and occluded(mi, geometry, cam.position, light.sun):
             continue
-        if glass and not any(glint_direction(mi, geometry, pos, light.sun, panels) is not None for pos in positions):
+        if glass and not any(glint_direction(mi, geometry, pos, cast(np.ndarray, light.sun), panels) is not None
+                             for pos in positions):
             continue
         break
     else:
@@ -330,11 +331,11 @@ def _render_scene(out: Path, s: int, sid: str, seed: int, cfg: CampaignConfig, g
     for k, p in enumerate(picks):
         x, y = p["pixel"]
         point = p["point"]
-        info = {"pixel": [int(x), int(y)], "quadrant": p["quadrant"], "point_scene": point.tolist(),
+        spot = {"pixel": [int(x), int(y)], "quadrant": p["quadrant"], "point_scene": point.tolist(),
                 "normal_scene": p["normal"].tolist(), "point_camera": ((point - cam.position) @ R).tolist(),
                 "depth": float(buf["depth"][y, x]), "category": CATEGORIES[block.category_of(np.array([p["label"]]))[0]],
                 "surface_height_m": float(-point[1]) + 0.0}
-        positions.append((f"p{k + 1:02d}", p["position"], info))
+        positions.append((f"p{k + 1:02d}", p["position"], spot))
     light = scene_lighting(mi, gen, geometry, cam, [pos for _, pos, _ in positions], panels, glass, s, seed, cfg, sid)
     scene = to_mitsuba(block, light.emitter())
     # place and time: pvlib's sun = the rendered sun (overcast: a daytime sun hidden by the clouds)
@@ -384,7 +385,8 @@ def _render_scene(out: Path, s: int, sid: str, seed: int, cfg: CampaignConfig, g
         keep = sun_mask_panorama(light.sun, np.eye(3), cfg.pano_height, 2.0)
         glint = glint_direction(mi, geometry, pos, light.sun, panels) if (panels and light.sun is not None) else None
         if glint is not None:  # a glint is a real, sharp highlight: not a firefly
-            keep = keep | sun_mask_panorama(glint, np.eye(3), cfg.pano_height, 2.0)
+            assert keep is not None  # a glint needs a sun
+            keep = keep | cast(np.ndarray, sun_mask_panorama(glint, np.eye(3), cfg.pano_height, 2.0))
         pano, _ = suppress_fireflies(pano, keep, cfg.firefly_k, wrap=True)
         fish = render_fisheye(pano, profile, profile.reference_size, R_level=Rb)
         shots = []
@@ -407,6 +409,7 @@ def _render_scene(out: Path, s: int, sid: str, seed: int, cfg: CampaignConfig, g
                                               seed=derive_seed(seed, s, 200 + c), noise_target_db=cfg.probe_noise_db,
                                               max_spp=max(base, cfg.probe_max_spp), sun=light.sun, glint=glint,
                                               firefly_k=cfg.firefly_k, firefly_spp=cfg.pano_spp * spp_scale)
+            assert local is not None  # rendered: no pilot given
             write_truth_exr(truth_dir / sid / f"{cid}.exr", local, probe_exr_meta(sid, cid, record))
             marked = np.asarray(info["pixel"], np.float64) + rng.normal(0.0, cfg.mark_noise_px, 2)
             marked = np.round(np.clip(marked, 0.0, [cam.width - 1, cam.height - 1]) * 2.0) / 2.0  # a tablet's half pixels

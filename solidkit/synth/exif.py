@@ -13,7 +13,7 @@ from __future__ import annotations
 import datetime as dt
 import struct
 from fractions import Fraction
-from typing import Any
+from typing import Any, cast
 
 __all__ = ["exif_app1", "insert_app1"]
 
@@ -51,6 +51,7 @@ def _ifd(entries: list[tuple[int, int, bytes, int]], base: int) -> tuple[bytes, 
     entries = sorted(entries)
     n = len(entries)
     data_off = base + 2 + 12 * n + 4
+    where: dict[int, int]
     head, data, where = struct.pack("<H", n), b"", {}
     for tag, typ, payload, count in entries:
         if len(payload) <= 4:
@@ -101,7 +102,7 @@ def exif_app1(*, make: str, model: str, when: dt.datetime, exposure_time: float,
             _entry(0x9003, ASCII, stamp)]
     utc = None
     if when.tzinfo is not None and when.utcoffset() is not None:
-        minutes = int(when.utcoffset().total_seconds() // 60)
+        minutes = int(cast(dt.timedelta, when.utcoffset()).total_seconds() // 60)
         offset = f"{'+' if minutes >= 0 else '-'}{abs(minutes) // 60:02d}:{abs(minutes) % 60:02d}"
         exif += [_entry(0x9010, ASCII, offset), _entry(0x9011, ASCII, offset)]
         utc = when.astimezone(dt.timezone.utc)

@@ -18,6 +18,7 @@ import logging
 import os
 from pathlib import Path
 from types import ModuleType
+from typing import cast
 
 from solidkit.errors import SolidkitError
 from solidkit.synth.plugins import register
@@ -111,16 +112,16 @@ def select_variant(prefer: str | None = None) -> str:
 
 def mitsuba() -> ModuleType:
     """The ``mitsuba`` module with a variant set and solidkit's plugins registered."""
-    name = _state.get("variant") or select_variant()
+    name = cast("str | None", _state.get("variant")) or select_variant()
     import mitsuba as mi
 
     if mi.variant() != name:
         mi.set_variant(name)
-    registered = _state.setdefault("registered", set())
-    if name not in registered:  # type: ignore[operator]
+    registered = cast(set[str], _state.setdefault("registered", set()))
+    if name not in registered:
 
         register(mi)
-        registered.add(name)  # type: ignore[union-attr]
+        registered.add(name)
     return mi
 
 

@@ -27,14 +27,14 @@ them everywhere, they are no one's cast shadow.
 
 from __future__ import annotations
 
-from types import ModuleType
+from typing import Any
 
 __all__ = ["BUFFER_AOVS", "register"]
 
 BUFFER_AOVS = ("t", "nx", "ny", "nz", "albedo_r", "albedo_g", "albedo_b", "label", "shadow_on", "shadow_off")
 
 
-def register(mi: ModuleType) -> None:
+def register(mi: Any) -> None:  # mitsuba: its classes depend on the variant set
     """Register ``sk_pinhole``, ``sk_equirect`` and ``sk_buffers`` for the active variant."""
     import drjit as dr
 

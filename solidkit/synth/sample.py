@@ -46,7 +46,7 @@ from solidkit.synth.mitsuba_variant import mitsuba, variant
 __all__ = ["SampleConfig", "render_rgb", "render_buffers", "render_panorama", "pick_probe_pixels", "Generator",
            "derive_seed", "FILES"]
 
-FILES = {
+FILES: dict[str, Any] = {  # file names; "probes" lists one per probe
     "image": "image.exr", "ldr": "image.png", "albedo": "albedo.exr", "normal": "normal.exr", "depth": "depth.exr",
     "plane_distance": "plane_distance.exr", "shadow": "shadow.exr", "category": "category.png", "global": "global.exr",
     "probes": ["probe_0.exr", "probe_1.exr", "probe_2.exr", "probe_3.exr"], "meta": "sample.json",

@@ -104,7 +104,8 @@ def box(lo: Any, hi: Any, material: str, category: str, *, yaw: float = 0.0, til
     """
     lo, hi = np.asarray(lo, float), np.asarray(hi, float)
     tile = tile or MATERIALS[material].tile_m
-    verts, uvs, faces = [], [], []
+    verts: list[np.ndarray] = []
+    uvs, faces = [], []
     # each face: (axis, sign) with in-plane axes (u_axis, v_axis)
     for axis, sign in [(0, -1), (0, 1), (2, -1), (2, 1), (1, -1), (1, 1)]:
         ua, va = {0: (2, 1), 2: (0, 1), 1: (0, 2)}[axis]

@@ -174,7 +174,8 @@ def clean_truth_probe(scene: Any, position: np.ndarray, rotation: np.ndarray, he
     record : the kept render's record (:func:`render_truth_probe`) plus ``version`` 3, ``base_spp``,
         ``noise_target_db``, ``max_spp`` and ``pilot`` (its ``spp`` and ``noise_psnr_db``).
     """
-    kw = dict(sun=sun, glint=glint, firefly_k=firefly_k, firefly_spp=firefly_spp, pass_samples=pass_samples)
+    kw: dict[str, Any] = dict(sun=sun, glint=glint, firefly_k=firefly_k, firefly_spp=firefly_spp,
+                              pass_samples=pass_samples)
     img: np.ndarray | None = None
     if pilot is None:
         img, record = render_truth_probe(scene, position, rotation, height, spp, seed=seed, **kw)
