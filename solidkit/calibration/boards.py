@@ -20,6 +20,7 @@ import os
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import cv2
 import numpy as np
@@ -175,7 +176,7 @@ def find_corners(gray: np.ndarray, pattern: tuple[int, int], max_blur_px: float 
     c = c.reshape(-1, 2).astype(np.float64)
     sharp = None
     try:
-        s = cv2.estimateChessboardSharpness(gray, pattern, c.astype(np.float32).reshape(-1, 1, 2))
+        s: Any = cv2.estimateChessboardSharpness(gray, pattern, c.astype(np.float32).reshape(-1, 1, 2))
         sharp = float(s[0][0]) if isinstance(s, tuple) else float(s[0])
     except cv2.error:
         pass

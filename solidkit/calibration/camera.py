@@ -22,6 +22,7 @@ import math
 import os
 from collections.abc import Sequence
 from pathlib import Path
+from typing import cast
 
 import cv2
 import numpy as np
@@ -198,13 +199,14 @@ def calibrate_checkerboard(
             + "; ".join(f"{k}: {r}" for k, r in rejected.items())
         )
     objs = [v.points(pattern, square).astype(np.float32).reshape(-1, 1, 3) for v in good]
-    imgs = [v.corners.astype(np.float32).reshape(-1, 1, 2) for v in good]
+    imgs = [cast(np.ndarray, v.corners).astype(np.float32).reshape(-1, 1, 2) for v in good]
     w, h = good[0].size
     rms, K, dist, rvecs, tvecs = cv2.calibrateCamera(objs, imgs, (w, h), None, None)
     per_view = {}
     for v, obj, rv, tv in zip(good, objs, rvecs, tvecs):
         proj, _ = cv2.projectPoints(obj, rv, tv, K, dist)
-        per_view[v.name] = float(np.sqrt(np.mean(np.sum((proj.reshape(-1, 2) - v.corners) ** 2, 1))))
+        err = proj.reshape(-1, 2) - cast(np.ndarray, v.corners)
+        per_view[v.name] = float(np.sqrt(np.mean(np.sum(err ** 2, 1))))
     residuals = {"rms_px": float(rms), "per_view_rms_px": per_view, "rejected_views": rejected, "views_used": len(good)}
     return K, dist.ravel(), residuals
 

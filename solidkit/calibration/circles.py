@@ -112,7 +112,7 @@ def _first_guess(lum_small: np.ndarray, scale: float, offset: tuple[int, int]) -
     hi = float(np.percentile(lum_small, 99))
     if not hi > lo + 1e-4:
         return None
-    mask = (lum_small > lo + 0.03 * (hi - lo)).astype(np.uint8)
+    mask: np.ndarray = (lum_small > lo + 0.03 * (hi - lo)).astype(np.uint8)
     mask = cv2.morphologyEx(mask, cv2.MORPH_OPEN, np.ones((3, 3), np.uint8))
     n, labels, stats, _ = cv2.connectedComponentsWithStats(mask, connectivity=8)
     if n < 2:

@@ -19,6 +19,7 @@ bluish green (6), black (24), white (19).
 from __future__ import annotations
 
 import os
+from collections.abc import Sequence
 from functools import lru_cache
 from pathlib import Path
 
@@ -145,7 +146,7 @@ def detect_chart(image_bgr8: np.ndarray) -> np.ndarray | None:
     """
     if not hasattr(cv2, "mcc"):
         return None
-    det = cv2.mcc.CCheckerDetector_create()
+    det = cv2.mcc.CCheckerDetector_create()  # type: ignore[attr-defined]  # in cv2.mcc, not in its stub
     det.setColorChartType(cv2.mcc.MCC24)
     det.setUseDnnModel(False)
     if not det.process(np.ascontiguousarray(image_bgr8), 1):
@@ -296,7 +297,7 @@ def calibrate_colour(
     corners: np.ndarray | None = None,
     white_preserving: bool = True,
     clip_level: float = 0.98,
-    inputs: list[str | os.PathLike] = (),
+    inputs: Sequence[str | os.PathLike] = (),
     objective: str = "delta-e",
 ) -> ColourProfile:
     """Fit white balance + CCM on a linear camera image of a ColorChecker 24.
@@ -318,6 +319,7 @@ def calibrate_colour(
     if image.ndim != 3 or image.shape[2] < 3:
         raise InputError(f"colour calibration needs an RGB image, got shape {image.shape}")
     image = image[..., :3]
+    H: np.ndarray | None
     if corners is not None:
         H, how = chart_homography_from_corners(corners), "corners"
     else:

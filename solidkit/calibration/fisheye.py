@@ -26,7 +26,7 @@ import math
 import re
 from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import Any, Literal
+from typing import Any, Literal, cast
 
 import cv2
 import numpy as np
@@ -92,7 +92,7 @@ class FisheyeFit:
         if self.model == "kb":
             p, _ = cv2.fisheye.projectPoints(o, rv, tv, self.K, self.D)
         else:
-            p, _ = cv2.omnidir.projectPoints(o, rv, tv, self.K, float(self.xi), self.D)
+            p, _ = cv2.omnidir.projectPoints(o, rv, tv, self.K, float(cast(float, self.xi)), self.D)
         return p.reshape(-1, 2)
 
     def project_directions(self, d: np.ndarray) -> np.ndarray:
@@ -105,7 +105,7 @@ class FisheyeFit:
         if self.model == "kb":
             u = cv2.fisheye.undistortPoints(p, self.K, self.D)
             return u.reshape(-1, 2)
-        u = cv2.omnidir.undistortPoints(p, self.K, self.D, np.array([[float(self.xi)]]), np.eye(3))
+        u = cv2.omnidir.undistortPoints(p, self.K, self.D, np.array([[float(cast(float, self.xi))]]), np.eye(3))
         return u.reshape(-1, 2)
 
     def radius(self, theta: np.ndarray, azimuths: int = 16) -> np.ndarray:
@@ -199,10 +199,10 @@ def fit_mei(views: Sequence[BoardView], pattern: tuple[int, int], square: float 
     good, rejected = _usable(views)
     _need(good, rejected, "the Mei (omnidir) fit")
     O = [v.points(pattern, square).reshape(-1, 1, 3).astype(np.float64) for v in good]  # trap: float64, (N, 1, 3)
-    I = [v.corners.reshape(-1, 1, 2).astype(np.float64) for v in good]
+    I = [cast(np.ndarray, v.corners).reshape(-1, 1, 2).astype(np.float64) for v in good]
     why = "rejected by cv2.omnidir's initialisation (no consistent initial focal length/pose from the board's lines)"
     try:
-        rms, K, xi, D, rvecs, tvecs, idx = cv2.omnidir.calibrate(
+        rms, K, xi, D, rvecs, tvecs, idx = cv2.omnidir.calibrate(  # type: ignore[call-overload]  # stub: no None K
             O, I, good[0].size, None, None, None, cv2.omnidir.CALIB_FIX_SKEW, _CRITERIA
         )
     except cv2.error as exc:
@@ -357,7 +357,7 @@ def held_out_error(
             continue
         for v in held:
             try:
-                per[v.name] = fit_pose(fit, v.points(pattern, square), v.corners)[2]
+                per[v.name] = fit_pose(fit, v.points(pattern, square), cast(np.ndarray, v.corners))[2]
             except (FisheyeCalibrationError, cv2.error) as exc:
                 failed[v.name] = f"pose fit failed: {exc}"
     vals = np.array(list(per.values()))
@@ -385,7 +385,7 @@ def _max_angle_deg(fit: FisheyeFit, limit_deg: float | None) -> float:
     w, h = fit.size
     cx, cy = fit.K[0, 2], fit.K[1, 2]
     far = max(math.hypot(x - cx, y - cy) for x in (-0.5, w - 0.5) for y in (-0.5, h - 0.5))
-    top = 180.0 if fit.model == "kb" else math.degrees(math.acos(-min(float(fit.xi), 1.0))) - 1.0
+    top = 180.0 if fit.model == "kb" else math.degrees(math.acos(-min(float(cast(float, fit.xi)), 1.0))) - 1.0
     th = np.radians(np.arange(0.0, min(top, limit_deg or 180.0) + 1e-9, 0.25))
     r = fit.radius(th)
     ok = np.nonzero(np.diff(r) <= 0)[0]
@@ -410,7 +410,8 @@ def lens_model_from_fit(
         return LensModel(name=name, center=(cx, cy), poly=poly, max_angle_deg=top, ypr_deg=tuple(ypr_deg))
     th = np.arange(0.0, top + 1e-9, 0.5)
     r = fit.radius(np.radians(th))
-    return LensModel.from_table(name, (cx, cy), th, r, ypr_deg=tuple(ypr_deg), max_angle_deg=top, degree=11)
+    return LensModel.from_table(name, (cx, cy), th, r, ypr_deg=cast("tuple[float, float, float]", tuple(ypr_deg)),
+                                max_angle_deg=top, degree=11)
 
 
 class FisheyeProfile(Profile):

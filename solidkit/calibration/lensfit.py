@@ -134,7 +134,8 @@ def start_profile(circles: list[Circle], size: tuple[int, int], family: str, hal
     """Two-lens profile at ``size = (W, H)``: front on ``circles[0]``, back (yaw 180° + ``back_offset_deg[0]``,
     pitch ``back_offset_deg[1]``, its circle turned by ``back_turn_deg``) on ``circles[1]``, the
     camera rolled by ``roll_deg``."""
-    fovs = (half_fov_deg, half_fov_deg) if np.isscalar(half_fov_deg) else tuple(half_fov_deg)
+    fovs: tuple[Any, ...] = ((half_fov_deg, half_fov_deg) if np.isscalar(half_fov_deg)
+                             else tuple(half_fov_deg))  # type: ignore[arg-type]  # np.isscalar does not narrow
     R0, R1 = _rotations(float(back_turn_deg), float(roll_deg), tuple(float(a) for a in back_offset_deg))
     lenses = [family_lens("front", family, circles[0], float(fovs[0]), R0),
               family_lens("back", family, circles[1], float(fovs[1]), R1)]
@@ -205,7 +206,8 @@ def _refine(images: list[np.ndarray], start: LensProfile, saturation: float | No
     """Bounded multi-start refinement (module docstring, step 5)."""
     r = float(np.mean([l.max_radius() for l in start.lenses]))
     levels = tuple(f for f in (8, 4, 2, 1) if r / f >= 48 and r / f <= 700) or (1,)
-    bounds = dict(max_center_px=MAX_CENTER_FRAC * r, max_log_scale=0.03, max_rotation_deg=MAX_BACK_OFFSET_DEG)
+    bounds: dict[str, Any] = dict(max_center_px=MAX_CENTER_FRAC * r, max_log_scale=0.03,
+                                  max_rotation_deg=MAX_BACK_OFFSET_DEG)
     starts = [np.zeros(9)]
     for axis in (0, 1):
         for sgn in (-1, 1):
@@ -266,9 +268,9 @@ def fit_dual_fisheye(image: np.ndarray, saturation: float | None = None, *, fami
     for turn in (0.0, 90.0, 180.0, -90.0):  # every field of view in 1° steps at ~64 px radius (a wide valley)
         vals = {hf: _finite(seam_error(seam_rough, start_profile(circles, size, "equidistant", hf, turn), n=4000,
                                        edge_px=0.5)) for hf in np.arange(MIN_HALF_FOV_DEG, MAX_HALF_FOV_DEG + 1e-9, 1.0)}
-        turn_hf[turn] = min(vals, key=vals.get)
+        turn_hf[turn] = min(vals, key=vals.__getitem__)
         turns[turn] = vals[turn_hf[turn]]
-    back_turn = min(turns, key=turns.get)
+    back_turn = min(turns, key=turns.__getitem__)
     log(f"back circle turned by {back_turn:+.0f}° relative to the front (seam {turns[back_turn]:.4f}; others "
         + ", ".join(f"{k:+.0f}°: {v:.4f}" for k, v in turns.items() if k != back_turn) + ")")
 
@@ -283,7 +285,7 @@ def fit_dual_fisheye(image: np.ndarray, saturation: float | None = None, *, fami
         aims = {off: _finite(seam_error(seam_coarse, start_profile(circles, size, "equidistant", hf_eq, back_turn,
                                                                    back_offset_deg=off), n=6000, edge_px=1.0))
                 for off in grid}
-        best = min(aims, key=aims.get)
+        best = min(aims, key=aims.__getitem__)
         new = best if aims[best] <= 0.97 * aims[(0.0, 0.0)] else (0.0, 0.0)  # an off-axis aim must earn its place
         if new == offset:
             break
@@ -291,7 +293,7 @@ def fit_dual_fisheye(image: np.ndarray, saturation: float | None = None, *, fami
     log(f"back lens aim: yaw {180 + offset[0]:.0f}°, pitch {offset[1]:+.0f}° (seam {aims[offset]:.3f}; exactly "
         f"opposite: {aims[(0.0, 0.0)]:.3f})")
 
-    fam_scores = {}
+    fam_scores: dict[str, dict[str, Any]] = {}
     for fam in families:
         hf, val, curve = (scanned[offset] if fam == "equidistant" and offset in scanned
                           else _scan_fov((seam_coarse, seam), circles, size, fam, back_turn, offset))
@@ -316,6 +318,7 @@ def fit_dual_fisheye(image: np.ndarray, saturation: float | None = None, *, fami
         start = start_profile(circles, size, fam, hf, back_turn, up.roll_deg, back_offset_deg=offset)
         e0 = seam_error(seam, start)
         log(f"start profile: {fam}, field of view {2 * hf:.1f}°, seam error {e0['seam_error']:.3f}")
+        info: dict[str, Any]
         final, refused, info, e1 = start, None, {}, e0
         if refine:
             log("refining on the overlap (bounded, 5 starts, coarse to fine)")
@@ -374,7 +377,7 @@ def fit_file(path: str | Path, out: str | Path, *, families: tuple[str, ...] = F
     summary["shipped_profiles_seam_error"] = shipped
     better = {k: v for k, v in shipped.items() if math.isfinite(v) and v < 0.9 * fit.seam_final["seam_error"]}
     if better:
-        best = min(better, key=better.get)
+        best = min(better, key=better.__getitem__)
         summary["warnings"].append(f"shipped_profile_fits_better: the shipped profile {best!r} has a seam error of "
                                    f"{better[best]:.3f} on this frame (this fit: {fit.seam_final['seam_error']:.3f}); "
                                    f"use --profile {best} or refine it with 'solidkit calibrate overlap --base {best}'")

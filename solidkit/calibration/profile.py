@@ -67,7 +67,7 @@ def load_calibration_profile(path: str | os.PathLike) -> Profile:
     """Load any calibration profile, dispatching on its ``kind`` field."""
     path = Path(path)
     kind = read_json_object(path, ProfileError, "profile").get("kind")
-    module = _KIND_MODULES.get(kind)
+    module = _KIND_MODULES.get(kind) if isinstance(kind, str) else None
     if module:
         importlib.import_module(module)
     for sub in _all_subclasses(Profile):
@@ -76,7 +76,7 @@ def load_calibration_profile(path: str | os.PathLike) -> Profile:
     raise ProfileError(f"{path}: unknown profile kind {kind!r}")
 
 
-def _all_subclasses(cls: type) -> list[type]:
+def _all_subclasses(cls: type[Profile]) -> list[type[Profile]]:
     out = []
     for sub in cls.__subclasses__():
         out.append(sub)

@@ -109,7 +109,7 @@ def read_brackets(paths: Sequence[str | os.PathLike], times: Sequence[float] | N
 
 def calibrate_response(
     images: Sequence[np.ndarray],
-    times: Sequence[float],
+    times: Sequence[float] | np.ndarray,
     method: Method = "debevec",
     samples: int = 400,
     smoothness: float = 10.0,
@@ -137,7 +137,7 @@ def calibrate_response(
         n_px = imgs[0].shape[0] * imgs[0].shape[1]
         if not 1 <= samples <= n_px:
             raise ResponseError(f"Debevec samples must be in 1..{n_px} (the pixels of one image), got {samples}")
-        cal = cv2.createCalibrateDebevec(samples=int(samples), lambda_=float(smoothness))
+        cal: cv2.CalibrateCRF = cv2.createCalibrateDebevec(samples=int(samples), lambda_=float(smoothness))
     elif method == "robertson":
         cal = cv2.createCalibrateRobertson()
     else:
@@ -213,7 +213,8 @@ def response_sanity(curve: np.ndarray, images: Sequence[np.ndarray] | None = Non
     return out
 
 
-def radiance_consistency(curve: np.ndarray, images: Sequence[np.ndarray], times: Sequence[float], lo: int = 10, hi: int = 245) -> dict:
+def radiance_consistency(curve: np.ndarray, images: Sequence[np.ndarray], times: Sequence[float] | np.ndarray,
+                         lo: int = 10, hi: int = 245) -> dict:
     """How well one radiance explains every exposure: the fit's residual.
 
     For every pixel and channel, each exposure with a code in ``[lo, hi]`` gives a radiance
@@ -275,7 +276,9 @@ def make_monotonic(curve: np.ndarray, min_step_stops: float = 1e-4) -> np.ndarra
         y = np.log2(np.maximum(curve[:, c], 1e-30)) - ramp  # strict increase = non-decrease after the ramp
         vals, wts, lens = [], [], []
         for v in y:
-            vals.append(v), wts.append(1.0), lens.append(1)
+            vals.append(v)
+            wts.append(1.0)
+            lens.append(1)
             while len(vals) > 1 and vals[-2] > vals[-1]:
                 w = wts[-2] + wts[-1]
                 v2 = (vals[-2] * wts[-2] + vals[-1] * wts[-1]) / w

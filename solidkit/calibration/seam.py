@@ -99,7 +99,7 @@ def prepare_seam_image(image: np.ndarray, radius_px: float, saturation: float | 
         valid &= lum >= floor
     s = min(1.0, WORK_RADIUS_PX / max(radius_px, 1.0))
     w, h = max(8, round(W * s)), max(8, round(H * s))
-    x = np.where(valid, lum, 0.0).astype(np.float32)
+    x: np.ndarray = np.where(valid, lum, 0.0).astype(np.float32)
     a = np.nan_to_num(lum, nan=0.0, posinf=0.0, neginf=0.0).astype(np.float32)
     v = valid.astype(np.float32)
     if (w, h) != (W, H):

@@ -194,7 +194,7 @@ def upright_from_panoramas(p0: np.ndarray, p90: np.ndarray) -> UprightEstimate:
     we, wu, wm, wt = WEIGHTS
     scores = {0.0: we * edges + wu * ud0 - wm * m[1] + wt * t0, 90.0: -we * edges + wu * ud90 - wm * m[0] + wt * t90,
               -90.0: -we * edges - wu * ud90 + wm * m[0] - wt * t90}
-    ranked = sorted(scores, key=scores.get, reverse=True)
+    ranked = sorted(scores, key=scores.__getitem__, reverse=True)
     roll = ranked[0]
     margin = scores[roll] - scores[ranked[1]]
     cue = "edges" if abs(edges) >= 2.0 * abs(scores[roll] - (edges if roll == 0.0 else -edges)) else "edges+brightness"
