@@ -37,6 +37,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from solidkit.errors import InputError
+from solidkit.threads import ensure_threads
 from solidkit.fsutil import atomic_write_text
 from solidkit.align.pipeline import AlignSettings, align_campaign
 from solidkit.capture.campaign import ingest
@@ -237,6 +238,7 @@ def _truth_section(tc: dict[str, Any]) -> str:
 def run_demo(out: str | Path, cfg: DemoConfig | None = None, log: Callable[[str], Any] = print) -> dict[str, Any]:
     """Run the whole chain into ``out``; returns the summary (also ``out/summary.json``)."""
     cfg = cfg or DemoConfig()
+    ensure_threads()
     out = Path(out)
     card, truth = _locate_card(cfg)
     if out.exists() and not out.is_dir():

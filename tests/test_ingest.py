@@ -604,3 +604,22 @@ def test_disk_full_is_retried_not_remembered(tmp_path, monkeypatch, cli):
     assert len(m.shots) == 11 and all(p.error is None and p.path for p in m.products)
     ingest(card, tmp_path / "clean")
     assert (camp / MANIFEST_NAME).read_bytes() == (tmp_path / "clean" / MANIFEST_NAME).read_bytes()
+
+
+@pytest.mark.slow
+def test_products_are_the_same_bytes_whatever_the_thread_count(tmp_path):
+    """The BLAS libraries split reductions by thread (OpenCV's Debevec solve among them): every file
+    of the shipped mini card's campaign ingested with 1 thread and with 2 threads is byte-identical
+    (about 2 x 1 min)."""
+    card = REPO / "solidkit" / "assets" / "campaign_mini" / "card"
+    digests = []
+    for n in (1, 2):
+        camp = tmp_path / f"camp{n}"
+        env = dict(os.environ, OMP_NUM_THREADS=str(n), OPENBLAS_NUM_THREADS=str(n))
+        subprocess.run([sys.executable, "-m", "solidkit.cli", "--threads", str(n), "ingest", str(card), "-o", str(camp)],
+                       check=True, env=env, capture_output=True, timeout=1200)
+        files = sorted(p for p in camp.rglob("*") if p.is_file())
+        digests.append({p.relative_to(camp).as_posix(): hashlib.sha256(p.read_bytes()).hexdigest() for p in files})
+    assert sum(k.endswith(".exr") for k in digests[0]) >= 7, "the card makes HDR products"
+    differ = sorted(k for k in digests[0] if digests[0][k] != digests[1].get(k))
+    assert digests[0].keys() == digests[1].keys() and not differ, differ

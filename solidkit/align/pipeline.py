@@ -69,6 +69,7 @@ from solidkit.envmap.coords import (angles_from_direction, angular_distance, dir
 from solidkit.envmap.io import read_ldr, srgb_decode
 from solidkit.envmap.resample import rotate
 from solidkit.envmap.tilt import TiltEstimate, residual_tilt
+from solidkit.threads import deterministic
 from solidkit.errors import InputError, SolidkitError
 from solidkit.flags import Flag, FlagCode, flag_codes
 from solidkit.fsutil import atomic_path, sha256_file
@@ -1015,8 +1016,18 @@ def align_campaign(campaign_dir: str | os.PathLike, *, settings: AlignSettings |
     """Align every scene of an ingested campaign (module doc); returns and writes ``align/alignment.json``.
 
     ``label_kinds``: which automatic labels to put into the store (default all: sun, sun_scene,
-    heading, probe_pixel); ``write=False`` writes no alignment file (``solidkit label sun``).
+    heading, probe_pixel); ``write=False`` writes no alignment file (``solidkit label sun``). Computed
+    with the BLAS libraries on one thread (:func:`solidkit.threads.deterministic`): the same bytes
+    whatever the machine's thread count.
     """
+    with deterministic():
+        return _align_campaign(campaign_dir, settings=settings, scenes=scenes, labels=labels, report=report,
+                               label_kinds=label_kinds, write=write, log=log)
+
+
+def _align_campaign(campaign_dir: str | os.PathLike, *, settings: AlignSettings | None, scenes: list[str] | None,
+                    labels: bool, report: bool, label_kinds: tuple[str, ...] | None, write: bool,
+                    log: Callable[[str], None]) -> CampaignAlignment:
     campaign = Path(campaign_dir)
     if not (campaign / "manifest.json").is_file():
         raise InputError(f"{campaign}: not an ingested campaign (no manifest.json)")

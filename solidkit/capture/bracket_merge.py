@@ -38,6 +38,7 @@ from solidkit.fsutil import sha256_file
 from solidkit.capture.register import register_frames, shift_image
 from solidkit.capture.selfcal import response_for_bracket
 from solidkit.errors import InputError
+from solidkit.threads import deterministic
 
 __all__ = ["merge_bracket", "merge_files", "read_codes"]
 
@@ -61,8 +62,18 @@ def merge_bracket(paths: Sequence[str | Path], exposures: Sequence[float], *, re
     """Merge one bracket (module docstring). ``exposures``: effective exposures (s) in ``paths`` order.
 
     ``response``/``response_record``: a curve the user gave and how to record it (None: estimate
-    from the frames when possible, else assume sRGB with a warning).
+    from the frames when possible, else assume sRGB with a warning). Merged with the BLAS libraries on
+    one thread (:func:`solidkit.threads.deterministic`): the curve's solve, and so every pixel, is the
+    same whatever the thread count.
     """
+    with deterministic():
+        return _merge_bracket(paths, exposures, response=response, response_record=response_record, align=align,
+                              ghost_k=ghost_k, deghost=deghost, wb=wb)
+
+
+def _merge_bracket(paths: Sequence[str | Path], exposures: Sequence[float], *, response: np.ndarray | None,
+                   response_record: dict[str, Any] | None, align: bool, ghost_k: float, deghost: bool, wb: Any
+                   ) -> tuple[MergeResult, dict[str, Any]]:
     paths = [Path(p) for p in paths]
     warnings: list[str] = []
     decoded = []

@@ -37,6 +37,7 @@ import numpy as np
 from solidkit.camera.metadata import CaptureMetadata
 from solidkit.capture.manifest import Manifest, Product
 from solidkit.envmap.tilt import TILT_FLAG_DEG, TiltEstimate, residual_tilt
+from solidkit.threads import deterministic
 from solidkit.errors import InputError, SolidkitError
 from solidkit.fsutil import atomic_path, is_environmental, sha256_file
 from solidkit import __version__
@@ -199,7 +200,17 @@ def to_panorama(image, md: dict[str, Any], lens_profile: Any = None, vignetting:
 
 
 def make_product(product: dict[str, Any], shots: list[dict[str, Any]], campaign: str, response: dict[str, Any]) -> dict[str, Any]:
-    """Worker: build one product; returns the updated product dict (``error`` set on failure)."""
+    """Worker: build one product; returns the updated product dict (``error`` set on failure).
+
+    Built with the BLAS libraries on one thread (:func:`solidkit.threads.deterministic`): a product's
+    bytes do not depend on the machine's thread count.
+    """
+    with deterministic():
+        return _build_product(product, shots, campaign, response)
+
+
+def _build_product(product: dict[str, Any], shots: list[dict[str, Any]], campaign: str, response: dict[str, Any]
+                   ) -> dict[str, Any]:
     p = Product.model_validate(product)
     camp = Path(campaign)
     try:

@@ -12,6 +12,7 @@ from pathlib import Path
 import typer
 
 from solidkit.errors import InputError, SolidkitError
+from solidkit.threads import MAX_DEFAULT_THREADS, THREADS_ENV, apply_threads
 
 # Sub-commands are imported only when invoked (``solidkit capture unwarp`` must not pay for torch,
 # SciPy or FastAPI at start-up): name -> (module, attribute, help of a group; None for a command).
@@ -35,12 +36,21 @@ _COMMANDS = {
 _HELP = "Real outdoor 360° captures -> a SOLID-Net real test set; evaluate and fine-tune SOLID-Net."
 
 
+def _root_options(
+    threads: int | None = typer.Option(
+        None, "--threads", min=1, metavar="N",
+        help=f"Threads for torch, OpenCV and the BLAS libraries (default: ${THREADS_ENV}, else half the cores, "
+             f"at most {MAX_DEFAULT_THREADS}). Products and alignments are the same bytes whatever N is."),
+) -> None:
+    apply_threads(threads)
+
+
 def build_app(only: str | None = None) -> typer.Typer:
     """The ``solidkit`` typer app with every sub-command, or with only the one named ``only`` (what
     :func:`main` runs: the other sub-commands' modules are not imported)."""
     root = typer.Typer(name="solidkit", help=_HELP, no_args_is_help=True, pretty_exceptions_enable=False,
                        add_completion=False)
-    root.callback()(lambda: None)  # a group even when one sub-command is registered
+    root.callback()(_root_options)  # a group even when one sub-command is registered
     for name, (module, attr, help_text) in _GROUPS.items():
         if only in (None, name):
             root.add_typer(getattr(importlib.import_module(module), attr), name=name, help=help_text)
@@ -113,7 +123,9 @@ def _fail(message: str, code: int) -> None:
 def main() -> None:
     """Entry point: user errors become one line on stderr and exit code 2 (unforeseen ones exit 1), never a
     traceback unless ``SOLIDKIT_DEBUG=1`` asks for it."""
-    first = next((a for a in sys.argv[1:] if not a.startswith("-")), None)
+    args = sys.argv[1:]
+    first = next((a for i, a in enumerate(args) if not a.startswith("-") and (i == 0 or args[i - 1] != "--threads")),
+                 None)
     try:
         code = build_app(first if first in _GROUPS or first in _COMMANDS else None)(standalone_mode=False)  # a typer.Exit(n) raised in a command comes back as n here
     except SolidkitError as exc:

@@ -57,6 +57,7 @@ from solidkit import metrics as M
 from solidkit.finetune.evaluate import EvalItem, ModelMethod, evaluate
 from solidkit.finetune.evaluate import items_from_synth, items_from_testset, load_model, summarise_records
 from solidkit.finetune.report import finetune_sections, write_report
+from solidkit.threads import ensure_threads
 from solidkit.fsutil import atomic_write_text
 from solidkit.model.fit import batch_from_synth
 from solidkit.model.losses import solidnet_losses, sun_direction_loss
@@ -424,7 +425,7 @@ def finetune_report(
 
     log = log or (lambda s: None)
     cfg = cfg or FineTuneConfig()
-    torch.set_num_threads(1)
+    ensure_threads()
     if real_items is not None:
         items = list(real_items)
     else:

@@ -32,6 +32,7 @@ from solidkit.envmap.io import tonemap
 from solidkit.envmap.sun import luminance
 from solidkit import metrics as M
 from solidkit.finetune.evaluate import METRICS, EvalItem, Method
+from solidkit.threads import ensure_threads
 from solidkit.fsutil import atomic_path, atomic_write_text
 from solidkit.errors import InputError
 from solidkit.finetune.evaluate import default_methods, evaluate, items_from_panoramas, items_from_synth, items_from_testset, load_model, save_json, shipped_ablations
@@ -351,14 +352,11 @@ def evaluation_report(
     rendered sources) whose ``sun_split`` is seen by the sun protocol (:mod:`solidkit.model.suneval`: the model,
     its network alone, the constant and brightest-column baselines, with the cones' coverage).
     Returns ``{"results": {dataset: result}, "report": path}``."""
-    import torch
-
-
     log = log or (lambda s: None)
     if testset is None and synthetic is None and not panoramas and not sun_crops:
         raise InputError("give a real test set (--testset DIR), a synthetic split (--synthetic DIR), HDR panoramas "
                          "and/or sun-crop folders")
-    torch.set_num_threads(1)  # a 2-core machine shared with other jobs; inference is small
+    ensure_threads()
     datasets: dict[str, Any] = {}
     if testset is not None:
         datasets["real"] = items_from_testset(testset)

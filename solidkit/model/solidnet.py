@@ -42,6 +42,7 @@ from torch import nn
 
 from solidkit.envmap.coords import CONVENTIONS_VERSION, angles_from_direction
 from solidkit.envmap.perspective import intrinsics_from_fov, scale_intrinsics, scale_pixel_coordinates
+from solidkit.threads import ensure_threads
 from solidkit.errors import ConventionsError, InputError, SolidkitError
 from solidkit.fsutil import atomic_write_bytes
 from solidkit.model.config import ConfigError, SolidNetConfig, preset
@@ -218,6 +219,7 @@ class SolidNet(nn.Module):
         probe ``centres (N, 3)`` in metres; ``extra["probe_valid"]`` flags probes whose predicted
         geometry was usable (a pixel on the sky is not).
         """
+        ensure_threads()
         if isinstance(image, (str, os.PathLike)):
             image = read_ldr(image)
         image = np.asarray(image)

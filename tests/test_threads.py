@@ -1,0 +1,45 @@
+"""The thread policy (solidkit.threads)."""
+
+from __future__ import annotations
+
+import cv2
+import pytest
+from threadpoolctl import threadpool_info
+
+from solidkit import threads
+from solidkit.errors import InputError
+
+
+def test_default_is_half_the_cores_within_bounds():
+    assert [threads.default_threads(n) for n in (1, 2, 3, 4, 16, 64)] == [1, 1, 1, 2, 8, 8]
+
+
+def test_an_explicit_count_wins_over_the_environment(monkeypatch):
+    monkeypatch.setenv(threads.THREADS_ENV, "3")
+    assert threads.resolve_threads() == 3
+    assert threads.resolve_threads(2) == 2
+    monkeypatch.setenv(threads.THREADS_ENV, "")
+    assert threads.resolve_threads() == threads.default_threads()
+
+
+@pytest.mark.parametrize("value", ["two", "0", "-1", "1.5"])
+def test_a_bad_count_is_a_clear_error(monkeypatch, value):
+    monkeypatch.setenv(threads.THREADS_ENV, value)
+    with pytest.raises(InputError, match="thread"):
+        threads.resolve_threads()
+
+
+def test_apply_sets_torch_opencv_and_blas_and_deterministic_runs_blas_on_one_thread():
+    import torch
+
+    before = torch.get_num_threads(), cv2.getNumThreads()
+    try:
+        assert threads.apply_threads(2) == 2
+        assert torch.get_num_threads() == 2 and cv2.getNumThreads() == 2
+        assert {lib["num_threads"] for lib in threadpool_info() if lib["user_api"] == "blas"} == {2}
+        with threads.deterministic():
+            assert {lib["num_threads"] for lib in threadpool_info() if lib["user_api"] == "blas"} == {1}
+        assert threads.ensure_threads() == 2  # a count the process set is kept
+    finally:
+        threads.apply_threads(before[0])
+        cv2.setNumThreads(before[1])
