@@ -358,3 +358,21 @@ def test_a_merged_bracket_is_the_same_whatever_the_thread_count():
     digests = {subprocess.run([sys.executable, "-c", _THREADED_MERGE, str(n), *map(str, frames)], check=True,
                               capture_output=True, text=True, timeout=300).stdout.strip() for n in (1, 2)}
     assert len(digests) == 1, digests
+
+
+def test_raw_bracket_shift_is_applied(monkeypatch):
+    """A raw frame that registers with a shift is moved (RawImage is frozen: a new one replaces it)."""
+    import solidkit.capture.bracket_merge as bm
+
+    rng = np.random.default_rng(0)
+    base = cv2.GaussianBlur(rng.random((128, 192, 3)).astype(np.float32), (0, 0), 3) * 0.5
+    frames = {}
+    for k, (e, dx) in enumerate([(0.5, 0), (1.0, 0), (2.0, 3)]):
+        lin = np.clip(np.roll(base * e, dx, axis=1), 0, 1).astype(np.float32)
+        frames[f"f{k}.dng"] = RawImage(lin, np.zeros(lin.shape[:2], bool), [0.0], 1.0, [1.0] * 3, "srgb")
+    monkeypatch.setattr(bm, "is_raw_file", lambda p: True)
+    monkeypatch.setattr(bm, "read_raw", lambda p, wb=None: frames[Path(p).name])
+    _, prov = bm.merge_bracket(list(frames), [0.5, 1.0, 2.0], align=True)
+    reg = prov["registration"]
+    assert reg["applied"] == [False, False, True]
+    assert reg["shifts_px"][2][0] == pytest.approx(3.0, abs=0.1)

@@ -45,7 +45,7 @@ class ShotInfo:
     sequence: int | None = None
     exposure: float | None = None
     camera: str = ""
-    size: tuple[int, int] | None = None
+    size: tuple[int | None, int | None] | None = None
     name: str = ""
     gain: float = 1.0
 
@@ -86,7 +86,7 @@ def group_brackets(shots: Sequence[ShotInfo], *, max_gap_s: float = 10.0) -> lis
     The result is deterministic: groups are ordered by their first shot (camera, time,
     sequence, name).
     """
-    by_camera: dict[tuple[str, tuple[int, int] | None], list[ShotInfo]] = {}
+    by_camera: dict[tuple[str, tuple[int | None, int | None] | None], list[ShotInfo]] = {}
     for s in shots:
         by_camera.setdefault((s.camera, s.size), []).append(s)
     groups: list[list[ShotInfo]] = []

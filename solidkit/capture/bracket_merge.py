@@ -19,9 +19,10 @@ header and the manifest.
 
 from __future__ import annotations
 
+import dataclasses
 import os
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Any, Sequence, cast
 
 import numpy as np
 from PIL import Image
@@ -71,10 +72,10 @@ def merge_bracket(paths: Sequence[str | Path], exposures: Sequence[float], *, re
                               ghost_k=ghost_k, deghost=deghost, wb=wb)
 
 
-def _merge_bracket(paths: Sequence[str | Path], exposures: Sequence[float], *, response: np.ndarray | None,
+def _merge_bracket(sources: Sequence[str | Path], exposures: Sequence[float], *, response: np.ndarray | None,
                    response_record: dict[str, Any] | None, align: bool, ghost_k: float, deghost: bool, wb: Any
                    ) -> tuple[MergeResult, dict[str, Any]]:
-    paths = [Path(p) for p in paths]
+    paths = [Path(p) for p in sources]
     warnings: list[str] = []
     decoded = []
     for p in paths:
@@ -92,7 +93,8 @@ def _merge_bracket(paths: Sequence[str | Path], exposures: Sequence[float], *, r
 
     def frames_with(curve: np.ndarray | None) -> list[Frame]:
         if ldr:
-            return [frame_from_ldr(c, t, curve, name=p.name) for (c, _), t, p in zip(decoded, exposures, paths)]
+            return [frame_from_ldr(cast(np.ndarray, c), t, curve, name=p.name)
+                    for (c, _), t, p in zip(decoded, exposures, paths)]
         return [frame_from_raw(r, t, name=p.name) for (_, r), t, p in zip(decoded, exposures, paths)]
 
     registration = None
@@ -100,19 +102,22 @@ def _merge_bracket(paths: Sequence[str | Path], exposures: Sequence[float], *, r
         provisional = frames_with(response)  # sRGB (or the given curve) is enough to find shifts
         reg = register_frames([f.codes if ldr else np.clip(f.linear * 255, 0, 255).astype(np.uint8) for f in provisional],
                               [f.linear for f in provisional], list(exposures),
-                              [f.valid().all(axis=-1) for f in provisional])
+                              [cast(np.ndarray, f.valid().all(axis=-1)) for f in provisional])
         warnings += reg.warnings
         registration = reg.to_json()
         for i, (dx, dy) in enumerate(reg.shifts):
             if reg.applied[i]:
                 c, r = decoded[i]
                 if ldr:
-                    decoded[i] = (shift_image(c, dx, dy), None)
+                    decoded[i] = (shift_image(cast(np.ndarray, c), dx, dy), None)
                 else:
-                    r.linear = shift_image(np.asarray(r.linear, np.float32), dx, dy)
-                    r.saturated = shift_image(np.asarray(r.saturated, np.uint8), dx, dy).astype(bool)
-    if ldr and all(c.dtype == np.uint8 for c, _ in decoded):
-        curve, record, w = response_for_bracket([c for c, _ in decoded], list(exposures), response, response_record)
+                    assert r is not None  # a raw frame
+                    decoded[i] = (None, dataclasses.replace(  # RawImage is frozen
+                        r, linear=shift_image(np.asarray(r.linear, np.float32), dx, dy),
+                        saturated=shift_image(np.asarray(r.saturated, np.uint8), dx, dy).astype(bool)))
+    if ldr and all(cast(np.ndarray, c).dtype == np.uint8 for c, _ in decoded):
+        curve, record, w = response_for_bracket([cast(np.ndarray, c) for c, _ in decoded], list(exposures), response,
+                                                response_record)
         warnings += w
     elif ldr:  # 16-bit frames: the given curve, else sRGB (looked up at fractional codes)
         curve, record, w = response_for_bracket(None, list(exposures), response, response_record)
@@ -142,6 +147,7 @@ def _bracket_infos(paths: Sequence[Path], times: Sequence[float] | None) -> list
                 meta = CaptureMetadata(path=str(p), width=im.width, height=im.height, warnings=["no_exif: PNG file"])
         else:
             meta = read_metadata(p)
+        t: float | None
         if times is not None:
             t = float(times[i])
             if not (np.isfinite(t) and t > 0):
@@ -183,10 +189,10 @@ def merge_files(
     registration shifts, warnings, parameters, solidkit version, merge statistics). Returns one
     summary dict per written file.
     """
-    paths = [Path(p) for p in paths]
-    if not paths:
+    files = [Path(p) for p in paths]
+    if not files:
         raise InputError("no frames given")
-    if len(set(p.resolve() for p in paths)) != len(paths):
+    if len(set(p.resolve() for p in files)) != len(files):
         raise InputError("the same file is given more than once")
     out = Path(out)
     if out.suffix.lower() != ".exr":
@@ -198,7 +204,7 @@ def merge_files(
     given_record: dict[str, Any] | None = (
         {"kind": "file", "path": str(response_path), "sha256": sha256_file(response_path)} if response_path is not None
         else {"kind": "array"} if response is not None else None)
-    infos = _bracket_infos(paths, times)
+    infos = _bracket_infos(files, times)
     if group and times is None:
         shots = [
             ShotInfo(
@@ -212,7 +218,7 @@ def merge_files(
     else:
         brackets = [infos]
     outputs = [out] if len(brackets) == 1 else [out.with_name(f"{out.stem}-{i + 1}{out.suffix}") for i in range(len(brackets))]
-    summaries = []
+    summaries: list[dict[str, Any]] = []
     for bracket, target in zip(brackets, outputs):
         if len(bracket) < 2:
             raise InputError(f"{bracket[0][0].name} forms a bracket of one frame (by time/sequence/exposure); "

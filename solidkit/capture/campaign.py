@@ -127,8 +127,8 @@ def _clean_temporaries(campaign: Path) -> int:
                     p.chmod(stat.S_IRUSR | stat.S_IWUSR)
                     p.unlink(missing_ok=True)
                     n += 1
-    for f in campaign.glob(f".{MANIFEST_NAME}.*"):
-        f.unlink(missing_ok=True)
+    for temp in campaign.glob(f".{MANIFEST_NAME}.*"):
+        temp.unlink(missing_ok=True)
     return n
 
 
@@ -275,10 +275,10 @@ def ingest(
         todo: list[tuple] = []
         for rel in captures:
             st = (card / rel).stat()
-            key = (cstr, rel.as_posix(), st.st_size, st.st_mtime_ns)
-            if key in by_source:
+            source_key = (cstr, rel.as_posix(), st.st_size, st.st_mtime_ns)
+            if source_key in by_source:
                 report.unchanged += 1
-            elif key in bad:
+            elif source_key in bad:
                 report.known_errors += 1
             else:
                 todo.append((cstr, rel.as_posix(), str(campaign), throttle))

@@ -173,7 +173,7 @@ def lookup(codes: np.ndarray, table: np.ndarray) -> np.ndarray:
     """
     table = np.asarray(table)
     is_bool = table.dtype == bool
-    t = table.astype(np.uint8) if is_bool else table.astype(np.float32)
+    t: np.ndarray = table.astype(np.uint8) if is_bool else table.astype(np.float32)
     if t.ndim == 2:
         t = np.ascontiguousarray(t.reshape(256, 1, t.shape[1]))
     out = cv2.LUT(np.ascontiguousarray(codes), t)
@@ -252,6 +252,7 @@ class Frame:
         valid = self.valid().copy()
         if self.is_raw:
             return np.abs(np.sqrt(np.clip(self.linear, 0.0, None)) - np.sqrt(np.clip(x, 0.0, None))), valid
+        assert self.response is not None  # an LDR frame
         grid = np.arange(256, dtype=np.float64) / 255.0
         for c in range(3):
             lo = np.interp(self.black, grid, self.response[:, c])
@@ -286,6 +287,7 @@ class Frame:
         x = radiance * np.float32(self.exposure)
         if self.is_raw:
             return np.sqrt(np.clip(x, 0.0, None))
+        assert self.response is not None  # an LDR frame
         codes = np.arange(256, dtype=np.float64) / 255.0
         out = np.empty_like(x, dtype=np.float32)
         for c in range(3):
@@ -359,9 +361,9 @@ def read_ldr_codes(path: str | os.PathLike) -> np.ndarray:
     """
     path = Path(path)
     try:
-        with Image.open(path) as im:
-            im.load()
-            im = ImageOps.exif_transpose(im)
+        with Image.open(path) as src:
+            src.load()
+            im = ImageOps.exif_transpose(src)
             if im.mode in ("I;16", "I;16B", "I"):
                 arr = np.asarray(im, dtype=np.uint16)
                 arr = np.repeat(arr[..., None], 3, axis=2)
@@ -544,9 +546,9 @@ def merge_frames(
     if deghost and ghost.any():
         rf = frames[ref]
         for sl in _blocks(h):
-            sub = _rows(rf, sl)
-            ok = ghost[sl][..., None] & sub.valid()
-            hdr[sl][ok] = sub.linear[ok] / np.float32(rf.exposure)
+            ref_rows = _rows(rf, sl)
+            ok = ghost[sl][..., None] & ref_rows.valid()
+            hdr[sl][ok] = ref_rows.linear[ok] / np.float32(rf.exposure)
     return MergeResult(
         hdr=hdr,
         weight_sum=weight_sum,

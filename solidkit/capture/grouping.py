@@ -41,7 +41,7 @@ from __future__ import annotations
 
 from datetime import datetime, timedelta
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 from solidkit.capture.bracket_groups import format_exposure
 from solidkit.capture.card import folder_layout
@@ -178,8 +178,8 @@ def group_shots(manifest: Manifest) -> None:
                     s.kind, s.bracket = "bracket_member", b.id
             else:
                 s = gs[0]
-                e = _exposure(s)
-                s.kind = "low_exposure" if e is not None and e <= g.low_exposure_max_s else "probe"
+                exposure = _exposure(s)
+                s.kind = "low_exposure" if exposure is not None and exposure <= g.low_exposure_max_s else "probe"
         candidates = [s for s in members if s.kind == "low_exposure"] or [
             s for s in members if s.kind == "bracket_member" and (_exposure(s) or 1e9) <= g.low_exposure_max_s]
         if candidates:
@@ -221,7 +221,7 @@ def _availability_warnings(probe: Probe, members: list[Shot], g: GroupingParams)
             why = f"{len(members)} shots, some without an exposure time in their metadata"
         else:
             times = [shot_time(s) for s in members]
-            gaps = [(tb - _end(a)).total_seconds() for a, ta, tb in zip(members, times, times[1:])
+            gaps = [(tb - cast(datetime, _end(a))).total_seconds() for a, ta, tb in zip(members, times, times[1:])
                     if ta is not None and tb is not None]
             gap_text = f"; gaps {', '.join(f'{x:.0f} s' for x in gaps[:8])}" if gaps else ""
             why = (f"{len(members)} shots ({listed}) but no two distinct exposures within bracket_gap_s "

@@ -72,7 +72,7 @@ def _ranks(img: np.ndarray, mask: np.ndarray) -> np.ndarray:
 
 def shift_image(image: np.ndarray, dx: float, dy: float) -> np.ndarray:
     """``image`` with its content moved by ``(-dx, -dy)`` (undoing a measured shift), edges replicated."""
-    M = np.float32([[1, 0, -dx], [0, 1, -dy]])
+    M = np.array([[1, 0, -dx], [0, 1, -dy]], np.float32)
     h, w = image.shape[:2]
     interp = cv2.INTER_LINEAR if abs(dx - round(dx)) > 1e-6 or abs(dy - round(dy)) > 1e-6 else cv2.INTER_NEAREST
     return cv2.warpAffine(image, M, (w, h), flags=interp, borderMode=cv2.BORDER_REPLICATE)
@@ -104,17 +104,22 @@ def register_frames(codes: Sequence[np.ndarray], linear: Sequence[np.ndarray], e
     shifts, scores, applied, warnings = [], [], [], []
     for i in range(n):
         if i == ref:
-            shifts.append((0.0, 0.0)), scores.append(1.0), applied.append(False)
+            shifts.append((0.0, 0.0))
+            scores.append(1.0)
+            applied.append(False)
             continue
         cx = cy = 0.0
-        if gray[i] is not None and gray[ref] is not None:
-            mx, my = mtb.calculateShift(gray[ref], gray[i])  # how to move frame i onto the reference
+        gray_ref, gray_i = gray[ref], gray[i]
+        if gray_i is not None and gray_ref is not None:
+            mx, my = mtb.calculateShift(gray_ref, gray_i)  # how to move frame i onto the reference
             cx, cy = -float(mx), -float(my)  # the content's displacement
         mask = cv2.erode(ok[ref] & ok[i], kernel)
         if int(mask.sum()) < max(500, 0.005 * mask.size):
             # nothing in common to register on (e.g. a 1/25000 s sun frame: black but for the sun); it
             # contributes only where the others clip, so it is merged unshifted without a warning
-            shifts.append((0.0, 0.0)), scores.append(float("nan")), applied.append(False)
+            shifts.append((0.0, 0.0))
+            scores.append(float("nan"))
+            applied.append(False)
             continue
         a, b = _ranks(lum[ref], mask), _ranks(lum[i], mask)
         # ECC's warp maps reference coordinates into frame i: x_i = x_ref + (dx, dy). Started from no
@@ -122,7 +127,7 @@ def register_frames(codes: Sequence[np.ndarray], linear: Sequence[np.ndarray], e
         # (a smooth gradient); the better correlation wins, the smaller shift on a tie.
         best = None
         for sx, sy in {(0.0, 0.0), (cx, cy)}:
-            warp = np.float32([[1, 0, sx * scale], [0, 1, sy * scale]])
+            warp: np.ndarray = np.array([[1, 0, sx * scale], [0, 1, sy * scale]], np.float32)
             try:
                 # a 5x5 Gaussian first: rank images of noisy frames are noisy (unfiltered, a (-0.7, 0.8) px
                 # shift of a 256x128 bracket came out as (-0.46, 0.55))
@@ -138,8 +143,11 @@ def register_frames(codes: Sequence[np.ndarray], linear: Sequence[np.ndarray], e
         if cc < min_correlation or abs(dx) > max_shift_px or abs(dy) > max_shift_px:
             warnings.append(f"frame_not_registered: frame {i} (exposure {exposures[i]:.6g}) does not register "
                             f"(correlation {cc:.3f}, shift ({dx:.2f}, {dy:.2f}) px); merged unshifted")
-            shifts.append((dx, dy)), scores.append(float(cc)), applied.append(False)
+            shifts.append((dx, dy))
+            scores.append(float(cc))
+            applied.append(False)
             continue
-        shifts.append((dx, dy)), scores.append(float(cc))
+        shifts.append((dx, dy))
+        scores.append(float(cc))
         applied.append(bool(max(abs(dx), abs(dy)) >= min_shift_px))
     return Registration(ref, shifts, scores, applied, warnings)

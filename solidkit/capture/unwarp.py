@@ -41,7 +41,7 @@ import shutil
 import time
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 import cv2
 import numpy as np
@@ -217,8 +217,8 @@ def unwarp(
             out = v
         else:
             out += v
-        warped[i] = None
-    return out
+        warped[i] = None  # type: ignore[call-overload]  # each lens' image freed once blended
+    return cast(np.ndarray, out)  # a profile has at least one lens
 
 
 def unwarp_srgb8(
@@ -249,9 +249,9 @@ def unwarp_srgb8(
         raise InputError("unwarp_srgb8 needs an (H, W, C) uint8 image")
     h, w = image.shape[:2]
     if len(profile.lenses) != 2 or vignetting is not None:
-        lin = unwarp(image, profile, out_height, R_level, feather_deg=feather_deg, gain_match=gain_match,
-                     cache_dir=cache_dir, stats=stats, vignetting=vignetting)
-        return encode_srgb8(lin)
+        linear = unwarp(image, profile, out_height, R_level, feather_deg=feather_deg, gain_match=gain_match,
+                        cache_dir=cache_dir, stats=stats, vignetting=vignetting)
+        return encode_srgb8(linear)
     maps, source = get_cut_maps(profile, (w, h), out_height, R_level, feather_deg, cache_dir)
     dec, _ = srgb8_luts()
     C = image.shape[2]
@@ -278,7 +278,8 @@ def unwarp_srgb8(
     if out.ndim == 2:
         out = out[..., None]
     if not np.allclose(gains, 1.0):  # each lens' gain, exactly in linear light, through an 8-bit table enc(g dec(v))
-        tables = [encode_srgb8(dec[:, None] * gains[i].astype(np.float32)[None, :]).reshape(256, 1, C) for i in range(2)]
+        tables: list[np.ndarray] = [encode_srgb8(dec[:, None] * gains[i].astype(np.float32)[None, :]).reshape(256, 1, C)
+                                    for i in range(2)]
         if C == 1:
             tables = [t.reshape(256, 1) for t in tables]
         lens0 = cv2.LUT(out, tables[0])
@@ -322,7 +323,7 @@ def render_fisheye(
             out = np.zeros((H, W, vals.shape[-1]), np.float32)
         out[sel] = vals
         taken |= sel
-    return out
+    return cast(np.ndarray, out)  # a profile has at least one lens
 
 
 def _write_srgb8(path: Path, enc: np.ndarray, bgr: bool = False) -> None:
@@ -474,6 +475,7 @@ def unwarp_file(
     )
     stitched = meta is not None and meta.image_type == "equirect" and profile is None
     if stitched:
+        assert meta is not None
         if vprof is not None:
             summary["warnings"].append("vignetting_ignored: stitched input; the camera applied its own lens corrections")
         w, h = meta.width, meta.height
