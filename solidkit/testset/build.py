@@ -45,7 +45,7 @@ import tempfile
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 import cv2
 import numpy as np
@@ -254,6 +254,7 @@ class _Builder:
         small, K_model, box = resize_crop(image, K_full, MODEL_INPUT_SIZE)
         d = f"scenes/{sid}"
         self.root.joinpath(d).mkdir(parents=True, exist_ok=True)
+        assert small is not None  # resize_crop returns an image when given one
         write_ldr(self.root / d / "photo.png", small)
         photo_full = self._copy(src, f"{d}/photo_full{src.suffix.lower()}")
         flags = merge_flags(sa.flags)
@@ -261,15 +262,16 @@ class _Builder:
             flags.append(FlagCode.PHOTO_PITCH_ROLL_ASSUMED_ZERO.value)
 
         yaws: dict[str, tuple[float, Candidate, float | None]] = {}
-        probes, camera = [], None
+        probes: list[Probe] = []
+        camera: CameraCapture | None = None
         for pa in sorted(sa.probes, key=lambda p: (p.role != "camera", p.id)):
             got = self.capture(sid, pa, K_full, K_model, yaws)
             if got is None:
                 continue
             if pa.role == "camera":
-                camera = got
+                camera = cast(CameraCapture, got)
             else:
-                probes.append(got)
+                probes.append(cast(Probe, got))
         if not probes:
             self.report.excluded.append(f"{sid}: no usable probe")
             return None
@@ -403,8 +405,8 @@ class _Builder:
             if out[name] is None:  # align gave none: clipped LDR pixels
                 mask = (size.reshape(size.shape[0], size.shape[1], -1)[..., :3].max(axis=-1) >= SATURATION_LEVEL)
                 out[name] = f"{d}/{name}.png"
-                _write_u8(self.root / out[name], mask.astype(np.float32) * 255.0)
-        sat = imread(self.root / out["saturation"])
+                _write_u8(self.root / cast(str, out[name]), mask.astype(np.float32) * 255.0)
+        sat = imread(self.root / cast(str, out["saturation"]))
         sat = sat if sat.ndim == 2 else sat[..., 0]
         return ProbeImages(ldr=out["ldr"], ldr_full=out["ldr_full"], hdr=out["hdr"], hdr_full=out["hdr_full"],
                            saturation=out["saturation"], saturation_full=out["saturation_full"],
@@ -417,7 +419,7 @@ class _Builder:
                 probe = next((p for p in s.probes if p.id == pid), None)
         if probe is None:
             return ProbeCapture()
-        first = self.shots.get(probe.shots[0]).metadata if probe.shots and probe.shots[0] in self.shots else {}
+        first = self.shots[probe.shots[0]].metadata if probe.shots and probe.shots[0] in self.shots else {}
         bracket = probe.brackets[0] if probe.brackets else None
         hdr = self._product(sid, pid, "hdr")
         sun = self._product(sid, pid, "sun_frame")
@@ -437,6 +439,7 @@ class _Builder:
             "sun_scene", sa.id,
             lambda v: (bool(v["found"]), v.get("azimuth_deg"), v.get("elevation_deg"), v.get("uncertainty_deg")))
         win = choose(auto, label)
+        assert win is not None  # auto is always a candidate
         found, az, el, unc = win.value
         if found and (az is None or el is None):
             raise InputError(f"{sa.id}: sun found without azimuth/elevation ({win.source})")

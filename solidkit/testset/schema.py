@@ -29,7 +29,7 @@ from __future__ import annotations
 import hashlib
 import json
 import math
-from typing import Any, Literal
+from typing import Any, Final, Literal
 
 from typing import Annotated
 
@@ -62,7 +62,7 @@ __all__ = [
     "canonical_json",
 ]
 
-FORMAT = "solidkit-testset"
+FORMAT: Final = "solidkit-testset"
 SCHEMA_VERSION = 1
 MODEL_INPUT_SIZE = (320, 240)  # width, height (paper §4)
 PROBE_SIZE = (256, 128)  # width, height of the paper's local probes (§5.3)

@@ -86,6 +86,7 @@ def _pano_panel(img: np.ndarray, scene: Scene, title: str, colour=(255, 255, 255
     for line in fov_outline(np.asarray(scene.K), scene.photo_size, scene.pitch_deg, scene.roll_deg, h):
         cv2.polylines(pano, [np.round(line * (1 << shift)).astype(np.int32)], False, FOV_COLOUR, 1, cv2.LINE_AA, shift)
     if scene.sun.found:
+        assert scene.sun.azimuth_deg is not None and scene.sun.elevation_deg is not None  # a found sun has both
         u, v = _sun_px(scene.sun.azimuth_deg, scene.sun.elevation_deg, h)
         r = max(4.0, (scene.sun.uncertainty_deg or 0.0) * h / 180.0)
         c = (int(round(u)), int(round(v)))

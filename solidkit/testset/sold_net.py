@@ -95,6 +95,7 @@ def export_sold_net(root: str | os.PathLike, dest: str | os.PathLike) -> dict[st
     for i, scene in enumerate(ts.scenes):
         xxx = f"{i + 1:03d}"
         photo = cv2.imread(str(root / scene.photo), cv2.IMREAD_COLOR)
+        assert photo is not None, f"{root / scene.photo}: OpenCV could not read it"
         _write_image(dest / f"{xxx}_persp.JPG", photo, [cv2.IMWRITE_JPEG_QUALITY, JPEG_QUALITY])
         pos = np.array([[int(round(p.pixel[1])), int(round(p.pixel[0]))] for p in scene.probes], dtype=np.int64).reshape(-1, 2)
         with atomic_path(dest / f"{xxx}_local.npy") as tmp:
@@ -109,6 +110,7 @@ def export_sold_net(root: str | os.PathLike, dest: str | os.PathLike) -> dict[st
             _write_image(dest / f"{xxx}_local_{k}.hdr", np.ascontiguousarray(local[..., ::-1]).astype(np.float32))
             sources.append(source)
         if scene.sun.found:
+            assert scene.sun.azimuth_deg is not None and scene.sun.elevation_deg is not None  # a found sun has both
             col, row = sun_grid_position(scene.sun.azimuth_deg, scene.sun.elevation_deg)
             atomic_write_text(dest / f"{xxx}_sun_pos.txt", f"{col:.6f}\n{row:.6f}\n")
         if len(scene.probes) < 2:
