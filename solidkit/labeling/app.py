@@ -27,7 +27,7 @@ import hmac
 import re
 import secrets
 from pathlib import Path
-from typing import Any, Literal
+from typing import Any, Literal, cast
 
 from fastapi import Depends, FastAPI, HTTPException, Query, Request
 from fastapi.responses import FileResponse, JSONResponse, Response
@@ -256,9 +256,10 @@ def create_app(
         if proposal is None:  # no alignment.json: align's auto label in the store (`solidkit label sun`)
             auto = next((c for c in reversed(history) if c.source == "auto" and c.value), None)
             if auto is not None:
-                proposal = {k: v for k, v in auto.value.items() if k in _WEB_FIELDS[kind]}
+                auto_value = cast("dict[str, Any]", auto.value)  # the search kept a change with a value
+                proposal = {k: v for k, v in auto_value.items() if k in _WEB_FIELDS[kind]}
                 if kind == "sun":
-                    view["candidates"] = view.get("candidates") or auto.value.get("candidates") or []
+                    view["candidates"] = view.get("candidates") or auto_value.get("candidates") or []
                 if kind == "probe_pixel":
                     view["proposal_source"] = "align (geometry)"
         for name in ("image",):

@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 
@@ -101,13 +101,13 @@ def review_item(item: Item, label: Label | None, history: list[Change]) -> Revie
     ops = opinions(history)
     values = {who: ch.value for who, ch in ops.items() if ch.value is not None}
     pair = [distance(item.kind, a, b) for i, a in enumerate(values.values()) for b in list(values.values())[i + 1 :]]
-    pair = [p for p in pair if p is not None]
-    dis = max(pair) if pair else None
+    dists = [p for p in pair if p is not None]
+    dis = max(dists) if dists else None
     human = label is not None and label.source in HUMAN_SOURCES
     auto = item.proposal if item.proposal and (item.kind != "heading" or item.proposal.get("yaw_deg") is not None) else None
     if auto is None:
         auto = next((c.value for c in reversed(history) if c.source == "auto" and c.value), None)
-    vs_auto = distance(item.kind, label.value, auto) if human and auto else None
+    vs_auto = distance(item.kind, cast(Label, label).value, auto) if human and auto else None
     # store flags are the codes of align's flags (or whole flags): keep align's flag only
     extra = [f for f in (label.flags if label else []) if not any(f in (a, Flag.parse(a).code) for a in item.flags)]
     flags = list(dict.fromkeys([*item.flags, *extra]))

@@ -48,7 +48,7 @@ from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from datetime import datetime, timezone
 from pathlib import Path
-from typing import Any, Literal
+from typing import Any, Literal, cast
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
@@ -508,7 +508,7 @@ class LabelStore:
                 return current
             self._apply(con, kind, key, version + 1, "put", annotator, value_json, source, annotator, flags_json,
                         parent=row[8] if row else None)  # fmt: skip
-            return self._label(self._current(con, kind, key))
+            return cast(Label, self._label(cast(tuple, self._current(con, kind, key))))  # the row just written, with a value
 
     def undo(self, kind: str, key: str, annotator: str, *, expected_version: int | None = None) -> Label | None:
         """Restore the state before the label's last applied change; return it (None: absent).
@@ -540,7 +540,7 @@ class LabelStore:
             value_json, source, author, flags_json, grandparent = restored
             self._apply(con, kind, key, version + 1, "undo", annotator, value_json, source, author, flags_json,
                         parent=grandparent)  # fmt: skip
-            return self._label(self._current(con, kind, key))
+            return self._label(cast(tuple, self._current(con, kind, key)))  # the row just written
 
     def _apply(self, con, kind, key, version, op, actor, value_json, source, author, flags_json, *, parent) -> None:
         cur = con.execute(

@@ -162,7 +162,7 @@ class CampaignIndex:
             )
             for probe in scene.probes:
                 key = f"{scene.id}/{probe.id}"
-                aprobe = next((p for p in asc.get("probes", []) if p.get("id") == probe.id), {})
+                aprobe: dict[str, Any] = next((p for p in asc.get("probes", []) if p.get("id") == probe.id), {})
                 role = "camera" if probe.id == cam_probe or probe.role == "camera" else "probe"
                 label = f"{scene.id} · {probe.id}" + (" (camera position)" if role == "camera" else "")
                 sun = products.get((scene.id, probe.id, "sun_frame"))
