@@ -139,6 +139,7 @@ def evaluate(campaign_dir: str | Path, truth_path: str | Path, *, peers: bool = 
                 ref, _ = read_exr(root / ct.probe.hdr_file)
                 ref_t = np.asarray(tonemap(ref))
                 cap = caps[ct.id]
+                assert cap.normal is not None  # the LDR product is made from it
                 md = cap.normal.metadata
                 ours = read_ldr(campaign / pa.products.ldr_256)
                 ours8 = np.round(ours * 255).astype(np.uint8)

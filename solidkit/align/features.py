@@ -97,7 +97,7 @@ def to_grey8(image: np.ndarray, *, linear: bool = True, clahe: bool = True) -> n
 
 
 def _sift(grey: np.ndarray, mask: np.ndarray | None, n_features: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    sift = cv2.SIFT_create(nfeatures=n_features, contrastThreshold=0.02)
+    sift = cv2.SIFT_create(nfeatures=n_features, contrastThreshold=0.02)  # type: ignore[attr-defined]  # not in cv2's stub
     kps, desc = sift.detectAndCompute(grey, None if mask is None else mask.astype(np.uint8) * 255)
     if desc is None or not kps:
         return np.zeros((0, 2)), np.zeros((0, 128), np.float32), np.zeros(0)

@@ -81,6 +81,7 @@ def estimate_rotation(a: np.ndarray, b: np.ndarray, *, threshold: float = math.r
         k = int(np.argmax(counts))
         if counts[k] > best_count:
             best, best_count = Rs[start + k], int(counts[k])
+    assert best is not None  # counts >= 0 > -1: the first chunk sets it
     R = best
     for _ in range(3):
         inl = angular_distance(a @ R.T, b) <= threshold
@@ -141,7 +142,7 @@ def estimate_relative_pose(rays1: np.ndarray, rays2: np.ndarray, *, max_error: f
         pose = refined["cam2_from_cam1"]
     R = np.asarray(pose.rotation.matrix(), np.float64)
     t = np.asarray(pose.translation, np.float64)
-    t = t / max(np.linalg.norm(t), 1e-12)
+    t = t / max(float(np.linalg.norm(t)), 1e-12)
     return PoseFit(R, t, inliers)
 
 

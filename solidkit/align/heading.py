@@ -27,11 +27,12 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import cast
 
 import numpy as np
 
 from solidkit.align.features import Features, match_features, rays_from_pixels
-from solidkit.align.geometry import estimate_level_pose, estimate_rotation
+from solidkit.align.geometry import LevelPoseFit, estimate_level_pose, estimate_rotation
 from solidkit.align.schema import Cue, wrap_deg
 from solidkit.envmap.coords import ypr_from_rotation
 from solidkit.flags import Flag, FlagCode, disagrees_code
@@ -122,7 +123,8 @@ def match_photo(photo: Features, pano: Features, *, K: np.ndarray | None = None,
 def feature_cue(cam: Features, other: Features, yaw_cam_deg: float | None, yaw_cam_sigma: float,
                 *, min_inliers: int = 12, level_sigma_deg: float = 0.3,
                 max_baseline_elevation_deg: float | None = 60.0, ratio: float = 0.85, few_inliers: int = 18,
-                few_inliers_sigma_deg: float = 2.0, reference: str = "the camera position") -> tuple[Cue, object | None]:
+                few_inliers_sigma_deg: float = 2.0,
+                reference: str = "the camera position") -> tuple[Cue, LevelPoseFit | None]:
     """The ``features`` cue of a capture against the camera-position capture (or the capture ``reference``
     names, whose yaw is ``yaw_cam_deg``); also returns the fit.
 
@@ -180,29 +182,32 @@ def fuse_cues(cues: dict[str, Cue], *, n_sigma: float = 3.0, floor_deg: float = 
     if not usable:
         return Fused(None, None, None, [str(Flag(FlagCode.NO_YAW, "no cue gave a yaw"))])
 
+    def yaw_of(c: Cue) -> float:  # only usable cues are asked: they have a yaw and a sigma
+        return cast(float, c.yaw_deg)
+
     def sig(c: Cue) -> float:  # for agreement: no cue is trusted below floor_deg
-        return max(float(c.sigma_deg), floor_deg)
+        return max(float(cast(float, c.sigma_deg)), floor_deg)
 
     def wsig(c: Cue) -> float:  # for weighting: the cue's own precision
-        return max(float(c.sigma_deg), 0.02)
+        return max(float(cast(float, c.sigma_deg)), 0.02)
 
     def agree(a: Cue, b: Cue) -> bool:
-        return abs(wrap_deg(a.yaw_deg - b.yaw_deg)) <= n_sigma * math.hypot(sig(a), sig(b))
+        return abs(wrap_deg(yaw_of(a) - yaw_of(b))) <= n_sigma * math.hypot(sig(a), sig(b))
 
     order = sorted(usable, key=lambda k: sig(usable[k]))
     seed = next((k for k in order if any(agree(usable[k], usable[j]) for j in order if j != k)), order[0])
     members = [k for k in order if k == seed or agree(usable[seed], usable[k])]
-    yaw = usable[seed].yaw_deg
+    yaw = yaw_of(usable[seed])
     for _ in range(3):
         w = np.array([1.0 / wsig(usable[k]) ** 2 for k in members])
-        ang = np.radians([usable[k].yaw_deg for k in members])
+        ang = np.radians([yaw_of(usable[k]) for k in members])
         yaw = math.degrees(math.atan2(float(np.sum(w * np.sin(ang))), float(np.sum(w * np.cos(ang)))))
-        members = [k for k in order if abs(wrap_deg(usable[k].yaw_deg - yaw)) <= n_sigma * sig(usable[k])] or [seed]
+        members = [k for k in order if abs(wrap_deg(yaw_of(usable[k]) - yaw)) <= n_sigma * sig(usable[k])] or [seed]
     w = np.array([1.0 / wsig(usable[k]) ** 2 for k in members])
     sigma = 1.0 / math.sqrt(float(w.sum()))
-    res = [wrap_deg(usable[k].yaw_deg - yaw) for k in members]
+    res = [wrap_deg(yaw_of(usable[k]) - yaw) for k in members]
     for k, c in usable.items():
-        c.residual_deg = wrap_deg(c.yaw_deg - yaw)
+        c.residual_deg = wrap_deg(yaw_of(c) - yaw)
         c.ok = k in members
         c.weight = float(1.0 / wsig(c) ** 2 / w.sum()) if c.ok else 0.0
         if not c.ok:

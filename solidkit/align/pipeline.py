@@ -42,7 +42,7 @@ import os
 import re
 from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any, Callable, cast
 
 import numpy as np
 
@@ -156,7 +156,7 @@ def _photo_info(campaign: Path, manifest: Manifest, scene: Scene) -> tuple[Photo
     try:
         K, source = intrinsics_from_exif(meta)
     except IntrinsicsError as exc:
-        K, source = intrinsics_from_fov(meta.width, meta.height, math.radians(60.0)), "assumed-hfov-60"
+        K, source = intrinsics_from_fov(math.radians(60.0), meta.width, meta.height), "assumed-hfov-60"
         flags.append(str(Flag(FlagCode.NO_INTRINSICS, f"{exc}; a 60 deg field of view is assumed")))
     heading = getattr(scene, "photo_heading_deg", None)
     if heading is None:
@@ -418,6 +418,7 @@ def sun_inputs(campaign: Path, scene_id: str, views: list[CaptureView], cues: di
         else:
             note = "no sun frame (no low-exposure shot at this position)"
         if human is not None and human.found:
+            assert human.azimuth_deg is not None and human.elevation_deg is not None  # a found sun has both
             d = v.C @ direction_from_angles(math.radians(human.azimuth_deg), math.radians(human.elevation_deg))
             az, el = (math.degrees(float(x)) for x in angles_from_direction(d))
             human = human.model_copy(update={"azimuth_deg": wrap_deg(az), "elevation_deg": el})
@@ -436,6 +437,7 @@ def sun_cues(views: list[CaptureView], cues: dict[str, dict[str, Cue]], sun: Sce
     for v, cs in zip(views, sun.captures):
         if not cs.found:
             continue
+        assert cs.azimuth_deg is not None and cs.elevation_deg is not None  # a found sun has both
         az, el = at_photo_time(cs.azimuth_deg, cs.elevation_deg, v.ephemeris, photo_eph, sun_moves=s.sun.sun_moves)
         pts[v.id] = (az, el, cs.uncertainty_deg or 0.1)
     out: dict[str, Cue] = {}
@@ -451,7 +453,8 @@ def sun_cues(views: list[CaptureView], cues: dict[str, dict[str, Cue]], sun: Sce
             if other is v or other.id not in pts:
                 continue
             oc = cues[other.id]
-            y_other = oc and fuse_cues({k: c.model_copy() for k, c in oc.items() if k not in ("sun", "compass")})
+            y_other = (fuse_cues({k: c.model_copy() for k, c in oc.items() if k not in ("sun", "compass")})
+                       if oc else None)
             if y_other is None or y_other.yaw_deg is None:
                 continue
             az_o, el_o, unc_o = pts[other.id]
@@ -517,7 +520,7 @@ def sun_stage(views: list[CaptureView], cues: dict[str, dict[str, Cue]], inputs:
             chi2 += r**2 / ((sc.sigma_deg or 1.0) ** 2 + (f.sigma_deg or 1.0) ** 2)
             n += 1
         # the elevations of one sun seen from every position agree (no yaw involved)
-        els = [(cs.elevation_deg, v) for v, cs in zip(views, sun.captures) if cs.found]
+        els = [(cast(float, cs.elevation_deg), v) for v, cs in zip(views, sun.captures) if cs.found]  # found: set
         if len(els) >= 2:
             moved = [at_photo_time(0.0, e, v.ephemeris, photo_eph, sun_moves=ss.sun.sun_moves)[1] for e, v in els]
             sig_el = math.hypot(s.sun.level_sigma_deg, s.sun.centroid_sigma_deg)
@@ -543,6 +546,7 @@ def explain_rejections(sun: SceneSun, outranked: frozenset[tuple[str, int]], pro
     final yaw gives: how far from the scene's sun they are in the photo's panorama frame (in place)."""
     if not sun.found or sun.azimuth_deg is None:
         return
+    assert sun.elevation_deg is not None  # set with the azimuth
     yaws = {p.id: p.yaw_deg for p in probes}
     for cs in sun.captures:
         yaw = yaws.get(cs.probe)
@@ -572,6 +576,7 @@ def _capture_sun_to_product_frame(cs: CaptureSun, C: np.ndarray) -> None:
         return wrap_deg(a), e
 
     if cs.found:  # (a human label comes back to its own numbers)
+        assert cs.azimuth_deg is not None and cs.elevation_deg is not None
         cs.azimuth_deg, cs.elevation_deg = back(cs.azimuth_deg, cs.elevation_deg)
     for c in cs.candidates:
         c.azimuth_deg, c.elevation_deg = back(c.azimuth_deg, c.elevation_deg)
@@ -673,7 +678,7 @@ def manhattan_cues(views: list[CaptureView], cues: dict[str, dict[str, Cue]], s:
             why = "too few line segments" if f is None else f"no clear street direction (ambiguity {f.ambiguity:.2f})"
             out[v.id] = Cue(yaw_deg=None, ok=False, detail=f"manhattan: {why}")
             continue
-        compass = float(cues[v.id]["compass"].yaw_deg)
+        compass = float(cast(float, cues[v.id]["compass"].yaw_deg))  # a lone capture has a compass yaw
         base = ref - f.azimuth_deg
         yaw = wrap_deg(base + 90.0 * round((compass - base) / 90.0))
         sigma = math.hypot(f.sigma_deg, ref_sigma, s.manhattan_model_sigma_deg)
@@ -732,22 +737,24 @@ def link_cues(views: list[CaptureView], cues: dict[str, dict[str, Cue]], s: Alig
     for a, b in pairs:
         if b.id not in lone_ids:
             a, b = b, a  # b is lone
-        rel = []
+        rel: list[tuple[str, float, float, str]] = []
+        assert a.features is not None and b.features is not None  # lone and known captures have features
         cue, fit = feature_cue(a.features, b.features, 0.0, 0.0, level_sigma_deg=s.sun.level_sigma_deg,
                                max_baseline_elevation_deg=s.max_baseline_elevation_deg, ratio=s.match_ratio)
         if cue.yaw_deg is not None:
+            assert cue.sigma_deg is not None and fit is not None  # a cue with a yaw has its sigma and fit
             rel.append(("features", cue.yaw_deg, cue.sigma_deg, f"{fit.n_inliers} inliers"))
         if a.id in sky and b.id in sky:
-            r, why = relative_sky_yaw(sky[a.id], sky[b.id], min_overlap=s.sky_min_overlap,
-                                      correlation_px=s.sky_correlation_px, min_delta_chi2=s.sky_min_delta_chi2)
-            if r is not None:
-                drift, what = 0.0, f"sigma {r.sigma_deg:.2f} deg"
+            sky_fit, why = relative_sky_yaw(sky[a.id], sky[b.id], min_overlap=s.sky_min_overlap,
+                                            correlation_px=s.sky_correlation_px, min_delta_chi2=s.sky_min_delta_chi2)
+            if sky_fit is not None:
+                drift, what = 0.0, f"sigma {sky_fit.sigma_deg:.2f} deg"
                 if (sun_moves and a.ephemeris is not None and b.ephemeris is not None
                         and hours_apart(a.ephemeris, b.ephemeris) <= DRIFT_HOURS):
                     drift = wrap_deg(b.ephemeris.azimuth_deg - a.ephemeris.azimuth_deg)
                     what += f", sun drift {drift:+.2f} deg applied"
-                yaw = without_sun_drift(r.yaw_deg, 0.0, drift)
-                rel.append(("sky", yaw, r.sigma_deg, what))
+                yaw = without_sun_drift(sky_fit.yaw_deg, 0.0, drift)
+                rel.append(("sky", yaw, sky_fit.sigma_deg, what))
         for kind, yaw, sig, what in rel:
             if a.id in known:
                 ya, sa, street = known[a.id]
@@ -759,7 +766,8 @@ def link_cues(views: list[CaptureView], cues: dict[str, dict[str, Cue]], s: Alig
         log(f"links {a.id}-{b.id}: " + (", ".join(f"{k} {y:+.2f}+-{g:.2f}" for k, y, g, _ in rel) or "none"))
     for v in lone:
         c = cues[v.id]["compass"]
-        links.append(Link(GROUND, v.id, float(c.yaw_deg), float(c.sigma_deg or s.sun.compass_sigma_deg), "compass"))
+        links.append(Link(GROUND, v.id, float(cast(float, c.yaw_deg)), float(c.sigma_deg or s.sun.compass_sigma_deg),
+                          "compass"))
     solved = solve_links(lone_ids, links)
     out = LinkStage()
     for v in lone:
@@ -960,6 +968,7 @@ def align_scene(campaign: Path, manifest: Manifest, scene: Scene, settings: Alig
     photo = pst.photo
     scene_flags += pst.flags
     if pst.cue is not None:
+        assert cam is not None  # the photo is matched against the camera position's capture
         cues[cam.id]["photo_features"] = pst.cue
     for v in views:
         cues[v.id]["compass"] = compass_cue(v, heading_p, s)

@@ -77,6 +77,8 @@ def write_products(campaign: Path, manifest: Manifest, scene: Scene, sa: SceneAl
         # body -> photo panorama frame, applied on top of the levelling each source was made with
         R_total = body_to_pano(pa.yaw_deg, pa.levelling.pitch_deg, pa.levelling.roll_deg)
         if cap.normal is not None:
+            assert files.ldr_full is not None and files.ldr_256 is not None  # named above for a normal shot
+            assert files.saturation_full is not None and files.saturation_256 is not None
             ldr = load_normal_panorama(campaign, manifest, cap.normal, R_total @ levelling_of(cap.normal)[2].T)
             write_ldr(campaign / files.ldr_full, ldr)
             lin = np.asarray(srgb_decode(ldr.astype(np.float32) / 255.0), np.float32)
@@ -87,6 +89,7 @@ def write_products(campaign: Path, manifest: Manifest, scene: Scene, sa: SceneAl
             sat_small = np.asarray(resize(sat, out_h)) > 0.0
             write_ldr(campaign / files.saturation_256, (sat_small * 255).astype(np.uint8))
         if cap.hdr_path:
+            assert files.hdr_full is not None and files.hdr_256 is not None  # named above for an HDR product
             hdr = read_hdr(campaign, cap.hdr_path)
             R_hdr = R_total @ levelling_of(manifest.shot(cap.hdr_inputs[0]))[2].T
             full = np.clip(np.asarray(rotate(hdr, R_hdr, "linear")), 0.0, None).astype(np.float32)

@@ -34,6 +34,7 @@ _YELLOW, _GREEN, _RED, _CYAN, _WHITE = (255, 220, 0), (0, 230, 0), (255, 40, 40)
 def _fov_outline(sa: SceneAlignment, height: int, n: int = 60) -> list[np.ndarray]:
     """Equirect polylines ``(k, 2)`` of the photo's border in the photo's panorama frame (split at the seam)."""
     p = sa.photo
+    assert p is not None  # drawn only for a scene with a photo
     w, h = p.size
     K = np.asarray(p.K_full)
     t = np.linspace(0.0, 1.0, n)
@@ -94,6 +95,7 @@ def scene_picture(campaign: Path, sa: SceneAlignment) -> np.ndarray:
             for seg in _fov_outline(sa, PANEL_H):
                 cv2.polylines(img, [np.round(seg - 0.5).astype(np.int32)], False, _WHITE, 1, cv2.LINE_AA)
         if sa.sun.found and sa.sun.azimuth_deg is not None:
+            assert sa.sun.elevation_deg is not None  # set with the azimuth
             _mark(img, sa.sun.azimuth_deg, sa.sun.elevation_deg, "circle", _YELLOW)
         cs = suns.get(pa.id)
         if cs is not None and pa.yaw_deg is not None:
@@ -101,6 +103,7 @@ def scene_picture(campaign: Path, sa: SceneAlignment) -> np.ndarray:
                 if not cand.chosen:
                     _mark(img, wrap_deg(cand.azimuth_deg + pa.yaw_deg), cand.elevation_deg, "x", _RED)
             if cs.found:
+                assert cs.azimuth_deg is not None and cs.elevation_deg is not None  # a found sun has both
                 _mark(img, wrap_deg(cs.azimuth_deg + pa.yaw_deg), cs.elevation_deg, "cross", _GREEN)
         flags = ", ".join(flag_codes(pa.flags))
         _label(img, f"{pa.id} ({pa.role}) yaw {pa.yaw_deg:+.2f} deg" + (f"  [{flags}]" if flags else ""),

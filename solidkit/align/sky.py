@@ -88,7 +88,7 @@ def sky_layer(pano: np.ndarray, *, height: int = 256, min_elevation_deg: float =
         For a decoded LDR panorama: pixels with a channel at or above this value (clipped sky
         carries no pattern) are left out.
     """
-    img = np.asarray(pano, np.float32)
+    img: np.ndarray = np.asarray(pano, np.float32)
     if img.ndim != 3 or img.shape[2] < 3 or img.shape[1] != 2 * img.shape[0]:
         raise ValueError(f"sky_layer: expected an (H, 2H, 3) panorama, got {img.shape}")
     img = np.ascontiguousarray(img[..., :3])

@@ -37,7 +37,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 from functools import cached_property
-from typing import NamedTuple
+from typing import NamedTuple, cast
 
 import cv2
 import numpy as np
@@ -281,7 +281,9 @@ class SunScene:
         """Azimuth of candidate ``bi`` of capture ``ci`` in the photo's panorama frame through the capture's
         compass yaw (unwrapped; the caller checks ``compass_yaw_deg`` is known)."""
         az, _ = self.at_photo_time(ci, bi)
-        return az + self.captures[ci].compass_yaw_deg
+        compass_yaw_deg = self.captures[ci].compass_yaw_deg
+        assert compass_yaw_deg is not None  # checked by the caller
+        return az + compass_yaw_deg
 
     def agrees(self, h_az: float | None, h_el: float, h_sig: float, ci: int, bi: int) -> Agreement:
         """Candidate ``bi`` of capture ``ci`` against a hypothesis at ``(h_az, h_el)`` whose capture's yaw
@@ -351,6 +353,7 @@ def best_hypothesis(scene: SunScene, hard: Rejections) -> tuple[Hypothesis | Non
             if support == 1.0 and eph_az_bad:
                 # seen from one position only and not where the ephemeris and the compass put the sun:
                 # nothing confirms it (a glint in a vertical glass wall has the sun's elevation too)
+                assert h_az is not None and eph_p is not None and eph_p.azimuth_deg is not None  # eph_az_bad
                 off = abs(wrap_deg(h_az - eph_p.azimuth_deg))
                 hard[ci, bi] = [f"seen from this position only and {off:.1f} deg in azimuth "
                                 "from the ephemeris (through the photo's compass): a glint? (occluded sun elsewhere)"]
@@ -488,6 +491,8 @@ def with_human_labels(scene: SunScene, results: list[CaptureSun]) -> list[Captur
             auto = out[ci]
             human = cap.human.model_copy(update={"candidates": auto.candidates, "ephemeris": cap.ephemeris})
             if auto.found and human.found:
+                assert auto.azimuth_deg is not None and auto.elevation_deg is not None  # a found sun has both
+                assert human.azimuth_deg is not None and human.elevation_deg is not None
                 d = _angle_deg(auto.azimuth_deg, auto.elevation_deg, human.azimuth_deg, human.elevation_deg)
                 if d > 1.0:
                     human.flags = [*human.flags, str(Flag(FlagCode.AUTO_DIFFERS, f"{d:.2f} deg from the automatic choice"))]
@@ -507,9 +512,11 @@ def consensus(scene: SunScene, results: list[CaptureSun]) -> SceneSun:
     for ci, (cap, res) in enumerate(zip(captures, results)):
         if not res.found:
             continue
-        az, el = at_photo_time(res.azimuth_deg, res.elevation_deg, cap.ephemeris, photo_ephemeris, sun_moves=s.sun_moves)
+        assert res.azimuth_deg is not None and res.elevation_deg is not None  # a found sun has both
+        c_az, c_el = at_photo_time(res.azimuth_deg, res.elevation_deg, cap.ephemeris, photo_ephemeris,
+                                   sun_moves=s.sun_moves)
         sig_dir = math.hypot(res.uncertainty_deg or s.centroid_sigma_deg, s.level_sigma_deg)
-        pts.append((ci, None if cap.yaw_deg is None else wrap_deg(az + cap.yaw_deg), el,
+        pts.append((ci, None if cap.yaw_deg is None else wrap_deg(c_az + cap.yaw_deg), c_el,
                     cap.yaw_sigma_deg, sig_dir))
     sun = SceneSun(found=False, captures=results, ephemeris=photo_ephemeris)
     if not pts:
@@ -518,7 +525,8 @@ def consensus(scene: SunScene, results: list[CaptureSun]) -> SceneSun:
         return sun
     w_el = np.array([1.0 / p[4] ** 2 for p in pts])
     el = float(np.sum(w_el * np.array([p[2] for p in pts])) / w_el.sum())
-    with_az = [p for p in pts if p[1] is not None]
+    # a capture's yaw comes with its sigma (both from the fused cues)
+    with_az = cast("list[tuple[int, float, float, float, float]]", [p for p in pts if p[1] is not None])
     az = None
     az_sig = None
     if with_az:
