@@ -8,6 +8,7 @@ import os
 import sys
 import traceback
 from pathlib import Path
+from typing import Any, cast
 
 import typer
 
@@ -104,9 +105,11 @@ def refuse_overwriting_inputs(callback):
 def _guard(typer_app: typer.Typer) -> None:
     for info in typer_app.registered_commands:
         if not getattr(info.callback, "_refuses_overwriting", False):  # sub-apps are shared by every build_app
-            info.callback = refuse_overwriting_inputs(info.callback)
-            info.callback._refuses_overwriting = True
+            guarded = refuse_overwriting_inputs(info.callback)
+            guarded._refuses_overwriting = True
+            info.callback = guarded
     for group in typer_app.registered_groups:
+        assert group.typer_instance is not None  # add_typer always gives one
         _guard(group.typer_instance)
 
 
@@ -139,7 +142,7 @@ def main() -> None:
         ctx = getattr(exc, "ctx", None)
         message = exc.format_message()
         if ctx is not None and (not message.strip() or "\n" in message.strip()):  # a bare group: its help
-            exc.show()  # (rich has printed the help already; plain typer's is the message)
+            cast(Any, exc).show()  # (rich has printed the help already; plain typer's is the message)
             sys.exit(exc.exit_code)
         hint = f" (see '{ctx.command_path} --help')" if ctx is not None else ""  # bad option or argument
         _fail(f"{message}{hint}", exc.exit_code)

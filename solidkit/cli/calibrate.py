@@ -9,7 +9,7 @@ this edge (conventions §6).
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Optional
+from typing import Optional, cast
 
 import numpy as np
 import typer
@@ -20,10 +20,10 @@ from rich.table import Table
 from solidkit.calibration.boards import CharucoTarget, detect_views, read_views
 from solidkit.calibration.camera import calibrate_camera_from_board, calibrate_camera_from_photo
 from solidkit.calibration.colour import calibrate_colour, read_linear_image
-from solidkit.calibration.fisheye import calibrate_fisheye, lens_profile_from_calibrations
+from solidkit.calibration.fisheye import ModelName, calibrate_fisheye, lens_profile_from_calibrations
 from solidkit.calibration.lensfit import FAMILIES, fit_file
 from solidkit.calibration.overlap import refine_files
-from solidkit.calibration.response import ResponseProfile, calibrate_response_files, plot_response
+from solidkit.calibration.response import Method, ResponseProfile, calibrate_response_files, plot_response
 from solidkit.calibration.vignetting import falloff, fit_flat_field, fit_overlap, lenses_from_profile, make_profile
 from solidkit.camera.lens import load_profile as load_lens_profile
 from solidkit.cli.output import echo_json
@@ -46,6 +46,7 @@ def _target(pattern: str | None, charuco: str | None, square: float, marker_rati
         raise InputError("give exactly one of --pattern COLSxROWS (checkerboard inner corners) or --charuco COLSxROWS (squares)")
     if charuco is not None:
         return CharucoTarget(parse_grid(charuco, "--charuco"), square, marker_ratio, dictionary)
+    assert pattern is not None  # exactly one of the two is given
     return parse_grid(pattern, "--pattern")
 
 
@@ -68,7 +69,8 @@ def response(
     """Camera response curve (inverse, per channel) from exposure brackets."""
     t = parse_exposures(times, "--times", count=len(frames)) if times is not None else None
     with status.status("fitting the response curve"):
-        prof = calibrate_response_files(frames, t, method=method, samples=samples, smoothness=smoothness)
+        prof = calibrate_response_files(frames, t, method=cast(Method, method), samples=samples,  # checked there
+                                        smoothness=smoothness)
     prof.save(out)
     png = plot_response(prof.array(), out.with_suffix(".png"), title=f"inverse response ({prof.method})") if plot else None
     if as_json:
@@ -212,8 +214,9 @@ def lens(
         dviews = detect_views(images, target, max_blur_px, names=[p.name for p in views])
     with status.status("fitting " + " and ".join(models) + " with held-out folds"):
         cal = calibrate_fisheye(
-            dviews, pat, square, models, holdout_k, name, offset=(box[0], box[1]) if box else (0.0, 0.0),
-            ypr_deg=tuple(angles), max_angle_deg=max_angle_deg, inputs=views,
+            dviews, pat, square, cast("tuple[ModelName, ...]", models), holdout_k, name,  # checked above
+            offset=(box[0], box[1]) if box else (0.0, 0.0),
+            ypr_deg=cast("tuple[float, float, float]", tuple(angles)), max_angle_deg=max_angle_deg, inputs=views,
         )
     prof = lens_profile_from_calibrations([cal], profile_name, full_size, camera_model, base=base)
     prof.save(out)

@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
+from typing import cast
 
 import typer
 
@@ -68,18 +70,19 @@ def eval_command(
             raise InputError(f"--sun-crops {p}: not a folder")
     if sun_split not in ("train", "val", "test"):
         raise InputError(f"--sun-split {sun_split!r}: expected train, val or test")
-    for p in [model, *extra.values()]:
-        if p is not None and not p.is_file():
-            raise InputError(f"{p}: no such checkpoint")
-    for p, opt in ((testset, "--testset"), (synthetic, "--synthetic")):
-        if p is not None and not p.is_dir():
-            raise InputError(f"{opt} {p}: not a folder")
+    for ckpt in [model, *extra.values()]:
+        if ckpt is not None and not ckpt.is_file():
+            raise InputError(f"{ckpt}: no such checkpoint")
+    for folder, opt in ((testset, "--testset"), (synthetic, "--synthetic")):
+        if folder is not None and not folder.is_dir():
+            raise InputError(f"{opt} {folder}: not a folder")
     if testset is not None and not (testset / "testset.json").is_file():
         raise InputError(f"--testset {testset}: not a test set (no testset.json; run 'solidkit testset build')")
     # torch is imported only once the arguments are known to be good (a bad call answers at once)
     from solidkit.finetune.report import evaluation_report
 
-    res = evaluation_report(out, model, testset, synthetic, extra, limit=limit, max_grids=grids,
+    res = evaluation_report(out, model, testset, synthetic, cast("dict[str, str | os.PathLike]", extra),
+                            limit=limit, max_grids=grids,
                             log=lambda s: typer.echo(s, err=True), panoramas=panos,
                               sun_crops=sun_crops, sun_split=sun_split)
     if as_json:

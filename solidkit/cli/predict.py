@@ -11,6 +11,7 @@ from __future__ import annotations
 import json
 import math
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import typer
@@ -69,7 +70,7 @@ def predict_command(
     meta = {"source": str(image), "hdr_parameterisation": HDR_PARAMETERISATION, "model": model.config.name}
     write_exr(out / "sky.exr", pred.sky, {**meta, "kind": "global sky H_g"})
     write_ldr(out / "sky.png", tonemap(pred.sky))
-    probes = []
+    probes: list[dict[str, Any]] = []
     for i, (local, px, centre, ok) in enumerate(zip(pred.local, pred.pixels, pred.centres, pred.extra["probe_valid"])):
         name = f"local_{i:02d}"
         write_exr(out / f"{name}.exr", local, {**meta, "kind": "local H_l", "pixel": px.tolist()})
