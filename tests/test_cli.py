@@ -40,3 +40,22 @@ def test_demo_json_is_its_summary(cli, monkeypatch, tmp_path):
     assert code == 1 and json.loads(out)["steps"][0]["status"] == "failed"
     code, out, err = cli("demo", "-o", tmp_path)
     assert code == 1 and out.startswith("report: ") and "ingest" in err
+
+
+def test_the_command_list_is_the_full_apps_and_imports_no_command():
+    """``solidkit --help`` lists every command from the table alone (no command module imported), and the
+    list is exactly what the full app prints."""
+    from typer.testing import CliRunner
+
+    from solidkit.cli import build_app
+
+    def help_of(app):
+        res = CliRunner().invoke(app, ["--help"], prog_name="solidkit", terminal_width=100)
+        assert res.exit_code == 0, res.output
+        return res.output
+
+    assert help_of(build_app(listing=True)) == help_of(build_app())
+    probe = ("import sys; sys.argv = ['solidkit', '--help']\nfrom solidkit.cli import main\ntry:\n    main()\n"
+             "except SystemExit:\n    pass\nprint(sorted(m for m in sys.modules if m.startswith('solidkit.cli.')))")
+    out = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True, check=True).stdout
+    assert out.strip().splitlines()[-1] == "[]"
