@@ -185,6 +185,8 @@ def truth_check(testset: Path, truth_dir: Path) -> dict[str, Any]:
         row: dict[str, Any] = {"scene": sc.id, "truth_sun": st.sun_found and st.sun_azimuth_deg is not None,
                                "sun_visible": visible, "label_sun": sc.sun.found}
         if row["truth_sun"] and sc.sun.found:
+            assert sc.sun.azimuth_deg is not None and sc.sun.elevation_deg is not None  # a found sun has both
+            assert st.sun_azimuth_deg is not None and st.sun_elevation_deg is not None  # truth_sun
             e = _angle_deg(direction_from_angles(math.radians(sc.sun.azimuth_deg), math.radians(sc.sun.elevation_deg)),
                            direction_from_angles(math.radians(st.sun_azimuth_deg), math.radians(st.sun_elevation_deg)))
             row["sun_error_deg"] = e

@@ -31,7 +31,7 @@ import time
 from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 
@@ -222,7 +222,7 @@ class MeanBaseline(Method):
     def _mean_without(self, scene: str) -> np.ndarray | None:
         parts = [(s, n) for k, (s, n) in self._sums.items() if k != scene]
         n = sum(p[1] for p in parts)
-        return (sum(p[0] for p in parts) / n).astype(np.float32) if n else None
+        return cast(np.ndarray, sum(p[0] for p in parts) / n).astype(np.float32) if n else None  # n > 0: a sum of arrays
 
     def predict(self, item: EvalItem) -> ItemPrediction:
         mean = self._mean_without(item.scene)

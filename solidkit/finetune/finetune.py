@@ -44,7 +44,7 @@ import random
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, cast
 
 import numpy as np
 import torch
@@ -59,6 +59,7 @@ from solidkit.finetune.evaluate import items_from_synth, items_from_testset, loa
 from solidkit.finetune.report import finetune_sections, write_report
 from solidkit.threads import ensure_threads
 from solidkit.fsutil import atomic_write_text
+from solidkit.model.config import SolidNetConfig
 from solidkit.model.fit import batch_from_synth
 from solidkit.model.losses import solidnet_losses, sun_direction_loss
 from solidkit.synth.dataset import SynthDataset
@@ -208,7 +209,7 @@ def _sun_logits(out: dict[str, torch.Tensor]) -> torch.Tensor:
 
 def real_losses(model: torch.nn.Module, item: EvalItem, sun_weight: float = 1.0) -> dict[str, torch.Tensor]:
     """The fine-tuning loss of one real photo: ``local`` (LDR probes) + ``sun_weight x sun``."""
-    image, K, pixels, pitch, roll = _item_inputs(item, model.config.image_size)
+    image, K, pixels, pitch, roll = _item_inputs(item, cast(SolidNetConfig, model.config).image_size)
     out = model(image, K, pixels, pitch, roll)
     probes = _tensor(np.stack(item.probes_ldr)).permute(0, 3, 1, 2)
     sat = torch.as_tensor(np.stack([M.saturation_mask(p, s) for p, s in zip(item.probes_ldr, item.probes_saturated)]))
@@ -273,9 +274,10 @@ def finetune_fold(
             losses.append(float(terms["total"].detach()))
             steps += 1
             if mixing and steps % cfg.synthetic_every == 0:
+                assert syn is not None  # mixing
                 batch = next(syn)
                 o = net(batch["image"], batch["K"], batch["pixels"], batch["pitch"], batch["roll"])
-                loss = solidnet_losses(o, batch, net.config.loss_weights, getattr(net.config, "loss_variant", "paper"))["total"]
+                loss = solidnet_losses(o, batch, cast(SolidNetConfig, net.config).loss_weights, getattr(net.config, "loss_variant", "paper"))["total"]
                 opt.zero_grad(set_to_none=True)
                 loss.backward()
                 opt.step()
@@ -378,7 +380,7 @@ def run_finetune(
                           "before": before_res["summary"]["synthetic-only"], "after": after_res["summary"]["fine-tuned"]})
         models.append(tuned)
         log(f"    best epoch {rec['best_epoch']} of {rec['epochs_run']}, {rec['seconds']:.1f} s")
-    pooled = {
+    pooled: dict[str, Any] = {
         "methods": [{"name": "synthetic-only", "kind": "model", "description": "the checkpoint as shipped (synthetic data only)"},
                     {"name": "fine-tuned", "kind": "model",
                      "description": f"fine-tuned per fold on the other scenes ({cfg.trainable}, lr {cfg.lr:g})"}],

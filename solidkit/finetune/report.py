@@ -234,6 +234,7 @@ def qualitative_grid(item: EvalItem, method: Method, path: Path, title: str = ""
         ax.imshow(_display(sky), extent=ext)
         _mark_sun(ax, item.sun, "lime", "true sun")
         if sky is pred.sky and sun_p is not None:
+            assert sun_paper is not None  # found on the same predicted sky
             _mark_sun(ax, sun_p.direction if sun_p.found else None, "deepskyblue", "predicted (default)")
             _mark_sun(ax, sun_paper.direction if sun_paper.found else None, "magenta", "predicted (paper recipe)")
         ax.set(title=name, xticks=[-180, -90, 0, 90, 180], yticks=[-90, 0, 90])
