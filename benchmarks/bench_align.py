@@ -10,7 +10,7 @@ with :func:`solidkit.align.evaluate.evaluate`. Peers in the same run: the same p
 with the **true** yaw (upper bound) and with the **compass** yaw (what a team gets without
 align), all in the paper's tonemap against the truth probe.
 
-``--faults``: copies of the clean campaign get one fault each (``tests/align_faults.py``: sun
+``--faults``: copies of the clean campaign get one fault each (``tests/support/align_faults.py``: sun
 painted out at one position, clocks +3 h, photo GPS 30° off, a compass heading +90°, a
 textureless probe) and are aligned again; each must be flagged (and the yaws stay right).
 
@@ -27,7 +27,7 @@ import time
 from pathlib import Path
 
 HERE = Path(__file__).resolve().parent
-sys.path.insert(0, str(HERE.parent / "tests"))
+sys.path.insert(0, str(HERE.parent))
 
 import align_faults  # noqa: E402
 

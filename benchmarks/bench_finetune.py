@@ -1,6 +1,6 @@
 """Benchmark of the evaluation (time per scene) and the k-fold fine-tuning (time per fold).
 
-Input: the analytic campaign of ``tests/testset_campaign.py`` with 6 scenes (camera position + 2
+Input: the analytic campaign of ``tests/support/testset_campaign.py`` with 6 scenes (camera position + 2
 probes each), built into a test set; the shipped checkpoint; 1 torch thread. Peers, in the same run:
 
 * evaluation per scene (the model, global-as-local, mean sky, mean probe; every metric with both
@@ -24,9 +24,9 @@ from pathlib import Path
 import torch
 
 HERE = Path(__file__).resolve().parent
-sys.path.insert(0, str(HERE.parent / "tests"))
+sys.path.insert(0, str(HERE.parent))
 
-from testset_campaign import SCENES, make_campaign  # noqa: E402
+from tests.support.testset_campaign import SCENES, make_campaign  # noqa: E402
 
 from solidkit.finetune.evaluate import default_methods, evaluate, items_from_testset, load_model  # noqa: E402
 from solidkit.finetune.finetune import FineTuneConfig, run_finetune  # noqa: E402

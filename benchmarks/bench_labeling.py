@@ -37,9 +37,9 @@ import cv2
 import numpy as np
 
 HERE = Path(__file__).resolve().parent
-sys.path.insert(0, str(HERE.parent / "tests"))
+sys.path.insert(0, str(HERE.parent))
 
-from _labeling_campaign import disk  # noqa: E402
+from tests.support.labeling_campaign import disk  # noqa: E402
 
 from solidkit.capture.manifest import Manifest, Probe, Product, Scene, save_manifest  # noqa: E402
 from solidkit.envmap.coords import angular_distance, direction_from_angles  # noqa: E402

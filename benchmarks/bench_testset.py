@@ -1,6 +1,6 @@
 """Benchmark of ``solidkit testset build`` and ``validate`` against plain file operations.
 
-Input: the analytic campaign of ``tests/testset_campaign.py`` scaled to 8 scenes (3 captures each:
+Input: the analytic campaign of ``tests/support/testset_campaign.py`` scaled to 8 scenes (3 captures each:
 camera position + 2 probes; 640x480 photos, 512x256 aligned products). Peers, in the same run:
 
 * build vs ``shutil.copytree`` of the files a test set holds (photos, aligned products, sun
@@ -23,9 +23,9 @@ import time
 from pathlib import Path
 
 HERE = Path(__file__).resolve().parent
-sys.path.insert(0, str(HERE.parent / "tests"))
+sys.path.insert(0, str(HERE.parent))
 
-from testset_campaign import SCENES, make_campaign  # noqa: E402
+from tests.support.testset_campaign import SCENES, make_campaign  # noqa: E402
 
 from solidkit.fsutil import sha256_file  # noqa: E402
 from solidkit.testset.build import build_testset  # noqa: E402

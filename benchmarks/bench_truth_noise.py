@@ -9,7 +9,7 @@ For every truth probe of ``CAMPAIGN`` (``solidkit synth campaign``), its scene i
 ``--spp`` (non-glass; glass scenes x the campaign's ``glass_spp_factor``, as the generator does) with
 :func:`solidkit.synth.truth_probes.render_truth_probe`, on a seed the campaign does not use; the
 noise is the split-half estimate of the render record (``noise_psnr_db``: even vs odd passes, paper
-tonemap; checked against two independent renders in ``tests/test_synth_truth.py``). Nothing in the
+tonemap; checked against two independent renders in ``tests/synth/test_truth.py``). Nothing in the
 campaign is written. Writes ``benchmarks/results/align-truth-noise[-NAME].json``.
 
 Run it niced on one drjit thread (``DRJIT_NUM_THREADS=1 nice -n 10``): seconds per probe are for that.

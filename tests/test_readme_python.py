@@ -1,5 +1,5 @@
 """README "Use it from Python": its script runs as written on a built test set (the analytic campaign
-of tests/testset_campaign.py) with a tiny checkpoint, and gives the numbers ``solidkit eval`` reports."""
+of tests/support/testset_campaign.py) with a tiny checkpoint, and gives the numbers ``solidkit eval`` reports."""
 
 from __future__ import annotations
 
@@ -10,7 +10,7 @@ from pathlib import Path
 
 import pytest
 
-from testset_campaign import make_campaign
+from tests.support.testset_campaign import make_campaign
 
 README = Path(__file__).resolve().parents[1] / "README.md"
 SECTION = "## Use it from Python"

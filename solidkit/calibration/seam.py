@@ -13,7 +13,7 @@ gain ratio), and ``b'_k`` lens 1 at ``d_k`` turned by :data:`NULL_SHIFT_DEG` abo
 the *null*, the disagreement of points a few degrees apart in this very scene. ``e`` is scale
 free (the same for the scene at any brightness or contrast): about 0 for a perfect fit of a static
 scene, rising with the misalignment -- on the real outdoor panorama city.exr seen through 194°
-lenses (tests/test_calibration_selfcal.py): 0.06 for the true profile (8-bit noise), 0.21 / 0.35 /
+lenses (tests/calibration/test_selfcal.py): 0.06 for the true profile (8-bit noise), 0.21 / 0.35 /
 0.59 / 0.84 with the back lens 1 / 2 / 4 / 8° off -- and about 1 for unrelated views. Parallax
 (objects close to the camera), moving people and sensor noise keep it above 0 for a correct profile.
 

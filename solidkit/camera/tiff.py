@@ -2,7 +2,7 @@
 
 The reader never trusts an offset or a count: every IFD, entry and value is checked against the
 buffer (:class:`TiffError` otherwise), so that corrupt or hostile files give warnings, not
-crashes (``tests/test_capture_metadata.py`` fuzzes it). References: Adobe, *TIFF 6.0*
+crashes (``tests/camera/test_metadata.py`` fuzzes it). References: Adobe, *TIFF 6.0*
 (IFD layout, field types) and *DNG 1.6* (SubIFDs, NewSubFileType, DefaultCropSize); ITU T.81
 (JPEG markers).
 """

@@ -30,7 +30,7 @@ vignetting profiles and writes files.
 8-bit sRGB in and out (JPEG -> PNG/JPEG) takes :func:`unwarp_srgb8`: the same geometry, gains and
 feathering, but only the feather band is decoded to linear light and blended; elsewhere the one
 lens' sample gets its gain through an exact 8-bit table ``enc(g dec(v))``. It matches the float
-path within one code value (``tests/test_unwarp.py``) at a fraction of the memory traffic.
+path within one code value (``tests/capture/test_unwarp.py``) at a fraction of the memory traffic.
 """
 
 from __future__ import annotations

@@ -16,7 +16,7 @@ too for "core", then normalised; never in pixel space), return sub-pixel coordin
 confidence, and return ``found=False`` for overcast or occluded panoramas.
 
 Measured on the real Poly Haven panoramas in ``../shared/data/real/hdr_panoramas`` (1024 x 512;
-see ``tests/test_sun.py``): "core" is 0.007° (sunrise.exr) and 0.029° (city.exr) from the
+see ``tests/envmap/test_sun.py``): "core" is 0.007° (sunrise.exr) and 0.029° (city.exr) from the
 saturated-core centroid; "paper" is 5.73° and 4.24° off, because its largest top-2 % component
 is the sun together with the bright sky around it. courtyard.exr: the sun is occluded by the
 carport roof; both methods return ``found=False``.
@@ -384,7 +384,7 @@ def sun_core(
     each factor clipped to ``[0, 1]``, with ``s0 = max(0.53°, 2.5 pixels)`` the smallest core a sun
     can show at this resolution: 0 exactly when not found, near 1 for a sharp sun far above the sky.
 
-    Accuracy (``tests/test_sun.py``): a 0.53° disk rendered at 1024 x 512 (box-filtered, 1.5 px
+    Accuracy (``tests/envmap/test_sun.py``): a 0.53° disk rendered at 1024 x 512 (box-filtered, 1.5 px
     wide) is found within 0.02°; one blurred by a 1-pixel PSF at 256 x 128 within 0.01°, at the
     seam and at 85°+ elevation too. A disk smaller than a pixel without any blur (256 x 128,
     0.37 px) has no recoverable sub-pixel position: up to half a pixel (0.35°) off.

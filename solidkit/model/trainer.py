@@ -17,7 +17,7 @@ Reproducibility and resuming: the content of batch ``step`` of a stage is a pure
 ``(seed, stage, step)`` (and of the list of crop sources, which is refreshed only every
 ``refresh_sources_every`` steps and stored in the checkpoint), the model has no stochastic layers,
 and ``RUN/last.pt`` holds the weights, the optimiser and scheduler states and the step. So a run
-stopped and resumed takes exactly the step it would have taken (``tests/test_model_trainer.py``).
+stopped and resumed takes exactly the step it would have taken (``tests/model/test_trainer.py``).
 
 Outputs in the run folder: ``last.pt`` (training state, every ``checkpoint_every`` steps and at
 the end), ``best.pt`` and ``model.pt`` (model checkpoints of :func:`solidkit.model.save_checkpoint`

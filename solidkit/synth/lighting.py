@@ -8,7 +8,7 @@ Mitsuba's envmap maps a local direction ``l`` to ``u = atan2(l_x, -l_z) / 2pi``,
 ``v = acos(l_y) / pi`` (+y up). Substituting ``l = M0 d`` with ``M0 = diag(-1, -1, 1)`` (a
 180° turn about z) gives exactly our ``u = (phi + pi) / 2pi``, ``v = (pi/2 - theta) / pi``: a
 panorama in our convention is a Mitsuba bitmap whose content at our direction ``d`` sits at
-local ``M0 d``. Hence the emitter's ``to_world = R M0``. ``tests/test_synth_conventions.py``
+local ``M0 d``. Hence the emitter's ``to_world = R M0``. ``tests/synth/test_conventions.py``
 renders a bright spot through :mod:`solidkit.synth.plugins`' equirect sensor and checks it
 lands on the pixel of :func:`solidkit.envmap.coords_from_direction`.
 

@@ -9,7 +9,7 @@ camera conventions never enter solidkit:
 - ``sk_equirect``: the panorama mapping of conventions §3 (``phi = 2 pi (u + 0.5)/W - pi``,
   ``theta = pi/2 - pi (v + 0.5)/H``, ``d = (cos t sin p, -sin t, cos t cos p)``) in the sensor's
   local frame, mapped by ``to_world``. Pinned to :func:`solidkit.envmap.direction_from_coords`
-  by ``tests/test_synth_conventions.py``.
+  by ``tests/synth/test_conventions.py``.
 
 With ``jitter = false`` a sensor shoots every sample through the pixel centre (geometry
 buffers are then exact per pixel); otherwise uniformly within the pixel (box filter).

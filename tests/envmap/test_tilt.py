@@ -13,7 +13,7 @@ from solidkit.envmap.coords import angular_distance, rotation_from_ypr
 from solidkit.envmap.resample import rotate
 from solidkit.envmap.tilt import correction_from_gravity, residual_tilt
 
-DATA = Path(__file__).parent / "data"
+DATA = Path(__file__).parents[1] / "data"
 E_Y = np.array([0.0, 1.0, 0.0])
 
 

@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 from PIL import Image
-from test_ingest import make_card, write_shot
+from tests.capture.test_ingest import make_card, write_shot
 
 from solidkit.capture.campaign import ingest
 from solidkit.capture.manifest import load_manifest

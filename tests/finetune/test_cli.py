@@ -1,5 +1,5 @@
 """`solidkit eval` and `solidkit finetune` on a built test set (the analytic campaign of
-tests/testset_campaign.py, 4 scenes) with a tiny checkpoint: reports, figures, JSON, fold checkpoints."""
+tests/support/testset_campaign.py, 4 scenes) with a tiny checkpoint: reports, figures, JSON, fold checkpoints."""
 
 from __future__ import annotations
 
@@ -11,7 +11,7 @@ import torch
 from solidkit.model.config import preset
 from solidkit.model.solidnet import SolidNet
 from solidkit.testset.build import build_testset
-from testset_campaign import make_campaign
+from tests.support.testset_campaign import make_campaign
 
 SCENES = {
     "sA": (35.0, 40.0, -6.0, 1.0, {"p01": (200.0, 420.0), "p02": (470.0, 395.0)}, {"cam": -20.0, "p01": 70.0, "p02": -130.0}),

@@ -10,7 +10,7 @@ from pydantic import ValidationError
 
 from solidkit.testset.schema import TestSet, canonical_json, content_version, json_schema
 
-from conftest import REPO
+from tests.conftest import REPO
 
 DOC = REPO / "docs" / "testset.schema.json"
 

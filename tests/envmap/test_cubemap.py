@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 import torch
-from test_resample import blob, smooth_field, smooth_pano, spherical_centroid, to_numpy, to_torch
+from tests.envmap.test_resample import blob, smooth_field, smooth_pano, spherical_centroid, to_numpy, to_torch
 
 from solidkit.envmap import coords as C
 from solidkit.envmap.cubemap import CUBE_FACES, cube_face_rotations, cube_from_equirect, equirect_from_cube

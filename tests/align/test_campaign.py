@@ -1,7 +1,7 @@
 """``solidkit align`` end to end on a rendered mini campaign, held against its truth (slow).
 
 synth campaign (mini preset, 1 scene: the camera position + 3 probes, seed 7) -> ingest -> align;
-then: idempotent re-run, a human heading label that wins, and injected faults (tests/align_faults.py).
+then: idempotent re-run, a human heading label that wins, and injected faults (tests/support/align_faults.py).
 The truth is read here only, after align ran.
 """
 
@@ -13,7 +13,7 @@ from pathlib import Path
 
 import pytest
 
-import align_faults
+import tests.support.align_faults as align_faults
 from solidkit.align.evaluate import evaluate, summary
 from solidkit.align.pipeline import align_campaign
 from solidkit.align.schema import load_alignment, wrap_deg

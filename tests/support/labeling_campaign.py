@@ -23,7 +23,7 @@ from solidkit.envmap.perspective import perspective_crop
 from solidkit.envmap.resample import rotate
 from solidkit.envmap.sun import detect_sun
 
-CITY = Path(__file__).resolve().parents[1] / "solidkit" / "assets" / "hdr_panoramas" / "city.exr"
+CITY = Path(__file__).resolve().parents[2] / "solidkit" / "assets" / "hdr_panoramas" / "city.exr"
 CITY_YAWS = {"cam": 0.0, "p1": -50.0}  # heading of each capture (level frame -> photo panorama frame)
 CITY_PIXEL = [350.0, 420.0]
 

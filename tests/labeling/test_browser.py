@@ -19,11 +19,11 @@ import cv2
 import numpy as np
 import pytest
 
-from _labeling_campaign import HEADING_DOT_AZ, PHOTO_DOT, SUN_DOTS, make_campaign
+from tests.support.labeling_campaign import HEADING_DOT_AZ, PHOTO_DOT, SUN_DOTS, make_campaign
 from solidkit.labeling.store import LabelStore
 
 CHROMIUM = shutil.which("chromium") or "/usr/bin/chromium"
-SHOTS = Path(__file__).resolve().parents[1] / "docs" / "screenshots"
+SHOTS = Path(__file__).resolve().parents[2] / "docs" / "screenshots"
 VIEWPORT = {"width": 1366, "height": 768}  # a laptop screen
 
 pytestmark = [

@@ -27,7 +27,7 @@ from solidkit.capture.bracket_merge import merge_files
 from solidkit.envmap.io import read_exr
 from solidkit.errors import InputError
 
-ASSETS = Path(__file__).resolve().parents[1] / "solidkit" / "assets" / "hdr_panoramas"
+ASSETS = Path(__file__).resolve().parents[2] / "solidkit" / "assets" / "hdr_panoramas"
 TIMES = [1 / 64, 1 / 8, 1.0, 8.0]
 CODES = np.arange(256) / 255.0
 

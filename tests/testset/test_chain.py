@@ -23,7 +23,7 @@ from solidkit.envmap.resample import resize
 from solidkit.testset.build import load_testset
 from solidkit.testset.validate import validate_testset
 
-from test_testset import psnr_ldr
+from tests.testset.test_testset import psnr_ldr
 
 PSNR_MIN_DB = 30.0  # align's target for aligned LDR probes
 SUN_TOL_DEG = 2.0  # labeling tolerance of the sun in the photo's panorama frame
@@ -122,7 +122,7 @@ def check_chain(out: Path, virtual: Path) -> dict:
 @pytest.mark.slow
 def test_chain_on_the_shipped_mini_campaign(tmp_path, cli):
     """The same chain on CAPTURE's shipped campaign (solidkit/assets/campaign_mini): no rendering, ~1 min of CPU."""
-    from conftest import ASSETS
+    from tests.conftest import ASSETS
 
     virtual = ASSETS / "campaign_mini"
     camp, out = tmp_path / "campaign", tmp_path / "testset"

@@ -17,7 +17,7 @@ import numpy as np
 import pytest
 from fastapi.testclient import TestClient
 
-from _labeling_campaign import PHOTO_DOT, SUN_DOTS, make_campaign
+from tests.support.labeling_campaign import PHOTO_DOT, SUN_DOTS, make_campaign
 from solidkit.labeling.app import MAX_BODY_BYTES, create_app
 from solidkit.labeling.images import tile_grid
 from solidkit.labeling.store import LabelStore
@@ -276,7 +276,7 @@ def test_hdr_shown_exposed_and_nothing_written_but_the_store(tmp_path):
     assert changed and all(p.relative_to(root).parts[0] == "labels" for p in changed)
 
 
-MINI = Path(__file__).resolve().parents[1] / "solidkit" / "assets" / "campaign_mini"
+MINI = Path(__file__).resolve().parents[2] / "solidkit" / "assets" / "campaign_mini"
 
 
 @pytest.mark.slow

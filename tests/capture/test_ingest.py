@@ -23,7 +23,7 @@ from solidkit.capture.manifest import MANIFEST_NAME, SCHEMA_VERSION, load_manife
 from solidkit.envmap.io import read_exr
 from solidkit.errors import InputError
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 T0 = datetime(2024, 6, 1, 12, 0, 0)
 XMP_EQUIRECT = (
     b'<x:xmpmeta xmlns:x="adobe:ns:meta/"><rdf:RDF xmlns:rdf="http://www.w3.org/1999/02/22-rdf-syntax-ns#">'

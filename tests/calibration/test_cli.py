@@ -43,7 +43,7 @@ def test_response_command(tmp_path):
 
 
 def test_colour_command_with_corners(tmp_path):
-    from test_calibration_colour import CORNERS, render_chart  # tests/ is on sys.path (rootdir import mode)
+    from tests.calibration.test_colour import CORNERS, render_chart
 
     img, _, _ = render_chart()
     write_exr(tmp_path / "chart.exr", img)

@@ -1,10 +1,10 @@
-"""align's outputs on a small analytic campaign (tests/testset_campaign.py): report files, labels in the store."""
+"""align's outputs on a small analytic campaign (tests/support/testset_campaign.py): report files, labels in the store."""
 
 from __future__ import annotations
 
 import cv2
 
-from testset_campaign import make_campaign
+from tests.support.testset_campaign import make_campaign
 from solidkit.align.pipeline import _write_labels
 from solidkit.align.report import write_report
 from solidkit.align.schema import load_alignment

@@ -1,4 +1,4 @@
-"""solidkit testset build / validate on an analytic campaign with a known truth (tests/testset_campaign.py)."""
+"""solidkit testset build / validate on an analytic campaign with a known truth (tests/support/testset_campaign.py)."""
 
 from __future__ import annotations
 
@@ -20,7 +20,7 @@ from solidkit.testset.build import build_testset, load_testset
 from solidkit.testset.schema import content_version
 from solidkit.testset.validate import validate_testset
 
-from testset_campaign import make_campaign
+from tests.support.testset_campaign import make_campaign
 
 PSNR_MIN_DB = 30.0
 

@@ -16,7 +16,7 @@ from solidkit.errors import InputError, PanoramaError
 from solidkit.model.suncrops import SunCropBank
 from solidkit.synth.panocrops import CropConfig, CropSampler, SPLIT_FILE, load_sources, read_catalog, real_split
 
-REAL = Path(__file__).resolve().parents[2] / "shared" / "data" / "real" / "hdr_outdoor"
+REAL = Path(__file__).resolve().parents[3] / "shared" / "data" / "real" / "hdr_outdoor"
 
 
 def _sky_with_sun(h: int, az_deg: float, el_deg: float, peak: float = 5.0e4) -> np.ndarray:

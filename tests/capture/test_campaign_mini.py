@@ -19,7 +19,7 @@ from solidkit.capture.manifest import load_manifest
 from solidkit.envmap.coords import angular_distance, direction_from_angles, rotation_from_ypr
 from solidkit.synth.campaign import load_truth
 
-MINI = Path(os.environ.get("SOLIDKIT_MINI_CAMPAIGN", Path(__file__).resolve().parents[1] / "solidkit" / "assets"
+MINI = Path(os.environ.get("SOLIDKIT_MINI_CAMPAIGN", Path(__file__).resolve().parents[2] / "solidkit" / "assets"
                            / "campaign_mini"))
 E_Y = np.array([0.0, 1.0, 0.0])
 

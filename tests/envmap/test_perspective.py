@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 import torch
 from scipy import ndimage
-from test_resample import PITCH, blob, smooth_field, smooth_pano, spherical_centroid, to_numpy, to_torch
+from tests.envmap.test_resample import PITCH, blob, smooth_field, smooth_pano, spherical_centroid, to_numpy, to_torch
 
 from solidkit.envmap import coords as C
 from solidkit.envmap.perspective import (

@@ -17,7 +17,7 @@ from solidkit.errors import InputError
 from solidkit.synth.campaign_truth import CampaignTruth, TruthError, load_truth
 
 # the shipped mini campaign's truth as schema 3 wrote it (the asset's own truth has since been re-rendered as format 4)
-MINI_TRUTH = Path(__file__).resolve().parent / "data" / "campaign_truth_schema3.json"
+MINI_TRUTH = Path(__file__).resolve().parents[1] / "data" / "campaign_truth_schema3.json"
 
 
 def _write(folder: Path, data: dict) -> Path:
