@@ -69,29 +69,59 @@ def run_faults(clean: Path, work: Path, truth: Path) -> list[dict]:
         a = align_campaign(d)
         s = a.scene(sa.id)
         ok, detail = expect(s)
-        out.append({"fault": name, "injected": what, "flagged": ok, "detail": detail,
-                    "seconds": round(time.perf_counter() - t0, 1)})
+        out.append(
+            {
+                "fault": name,
+                "injected": what,
+                "flagged": ok,
+                "detail": detail,
+                "seconds": round(time.perf_counter() - t0, 1),
+            }
+        )
         print(f"fault {name}: {'FLAGGED' if ok else 'MISSED'} ({detail})", flush=True)
 
     def yaw_err(s, pid):
         p = s.probe(pid)
         return None if p.yaw_deg is None else abs((p.yaw_deg - true_yaw[(sa.id, pid)] + 180) % 360 - 180)
 
-    check("sun_occluded", lambda d: align_faults.occlude_sun(d, sa.id, probe),
-          lambda s: (not next(c for c in s.sun.captures if c.probe == probe).found and s.sun.found,
-                     f"{probe}: found={next(c for c in s.sun.captures if c.probe == probe).found}; "
-                     f"reason: {next(c for c in s.sun.captures if c.probe == probe).reason}; scene sun found={s.sun.found}"))
-    check("clock_plus_3h", lambda d: align_faults.shift_clock(d, sa.id, 3.0),
-          lambda s: (any(f.startswith("ephemeris") for f in s.sun.flags), "; ".join(s.sun.flags) or "no flag"))
-    check("gps_lat_plus_30", lambda d: align_faults.move_gps(d, sa.id, 30.0),
-          lambda s: (any(f.startswith("ephemeris") for f in s.sun.flags), "; ".join(s.sun.flags) or "no flag"))
-    check("heading_plus_90", lambda d: align_faults.rotate_heading(d, sa.id, probe, 90.0),
-          lambda s: (any(f.startswith("compass_disagrees") for f in s.probe(probe).flags) and (yaw_err(s, probe) or 99) < 2.0,
-                     f"flags {s.probe(probe).flags}; yaw error {yaw_err(s, probe)}"))
-    check("textureless", lambda d: align_faults.remove_texture(d, sa.id, probe),
-          lambda s: (any(f.startswith("features_failed") for f in s.probe(probe).flags) and "sun" in s.probe(probe).cues
-                     and s.probe(probe).cues["sun"].ok and (yaw_err(s, probe) or 99) < 2.0,
-                     f"flags {s.probe(probe).flags}; yaw error {yaw_err(s, probe)}"))
+    check(
+        "sun_occluded",
+        lambda d: align_faults.occlude_sun(d, sa.id, probe),
+        lambda s: (
+            not next(c for c in s.sun.captures if c.probe == probe).found and s.sun.found,
+            f"{probe}: found={next(c for c in s.sun.captures if c.probe == probe).found}; "
+            f"reason: {next(c for c in s.sun.captures if c.probe == probe).reason}; scene sun found={s.sun.found}",
+        ),
+    )
+    check(
+        "clock_plus_3h",
+        lambda d: align_faults.shift_clock(d, sa.id, 3.0),
+        lambda s: (any(f.startswith("ephemeris") for f in s.sun.flags), "; ".join(s.sun.flags) or "no flag"),
+    )
+    check(
+        "gps_lat_plus_30",
+        lambda d: align_faults.move_gps(d, sa.id, 30.0),
+        lambda s: (any(f.startswith("ephemeris") for f in s.sun.flags), "; ".join(s.sun.flags) or "no flag"),
+    )
+    check(
+        "heading_plus_90",
+        lambda d: align_faults.rotate_heading(d, sa.id, probe, 90.0),
+        lambda s: (
+            any(f.startswith("compass_disagrees") for f in s.probe(probe).flags) and (yaw_err(s, probe) or 99) < 2.0,
+            f"flags {s.probe(probe).flags}; yaw error {yaw_err(s, probe)}",
+        ),
+    )
+    check(
+        "textureless",
+        lambda d: align_faults.remove_texture(d, sa.id, probe),
+        lambda s: (
+            any(f.startswith("features_failed") for f in s.probe(probe).flags)
+            and "sun" in s.probe(probe).cues
+            and s.probe(probe).cues["sun"].ok
+            and (yaw_err(s, probe) or 99) < 2.0,
+            f"flags {s.probe(probe).flags}; yaw error {yaw_err(s, probe)}",
+        ),
+    )
     return out
 
 
@@ -128,22 +158,33 @@ def main() -> None:
     name = "align" + (f"-{args.name}" if args.name else "")
     (HERE / "results").mkdir(exist_ok=True)
     (HERE / "results" / f"{name}.json").write_text(json.dumps(out, indent=1, default=str))
-    lines = [f"# {name}\n\n", f"Campaign {args.synth} (seed {summ['seed']}, {summ['scenes']} scenes, {summ['captures']} captures); "
-             f"align {summ['align_seconds']} s (first run, features not cached). Cue columns: the cue's error against "
-             "the truth (deg); compass errors are in compass_probe_*.\n\n", "| figure | value |\n|---|---|\n"]
+    lines = [
+        f"# {name}\n\n",
+        f"Campaign {args.synth} (seed {summ['seed']}, {summ['scenes']} scenes, {summ['captures']} captures); "
+        f"align {summ['align_seconds']} s (first run, features not cached). Cue columns: the cue's error against "
+        "the truth (deg); compass errors are in compass_probe_*.\n\n",
+        "| figure | value |\n|---|---|\n",
+    ]
     lines += [f"| {k} | {v if not isinstance(v, float) else round(v, 3)} |\n" for k, v in summ.items()]
-    lines.append("\n| scene/probe | yaw error (deg) | cue errors (deg) | LDR PSNR (dB) | truth noise floor (dB) | "
-                 "pixel geometry (deg) | flags |\n|---|---|---|---|---|---|---|\n")
+    lines.append(
+        "\n| scene/probe | yaw error (deg) | cue errors (deg) | LDR PSNR (dB) | truth noise floor (dB) | "
+        "pixel geometry (deg) | flags |\n|---|---|---|---|---|---|---|\n"
+    )
     for r in res["captures"]:
         if r["role"] != "probe":
             continue
         cues = ", ".join(f"{k} {v:+.2f}" for k, v in r["cues"].items() if v is not None and k != "compass")
         flags = ", ".join(sorted({f.split(":")[0] for f in r["flags"]}))
-        lines.append(f"| {r['scene']}/{r['probe']} | {_fmt(r.get('yaw_error_deg'))} | {cues or '-'} | {_fmt(r.get('psnr_db'), 1)} | "
-                     f"{_fmt(r.get('truth_noise_floor_db'), 1)} | {_fmt(r.get('pixel_geometry_error_deg'), 1)} | {flags} |\n")
+        lines.append(
+            f"| {r['scene']}/{r['probe']} | {_fmt(r.get('yaw_error_deg'))} | {cues or '-'} | {_fmt(r.get('psnr_db'), 1)} | "
+            f"{_fmt(r.get('truth_noise_floor_db'), 1)} | {_fmt(r.get('pixel_geometry_error_deg'), 1)} | {flags} |\n"
+        )
     if args.faults:
         lines.append("\n| fault | injected | flagged | detail |\n|---|---|---|---|\n")
-        lines += [f"| {f['fault']} | {f['injected']} | {f['flagged']} | {f['detail'].replace('|', '/')} |\n" for f in out["faults"]]
+        lines += [
+            f"| {f['fault']} | {f['injected']} | {f['flagged']} | {f['detail'].replace('|', '/')} |\n"
+            for f in out["faults"]
+        ]
     (HERE / "results" / f"{name}.md").write_text("".join(lines))
 
 

@@ -32,8 +32,13 @@ def bench_colour() -> dict:
     import rawpy
 
     from solidkit.calibration.colour import (
-        calibrate_colour, chart_homography_from_corners, delta_e2000, fit_white_balance, read_linear_image,
-        reference_linear_srgb, sample_patches,
+        calibrate_colour,
+        chart_homography_from_corners,
+        delta_e2000,
+        fit_white_balance,
+        read_linear_image,
+        reference_linear_srgb,
+        sample_patches,
     )
 
     path = REAL / "raw_dng" / "colorchart.dng"
@@ -44,7 +49,9 @@ def bench_colour() -> dict:
     ref = reference_linear_srgb()
     H = chart_homography_from_corners(corners)
     with rawpy.imread(str(path)) as raw:
-        rgb = raw.postprocess(gamma=(1, 1), no_auto_bright=True, output_bps=16, output_color=rawpy.ColorSpace.sRGB, use_camera_wb=True)
+        rgb = raw.postprocess(
+            gamma=(1, 1), no_auto_bright=True, output_bps=16, output_color=rawpy.ColorSpace.sRGB, use_camera_wb=True
+        )
     m, _ = sample_patches(rgb.astype(np.float32) / 65535, H)
 
     def de(x):
@@ -56,7 +63,9 @@ def bench_colour() -> dict:
     o = ours.residuals["ciede2000_mean"]["ccm"]
     return {
         "metric": "mean CIEDE2000 over 24 patches (lower is better)",
-        "ours_wb_ccm": o, "libraw_camera_matrix": peer, "libraw_camera_matrix_plus_grey_wb": peer_wb,
+        "ours_wb_ccm": o,
+        "libraw_camera_matrix": peer,
+        "libraw_camera_matrix_plus_grey_wb": peer_wb,
         "ratio_ours_over_libraw_plus_grey_wb": o / peer_wb,
     }
 
@@ -98,8 +107,12 @@ def bench_fisheye() -> dict:
     kb, mei = prof.models["kb"], prof.models["mei"]
     return {
         "metric": "RMS reprojection (px); held-out = leave-k-views-out (lower is better)",
-        "views": len(paths), "kb_fit": kb["rms_px"], "kb_held_out": kb["held_out"]["rms_px"],
-        "mei_fit": mei["rms_px"], "mei_held_out": mei["held_out"]["rms_px"], "chosen": prof.chosen_model,
+        "views": len(paths),
+        "kb_fit": kb["rms_px"],
+        "kb_held_out": kb["held_out"]["rms_px"],
+        "mei_fit": mei["rms_px"],
+        "mei_held_out": mei["held_out"]["rms_px"],
+        "chosen": prof.chosen_model,
         "ratio_mei_over_kb_held_out": mei["held_out"]["rms_px"] / kb["held_out"]["rms_px"],
     }
 

@@ -96,7 +96,9 @@ def bench_merge(folder: Path) -> dict:
         good |= ((c > 0.1) & (c < 0.9)).all(-1)
     res = {}
     for method in ("solidkit", "opencv_debevec"):
-        r = subprocess.run([sys.executable, "-c", CHILD, method, str(folder)], capture_output=True, text=True, cwd=REPO, check=True)
+        r = subprocess.run(
+            [sys.executable, "-c", CHILD, method, str(folder)], capture_output=True, text=True, cwd=REPO, check=True
+        )
         info = json.loads(r.stdout.strip().splitlines()[-1])
         hdr, _ = read_exr(info["out"])
         rel = np.abs(hdr - truth) / truth
@@ -122,7 +124,9 @@ def bench_ingest(folder: Path, n: int = 20) -> dict:
         ifd = ex.get_ifd(0x8769)
         ifd[0x829A] = TiffImagePlugin.IFDRational(1, 100 * (1 + i % 3))
         ifd[0x9003] = f"2024:06:01 12:{i // 6:02d}:{(i * 7) % 60:02d}"
-        Image.fromarray(np.roll(big, i * 16, axis=1)).save(card / f"R00100{i + 1:02d}.JPG", exif=ex.tobytes(), quality=92)
+        Image.fromarray(np.roll(big, i * 16, axis=1)).save(
+            card / f"R00100{i + 1:02d}.JPG", exif=ex.tobytes(), quality=92
+        )
     size_mb = sum(p.stat().st_size for p in card.iterdir()) / 2**20
     res: dict = {"captures": n, "card_mib": size_mb}
     dst = folder / "cp"
@@ -135,8 +139,21 @@ def bench_ingest(folder: Path, n: int = 20) -> dict:
     for jobs in (1, 2):
         camp = folder / f"camp{jobs}"
         t0 = time.perf_counter()
-        subprocess.run([str(REPO / ".venv" / "bin" / "solidkit"), "ingest", str(folder / "card"), "-o", str(camp), "--no-products",
-                        "--jobs", str(jobs)], check=True, capture_output=True, cwd=REPO)
+        subprocess.run(
+            [
+                str(REPO / ".venv" / "bin" / "solidkit"),
+                "ingest",
+                str(folder / "card"),
+                "-o",
+                str(camp),
+                "--no-products",
+                "--jobs",
+                str(jobs),
+            ],
+            check=True,
+            capture_output=True,
+            cwd=REPO,
+        )
         res[f"solidkit_jobs{jobs}_s"] = time.perf_counter() - t0
         res[f"solidkit_jobs{jobs}_captures_per_min"] = 60 * n / res[f"solidkit_jobs{jobs}_s"]
         res[f"time_ratio_jobs{jobs}_over_peer"] = res[f"solidkit_jobs{jobs}_s"] / res["peer_cp_sha256sum_s"]
@@ -148,29 +165,44 @@ def main() -> None:
     OUT.mkdir(parents=True, exist_ok=True)
     tmp = Path(tempfile.mkdtemp(prefix="bench_capture_"))
     try:
-        result = {"machine": platform.platform(), "cpus": __import__("os").cpu_count(),
-                  "load_average_at_start": list(__import__("os").getloadavg()),
-                  "merge_5792x2896_3_frames": bench_merge(tmp), "ingest_20_captures": bench_ingest(tmp)}
+        result = {
+            "machine": platform.platform(),
+            "cpus": __import__("os").cpu_count(),
+            "load_average_at_start": list(__import__("os").getloadavg()),
+            "merge_5792x2896_3_frames": bench_merge(tmp),
+            "ingest_20_captures": bench_ingest(tmp),
+        }
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
     (OUT / "capture.json").write_text(json.dumps(result, indent=2) + "\n")
     m, g = result["merge_5792x2896_3_frames"], result["ingest_20_captures"]
     lines = [
-        "# Capture benchmarks", "",
+        "# Capture benchmarks",
+        "",
         f"Machine: {result['machine']}, {result['cpus']} CPUs, load average at start "
-        f"{result['load_average_at_start'][0]:.1f} (shared machine: compare the ratios, not the seconds).", "",
-        "## HDR merge, 3 JPEG frames at 5792x2896 (decode + merge + EXR write)", "",
-        "| method | wall (s) | peak RSS (MiB) | median rel. error (well exposed) |", "|---|---|---|---|",
-        *[f"| {k} | {m[k]['wall_s']:.2f} | {m[k]['peak_rss_mib']:.0f} | {100 * m[k]['median_rel_error_well_exposed']:.2f} % |"
-          for k in ("solidkit", "opencv_debevec")],
-        "", f"Time ratio solidkit / OpenCV: {m['time_ratio_solidkit_over_opencv']:.2f} "
-        "(solidkit also computes the ghost mask and saturation/black masks).", "",
-        f"## Ingest, {g['captures']} captures of 5376x2688 ({g['card_mib']:.0f} MiB), no products", "",
-        "| method | wall (s) | captures / min |", "|---|---|---|",
+        f"{result['load_average_at_start'][0]:.1f} (shared machine: compare the ratios, not the seconds).",
+        "",
+        "## HDR merge, 3 JPEG frames at 5792x2896 (decode + merge + EXR write)",
+        "",
+        "| method | wall (s) | peak RSS (MiB) | median rel. error (well exposed) |",
+        "|---|---|---|---|",
+        *[
+            f"| {k} | {m[k]['wall_s']:.2f} | {m[k]['peak_rss_mib']:.0f} | {100 * m[k]['median_rel_error_well_exposed']:.2f} % |"
+            for k in ("solidkit", "opencv_debevec")
+        ],
+        "",
+        f"Time ratio solidkit / OpenCV: {m['time_ratio_solidkit_over_opencv']:.2f} "
+        "(solidkit also computes the ghost mask and saturation/black masks).",
+        "",
+        f"## Ingest, {g['captures']} captures of 5376x2688 ({g['card_mib']:.0f} MiB), no products",
+        "",
+        "| method | wall (s) | captures / min |",
+        "|---|---|---|",
         f"| cp + sha256sum (peer) | {g['peer_cp_sha256sum_s']:.2f} | {g['peer_captures_per_min']:.0f} |",
         f"| solidkit ingest --jobs 1 | {g['solidkit_jobs1_s']:.2f} | {g['solidkit_jobs1_captures_per_min']:.0f} |",
         f"| solidkit ingest --jobs 2 | {g['solidkit_jobs2_s']:.2f} | {g['solidkit_jobs2_captures_per_min']:.0f} |",
-        "", "solidkit also fully decodes every JPEG (truncation check), reads EXIF/XMP/maker notes, hashes the source "
+        "",
+        "solidkit also fully decodes every JPEG (truncation check), reads EXIF/XMP/maker notes, hashes the source "
         "and the bytes it writes, and fsyncs each original.",
     ]
     (OUT / "capture.md").write_text("\n".join(lines) + "\n")

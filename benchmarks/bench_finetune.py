@@ -26,11 +26,10 @@ import torch
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE.parent))
 
-from tests.support.testset_campaign import SCENES, make_campaign  # noqa: E402
-
 from solidkit.finetune.evaluate import default_methods, evaluate, items_from_testset, load_model  # noqa: E402
 from solidkit.finetune.finetune import FineTuneConfig, run_finetune  # noqa: E402
 from solidkit.testset.build import build_testset  # noqa: E402
+from tests.support.testset_campaign import SCENES, make_campaign  # noqa: E402
 
 OUT = HERE / "results"
 N_SCENES = 6
@@ -39,7 +38,10 @@ N_SCENES = 6
 def main() -> None:
     torch.set_num_threads(1)
     base = SCENES["sA"]
-    scenes = {f"s{k:02d}": (base[0] + 50 * k - 150, base[1] + 3 * k, base[2], base[3], base[4], base[5]) for k in range(N_SCENES)}
+    scenes = {
+        f"s{k:02d}": (base[0] + 50 * k - 150, base[1] + 3 * k, base[2], base[3], base[4], base[5])
+        for k in range(N_SCENES)
+    }
     with tempfile.TemporaryDirectory() as tmp:
         tmp = Path(tmp)
         make_campaign(tmp / "camp", scenes)
@@ -60,19 +62,34 @@ def main() -> None:
     res_ft = run_finetune(net, items, cfg)
     t_ft_total = time.perf_counter() - t0
     per_fold = res_ft["seconds_per_fold"]
-    passes = [sum(len(f["split"][k]) for k in ("train",)) * f["epochs_run"] + len(f["split"]["val"]) * (f["epochs_run"] + 1)
-              + len(f["split"]["train"]) for f in res_ft["folds"]]  # training steps + validation and initial passes
+    passes = [
+        sum(len(f["split"][k]) for k in ("train",)) * f["epochs_run"]
+        + len(f["split"]["val"]) * (f["epochs_run"] + 1)
+        + len(f["split"]["train"])
+        for f in res_ft["folds"]
+    ]  # training steps + validation and initial passes
     t_fold = sum(per_fold) / len(per_fold)
     t_fold_peer = t_predict * sum(passes) / len(passes)
     res = {
-        "machine": platform.platform(), "python": platform.python_version(), "torch": torch.__version__, "threads": 1,
+        "machine": platform.platform(),
+        "python": platform.python_version(),
+        "torch": torch.__version__,
+        "threads": 1,
         "load_average_1min": round(__import__("os").getloadavg()[0], 1),
-        "scenes": N_SCENES, "probes": n_probes, "model": net.config.name, "parameters": net.num_parameters,
-        "eval_s_per_scene": round(t_eval, 3), "predict_peer_s_per_scene": round(t_predict, 3),
+        "scenes": N_SCENES,
+        "probes": n_probes,
+        "model": net.config.name,
+        "parameters": net.num_parameters,
+        "eval_s_per_scene": round(t_eval, 3),
+        "predict_peer_s_per_scene": round(t_predict, 3),
         "eval_over_predict": round(t_eval / t_predict, 2),
-        "finetune_folds": len(per_fold), "finetune_epochs": cfg.epochs, "finetune_s_per_fold": round(t_fold, 2),
-        "finetune_s_total": round(t_ft_total, 2), "photo_passes_per_fold": round(sum(passes) / len(passes), 1),
-        "inference_of_as_many_passes_s": round(t_fold_peer, 2), "finetune_over_inference": round(t_fold / t_fold_peer, 2),
+        "finetune_folds": len(per_fold),
+        "finetune_epochs": cfg.epochs,
+        "finetune_s_per_fold": round(t_fold, 2),
+        "finetune_s_total": round(t_ft_total, 2),
+        "photo_passes_per_fold": round(sum(passes) / len(passes), 1),
+        "inference_of_as_many_passes_s": round(t_fold_peer, 2),
+        "finetune_over_inference": round(t_fold / t_fold_peer, 2),
         "trainable_parameters": res_ft["folds"][0]["trainable_parameters"],
     }
     OUT.mkdir(exist_ok=True)
@@ -86,7 +103,8 @@ def main() -> None:
         f"| evaluation per scene (4 methods, all metrics) | {t_eval:.2f} | SolidNet.predict per scene | {t_predict:.2f} | "
         f"{t_eval / t_predict:.1f}x |\n"
         f"| fine-tuning per fold ({cfg.folds} folds, {cfg.epochs} epochs) | {t_fold:.1f} | inference of as many photo passes "
-        f"({res['photo_passes_per_fold']}) | {t_fold_peer:.1f} | {t_fold / t_fold_peer:.1f}x |\n")
+        f"({res['photo_passes_per_fold']}) | {t_fold_peer:.1f} | {t_fold / t_fold_peer:.1f}x |\n"
+    )
     print(json.dumps(res, indent=1))
 
 

@@ -39,11 +39,10 @@ import numpy as np
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE.parent))
 
-from tests.support.labeling_campaign import disk  # noqa: E402
-
 from solidkit.capture.manifest import Manifest, Probe, Product, Scene, save_manifest  # noqa: E402
 from solidkit.envmap.coords import angular_distance, direction_from_angles  # noqa: E402
 from solidkit.labeling.store import LabelStore  # noqa: E402
+from tests.support.labeling_campaign import disk  # noqa: E402
 
 OUT = HERE / "results"
 MINI = HERE.parent / "solidkit" / "assets" / "campaign_mini"
@@ -115,8 +114,12 @@ def big_campaign(root: Path) -> Path:
     rel = "products/s1/p1/sun.jpg"
     (root / rel).parent.mkdir(parents=True)
     cv2.imwrite(str(root / rel), img, [cv2.IMWRITE_JPEG_QUALITY, 90])
-    products = [Product(id="s1/p1/sun", kind="sun_frame", scene="s1", probe="p1", inputs=[], path=rel, layout="equirect")]
-    save_manifest(root, Manifest(scenes=[Scene(id="s1", grouping="folder", probes=[Probe(id="p1", shots=[])])], products=products))
+    products = [
+        Product(id="s1/p1/sun", kind="sun_frame", scene="s1", probe="p1", inputs=[], path=rel, layout="equirect")
+    ]
+    save_manifest(
+        root, Manifest(scenes=[Scene(id="s1", grouping="folder", probes=[Probe(id="p1", shots=[])])], products=products)
+    )
     return root / rel
 
 
@@ -150,8 +153,13 @@ def bench_serving(tmp: Path) -> dict:
         res["tile_encode_median_s"] = statistics.median(times)
         res["tile_kb_median"] = statistics.median(sizes) / 1e3
         res["tiles_all_mb"] = sum(sizes) / 1e6
-        res["tile_warm_median_s"] = statistics.median(get(f"{base}/api/img/{img['id']}/tile/{c}/{r}.jpg")[0] for c in range(4) for r in range(2))
-        crops = [get(f"{base}/api/img/{img['id']}/crop.jpg?x={1000 + 64 * k}&y=800&w=1024&h=640&out=1024")[0] for k in range(5)]
+        res["tile_warm_median_s"] = statistics.median(
+            get(f"{base}/api/img/{img['id']}/tile/{c}/{r}.jpg")[0] for c in range(4) for r in range(2)
+        )
+        crops = [
+            get(f"{base}/api/img/{img['id']}/crop.jpg?x={1000 + 64 * k}&y=800&w=1024&h=640&out=1024")[0]
+            for k in range(5)
+        ]
         res["crop_median_s"] = statistics.median(crops)
         mem = rss_mb(proc.pid)
         res["rss_after_all_tiles_mb"], res["rss_peak_mb"] = mem["VmRSS"], mem["VmHWM"]
@@ -173,7 +181,9 @@ def bench_serving(tmp: Path) -> dict:
     res["peer_decode_s"] = time.perf_counter() - t0
     # a pan at a 30 deg field of view needs ~2 new full-resolution tiles (456 px = 22.5 deg each)
     res["bytes_per_pan_ratio_whole_over_tiles"] = res["file_mb"] * 1e3 / (2 * res["tile_kb_median"])
-    res["first_view_ratio_whole_over_preview_plus_4_tiles"] = res["file_mb"] * 1e3 / (res["preview_kb"] + 4 * res["tile_kb_median"])
+    res["first_view_ratio_whole_over_preview_plus_4_tiles"] = (
+        res["file_mb"] * 1e3 / (res["preview_kb"] + 4 * res["tile_kb_median"])
+    )
     return res
 
 
@@ -193,7 +203,17 @@ def sun_campaign(root: Path, n_scenes: int = 5, per_scene: int = 4, seed: int = 
             rel = f"products/{key}/sun.png"
             (root / rel).parent.mkdir(parents=True)
             cv2.imwrite(str(root / rel), pano)
-            products.append(Product(id=f"{key}/sun", kind="sun_frame", scene=f"sc{s:02d}", probe=f"p{p}", inputs=[], path=rel, layout="equirect"))
+            products.append(
+                Product(
+                    id=f"{key}/sun",
+                    kind="sun_frame",
+                    scene=f"sc{s:02d}",
+                    probe=f"p{p}",
+                    inputs=[],
+                    path=rel,
+                    layout="equirect",
+                )
+            )
             probes.append(Probe(id=f"p{p}", shots=[]))
             captures.append({"probe": f"p{p}", "found": True, "azimuth_deg": az + rng.normal(0, 0.2), "elevation_deg": el + rng.normal(0, 0.2),
                              "uncertainty_deg": 0.3, "candidates": []})  # fmt: skip
@@ -232,13 +252,19 @@ def bench_annotator(tmp: Path) -> dict:
                     box = strip.bounding_box()
                     shot = cv2.imdecode(np.frombuffer(strip.screenshot(), np.uint8), cv2.IMREAD_GRAYSCALE)
                     ys, xs = np.nonzero(shot >= shot.max() - 10)  # the brightest spot, as an eye would
-                    page.mouse.click(box["x"] + xs.mean() * box["width"] / shot.shape[1], box["y"] + ys.mean() * box["height"] / shot.shape[0])
+                    page.mouse.click(
+                        box["x"] + xs.mean() * box["width"] / shot.shape[1],
+                        box["y"] + ys.mean() * box["height"] / shot.shape[0],
+                    )
                     page.wait_for_timeout(120)
                     view = page.locator("#sun-sphere")
                     vb = view.bounding_box()
                     g = cv2.imdecode(np.frombuffer(view.screenshot(), np.uint8), cv2.IMREAD_GRAYSCALE)
                     ys, xs = np.nonzero(g > 200)
-                    page.mouse.click(vb["x"] + (xs.mean() + 0.5) * vb["width"] / g.shape[1], vb["y"] + (ys.mean() + 0.5) * vb["height"] / g.shape[0])
+                    page.mouse.click(
+                        vb["x"] + (xs.mean() + 0.5) * vb["width"] / g.shape[1],
+                        vb["y"] + (ys.mean() + 0.5) * vb["height"] / g.shape[0],
+                    )
                     page.keyboard.press("s")
                 page.wait_for_selector(f"body[data-saved^='sun:{key}:']", timeout=30000)
             elapsed = time.perf_counter() - t0
@@ -278,7 +304,9 @@ def truth_suns(truth_json: Path) -> dict[str, tuple[bool, float | None, float | 
             if not ct["sun_visible"] or ct["sun_body"] is None:
                 out[f"{st['id']}/{ct['id']}"] = (False, None, None)
                 continue
-            R = np.asarray(rotation_from_ypr(0.0, math.radians(ct["recorded_pitch_deg"]), math.radians(ct["recorded_roll_deg"])))
+            R = np.asarray(
+                rotation_from_ypr(0.0, math.radians(ct["recorded_pitch_deg"]), math.radians(ct["recorded_roll_deg"]))
+            )
             az, el = (math.degrees(float(v)) for v in angles_from_direction(R @ np.asarray(ct["sun_body"])))
             out[f"{st['id']}/{ct['id']}"] = (True, az, el)
     return out
@@ -305,7 +333,9 @@ def bench_virtual_campaign(campaign: Path, truth_json: Path, tmp: Path) -> dict:
     with sync_playwright() as pw:
         browser = pw.chromium.launch(executable_path=CHROMIUM, args=["--no-sandbox"])
         ctx = browser.new_context(viewport={"width": 1366, "height": 768})
-        ctx.add_init_script("localStorage.setItem('solidkit.annotator', 'bench'); localStorage.setItem('solidkit.blind', '1')")
+        ctx.add_init_script(
+            "localStorage.setItem('solidkit.annotator', 'bench'); localStorage.setItem('solidkit.blind', '1')"
+        )
         page = ctx.new_page()  # blind: the scripted annotator does not see align's proposal
         t0 = time.perf_counter()
         for key in keys:
@@ -320,7 +350,10 @@ def bench_virtual_campaign(campaign: Path, truth_json: Path, tmp: Path) -> dict:
                 n, _, stats, cent = cv2.connectedComponentsWithStats((g >= int(g.max()) - 20).astype(np.uint8))
                 area = np.where(stats[1:, cv2.CC_STAT_AREA] <= 0.002 * g.size, stats[1:, cv2.CC_STAT_AREA], 0)
                 c = 1 + int(np.argmax(area))
-                page.mouse.click(box["x"] + (cent[c][0] + 0.5) * box["width"] / g.shape[1], box["y"] + (cent[c][1] + 0.5) * box["height"] / g.shape[0])
+                page.mouse.click(
+                    box["x"] + (cent[c][0] + 0.5) * box["width"] / g.shape[1],
+                    box["y"] + (cent[c][1] + 0.5) * box["height"] / g.shape[0],
+                )
                 page.wait_for_timeout(150)
                 view = page.locator("#sun-sphere")
                 vb = view.bounding_box()
@@ -330,13 +363,18 @@ def bench_virtual_campaign(campaign: Path, truth_json: Path, tmp: Path) -> dict:
                     page.keyboard.press("n")
                 else:
                     c = 1 + int(np.argmax(stats[1:, cv2.CC_STAT_AREA]))
-                    page.mouse.click(vb["x"] + (cent[c][0] + 0.5) * vb["width"] / v.shape[1], vb["y"] + (cent[c][1] + 0.5) * vb["height"] / v.shape[0])
+                    page.mouse.click(
+                        vb["x"] + (cent[c][0] + 0.5) * vb["width"] / v.shape[1],
+                        vb["y"] + (cent[c][1] + 0.5) * vb["height"] / v.shape[0],
+                    )
                     page.keyboard.press("s")
             page.wait_for_selector(f"body[data-saved^='sun:{key}:']", timeout=30000)
         elapsed = time.perf_counter() - t0
         browser.close()
     review = json.loads(get(f"http://127.0.0.1:{port}/api/queue/review")[1])["items"]
-    flagged = {r["key"] for r in review if r["kind"] == "sun" and any(f.startswith("differs_from_auto") for f in r["flags"])}
+    flagged = {
+        r["key"] for r in review if r["kind"] == "sun" and any(f.startswith("differs_from_auto") for f in r["flags"])
+    }
     stop_server(server, th)
     store = LabelStore(camp)
 
@@ -386,11 +424,19 @@ def main() -> None:
         vc, vt = os.environ.get("SOLIDKIT_BENCH_CAMPAIGN"), os.environ.get("SOLIDKIT_BENCH_TRUTH")
         if not (vc and vt) and MINI.is_dir():
             vc, vt = str(chain_mini(tmp)), str(MINI / "truth" / "truth.json")
-        virtual = bench_virtual_campaign(Path(vc), Path(vt), tmp) if vc and vt and Path(CHROMIUM).is_file() else {
-            "skipped": "no chromium, or no campaign (set SOLIDKIT_BENCH_CAMPAIGN and SOLIDKIT_BENCH_TRUTH)"}
+        virtual = (
+            bench_virtual_campaign(Path(vc), Path(vt), tmp)
+            if vc and vt and Path(CHROMIUM).is_file()
+            else {"skipped": "no chromium, or no campaign (set SOLIDKIT_BENCH_CAMPAIGN and SOLIDKIT_BENCH_TRUTH)"}
+        )
     load = os.getloadavg()[0]
-    doc = {"machine": platform.platform(), "load_average_1min": load, "serving_7296x3648": serving, "scripted_annotator": annot,
-           "virtual_campaign": virtual}
+    doc = {
+        "machine": platform.platform(),
+        "load_average_1min": load,
+        "serving_7296x3648": serving,
+        "scripted_annotator": annot,
+        "virtual_campaign": virtual,
+    }
     (OUT / "labeling.json").write_text(json.dumps(doc, indent=1) + "\n")
     s = serving
     lines = [
@@ -418,7 +464,9 @@ def main() -> None:
     else:
         lines += ["| mode | labels/min | median error vs truth | max error |", "|---|---|---|---|"]
         for mode, r in annot.items():
-            lines.append(f"| {mode} | {r['labels_per_minute']:.0f} | {r['error_deg_median']:.3f} deg | {r['error_deg_max']:.3f} deg |")
+            lines.append(
+                f"| {mode} | {r['labels_per_minute']:.0f} | {r['error_deg_median']:.3f} deg | {r['error_deg_max']:.3f} deg |"
+            )
     lines += ["", "## A virtual campaign's sun frames, labelled blind by the scripted annotator, against the truth", ""]
     if "skipped" in virtual:
         lines.append(f"skipped: {virtual['skipped']}")

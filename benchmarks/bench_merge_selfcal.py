@@ -119,9 +119,15 @@ def main() -> None:
                     ocv, _ = opencv_pipeline(paths, times)
                     ours, prov = solidkit_pipeline(paths, times)
                     srgb, _ = solidkit_pipeline(paths, times, srgb=True)
-                    row = {"set": name, "camera": cam, "frames": n, "solidkit": log2_error(ours, hdr, well),
-                           "opencv_debevec": log2_error(ocv, hdr, well), "srgb_assumed": log2_error(srgb, hdr, well),
-                           "solidkit_response": prov["response"]["kind"]}
+                    row = {
+                        "set": name,
+                        "camera": cam,
+                        "frames": n,
+                        "solidkit": log2_error(ours, hdr, well),
+                        "opencv_debevec": log2_error(ocv, hdr, well),
+                        "srgb_assumed": log2_error(srgb, hdr, well),
+                        "solidkit_response": prov["response"]["kind"],
+                    }
                     rows.append(row)
                     print(row, flush=True)
         # the real bracket, reference-free
@@ -130,37 +136,58 @@ def main() -> None:
             times = [read_metadata(p).exposure_time for p in paths]
             ocv, ocv_curve = opencv_pipeline(paths, times)
             from solidkit.capture.bracket_merge import merge_bracket
-            from solidkit.capture.selfcal import estimate_response
             from solidkit.capture.frame_merge import read_ldr_codes
+            from solidkit.capture.selfcal import estimate_response
 
             result, prov = merge_bracket(paths, times)
             curve, _ = estimate_response([read_ldr_codes(p) for p in paths], times)
             srgb, _ = solidkit_pipeline(paths, times, srgb=True)
-            frob = {"solidkit": code_prediction_error(result.hdr, curve, paths, times),
-                    "opencv_debevec": code_prediction_error(ocv, ocv_curve, paths, times),
-                    "srgb_assumed": code_prediction_error(srgb, srgb_response(), paths, times),
-                    "solidkit_ghost_fraction": result.ghost_fraction, "registration": prov["registration"]}
+            frob = {
+                "solidkit": code_prediction_error(result.hdr, curve, paths, times),
+                "opencv_debevec": code_prediction_error(ocv, ocv_curve, paths, times),
+                "srgb_assumed": code_prediction_error(srgb, srgb_response(), paths, times),
+                "solidkit_ghost_fraction": result.ghost_fraction,
+                "registration": prov["registration"],
+            }
             print("frobisher", frob, flush=True)
-    res = {"machine": f"{platform.platform()}, {__import__('os').cpu_count()} CPUs", "python": sys.version.split()[0],
-           "opencv": cv2.__version__, "simulated": rows, "frobisher": frob}
+    res = {
+        "machine": f"{platform.platform()}, {__import__('os').cpu_count()} CPUs",
+        "python": sys.version.split()[0],
+        "opencv": cv2.__version__,
+        "simulated": rows,
+        "frobisher": frob,
+    }
     OUT.mkdir(exist_ok=True)
     (OUT / "merge_selfcal.json").write_text(json.dumps(res, indent=1))
-    lines = ["# HDR merge without a given response curve: solidkit vs OpenCV (CalibrateDebevec + MergeDebevec)", "",
-             f"Machine: {res['machine']}; OpenCV {res['opencv']}. Same run, same frames and exposure times.", "",
-             "## Real HDR panoramas through simulated non-sRGB cameras (median |log2 error| after global scale)", "",
-             "| panorama | camera | frames | solidkit | OpenCV | ratio solidkit/OpenCV | sRGB assumed (old default) |",
-             "|---|---|---|---|---|---|---|"]
+    lines = [
+        "# HDR merge without a given response curve: solidkit vs OpenCV (CalibrateDebevec + MergeDebevec)",
+        "",
+        f"Machine: {res['machine']}; OpenCV {res['opencv']}. Same run, same frames and exposure times.",
+        "",
+        "## Real HDR panoramas through simulated non-sRGB cameras (median |log2 error| after global scale)",
+        "",
+        "| panorama | camera | frames | solidkit | OpenCV | ratio solidkit/OpenCV | sRGB assumed (old default) |",
+        "|---|---|---|---|---|---|---|",
+    ]
     for r in rows:
-        lines.append(f"| {r['set']} | {r['camera']} | {r['frames']} | {r['solidkit']:.4f} | {r['opencv_debevec']:.4f} | "
-                     f"{r['solidkit'] / max(r['opencv_debevec'], 1e-12):.2f} | {r['srgb_assumed']:.4f} |")
+        lines.append(
+            f"| {r['set']} | {r['camera']} | {r['frames']} | {r['solidkit']:.4f} | {r['opencv_debevec']:.4f} | "
+            f"{r['solidkit'] / max(r['opencv_debevec'], 1e-12):.2f} | {r['srgb_assumed']:.4f} |"
+        )
     wins = sum(r["solidkit"] < r["opencv_debevec"] for r in rows)
     lines += ["", f"solidkit lower than OpenCV on {wins} of {len(rows)} sets.", ""]
     if frob:
-        lines += ["## Real bracket (frobisher, Canon, 3 frames), no reference: frame re-prediction", "",
-                  "| method | median code error (8-bit) |", "|---|---|",
-                  f"| solidkit | {frob['solidkit']:.3f} |", f"| OpenCV | {frob['opencv_debevec']:.3f} |",
-                  f"| sRGB assumed | {frob['srgb_assumed']:.3f} |", "",
-                  f"solidkit ghost fraction on this static bracket: {100 * frob['solidkit_ghost_fraction']:.2f} %."]
+        lines += [
+            "## Real bracket (frobisher, Canon, 3 frames), no reference: frame re-prediction",
+            "",
+            "| method | median code error (8-bit) |",
+            "|---|---|",
+            f"| solidkit | {frob['solidkit']:.3f} |",
+            f"| OpenCV | {frob['opencv_debevec']:.3f} |",
+            f"| sRGB assumed | {frob['srgb_assumed']:.3f} |",
+            "",
+            f"solidkit ghost fraction on this static bracket: {100 * frob['solidkit_ghost_fraction']:.2f} %.",
+        ]
     (OUT / "merge_selfcal.md").write_text("\n".join(lines) + "\n")
 
 

@@ -45,9 +45,9 @@ def _time(fn, repeats: int) -> dict[str, float]:
 def run_one(config: str, threads: int, repeats: int) -> dict:
     import torch
 
+    from solidkit.envmap.perspective import intrinsics_from_fov
     from solidkit.model.baselines import LENetReg
     from solidkit.model.config import preset
-    from solidkit.envmap.perspective import intrinsics_from_fov
     from solidkit.model.solidnet import SolidNet
 
     torch.set_num_threads(threads)

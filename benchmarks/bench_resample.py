@@ -116,8 +116,13 @@ def main() -> dict:
     res: dict = {
         "image": f"{2 * H}x{H} float32 RGB",
         "rotation_ypr_deg": YPR_DEG,
-        "machine": {"python": platform.python_version(), "cpu_count": os.cpu_count(),
-                    "torch_threads": torch.get_num_threads(), "opencv": cv2.__version__, "numpy": np.__version__},
+        "machine": {
+            "python": platform.python_version(),
+            "cpu_count": os.cpu_count(),
+            "torch_threads": torch.get_num_threads(),
+            "opencv": cv2.__version__,
+            "numpy": np.__version__,
+        },
         "timing": f"seconds, best of {ROUNDS} rounds timed in alternation after one warm-up call",
     }
 

@@ -104,18 +104,39 @@ def recovery(panos) -> list[dict]:
         dt = time.perf_counter() - t0
         lay = {0.0: "upright", 90.0: "rotated +90°", -90.0: "rotated -90°"}[roll]
         row = {
-            "scene": scene, "truth": {"family": fam, "fov_deg": 2 * hf, "roll_deg": roll, "arrangement": arr,
-                                      "back_aim_offset_deg": list(off)},
-            "family": fit.family, "fov_deg": round(2 * fit.half_fov_deg, 2), "layout": fit.layout,
-            "family_ok": fit.family == fam, "layout_ok": fit.layout.endswith(lay),
+            "scene": scene,
+            "truth": {
+                "family": fam,
+                "fov_deg": 2 * hf,
+                "roll_deg": roll,
+                "arrangement": arr,
+                "back_aim_offset_deg": list(off),
+            },
+            "family": fit.family,
+            "fov_deg": round(2 * fit.half_fov_deg, 2),
+            "layout": fit.layout,
+            "family_ok": fit.family == fam,
+            "layout_ok": fit.layout.endswith(lay),
             "fov_error_deg": round(2 * fit.half_fov_deg - 2 * hf, 2),
-            "center_error_px": [round(math.dist(a.center, b.center), 3) for a, b in zip(fit.profile.lenses, truth.lenses)],
-            "back_rotation_error_deg": round(rotation_deg(fit.profile.lenses[0].rotation.T @ fit.profile.lenses[1].rotation,
-                                                          truth.lenses[0].rotation.T @ truth.lenses[1].rotation), 3),
-            "upright": fit.upright.to_json(), "seam_error_start": round(fit.seam_start["seam_error"], 4),
+            "center_error_px": [
+                round(math.dist(a.center, b.center), 3) for a, b in zip(fit.profile.lenses, truth.lenses)
+            ],
+            "back_rotation_error_deg": round(
+                rotation_deg(
+                    fit.profile.lenses[0].rotation.T @ fit.profile.lenses[1].rotation,
+                    truth.lenses[0].rotation.T @ truth.lenses[1].rotation,
+                ),
+                3,
+            ),
+            "upright": fit.upright.to_json(),
+            "seam_error_start": round(fit.seam_start["seam_error"], 4),
             "seam_error_refined": round(fit.scans["refined_seam"]["seam_error"], 4),
-            "seam_error_kept": round(fit.seam_final["seam_error"], 4), "refused": fit.refusal is not None,
-            "families": {k: [round(2 * v["half_fov_deg"], 2), round(v["seam_error"], 4)] for k, v in fit.scans["families"].items()},
+            "seam_error_kept": round(fit.seam_final["seam_error"], 4),
+            "refused": fit.refusal is not None,
+            "families": {
+                k: [round(2 * v["half_fov_deg"], 2), round(v["seam_error"], 4)]
+                for k, v in fit.scans["families"].items()
+            },
             "seconds": round(dt, 1),
         }
         print(json.dumps(row), flush=True)
@@ -124,8 +145,9 @@ def recovery(panos) -> list[dict]:
 
 
 def old_overlap(rev: str):
-    src = subprocess.run(["git", "show", f"{rev}:solidkit/calibration/overlap.py"], cwd=REPO, capture_output=True,
-                         text=True, check=True).stdout
+    src = subprocess.run(
+        ["git", "show", f"{rev}:solidkit/calibration/overlap.py"], cwd=REPO, capture_output=True, text=True, check=True
+    ).stdout
     path = Path(tempfile.mkdtemp()) / "overlap_old.py"
     path.write_text(src)
     spec = importlib.util.spec_from_file_location("overlap_old", path)
@@ -151,18 +173,27 @@ def gear_case(panos, tmp: Path, old_rev: str | None) -> dict:
     for name, fn in runs:
         s = fn([src], "theta-v", tmp / f"gear-{name[:3]}.json")
         prof = load_profile(tmp / f"gear-{name[:3]}.json")
-        out[name] = {"seam_error_before": round(seam_of(src, load_profile("theta-v")), 4),
-                     "seam_error_after": round(seam_of(src, prof), 4),
-                     "seam_mad_before": s["seam_mad_before"], "seam_mad_after": s["seam_mad_after"],
-                     "center_shift_px_at_5792": [round(math.hypot(*c), 1) for c in s["center_shift_px"]],
-                     "back_rotation_change_deg": round(s["back_rotation_change_deg"], 2),
-                     "refused": s.get("refused"), "warnings": [w.split(":")[0] for w in s.get("warnings", [])]}
+        out[name] = {
+            "seam_error_before": round(seam_of(src, load_profile("theta-v")), 4),
+            "seam_error_after": round(seam_of(src, prof), 4),
+            "seam_mad_before": s["seam_mad_before"],
+            "seam_mad_after": s["seam_mad_after"],
+            "center_shift_px_at_5792": [round(math.hypot(*c), 1) for c in s["center_shift_px"]],
+            "back_rotation_change_deg": round(s["back_rotation_change_deg"], 2),
+            "refused": s.get("refused"),
+            "warnings": [w.split(":")[0] for w in s.get("warnings", [])],
+        }
         print(name, json.dumps(out[name]), flush=True)
     fit = fit_dual_fisheye(read_linear(src)[0], 0.98)
-    out["calibrate fisheye"] = {"family": fit.family, "fov_deg": round(2 * fit.half_fov_deg, 2), "layout": fit.layout,
-                                "center_error_px": [round(math.dist((l.center[0], l.center[1]), (c.cx, c.cy)), 3)
-                                                    for l, c in zip(fit.profile.lenses, GEAR)],
-                                "seam_error": round(fit.seam_final["seam_error"], 4)}
+    out["calibrate fisheye"] = {
+        "family": fit.family,
+        "fov_deg": round(2 * fit.half_fov_deg, 2),
+        "layout": fit.layout,
+        "center_error_px": [
+            round(math.dist((l.center[0], l.center[1]), (c.cx, c.cy)), 3) for l, c in zip(fit.profile.lenses, GEAR)
+        ],
+        "seam_error": round(fit.seam_final["seam_error"], 4),
+    }
     print("fisheye", json.dumps(out["calibrate fisheye"]), flush=True)
     return out
 
@@ -172,12 +203,27 @@ def real_frames(tmp: Path) -> dict:
     out = {}
     t0 = time.perf_counter()
     fit, s = fit_file(src, tmp / "ts.json")
-    out["calibrate fisheye"] = {k: s[k] for k in ("layout", "family", "fov_deg", "circles", "back_ypr_deg", "seam_error_start",
-                                                  "seam_error_refined", "seam_error", "refusal", "shipped_profiles_seam_error")}
+    out["calibrate fisheye"] = {
+        k: s[k]
+        for k in (
+            "layout",
+            "family",
+            "fov_deg",
+            "circles",
+            "back_ypr_deg",
+            "seam_error_start",
+            "seam_error_refined",
+            "seam_error",
+            "refusal",
+            "shipped_profiles_seam_error",
+        )
+    }
     out["calibrate fisheye"]["seconds"] = round(time.perf_counter() - t0, 1)
     s = refine_files([src], "theta-s-video", tmp / "ts-unit.json")
-    out["calibrate overlap --base theta-s-video"] = {k: s[k] for k in ("seam_error_before", "seam_error_after", "refused",
-                                                                        "center_shift_px", "back_rotation_change_deg")}
+    out["calibrate overlap --base theta-s-video"] = {
+        k: s[k]
+        for k in ("seam_error_before", "seam_error_after", "refused", "center_shift_px", "back_rotation_change_deg")
+    }
     img, sat = read_input(src)
     prof = load_profile("theta-s-video")
     rep, w = check_profile_fit(img, prof, sat)
@@ -185,11 +231,16 @@ def real_frames(tmp: Path) -> dict:
     out["unwarp --profile theta-s-video"] = {"report": rep, "warnings": [x.split(":")[0] for x in w]}
     turned = cv2.imread(str(src))
     for (cx, cy), t in (((461, 481), cv2.ROTATE_90_CLOCKWISE), ((1456, 470), cv2.ROTATE_90_COUNTERCLOCKWISE)):
-        turned[cy - 460:cy + 460, cx - 460:cx + 460] = cv2.rotate(turned[cy - 460:cy + 460, cx - 460:cx + 460].copy(), t)
+        turned[cy - 460 : cy + 460, cx - 460 : cx + 460] = cv2.rotate(
+            turned[cy - 460 : cy + 460, cx - 460 : cx + 460].copy(), t
+        )
     turned = cv2.cvtColor(turned, cv2.COLOR_BGR2RGB)
     rep, w = check_profile_fit(turned, prof, sat)
     w += check_upright(unwarp_srgb8(turned, prof, 512), rep)
-    out["circles turned by 90°, unwarp --profile theta-s-video"] = {"report": rep, "warnings": [x.split(":")[0] for x in w]}
+    out["circles turned by 90°, unwarp --profile theta-s-video"] = {
+        "report": rep,
+        "warnings": [x.split(":")[0] for x in w],
+    }
     print(json.dumps(out, default=str), flush=True)
     return out
 
@@ -202,14 +253,22 @@ def warning_table(panos) -> list[dict]:
 
     def add(kind, correct, name, image, prof, sat=0.98):
         rep, warns = check_profile_fit(image, prof, sat)
-        rows.append({"kind": kind, "correct": correct, "case": name, "seam_error": rep["seam_error"],
-                     "warns": [w.split(":")[0] for w in warns]})
+        rows.append(
+            {
+                "kind": kind,
+                "correct": correct,
+                "case": name,
+                "seam_error": rep["seam_error"],
+                "warns": [w.split(":")[0] for w in warns],
+            }
+        )
         print(rows[-1], flush=True)
 
     def moved(prof, back_deg=0.0, centre_frac=0.0, fov_scale=1.0):
         R = np.asarray(rotation_z(0.0))
         from solidkit.camera.lens import rotation_to_ypr_deg
         from solidkit.envmap.coords import rotation_from_ypr
+
         lenses = list(prof.lenses)
         if back_deg:
             R = np.asarray(rotation_from_ypr(math.radians(back_deg), 0.0, 0.0))
@@ -226,7 +285,13 @@ def warning_table(panos) -> list[dict]:
         add("rendered Theta V", True, f"{scene}: theta-v", img, theta)
         for deg in (1.0, 2.0, 4.0, 8.0):
             add("rendered Theta V", False, f"{scene}: back lens {deg:g}° off", img, moved(theta, back_deg=deg))
-        add("rendered Theta V", False, f"{scene}: front centre 3 % of the radius off", img, moved(theta, centre_frac=0.03))
+        add(
+            "rendered Theta V",
+            False,
+            f"{scene}: front centre 3 % of the radius off",
+            img,
+            moved(theta, centre_frac=0.03),
+        )
         add("rendered Theta V", False, f"{scene}: r(theta) 3 % too large", img, moved(theta, fov_scale=1.03))
         other = to_uint8(camera_frame(panos[scene], truth_profile("equidistant", 97.5, circles=GEAR), SIZE))
         add("another camera", False, f"{scene}: Gear-like equidistant 195° frame with theta-v", other, theta)
@@ -241,8 +306,14 @@ def warning_table(panos) -> list[dict]:
     img, sat = read_input(src)
     add("real Theta S frame", True, "theta-s-video", img, load_profile("theta-s-video"), sat)
     for deg in (2.0, 4.0):
-        add("real Theta S frame", False, f"theta-s-video, back lens {deg:g}° off", img,
-            moved(load_profile("theta-s-video"), back_deg=deg), sat)
+        add(
+            "real Theta S frame",
+            False,
+            f"theta-s-video, back lens {deg:g}° off",
+            img,
+            moved(load_profile("theta-s-video"), back_deg=deg),
+            sat,
+        )
     return rows
 
 
@@ -253,94 +324,153 @@ def upright_table(panos) -> list[dict]:
         for roll in (0.0, 90.0, -90.0):
             p = np.asarray(rotate(x, rotation_z(math.radians(-roll))), np.float32) if roll else x
             e = upright_of_panorama(to_uint8(p))
-            rows.append({"panorama": f"{scene} (real HDR, tonemapped)", "turned_deg": roll, "found_roll_deg": e.roll_deg,
-                         "margin": round(e.margin, 3), "confident": e.confident, "ok": e.roll_deg == roll})
+            rows.append(
+                {
+                    "panorama": f"{scene} (real HDR, tonemapped)",
+                    "turned_deg": roll,
+                    "found_roll_deg": e.roll_deg,
+                    "margin": round(e.margin, 3),
+                    "confident": e.confident,
+                    "ok": e.roll_deg == roll,
+                }
+            )
     src = REAL / "theta_s_dualfisheye" / "thetaS_dualfisheye_raw_1920x1080.jpg"
     img, _ = read_input(src)
     pano = unwarp_srgb8(img, load_profile("theta-s-video"), 512)
     for roll in (0.0, 90.0, -90.0):
         p = np.asarray(rotate(pano.astype(np.float32), rotation_z(math.radians(-roll))), np.float32) if roll else pano
         e = upright_of_panorama(np.clip(p, 0, 255).astype(np.uint8))
-        rows.append({"panorama": "real Theta S kitchen via theta-s-video", "turned_deg": roll, "found_roll_deg": e.roll_deg,
-                     "margin": round(e.margin, 3), "confident": e.confident, "ok": e.roll_deg == roll})
+        rows.append(
+            {
+                "panorama": "real Theta S kitchen via theta-s-video",
+                "turned_deg": roll,
+                "found_roll_deg": e.roll_deg,
+                "margin": round(e.margin, 3),
+                "confident": e.confident,
+                "ok": e.roll_deg == roll,
+            }
+        )
     for r in rows:
         print(r, flush=True)
     return rows
 
 
 def markdown(res: dict) -> str:
-    L = ["# Any dual-fisheye camera from one frame", "",
-         f"Run {res['date']} on {res['machine']} (load average {res['load']}); `benchmarks/bench_selfcal.py`. "
-         "Frames rendered from the real CC0 HDR panoramas with solidkit's forward model, 8-bit sRGB.", "",
-         "## 1. Recovered vs truth (`calibrate fisheye`, refinement on, 960x480 / 480x960)", "",
-         "| scene | truth family, fov, layout, back-lens aim | found family, fov | layout | centre err px | back-lens err ° | seam start → refined (kept) | s |",
-         "|---|---|---|---|---|---|---|---|"]
+    L = [
+        "# Any dual-fisheye camera from one frame",
+        "",
+        f"Run {res['date']} on {res['machine']} (load average {res['load']}); `benchmarks/bench_selfcal.py`. "
+        "Frames rendered from the real CC0 HDR panoramas with solidkit's forward model, 8-bit sRGB.",
+        "",
+        "## 1. Recovered vs truth (`calibrate fisheye`, refinement on, 960x480 / 480x960)",
+        "",
+        "| scene | truth family, fov, layout, back-lens aim | found family, fov | layout | centre err px | back-lens err ° | seam start → refined (kept) | s |",
+        "|---|---|---|---|---|---|---|---|",
+    ]
     for r in res["recovery"]:
         t = r["truth"]
-        L.append(f"| {r['scene']} | {t['family']} {t['fov_deg']:.0f}°, {t['arrangement']}, roll {t['roll_deg']:+.0f}°, "
-                 f"aim {t['back_aim_offset_deg']} | {r['family']}{'' if r['family_ok'] else ' ✗'} {r['fov_deg']:.2f}° "
-                 f"({r['fov_error_deg']:+.2f}) | {r['layout']}{'' if r['layout_ok'] else ' ✗'} | "
-                 f"{', '.join(f'{c:.2f}' for c in r['center_error_px'])} | {r['back_rotation_error_deg']:.2f} | "
-                 f"{r['seam_error_start']:.3f} → {r['seam_error_refined']:.3f}{' refused' if r['refused'] else ''} "
-                 f"({r['seam_error_kept']:.3f}) | {r['seconds']} |")
+        L.append(
+            f"| {r['scene']} | {t['family']} {t['fov_deg']:.0f}°, {t['arrangement']}, roll {t['roll_deg']:+.0f}°, "
+            f"aim {t['back_aim_offset_deg']} | {r['family']}{'' if r['family_ok'] else ' ✗'} {r['fov_deg']:.2f}° "
+            f"({r['fov_error_deg']:+.2f}) | {r['layout']}{'' if r['layout_ok'] else ' ✗'} | "
+            f"{', '.join(f'{c:.2f}' for c in r['center_error_px'])} | {r['back_rotation_error_deg']:.2f} | "
+            f"{r['seam_error_start']:.3f} → {r['seam_error_refined']:.3f}{' refused' if r['refused'] else ''} "
+            f"({r['seam_error_kept']:.3f}) | {r['seconds']} |"
+        )
     g = res["gear"]
-    L += ["", "## 2. Refinement from another camera's profile (`calibrate overlap --base theta-v` on a Gear-like frame)", "",
-          g["frame"], "", "| code | seam error before → after | linear seam MAD before → after | centre shifts (px at 5792) | back lens change ° | refused | warnings |",
-          "|---|---|---|---|---|---|---|"]
+    L += [
+        "",
+        "## 2. Refinement from another camera's profile (`calibrate overlap --base theta-v` on a Gear-like frame)",
+        "",
+        g["frame"],
+        "",
+        "| code | seam error before → after | linear seam MAD before → after | centre shifts (px at 5792) | back lens change ° | refused | warnings |",
+        "|---|---|---|---|---|---|---|",
+    ]
     for k, v in g.items():
         if isinstance(v, dict) and "center_shift_px_at_5792" in v:
-            L.append(f"| {k} | {v['seam_error_before']:.3f} → {v['seam_error_after']:.3f} | {v['seam_mad_before']:.4f} → "
-                     f"{v['seam_mad_after']:.4f} | {v['center_shift_px_at_5792']} | {v['back_rotation_change_deg']} | "
-                     f"{'yes' if v['refused'] else 'no'} | {', '.join(v['warnings']) or '-'} |")
+            L.append(
+                f"| {k} | {v['seam_error_before']:.3f} → {v['seam_error_after']:.3f} | {v['seam_mad_before']:.4f} → "
+                f"{v['seam_mad_after']:.4f} | {v['center_shift_px_at_5792']} | {v['back_rotation_change_deg']} | "
+                f"{'yes' if v['refused'] else 'no'} | {', '.join(v['warnings']) or '-'} |"
+            )
     f = g["calibrate fisheye"]
-    L += ["", f"`calibrate fisheye` on the same frame: {f['family']} {f['fov_deg']}° (truth equidistant 195°), {f['layout']}, "
-          f"centres {f['center_error_px']} px from truth, seam error {f['seam_error']}.", "",
-          "## 3. Real Theta S live frame (1920x1080, indoor kitchen: objects within a metre)", ""]
+    L += [
+        "",
+        f"`calibrate fisheye` on the same frame: {f['family']} {f['fov_deg']}° (truth equidistant 195°), {f['layout']}, "
+        f"centres {f['center_error_px']} px from truth, seam error {f['seam_error']}.",
+        "",
+        "## 3. Real Theta S live frame (1920x1080, indoor kitchen: objects within a metre)",
+        "",
+    ]
     rf = res["real"]
     c = rf["calibrate fisheye"]
-    L += [f"- `calibrate fisheye`: layout **{c['layout']}**, {c['family']} {c['fov_deg']}°, back lens ypr {c['back_ypr_deg']}, "
-          f"seam error start {c['seam_error_start']:.3f} → refined {c['seam_error_refined']:.3f} → kept {c['seam_error']:.3f}"
-          f"{' (refinement refused)' if c['refusal'] else ''}; the shipped theta-s-video profile (refined unbounded on this very "
-          f"frame) scores {c['shipped_profiles_seam_error']}, listed in the summary ({c['seconds']} s at this load).",
-          f"- `calibrate overlap --base theta-s-video`: seam error {rf['calibrate overlap --base theta-s-video']['seam_error_before']:.3f}"
-          f" → {rf['calibrate overlap --base theta-s-video']['seam_error_after']:.3f}, refused: "
-          f"{rf['calibrate overlap --base theta-s-video']['refused'] or 'no'}.",
-          f"- `capture unwarp --profile theta-s-video`: seam error {rf['unwarp --profile theta-s-video']['report']['seam_error']}, "
-          f"roll {rf['unwarp --profile theta-s-video']['report'].get('roll_deg')}, warnings {rf['unwarp --profile theta-s-video']['warnings'] or 'none'}.",
-          f"- the frame with its circles turned by 90°, same profile: seam error "
-          f"{rf['circles turned by 90°, unwarp --profile theta-s-video']['report']['seam_error']}, warnings "
-          f"{rf['circles turned by 90°, unwarp --profile theta-s-video']['warnings']}.", "",
-          f"## 4. The warning: seam errors of correct and wrong profiles (threshold {SEAM_ERROR_WARN})", "",
-          "| kind | case | correct profile | seam error | warns |", "|---|---|---|---|---|"]
+    L += [
+        f"- `calibrate fisheye`: layout **{c['layout']}**, {c['family']} {c['fov_deg']}°, back lens ypr {c['back_ypr_deg']}, "
+        f"seam error start {c['seam_error_start']:.3f} → refined {c['seam_error_refined']:.3f} → kept {c['seam_error']:.3f}"
+        f"{' (refinement refused)' if c['refusal'] else ''}; the shipped theta-s-video profile (refined unbounded on this very "
+        f"frame) scores {c['shipped_profiles_seam_error']}, listed in the summary ({c['seconds']} s at this load).",
+        f"- `calibrate overlap --base theta-s-video`: seam error {rf['calibrate overlap --base theta-s-video']['seam_error_before']:.3f}"
+        f" → {rf['calibrate overlap --base theta-s-video']['seam_error_after']:.3f}, refused: "
+        f"{rf['calibrate overlap --base theta-s-video']['refused'] or 'no'}.",
+        f"- `capture unwarp --profile theta-s-video`: seam error {rf['unwarp --profile theta-s-video']['report']['seam_error']}, "
+        f"roll {rf['unwarp --profile theta-s-video']['report'].get('roll_deg')}, warnings {rf['unwarp --profile theta-s-video']['warnings'] or 'none'}.",
+        f"- the frame with its circles turned by 90°, same profile: seam error "
+        f"{rf['circles turned by 90°, unwarp --profile theta-s-video']['report']['seam_error']}, warnings "
+        f"{rf['circles turned by 90°, unwarp --profile theta-s-video']['warnings']}.",
+        "",
+        f"## 4. The warning: seam errors of correct and wrong profiles (threshold {SEAM_ERROR_WARN})",
+        "",
+        "| kind | case | correct profile | seam error | warns |",
+        "|---|---|---|---|---|",
+    ]
     for r in res["warning"]:
         seam = "unmeasured" if r["seam_error"] is None else r["seam_error"]
-        L.append(f"| {r['kind']} | {r['case']} | {'yes' if r['correct'] else 'no'} | {seam} | {', '.join(r['warns']) or 'no'} |")
+        L.append(
+            f"| {r['kind']} | {r['case']} | {'yes' if r['correct'] else 'no'} | {seam} | {', '.join(r['warns']) or 'no'} |"
+        )
     ok = [r["seam_error"] for r in res["warning"] if r["correct"] and r["seam_error"] is not None]
     bad = [r["seam_error"] for r in res["warning"] if not r["correct"] and r["seam_error"] is not None]
     n_ok = sum(r["correct"] for r in res["warning"])
     n_ok_warn = sum(bool(r["warns"]) for r in res["warning"] if r["correct"])
     n_bad_warn = sum(bool(r["warns"]) for r in res["warning"] if not r["correct"])
     n_bad = len(res["warning"]) - n_ok
-    L += ["", f"Warnings: {n_ok_warn} of {n_ok} correct profiles (false alarms), {n_bad_warn} of {n_bad} wrong ones. "
-          "Unmeasured: the dark 1/25000 s sun frames of the campaign (no warning) and profiles whose overlap ring "
-          "falls on black outside the image circles (warned).", f"Correct profiles: max {max(ok):.3f}; wrong profiles: min {min(bad):.3f}. " + res["threshold_note"], "",
-          f"## 5. Which way is up (layout check on the unwarped panorama; confident at margin ≥ {CONFIDENT_MARGIN})", "",
-          "| panorama | turned by | found | margin | confident | right |", "|---|---|---|---|---|---|"]
+    L += [
+        "",
+        f"Warnings: {n_ok_warn} of {n_ok} correct profiles (false alarms), {n_bad_warn} of {n_bad} wrong ones. "
+        "Unmeasured: the dark 1/25000 s sun frames of the campaign (no warning) and profiles whose overlap ring "
+        "falls on black outside the image circles (warned).",
+        f"Correct profiles: max {max(ok):.3f}; wrong profiles: min {min(bad):.3f}. " + res["threshold_note"],
+        "",
+        f"## 5. Which way is up (layout check on the unwarped panorama; confident at margin ≥ {CONFIDENT_MARGIN})",
+        "",
+        "| panorama | turned by | found | margin | confident | right |",
+        "|---|---|---|---|---|---|",
+    ]
     for r in res["upright"]:
-        L.append(f"| {r['panorama']} | {r['turned_deg']:+.0f}° | {r['found_roll_deg']:+.0f}° | {r['margin']} | "
-                 f"{'yes' if r['confident'] else 'no'} | {'yes' if r['ok'] else '**no**'} |")
+        L.append(
+            f"| {r['panorama']} | {r['turned_deg']:+.0f}° | {r['found_roll_deg']:+.0f}° | {r['margin']} | "
+            f"{'yes' if r['confident'] else 'no'} | {'yes' if r['ok'] else '**no**'} |"
+        )
     return "\n".join(L) + "\n"
 
 
 def main() -> None:
     ap = argparse.ArgumentParser()
-    ap.add_argument("--old", default=None, help="git revision of calibration/overlap.py before the fit of lens families (e.g. e573428~1)")
+    ap.add_argument(
+        "--old",
+        default=None,
+        help="git revision of calibration/overlap.py before the fit of lens families (e.g. e573428~1)",
+    )
     args = ap.parse_args()
     import os
 
     panos = {n: panorama(n) for n in ("city", "courtyard", "sunrise")}
-    res = {"date": time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime()), "machine": platform.platform(),
-           "load": round(os.getloadavg()[0], 1)}
+    res = {
+        "date": time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime()),
+        "machine": platform.platform(),
+        "load": round(os.getloadavg()[0], 1),
+    }
     with tempfile.TemporaryDirectory() as d:
         tmp = Path(d)
         res["warning"] = warning_table(panos)
@@ -350,10 +480,12 @@ def main() -> None:
         res["recovery"] = recovery(panos)
     ok = [r["seam_error"] for r in res["warning"] if r["correct"] and r["seam_error"] is not None]
     bad = [r["seam_error"] for r in res["warning"] if not r["correct"] and r["seam_error"] is not None]
-    res["threshold_note"] = (f"The threshold {SEAM_ERROR_WARN} sits above the worst correct profile ({max(ok):.3f}: the real "
-                             f"indoor frame, parallax); {sum(b <= SEAM_ERROR_WARN for b in bad)} of {len(bad)} measured wrong "
-                             "profiles stay below it: back lens 1-4° off, a centre 3 % off on the textureless sunrise "
-                             "horizon, and on the real frame (whose parallax already costs 0.6) the back lens 2-4° off.")
+    res["threshold_note"] = (
+        f"The threshold {SEAM_ERROR_WARN} sits above the worst correct profile ({max(ok):.3f}: the real "
+        f"indoor frame, parallax); {sum(b <= SEAM_ERROR_WARN for b in bad)} of {len(bad)} measured wrong "
+        "profiles stay below it: back lens 1-4° off, a centre 3 % off on the textureless sunrise "
+        "horizon, and on the real frame (whose parallax already costs 0.6) the back lens 2-4° off."
+    )
     OUT.mkdir(exist_ok=True)
     (OUT / "selfcal.json").write_text(json.dumps(res, indent=1, default=str))
     (OUT / "selfcal.md").write_text(markdown(res))

@@ -134,8 +134,12 @@ def main() -> None:
             f"| {name} | {r['forward_s']:.4f} | {r['time_ratio_vs_naive_full']:.4f} | {r['time_ratio_vs_exact']:.2f} "
             f"| {r['max_abs_over_max']:.2e} | {r['mean_rel']:.2e} |"
         )
-    lines += ["", f"exact forward+backward: {results['exact']['forward_backward_s']:.4f} s; "
-              f"first call incl. operator build: {results['exact']['first_call_s_incl_operator_build']:.3f} s", ""]
+    lines += [
+        "",
+        f"exact forward+backward: {results['exact']['forward_backward_s']:.4f} s; "
+        f"first call incl. operator build: {results['exact']['first_call_s_incl_operator_build']:.3f} s",
+        "",
+    ]
     (OUT / "sh.md").write_text("\n".join(lines))
     print("\n".join(lines))
 

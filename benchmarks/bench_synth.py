@@ -51,7 +51,7 @@ print(json.dumps({"variant": variant(), "seconds": time.perf_counter() - t}))
 
 def peer(variant: str) -> dict:
     out = subprocess.run([sys.executable, "-c", PEER_SNIPPET, variant], capture_output=True, text=True, cwd=HERE.parent)
-    lines = [ln[ln.find("{"):] for ln in out.stdout.splitlines() if '{"variant"' in ln]  # after Mitsuba's colour codes
+    lines = [ln[ln.find("{") :] for ln in out.stdout.splitlines() if '{"variant"' in ln]  # after Mitsuba's colour codes
     if out.returncode or not lines:
         return {"variant": variant, "error": (out.stderr or out.stdout)[-500:]}
     return json.loads(lines[-1])
@@ -96,8 +96,15 @@ def main() -> None:
         # robust: median |a - b| of a Gaussian is 0.6745 sqrt(2) sigma; fireflies dominate the rms
         rel_med = float(np.median(np.abs(a - b)) / (0.6745 * np.sqrt(2)) / mean)
         ldr = float(np.sqrt(np.mean((np.asarray(tonemap(a)) - np.asarray(tonemap(b))) ** 2)) / np.sqrt(2) * 255)
-        noise.append({"spp": spp, "seconds": dt, "hdr_rel_rms_noise": rel, "hdr_rel_robust_noise": rel_med,
-                      "ldr_rms_noise_8bit": ldr})
+        noise.append(
+            {
+                "spp": spp,
+                "seconds": dt,
+                "hdr_rel_rms_noise": rel,
+                "hdr_rel_robust_noise": rel_med,
+                "ldr_rms_noise_8bit": ldr,
+            }
+        )
         print(noise[-1], flush=True)
     shadow_noise = []
     for spp in (4, 16, 64):
@@ -116,17 +123,23 @@ def main() -> None:
     mean = {k: float(np.mean([s.get(k, 0.0) for s in per_sample])) for k in keys}
     result = {
         "machine": {"cpu_count": os.cpu_count(), "platform": platform.platform(), "load_avg_1min": os.getloadavg()[0]},
-        "mitsuba": mi.__version__, "variant": used, "config": cfg.to_json(),
+        "mitsuba": mi.__version__,
+        "variant": used,
+        "config": cfg.to_json(),
         "seconds_per_sample": mean["total"],
         "seconds_per_stage_mean": mean,
         "per_sample": per_sample,
         "note": "stage 'views' (view selection) runs once per block sector; 'probes' = 4 probes; "
-                "the machine is shared (see load_avg), so absolute times are upper bounds",
+        "the machine is shared (see load_avg), so absolute times are upper bounds",
         "photo_noise_vs_spp": noise,
         "shadow_noise_vs_buffer_spp": shadow_noise,
-        "peer_80x60_16spp": {"ours": ours, "scalar_rgb": scalar,
-                             "ratio_scalar_over_ours": (scalar.get("seconds", float("nan")) / ours["seconds"])
-                             if "seconds" in ours else None},
+        "peer_80x60_16spp": {
+            "ours": ours,
+            "scalar_rgb": scalar,
+            "ratio_scalar_over_ours": (scalar.get("seconds", float("nan")) / ours["seconds"])
+            if "seconds" in ours
+            else None,
+        },
     }
     (HERE / "results").mkdir(exist_ok=True)
     (HERE / "results" / "synth.json").write_text(json.dumps(result, indent=1))

@@ -25,11 +25,10 @@ from pathlib import Path
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE.parent))
 
-from tests.support.testset_campaign import SCENES, make_campaign  # noqa: E402
-
 from solidkit.fsutil import sha256_file  # noqa: E402
 from solidkit.testset.build import build_testset  # noqa: E402
 from solidkit.testset.validate import validate_testset  # noqa: E402
+from tests.support.testset_campaign import SCENES, make_campaign  # noqa: E402
 
 OUT = HERE / "results"
 N_SCENES = 8
@@ -73,10 +72,18 @@ def main() -> None:
         t_hash = best(lambda: [sha256_file(p) for p in files])
         mbytes = sum(p.stat().st_size for p in files) / 1e6
     res = {
-        "machine": platform.platform(), "python": platform.python_version(), "scenes": N_SCENES, "captures_per_scene": 3,
-        "build_s": round(t_build, 3), "copytree_peer_s": round(t_copy, 3), "build_over_copy": round(t_build / t_copy, 2),
-        "validate_s": round(t_validate, 3), "sha256_peer_s": round(t_hash, 3), "validate_over_hash": round(t_validate / t_hash, 2),
-        "files": len(files), "megabytes": round(mbytes, 1),
+        "machine": platform.platform(),
+        "python": platform.python_version(),
+        "scenes": N_SCENES,
+        "captures_per_scene": 3,
+        "build_s": round(t_build, 3),
+        "copytree_peer_s": round(t_copy, 3),
+        "build_over_copy": round(t_build / t_copy, 2),
+        "validate_s": round(t_validate, 3),
+        "sha256_peer_s": round(t_hash, 3),
+        "validate_over_hash": round(t_validate / t_hash, 2),
+        "files": len(files),
+        "megabytes": round(mbytes, 1),
     }
     OUT.mkdir(exist_ok=True)
     (OUT / "testset.json").write_text(json.dumps(res, indent=1) + "\n")
@@ -85,7 +92,8 @@ def main() -> None:
         f"{N_SCENES} scenes x 3 captures, {len(files)} files ({mbytes:.1f} MB); best of 3; {res['machine']}\n\n"
         "| step | seconds | peer | peer seconds | ratio |\n|---|---|---|---|---|\n"
         f"| build | {t_build:.3f} | copytree of the inputs it copies | {t_copy:.3f} | {t_build / t_copy:.1f}x |\n"
-        f"| validate | {t_validate:.3f} | sha256 of every file | {t_hash:.3f} | {t_validate / t_hash:.1f}x |\n")
+        f"| validate | {t_validate:.3f} | sha256 of every file | {t_hash:.3f} | {t_validate / t_hash:.1f}x |\n"
+    )
     print(json.dumps(res, indent=1))
 
 

@@ -16,8 +16,8 @@ from __future__ import annotations
 import argparse
 import json
 import math
-import platform
 import os
+import platform
 import sys
 import time
 from pathlib import Path
@@ -36,7 +36,9 @@ REAL = REPO.parent / "shared" / "data" / "real" / "theta_s_equirect" / "Jobsite1
 E_Y = np.array([0.0, 1.0, 0.0])
 
 
-def errors(img: np.ndarray, tilts: list[tuple[float, float, float]], max_height: int) -> tuple[list[float], list[float]]:
+def errors(
+    img: np.ndarray, tilts: list[tuple[float, float, float]], max_height: int
+) -> tuple[list[float], list[float]]:
     errs, secs = [], []
     for ypr in tilts:
         Rt = np.asarray(rotation_from_ypr(*np.radians(ypr)))
@@ -54,22 +56,43 @@ def main() -> int:
     ap.add_argument("--extra", type=Path, nargs="*", default=[], help="more level renders (make_tilt_fixtures.py)")
     args = ap.parse_args()
     rng = np.random.default_rng(5)
-    tilts = [(0.0, 0.0, 0.0)] + [(rng.uniform(-180, 180), rng.uniform(-4, 4), rng.uniform(-4, 4)) for _ in range(args.tilts)]
+    tilts = [(0.0, 0.0, 0.0)] + [
+        (rng.uniform(-180, 180), rng.uniform(-4, 4), rng.uniform(-4, 4)) for _ in range(args.tilts)
+    ]
     files = [DATA / f"level_street_{k}.jpg" for k in range(3)] + [DATA / "level_street_3_1024.jpg"] + list(args.extra)
     rows = []
     for f in files:
         img = cv2.imread(str(f))[..., ::-1].copy()
-        for mh in ([img.shape[0], 512] if img.shape[0] > 512 else [512]):
+        for mh in [img.shape[0], 512] if img.shape[0] > 512 else [512]:
             errs, secs = errors(img, tilts, mh)
-            rows.append({"panorama": f.name, "height": img.shape[0], "measured_at": mh, "errors_deg": errs,
-                         "median_deg": float(np.median(errs)), "max_deg": float(max(errs)), "seconds_median": float(np.median(secs))})
-            print(f"{f.name} at {mh}: median {rows[-1]['median_deg']:.3f}°, max {rows[-1]['max_deg']:.3f}°", file=sys.stderr)
+            rows.append(
+                {
+                    "panorama": f.name,
+                    "height": img.shape[0],
+                    "measured_at": mh,
+                    "errors_deg": errs,
+                    "median_deg": float(np.median(errs)),
+                    "max_deg": float(max(errs)),
+                    "seconds_median": float(np.median(secs)),
+                }
+            )
+            print(
+                f"{f.name} at {mh}: median {rows[-1]['median_deg']:.3f}°, max {rows[-1]['max_deg']:.3f}°",
+                file=sys.stderr,
+            )
     out: dict = {"machine": f"{platform.platform()}, {os.cpu_count()} CPUs", "tilts": tilts, "rows": rows}
-    for label, sel in (("512 px high", lambda r: r["measured_at"] == 512), ("1024 px high", lambda r: r["measured_at"] == 1024)):
+    for label, sel in (
+        ("512 px high", lambda r: r["measured_at"] == 512),
+        ("1024 px high", lambda r: r["measured_at"] == 1024),
+    ):
         e = [x for r in rows if sel(r) for x in r["errors_deg"]]
         if e:
-            out[f"all {label}"] = {"cases": len(e), "median_deg": float(np.median(e)), "max_deg": float(max(e)),
-                                   "within_0p2": int(sum(x < 0.2 for x in e))}
+            out[f"all {label}"] = {
+                "cases": len(e),
+                "median_deg": float(np.median(e)),
+                "max_deg": float(max(e)),
+                "within_0p2": int(sum(x < 0.2 for x in e)),
+            }
     if REAL.is_file():
         from solidkit.camera.metadata import read_metadata
 
@@ -80,34 +103,59 @@ def main() -> int:
         posed = residual_tilt(np.clip(rotate(small.astype(np.float32), R_pose, "cubic"), 0, 255).astype(np.uint8))
         R_own = np.asarray(rotation_from_ypr(0.0, math.radians(stored.pitch_deg), math.radians(stored.roll_deg)))
         own = residual_tilt(np.clip(rotate(small.astype(np.float32), R_own, "cubic"), 0, 255).astype(np.uint8))
-        out["theta_s_still"] = {"recorded_pitch_roll_deg": [meta.pitch_deg, meta.roll_deg], "stored": stored.to_json(),
-                                "after_recorded_pose": posed.to_json(), "after_own_estimate": own.to_json()}
+        out["theta_s_still"] = {
+            "recorded_pitch_roll_deg": [meta.pitch_deg, meta.roll_deg],
+            "stored": stored.to_json(),
+            "after_recorded_pose": posed.to_json(),
+            "after_own_estimate": own.to_json(),
+        }
     (OUT / "tilt.json").write_text(json.dumps(out, indent=1) + "\n")
-    lines = ["# Residual tilt of rendered panoramas with known tilts", "",
-             f"Machine: {out['machine']}. Cases per panorama: level + {args.tilts} random tilts (yaw ±180°, pitch/roll ±4°, seed 5).",
-             "Error = angle between the estimated and the true gravity (degrees). Goal: < 0.2°.",
-             *([f"Extra renders (tests/data/make_tilt_fixtures.py, H=1024, not in the repo): "
-                f"{', '.join(p.name for p in args.extra)}."] if args.extra else []), "",
-             "| panorama | size | measured at (px high) | median (°) | max (°) | time per estimate (s) |", "|---|---|---|---|---|---|"]
+    lines = [
+        "# Residual tilt of rendered panoramas with known tilts",
+        "",
+        f"Machine: {out['machine']}. Cases per panorama: level + {args.tilts} random tilts (yaw ±180°, pitch/roll ±4°, seed 5).",
+        "Error = angle between the estimated and the true gravity (degrees). Goal: < 0.2°.",
+        *(
+            [
+                f"Extra renders (tests/data/make_tilt_fixtures.py, H=1024, not in the repo): "
+                f"{', '.join(p.name for p in args.extra)}."
+            ]
+            if args.extra
+            else []
+        ),
+        "",
+        "| panorama | size | measured at (px high) | median (°) | max (°) | time per estimate (s) |",
+        "|---|---|---|---|---|---|",
+    ]
     for r in rows:
-        lines.append(f"| {r['panorama']} | {2 * r['height']}x{r['height']} | {r['measured_at']} | {r['median_deg']:.3f} | "
-                     f"{r['max_deg']:.3f} | {r['seconds_median']:.2f} |")
+        lines.append(
+            f"| {r['panorama']} | {2 * r['height']}x{r['height']} | {r['measured_at']} | {r['median_deg']:.3f} | "
+            f"{r['max_deg']:.3f} | {r['seconds_median']:.2f} |"
+        )
     lines.append("")
     for k, v in out.items():
         if k.startswith("all "):
-            lines.append(f"- {k}: {v['cases']} cases, median {v['median_deg']:.3f}°, max {v['max_deg']:.3f}°, "
-                         f"{v['within_0p2']}/{v['cases']} below 0.2°.")
-    lines += ["", "The estimator's earlier end-point noise model (sigma ∝ 1/length) on the same kind of cases: "
-              "level_street_3_1024 0.34° off level and tilted (0.22-0.34°); the three 512-px streets median 0.07°, max 0.28°. "
-              "Cause: short segments outweighed the long edges (which are vertical to 0.01°); now a line-fit noise "
-              "model (sigma ∝ length^-1.5) weights them by the precision their leans show."]
+            lines.append(
+                f"- {k}: {v['cases']} cases, median {v['median_deg']:.3f}°, max {v['max_deg']:.3f}°, "
+                f"{v['within_0p2']}/{v['cases']} below 0.2°."
+            )
+    lines += [
+        "",
+        "The estimator's earlier end-point noise model (sigma ∝ 1/length) on the same kind of cases: "
+        "level_street_3_1024 0.34° off level and tilted (0.22-0.34°); the three 512-px streets median 0.07°, max 0.28°. "
+        "Cause: short segments outweighed the long edges (which are vertical to 0.01°); now a line-fit noise "
+        "model (sigma ∝ length^-1.5) weights them by the precision their leans show.",
+    ]
     if "theta_s_still" in out:
         t = out["theta_s_still"]
-        lines += ["", "Theta S stitched still (Jobsite1, 2048x1024; no truth): "
-                  f"as stored {t['stored']['tilt_deg']:.2f}° ± {t['stored']['uncertainty_deg']:.2f}°; after the recorded pose "
-                  f"(pitch {t['recorded_pitch_roll_deg'][0]:.1f}°, roll {t['recorded_pitch_roll_deg'][1]:.1f}°) "
-                  f"{t['after_recorded_pose']['tilt_deg']:.2f}°; after its own correction {t['after_own_estimate']['tilt_deg']:.2f}° "
-                  f"± {t['after_own_estimate']['uncertainty_deg']:.2f}°."]
+        lines += [
+            "",
+            "Theta S stitched still (Jobsite1, 2048x1024; no truth): "
+            f"as stored {t['stored']['tilt_deg']:.2f}° ± {t['stored']['uncertainty_deg']:.2f}°; after the recorded pose "
+            f"(pitch {t['recorded_pitch_roll_deg'][0]:.1f}°, roll {t['recorded_pitch_roll_deg'][1]:.1f}°) "
+            f"{t['after_recorded_pose']['tilt_deg']:.2f}°; after its own correction {t['after_own_estimate']['tilt_deg']:.2f}° "
+            f"± {t['after_own_estimate']['uncertainty_deg']:.2f}°.",
+        ]
     (OUT / "tilt.md").write_text("\n".join(lines) + "\n")
     print("\n".join(lines))
     return 0

@@ -48,9 +48,9 @@ def model_steps(name: str) -> tuple[dict, float]:
     import torch
 
     from solidkit.model.config import preset
+    from solidkit.model.fit import toy_batch
     from solidkit.model.losses import solidnet_losses
     from solidkit.model.solidnet import SolidNet
-    from solidkit.model.fit import toy_batch
     from solidkit.model.warp import camera_rotation
 
     torch.manual_seed(0)
@@ -81,7 +81,11 @@ def model_steps(name: str) -> tuple[dict, float]:
         for p in model.inet.parameters():
             p.requires_grad_(True)
 
-    steps = {"inet_crops": lambda: inet_step(crop, False), "inet_full": lambda: inet_step(full, True), "pnet": pnet_step}
+    steps = {
+        "inet_crops": lambda: inet_step(crop, False),
+        "inet_full": lambda: inet_step(full, True),
+        "pnet": pnet_step,
+    }
     if cfg.sun_net:
         import math
 
@@ -91,8 +95,16 @@ def model_steps(name: str) -> tuple[dict, float]:
 
         h, w = CROP_SIZE
         K = torch.as_tensor(intrinsics_from_fov(math.radians(60.0), w, h), dtype=torch.float32).expand(4, 3, 3)
-        sb = {"image": torch.rand(4, 3, h, w), "K": K, "pitch": b["pitch"], "roll": b["roll"], "sun_dir": b["sun_dir"],
-              "sun_visible": b["sun_visible"], "sun_energy": torch.ones(4, 3), "sun_size": torch.full((4,), 0.005)}
+        sb = {
+            "image": torch.rand(4, 3, h, w),
+            "K": K,
+            "pitch": b["pitch"],
+            "roll": b["roll"],
+            "sun_dir": b["sun_dir"],
+            "sun_visible": b["sun_visible"],
+            "sun_energy": torch.ones(4, 3),
+            "sun_size": torch.full((4,), 0.005),
+        }
         opt_s = torch.optim.Adam(model.inet.sun.parameters(), 1e-3)
 
         def sun_step():
@@ -122,7 +134,9 @@ def model_rates(names: list[str], repeats: int) -> dict[str, dict[str, float]]:
                 t = time.perf_counter()
                 built[n][0][kind]()
                 times[n][kind].append(time.perf_counter() - t)
-    return {n: {**{k: 4 / statistics.median(v) for k, v in times[n].items()}, "parameters_M": built[n][1]} for n in names}
+    return {
+        n: {**{k: 4 / statistics.median(v) for k, v in times[n].items()}, "parameters_M": built[n][1]} for n in names
+    }
 
 
 def data_rates(sources: str | None, repeats: int) -> dict[str, float | None]:
@@ -143,8 +157,11 @@ def data_rates(sources: str | None, repeats: int) -> dict[str, float | None]:
             cold(i)
         out["crop_rendered_cold_per_s"] = len(srcs) / (time.perf_counter() - t)
         out["crop_rendered_cached_per_s"] = _rate(lambda: [cold(i) for i in range(len(srcs))], len(srcs), repeats)
-        secs = [json.loads((p / "source.json").read_text())["seconds"] for p in sorted(Path(sources).glob("*/"))
-                if (p / "source.json").is_file()]
+        secs = [
+            json.loads((p / "source.json").read_text())["seconds"]
+            for p in sorted(Path(sources).glob("*/"))
+            if (p / "source.json").is_file()
+        ]
         out["render_source_seconds_median"] = statistics.median(secs) if secs else None
         from solidkit.model.suncrops import SunCropBank
         from solidkit.synth.panocrops import CropConfig
@@ -161,30 +178,47 @@ def data_rates(sources: str | None, repeats: int) -> dict[str, float | None]:
 def main(argv: list[str]) -> int:
     ap = argparse.ArgumentParser()
     ap.add_argument("--repeats", type=int, default=4)
-    ap.add_argument("--sources", default=None,
-                    help="rendered sources (solidkit synth sources); without it the rendered-crop and sun-bank rates are skipped")
-    ap.add_argument("--full-sample-seconds", type=float, default=25.7,
-                    help="seconds per full synthetic sample (solidnet_small card: 25.7 s at 16 spp)")
+    ap.add_argument(
+        "--sources",
+        default=None,
+        help="rendered sources (solidkit synth sources); without it the rendered-crop and sun-bank rates are skipped",
+    )
+    ap.add_argument(
+        "--full-sample-seconds",
+        type=float,
+        default=25.7,
+        help="seconds per full synthetic sample (solidnet_small card: 25.7 s at 16 spp)",
+    )
     a = ap.parse_args(argv)
     import torch
 
     torch.set_num_threads(1)
-    res = {"machine": f"{platform.machine()}, {os.cpu_count()} shared cores, 1 torch thread, "
-                      f"load average {os.getloadavg()[0]:.1f} at start", "torch": torch.__version__,
-           "models": model_rates(["small", "small-paper", "small-sun"], a.repeats),
-           "data": data_rates(a.sources, a.repeats), "full_sample_seconds": a.full_sample_seconds}
+    res = {
+        "machine": f"{platform.machine()}, {os.cpu_count()} shared cores, 1 torch thread, "
+        f"load average {os.getloadavg()[0]:.1f} at start",
+        "torch": torch.__version__,
+        "models": model_rates(["small", "small-paper", "small-sun"], a.repeats),
+        "data": data_rates(a.sources, a.repeats),
+        "full_sample_seconds": a.full_sample_seconds,
+    }
     res["load_average_end"] = round(os.getloadavg()[0], 1)
     m, d = res["models"], res["data"]
-    lines = ["# SOLID-Net training throughput (CPU, samples/s, batch 4)", "",
-             f"{res['machine']}; load average {res['load_average_end']} at the end. Peer in the same run: "
-             "`small-paper` (the paper's sky decoder and losses, same widths).", "",
-             "| config | params (M) | I-Net on crops | I-Net on full samples | P-Net (2 probes) | I-Net on crops vs small-paper "
-             "| sun stage (sun network alone) | sun stage vs small-paper's I-Net on crops |",
-             "|---|---|---|---|---|---|---|---|"]
+    lines = [
+        "# SOLID-Net training throughput (CPU, samples/s, batch 4)",
+        "",
+        f"{res['machine']}; load average {res['load_average_end']} at the end. Peer in the same run: "
+        "`small-paper` (the paper's sky decoder and losses, same widths).",
+        "",
+        "| config | params (M) | I-Net on crops | I-Net on full samples | P-Net (2 probes) | I-Net on crops vs small-paper "
+        "| sun stage (sun network alone) | sun stage vs small-paper's I-Net on crops |",
+        "|---|---|---|---|---|---|---|---|",
+    ]
     for n, r in m.items():
-        sun = (f"{r['sun']:.2f} | {r['sun'] / m['small-paper']['inet_crops']:.1f}x" if "sun" in r else "- | -")
-        lines.append(f"| {n} | {r['parameters_M']:.2f} | {r['inet_crops']:.2f} | {r['inet_full']:.2f} | {r['pnet']:.2f} | "
-                     f"{r['inet_crops'] / m['small-paper']['inet_crops']:.2f}x | {sun} |")
+        sun = f"{r['sun']:.2f} | {r['sun'] / m['small-paper']['inet_crops']:.1f}x" if "sun" in r else "- | -"
+        lines.append(
+            f"| {n} | {r['parameters_M']:.2f} | {r['inet_crops']:.2f} | {r['inet_full']:.2f} | {r['pnet']:.2f} | "
+            f"{r['inet_crops'] / m['small-paper']['inet_crops']:.2f}x | {sun} |"
+        )
     lines += ["", "| data path | samples/s |", "|---|---|"]
     for k, v in d.items():
         if v is not None:

@@ -43,9 +43,18 @@ def main() -> None:
     spps = [int(s) for s in args.spp.split(",")]
     _, truth = read_campaign(args.campaign)
     cfg = truth.config
-    gen = Generator(truth.seed, SampleConfig(width=cfg.photo_width, height=cfg.photo_height, hfov_deg=cfg.hfov_deg,
-                                             candidates=cfg.candidates, p_sunsky=cfg.p_sunsky,
-                                             probe_height=cfg.probe_height, block_length=cfg.block_length))
+    gen = Generator(
+        truth.seed,
+        SampleConfig(
+            width=cfg.photo_width,
+            height=cfg.photo_height,
+            hfov_deg=cfg.hfov_deg,
+            candidates=cfg.candidates,
+            p_sunsky=cfg.p_sunsky,
+            probe_height=cfg.probe_height,
+            block_length=cfg.block_length,
+        ),
+    )
     mi = mitsuba()
     rows = []
     for st in truth.scenes:
@@ -59,13 +68,26 @@ def main() -> None:
             glint = None if ct.glint_body is None else np.asarray(ct.R_scene_from_body) @ np.asarray(ct.glint_body)
             for spp in spps:
                 t0 = time.perf_counter()
-                _, rec = render_truth_probe(built["scene"], np.asarray(ct.position), built["cam"].pano_rotation,
-                                            cfg.probe_height, spp * factor,
-                                            seed=derive_seed(truth.seed, _scene_index(st.id), 7000 + c),
-                                            sun=built["light"].sun, glint=glint, firefly_k=cfg.firefly_k)
-                row = {"scene": st.id, "probe": ct.id, "glass": built["glass"], "spp": spp * factor,
-                       "noise_psnr_db": rec["noise_psnr_db"], "fireflies_replaced": rec["fireflies_replaced"],
-                       "seconds": round(time.perf_counter() - t0, 1)}
+                _, rec = render_truth_probe(
+                    built["scene"],
+                    np.asarray(ct.position),
+                    built["cam"].pano_rotation,
+                    cfg.probe_height,
+                    spp * factor,
+                    seed=derive_seed(truth.seed, _scene_index(st.id), 7000 + c),
+                    sun=built["light"].sun,
+                    glint=glint,
+                    firefly_k=cfg.firefly_k,
+                )
+                row = {
+                    "scene": st.id,
+                    "probe": ct.id,
+                    "glass": built["glass"],
+                    "spp": spp * factor,
+                    "noise_psnr_db": rec["noise_psnr_db"],
+                    "fireflies_replaced": rec["fireflies_replaced"],
+                    "seconds": round(time.perf_counter() - t0, 1),
+                }
                 rows.append(row)
                 print(json.dumps(row), flush=True)
     summary = {}
@@ -75,11 +97,21 @@ def main() -> None:
             if sel:
                 db = [r["noise_psnr_db"] for r in sel]
                 summary[f"{'glass' if glass else 'other'}@{sel[0]['spp']}"] = {
-                    "n": len(sel), "noise_median_db": float(np.median(db)), "noise_min_db": float(min(db)),
-                    "seconds_median": float(np.median([r["seconds"] for r in sel]))}
-    out = {"campaign": str(args.campaign), "seed": truth.seed, "probe_height": cfg.probe_height,
-           "mitsuba": mi.__version__, "variant": variant(), "machine": platform.processor() or platform.machine(),
-           "summary": summary, "rows": rows}
+                    "n": len(sel),
+                    "noise_median_db": float(np.median(db)),
+                    "noise_min_db": float(min(db)),
+                    "seconds_median": float(np.median([r["seconds"] for r in sel])),
+                }
+    out = {
+        "campaign": str(args.campaign),
+        "seed": truth.seed,
+        "probe_height": cfg.probe_height,
+        "mitsuba": mi.__version__,
+        "variant": variant(),
+        "machine": platform.processor() or platform.machine(),
+        "summary": summary,
+        "rows": rows,
+    }
     path = HERE / "results" / f"align-truth-noise{'-' + args.name if args.name else ''}.json"
     path.write_text(json.dumps(out, indent=1))
     print(json.dumps(summary, indent=1))

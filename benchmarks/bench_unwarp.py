@@ -38,7 +38,6 @@ import statistics
 import subprocess
 import sys
 import tempfile
-import time
 from pathlib import Path
 
 import numpy as np
@@ -73,10 +72,10 @@ def make_input(folder: Path) -> tuple[Path, np.ndarray]:
 
     pano, _ = read_exr(REPO / "solidkit" / "assets" / "hdr_panoramas" / "city.exr")
     ldr = np.clip(tonemap(pano), 0, 1).astype(np.float32)
-    linear = ldr ** 2.2  # treat the tonemapped image as sRGB-encoded content, linear for rendering
+    linear = ldr**2.2  # treat the tonemapped image as sRGB-encoded content, linear for rendering
     fish = render_fisheye(linear, load_profile("theta-v"), IN_SIZE)
     fish[:, : IN_SIZE[0] // 2] *= LENS_GAIN  # the theta-v front lens is the left circle
-    fish[:, IN_SIZE[0] // 2:] /= LENS_GAIN
+    fish[:, IN_SIZE[0] // 2 :] /= LENS_GAIN
     src = folder / "dual_fisheye.jpg"
     enc = np.round(np.clip(srgb_encode(fish), 0, 1) * 255).astype(np.uint8)
     cv2.imwrite(str(src), cv2.cvtColor(enc, cv2.COLOR_RGB2BGR), [cv2.IMWRITE_JPEG_QUALITY, 95])
@@ -114,7 +113,9 @@ def timed(cmd: list[str], env: dict | None = None) -> dict:
     accounting (``os.wait4``, as ``/usr/bin/time -v``), taken by a small wrapper process (Linux keeps a
     process's peak RSS across fork and exec: a child forked from this benchmark, which holds the images,
     would report ours)."""
-    proc = subprocess.run([sys.executable, "-c", RUSAGE_WRAPPER, *cmd], capture_output=True, text=True, env=env, cwd=REPO)
+    proc = subprocess.run(
+        [sys.executable, "-c", RUSAGE_WRAPPER, *cmd], capture_output=True, text=True, env=env, cwd=REPO
+    )
     lines = proc.stdout.rstrip().splitlines()
     r = json.loads(lines[-1])
     if proc.returncode != 0 or r["code"] != 0:
@@ -137,10 +138,14 @@ def main() -> int:
     args = ap.parse_args()
     OUT.mkdir(exist_ok=True)
     has_ffmpeg = shutil.which("ffmpeg") is not None
-    results: dict = {"machine": f"{platform.platform()}, {os.cpu_count()} CPUs",
-                     "input": f"{IN_SIZE[0]}x{IN_SIZE[1]} dual-fisheye JPEG q95 (theta-v, rendered from city.exr, "
-                              f"lens gains x{LENS_GAIN} / x1/{LENS_GAIN})",
-                     "output": f"{OUT_SIZE[0]}x{OUT_SIZE[1]} PNG", "runs": args.runs, "load_before": os.getloadavg()}
+    results: dict = {
+        "machine": f"{platform.platform()}, {os.cpu_count()} CPUs",
+        "input": f"{IN_SIZE[0]}x{IN_SIZE[1]} dual-fisheye JPEG q95 (theta-v, rendered from city.exr, "
+        f"lens gains x{LENS_GAIN} / x1/{LENS_GAIN})",
+        "output": f"{OUT_SIZE[0]}x{OUT_SIZE[1]} PNG",
+        "runs": args.runs,
+        "load_before": os.getloadavg(),
+    }
     if not has_ffmpeg:
         print("ffmpeg not found: the peer rows are skipped (apt-get install ffmpeg to compare)", file=sys.stderr)
     with tempfile.TemporaryDirectory() as tmp:
@@ -158,26 +163,52 @@ def main() -> int:
             best = None
             for fov in (200.0, 207.0, 214.0):
                 dst = tmp / f"ff{fov:.0f}.png"
-                subprocess.run(["ffmpeg", "-y", "-loglevel", "error", "-i", str(src), "-vf",
-                                f"v360=input=dfisheye:output=equirect:ih_fov={fov}:iv_fov={fov}:w={OUT_SIZE[0]}:h={OUT_SIZE[1]}",
-                                str(dst)], check=True)
+                subprocess.run(
+                    [
+                        "ffmpeg",
+                        "-y",
+                        "-loglevel",
+                        "error",
+                        "-i",
+                        str(src),
+                        "-vf",
+                        f"v360=input=dfisheye:output=equirect:ih_fov={fov}:iv_fov={fov}:w={OUT_SIZE[0]}:h={OUT_SIZE[1]}",
+                        str(dst),
+                    ],
+                    check=True,
+                )
                 img = cv2.cvtColor(cv2.imread(str(dst)), cv2.COLOR_BGR2RGB)
-                q = {"fov_deg": fov, "psnr_db": best_psnr(img, truth8),
-                     "seam_step": seam_step(cv2.cvtColor(img, cv2.COLOR_RGB2GRAY),
-                                            [[OUT_SIZE[0] // 4, 3 * OUT_SIZE[0] // 4]] * OUT_SIZE[1])["step"]}
+                q = {
+                    "fov_deg": fov,
+                    "psnr_db": best_psnr(img, truth8),
+                    "seam_step": seam_step(
+                        cv2.cvtColor(img, cv2.COLOR_RGB2GRAY), [[OUT_SIZE[0] // 4, 3 * OUT_SIZE[0] // 4]] * OUT_SIZE[1]
+                    )["step"],
+                }
                 if best is None or q["psnr_db"] > best["psnr_db"]:
                     best = q
             results["ffmpeg_quality"] = best
-            ff_cmd = ["ffmpeg", "-y", "-loglevel", "error", "-i", str(src), "-vf",
-                      f"v360=input=dfisheye:output=equirect:ih_fov={best['fov_deg']}:iv_fov={best['fov_deg']}"
-                      f":w={OUT_SIZE[0]}:h={OUT_SIZE[1]}", str(tmp / "ff.png")]
+            ff_cmd = [
+                "ffmpeg",
+                "-y",
+                "-loglevel",
+                "error",
+                "-i",
+                str(src),
+                "-vf",
+                f"v360=input=dfisheye:output=equirect:ih_fov={best['fov_deg']}:iv_fov={best['fov_deg']}"
+                f":w={OUT_SIZE[0]}:h={OUT_SIZE[1]}",
+                str(tmp / "ff.png"),
+            ]
         rows: dict[str, list[dict]] = {"solidkit CLI, cold": [], "solidkit CLI, warm": [], "ffmpeg v360 (peer)": []}
         start = [sys.executable, "-c", "from solidkit.cli import build_app; build_app('capture')"]
         starts = []
         for r in range(args.runs + 1):
             cold_env = {**base_env, "SOLIDKIT_CACHE_DIR": str(tmp / f"cache-cold-{r}")}
-            got = {"solidkit CLI, cold": timed([*cli, "-o", str(tmp / "cold.png")], cold_env),
-                   "solidkit CLI, warm": timed([*cli, "-o", str(tmp / "warm.png")], warm_env)}
+            got = {
+                "solidkit CLI, cold": timed([*cli, "-o", str(tmp / "cold.png")], cold_env),
+                "solidkit CLI, warm": timed([*cli, "-o", str(tmp / "warm.png")], warm_env),
+            }
             if ff_cmd:
                 got["ffmpeg v360 (peer)"] = timed(ff_cmd)
             starts.append(timed(start, base_env)["wall_s"])
@@ -188,44 +219,79 @@ def main() -> int:
         inproc = timed([sys.executable, "-c", IN_PROCESS, str(src), str(tmp / "mem.png")])
         ours = cv2.cvtColor(cv2.imread(str(tmp / "warm.png")), cv2.COLOR_BGR2RGB)
         maps, _ = get_maps(load_profile("theta-v"), IN_SIZE, OUT_SIZE[1], None, 0.0)
-        results["solidkit_quality"] = {"psnr_db": psnr8(ours, truth8),
-                                       "seam_step": seam_step(cv2.cvtColor(ours, cv2.COLOR_RGB2GRAY), cut_columns(maps))["step"]}
+        results["solidkit_quality"] = {
+            "psnr_db": psnr8(ours, truth8),
+            "seam_step": seam_step(cv2.cvtColor(ours, cv2.COLOR_RGB2GRAY), cut_columns(maps))["step"],
+        }
         del maps
         results["cli_start_s"] = summary(starts[1:])
         results["in_process_second_image_s"] = json.loads(inproc["stdout"].strip().splitlines()[-1])["wall_s"]
-        results["rows"] = {k: {"wall_s": summary([v["wall_s"] for v in vs]), "cpu_s": summary([v["cpu_s"] for v in vs]),
-                               "peak_rss_mib": summary([v["peak_rss_mib"] for v in vs])} for k, vs in rows.items() if vs}
+        results["rows"] = {
+            k: {
+                "wall_s": summary([v["wall_s"] for v in vs]),
+                "cpu_s": summary([v["cpu_s"] for v in vs]),
+                "peak_rss_mib": summary([v["peak_rss_mib"] for v in vs]),
+            }
+            for k, vs in rows.items()
+            if vs
+        }
         if rows["ffmpeg v360 (peer)"]:
             ff = rows["ffmpeg v360 (peer)"]
             results["ratios_vs_ffmpeg"] = {
-                k: {"wall_ratio_of_medians": results["rows"][k]["wall_s"]["median"] / results["rows"]["ffmpeg v360 (peer)"]["wall_s"]["median"],
-                    "wall_median_of_round_ratios": statistics.median(a["wall_s"] / b["wall_s"] for a, b in zip(rows[k], ff)),
-                    "peak_rss_ratio": results["rows"][k]["peak_rss_mib"]["median"] / results["rows"]["ffmpeg v360 (peer)"]["peak_rss_mib"]["median"]}
-                for k in rows if k.startswith("solidkit")}
+                k: {
+                    "wall_ratio_of_medians": results["rows"][k]["wall_s"]["median"]
+                    / results["rows"]["ffmpeg v360 (peer)"]["wall_s"]["median"],
+                    "wall_median_of_round_ratios": statistics.median(
+                        a["wall_s"] / b["wall_s"] for a, b in zip(rows[k], ff)
+                    ),
+                    "peak_rss_ratio": results["rows"][k]["peak_rss_mib"]["median"]
+                    / results["rows"]["ffmpeg v360 (peer)"]["peak_rss_mib"]["median"],
+                }
+                for k in rows
+                if k.startswith("solidkit")
+            }
     results["load_after"] = os.getloadavg()
     (OUT / "unwarp.json").write_text(json.dumps(results, indent=1) + "\n")
-    lines = ["# Unwarp benchmark: the CLI as users run it, against ffmpeg's v360", "",
-             f"Machine: {results['machine']}; load average (1, 5, 15 min) before {tuple(round(x, 1) for x in results['load_before'])}, "
-             f"after {tuple(round(x, 1) for x in results['load_after'])} (shared machine: medians of {args.runs} alternating rounds).", "",
-             f"Input {results['input']}; output {results['output']}; each row a whole process, decode to encode; "
-             "solidkit's bytecode compiled once beforehand, as an installed package has it.", "",
-             "| command | wall (s): median (min-max) | wall vs ffmpeg (ratio of medians / median of round ratios) | CPU (s) | peak RSS (MiB) | RSS vs ffmpeg |",
-             "|---|---|---|---|---|---|"]
+    lines = [
+        "# Unwarp benchmark: the CLI as users run it, against ffmpeg's v360",
+        "",
+        f"Machine: {results['machine']}; load average (1, 5, 15 min) before {tuple(round(x, 1) for x in results['load_before'])}, "
+        f"after {tuple(round(x, 1) for x in results['load_after'])} (shared machine: medians of {args.runs} alternating rounds).",
+        "",
+        f"Input {results['input']}; output {results['output']}; each row a whole process, decode to encode; "
+        "solidkit's bytecode compiled once beforehand, as an installed package has it.",
+        "",
+        "| command | wall (s): median (min-max) | wall vs ffmpeg (ratio of medians / median of round ratios) | CPU (s) | peak RSS (MiB) | RSS vs ffmpeg |",
+        "|---|---|---|---|---|---|",
+    ]
     for k, v in results["rows"].items():
         r = results.get("ratios_vs_ffmpeg", {}).get(k)
-        ratio = f"{r['wall_ratio_of_medians']:.2f} / {r['wall_median_of_round_ratios']:.2f}" if r else ("1" if "ffmpeg" in k else "-")
+        ratio = (
+            f"{r['wall_ratio_of_medians']:.2f} / {r['wall_median_of_round_ratios']:.2f}"
+            if r
+            else ("1" if "ffmpeg" in k else "-")
+        )
         rss = f"{r['peak_rss_ratio']:.2f}" if r else ("1" if "ffmpeg" in k else "-")
         w = v["wall_s"]
-        lines.append(f"| {k} | {w['median']:.2f} ({w['min']:.2f}-{w['max']:.2f}) | {ratio} | {v['cpu_s']['median']:.2f} | "
-                     f"{v['peak_rss_mib']['median']:.0f} | {rss} |")
-    lines += ["", f"solidkit in-process, 2nd image (tables in memory; the call only): {results['in_process_second_image_s']:.2f} s.",
-              f"CLI start-up (`build_app('capture')` in a fresh interpreter, the imports of `solidkit capture unwarp`): "
-              f"median {results['cli_start_s']['median']:.2f} s.", "",
-              "| quality | PSNR vs truth (dB) | seam step (grey levels) |", "|---|---|---|",
-              f"| solidkit | {results['solidkit_quality']['psnr_db']:.2f} | {results['solidkit_quality']['seam_step']:.2f} |"]
+        lines.append(
+            f"| {k} | {w['median']:.2f} ({w['min']:.2f}-{w['max']:.2f}) | {ratio} | {v['cpu_s']['median']:.2f} | "
+            f"{v['peak_rss_mib']['median']:.0f} | {rss} |"
+        )
+    lines += [
+        "",
+        f"solidkit in-process, 2nd image (tables in memory; the call only): {results['in_process_second_image_s']:.2f} s.",
+        f"CLI start-up (`build_app('capture')` in a fresh interpreter, the imports of `solidkit capture unwarp`): "
+        f"median {results['cli_start_s']['median']:.2f} s.",
+        "",
+        "| quality | PSNR vs truth (dB) | seam step (grey levels) |",
+        "|---|---|---|",
+        f"| solidkit | {results['solidkit_quality']['psnr_db']:.2f} | {results['solidkit_quality']['seam_step']:.2f} |",
+    ]
     if "ffmpeg_quality" in results:
         q = results["ffmpeg_quality"]
-        lines.append(f"| ffmpeg v360 (FOV {q['fov_deg']:.0f}°, best of 200/207/214) | {q['psnr_db']:.2f} | {q['seam_step']:.2f} |")
+        lines.append(
+            f"| ffmpeg v360 (FOV {q['fov_deg']:.0f}°, best of 200/207/214) | {q['psnr_db']:.2f} | {q['seam_step']:.2f} |"
+        )
     else:
         lines.append("| ffmpeg v360 | not installed: skipped | |")
     (OUT / "unwarp.md").write_text("\n".join(lines) + "\n")

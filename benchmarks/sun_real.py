@@ -33,16 +33,39 @@ def _fmt(v, nd: int = 1) -> str:
 
 
 def table(name: str, figures: dict) -> str:
-    head = ["method", "found", "median angular ° (found)", "az / el °", "in view ° (n; max)", "beside °", "behind °",
-            "false suns", "68 / 90 % cone coverage", "cone median °"]
+    head = [
+        "method",
+        "found",
+        "median angular ° (found)",
+        "az / el °",
+        "in view ° (n; max)",
+        "beside °",
+        "behind °",
+        "false suns",
+        "68 / 90 % cone coverage",
+        "cone median °",
+    ]
     lines = [f"**{name}**", "", "| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
     for m, f in figures.items():
         cov = [round(100 * c) for c in f["cone_coverage"]] if "cone_coverage" in f else None
-        lines.append("| " + " | ".join([
-            m, f"{f['found']}/{f['suns']}", _fmt(f["angular_deg"]), f"{_fmt(f['azimuth_deg'])} / {_fmt(f['elevation_deg'])}",
-            f"{_fmt(f['in_view_deg'])} ({f['in_view_n']}; {_fmt(f['in_view_max_deg'])})", _fmt(f["beside_deg"]),
-            _fmt(f["behind_deg"]), f"{f['false_suns']}/{f['sunless']}", (" / ".join(f"{c} %" for c in cov) if cov else "–"),
-            _fmt(f.get("cone_median_deg"))]) + " |")
+        lines.append(
+            "| "
+            + " | ".join(
+                [
+                    m,
+                    f"{f['found']}/{f['suns']}",
+                    _fmt(f["angular_deg"]),
+                    f"{_fmt(f['azimuth_deg'])} / {_fmt(f['elevation_deg'])}",
+                    f"{_fmt(f['in_view_deg'])} ({f['in_view_n']}; {_fmt(f['in_view_max_deg'])})",
+                    _fmt(f["beside_deg"]),
+                    _fmt(f["behind_deg"]),
+                    f"{f['false_suns']}/{f['sunless']}",
+                    (" / ".join(f"{c} %" for c in cov) if cov else "–"),
+                    _fmt(f.get("cone_median_deg")),
+                ]
+            )
+            + " |"
+        )
     return "\n".join(lines) + "\n"
 
 
@@ -70,15 +93,21 @@ def contact_sheet(crops, pred, path: Path, title: str) -> Path:
         ax.imshow(c.image)
         R = np.asarray(rotation_from_ypr(0.0, c.pitch, c.roll))
         h, w = c.image.shape[:2]
-        for d, style in ((c.sun, dict(marker="o", mfc="none", mec="lime", ms=9, mew=1.5)) if c.visible else (None, None),
-                         (pred["direction"][k], dict(marker="x", color="red", ms=8, mew=1.5)) if pred["says_sun"][k] else (None, None)):
+        for d, style in (
+            (c.sun, dict(marker="o", mfc="none", mec="lime", ms=9, mew=1.5)) if c.visible else (None, None),
+            (pred["direction"][k], dict(marker="x", color="red", ms=8, mew=1.5))
+            if pred["says_sun"][k]
+            else (None, None),
+        ):
             if d is None:
                 continue
             x, y, front = project_to_pixels(c.K.astype(np.float64), R.T @ np.asarray(d, np.float64))
             if front and 0 <= x < w and 0 <= y < h:
                 ax.plot([x], [y], **style)
         if c.visible:
-            err = math.degrees(float(angular_distance(np.asarray(pred["direction"][k], np.float64), c.sun.astype(np.float64))))
+            err = math.degrees(
+                float(angular_distance(np.asarray(pred["direction"][k], np.float64), c.sun.astype(np.float64)))
+            )
             label = f"{c.relative_azimuth_deg:+.0f}°: " + (f"{err:.0f}° off" if pred["says_sun"][k] else "missed")
         else:
             label = "no sun: " + ("sun put" if pred["says_sun"][k] else "none put")
@@ -110,26 +139,38 @@ def main() -> None:
     torch.set_num_threads(1)
     t0 = time.time()
     outdoor = REAL / "hdr_outdoor"
-    val = {"real": protocol_crops(load_sources(outdoor, split="val")),
-           "synthetic": protocol_crops(load_sources(a.val_sources))}
+    val = {
+        "real": protocol_crops(load_sources(outdoor, split="val")),
+        "synthetic": protocol_crops(load_sources(a.val_sources)),
+    }
     tests = {
         "real: test split of hdr_outdoor": protocol_crops(load_sources(outdoor, split="test")),
-        "real: city.exr (held out)": protocol_crops([s for s in load_sources(REAL / "hdr_panoramas") if s.name == "city"]),
+        "real: city.exr (held out)": protocol_crops(
+            [s for s in load_sources(REAL / "hdr_panoramas") if s.name == "city"]
+        ),
         "synthetic: rendered test sources": protocol_crops(load_sources(a.test_sources)),
     }
     model = model_from_state(a.checkpoint)
     cal = calibrate_sun(model, val)
-    model.reconfigure(sun_visibility_threshold=cal["threshold"], sun_cone_scale=cal["cone_scale"],
-                      sun_in_image=cal["sun_in_image"], sun_blob_gate_deg=cal["gate_deg"])
+    model.reconfigure(
+        sun_visibility_threshold=cal["threshold"],
+        sun_cone_scale=cal["cone_scale"],
+        sun_in_image=cal["sun_in_image"],
+        sun_blob_gate_deg=cal["gate_deg"],
+    )
     before = SolidNet.from_checkpoint(a.before)
     res = {"checkpoint": a.checkpoint, "calibration": cal, "tests": {}}
     n = ", ".join(f"{d}: {v['crops']} crops, {v['suns']} with a sun" for d, v in cal["n"].items() if d != "found_suns")
-    md = ["# The sun on crops with a known sun (protocol: solidkit.model.suneval)", "",
-          f"Checkpoint `{Path(a.checkpoint).name}`; calibrated on validation crops ({n}): visibility threshold "
-          f"{cal['threshold']:.2f} (balanced accuracy {cal['balanced_accuracy']:.3f}, mean over the two), in-image sun "
-          f"{'on, gate ' + str(cal['gate_deg']) + '°' if cal['sun_in_image'] else 'off'}, cone scales "
-          f"{_fmt(list(cal['cone_scale']), 2)} ({cal['n']['found_suns']} found suns). Crops: pitch +5°, 60° hfov, the sun at relative azimuths "
-          "0, ±30, ±90, 150° (panoramas without a sun at the same yaws), metered exposure.", ""]
+    md = [
+        "# The sun on crops with a known sun (protocol: solidkit.model.suneval)",
+        "",
+        f"Checkpoint `{Path(a.checkpoint).name}`; calibrated on validation crops ({n}): visibility threshold "
+        f"{cal['threshold']:.2f} (balanced accuracy {cal['balanced_accuracy']:.3f}, mean over the two), in-image sun "
+        f"{'on, gate ' + str(cal['gate_deg']) + '°' if cal['sun_in_image'] else 'off'}, cone scales "
+        f"{_fmt(list(cal['cone_scale']), 2)} ({cal['n']['found_suns']} found suns). Crops: pitch +5°, 60° hfov, the sun at relative azimuths "
+        "0, ±30, ±90, 150° (panoramas without a sun at the same yaws), metered exposure.",
+        "",
+    ]
     for name, crops in tests.items():
         figs = evaluate_sun_crops(model, crops)
         figs["before (shipped checkpoint)"] = evaluate_sun_crops(before, crops)["model"]
@@ -137,8 +178,12 @@ def main() -> None:
         if name.startswith("real: test"):
             from solidkit.model.suneval import predict_model
 
-            sheet = contact_sheet(crops, predict_model(model, crops), Path(a.out + "_test_crops.png"),
-                                  "real test crops: true sun (green), the model's (red), its error")
+            sheet = contact_sheet(
+                crops,
+                predict_model(model, crops),
+                Path(a.out + "_test_crops.png"),
+                "real test crops: true sun (green), the model's (red), its error",
+            )
             md.append(f"Contact sheet: `{sheet.name}`.\n")
         md.append(table(f"{name}: {len(crops)} crops", figs))
     res["seconds"] = round(time.time() - t0, 1)

@@ -43,10 +43,9 @@ def crop_metrics(model, sampler, indices, batch_size: int = 8) -> dict:
     import torch
 
     from solidkit.envmap import angles_from_direction, angular_distance, detect_sun
+    from solidkit.envmap.perspective import project_to_pixels
     from solidkit.model.losses import sun_energy
     from solidkit.model.trainer import crop_batch
-
-    from solidkit.envmap.perspective import project_to_pixels
     from solidkit.model.warp import camera_rotation
 
     found, errs, daz, delv, ratios, head, n_sun, l1 = 0, [], [], [], [], [], 0, []
@@ -61,8 +60,9 @@ def crop_metrics(model, sampler, indices, batch_size: int = 8) -> dict:
         rot = camera_rotation(b["pitch"].double(), b["roll"].double())
         l1.append(float((out["sky_log"] - torch.log1p(b["sky"])).abs().mean()))
         for i in range(b["image"].shape[0]):
-            says_sun = (bool(out["sun_visible"][i] >= model.config.sun_visibility_threshold) if "sun_visible" in out
-                        else None)
+            says_sun = (
+                bool(out["sun_visible"][i] >= model.config.sun_visibility_threshold) if "sun_visible" in out else None
+            )
             if b["sun_visible"][i] < 0.5:
                 no_sun += 1
                 vis_none += int(bool(says_sun))
@@ -79,8 +79,13 @@ def crop_metrics(model, sampler, indices, batch_size: int = 8) -> dict:
                 hz, _ = angles_from_direction(out["sun_dir"][i].double().numpy())
                 tz, _ = angles_from_direction(t)
                 e = abs(float(hz) - float(tz)) % (2 * math.pi)
-                where = ("in_view" if bool(front[0]) and 0 <= u[0] < w_img and 0 <= v[0] < h_img
-                         else "beside" if abs(math.degrees(float(tz))) <= 100 else "behind")
+                where = (
+                    "in_view"
+                    if bool(front[0]) and 0 <= u[0] < w_img and 0 <= v[0] < h_img
+                    else "beside"
+                    if abs(math.degrees(float(tz))) <= 100
+                    else "behind"
+                )
                 head_az[where].append(math.degrees(min(e, 2 * math.pi - e)))
             sky = out["sky"][i].permute(1, 2, 0).numpy()
             taz, tel = (float(a) for a in angles_from_direction(t))
@@ -101,26 +106,39 @@ def crop_metrics(model, sampler, indices, batch_size: int = 8) -> dict:
             daz.append(math.degrees(min(d, 2 * math.pi - d)))
             delv.append(math.degrees(abs(det.elevation - tel)))
             pd = torch.as_tensor(det.direction, dtype=torch.float32)[None]
-            ratios.append(float(sun_energy(out["sky"][i : i + 1], pd).sum()
-                                / sun_energy(b["sky"][i : i + 1], b["sun_dir"][i : i + 1]).sum().clamp_min(1e-9)))
+            ratios.append(
+                float(
+                    sun_energy(out["sky"][i : i + 1], pd).sum()
+                    / sun_energy(b["sky"][i : i + 1], b["sun_dir"][i : i + 1]).sum().clamp_min(1e-9)
+                )
+            )
     med = lambda v: round(float(np.median(v)), 2) if v else None  # noqa: E731
     has_vis = "sun_visible" in out
     within2 = sum(0.5 <= r <= 2.0 for r in ratios)
-    return {"crops": len(indices), "with_sun": n_sun, "found": found,
-            "found_rate": round(found / n_sun, 3) if n_sun else None,
-            "without_sun": no_sun, "sun_found_where_truth_has_none": false_found,
-            "visibility_says_sun_with_sun": vis_sun if has_vis else None,
-            "visibility_says_sun_without_sun": vis_none if has_vis else None,
-            "median_angular_err_deg": med(errs), "median_azimuth_err_deg": med(daz),
-            "median_elevation_err_deg": med(delv), "median_energy_ratio": med(ratios),
-            "energy_within_2x": within2, "sun_head_median_err_deg": med(head),
-            "paper_recipe_found": paper_found, "paper_recipe_median_azimuth_err_deg": med(paper_az),
-            "paper_recipe_median_elevation_err_deg": med(paper_el),
-            "sky_l1_log1p": round(float(np.mean(l1)), 4),
-            "sun_head_median_azimuth_err_deg_by_where": {k: [med(v), len(v)] for k, v in head_az.items()},
-            # reference: one constant answer for every crop (straight ahead, at the set's median true elevation)
-            "constant_guess_median_azimuth_err_deg": med(true_az_from_forward),
-            "constant_guess_median_elevation_err_deg": med([abs(e - np.median(true_el)) for e in true_el])}
+    return {
+        "crops": len(indices),
+        "with_sun": n_sun,
+        "found": found,
+        "found_rate": round(found / n_sun, 3) if n_sun else None,
+        "without_sun": no_sun,
+        "sun_found_where_truth_has_none": false_found,
+        "visibility_says_sun_with_sun": vis_sun if has_vis else None,
+        "visibility_says_sun_without_sun": vis_none if has_vis else None,
+        "median_angular_err_deg": med(errs),
+        "median_azimuth_err_deg": med(daz),
+        "median_elevation_err_deg": med(delv),
+        "median_energy_ratio": med(ratios),
+        "energy_within_2x": within2,
+        "sun_head_median_err_deg": med(head),
+        "paper_recipe_found": paper_found,
+        "paper_recipe_median_azimuth_err_deg": med(paper_az),
+        "paper_recipe_median_elevation_err_deg": med(paper_el),
+        "sky_l1_log1p": round(float(np.mean(l1)), 4),
+        "sun_head_median_azimuth_err_deg_by_where": {k: [med(v), len(v)] for k, v in head_az.items()},
+        # reference: one constant answer for every crop (straight ahead, at the set's median true elevation)
+        "constant_guess_median_azimuth_err_deg": med(true_az_from_forward),
+        "constant_guess_median_elevation_err_deg": med([abs(e - np.median(true_el)) for e in true_el]),
+    }
 
 
 def main(argv: list[str]) -> int:
@@ -131,8 +149,11 @@ def main(argv: list[str]) -> int:
     ap.add_argument("--real-crops", type=int, default=48)
     ap.add_argument("--synth", default=None, help="synthetic dataset with probes for the local metrics")
     ap.add_argument("--held-out", nargs="*", default=["city"])
-    ap.add_argument("--exposure", default="model",
-                    help="crop exposure: 'model' (the checkpoint's exposure_key), 'fixed' (gain 1) or a key such as 0.18")
+    ap.add_argument(
+        "--exposure",
+        default="model",
+        help="crop exposure: 'model' (the checkpoint's exposure_key), 'fixed' (gain 1) or a key such as 0.18",
+    )
     ap.add_argument("--out", default=str(REPO / "benchmarks" / "results" / "train_figures.json"))
     a = ap.parse_args(argv)
 
@@ -143,17 +164,24 @@ def main(argv: list[str]) -> int:
 
     torch.set_num_threads(1)
     model = SolidNet.from_checkpoint(a.checkpoint)
-    key = (model.config.exposure_key if a.exposure == "model" else 0.0 if a.exposure == "fixed" else float(a.exposure))
+    key = model.config.exposure_key if a.exposure == "model" else 0.0 if a.exposure == "fixed" else float(a.exposure)
     crop_cfg = CropConfig(exposure_stops=(0.0, 0.0), white_balance=0.0, exposure_key=key or None)
-    res: dict = {"checkpoint": a.checkpoint or "shipped", "card_step": model.card.get("step"),
-                 "config": model.config.name, "exposure_key": key or None,
-                 "sun_visibility_threshold": model.config.sun_visibility_threshold}
+    res: dict = {
+        "checkpoint": a.checkpoint or "shipped",
+        "card_step": model.card.get("step"),
+        "config": model.config.name,
+        "exposure_key": key or None,
+        "sun_visibility_threshold": model.config.sun_visibility_threshold,
+    }
     t0 = time.time()
     if a.crops and a.test_sources and Path(a.test_sources).is_dir():
         srcs = load_sources(a.test_sources)
         sampler = CropSampler(srcs, seed=99, config=crop_cfg)
-        res["synthetic_crops"] = {"sources": len(srcs), "dir": a.test_sources,
-                                  **crop_metrics(model, sampler, list(range(a.crops)))}
+        res["synthetic_crops"] = {
+            "sources": len(srcs),
+            "dir": a.test_sources,
+            **crop_metrics(model, sampler, list(range(a.crops))),
+        }
         print("synthetic", res["synthetic_crops"], file=sys.stderr)
     if a.real_crops and REAL.is_dir():
         res["real_crops"] = {}
@@ -168,11 +196,22 @@ def main(argv: list[str]) -> int:
         items = items_from_synth(a.synth)
         base = ModelMethod("solidnet", model)
         r = evaluate(items, [base, GlobalAsLocal(base)])
-        keep = ("local_ssim", "local_ssim_tonemap", "local_mae_log1p", "local_mae", "global_mae", "angle_deg/core",
-                "azimuth_deg/core", "elevation_deg/core", "no_sun_rate/core")
-        res["synthetic_local"] = {"dataset": a.synth, "items": len(items),
-                                  "summary": {m: {k: v for k, v in s.items() if k in keep}
-                                              for m, s in r["summary"].items()}}
+        keep = (
+            "local_ssim",
+            "local_ssim_tonemap",
+            "local_mae_log1p",
+            "local_mae",
+            "global_mae",
+            "angle_deg/core",
+            "azimuth_deg/core",
+            "elevation_deg/core",
+            "no_sun_rate/core",
+        )
+        res["synthetic_local"] = {
+            "dataset": a.synth,
+            "items": len(items),
+            "summary": {m: {k: v for k, v in s.items() if k in keep} for m, s in r["summary"].items()},
+        }
         print("local", json.dumps(res["synthetic_local"])[:2000], file=sys.stderr)
     res["seconds"] = round(time.time() - t0, 1)
     Path(a.out).write_text(json.dumps(res, indent=1))

@@ -76,26 +76,43 @@ def rows_for(model, sampler, indices, batch_size: int = 8) -> list[dict]:
                 sc = sc[:, ::-1]
             y, x = _pixel(t, sc.shape[0])
             near = sc[max(0, y - 2) : y + 3, np.arange(x - 2, x + 3) % sc.shape[1]].max()
-            rows.append({"i": int(indices[s + k]), "source": it["source"],
-                         "where": "in_view" if inview else "beside" if abs(math.degrees(taz)) <= 100 else "behind",
-                         "occluded": bool(near < 100.0), "saturated": bool((it["image"].max(-1) >= 0.999).mean() >= 0.01),
-                         "true_az": math.degrees(taz), "pred_az": math.degrees(paz), "az_err": _az_err(paz, taz),
-                         "el_err": abs(math.degrees(pel - tel)), "coarse_az_err": _az_err(float(caz), taz)})
+            rows.append(
+                {
+                    "i": int(indices[s + k]),
+                    "source": it["source"],
+                    "where": "in_view" if inview else "beside" if abs(math.degrees(taz)) <= 100 else "behind",
+                    "occluded": bool(near < 100.0),
+                    "saturated": bool((it["image"].max(-1) >= 0.999).mean() >= 0.01),
+                    "true_az": math.degrees(taz),
+                    "pred_az": math.degrees(paz),
+                    "az_err": _az_err(paz, taz),
+                    "el_err": abs(math.degrees(pel - tel)),
+                    "coarse_az_err": _az_err(float(caz), taz),
+                }
+            )
     return rows
 
 
 def summarise(rows: list[dict]) -> dict:
     med = lambda v: [round(float(np.median(v)), 1), len(v)] if v else [None, 0]  # noqa: E731
-    out = {"with_sun": len(rows), "azimuth_err_deg": med([r["az_err"] for r in rows]),
-           "elevation_err_deg": med([r["el_err"] for r in rows]),
-           "coarse_map_azimuth_err_deg": med([r["coarse_az_err"] for r in rows]),
-           "same_left_right": sum((r["pred_az"] >= 0) == (r["true_az"] >= 0) for r in rows),
-           "same_front_back": sum((abs(r["pred_az"]) < 90) == (abs(r["true_az"]) < 90) for r in rows)}
-    for key, groups in (("where", ("in_view", "beside", "behind")), ("occluded", (False, True)),
-                        ("saturated", (False, True))):
+    out = {
+        "with_sun": len(rows),
+        "azimuth_err_deg": med([r["az_err"] for r in rows]),
+        "elevation_err_deg": med([r["el_err"] for r in rows]),
+        "coarse_map_azimuth_err_deg": med([r["coarse_az_err"] for r in rows]),
+        "same_left_right": sum((r["pred_az"] >= 0) == (r["true_az"] >= 0) for r in rows),
+        "same_front_back": sum((abs(r["pred_az"]) < 90) == (abs(r["true_az"]) < 90) for r in rows),
+    }
+    for key, groups in (
+        ("where", ("in_view", "beside", "behind")),
+        ("occluded", (False, True)),
+        ("saturated", (False, True)),
+    ):
         out[f"azimuth_err_deg_by_{key}"] = {str(g): med([r["az_err"] for r in rows if r[key] == g]) for g in groups}
-    out["azimuth_err_deg_by_where_visible"] = {w: med([r["az_err"] for r in rows if r["where"] == w and not r["occluded"]])
-                                               for w in ("in_view", "beside", "behind")}
+    out["azimuth_err_deg_by_where_visible"] = {
+        w: med([r["az_err"] for r in rows if r["where"] == w and not r["occluded"]])
+        for w in ("in_view", "beside", "behind")
+    }
     return out
 
 
@@ -116,12 +133,22 @@ def main(argv: list[str]) -> int:
 
     torch.set_num_threads(1)
     model = SolidNet.from_checkpoint(a.checkpoint).eval()
-    key = (model.config.exposure_key if a.exposure == "model" else 0.0 if a.exposure == "fixed" else float(a.exposure))
-    sampler = CropSampler(load_sources(a.sources), seed=a.seed,
-                          config=CropConfig(exposure_stops=(0.0, 0.0), white_balance=0.0, exposure_key=key or None))
+    key = model.config.exposure_key if a.exposure == "model" else 0.0 if a.exposure == "fixed" else float(a.exposure)
+    sampler = CropSampler(
+        load_sources(a.sources),
+        seed=a.seed,
+        config=CropConfig(exposure_stops=(0.0, 0.0), white_balance=0.0, exposure_key=key or None),
+    )
     rows = rows_for(model, sampler, list(range(a.crops)))
-    res = {"checkpoint": a.checkpoint or "shipped", "card_step": model.card.get("step"), "sources": a.sources,
-           "crops": a.crops, "seed": a.seed, "exposure_key": key or None, **summarise(rows)}
+    res = {
+        "checkpoint": a.checkpoint or "shipped",
+        "card_step": model.card.get("step"),
+        "sources": a.sources,
+        "crops": a.crops,
+        "seed": a.seed,
+        "exposure_key": key or None,
+        **summarise(rows),
+    }
     print(json.dumps(res, indent=1))
     if a.out:
         Path(a.out).write_text(json.dumps({**res, "rows": rows}, indent=1))

@@ -60,14 +60,18 @@ class Provenance(BaseModel):
     parameters: dict[str, Any] = Field(default_factory=dict, description="settings used")
 
 
-def make_provenance(inputs: list[str | os.PathLike[str]] | tuple[str | os.PathLike[str], ...] = (), tool: str = "", **parameters: Any) -> Provenance:
+def make_provenance(
+    inputs: list[str | os.PathLike[str]] | tuple[str | os.PathLike[str], ...] = (), tool: str = "", **parameters: Any
+) -> Provenance:
     """Provenance of a document computed now from ``inputs`` (files hashed with SHA-256)."""
     files = [InputFile(path=str(p), sha256=sha256_file(p)) for p in inputs]
     now = _dt.datetime.now(_dt.timezone.utc).replace(microsecond=0).isoformat().replace("+00:00", "Z")
     return Provenance(inputs=files, created=now, solidkit_version=__version__, tool=tool, parameters=parameters)
 
 
-def read_json_object(path: str | os.PathLike[str], error: type[InputError] = DocumentError, what: str = "document") -> dict[str, Any]:
+def read_json_object(
+    path: str | os.PathLike[str], error: type[InputError] = DocumentError, what: str = "document"
+) -> dict[str, Any]:
     """The JSON object in ``path``; ``error`` (one line) when the file is missing, unreadable or not an object."""
     path = Path(path)
     if not path.is_file():
@@ -84,8 +88,18 @@ def read_json_object(path: str | os.PathLike[str], error: type[InputError] = Doc
 M = TypeVar("M", bound=BaseModel)
 
 
-def validate_versioned(path: str | os.PathLike[str], data: dict[str, Any], model: type[M], *, kind_key: str, kind: str,
-                       version_key: str, version: int, what: str, error: type[InputError] = InputError) -> M:
+def validate_versioned(
+    path: str | os.PathLike[str],
+    data: dict[str, Any],
+    model: type[M],
+    *,
+    kind_key: str,
+    kind: str,
+    version_key: str,
+    version: int,
+    what: str,
+    error: type[InputError] = InputError,
+) -> M:
     """``data`` (read from ``path``) as ``model`` once its kind, format version and conventions version are checked.
 
     For documents whose field names predate :class:`VersionedDocument` (the alignment, the test set manifest):

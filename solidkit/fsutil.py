@@ -12,13 +12,29 @@ import tempfile
 from collections.abc import Iterator
 from pathlib import Path
 
-
 #: errno values that say something about the machine (space, quota, media, permissions, limits),
 #: not about the file being processed: worth retrying once the environment is fixed.
 ENVIRONMENTAL_ERRNOS = frozenset(
-    getattr(errno, name) for name in ("ENOSPC", "EDQUOT", "EIO", "EROFS", "EACCES", "EPERM", "ENOMEM", "EMFILE",
-                                      "ENFILE", "EAGAIN", "ETIMEDOUT", "ENOTCONN", "ESTALE", "EBUSY", "ENXIO")
-    if hasattr(errno, name))
+    getattr(errno, name)
+    for name in (
+        "ENOSPC",
+        "EDQUOT",
+        "EIO",
+        "EROFS",
+        "EACCES",
+        "EPERM",
+        "ENOMEM",
+        "EMFILE",
+        "ENFILE",
+        "EAGAIN",
+        "ETIMEDOUT",
+        "ENOTCONN",
+        "ESTALE",
+        "EBUSY",
+        "ENXIO",
+    )
+    if hasattr(errno, name)
+)
 
 
 def is_environmental(exc: BaseException) -> bool:

@@ -29,8 +29,15 @@ from typing import Any
 
 from solidkit.errors import InputError
 
-__all__ = ["THREADS_ENV", "MAX_DEFAULT_THREADS", "default_threads", "resolve_threads", "apply_threads",
-           "ensure_threads", "deterministic"]
+__all__ = [
+    "THREADS_ENV",
+    "MAX_DEFAULT_THREADS",
+    "default_threads",
+    "resolve_threads",
+    "apply_threads",
+    "ensure_threads",
+    "deterministic",
+]
 
 THREADS_ENV = "SOLIDKIT_THREADS"
 """Environment variable with the thread count (a positive integer) when ``--threads`` is not given."""
@@ -45,8 +52,13 @@ def default_threads(cpu_count: int | None = None) -> int:
     >>> default_threads(2), default_threads(16), default_threads(64)
     (1, 8, 8)
     """
-    n = cpu_count if cpu_count is not None else len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (
-        os.cpu_count() or 1)
+    n = (
+        cpu_count
+        if cpu_count is not None
+        else len(os.sched_getaffinity(0))
+        if hasattr(os, "sched_getaffinity")
+        else (os.cpu_count() or 1)
+    )
     return max(1, min(MAX_DEFAULT_THREADS, n // 2))
 
 

@@ -22,20 +22,28 @@ GOOD = {"kind": "solidkit-doc", "version": 2, "conventions_version": CONVENTIONS
 
 
 def check(data):
-    return validate_versioned("x.json", data, Doc, kind_key="kind", kind="solidkit-doc", version_key="version",
-                              version=2, what="doc")
+    return validate_versioned(
+        "x.json", data, Doc, kind_key="kind", kind="solidkit-doc", version_key="version", version=2, what="doc"
+    )
 
 
 def test_a_good_document_validates():
     assert check(dict(GOOD)).n == 3
 
 
-@pytest.mark.parametrize("change, error, message", [
-    ({"kind": "other"}, InputError, "x.json: not a solidkit doc"),
-    ({"version": 1}, InputError, "x.json: doc schema version 1; this solidkit reads 2"),
-    ({"conventions_version": CONVENTIONS_VERSION + 1}, ConventionsError, "x.json: written under conventions version"),
-    ({"n": "many"}, InputError, "x.json: invalid doc: n"),
-])
+@pytest.mark.parametrize(
+    "change, error, message",
+    [
+        ({"kind": "other"}, InputError, "x.json: not a solidkit doc"),
+        ({"version": 1}, InputError, "x.json: doc schema version 1; this solidkit reads 2"),
+        (
+            {"conventions_version": CONVENTIONS_VERSION + 1},
+            ConventionsError,
+            "x.json: written under conventions version",
+        ),
+        ({"n": "many"}, InputError, "x.json: invalid doc: n"),
+    ],
+)
 def test_each_check_is_one_line(change, error, message):
     with pytest.raises(error) as info:
         check({**GOOD, **change})

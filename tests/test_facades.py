@@ -11,8 +11,19 @@ import types
 
 import pytest
 
-FACADES = ["model", "envmap", "metrics", "align", "capture", "testset", "finetune", "labeling", "synth",
-           "calibration", "camera"]
+FACADES = [
+    "model",
+    "envmap",
+    "metrics",
+    "align",
+    "capture",
+    "testset",
+    "finetune",
+    "labeling",
+    "synth",
+    "calibration",
+    "camera",
+]
 HEAVY = ("torch", "kornia", "mitsuba", "scipy", "pvlib", "fastapi", "matplotlib", "rawpy", "pycolmap")
 
 
@@ -56,12 +67,17 @@ def test_no_name_means_two_things():
         for n in pkg.__all__:
             obj = getattr(pkg, n)
             if n in owners:
-                assert owners[n][1] is obj, f"{n}: solidkit.{owners[n][0]} and solidkit.{name} give it to different things"
+                assert owners[n][1] is obj, (
+                    f"{n}: solidkit.{owners[n][0]} and solidkit.{name} give it to different things"
+                )
             owners[n] = (name, obj)
 
 
 def test_importing_the_facades_imports_nothing_heavy():
-    code = ("import sys; import " + ", ".join(f"solidkit.{n}" for n in FACADES)
-            + f"; print(','.join(m for m in {HEAVY!r} if m in sys.modules))")
+    code = (
+        "import sys; import "
+        + ", ".join(f"solidkit.{n}" for n in FACADES)
+        + f"; print(','.join(m for m in {HEAVY!r} if m in sys.modules))"
+    )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout.strip()
     assert out == ""

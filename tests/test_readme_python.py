@@ -81,8 +81,18 @@ def test_the_readme_script_runs_and_prints_the_models_numbers(ran):
 
 def test_evaluate_testset_gives_what_solidkit_eval_reports(ran, workdir, cli):
     ev = ran[0]["ev"]
-    code, stdout, err = cli("eval", "--testset", workdir / "my_testset", "--model", workdir / "my_model.pt",
-                            "-o", workdir / "report", "--json", "--grids", "0")
+    code, stdout, err = cli(
+        "eval",
+        "--testset",
+        workdir / "my_testset",
+        "--model",
+        workdir / "my_model.pt",
+        "-o",
+        workdir / "report",
+        "--json",
+        "--grids",
+        "0",
+    )
     assert code == 0, err
     reported = json.loads(stdout)["real"]  # and any checkpoint shipped beside the default one, as "ablation: ..."
     assert json.loads(json.dumps(ev.summary, default=float)) == {m: reported[m] for m in ev.methods}

@@ -23,8 +23,15 @@ from solidkit.envmap.io import read_exr, read_ldr
 from solidkit.envmap.resample import rotate
 from solidkit.errors import InputError
 
-__all__ = ["Capture", "captures_of", "camera_probe_of", "photo_shot_of", "levelling_of", "load_normal_panorama",
-           "NORMAL_EXPOSURE_S"]
+__all__ = [
+    "Capture",
+    "captures_of",
+    "camera_probe_of",
+    "photo_shot_of",
+    "levelling_of",
+    "load_normal_panorama",
+    "NORMAL_EXPOSURE_S",
+]
 
 NORMAL_EXPOSURE_S = 1.0 / 2500.0
 """The paper's probe exposure; the single shot closest to it (in stops) is a capture's LDR probe."""
@@ -70,8 +77,9 @@ def captures_of(manifest: Manifest, scene: Scene) -> list[Capture]:
         shots = [manifest.shot(s) for s in p.shots]
         singles = [s for s in shots if s.kind == "probe" and s.metadata.get("exposure_time")]
         pool = singles or [s for s in shots if s.kind == "bracket_member" and s.metadata.get("exposure_time")]
-        normal = min(pool, key=lambda s: abs(math.log2(float(s.metadata["exposure_time"]) / NORMAL_EXPOSURE_S)),
-                     default=None)
+        normal = min(
+            pool, key=lambda s: abs(math.log2(float(s.metadata["exposure_time"]) / NORMAL_EXPOSURE_S)), default=None
+        )
         sun = hdr = None
         hdr_inputs: list[str] = []
         for prod in manifest.products:
@@ -109,8 +117,9 @@ def _vignetting(campaign: Path, manifest: Manifest) -> Any:
     return load_vignetting(campaign / manifest.vignetting["path"])
 
 
-def load_normal_panorama(campaign: Path, manifest: Manifest, shot: Shot, R_extra: np.ndarray | None = None,
-                         height: int | None = None) -> np.ndarray:
+def load_normal_panorama(
+    campaign: Path, manifest: Manifest, shot: Shot, R_extra: np.ndarray | None = None, height: int | None = None
+) -> np.ndarray:
     """The shot as an 8-bit sRGB panorama ``(H, 2H, 3)`` uint8, levelled and then rotated by ``R_extra``.
 
     Dual-fisheye: one unwarp with ``R_extra @ R_level`` (:func:`solidkit.capture.unwarp.unwarp_srgb8`);

@@ -67,8 +67,15 @@ def ephemeris_for(metadata: dict[str, Any], place: tuple[float, float, float | N
         return None
     lat, lon, alt = place
     az, el = solar_position(when, lat, lon, alt or 0.0)
-    return Ephemeris(time_utc=when.astimezone(dt.timezone.utc).isoformat(), latitude_deg=lat, longitude_deg=lon,
-                     altitude_m=alt, azimuth_deg=az, elevation_deg=el, time_source=source)
+    return Ephemeris(
+        time_utc=when.astimezone(dt.timezone.utc).isoformat(),
+        latitude_deg=lat,
+        longitude_deg=lon,
+        altitude_m=alt,
+        azimuth_deg=az,
+        elevation_deg=el,
+        time_source=source,
+    )
 
 
 def hours_apart(a: Ephemeris, b: Ephemeris) -> float:
@@ -76,8 +83,14 @@ def hours_apart(a: Ephemeris, b: Ephemeris) -> float:
     return abs((dt.datetime.fromisoformat(a.time_utc) - dt.datetime.fromisoformat(b.time_utc)).total_seconds()) / 3600.0
 
 
-def at_photo_time(azimuth_deg: float, elevation_deg: float, ephemeris: Ephemeris | None,
-                  photo_ephemeris: Ephemeris | None, *, sun_moves: bool = True) -> tuple[float, float]:
+def at_photo_time(
+    azimuth_deg: float,
+    elevation_deg: float,
+    ephemeris: Ephemeris | None,
+    photo_ephemeris: Ephemeris | None,
+    *,
+    sun_moves: bool = True,
+) -> tuple[float, float]:
     """A sun direction seen at a capture's time (its ``ephemeris``), moved to the photo's time: ``(azimuth,
     elevation)`` in degrees, in the same frame, plus the ephemeris' drift between the two times.
 
@@ -85,8 +98,12 @@ def at_photo_time(azimuth_deg: float, elevation_deg: float, ephemeris: Ephemeris
     or when the two times are more than :data:`DRIFT_HOURS` apart.
     """
     az, el = azimuth_deg, elevation_deg
-    if (sun_moves and photo_ephemeris is not None and ephemeris is not None
-            and hours_apart(photo_ephemeris, ephemeris) <= DRIFT_HOURS):
+    if (
+        sun_moves
+        and photo_ephemeris is not None
+        and ephemeris is not None
+        and hours_apart(photo_ephemeris, ephemeris) <= DRIFT_HOURS
+    ):
         az += wrap_deg(photo_ephemeris.azimuth_deg - ephemeris.azimuth_deg)
         el += photo_ephemeris.elevation_deg - ephemeris.elevation_deg
     return az, el

@@ -31,7 +31,12 @@ import numpy as np
 
 from solidkit.envmap.coords import angles_from_direction, coords_from_direction, rotation_from_ypr, wrap_angle
 from solidkit.envmap.io import srgb_encode
-from solidkit.envmap.perspective import intrinsics_from_fov, perspective_crop, rays_through_pixels, scale_pixel_coordinates
+from solidkit.envmap.perspective import (
+    intrinsics_from_fov,
+    perspective_crop,
+    rays_through_pixels,
+    scale_pixel_coordinates,
+)
 from solidkit.envmap.sun import luminance
 from solidkit.errors import InputError
 
@@ -105,8 +110,9 @@ def _sift(grey: np.ndarray, mask: np.ndarray | None, n_features: int) -> tuple[n
     return pts, desc.astype(np.float32), np.array([k.size for k in kps], np.float64)
 
 
-def photo_features(photo: np.ndarray, K: np.ndarray, *, scale: float = 1.0, n_features: int = 4000,
-                   linear: bool = False) -> Features:
+def photo_features(
+    photo: np.ndarray, K: np.ndarray, *, scale: float = 1.0, n_features: int = 4000, linear: bool = False
+) -> Features:
     """SIFT on a pinhole photo; directions in its camera frame (conventions §1).
 
     Parameters
@@ -130,9 +136,17 @@ def photo_features(photo: np.ndarray, K: np.ndarray, *, scale: float = 1.0, n_fe
     return Features(rays, desc, full, sizes / (scale * K[0, 0]))
 
 
-def panorama_features(pano: np.ndarray, *, n_yaw: int = 8, fov_deg: float = 75.0, crop_px: int | None = None,
-                      pitches_deg: tuple[float, ...] = (0.0,), linear: bool = True, n_features: int = 3000,
-                      max_elevation_deg: float | None = None) -> Features:
+def panorama_features(
+    pano: np.ndarray,
+    *,
+    n_yaw: int = 8,
+    fov_deg: float = 75.0,
+    crop_px: int | None = None,
+    pitches_deg: tuple[float, ...] = (0.0,),
+    linear: bool = True,
+    n_features: int = 3000,
+    max_elevation_deg: float | None = None,
+) -> Features:
     """SIFT on perspective crops of an equirect panorama; directions in the panorama's frame.
 
     Parameters
@@ -168,7 +182,8 @@ def panorama_features(pano: np.ndarray, *, n_yaw: int = 8, fov_deg: float = 75.0
             R = np.asarray(rotation_from_ypr(yaw, math.radians(pitch), 0.0))
             crop = perspective_crop(grey_pano, R, (crop_px, crop_px), K=K)
             crop = cv2.createCLAHE(clipLimit=2.0, tileGridSize=(8, 8)).apply(
-                np.clip(np.round(crop), 0, 255).astype(np.uint8))
+                np.clip(np.round(crop), 0, 255).astype(np.uint8)
+            )
             pts, desc, sz = _sift(crop, None, n_features // max(1, n_yaw * len(pitches_deg)) * 2)
             if not len(pts):
                 continue

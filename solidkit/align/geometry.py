@@ -23,7 +23,14 @@ from solidkit._imports import pycolmap as _pycolmap
 from solidkit.envmap.coords import angular_distance, rotation_y
 from solidkit.errors import InputError
 
-__all__ = ["RotationFit", "PoseFit", "LevelPoseFit", "estimate_rotation", "estimate_relative_pose", "estimate_level_pose"]
+__all__ = [
+    "RotationFit",
+    "PoseFit",
+    "LevelPoseFit",
+    "estimate_rotation",
+    "estimate_relative_pose",
+    "estimate_level_pose",
+]
 
 
 @dataclass(frozen=True)
@@ -52,8 +59,15 @@ def _triad(a1: np.ndarray, a2: np.ndarray, b1: np.ndarray, b2: np.ndarray) -> np
     return frame(b1, b2) @ np.swapaxes(frame(a1, a2), -1, -2)
 
 
-def estimate_rotation(a: np.ndarray, b: np.ndarray, *, threshold: float = math.radians(0.5), iterations: int = 2000,
-                      seed: int = 0, min_inliers: int = 8) -> RotationFit | None:
+def estimate_rotation(
+    a: np.ndarray,
+    b: np.ndarray,
+    *,
+    threshold: float = math.radians(0.5),
+    iterations: int = 2000,
+    seed: int = 0,
+    min_inliers: int = 8,
+) -> RotationFit | None:
     """Robust ``R`` with ``b ≈ R a`` from matched unit rays; ``None`` with too few inliers.
 
     RANSAC: ``iterations`` random pairs (at least 2° apart), each giving a rotation by the triad
@@ -76,7 +90,7 @@ def estimate_rotation(a: np.ndarray, b: np.ndarray, *, threshold: float = math.r
     best, best_count = None, -1
     cos_t = math.cos(threshold)
     for start in range(0, len(Rs), 256):  # chunks keep the (K, N, 3) product small
-        pred = np.einsum("kij,nj->kni", Rs[start:start + 256], a)
+        pred = np.einsum("kij,nj->kni", Rs[start : start + 256], a)
         counts = (np.einsum("kni,ni->kn", pred, b) >= cos_t).sum(axis=1)
         k = int(np.argmax(counts))
         if counts[k] > best_count:
@@ -110,8 +124,9 @@ class PoseFit:
         return int(self.inliers.sum())
 
 
-def estimate_relative_pose(rays1: np.ndarray, rays2: np.ndarray, *, max_error: float = math.radians(0.5),
-                           min_inliers: int = 12, seed: int = 0) -> PoseFit | None:
+def estimate_relative_pose(
+    rays1: np.ndarray, rays2: np.ndarray, *, max_error: float = math.radians(0.5), min_inliers: int = 12, seed: int = 0
+) -> PoseFit | None:
     """Relative pose of two central views from matched rays (pycolmap LO-RANSAC, refined).
 
     ``max_error`` is pycolmap's tangent Sampson error threshold (radians of ray angle).
@@ -212,8 +227,9 @@ def _constrained_t(cc: np.ndarray, max_ty: float | None) -> tuple[np.ndarray, fl
         return t, float(sv[-1] ** 2) if len(sv) == 3 else 0.0
     r = math.sqrt(max(1.0 - max_ty**2, 0.0))
     phi = np.linspace(-math.pi, math.pi, 1441)[:-1]
-    cands = np.concatenate([np.stack([r * np.cos(phi), np.full_like(phi, sgn * max_ty), r * np.sin(phi)], -1)
-                            for sgn in (1.0, -1.0)])
+    cands = np.concatenate(
+        [np.stack([r * np.cos(phi), np.full_like(phi, sgn * max_ty), r * np.sin(phi)], -1) for sgn in (1.0, -1.0)]
+    )
     costs = np.sum((cands @ cc.T) ** 2, axis=1)
     k = int(np.argmin(costs))
     return cands[k], float(costs[k])
@@ -233,10 +249,18 @@ def _null_vector_sigma(cc: np.ndarray, t: np.ndarray) -> float:
     return math.sqrt(var * (1.0 / max(sv[0] ** 2, 1e-18) + 1.0 / max(sv[1] ** 2, 1e-18)))
 
 
-def estimate_level_pose(a: np.ndarray, b: np.ndarray, *, threshold: float = math.radians(0.35),
-                        yaw_step: float = math.radians(0.5), hypotheses: int = 64, min_inliers: int = 8,
-                        min_parallax: float = math.radians(2.0), seed: int = 0,
-                        max_baseline_elevation: float | None = math.radians(60.0)) -> LevelPoseFit | None:
+def estimate_level_pose(
+    a: np.ndarray,
+    b: np.ndarray,
+    *,
+    threshold: float = math.radians(0.35),
+    yaw_step: float = math.radians(0.5),
+    hypotheses: int = 64,
+    min_inliers: int = 8,
+    min_parallax: float = math.radians(2.0),
+    seed: int = 0,
+    max_baseline_elevation: float | None = math.radians(60.0),
+) -> LevelPoseFit | None:
     """Yaw and translation direction between two gravity-levelled panoramas from matched rays.
 
     Both views are level, so ``x_2 = R_y(yaw) x_1 + t``: 3 degrees of freedom instead of the
@@ -274,8 +298,8 @@ def estimate_level_pose(a: np.ndarray, b: np.ndarray, *, threshold: float = math
     s = math.sin(threshold)
     counts = np.zeros(t.shape[:2], np.int64)
     for y0 in range(0, len(yaws), 90):
-        e = _epipolar_error(Ra[y0:y0 + 90, None], b[None, None], t[y0:y0 + 90, :, None])  # (y, K, N)
-        counts[y0:y0 + 90] = (e <= s).sum(-1)
+        e = _epipolar_error(Ra[y0 : y0 + 90, None], b[None, None], t[y0 : y0 + 90, :, None])  # (y, K, N)
+        counts[y0 : y0 + 90] = (e <= s).sum(-1)
     counts[tn[..., 0] < 1e-3] = 0  # nearly parallel constraints (duplicate matches) fix no translation
     max_ty = None if max_baseline_elevation is None else math.sin(max_baseline_elevation)
     if max_ty is not None:

@@ -55,7 +55,9 @@ class PhotoMatch:
     focal_scale: float = 1.0
 
 
-def refine_focal(pixels: np.ndarray, targets: np.ndarray, K: np.ndarray, *, lo: float = 0.8, hi: float = 1.25) -> tuple[float, float]:
+def refine_focal(
+    pixels: np.ndarray, targets: np.ndarray, K: np.ndarray, *, lo: float = 0.8, hi: float = 1.25
+) -> tuple[float, float]:
     """Focal-length scale ``s`` (``fx, fy -> s fx, s fy``) minimising the rotation residual of inlier matches.
 
     Rotation-only geometry fixes the focal length when the matches spread over the frame: the
@@ -79,9 +81,17 @@ def refine_focal(pixels: np.ndarray, targets: np.ndarray, K: np.ndarray, *, lo: 
     return math.exp(float(res.x)), float(res.fun)
 
 
-def match_photo(photo: Features, pano: Features, *, K: np.ndarray | None = None, threshold_deg: float = 0.5,
-                min_inliers: int = 8, refine_f: bool = True, min_refine_inliers: int = 12,
-                ratio: float = 0.85) -> tuple[PhotoMatch | None, str]:
+def match_photo(
+    photo: Features,
+    pano: Features,
+    *,
+    K: np.ndarray | None = None,
+    threshold_deg: float = 0.5,
+    min_inliers: int = 8,
+    refine_f: bool = True,
+    min_refine_inliers: int = 12,
+    ratio: float = 0.85,
+) -> tuple[PhotoMatch | None, str]:
     """Rotation between a photo's rays (camera frame) and a level panorama's directions.
 
     With ``K`` (the photo's intrinsics, those ``photo``'s rays were made with) and enough inliers,
@@ -91,13 +101,25 @@ def match_photo(photo: Features, pano: Features, *, K: np.ndarray | None = None,
     m = match_features(photo, pano, ratio=ratio)
     if len(m) < min_inliers:
         return None, f"{len(m)} SIFT matches between the photo and the panorama (< {min_inliers})"
-    fit = estimate_rotation(photo.directions[m[:, 0]], pano.directions[m[:, 1]],
-                            threshold=math.radians(threshold_deg), min_inliers=min_inliers)
+    fit = estimate_rotation(
+        photo.directions[m[:, 0]],
+        pano.directions[m[:, 1]],
+        threshold=math.radians(threshold_deg),
+        min_inliers=min_inliers,
+    )
     if fit is None:
         return None, f"{len(m)} matches, no rotation with {min_inliers}+ inliers"
     scale = 1.0
-    loose = estimate_rotation(photo.directions[m[:, 0]], pano.directions[m[:, 1]],
-                              threshold=math.radians(3 * threshold_deg), min_inliers=min_inliers) if refine_f else None
+    loose = (
+        estimate_rotation(
+            photo.directions[m[:, 0]],
+            pano.directions[m[:, 1]],
+            threshold=math.radians(3 * threshold_deg),
+            min_inliers=min_inliers,
+        )
+        if refine_f
+        else None
+    )
     if loose is not None and K is not None and loose.n_inliers >= min_refine_inliers:
         # a focal length a few % off bends the rays by up to ~1 deg at the edges: refine on a loose inlier set
         px, tg = photo.pixels[m[loose.inliers, 0]], pano.directions[m[loose.inliers, 1]]
@@ -105,8 +127,12 @@ def match_photo(photo: Features, pano: Features, *, K: np.ndarray | None = None,
         Ks = np.asarray(K, np.float64).copy()
         Ks[0, 0] *= scale
         Ks[1, 1] *= scale
-        refit = estimate_rotation(rays_from_pixels(photo.pixels[m[:, 0]], Ks), pano.directions[m[:, 1]],
-                                  threshold=math.radians(threshold_deg), min_inliers=min_inliers)
+        refit = estimate_rotation(
+            rays_from_pixels(photo.pixels[m[:, 0]], Ks),
+            pano.directions[m[:, 1]],
+            threshold=math.radians(threshold_deg),
+            min_inliers=min_inliers,
+        )
         if refit is not None and refit.n_inliers >= fit.n_inliers * 0.9:
             fit = refit
         else:
@@ -117,14 +143,25 @@ def match_photo(photo: Features, pano: Features, *, K: np.ndarray | None = None,
     detail = f"{fit.n_inliers}/{len(m)} matches agree on one rotation (RMS {math.degrees(fit.rms):.2f} deg)"
     if scale != 1.0:
         detail += f"; focal length x{scale:.4f}"
-    return PhotoMatch(wrap_deg(-yaw), pitch, roll, sigma, len(m), fit.n_inliers, math.degrees(fit.rms), fit.R, scale), detail
+    return PhotoMatch(
+        wrap_deg(-yaw), pitch, roll, sigma, len(m), fit.n_inliers, math.degrees(fit.rms), fit.R, scale
+    ), detail
 
 
-def feature_cue(cam: Features, other: Features, yaw_cam_deg: float | None, yaw_cam_sigma: float,
-                *, min_inliers: int = 12, level_sigma_deg: float = 0.3,
-                max_baseline_elevation_deg: float | None = 60.0, ratio: float = 0.85, few_inliers: int = 18,
-                few_inliers_sigma_deg: float = 2.0,
-                reference: str = "the camera position") -> tuple[Cue, LevelPoseFit | None]:
+def feature_cue(
+    cam: Features,
+    other: Features,
+    yaw_cam_deg: float | None,
+    yaw_cam_sigma: float,
+    *,
+    min_inliers: int = 12,
+    level_sigma_deg: float = 0.3,
+    max_baseline_elevation_deg: float | None = 60.0,
+    ratio: float = 0.85,
+    few_inliers: int = 18,
+    few_inliers_sigma_deg: float = 2.0,
+    reference: str = "the camera position",
+) -> tuple[Cue, LevelPoseFit | None]:
     """The ``features`` cue of a capture against the camera-position capture (or the capture ``reference``
     names, whose yaw is ``yaw_cam_deg``); also returns the fit.
 
@@ -135,12 +172,18 @@ def feature_cue(cam: Features, other: Features, yaw_cam_deg: float | None, yaw_c
     m = match_features(cam, other, ratio=ratio)
     if len(m) < min_inliers:
         return Cue(yaw_deg=None, ok=False, detail=f"features failed: {len(m)} SIFT matches (< {min_inliers})"), None
-    fit = estimate_level_pose(cam.directions[m[:, 0]], other.directions[m[:, 1]], min_inliers=min_inliers,
-                              max_baseline_elevation=None if max_baseline_elevation_deg is None
-                              else math.radians(max_baseline_elevation_deg))
+    fit = estimate_level_pose(
+        cam.directions[m[:, 0]],
+        other.directions[m[:, 1]],
+        min_inliers=min_inliers,
+        max_baseline_elevation=None if max_baseline_elevation_deg is None else math.radians(max_baseline_elevation_deg),
+    )
     if fit is None:
-        return Cue(yaw_deg=None, ok=False,
-                   detail=f"features failed: {len(m)} matches, no relative pose with {min_inliers}+ inliers"), None
+        return Cue(
+            yaw_deg=None,
+            ok=False,
+            detail=f"features failed: {len(m)} matches, no relative pose with {min_inliers}+ inliers",
+        ), None
     psi = math.degrees(fit.yaw)
     # measured on rendered campaigns: level-pose yaws are 0.1-0.9 deg off with 12-30 inliers, mostly from the two
     # panoramas' residual tilts; the fit's own sigma is far smaller
@@ -151,8 +194,10 @@ def feature_cue(cam: Features, other: Features, yaw_cam_deg: float | None, yaw_c
         own = max(own, few_inliers_sigma_deg)
     sigma = math.hypot(own, level_sigma_deg, yaw_cam_sigma)
     yaw = None if yaw_cam_deg is None else wrap_deg(yaw_cam_deg - psi)
-    detail = (f"{fit.n_inliers}/{len(m)} matches on a level relative pose (RMS {math.degrees(fit.rms):.2f} deg); "
-              f"relative yaw to {reference} {wrap_deg(-psi):+.2f} deg")
+    detail = (
+        f"{fit.n_inliers}/{len(m)} matches on a level relative pose (RMS {math.degrees(fit.rms):.2f} deg); "
+        f"relative yaw to {reference} {wrap_deg(-psi):+.2f} deg"
+    )
     if fit.n_inliers < few_inliers:
         detail += f"; few inliers: sigma >= {few_inliers_sigma_deg:g} deg"
     return Cue(yaw_deg=yaw, sigma_deg=sigma, ok=yaw is not None, detail=detail), fit
@@ -215,8 +260,9 @@ def fuse_cues(cues: dict[str, Cue], *, n_sigma: float = 3.0, floor_deg: float = 
     if len(members) == 1 and len(usable) == 1:
         flags.append(str(Flag(FlagCode.SINGLE_CUE, f"yaw from {members[0]} only")))
     elif len(members) == 1:
-        flags.append(str(Flag(FlagCode.NO_AGREEMENT,
-                              f"no two cues agree; the most precise ({members[0]}) is used (review)")))
+        flags.append(
+            str(Flag(FlagCode.NO_AGREEMENT, f"no two cues agree; the most precise ({members[0]}) is used (review)"))
+        )
     # inverse-variance weighted RMS: a compass 5 deg off does not make a 0.1 deg alignment look bad
     rms = float(np.sqrt(np.sum(w * np.square(res)) / np.sum(w))) if len(res) > 1 else None
     return Fused(wrap_deg(yaw), sigma, rms, flags)

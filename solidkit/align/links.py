@@ -88,8 +88,9 @@ def _grounded(nodes: list[str], links: list[Link]) -> tuple[list[str], list[Link
     return [n for n in nodes if n in reach], [e for e in links if e.b in reach]
 
 
-def _least_squares(nodes: list[str], links: list[Link], start: dict[str, float], floor_deg: float
-                   ) -> tuple[dict[str, float], dict[str, float]] | None:
+def _least_squares(
+    nodes: list[str], links: list[Link], start: dict[str, float], floor_deg: float
+) -> tuple[dict[str, float], dict[str, float]] | None:
     """Weighted least squares of the nodes the links tie to the ground (others get no value)."""
     nodes, links = _grounded(nodes, links)
     if not nodes:
@@ -137,8 +138,9 @@ def _components(nodes: list[str], links: list[Link]) -> dict[str, tuple[str, ...
     return {n: tuple(sorted(groups[find(n)])) for n in nodes}
 
 
-def solve_links(nodes: list[str], links: list[Link], *, n_sigma: float = 3.0, floor_deg: float = 0.3,
-                max_links: int = 16) -> dict[str, LinkedYaw]:
+def solve_links(
+    nodes: list[str], links: list[Link], *, n_sigma: float = 3.0, floor_deg: float = 0.3, max_links: int = 16
+) -> dict[str, LinkedYaw]:
     """Yaws of ``nodes`` from ``links`` (module doc); nodes with no relative link kept get no entry.
 
     ``floor_deg``: no link is trusted below this sigma when testing consistency; ``max_links``:

@@ -47,8 +47,15 @@ class VanishingFit:
     ambiguity: float
 
 
-def line_normals(pano: np.ndarray, *, linear: bool = True, C: np.ndarray | None = None, n_yaw: int = 8,
-                 fov_deg: float = 75.0, min_length_px: float = 15.0) -> tuple[np.ndarray, np.ndarray]:
+def line_normals(
+    pano: np.ndarray,
+    *,
+    linear: bool = True,
+    C: np.ndarray | None = None,
+    n_yaw: int = 8,
+    fov_deg: float = 75.0,
+    min_length_px: float = 15.0,
+) -> tuple[np.ndarray, np.ndarray]:
     """Great-circle normals ``(N, 3)`` and angular lengths ``(N,)`` (radians) of line segments of a level panorama.
 
     ``C`` (3, 3) re-levels the directions (``d -> C d``: the refined levelling). Each segment is
@@ -87,8 +94,9 @@ def line_normals(pano: np.ndarray, *, linear: bool = True, C: np.ndarray | None 
     return np.concatenate(normals), np.concatenate(lengths)
 
 
-def photo_line_normals(photo: np.ndarray, K: np.ndarray, R_level: np.ndarray, *, min_length_px: float = 15.0
-                       ) -> tuple[np.ndarray, np.ndarray]:
+def photo_line_normals(
+    photo: np.ndarray, K: np.ndarray, R_level: np.ndarray, *, min_length_px: float = 15.0
+) -> tuple[np.ndarray, np.ndarray]:
     """Great-circle normals ``(N, 3)`` and angular lengths ``(N,)`` of a pinhole photo's line segments, in its
     level panorama frame.
 
@@ -120,8 +128,15 @@ def photo_line_normals(photo: np.ndarray, K: np.ndarray, R_level: np.ndarray, *,
     return n[ok] / norm[ok, None], np.arcsin(np.clip(norm[ok], 0.0, 1.0))
 
 
-def vanishing_azimuth(normals: np.ndarray, lengths: np.ndarray, *, endpoint_deg: float = 0.15, c: float = 3.0,
-                      exclude_deg: float = 8.0, min_segments: int = 20) -> VanishingFit | None:
+def vanishing_azimuth(
+    normals: np.ndarray,
+    lengths: np.ndarray,
+    *,
+    endpoint_deg: float = 0.15,
+    c: float = 3.0,
+    exclude_deg: float = 8.0,
+    min_segments: int = 20,
+) -> VanishingFit | None:
     """The horizontal vanishing azimuth (mod 90°) the segments agree on; ``None`` with too few segments.
 
     ``endpoint_deg``: end-point noise (sets each segment's tolerance, ``~endpoint / length``);
@@ -160,10 +175,14 @@ def vanishing_azimuth(normals: np.ndarray, lengths: np.ndarray, *, endpoint_deg:
     v2 = np.asarray(direction_from_angles(az + math.pi / 2.0, 0.0))
     first = np.abs(n @ v1) <= np.abs(n @ v2)
     v = np.where(first[:, None], v1, v2)
-    dv = np.cross(np.array([0.0, 1.0, 0.0]), v)  # +-d v / d az: horizontal, perpendicular to v (the sign is squared away)
+    dv = np.cross(
+        np.array([0.0, 1.0, 0.0]), v
+    )  # +-d v / d az: horizontal, perpendicular to v (the sign is squared away)
     inl = r[:, j] < c
     e, g, w = np.sum(n * v, 1)[inl], np.sum(n * dv, 1)[inl], 1.0 / sig[inl] ** 2
     m = int(inl.sum())
-    sigma = math.sqrt(float(np.sum(w * e**2)) / max(m - 1, 1) / max(float(np.sum(w * g**2)), 1e-18)) if m >= 2 else math.inf
+    sigma = (
+        math.sqrt(float(np.sum(w * e**2)) / max(m - 1, 1) / max(float(np.sum(w * g**2)), 1e-18)) if m >= 2 else math.inf
+    )
     azd = math.degrees(az) % 90.0
     return VanishingFit(azd, math.degrees(sigma), m, ambiguity)

@@ -40,15 +40,24 @@ import json
 import math
 import os
 import re
+from collections.abc import Callable
 from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
-from typing import Any, Callable, cast
+from typing import Any, cast
 
 import numpy as np
 
 from solidkit import __version__
-from solidkit.align.captures import (Capture, camera_probe_of, captures_of, levelling_of, load_normal_panorama,
-                                     photo_shot_of, read_hdr, read_sun_frame)
+from solidkit.align.captures import (
+    Capture,
+    camera_probe_of,
+    captures_of,
+    levelling_of,
+    load_normal_panorama,
+    photo_shot_of,
+    read_hdr,
+    read_sun_frame,
+)
 from solidkit.align.ephemeris import DRIFT_HOURS, at_photo_time, capture_place, capture_time, ephemeris_for, hours_apart
 from solidkit.align.features import Features, panorama_features, photo_features, rays_from_pixels
 from solidkit.align.heading import feature_cue, fuse_cues, match_photo
@@ -56,24 +65,43 @@ from solidkit.align.links import GROUND, Link, solve_links
 from solidkit.align.manhattan import line_normals, photo_line_normals, vanishing_azimuth
 from solidkit.align.products import write_products
 from solidkit.align.report import write_report
-from solidkit.align.schema import (ALIGNMENT_FILE, CampaignAlignment, CaptureSun, Cue, Ephemeris, Levelling, PhotoInfo,
-                                   ProbeAlignment, SceneAlignment, SceneSun, body_to_pano, load_alignment,
-                                   photo_azimuth_from_solar, save_alignment, wrap_deg)
+from solidkit.align.schema import (
+    ALIGNMENT_FILE,
+    CampaignAlignment,
+    CaptureSun,
+    Cue,
+    Ephemeris,
+    Levelling,
+    PhotoInfo,
+    ProbeAlignment,
+    SceneAlignment,
+    SceneSun,
+    body_to_pano,
+    load_alignment,
+    photo_azimuth_from_solar,
+    save_alignment,
+    wrap_deg,
+)
 from solidkit.align.sky import relative_sky_yaw, sky_layer, without_sun_drift
 from solidkit.align.sun import Blob, CaptureSunInput, SunSettings, choose_sun, find_candidates, sky_fraction
 from solidkit.calibration.camera import IntrinsicsError, intrinsics_from_exif, intrinsics_from_fov
 from solidkit.camera.metadata import CaptureMetadata
 from solidkit.capture.manifest import Manifest, Scene, load_manifest
-from solidkit.envmap.coords import (angles_from_direction, angular_distance, direction_from_angles, rotation_from_ypr,
-                                    ypr_from_rotation)
+from solidkit.envmap.coords import (
+    angles_from_direction,
+    angular_distance,
+    direction_from_angles,
+    rotation_from_ypr,
+    ypr_from_rotation,
+)
 from solidkit.envmap.io import read_ldr, srgb_decode
 from solidkit.envmap.resample import rotate
 from solidkit.envmap.tilt import TiltEstimate, residual_tilt
-from solidkit.threads import deterministic
 from solidkit.errors import InputError, SolidkitError
 from solidkit.flags import Flag, FlagCode, flag_codes
 from solidkit.fsutil import atomic_path, sha256_file
 from solidkit.labeling.store import LabelStore
+from solidkit.threads import deterministic
 
 __all__ = ["AlignSettings", "align_campaign", "align_scene"]
 
@@ -137,7 +165,9 @@ def _cached(campaign: Path, key: str, make: Callable[[], Features]) -> Features:
     return f
 
 
-def _feature_panorama(campaign: Path, manifest: Manifest, cap: Capture) -> tuple[np.ndarray | None, bool, str, list[str]]:
+def _feature_panorama(
+    campaign: Path, manifest: Manifest, cap: Capture
+) -> tuple[np.ndarray | None, bool, str, list[str]]:
     """(level panorama for features, is_linear, description, input hashes)."""
     if cap.hdr_path:  # keyed by the product's content: a rebuilt or replaced product is new input
         return read_hdr(campaign, cap.hdr_path), True, cap.hdr_path, [sha256_file(campaign / cap.hdr_path)]
@@ -163,13 +193,27 @@ def _photo_info(campaign: Path, manifest: Manifest, scene: Scene) -> tuple[Photo
         heading = (shot.metadata.get("gps") or {}).get("img_direction_deg")
     pitch, roll = getattr(scene, "photo_pitch_deg", None), getattr(scene, "photo_roll_deg", None)
     when, _ = capture_time(shot.metadata)
-    info = PhotoInfo(path=shot.original, sha256=shot.sha256, size=[meta.width, meta.height], K_full=np.asarray(K).tolist(),
-                     K_source=source, pitch_deg=pitch, roll_deg=roll, heading_deg=heading,
-                     pitch_roll_source="exif" if pitch is not None and roll is not None else "",
-                     time=None if when is None else when.isoformat())
+    info = PhotoInfo(
+        path=shot.original,
+        sha256=shot.sha256,
+        size=[meta.width, meta.height],
+        K_full=np.asarray(K).tolist(),
+        K_source=source,
+        pitch_deg=pitch,
+        roll_deg=roll,
+        heading_deg=heading,
+        pitch_roll_source="exif" if pitch is not None and roll is not None else "",
+        time=None if when is None else when.isoformat(),
+    )
     if heading is None:
-        flags.append(str(Flag(FlagCode.NO_PHOTO_HEADING,
-                              "no compass heading for the photo (GPSImgDirection); world azimuths unknown")))
+        flags.append(
+            str(
+                Flag(
+                    FlagCode.NO_PHOTO_HEADING,
+                    "no compass heading for the photo (GPSImgDirection); world azimuths unknown",
+                )
+            )
+        )
     return info, flags
 
 
@@ -196,7 +240,9 @@ def scene_photo(campaign: Path, manifest: Manifest, scene: Scene) -> ScenePhoto:
     info, flags = _photo_info(campaign, manifest, scene)
     cam_id = camera_probe_of(scene)
     if cam_id is None:
-        flags.append(str(Flag(FlagCode.NO_CAMERA_POSITION, "no capture is marked as taken at the photo camera's position")))
+        flags.append(
+            str(Flag(FlagCode.NO_CAMERA_POSITION, "no capture is marked as taken at the photo camera's position"))
+        )
     shot = photo_shot_of(manifest, scene)
     place = capture_place(shot.metadata) if shot is not None else None
     eph = ephemeris_for(shot.metadata) if shot is not None else None
@@ -250,9 +296,15 @@ def _refine_levelling(pano: np.ndarray, s: AlignSettings) -> tuple[np.ndarray, T
     return np.asarray(rotation_from_ypr(0.0, math.radians(w * est.pitch_deg), math.radians(w * est.roll_deg))), est
 
 
-def capture_view(campaign: Path, manifest: Manifest, scene_id: str, cap: Capture, s: AlignSettings,
-                 photo_place: tuple[float, float, float | None] | None,
-                 log: Callable[[str], None] = lambda s: None) -> CaptureView:
+def capture_view(
+    campaign: Path,
+    manifest: Manifest,
+    scene_id: str,
+    cap: Capture,
+    s: AlignSettings,
+    photo_place: tuple[float, float, float | None] | None,
+    log: Callable[[str], None] = lambda s: None,
+) -> CaptureView:
     """Step 2: the :class:`CaptureView` of ``cap`` (features cached under ``CAMPAIGN/align/cache``)."""
     flags: list[str] = []
     pitch, roll, heading, eph = 0.0, 0.0, None, None
@@ -268,15 +320,21 @@ def capture_view(campaign: Path, manifest: Manifest, scene_id: str, cap: Capture
         flags.append(str(Flag(FlagCode.NO_PANORAMA, "neither an HDR product nor a normal shot")))
         return CaptureView(cap, pitch, roll, heading, eph, flags=tuple(flags))
     key = _cache_key("pano", inputs, src, s.feature_fov_deg, list(s.feature_pitches_deg), linear, 2)
-    features = _cached(campaign, key, lambda: panorama_features(
-        pano, fov_deg=s.feature_fov_deg, pitches_deg=s.feature_pitches_deg, linear=linear))
+    features = _cached(
+        campaign,
+        key,
+        lambda: panorama_features(pano, fov_deg=s.feature_fov_deg, pitches_deg=s.feature_pitches_deg, linear=linear),
+    )
     normal_lin = pano if linear else srgb_decode(pano.astype(np.float32) / 255.0)
     C, tilt = np.eye(3), None
     if s.refine_levelling:
         C, tilt = _refine_levelling(pano, s)
         features = Features(features.directions @ C.T, features.descriptors, features.pixels, features.sizes)
-    how = "" if tilt is None else 'reliable' if tilt.reliable else 'unreliable'
-    log(f"{scene_id}/{cap.id}: {len(features)} features" + ("" if tilt is None else f", residual tilt {tilt.tilt_deg:.2f} deg ({how})"))
+    how = "" if tilt is None else "reliable" if tilt.reliable else "unreliable"
+    log(
+        f"{scene_id}/{cap.id}: {len(features)} features"
+        + ("" if tilt is None else f", residual tilt {tilt.tilt_deg:.2f} deg ({how})")
+    )
     return CaptureView(cap, pitch, roll, heading, eph, features, normal_lin, linear, C, tilt, tuple(flags))
 
 
@@ -287,8 +345,15 @@ def clock_mismatch(photo_ephemeris: Ephemeris | None, views: list[CaptureView]) 
     far = [v.id for v in views if v.ephemeris is not None and hours_apart(photo_ephemeris, v.ephemeris) > DRIFT_HOURS]
     if not far:
         return []
-    return [str(Flag(FlagCode.CLOCK_MISMATCH, f"{', '.join(far)} taken more than an hour from the photo "
-                                              "(camera clocks or UTC offsets disagree); no sun drift correction there"))]
+    return [
+        str(
+            Flag(
+                FlagCode.CLOCK_MISMATCH,
+                f"{', '.join(far)} taken more than an hour from the photo "
+                "(camera clocks or UTC offsets disagree); no sun drift correction there",
+            )
+        )
+    ]
 
 
 # --------------------------------------------------------------------------- yaw cues without the sun
@@ -315,27 +380,46 @@ def photo_stage(campaign: Path, photo: PhotoInfo | None, cam: CaptureView | None
         K = np.asarray(photo.K_full)
         # SIFT at the panorama's angular resolution: photo pixels per radian -> panorama's (H / pi)
         scale = s.photo_scale or min(1.0, (cam.pano_height / math.pi) / K[0, 0] * 1.1)
-        pf = _cached(campaign, _cache_key("photo", photo.sha256, photo.K_full, scale, 2),
-                     lambda: photo_features(img, K, scale=scale))
+        pf = _cached(
+            campaign,
+            _cache_key("photo", photo.sha256, photo.K_full, scale, 2),
+            lambda: photo_features(img, K, scale=scale),
+        )
         pm, detail = match_photo(pf, cam.features, K=K, refine_f=s.refine_focal, ratio=s.match_ratio)
         if pm is not None and pm.focal_scale != 1.0:
             Kr = K.copy()
             Kr[0, 0] *= pm.focal_scale
             Kr[1, 1] *= pm.focal_scale
             if abs(pm.focal_scale - 1.0) > s.focal_tolerance:
-                flags.append(str(Flag(FlagCode.FOCAL_REFINED,
-                                      f"the EXIF focal length was {100 * (pm.focal_scale - 1):+.1f}% off "
-                                      f"({photo.K_source}); K refined from the camera-position panorama")))
+                flags.append(
+                    str(
+                        Flag(
+                            FlagCode.FOCAL_REFINED,
+                            f"the EXIF focal length was {100 * (pm.focal_scale - 1):+.1f}% off "
+                            f"({photo.K_source}); K refined from the camera-position panorama",
+                        )
+                    )
+                )
             photo.K_full, photo.K_source = Kr.tolist(), f"{photo.K_source}+features"
         if pm is not None:
-            cue = Cue(yaw_deg=pm.yaw_deg, sigma_deg=pm.sigma_deg, ok=True,
-                      detail=detail + f"; photo pitch {pm.pitch_deg:+.2f}, roll {pm.roll_deg:+.2f} deg")
+            cue = Cue(
+                yaw_deg=pm.yaw_deg,
+                sigma_deg=pm.sigma_deg,
+                ok=True,
+                detail=detail + f"; photo pitch {pm.pitch_deg:+.2f}, roll {pm.roll_deg:+.2f} deg",
+            )
             if photo.pitch_deg is not None and photo.roll_deg is not None:
                 d = max(abs(photo.pitch_deg - pm.pitch_deg), abs(photo.roll_deg - pm.roll_deg))
                 if d > 1.0:
-                    flags.append(str(Flag(FlagCode.PHOTO_POSE_DISAGREES,
-                                          f"recorded pitch/roll {photo.pitch_deg:+.2f}/{photo.roll_deg:+.2f},"
-                                          f" features {pm.pitch_deg:+.2f}/{pm.roll_deg:+.2f} deg")))
+                    flags.append(
+                        str(
+                            Flag(
+                                FlagCode.PHOTO_POSE_DISAGREES,
+                                f"recorded pitch/roll {photo.pitch_deg:+.2f}/{photo.roll_deg:+.2f},"
+                                f" features {pm.pitch_deg:+.2f}/{pm.roll_deg:+.2f} deg",
+                            )
+                        )
+                    )
             if photo.pitch_deg is None or photo.roll_deg is None or pm.n_inliers >= s.min_pose_inliers:
                 # the rotation to a levelled panorama measures the photo's pitch and roll better than a bubble level
                 photo.pitch_deg, photo.roll_deg = pm.pitch_deg, pm.roll_deg
@@ -352,9 +436,12 @@ def photo_stage(campaign: Path, photo: PhotoInfo | None, cam: CaptureView | None
 def compass_cue(view: CaptureView, photo_heading_deg: float | None, s: AlignSettings) -> Cue:
     """The ``compass`` cue: ``yaw = heading - photo heading`` (heading convention, :mod:`solidkit.align.schema`)."""
     if view.heading is not None and photo_heading_deg is not None:
-        return Cue(yaw_deg=wrap_deg(float(view.heading) - float(photo_heading_deg)), sigma_deg=s.sun.compass_sigma_deg,
-                   ok=True, detail=f"Theta heading {float(view.heading):.1f} deg - photo heading "
-                                   f"{float(photo_heading_deg):.1f} deg")
+        return Cue(
+            yaw_deg=wrap_deg(float(view.heading) - float(photo_heading_deg)),
+            sigma_deg=s.sun.compass_sigma_deg,
+            ok=True,
+            detail=f"Theta heading {float(view.heading):.1f} deg - photo heading {float(photo_heading_deg):.1f} deg",
+        )
     return Cue(yaw_deg=None, ok=False, detail="no compass heading")
 
 
@@ -368,8 +455,9 @@ class CameraFeatures:
     fits: dict[str, Any]
 
 
-def camera_features(views: list[CaptureView], cam: CaptureView | None, cam_cues: dict[str, Cue],
-                    s: AlignSettings) -> CameraFeatures:
+def camera_features(
+    views: list[CaptureView], cam: CaptureView | None, cam_cues: dict[str, Cue], s: AlignSettings
+) -> CameraFeatures:
     """Step 4: features of every capture against the camera position (:func:`feature_cue`)."""
     pre = fuse_cues({k: c.model_copy() for k, c in cam_cues.items()}) if cam is not None else None
     yaw_cam = pre.yaw_deg if pre is not None else None
@@ -382,9 +470,15 @@ def camera_features(views: list[CaptureView], cam: CaptureView | None, cam_cues:
         if v.features is None:
             cues[v.id] = Cue(yaw_deg=None, ok=False, detail="features failed: no panorama")
             continue
-        cues[v.id], fits[v.id] = feature_cue(cam.features, v.features, yaw_cam, yaw_cam_sigma,
-                                             level_sigma_deg=s.sun.level_sigma_deg,
-                                             max_baseline_elevation_deg=s.max_baseline_elevation_deg, ratio=s.match_ratio)
+        cues[v.id], fits[v.id] = feature_cue(
+            cam.features,
+            v.features,
+            yaw_cam,
+            yaw_cam_sigma,
+            level_sigma_deg=s.sun.level_sigma_deg,
+            max_baseline_elevation_deg=s.max_baseline_elevation_deg,
+            ratio=s.match_ratio,
+        )
     return CameraFeatures(yaw_cam, cues, fits)
 
 
@@ -395,8 +489,14 @@ def _to_frame(b: Blob, C: np.ndarray) -> Blob:
     return Blob(**{**b.__dict__, "direction": d, "azimuth_deg": wrap_deg(az), "elevation_deg": el})
 
 
-def sun_inputs(campaign: Path, scene_id: str, views: list[CaptureView], cues: dict[str, dict[str, Cue]], store: Any,
-               s: AlignSettings) -> list[CaptureSunInput]:
+def sun_inputs(
+    campaign: Path,
+    scene_id: str,
+    views: list[CaptureView],
+    cues: dict[str, dict[str, Cue]],
+    store: Any,
+    s: AlignSettings,
+) -> list[CaptureSunInput]:
     """Step 5: what the sun's choice knows of each capture: its sun-frame candidates (with their sky
     fractions, in the refined level frame), its ephemeris, its yaw from features only (a compass-only
     capture is tested on elevation: its compass may be 90 deg off, then the sun gives its yaw and the
@@ -411,8 +511,17 @@ def sun_inputs(campaign: Path, scene_id: str, views: list[CaptureView], cues: di
             blobs = find_candidates(frame, saturation=s.sun.saturation, max_candidates=s.sun.max_candidates)
             if v.normal_lin is not None:
                 dirs = [b.direction for b in blobs]
-                blobs = [Blob(**{**b.__dict__, "sky_fraction": sky_fraction(
-                    v.normal_lin, b.direction, exclude=[d for d in dirs if d is not b.direction])}) for b in blobs]
+                blobs = [
+                    Blob(
+                        **{
+                            **b.__dict__,
+                            "sky_fraction": sky_fraction(
+                                v.normal_lin, b.direction, exclude=[d for d in dirs if d is not b.direction]
+                            ),
+                        }
+                    )
+                    for b in blobs
+                ]
             blobs = [_to_frame(b, v.C) for b in blobs]
             note = ""
         else:
@@ -423,13 +532,30 @@ def sun_inputs(campaign: Path, scene_id: str, views: list[CaptureView], cues: di
             az, el = (math.degrees(float(x)) for x in angles_from_direction(d))
             human = human.model_copy(update={"azimuth_deg": wrap_deg(az), "elevation_deg": el})
         compass = cues[v.id].get("compass")
-        inputs.append(CaptureSunInput(v.id, blobs, v.ephemeris, pre.yaw_deg, pre.sigma_deg, v.heading, note, human,
-                                      compass_yaw_deg=None if compass is None else compass.yaw_deg))
+        inputs.append(
+            CaptureSunInput(
+                v.id,
+                blobs,
+                v.ephemeris,
+                pre.yaw_deg,
+                pre.sigma_deg,
+                v.heading,
+                note,
+                human,
+                compass_yaw_deg=None if compass is None else compass.yaw_deg,
+            )
+        )
     return inputs
 
 
-def sun_cues(views: list[CaptureView], cues: dict[str, dict[str, Cue]], sun: SceneSun, photo_eph: Ephemeris | None,
-             s: AlignSettings, heading_p: float | None) -> dict[str, Cue]:
+def sun_cues(
+    views: list[CaptureView],
+    cues: dict[str, dict[str, Cue]],
+    sun: SceneSun,
+    photo_eph: Ephemeris | None,
+    s: AlignSettings,
+    heading_p: float | None,
+) -> dict[str, Cue]:
     """The ``sun`` cue of every capture: the scene's sun seen by the other captures (leave-one-out; their
     yaws from ``cues`` but the sun and the compass), minus this capture's; failing others, the ephemeris
     through the photo's compass."""
@@ -453,27 +579,39 @@ def sun_cues(views: list[CaptureView], cues: dict[str, dict[str, Cue]], sun: Sce
             if other is v or other.id not in pts:
                 continue
             oc = cues[other.id]
-            y_other = (fuse_cues({k: c.model_copy() for k, c in oc.items() if k not in ("sun", "compass")})
-                       if oc else None)
+            y_other = (
+                fuse_cues({k: c.model_copy() for k, c in oc.items() if k not in ("sun", "compass")}) if oc else None
+            )
             if y_other is None or y_other.yaw_deg is None:
                 continue
             az_o, el_o, unc_o = pts[other.id]
-            sig_o = math.hypot(y_other.sigma_deg or 0.0, unc_o / max(math.cos(math.radians(el_o)), 0.1),
-                               s.sun.level_sigma_deg * math.tan(math.radians(min(abs(el_o), 80.0))))
+            sig_o = math.hypot(
+                y_other.sigma_deg or 0.0,
+                unc_o / max(math.cos(math.radians(el_o)), 0.1),
+                s.sun.level_sigma_deg * math.tan(math.radians(min(abs(el_o), 80.0))),
+            )
             others.append((wrap_deg(az_o + y_other.yaw_deg), sig_o, other.id))
         if others:
             w = np.array([1.0 / max(o[1], 0.05) ** 2 for o in others])
             ang = np.radians([o[0] for o in others])
             az_p = math.degrees(math.atan2(float(np.sum(w * np.sin(ang))), float(np.sum(w * np.cos(ang)))))
             sig = math.hypot(1.0 / math.sqrt(w.sum()), own)
-            out[v.id] = Cue(yaw_deg=wrap_deg(az_p - az_c), sigma_deg=sig, ok=True,
-                            detail=f"sun azimuth {az_c:.2f} deg here vs {az_p:.2f} deg in the photo frame "
-                                   f"(from {', '.join(o[2] for o in others)})")
+            out[v.id] = Cue(
+                yaw_deg=wrap_deg(az_p - az_c),
+                sigma_deg=sig,
+                ok=True,
+                detail=f"sun azimuth {az_c:.2f} deg here vs {az_p:.2f} deg in the photo frame "
+                f"(from {', '.join(o[2] for o in others)})",
+            )
         elif photo_eph is not None and heading_p is not None:
             az_p = photo_azimuth_from_solar(photo_eph.azimuth_deg, heading_p)
-            out[v.id] = Cue(yaw_deg=wrap_deg(az_p - az_c), sigma_deg=math.hypot(s.photo_compass_sigma_deg, own), ok=True,
-                            detail=f"sun azimuth {az_c:.2f} deg here vs the ephemeris {az_p:.2f} deg in the photo frame "
-                                   "(through the photo's compass heading)")
+            out[v.id] = Cue(
+                yaw_deg=wrap_deg(az_p - az_c),
+                sigma_deg=math.hypot(s.photo_compass_sigma_deg, own),
+                ok=True,
+                detail=f"sun azimuth {az_c:.2f} deg here vs the ephemeris {az_p:.2f} deg in the photo frame "
+                "(through the photo's compass heading)",
+            )
         else:
             out[v.id] = Cue(yaw_deg=None, ok=False, detail="the sun is seen here only, and there is no ephemeris")
     return out
@@ -491,8 +629,14 @@ class SunStage:
     cues: dict[str, Cue]
 
 
-def sun_stage(views: list[CaptureView], cues: dict[str, dict[str, Cue]], inputs: list[CaptureSunInput],
-              photo_eph: Ephemeris | None, heading_p: float | None, s: AlignSettings) -> SunStage:
+def sun_stage(
+    views: list[CaptureView],
+    cues: dict[str, dict[str, Cue]],
+    inputs: list[CaptureSunInput],
+    photo_eph: Ephemeris | None,
+    heading_p: float | None,
+    s: AlignSettings,
+) -> SunStage:
     """Step 5: the scene's sun and the captures' sun cues, with the sun moving (ephemeris drift between the
     captures' times) or static, as ``s.sun_motion`` says; ``"auto"`` lets the images decide.
 
@@ -532,9 +676,11 @@ def sun_stage(views: list[CaptureView], cues: dict[str, dict[str, Cue]], inputs:
         why = f"sun motion: {'ephemeris drift applied' if moves else 'static'} ({s.sun_motion})"
     else:
         moves = results[True][0] <= results[False][0]
-        why = (f"sun motion: {'moving (ephemeris drift applied)' if moves else 'static (no drift between captures)'}"
-               f", chosen by the images: chi2 {results[True][0]:.1f} moving vs {results[False][0]:.1f} static "
-               f" ({results[True][1]} comparisons: sun vs feature yaws, sun elevations)")
+        why = (
+            f"sun motion: {'moving (ephemeris drift applied)' if moves else 'static (no drift between captures)'}"
+            f", chosen by the images: chi2 {results[True][0]:.1f} moving vs {results[False][0]:.1f} static "
+            f" ({results[True][1]} comparisons: sun vs feature yaws, sun elevations)"
+        )
     _, _, choice, mode_cues = results[moves]
     choice.sun.motion = why
     return SunStage(choice.sun, choice.outranked, bool(moves), mode_cues)
@@ -555,13 +701,20 @@ def explain_rejections(sun: SceneSun, outranked: frozenset[tuple[str, int]], pro
         for k, c in enumerate(cs.candidates):
             if (cs.probe, k) in outranked:
                 d_az = wrap_deg(c.azimuth_deg + yaw - sun.azimuth_deg)
-                d = math.degrees(float(angular_distance(
-                    direction_from_angles(math.radians(c.azimuth_deg + yaw), math.radians(c.elevation_deg)),
-                    direction_from_angles(math.radians(sun.azimuth_deg), math.radians(sun.elevation_deg)))))
-                c.reasons = [f"not where the scene's sun is: {d:.1f} deg away (azimuth {d_az:+.1f} deg) once this capture's "
-                             "yaw is known; same elevation as the sun: a mirror image (glint) in a vertical glass wall?"
-                             if abs(c.elevation_deg - (cs.elevation_deg or c.elevation_deg)) < 1.5 else
-                             f"not where the scene's sun is: {d:.1f} deg away once this capture's yaw is known"]
+                d = math.degrees(
+                    float(
+                        angular_distance(
+                            direction_from_angles(math.radians(c.azimuth_deg + yaw), math.radians(c.elevation_deg)),
+                            direction_from_angles(math.radians(sun.azimuth_deg), math.radians(sun.elevation_deg)),
+                        )
+                    )
+                )
+                c.reasons = [
+                    f"not where the scene's sun is: {d:.1f} deg away (azimuth {d_az:+.1f} deg) once this capture's "
+                    "yaw is known; same elevation as the sun: a mirror image (glint) in a vertical glass wall?"
+                    if abs(c.elevation_deg - (cs.elevation_deg or c.elevation_deg)) < 1.5
+                    else f"not where the scene's sun is: {d:.1f} deg away once this capture's yaw is known"
+                ]
                 c.scores["distance_to_scene_sun_deg"] = d
 
 
@@ -594,8 +747,9 @@ def _compass_only(cues: dict[str, Cue]) -> bool:
     return compass is not None and compass.yaw_deg is not None and _non_compass(cues).yaw_deg is None
 
 
-def chain_cues(views: list[CaptureView], cues: dict[str, dict[str, Cue]], cam: CaptureView | None,
-               s: AlignSettings) -> dict[str, dict[str, Cue]]:
+def chain_cues(
+    views: list[CaptureView], cues: dict[str, dict[str, Cue]], cam: CaptureView | None, s: AlignSettings
+) -> dict[str, dict[str, Cue]]:
     """``features_via_<id>`` cues (per capture id) for captures left with the compass alone (features failed
     against the camera position, no sun): features against the other captures, whose yaws (features, sun;
     never the compass) carry them over. A chain adds the other capture's error: a fallback only."""
@@ -612,9 +766,16 @@ def chain_cues(views: list[CaptureView], cues: dict[str, dict[str, Cue]], cam: C
         for oid, (yaw_o, sig_o, other) in known.items():
             if other is v or other is cam or other.features is None:
                 continue
-            cue, _ = feature_cue(other.features, v.features, yaw_o, sig_o, level_sigma_deg=s.sun.level_sigma_deg,
-                                 max_baseline_elevation_deg=s.max_baseline_elevation_deg, ratio=s.match_ratio,
-                                 reference=oid)
+            cue, _ = feature_cue(
+                other.features,
+                v.features,
+                yaw_o,
+                sig_o,
+                level_sigma_deg=s.sun.level_sigma_deg,
+                max_baseline_elevation_deg=s.max_baseline_elevation_deg,
+                ratio=s.match_ratio,
+                reference=oid,
+            )
             if cue.yaw_deg is not None:
                 out.setdefault(v.id, {})[f"features_via_{oid}"] = cue
     return out
@@ -628,8 +789,12 @@ def _photo_lines(campaign: Path, photo: PhotoInfo | None) -> tuple[np.ndarray, n
     return photo_line_normals(read_ldr(campaign / photo.path), np.asarray(photo.K_full), R)
 
 
-def manhattan_cues(views: list[CaptureView], cues: dict[str, dict[str, Cue]], s: AlignSettings,
-                   photo_lines: Callable[[], tuple[np.ndarray, np.ndarray] | None] | None = None) -> dict[str, Cue]:
+def manhattan_cues(
+    views: list[CaptureView],
+    cues: dict[str, dict[str, Cue]],
+    s: AlignSettings,
+    photo_lines: Callable[[], tuple[np.ndarray, np.ndarray] | None] | None = None,
+) -> dict[str, Cue]:
     """``manhattan`` cues (:mod:`solidkit.align.manhattan`, per capture id) for captures left with the compass alone.
 
     The street's horizontal vanishing azimuth in the photo's panorama frame (modulo 90°) comes from
@@ -648,7 +813,9 @@ def manhattan_cues(views: list[CaptureView], cues: dict[str, dict[str, Cue]], s:
     for v in views:
         f, known = fits.get(v.id), _non_compass(cues[v.id])
         if f is not None and known.yaw_deg is not None and f.ambiguity < 0.95:
-            members.append(((f.azimuth_deg + known.yaw_deg) % 90.0, math.hypot(f.sigma_deg, known.sigma_deg or 0.0), v.id))
+            members.append(
+                ((f.azimuth_deg + known.yaw_deg) % 90.0, math.hypot(f.sigma_deg, known.sigma_deg or 0.0), v.id)
+            )
     lines = photo_lines() if photo_lines is not None else None
     fp = vanishing_azimuth(*lines) if lines is not None else None
     if fp is not None and fp.ambiguity < 0.95:
@@ -683,9 +850,14 @@ def manhattan_cues(views: list[CaptureView], cues: dict[str, dict[str, Cue]], s:
         yaw = wrap_deg(base + 90.0 * round((compass - base) / 90.0))
         sigma = math.hypot(f.sigma_deg, ref_sigma, s.manhattan_model_sigma_deg)
         out[v.id] = Cue(
-            yaw_deg=yaw, sigma_deg=sigma, ok=True,
-            detail=(f"street lines at {f.azimuth_deg:.2f} deg (mod 90) here vs {ref:.2f} deg in the photo frame "
-                    f"(from {', '.join(m[2] for m in members)}); quadrant from the compass ({f.n_segments} segments)"))
+            yaw_deg=yaw,
+            sigma_deg=sigma,
+            ok=True,
+            detail=(
+                f"street lines at {f.azimuth_deg:.2f} deg (mod 90) here vs {ref:.2f} deg in the photo frame "
+                f"(from {', '.join(m[2] for m in members)}); quadrant from the compass ({f.n_segments} segments)"
+            ),
+        )
     return out
 
 
@@ -698,8 +870,13 @@ class LinkStage:
     flags: dict[str, list[str]] = field(default_factory=dict)
 
 
-def link_cues(views: list[CaptureView], cues: dict[str, dict[str, Cue]], s: AlignSettings, sun_moves: bool = False,
-              log: Callable[[str], None] = lambda s: None) -> LinkStage:
+def link_cues(
+    views: list[CaptureView],
+    cues: dict[str, dict[str, Cue]],
+    s: AlignSettings,
+    sun_moves: bool = False,
+    log: Callable[[str], None] = lambda s: None,
+) -> LinkStage:
     """The ``linked`` cue (:mod:`solidkit.align.links`) for captures still left with the compass alone.
 
     Links: features between every such capture and every other capture (level relative pose), and
@@ -720,8 +897,11 @@ def link_cues(views: list[CaptureView], cues: dict[str, dict[str, Cue]], s: Alig
             f = _non_compass(cues[v.id])
             if f.yaw_deg is not None:
                 vc = cues[v.id]
-                street = ("manhattan" in vc and vc["manhattan"].ok
-                          and len([c for k, c in vc.items() if c.ok and k != "compass"]) == 1)
+                street = (
+                    "manhattan" in vc
+                    and vc["manhattan"].ok
+                    and len([c for k, c in vc.items() if c.ok and k != "compass"]) == 1
+                )
                 known[v.id] = (f.yaw_deg, f.sigma_deg or 0.0, street)
     sky = {}
     if s.sky:
@@ -732,25 +912,45 @@ def link_cues(views: list[CaptureView], cues: dict[str, dict[str, Cue]], s: Alig
                 sky[v.id] = sky_layer(small, saturation=None if v.linear else 0.98)
     links: list[Link] = []
     lone_ids = [v.id for v in lone]
-    pairs = [(a, b) for i, a in enumerate(views) for b in views[i + 1:]
-             if (a in lone or b in lone) and (a.id in known or a in lone) and (b.id in known or b in lone)]
+    pairs = [
+        (a, b)
+        for i, a in enumerate(views)
+        for b in views[i + 1 :]
+        if (a in lone or b in lone) and (a.id in known or a in lone) and (b.id in known or b in lone)
+    ]
     for a, b in pairs:
         if b.id not in lone_ids:
             a, b = b, a  # b is lone
         rel: list[tuple[str, float, float, str]] = []
         assert a.features is not None and b.features is not None  # lone and known captures have features
-        cue, fit = feature_cue(a.features, b.features, 0.0, 0.0, level_sigma_deg=s.sun.level_sigma_deg,
-                               max_baseline_elevation_deg=s.max_baseline_elevation_deg, ratio=s.match_ratio)
+        cue, fit = feature_cue(
+            a.features,
+            b.features,
+            0.0,
+            0.0,
+            level_sigma_deg=s.sun.level_sigma_deg,
+            max_baseline_elevation_deg=s.max_baseline_elevation_deg,
+            ratio=s.match_ratio,
+        )
         if cue.yaw_deg is not None:
             assert cue.sigma_deg is not None and fit is not None  # a cue with a yaw has its sigma and fit
             rel.append(("features", cue.yaw_deg, cue.sigma_deg, f"{fit.n_inliers} inliers"))
         if a.id in sky and b.id in sky:
-            sky_fit, why = relative_sky_yaw(sky[a.id], sky[b.id], min_overlap=s.sky_min_overlap,
-                                            correlation_px=s.sky_correlation_px, min_delta_chi2=s.sky_min_delta_chi2)
+            sky_fit, why = relative_sky_yaw(
+                sky[a.id],
+                sky[b.id],
+                min_overlap=s.sky_min_overlap,
+                correlation_px=s.sky_correlation_px,
+                min_delta_chi2=s.sky_min_delta_chi2,
+            )
             if sky_fit is not None:
                 drift, what = 0.0, f"sigma {sky_fit.sigma_deg:.2f} deg"
-                if (sun_moves and a.ephemeris is not None and b.ephemeris is not None
-                        and hours_apart(a.ephemeris, b.ephemeris) <= DRIFT_HOURS):
+                if (
+                    sun_moves
+                    and a.ephemeris is not None
+                    and b.ephemeris is not None
+                    and hours_apart(a.ephemeris, b.ephemeris) <= DRIFT_HOURS
+                ):
                     drift = wrap_deg(b.ephemeris.azimuth_deg - a.ephemeris.azimuth_deg)
                     what += f", sun drift {drift:+.2f} deg applied"
                 yaw = without_sun_drift(sky_fit.yaw_deg, 0.0, drift)
@@ -758,16 +958,25 @@ def link_cues(views: list[CaptureView], cues: dict[str, dict[str, Cue]], s: Alig
         for kind, yaw, sig, what in rel:
             if a.id in known:
                 ya, sa, street = known[a.id]
-                links.append(Link(GROUND, b.id, wrap_deg(ya + yaw), math.hypot(sig, sa), f"{kind}_via_{a.id}",
-                                  f"{kind} {b.id} to {a.id} ({what})"
-                                  f"{', whose yaw is from street lines' if street else ''}", street_lines=street))
+                links.append(
+                    Link(
+                        GROUND,
+                        b.id,
+                        wrap_deg(ya + yaw),
+                        math.hypot(sig, sa),
+                        f"{kind}_via_{a.id}",
+                        f"{kind} {b.id} to {a.id} ({what}){', whose yaw is from street lines' if street else ''}",
+                        street_lines=street,
+                    )
+                )
             else:
                 links.append(Link(a.id, b.id, yaw, sig, kind, f"{kind} {a.id}-{b.id} ({what})"))
         log(f"links {a.id}-{b.id}: " + (", ".join(f"{k} {y:+.2f}+-{g:.2f}" for k, y, g, _ in rel) or "none"))
     for v in lone:
         c = cues[v.id]["compass"]
-        links.append(Link(GROUND, v.id, float(cast(float, c.yaw_deg)), float(c.sigma_deg or s.sun.compass_sigma_deg),
-                          "compass"))
+        links.append(
+            Link(GROUND, v.id, float(cast(float, c.yaw_deg)), float(c.sigma_deg or s.sun.compass_sigma_deg), "compass")
+        )
     solved = solve_links(lone_ids, links)
     out = LinkStage()
     for v in lone:
@@ -784,17 +993,35 @@ def link_cues(views: list[CaptureView], cues: dict[str, dict[str, Cue]], s: Alig
         out.cues[v.id] = Cue(yaw_deg=r.yaw_deg, sigma_deg=r.sigma_deg, ok=True, detail=detail)
         flags = out.flags.setdefault(v.id, [])
         if not r.anchors:
-            flags.append(str(Flag(FlagCode.YAW_FROM_COMPASSES,
-                                  f"the compasses of {', '.join(r.compasses)} linked by features or sky to this capture "
-                                  "fix its yaw (no capture of known yaw in its group): review")))
+            flags.append(
+                str(
+                    Flag(
+                        FlagCode.YAW_FROM_COMPASSES,
+                        f"the compasses of {', '.join(r.compasses)} linked by features or sky to this capture "
+                        "fix its yaw (no capture of known yaw in its group): review",
+                    )
+                )
+            )
         elif all(e.kind.startswith("sky") for e in r.used + r.anchors):
-            flags.append(str(Flag(FlagCode.YAW_FROM_SKY,
-                                  f"only the sky's radiance pattern ({len(r.used) + len(r.anchors)} sky link(s), sigma "
-                                  f"{r.sigma_deg:.2f} deg) fixes this yaw beside the compass: review")))
+            flags.append(
+                str(
+                    Flag(
+                        FlagCode.YAW_FROM_SKY,
+                        f"only the sky's radiance pattern ({len(r.used) + len(r.anchors)} sky link(s), sigma "
+                        f"{r.sigma_deg:.2f} deg) fixes this yaw beside the compass: review",
+                    )
+                )
+            )
         elif all(e.street_lines for e in r.anchors):
-            flags.append(str(Flag(FlagCode.YAW_FROM_STREET_LINES,
-                                  "linked to captures whose yaw only street lines fix "
-                                  f"({', '.join(e.kind for e in r.anchors)}): review")))
+            flags.append(
+                str(
+                    Flag(
+                        FlagCode.YAW_FROM_STREET_LINES,
+                        "linked to captures whose yaw only street lines fix "
+                        f"({', '.join(e.kind for e in r.anchors)}): review",
+                    )
+                )
+            )
     return out
 
 
@@ -808,12 +1035,17 @@ def _levelling_record(view: CaptureView) -> tuple[Levelling, float]:
     y0, p, r = (math.degrees(float(v)) for v in ypr_from_rotation(R))
     t = view.tilt
     refined = not np.allclose(view.C, np.eye(3))
-    lev = Levelling(pitch_deg=p, roll_deg=r, source="metadata+tilt" if refined else "metadata",
-                    metadata_pitch_deg=view.pitch, metadata_roll_deg=view.roll,
-                    residual_tilt_deg=None if t is None else t.tilt_deg,
-                    tilt_uncertainty_deg=None if t is None else t.uncertainty_deg,
-                    tilt_reliable=None if t is None else t.reliable,
-                    confidence=None if t is None or not t.reliable else float(1.0 / (1.0 + t.uncertainty_deg)))
+    lev = Levelling(
+        pitch_deg=p,
+        roll_deg=r,
+        source="metadata+tilt" if refined else "metadata",
+        metadata_pitch_deg=view.pitch,
+        metadata_roll_deg=view.roll,
+        residual_tilt_deg=None if t is None else t.tilt_deg,
+        tilt_uncertainty_deg=None if t is None else t.uncertainty_deg,
+        tilt_reliable=None if t is None else t.reliable,
+        confidence=None if t is None or not t.reliable else float(1.0 / (1.0 + t.uncertainty_deg)),
+    )
     return lev, y0
 
 
@@ -837,20 +1069,42 @@ def capture_yaw(view: CaptureView, cues: dict[str, Cue], link_flags: list[str], 
     yaw, source = fused.yaw_deg, "auto"
     if label is not None:
         lyaw = float(label.value["yaw_deg"])
-        cues["label"] = Cue(yaw_deg=lyaw, ok=True, weight=1.0, detail=f"{label.source} label by {label.annotator}",
-                            residual_deg=None if yaw is None else wrap_deg(lyaw - yaw))
+        cues["label"] = Cue(
+            yaw_deg=lyaw,
+            ok=True,
+            weight=1.0,
+            detail=f"{label.source} label by {label.annotator}",
+            residual_deg=None if yaw is None else wrap_deg(lyaw - yaw),
+        )
         if yaw is not None and abs(wrap_deg(lyaw - yaw)) > 2.0:
-            flags.append(str(Flag(FlagCode.LABEL_DIFFERS,
-                                  f"the {label.source} heading is {wrap_deg(lyaw - yaw):+.1f} deg from the cues")))
+            flags.append(
+                str(
+                    Flag(
+                        FlagCode.LABEL_DIFFERS,
+                        f"the {label.source} heading is {wrap_deg(lyaw - yaw):+.1f} deg from the cues",
+                    )
+                )
+            )
         yaw, source = lyaw, label.source
     if "features" in cues and not cues["features"].ok and cues["features"].yaw_deg is None and yaw is not None:
         used = [k for k, c in cues.items() if c.ok and k != "features"]
-        flags.append(str(Flag(FlagCode.FEATURES_FAILED,
-                              f"no match to the camera position; yaw from {', '.join(used) or 'nothing'}")))
+        flags.append(
+            str(
+                Flag(
+                    FlagCode.FEATURES_FAILED,
+                    f"no match to the camera position; yaw from {', '.join(used) or 'nothing'}",
+                )
+            )
+        )
     if "manhattan" in cues and cues["manhattan"].ok and source == "auto":
-        flags.append(str(Flag(FlagCode.YAW_FROM_STREET_LINES,
-                              "only the street's line directions (modulo 90 deg, quadrant from the compass) fix this yaw: "
-                              "review")))
+        flags.append(
+            str(
+                Flag(
+                    FlagCode.YAW_FROM_STREET_LINES,
+                    "only the street's line directions (modulo 90 deg, quadrant from the compass) fix this yaw: review",
+                )
+            )
+        )
     if "linked" in cues and cues["linked"].ok and source == "auto":
         flags.extend(link_flags)
     return CaptureYaw(yaw, source, fused.sigma_deg, fused.residual_deg, flags)
@@ -872,12 +1126,22 @@ class ProbePixel:
 
     def fields(self) -> dict[str, Any]:
         """The :class:`~solidkit.align.schema.ProbeAlignment` fields (all but the flags)."""
-        return {k: getattr(self, k) for k in ("pixel_full", "pixel_source", "pixel_geometry", "pixel_geometry_sigma_deg",
-                                              "pixel_error_px", "pixel_error_deg")}
+        return {
+            k: getattr(self, k)
+            for k in (
+                "pixel_full",
+                "pixel_source",
+                "pixel_geometry",
+                "pixel_geometry_sigma_deg",
+                "pixel_error_px",
+                "pixel_error_deg",
+            )
+        }
 
 
-def probe_pixel(view: CaptureView, fit: Any, label: Any, photo: PhotoInfo, yaw_cam: float | None,
-                s: AlignSettings) -> ProbePixel:
+def probe_pixel(
+    view: CaptureView, fit: Any, label: Any, photo: PhotoInfo, yaw_cam: float | None, s: AlignSettings
+) -> ProbePixel:
     """Pixel of the probe in the photo (field notes > human ``probe_pixel`` label > geometry) and its
     geometric check: the direction from the camera position to the probe capture (the level relative
     pose ``fit`` against the camera position, turned by the camera capture's yaw ``yaw_cam``),
@@ -902,11 +1166,13 @@ def probe_pixel(view: CaptureView, fit: Any, label: Any, photo: PhotoInfo, yaw_c
         pixel, source = [float(label.value["x"]), float(label.value["y"])], "label"
     elif geom is not None:
         pixel, source = geom, "geometry"
-        flags.append(str(Flag(FlagCode.PIXEL_FROM_GEOMETRY,
-                              "no marked pixel; the relative pose's direction is used (review)")))
+        flags.append(
+            str(Flag(FlagCode.PIXEL_FROM_GEOMETRY, "no marked pixel; the relative pose's direction is used (review)"))
+        )
     else:
-        flags.append(str(Flag(FlagCode.NO_PIXEL,
-                              "no marked pixel and no relative pose with parallax to the camera position")))
+        flags.append(
+            str(Flag(FlagCode.NO_PIXEL, "no marked pixel and no relative pose with parallax to the camera position"))
+        )
     err = ang = None
     w, h = photo.size
     if geom is not None and pixel is not None and source != "geometry":
@@ -919,10 +1185,16 @@ def probe_pixel(view: CaptureView, fit: Any, label: Any, photo: PhotoInfo, yaw_c
         tol = max(s.pixel_tolerance_deg, s.pixel_n_sigma * math.hypot(sig, 1.0))
         # a pose from few matches can be wrong beyond its sigma (measured: 13 inliers in a glass scene, 11 deg off)
         if ang > tol and fit.n_inliers >= s.min_pixel_check_inliers:
-            flags.append(str(Flag(FlagCode.PIXEL_DISAGREES,
-                                  f"the marked pixel is {ang:.1f} deg ({err:.0f} px) from the direction of the "
-                                  f"probe capture seen from the camera position ({geom[0]:.0f}, {geom[1]:.0f}; tolerance "
-                                  f"{tol:.1f} deg): wrong probe marked?")))
+            flags.append(
+                str(
+                    Flag(
+                        FlagCode.PIXEL_DISAGREES,
+                        f"the marked pixel is {ang:.1f} deg ({err:.0f} px) from the direction of the "
+                        f"probe capture seen from the camera position ({geom[0]:.0f}, {geom[1]:.0f}; tolerance "
+                        f"{tol:.1f} deg): wrong probe marked?",
+                    )
+                )
+            )
     if pixel is not None and not (-0.5 <= pixel[0] <= w - 0.5 and -0.5 <= pixel[1] <= h - 0.5):
         flags.append(FlagCode.PIXEL_OUTSIDE_PHOTO.value)
     return ProbePixel(pixel, source, geom, geom_sigma, err, ang, tuple(flags))
@@ -940,14 +1212,26 @@ def _human_sun(store: Any, sid: str, pid: str) -> CaptureSun | None:
     if lab is None:
         return None
     v = lab.value
-    return CaptureSun(probe=pid, found=bool(v["found"]), azimuth_deg=v.get("azimuth_deg"), elevation_deg=v.get("elevation_deg"),
-                      uncertainty_deg=v.get("uncertainty_deg"), reason=f"{lab.source} label by {lab.annotator}",
-                      source=lab.source)
+    return CaptureSun(
+        probe=pid,
+        found=bool(v["found"]),
+        azimuth_deg=v.get("azimuth_deg"),
+        elevation_deg=v.get("elevation_deg"),
+        uncertainty_deg=v.get("uncertainty_deg"),
+        reason=f"{lab.source} label by {lab.annotator}",
+        source=lab.source,
+    )
 
 
 # --------------------------------------------------------------------------- the scene
-def align_scene(campaign: Path, manifest: Manifest, scene: Scene, settings: AlignSettings, store: Any = None,
-                log: Callable[[str], None] = lambda s: None) -> tuple[SceneAlignment, dict[str, Any]]:
+def align_scene(
+    campaign: Path,
+    manifest: Manifest,
+    scene: Scene,
+    settings: AlignSettings,
+    store: Any = None,
+    log: Callable[[str], None] = lambda s: None,
+) -> tuple[SceneAlignment, dict[str, Any]]:
     """Align one scene (module doc), step by step: :func:`scene_photo`, :func:`capture_view` per capture,
     :func:`photo_stage`, :func:`compass_cue`, :func:`camera_features`, :func:`sun_inputs` and
     :func:`sun_stage`, :func:`chain_cues`, :func:`manhattan_cues`, :func:`link_cues`, then
@@ -1002,26 +1286,52 @@ def align_scene(campaign: Path, manifest: Manifest, scene: Scene, settings: Alig
             yaw = wrap_deg(yaw + y0)  # R_y(yaw) C R_meta = R_y(yaw + y0) R(0, p, r)
         px = ProbePixel()
         if role == "probe" and photo is not None:
-            px = probe_pixel(v, cf.fits.get(v.id), _human(store, "probe_pixel", f"{scene.id}/{v.id}"), photo,
-                             cf.yaw_cam_deg if cam is not None else None, s)
-        probes.append(ProbeAlignment(
-            id=v.id, role=role, levelling=levelling,
-            rotation=body_to_pano(yaw if yaw is not None else 0.0, levelling.pitch_deg, levelling.roll_deg).tolist(),
-            yaw_deg=yaw, yaw_source=cy.source, residual_deg=cy.residual_deg,
-            yaw_sigma_deg=cy.sigma_deg if cy.source == "auto" else None, cues=cues[v.id], flags=cy.flags + list(px.flags),
-            **px.fields()))
+            px = probe_pixel(
+                v,
+                cf.fits.get(v.id),
+                _human(store, "probe_pixel", f"{scene.id}/{v.id}"),
+                photo,
+                cf.yaw_cam_deg if cam is not None else None,
+                s,
+            )
+        probes.append(
+            ProbeAlignment(
+                id=v.id,
+                role=role,
+                levelling=levelling,
+                rotation=body_to_pano(
+                    yaw if yaw is not None else 0.0, levelling.pitch_deg, levelling.roll_deg
+                ).tolist(),
+                yaw_deg=yaw,
+                yaw_source=cy.source,
+                residual_deg=cy.residual_deg,
+                yaw_sigma_deg=cy.sigma_deg if cy.source == "auto" else None,
+                cues=cues[v.id],
+                flags=cy.flags + list(px.flags),
+                **px.fields(),
+            )
+        )
     explain_rejections(sst.sun, sst.outranked, probes)
     for v, cs in zip(views, sst.sun.captures):  # per-capture sun directions back into the sun-frame product's frame
         _capture_sun_to_product_frame(cs, v.C)
-    sa = SceneAlignment(id=scene.id, photo=photo, camera_probe=ph.camera_probe, sun=sst.sun, probes=probes,
-                        flags=scene_flags)
+    sa = SceneAlignment(
+        id=scene.id, photo=photo, camera_probe=ph.camera_probe, sun=sst.sun, probes=probes, flags=scene_flags
+    )
     return sa, {"yaw_sigma": yaw_sigma}
 
 
 # --------------------------------------------------------------------------- the campaign
-def align_campaign(campaign_dir: str | os.PathLike, *, settings: AlignSettings | None = None, scenes: list[str] | None = None,
-                   labels: bool = True, report: bool = True, label_kinds: tuple[str, ...] | None = None, write: bool = True,
-                   log: Callable[[str], None] = lambda s: None) -> CampaignAlignment:
+def align_campaign(
+    campaign_dir: str | os.PathLike,
+    *,
+    settings: AlignSettings | None = None,
+    scenes: list[str] | None = None,
+    labels: bool = True,
+    report: bool = True,
+    label_kinds: tuple[str, ...] | None = None,
+    write: bool = True,
+    log: Callable[[str], None] = lambda s: None,
+) -> CampaignAlignment:
     """Align every scene of an ingested campaign (module doc); returns and writes ``align/alignment.json``.
 
     ``label_kinds``: which automatic labels to put into the store (default all: sun, sun_scene,
@@ -1030,13 +1340,29 @@ def align_campaign(campaign_dir: str | os.PathLike, *, settings: AlignSettings |
     whatever the machine's thread count.
     """
     with deterministic():
-        return _align_campaign(campaign_dir, settings=settings, scenes=scenes, labels=labels, report=report,
-                               label_kinds=label_kinds, write=write, log=log)
+        return _align_campaign(
+            campaign_dir,
+            settings=settings,
+            scenes=scenes,
+            labels=labels,
+            report=report,
+            label_kinds=label_kinds,
+            write=write,
+            log=log,
+        )
 
 
-def _align_campaign(campaign_dir: str | os.PathLike, *, settings: AlignSettings | None, scenes: list[str] | None,
-                    labels: bool, report: bool, label_kinds: tuple[str, ...] | None, write: bool,
-                    log: Callable[[str], None]) -> CampaignAlignment:
+def _align_campaign(
+    campaign_dir: str | os.PathLike,
+    *,
+    settings: AlignSettings | None,
+    scenes: list[str] | None,
+    labels: bool,
+    report: bool,
+    label_kinds: tuple[str, ...] | None,
+    write: bool,
+    log: Callable[[str], None],
+) -> CampaignAlignment:
     campaign = Path(campaign_dir)
     if not (campaign / "manifest.json").is_file():
         raise InputError(f"{campaign}: not an ingested campaign (no manifest.json)")
@@ -1057,8 +1383,9 @@ def _align_campaign(campaign_dir: str | os.PathLike, *, settings: AlignSettings 
             previous = load_alignment(campaign)
         except SolidkitError:
             previous = None
-    out = CampaignAlignment(solidkit_version=__version__, manifest_sha256=sha256_file(campaign / "manifest.json"),
-                            settings=s.to_json())
+    out = CampaignAlignment(
+        solidkit_version=__version__, manifest_sha256=sha256_file(campaign / "manifest.json"), settings=s.to_json()
+    )
     extras = {}
     for sc in manifest.scenes:
         if sc.id not in wanted:
@@ -1089,25 +1416,51 @@ def _write_labels(store: Any, sa: SceneAlignment, kinds: tuple[str, ...] | None 
     for cs in sa.sun.captures if "sun" in kinds else []:
         if cs.source != "auto":
             continue
-        value: dict[str, Any] = {"found": cs.found, "azimuth_deg": cs.azimuth_deg, "elevation_deg": cs.elevation_deg,
-                                 "uncertainty_deg": cs.uncertainty_deg,
-                                 "candidates": [c.model_dump(include={"azimuth_deg", "elevation_deg", "size_deg", "chosen", "reasons"})
-                                                for c in cs.candidates]}
+        value: dict[str, Any] = {
+            "found": cs.found,
+            "azimuth_deg": cs.azimuth_deg,
+            "elevation_deg": cs.elevation_deg,
+            "uncertainty_deg": cs.uncertainty_deg,
+            "candidates": [
+                c.model_dump(include={"azimuth_deg", "elevation_deg", "size_deg", "chosen", "reasons"})
+                for c in cs.candidates
+            ],
+        }
         store.put("sun", f"{sa.id}/{cs.probe}", value, source="auto", annotator=ANNOTATOR, flags=_flag_names(cs.flags))
     sun = sa.sun
     if "sun_scene" in kinds:
-        store.put("sun_scene", sa.id, {"found": sun.found and sun.azimuth_deg is not None,
-                                       "azimuth_deg": sun.azimuth_deg if sun.found else None,
-                                       "elevation_deg": sun.elevation_deg if sun.found and sun.azimuth_deg is not None else None,
-                                       "uncertainty_deg": sun.uncertainty_deg},
-                  source="auto", annotator=ANNOTATOR, flags=_flag_names(sun.flags))
+        store.put(
+            "sun_scene",
+            sa.id,
+            {
+                "found": sun.found and sun.azimuth_deg is not None,
+                "azimuth_deg": sun.azimuth_deg if sun.found else None,
+                "elevation_deg": sun.elevation_deg if sun.found and sun.azimuth_deg is not None else None,
+                "uncertainty_deg": sun.uncertainty_deg,
+            },
+            source="auto",
+            annotator=ANNOTATOR,
+            flags=_flag_names(sun.flags),
+        )
     for pa in sa.probes:
         if "heading" in kinds and pa.yaw_deg is not None and pa.yaw_source == "auto":
-            store.put("heading", f"{sa.id}/{pa.id}", {"yaw_deg": pa.yaw_deg, "residual_deg": pa.residual_deg},
-                      source="auto", annotator=ANNOTATOR, flags=_flag_names(pa.flags))
+            store.put(
+                "heading",
+                f"{sa.id}/{pa.id}",
+                {"yaw_deg": pa.yaw_deg, "residual_deg": pa.residual_deg},
+                source="auto",
+                annotator=ANNOTATOR,
+                flags=_flag_names(pa.flags),
+            )
         if "probe_pixel" in kinds and pa.pixel_source == "geometry" and pa.pixel_full is not None:
-            store.put("probe_pixel", f"{sa.id}/{pa.id}", {"x": max(pa.pixel_full[0], -0.5), "y": max(pa.pixel_full[1], -0.5)},
-                      source="auto", annotator=ANNOTATOR, flags=_flag_names(pa.flags))
+            store.put(
+                "probe_pixel",
+                f"{sa.id}/{pa.id}",
+                {"x": max(pa.pixel_full[0], -0.5), "y": max(pa.pixel_full[1], -0.5)},
+                source="auto",
+                annotator=ANNOTATOR,
+                flags=_flag_names(pa.flags),
+            )
 
 
 def _flag_names(flags: list[str]) -> list[str]:

@@ -19,8 +19,9 @@ from __future__ import annotations
 
 import hashlib
 import json
+from collections.abc import Callable
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any
 
 import numpy as np
 
@@ -41,8 +42,15 @@ def _recipe_hash(recipe: dict[str, Any]) -> str:
     return hashlib.sha256(json.dumps(recipe, sort_keys=True).encode()).hexdigest()[:16]
 
 
-def write_products(campaign: Path, manifest: Manifest, scene: Scene, sa: SceneAlignment, settings: Any, previous: Any = None,
-                   log: Callable[[str], None] = lambda s: None) -> None:
+def write_products(
+    campaign: Path,
+    manifest: Manifest,
+    scene: Scene,
+    sa: SceneAlignment,
+    settings: Any,
+    previous: Any = None,
+    log: Callable[[str], None] = lambda s: None,
+) -> None:
     """Write the aligned products of every capture of ``sa`` whose yaw is known; fills ``products``."""
     caps = {c.id: c for c in captures_of(manifest, scene)}
     out_h = int(settings.probe_height)
@@ -52,17 +60,24 @@ def write_products(campaign: Path, manifest: Manifest, scene: Scene, sa: SceneAl
             continue
         rel = Path("align") / scene.id / pa.id
         root = campaign / rel
-        recipe = {"tool": "solidkit.align.products", "solidkit_version": __version__, "yaw_deg": round(pa.yaw_deg, 6),
-                  "levelling": [round(pa.levelling.pitch_deg, 6), round(pa.levelling.roll_deg, 6)],
-                  "normal": cap.normal.sha256 if cap.normal else None,
-                  "hdr": sha256_file(campaign / cap.hdr_path) if cap.hdr_path else None, "probe_height": out_h,
-                  "saturation_code": SATURATION_CODE}
+        recipe = {
+            "tool": "solidkit.align.products",
+            "solidkit_version": __version__,
+            "yaw_deg": round(pa.yaw_deg, 6),
+            "levelling": [round(pa.levelling.pitch_deg, 6), round(pa.levelling.roll_deg, 6)],
+            "normal": cap.normal.sha256 if cap.normal else None,
+            "hdr": sha256_file(campaign / cap.hdr_path) if cap.hdr_path else None,
+            "probe_height": out_h,
+            "saturation_code": SATURATION_CODE,
+        }
         h = _recipe_hash(recipe)
         files = ProbeProducts()
         if cap.normal is not None:
             files.ldr_full, files.ldr_256 = f"{rel.as_posix()}/ldr_full.png", f"{rel.as_posix()}/ldr_256.png"
-            files.saturation_full, files.saturation_256 = (f"{rel.as_posix()}/saturation_full.png",
-                                                           f"{rel.as_posix()}/saturation_256.png")
+            files.saturation_full, files.saturation_256 = (
+                f"{rel.as_posix()}/saturation_full.png",
+                f"{rel.as_posix()}/saturation_256.png",
+            )
         if cap.hdr_path:
             files.hdr_full, files.hdr_256 = f"{rel.as_posix()}/hdr_full.exr", f"{rel.as_posix()}/hdr_256.exr"
         done = root / "recipe.json"
@@ -93,8 +108,13 @@ def write_products(campaign: Path, manifest: Manifest, scene: Scene, sa: SceneAl
             hdr = read_hdr(campaign, cap.hdr_path)
             R_hdr = R_total @ levelling_of(manifest.shot(cap.hdr_inputs[0]))[2].T
             full = np.clip(np.asarray(rotate(hdr, R_hdr, "linear")), 0.0, None).astype(np.float32)
-            meta = {"frame": "photo panorama frame (conventions §2, §8)", "scene": scene.id, "probe": pa.id,
-                    "yaw_deg": pa.yaw_deg, "source": cap.hdr_path}
+            meta = {
+                "frame": "photo panorama frame (conventions §2, §8)",
+                "scene": scene.id,
+                "probe": pa.id,
+                "yaw_deg": pa.yaw_deg,
+                "source": cap.hdr_path,
+            }
             write_exr(campaign / files.hdr_full, full, meta)
             write_exr(campaign / files.hdr_256, np.asarray(resize(full, out_h), np.float32), meta)
         atomic_write_text(done, json.dumps({"hash": h, "recipe": recipe}, indent=1) + "\n")

@@ -106,8 +106,11 @@ def scene_picture(campaign: Path, sa: SceneAlignment) -> np.ndarray:
                 assert cs.azimuth_deg is not None and cs.elevation_deg is not None  # a found sun has both
                 _mark(img, wrap_deg(cs.azimuth_deg + pa.yaw_deg), cs.elevation_deg, "cross", _GREEN)
         flags = ", ".join(flag_codes(pa.flags))
-        _label(img, f"{pa.id} ({pa.role}) yaw {pa.yaw_deg:+.2f} deg" + (f"  [{flags}]" if flags else ""),
-               _WHITE if not pa.flags else (255, 180, 80))
+        _label(
+            img,
+            f"{pa.id} ({pa.role}) yaw {pa.yaw_deg:+.2f} deg" + (f"  [{flags}]" if flags else ""),
+            _WHITE if not pa.flags else (255, 180, 80),
+        )
         panels.append(img)
     if not panels:
         blank = np.zeros((PANEL_H, width, 3), np.uint8)
@@ -125,43 +128,87 @@ def _scene_rows(sa: SceneAlignment) -> list[list[str]]:
     rows = []
     for pa in sa.probes:
         cs = suns.get(pa.id)
-        cues = "; ".join(f"{k} {_fmt(c.yaw_deg)}{'' if c.ok else ' (x)'}" + ("" if c.residual_deg is None else f" r{c.residual_deg:+.2f}")
-                         for k, c in sorted(pa.cues.items()))
-        sun = "-" if cs is None else (f"{cs.azimuth_deg:+.2f}/{cs.elevation_deg:.2f}" if cs.found else "none") + (
-            f" ({sum(1 for k in cs.candidates if not k.chosen)} rejected)" if cs and cs.candidates else "")
+        cues = "; ".join(
+            f"{k} {_fmt(c.yaw_deg)}{'' if c.ok else ' (x)'}"
+            + ("" if c.residual_deg is None else f" r{c.residual_deg:+.2f}")
+            for k, c in sorted(pa.cues.items())
+        )
+        sun = (
+            "-"
+            if cs is None
+            else (f"{cs.azimuth_deg:+.2f}/{cs.elevation_deg:.2f}" if cs.found else "none")
+            + (f" ({sum(1 for k in cs.candidates if not k.chosen)} rejected)" if cs and cs.candidates else "")
+        )
         px = "-" if pa.pixel_full is None else f"({pa.pixel_full[0]:.0f}, {pa.pixel_full[1]:.0f}) {pa.pixel_source}"
-        rows.append([pa.id, pa.role, _fmt(pa.yaw_deg) + ("" if pa.yaw_source == "auto" else f" ({pa.yaw_source})"),
-                     _fmt(pa.residual_deg), cues, sun, px, "; ".join(pa.flags) or "-"])
+        rows.append(
+            [
+                pa.id,
+                pa.role,
+                _fmt(pa.yaw_deg) + ("" if pa.yaw_source == "auto" else f" ({pa.yaw_source})"),
+                _fmt(pa.residual_deg),
+                cues,
+                sun,
+                px,
+                "; ".join(pa.flags) or "-",
+            ]
+        )
     return rows
 
 
-_HEAD = ["capture", "role", "yaw (deg)", "residual", "cues (yaw, residual)", "sun az/el (level frame)", "pixel", "flags"]
+_HEAD = [
+    "capture",
+    "role",
+    "yaw (deg)",
+    "residual",
+    "cues (yaw, residual)",
+    "sun az/el (level frame)",
+    "pixel",
+    "flags",
+]
 
 
 def write_report(campaign: Path, manifest: Manifest, al: CampaignAlignment) -> Path:
     """Write the Markdown and HTML reports and one PNG per scene; returns the HTML path."""
     root = campaign / "align"
-    md = [f"# Alignment report\n", f"Campaign `{campaign}`; solidkit {al.solidkit_version}; conventions §8 "
-          "(yaw: capture level frame -> photo panorama frame).\n"]
-    parts = ["<!doctype html><html><head><meta charset='utf-8'><title>solidkit alignment report</title><style>"
-             "body{font-family:sans-serif;margin:1.5em;max-width:1400px}table{border-collapse:collapse;font-size:13px}"
-             "td,th{border:1px solid #ccc;padding:3px 6px;vertical-align:top}.flag{color:#b35900}img{max-width:100%}"
-             "</style></head><body><h1>Alignment report</h1>",
-             f"<p>Campaign <code>{html.escape(str(campaign))}</code>; solidkit {html.escape(al.solidkit_version)}. "
-             "Yaw: capture level frame → photo panorama frame (conventions §8). Picture: white = the photo's field of view, "
-             "yellow circle = the scene's sun, green cross = this capture's sun, red x = rejected candidates.</p>"]
-    n_flagged = sum(1 for sa in al.scenes for p in sa.probes if p.flags) + sum(1 for sa in al.scenes if sa.flags or sa.sun.flags)
-    md.append(f"{len(al.scenes)} scenes, {sum(len(sa.probes) for sa in al.scenes)} captures, {n_flagged} flagged items.\n")
-    parts.append(f"<p>{len(al.scenes)} scenes, {sum(len(sa.probes) for sa in al.scenes)} captures, {n_flagged} flagged items.</p>")
+    md = [
+        "# Alignment report\n",
+        f"Campaign `{campaign}`; solidkit {al.solidkit_version}; conventions §8 "
+        "(yaw: capture level frame -> photo panorama frame).\n",
+    ]
+    parts = [
+        "<!doctype html><html><head><meta charset='utf-8'><title>solidkit alignment report</title><style>"
+        "body{font-family:sans-serif;margin:1.5em;max-width:1400px}table{border-collapse:collapse;font-size:13px}"
+        "td,th{border:1px solid #ccc;padding:3px 6px;vertical-align:top}.flag{color:#b35900}img{max-width:100%}"
+        "</style></head><body><h1>Alignment report</h1>",
+        f"<p>Campaign <code>{html.escape(str(campaign))}</code>; solidkit {html.escape(al.solidkit_version)}. "
+        "Yaw: capture level frame → photo panorama frame (conventions §8). Picture: white = the photo's field of view, "
+        "yellow circle = the scene's sun, green cross = this capture's sun, red x = rejected candidates.</p>",
+    ]
+    n_flagged = sum(1 for sa in al.scenes for p in sa.probes if p.flags) + sum(
+        1 for sa in al.scenes if sa.flags or sa.sun.flags
+    )
+    md.append(
+        f"{len(al.scenes)} scenes, {sum(len(sa.probes) for sa in al.scenes)} captures, {n_flagged} flagged items.\n"
+    )
+    parts.append(
+        f"<p>{len(al.scenes)} scenes, {sum(len(sa.probes) for sa in al.scenes)} captures, {n_flagged} flagged items.</p>"
+    )
     for sa in al.scenes:
         png = Path("report") / f"{sa.id}.png"
         write_ldr(root / png, scene_picture(campaign, sa))
         s = sa.sun
-        sun = ("no sun found" if not s.found else
-               f"azimuth {_fmt(s.azimuth_deg)} deg, elevation {s.elevation_deg:.2f} deg in the photo frame"
-               + ("" if s.world_azimuth_deg is None else f" (world azimuth {s.world_azimuth_deg:.2f} deg from north)")
-               + f", ±{s.uncertainty_deg:.2f} deg from {s.n_captures} capture(s)")
-        eph = "" if s.ephemeris is None else f"; ephemeris {s.ephemeris.azimuth_deg:.2f}/{s.ephemeris.elevation_deg:.2f} deg at {s.ephemeris.time_utc}"
+        sun = (
+            "no sun found"
+            if not s.found
+            else f"azimuth {_fmt(s.azimuth_deg)} deg, elevation {s.elevation_deg:.2f} deg in the photo frame"
+            + ("" if s.world_azimuth_deg is None else f" (world azimuth {s.world_azimuth_deg:.2f} deg from north)")
+            + f", ±{s.uncertainty_deg:.2f} deg from {s.n_captures} capture(s)"
+        )
+        eph = (
+            ""
+            if s.ephemeris is None
+            else f"; ephemeris {s.ephemeris.azimuth_deg:.2f}/{s.ephemeris.elevation_deg:.2f} deg at {s.ephemeris.time_utc}"
+        )
         flags = sa.flags + s.flags
         md += [f"\n## {sa.id}\n", f"Sun: {sun}{eph}. {s.motion}\n"]
         if flags:
@@ -174,8 +221,13 @@ def write_report(campaign: Path, manifest: Manifest, al: CampaignAlignment) -> P
             parts.append("<p class='flag'>Flags: " + html.escape("; ".join(flags)) + "</p>")
         parts.append("<table><tr>" + "".join(f"<th>{html.escape(h)}</th>" for h in _HEAD) + "</tr>")
         for r in _scene_rows(sa):
-            parts.append("<tr>" + "".join(f"<td{' class=flag' if i == 7 and c != '-' else ''}>{html.escape(c)}</td>"
-                                          for i, c in enumerate(r)) + "</tr>")
+            parts.append(
+                "<tr>"
+                + "".join(
+                    f"<td{' class=flag' if i == 7 and c != '-' else ''}>{html.escape(c)}</td>" for i, c in enumerate(r)
+                )
+                + "</tr>"
+            )
         parts.append(f"</table><p><img src='{png.as_posix()}' alt='{html.escape(sa.id)}'></p>")
     parts.append("</body></html>")
     atomic_write_text(root / "report.md", "".join(md))

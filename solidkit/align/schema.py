@@ -150,7 +150,9 @@ class CaptureSun(_Model):
     reason: str = ""
     candidates: list[SunCandidate] = Field(default_factory=list)
     ephemeris: Ephemeris | None = Field(None, description="at this capture's own time")
-    world_azimuth_deg: float | None = Field(None, description="azimuth from true north, once the capture's yaw is known")
+    world_azimuth_deg: float | None = Field(
+        None, description="azimuth from true north, once the capture's yaw is known"
+    )
     source: LabelSource = "auto"
     flags: list[str] = Field(default_factory=list)
 
@@ -225,8 +227,9 @@ class ProbeAlignment(_Model):
     pixel_source: Literal["field_notes", "label", "geometry"] | None = None
     pixel_geometry: list[float] | None = Field(None, description="[x, y] predicted from the relative pose (check)")
     pixel_error_px: float | None = Field(None, description="distance between pixel_full and pixel_geometry")
-    pixel_geometry_sigma_deg: float | None = Field(None, description="1-sigma angle of pixel_geometry's direction "
-                                                   "(from the baseline's fit)")
+    pixel_geometry_sigma_deg: float | None = Field(
+        None, description="1-sigma angle of pixel_geometry's direction (from the baseline's fit)"
+    )
     pixel_error_deg: float | None = Field(None, description="angle between the rays of pixel_full and pixel_geometry")
     levelling: Levelling
     rotation: Matrix3 = Field(description="3x3, capture body -> photo panorama frame: R_y(yaw) R(0, pitch, roll)")
@@ -250,7 +253,9 @@ class PhotoInfo(_Model):
     pitch_deg: float | None = None
     roll_deg: float | None = None
     heading_deg: float | None = Field(None, description="compass, clockwise from true north (EXIF GPSImgDirection)")
-    pitch_roll_source: str = Field("", description="'exif', 'features' (estimated from the camera-position capture) or 'assumed_zero'")
+    pitch_roll_source: str = Field(
+        "", description="'exif', 'features' (estimated from the camera-position capture) or 'assumed_zero'"
+    )
     time: str | None = Field(None, description="ISO 8601 with its UTC offset when known")
 
 
@@ -297,8 +302,16 @@ def load_alignment(path: str | os.PathLike) -> CampaignAlignment:
     if not p.is_file():
         raise InputError(f"{p}: no alignment file (run `solidkit align CAMPAIGN` first)")
     data = read_json_object(p, InputError, "alignment")
-    return validate_versioned(p, data, CampaignAlignment, kind_key="kind", kind="solidkit-alignment",
-                              version_key="schema_version", version=SCHEMA_VERSION, what="alignment file")
+    return validate_versioned(
+        p,
+        data,
+        CampaignAlignment,
+        kind_key="kind",
+        kind="solidkit-alignment",
+        version_key="schema_version",
+        version=SCHEMA_VERSION,
+        what="alignment file",
+    )
 
 
 def save_alignment(alignment: CampaignAlignment, campaign_dir: str | os.PathLike) -> Path:
@@ -315,14 +328,40 @@ def alignment_summary(alignment: CampaignAlignment) -> dict[str, Any]:
     the cues that agree, the probe pixel (full-size photo, pixels) and its flags."""
     scenes = []
     for sa in alignment.scenes:
-        scenes.append({
-            "scene": sa.id, "flags": sa.flags + sa.sun.flags,
-            "sun": {"found": sa.sun.found, "azimuth_deg": sa.sun.azimuth_deg, "elevation_deg": sa.sun.elevation_deg,
-                    "world_azimuth_deg": sa.sun.world_azimuth_deg, "uncertainty_deg": sa.sun.uncertainty_deg,
-                    "captures": {c.probe: {"found": c.found, "azimuth_deg": c.azimuth_deg, "elevation_deg": c.elevation_deg,
-                                           "rejected": sum(1 for k in c.candidates if not k.chosen)} for c in sa.sun.captures}},
-            "probes": [{"id": p.id, "role": p.role, "yaw_deg": p.yaw_deg, "yaw_source": p.yaw_source,
-                        "residual_deg": p.residual_deg, "cues_ok": sorted(k for k, c in p.cues.items() if c.ok),
-                        "pixel_full": p.pixel_full, "pixel_source": p.pixel_source, "flags": p.flags} for p in sa.probes],
-        })
+        scenes.append(
+            {
+                "scene": sa.id,
+                "flags": sa.flags + sa.sun.flags,
+                "sun": {
+                    "found": sa.sun.found,
+                    "azimuth_deg": sa.sun.azimuth_deg,
+                    "elevation_deg": sa.sun.elevation_deg,
+                    "world_azimuth_deg": sa.sun.world_azimuth_deg,
+                    "uncertainty_deg": sa.sun.uncertainty_deg,
+                    "captures": {
+                        c.probe: {
+                            "found": c.found,
+                            "azimuth_deg": c.azimuth_deg,
+                            "elevation_deg": c.elevation_deg,
+                            "rejected": sum(1 for k in c.candidates if not k.chosen),
+                        }
+                        for c in sa.sun.captures
+                    },
+                },
+                "probes": [
+                    {
+                        "id": p.id,
+                        "role": p.role,
+                        "yaw_deg": p.yaw_deg,
+                        "yaw_source": p.yaw_source,
+                        "residual_deg": p.residual_deg,
+                        "cues_ok": sorted(k for k, c in p.cues.items() if c.ok),
+                        "pixel_full": p.pixel_full,
+                        "pixel_source": p.pixel_source,
+                        "flags": p.flags,
+                    }
+                    for p in sa.probes
+                ],
+            }
+        )
     return {"alignment": ALIGNMENT_FILE.as_posix(), "scenes": scenes}

@@ -73,8 +73,16 @@ class SkyYaw:
     delta_chi2: float
 
 
-def sky_layer(pano: np.ndarray, *, height: int = 256, min_elevation_deg: float = 2.0, max_gradient: float = 0.03,
-              min_piece: float = 0.002, blue_ratio: float = 1.0, saturation: float | None = None) -> SkyLayer:
+def sky_layer(
+    pano: np.ndarray,
+    *,
+    height: int = 256,
+    min_elevation_deg: float = 2.0,
+    max_gradient: float = 0.03,
+    min_piece: float = 0.002,
+    blue_ratio: float = 1.0,
+    saturation: float | None = None,
+) -> SkyLayer:
     """The sky of a level panorama (module doc).
 
     Parameters
@@ -110,7 +118,7 @@ def sky_layer(pano: np.ndarray, *, height: int = 256, min_elevation_deg: float =
     w = np.broadcast_to(solid_angle(height), m.shape)
     # connected pieces, wrapping in azimuth (two copies side by side)
     n, lab = cv2.connectedComponents(np.concatenate([m, m], axis=1), connectivity=4)
-    lab = np.where(lab[:, : 2 * height] > 0, lab[:, : 2 * height], lab[:, 2 * height:])
+    lab = np.where(lab[:, : 2 * height] > 0, lab[:, : 2 * height], lab[:, 2 * height :])
     area = np.bincount(lab.ravel(), weights=w.ravel(), minlength=n) / (4.0 * math.pi)
     keep = (area >= min_piece) & (np.arange(n) > 0)
     mask = keep[lab] & (m > 0)
@@ -124,8 +132,15 @@ def _xcorr(f: np.ndarray, g: np.ndarray) -> np.ndarray:
     return np.fft.irfft(np.sum(F * np.conj(G), axis=0), n=f.shape[1])
 
 
-def relative_sky_yaw(a: SkyLayer, b: SkyLayer, *, min_overlap: float = 0.005, correlation_px: float = 18.0,
-                     min_delta_chi2: float = 9.0, max_sigma_deg: float = 3.0) -> tuple[SkyYaw | None, str]:
+def relative_sky_yaw(
+    a: SkyLayer,
+    b: SkyLayer,
+    *,
+    min_overlap: float = 0.005,
+    correlation_px: float = 18.0,
+    min_delta_chi2: float = 9.0,
+    max_sigma_deg: float = 3.0,
+) -> tuple[SkyYaw | None, str]:
     """Relative yaw ``yaw_b - yaw_a`` (degrees) of two level panoramas from their skies; ``(None, why)`` when refused.
 
     ``correlation_px``: the sky's correlation length in working pixels (``n_eff`` = overlap in
@@ -144,8 +159,10 @@ def relative_sky_yaw(a: SkyLayer, b: SkyLayer, *, min_overlap: float = 0.005, co
     B = np.where(b.mask, b.log_lum, 0.0)
     n = _xcorr(wa, mb)
     if n.max() < min_overlap * 4.0 * math.pi:
-        return None, (f"sky overlap {n.max() / (4 * math.pi):.3f} of the sphere (< {min_overlap:g}): "
-                      f"sky {a.fraction:.3f} and {b.fraction:.3f}")
+        return None, (
+            f"sky overlap {n.max() / (4 * math.pi):.3f} of the sphere (< {min_overlap:g}): "
+            f"sky {a.fraction:.3f} and {b.fraction:.3f}"
+        )
     s_a = _xcorr(wa * A, mb)
     s_b = _xcorr(wa, mb * B)
     q = _xcorr(wa * A * A, mb) + _xcorr(wa, mb * B * B) - 2.0 * _xcorr(wa * A, mb * B)
@@ -166,18 +183,27 @@ def relative_sky_yaw(a: SkyLayer, b: SkyLayer, *, min_overlap: float = 0.005, co
     sigma = math.sqrt(2.0 * e_min / (n_eff * curv))
     # the best other local minimum outside the peak (3 sigma or 3 pixels from it): a second basin
     dist = np.abs(((np.arange(width) - k + width // 2) % width) - width // 2) * step
-    local = (cost <= np.roll(cost, 1)) & (cost <= np.roll(cost, -1)) & (cost <= np.roll(cost, 2)) & (cost <= np.roll(cost, -2))
+    local = (
+        (cost <= np.roll(cost, 1))
+        & (cost <= np.roll(cost, -1))
+        & (cost <= np.roll(cost, 2))
+        & (cost <= np.roll(cost, -2))
+    )
     far = local & (dist > max(3.0 * sigma, 3.0 * step)) & np.isfinite(cost)
     delta = float((cost[far].min() - c0) * n_eff / (2.0 * e_min)) if far.any() else math.inf
     yaw = wrap_deg((k + off) * step)
     res = SkyYaw(yaw, sigma, float(n[k]) / (4.0 * math.pi), math.sqrt(e_min), delta)
     if delta < min_delta_chi2:
-        return None, (f"sky ambiguous: another yaw {delta:.0f} chi2 from the best ({yaw:+.2f} deg, sigma {sigma:.2f} deg); "
-                      "too little azimuthal structure")
+        return None, (
+            f"sky ambiguous: another yaw {delta:.0f} chi2 from the best ({yaw:+.2f} deg, sigma {sigma:.2f} deg); "
+            "too little azimuthal structure"
+        )
     if sigma > max_sigma_deg:
         return None, f"sky too uniform in azimuth: sigma {sigma:.1f} deg (> {max_sigma_deg:g})"
-    return res, (f"sky relative yaw {yaw:+.2f} deg (sigma {sigma:.2f}; overlap {res.overlap:.3f} of the sphere, "
-                 f"RMS {res.rms:.3f} in log radiance, next best {delta:.0f} chi2 worse)")
+    return res, (
+        f"sky relative yaw {yaw:+.2f} deg (sigma {sigma:.2f}; overlap {res.overlap:.3f} of the sphere, "
+        f"RMS {res.rms:.3f} in log radiance, next best {delta:.0f} chi2 worse)"
+    )
 
 
 def without_sun_drift(yaw_deg: float, sun_azimuth_a_deg: float, sun_azimuth_b_deg: float) -> float:

@@ -43,16 +43,47 @@ import cv2
 import numpy as np
 
 from solidkit.align.ephemeris import at_photo_time
-from solidkit.align.schema import (CaptureSun, Ephemeris, SceneSun, SunCandidate, photo_azimuth_from_solar,
-                                   solar_azimuth_from_photo, wrap_deg)
-from solidkit.envmap.coords import (angular_distance, angles_from_direction, coords_from_direction, direction_from_angles,
-                                    direction_grid, solid_angle)
+from solidkit.align.schema import (
+    CaptureSun,
+    Ephemeris,
+    SceneSun,
+    SunCandidate,
+    photo_azimuth_from_solar,
+    solar_azimuth_from_photo,
+    wrap_deg,
+)
+from solidkit.envmap.coords import (
+    angles_from_direction,
+    angular_distance,
+    coords_from_direction,
+    direction_from_angles,
+    direction_grid,
+    solid_angle,
+)
 from solidkit.envmap.sun import SUN_ANGULAR_DIAMETER, label_spherical, luminance, spherical_centroid
 from solidkit.flags import Flag, FlagCode
 
-__all__ = ["Blob", "SunSettings", "CaptureSunInput", "find_candidates", "sky_fraction", "scene_sun", "choose_sun",
-           "SunChoice", "SunScene", "PhotoDirection", "Agreement", "Hypothesis", "Rejections", "hard_rejections", "best_hypothesis",
-           "choose_candidates", "capture_results", "with_human_labels", "consensus"]
+__all__ = [
+    "Blob",
+    "SunSettings",
+    "CaptureSunInput",
+    "find_candidates",
+    "sky_fraction",
+    "scene_sun",
+    "choose_sun",
+    "SunChoice",
+    "SunScene",
+    "PhotoDirection",
+    "Agreement",
+    "Hypothesis",
+    "Rejections",
+    "hard_rejections",
+    "best_hypothesis",
+    "choose_candidates",
+    "capture_results",
+    "with_human_labels",
+    "consensus",
+]
 
 
 @dataclass(frozen=True)
@@ -102,8 +133,9 @@ class CaptureSunInput:
 
 
 # --------------------------------------------------------------------------- per capture
-def find_candidates(sun_frame: np.ndarray, *, saturation: float = 0.9, merge_px: int = 2,
-                    max_candidates: int = 12) -> list[Blob]:
+def find_candidates(
+    sun_frame: np.ndarray, *, saturation: float = 0.9, merge_px: int = 2, max_candidates: int = 12
+) -> list[Blob]:
     """Saturated blobs of an LDR sun frame ``(H, 2H, 3)`` (encoded values in ``[0, 1]``), largest first.
 
     The rim level is ``saturation - 0.4``: rim pixels between it and ``saturation`` weigh
@@ -163,8 +195,14 @@ def _ring(h: int, d: np.ndarray, inner_deg: float, outer_deg: float) -> np.ndarr
     return mask
 
 
-def sky_fraction(normal_pano: np.ndarray, direction: np.ndarray, *, inner_deg: float = 1.5, outer_deg: float = 6.0,
-                 exclude: list[np.ndarray] | None = None) -> float:
+def sky_fraction(
+    normal_pano: np.ndarray,
+    direction: np.ndarray,
+    *,
+    inner_deg: float = 1.5,
+    outer_deg: float = 6.0,
+    exclude: list[np.ndarray] | None = None,
+) -> float:
     """Fraction of the ring around ``direction`` that is sky-bright in a normal-exposure panorama.
 
     ``normal_pano``: linear ``(H, 2H, 3)`` (HDR or decoded LDR), same level frame as the sun
@@ -268,8 +306,9 @@ class SunScene:
         """(azimuth, elevation) of candidate ``bi`` of capture ``ci`` in that capture's level frame, at the photo's time."""
         cap = self.captures[ci]
         b = cap.blobs[bi]
-        return at_photo_time(b.azimuth_deg, b.elevation_deg, cap.ephemeris, self.photo_ephemeris,
-                             sun_moves=self.settings.sun_moves)
+        return at_photo_time(
+            b.azimuth_deg, b.elevation_deg, cap.ephemeris, self.photo_ephemeris, sun_moves=self.settings.sun_moves
+        )
 
     def in_photo_frame(self, ci: int, bi: int) -> PhotoDirection:
         """Candidate ``bi`` of capture ``ci`` in the photo's panorama frame at the photo's time (the capture's yaw)."""
@@ -309,10 +348,14 @@ def hard_rejections(captures: list[CaptureSunInput], settings: SunSettings) -> R
         for bi, b in enumerate(cap.blobs):
             r = []
             if b.size_deg > s.max_size_deg:
-                r.append(f"too large for the sun: {b.size_deg:.2f} deg > {s.max_size_deg:g} deg (a bright surface or cloud)")
+                r.append(
+                    f"too large for the sun: {b.size_deg:.2f} deg > {s.max_size_deg:g} deg (a bright surface or cloud)"
+                )
             if b.sky_fraction is not None and b.sky_fraction < s.min_sky_fraction:
-                r.append(f"not in the sky: only {100 * b.sky_fraction:.0f}% of the ring around it is sky-bright "
-                         "(a glint on a facade?)")
+                r.append(
+                    f"not in the sky: only {100 * b.sky_fraction:.0f}% of the ring around it is sky-bright "
+                    "(a glint on a facade?)"
+                )
             if b.elevation_deg < -2.0:
                 r.append(f"below the horizon ({b.elevation_deg:.1f} deg)")
             hard[ci, bi] = r
@@ -337,26 +380,36 @@ def best_hypothesis(scene: SunScene, hard: Rejections) -> tuple[Hypothesis | Non
             for cj, other in enumerate(captures):
                 if cj == ci:
                     continue
-                fits = [(bj, scene.agrees(h_az, h_el, h_sig, cj, bj)) for bj in range(len(other.blobs)) if not hard[cj, bj]]
+                fits = [
+                    (bj, scene.agrees(h_az, h_el, h_sig, cj, bj)) for bj in range(len(other.blobs)) if not hard[cj, bj]
+                ]
                 fits = [(bj, a) for bj, a in fits if a.ok]
                 if fits:
                     full = any(not a.elevation_only for _, a in fits)
                     support += 1.0 if full else 0.5
                     members[cj] = fits[0][0]
             eph_el_ok = eph_p is not None and abs(h_el - eph_p.elevation_deg) <= s.ephemeris_tolerance_deg
-            eph_az_ok = (eph_p is not None and eph_p.azimuth_deg is not None and h_az is not None
-                         and abs(wrap_deg(h_az - eph_p.azimuth_deg)) <= 3.0 * s.compass_sigma_deg)
+            eph_az_ok = (
+                eph_p is not None
+                and eph_p.azimuth_deg is not None
+                and h_az is not None
+                and abs(wrap_deg(h_az - eph_p.azimuth_deg)) <= 3.0 * s.compass_sigma_deg
+            )
             if h_az is None and eph_p is not None and eph_p.azimuth_deg is not None and cap.compass_yaw_deg is not None:
                 # no yaw but the capture's compass: a tie-breaker only (never a rejection: a compass can be 90 deg off)
-                eph_az_ok = abs(wrap_deg(scene.compass_azimuth(ci, bi) - eph_p.azimuth_deg)) <= 3.0 * s.compass_sigma_deg
-            eph_az_bad = (eph_p is not None and eph_p.azimuth_deg is not None and h_az is not None and not eph_az_ok)
+                eph_az_ok = (
+                    abs(wrap_deg(scene.compass_azimuth(ci, bi) - eph_p.azimuth_deg)) <= 3.0 * s.compass_sigma_deg
+                )
+            eph_az_bad = eph_p is not None and eph_p.azimuth_deg is not None and h_az is not None and not eph_az_ok
             if support == 1.0 and eph_az_bad:
                 # seen from one position only and not where the ephemeris and the compass put the sun:
                 # nothing confirms it (a glint in a vertical glass wall has the sun's elevation too)
                 assert h_az is not None and eph_p is not None and eph_p.azimuth_deg is not None  # eph_az_bad
                 off = abs(wrap_deg(h_az - eph_p.azimuth_deg))
-                hard[ci, bi] = [f"seen from this position only and {off:.1f} deg in azimuth "
-                                "from the ephemeris (through the photo's compass): a glint? (occluded sun elsewhere)"]
+                hard[ci, bi] = [
+                    f"seen from this position only and {off:.1f} deg in azimuth "
+                    "from the ephemeris (through the photo's compass): a glint? (occluded sun elsewhere)"
+                ]
                 continue
             score = support + 1.5 * eph_el_ok + 0.5 * eph_az_ok + 0.01 * min(cap.blobs[bi].contrast, 50) / 50
             if best is None or score > best.score:
@@ -398,8 +451,9 @@ def choose_candidates(scene: SunScene, best: Hypothesis | None, hard: Rejections
     h_sig = captures[ci0].yaw_sigma_deg or 0.0
     ref_size = captures[ci0].blobs[bi0].size_deg
     for ci, cap in enumerate(captures):
-        cands = sorted((bi for bi in range(len(cap.blobs)) if not hard[ci, bi]),
-                       key=lambda bi: _closeness(scene, best, ci, bi))
+        cands = sorted(
+            (bi for bi in range(len(cap.blobs)) if not hard[ci, bi]), key=lambda bi: _closeness(scene, best, ci, bi)
+        )
         for bi in cands:
             ok = scene.agrees(h_az, h_el, h_sig, ci, bi).ok
             if ok and ci != ci0 and (h_az is None or cap.yaw_deg is None):
@@ -415,11 +469,16 @@ def choose_candidates(scene: SunScene, best: Hypothesis | None, hard: Rejections
                 # no measure of the sun's size (the shipped mini campaign's scene03: a 0.23 deg core at p01
                 # made the camera position's unhidden 0.9 deg sun a "glint")
                 sized = ref_size >= math.degrees(SUN_ANGULAR_DIAMETER)
-                if sized and (ratio > s.max_size_ratio or (ratio > s.wide_size_ratio and off is not None
-                                                           and off > 2.0 * s.compass_sigma_deg)):
-                    hard[ci, bi] = [f"larger than the sun seen from {captures[ci0].probe}: "
-                                    f"{cap.blobs[bi].size_deg:.2f} deg vs {ref_size:.2f} deg wide" + ("" if off is None else
-                                    f", {off:.0f} deg from where the compass puts the sun") + " (a glint on glass?)"]
+                if sized and (
+                    ratio > s.max_size_ratio
+                    or (ratio > s.wide_size_ratio and off is not None and off > 2.0 * s.compass_sigma_deg)
+                ):
+                    hard[ci, bi] = [
+                        f"larger than the sun seen from {captures[ci0].probe}: "
+                        f"{cap.blobs[bi].size_deg:.2f} deg vs {ref_size:.2f} deg wide"
+                        + ("" if off is None else f", {off:.0f} deg from where the compass puts the sun")
+                        + " (a glint on glass?)"
+                    ]
                     continue
             if ok:
                 chosen[ci] = bi
@@ -427,8 +486,9 @@ def choose_candidates(scene: SunScene, best: Hypothesis | None, hard: Rejections
     return chosen, hard
 
 
-def capture_results(scene: SunScene, best: Hypothesis | None, hard: Rejections, chosen: dict[int, int]
-                    ) -> tuple[list[CaptureSun], set[tuple[int, int]]]:
+def capture_results(
+    scene: SunScene, best: Hypothesis | None, hard: Rejections, chosen: dict[int, int]
+) -> tuple[list[CaptureSun], set[tuple[int, int]]]:
     """Step 4: one :class:`CaptureSun` per capture, its chosen candidate and every rejected one with its
     reasons; also the candidates that passed every test but another one fitted better (``{(capture
     index, candidate index)}``: their capture's yaw was unknown, so their azimuth was not tested)."""
@@ -449,15 +509,26 @@ def capture_results(scene: SunScene, best: Hypothesis | None, hard: Rejections, 
                 if best is None:
                     reasons.append("no consistent sun in the scene")
                 else:
-                    a = scene.agrees(best.azimuth_deg, best.elevation_deg, captures[best.ci].yaw_sigma_deg or 0.0, ci, bi)
+                    a = scene.agrees(
+                        best.azimuth_deg, best.elevation_deg, captures[best.ci].yaw_sigma_deg or 0.0, ci, bi
+                    )
                     if not a.ok:
                         reasons.append(f"disagrees with the scene's sun: {a.why}")
                     else:
                         reasons.append("another candidate fits better")
                         outranked.add((ci, bi))
-            cands.append(SunCandidate(azimuth_deg=b.azimuth_deg, elevation_deg=b.elevation_deg, size_deg=b.size_deg,
-                                      n_pixels=b.n_pixels, contrast=b.contrast, chosen=chosen.get(ci) == bi,
-                                      reasons=reasons, scores=scores))
+            cands.append(
+                SunCandidate(
+                    azimuth_deg=b.azimuth_deg,
+                    elevation_deg=b.elevation_deg,
+                    size_deg=b.size_deg,
+                    n_pixels=b.n_pixels,
+                    contrast=b.contrast,
+                    chosen=chosen.get(ci) == bi,
+                    reasons=reasons,
+                    scores=scores,
+                )
+            )
         flags = list(cap.extra_flags)
         if ci in chosen:
             b = cap.blobs[chosen[ci]]
@@ -465,9 +536,19 @@ def capture_results(scene: SunScene, best: Hypothesis | None, hard: Rejections, 
             reason = f"sun: {b.n_pixels} saturated px, {b.size_deg:.2f} deg wide"
             if cap.ephemeris is not None:
                 reason += f"; elevation {b.elevation_deg - cap.ephemeris.elevation_deg:+.2f} deg from the ephemeris"
-            results.append(CaptureSun(probe=cap.probe, found=True, azimuth_deg=b.azimuth_deg, elevation_deg=b.elevation_deg,
-                                      uncertainty_deg=unc, reason=reason, candidates=cands, ephemeris=cap.ephemeris,
-                                      flags=flags))
+            results.append(
+                CaptureSun(
+                    probe=cap.probe,
+                    found=True,
+                    azimuth_deg=b.azimuth_deg,
+                    elevation_deg=b.elevation_deg,
+                    uncertainty_deg=unc,
+                    reason=reason,
+                    candidates=cands,
+                    ephemeris=cap.ephemeris,
+                    flags=flags,
+                )
+            )
         else:
             if not cap.blobs:
                 reason = cap.note or "no saturated pixel: sun occluded or overcast"
@@ -477,8 +558,11 @@ def capture_results(scene: SunScene, best: Hypothesis | None, hard: Rejections, 
                 reason = "no candidate agrees with the scene's sun: occluded here (the others are glints or surfaces)"
             if cap.blobs and best is not None:
                 flags.append(FlagCode.SUN_CANDIDATES_REJECTED.value)
-            results.append(CaptureSun(probe=cap.probe, found=False, reason=reason, candidates=cands,
-                                      ephemeris=cap.ephemeris, flags=flags))
+            results.append(
+                CaptureSun(
+                    probe=cap.probe, found=False, reason=reason, candidates=cands, ephemeris=cap.ephemeris, flags=flags
+                )
+            )
     return results, outranked
 
 
@@ -495,7 +579,10 @@ def with_human_labels(scene: SunScene, results: list[CaptureSun]) -> list[Captur
                 assert human.azimuth_deg is not None and human.elevation_deg is not None
                 d = _angle_deg(auto.azimuth_deg, auto.elevation_deg, human.azimuth_deg, human.elevation_deg)
                 if d > 1.0:
-                    human.flags = [*human.flags, str(Flag(FlagCode.AUTO_DIFFERS, f"{d:.2f} deg from the automatic choice"))]
+                    human.flags = [
+                        *human.flags,
+                        str(Flag(FlagCode.AUTO_DIFFERS, f"{d:.2f} deg from the automatic choice")),
+                    ]
             out[ci] = human
     return out
 
@@ -513,11 +600,13 @@ def consensus(scene: SunScene, results: list[CaptureSun]) -> SceneSun:
         if not res.found:
             continue
         assert res.azimuth_deg is not None and res.elevation_deg is not None  # a found sun has both
-        c_az, c_el = at_photo_time(res.azimuth_deg, res.elevation_deg, cap.ephemeris, photo_ephemeris,
-                                   sun_moves=s.sun_moves)
+        c_az, c_el = at_photo_time(
+            res.azimuth_deg, res.elevation_deg, cap.ephemeris, photo_ephemeris, sun_moves=s.sun_moves
+        )
         sig_dir = math.hypot(res.uncertainty_deg or s.centroid_sigma_deg, s.level_sigma_deg)
-        pts.append((ci, None if cap.yaw_deg is None else wrap_deg(c_az + cap.yaw_deg), c_el,
-                    cap.yaw_sigma_deg, sig_dir))
+        pts.append(
+            (ci, None if cap.yaw_deg is None else wrap_deg(c_az + cap.yaw_deg), c_el, cap.yaw_sigma_deg, sig_dir)
+        )
     sun = SceneSun(found=False, captures=results, ephemeris=photo_ephemeris)
     if not pts:
         sun.flags = scene_flags + ([FlagCode.NO_SUN_FOUND.value] if any(c.blobs for c in captures) else [])
@@ -556,14 +645,26 @@ def consensus(scene: SunScene, results: list[CaptureSun]) -> SceneSun:
     if photo_ephemeris is not None:
         d_el = el - photo_ephemeris.elevation_deg
         if abs(d_el) > s.ephemeris_tolerance_deg:
-            scene_flags.append(str(Flag(FlagCode.EPHEMERIS_DISAGREES,
-                                        f"image elevation {el:.2f} deg, ephemeris {photo_ephemeris.elevation_deg:.2f} deg "
-                                        "(camera clock, UTC offset or GPS wrong?)")))
+            scene_flags.append(
+                str(
+                    Flag(
+                        FlagCode.EPHEMERIS_DISAGREES,
+                        f"image elevation {el:.2f} deg, ephemeris {photo_ephemeris.elevation_deg:.2f} deg "
+                        "(camera clock, UTC offset or GPS wrong?)",
+                    )
+                )
+            )
         if eph_p is not None and eph_p.azimuth_deg is not None and az is not None:
             d_az = wrap_deg(az - eph_p.azimuth_deg)
             if abs(d_az) > 3.0 * s.compass_sigma_deg:
-                scene_flags.append(str(Flag(FlagCode.EPHEMERIS_AZIMUTH_DISAGREES,
-                                            f"{d_az:+.1f} deg (clock, GPS or the photo's compass heading)")))
+                scene_flags.append(
+                    str(
+                        Flag(
+                            FlagCode.EPHEMERIS_AZIMUTH_DISAGREES,
+                            f"{d_az:+.1f} deg (clock, GPS or the photo's compass heading)",
+                        )
+                    )
+                )
     else:
         scene_flags.append(str(Flag(FlagCode.NO_EPHEMERIS, "the photo has no time with UTC offset or no GPS")))
     if sun.n_captures == 1 and len(captures) > 1:
@@ -581,8 +682,13 @@ class SunChoice:
     outranked: frozenset[tuple[str, int]] = frozenset()
 
 
-def choose_sun(captures: list[CaptureSunInput], *, photo_ephemeris: Ephemeris | None, photo_heading_deg: float | None,
-               settings: SunSettings | None = None) -> SunChoice:
+def choose_sun(
+    captures: list[CaptureSunInput],
+    *,
+    photo_ephemeris: Ephemeris | None,
+    photo_heading_deg: float | None,
+    settings: SunSettings | None = None,
+) -> SunChoice:
     """Choose the sun in every capture of a scene and form the scene's consensus (module doc), step by
     step: :func:`hard_rejections`, :func:`best_hypothesis`, :func:`choose_candidates`,
     :func:`capture_results`, :func:`with_human_labels`, :func:`consensus`.
@@ -599,11 +705,18 @@ def choose_sun(captures: list[CaptureSunInput], *, photo_ephemeris: Ephemeris | 
     return SunChoice(sun, frozenset((captures[ci].probe, bi) for ci, bi in outranked))
 
 
-def scene_sun(captures: list[CaptureSunInput], *, photo_ephemeris: Ephemeris | None, photo_heading_deg: float | None,
-              settings: SunSettings | None = None) -> SceneSun:
+def scene_sun(
+    captures: list[CaptureSunInput],
+    *,
+    photo_ephemeris: Ephemeris | None,
+    photo_heading_deg: float | None,
+    settings: SunSettings | None = None,
+) -> SceneSun:
     """The scene's sun of :func:`choose_sun`: a :class:`SceneSun` with one :class:`CaptureSun` per capture
     (chosen and rejected candidates with reasons)."""
-    return choose_sun(captures, photo_ephemeris=photo_ephemeris, photo_heading_deg=photo_heading_deg, settings=settings).sun
+    return choose_sun(
+        captures, photo_ephemeris=photo_ephemeris, photo_heading_deg=photo_heading_deg, settings=settings
+    ).sun
 
 
 def _angle_deg(az1: float, el1: float, az2: float, el2: float) -> float:

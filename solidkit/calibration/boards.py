@@ -92,7 +92,9 @@ class CharucoTarget:
             dic = cv2.aruco.getPredefinedDictionary(getattr(cv2.aruco, self.dictionary))
         except AttributeError:
             raise InputError(f"unknown ArUco dictionary {self.dictionary!r} (e.g. DICT_4X4_50, DICT_5X5_100)") from None
-        return cv2.aruco.CharucoBoard(tuple(self.squares), float(self.square), float(self.marker_ratio * self.square), dic)
+        return cv2.aruco.CharucoBoard(
+            tuple(self.squares), float(self.square), float(self.marker_ratio * self.square), dic
+        )
 
     def texture(self, px_per_square: int = 64) -> tuple[np.ndarray, float]:
         """The board image (8-bit, no margin) and its size in board units per pixel."""
@@ -129,7 +131,9 @@ def read_gray(path: str | os.PathLike) -> np.ndarray:
     return imread(path, cv2.IMREAD_GRAYSCALE)
 
 
-def read_views(paths: Sequence[str | os.PathLike], crop: Sequence[float] | None = None) -> tuple[list[np.ndarray], tuple[int, int]]:
+def read_views(
+    paths: Sequence[str | os.PathLike], crop: Sequence[float] | None = None
+) -> tuple[list[np.ndarray], tuple[int, int]]:
     """Calibration views as 8-bit grey, each cut to ``crop`` (``x0, y0, w, h`` in pixels, rounded;
     one lens of a dual-fisheye frame) when given.
 
@@ -153,7 +157,9 @@ def read_views(paths: Sequence[str | os.PathLike], crop: Sequence[float] | None 
     return images, full_size
 
 
-def find_corners(gray: np.ndarray, pattern: tuple[int, int], max_blur_px: float = 4.0) -> tuple[np.ndarray | None, str | None, float | None]:
+def find_corners(
+    gray: np.ndarray, pattern: tuple[int, int], max_blur_px: float = 4.0
+) -> tuple[np.ndarray | None, str | None, float | None]:
     """Detect a board's inner corners in an 8-bit grey image.
 
     ``cv2.findChessboardCornersSB`` (exhaustive, sub-pixel) first, then the classic detector
@@ -170,7 +176,9 @@ def find_corners(gray: np.ndarray, pattern: tuple[int, int], max_blur_px: float 
             gray, pattern, flags=cv2.CALIB_CB_ADAPTIVE_THRESH | cv2.CALIB_CB_NORMALIZE_IMAGE
         )
         if ok:
-            c = cv2.cornerSubPix(gray, c, (5, 5), (-1, -1), (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_MAX_ITER, 50, 0.01))
+            c = cv2.cornerSubPix(
+                gray, c, (5, 5), (-1, -1), (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_MAX_ITER, 50, 0.01)
+            )
     if not ok or c is None:
         return None, f"no {pattern[0]}x{pattern[1]} board found", None
     c = c.reshape(-1, 2).astype(np.float64)
@@ -186,8 +194,11 @@ def find_corners(gray: np.ndarray, pattern: tuple[int, int], max_blur_px: float 
 
 
 def detect_views(
-    images: Sequence[str | os.PathLike | np.ndarray], pattern: "tuple[int, int] | CharucoTarget", max_blur_px: float = 4.0,
-    names: Sequence[str] | None = None, progress: Callable[[int], None] | None = None,
+    images: Sequence[str | os.PathLike | np.ndarray],
+    pattern: tuple[int, int] | CharucoTarget,
+    max_blur_px: float = 4.0,
+    names: Sequence[str] | None = None,
+    progress: Callable[[int], None] | None = None,
 ) -> list[BoardView]:
     """Detect the board in every view; rejected views carry their reason. Sizes must agree.
 
@@ -205,10 +216,18 @@ def detect_views(
         gray = np.ascontiguousarray(gray, dtype=np.uint8)
         if isinstance(pattern, CharucoTarget):
             corners, obj, reason = find_charuco(gray, pattern)
-            views.append(BoardView(name=name, size=(gray.shape[1], gray.shape[0]), corners=corners, reason=reason, object_points=obj))
+            views.append(
+                BoardView(
+                    name=name, size=(gray.shape[1], gray.shape[0]), corners=corners, reason=reason, object_points=obj
+                )
+            )
         else:
             corners, reason, sharp = find_corners(gray, pattern, max_blur_px)
-            views.append(BoardView(name=name, size=(gray.shape[1], gray.shape[0]), corners=corners, reason=reason, sharpness_px=sharp))
+            views.append(
+                BoardView(
+                    name=name, size=(gray.shape[1], gray.shape[0]), corners=corners, reason=reason, sharpness_px=sharp
+                )
+            )
         if progress:
             progress(k)
     sizes = {v.size for v in views}
@@ -217,7 +236,9 @@ def detect_views(
     return views
 
 
-def subpixel_rays(rays: Callable[[np.ndarray, np.ndarray], np.ndarray], size: tuple[int, int], supersample: int = 2) -> list[np.ndarray]:
+def subpixel_rays(
+    rays: Callable[[np.ndarray, np.ndarray], np.ndarray], size: tuple[int, int], supersample: int = 2
+) -> list[np.ndarray]:
     """Camera rays (H, W, 3) of every sub-pixel sample used by :func:`render_board` (reuse them
     across views of one camera: the ray computation dominates rendering)."""
     w, h = size

@@ -76,7 +76,9 @@ class CameraProfile(Profile):
     """Photo-camera intrinsics at the native size and at the model's input size."""
 
     KIND = "camera"
-    source: str = Field(description="checkerboard | charuco | exif-focal-plane | exif-sensor-width | exif-sensor-table | exif-35mm | fov")
+    source: str = Field(
+        description="checkerboard | charuco | exif-focal-plane | exif-sensor-width | exif-sensor-table | exif-35mm | fov"
+    )
     image_size: tuple[int, int] = Field(description="width, height of the native image (px)")
     K: list[list[float]] = Field(description="3x3 intrinsics at image_size (OpenCV pixel centres)")
     dist: list[float] = Field(default_factory=list, description="OpenCV distortion (k1, k2, p1, p2, k3) if calibrated")
@@ -153,7 +155,10 @@ def center_crop_box(width: int, height: int, aspect: float) -> tuple[int, int, i
 
 
 def resize_crop(
-    image: np.ndarray | None, K: np.ndarray, size: tuple[int, int] = MODEL_INPUT_SIZE, image_size: tuple[int, int] | None = None,
+    image: np.ndarray | None,
+    K: np.ndarray,
+    size: tuple[int, int] = MODEL_INPUT_SIZE,
+    image_size: tuple[int, int] | None = None,
 ) -> tuple[np.ndarray | None, np.ndarray, tuple[int, int, int, int]]:
     """Centre-crop to the aspect of ``size`` then resize to ``size`` (cv2.INTER_AREA), updating K.
 
@@ -184,7 +189,9 @@ def resize_crop(
 
 
 def calibrate_checkerboard(
-    views: Sequence[BoardView], pattern: tuple[int, int], square: float = 1.0,
+    views: Sequence[BoardView],
+    pattern: tuple[int, int],
+    square: float = 1.0,
 ) -> tuple[np.ndarray, np.ndarray, dict]:
     """Pinhole calibration (``cv2.calibrateCamera``, k1 k2 p1 p2 k3) from detected board views.
 
@@ -206,7 +213,7 @@ def calibrate_checkerboard(
     for v, obj, rv, tv in zip(good, objs, rvecs, tvecs):
         proj, _ = cv2.projectPoints(obj, rv, tv, K, dist)
         err = proj.reshape(-1, 2) - cast(np.ndarray, v.corners)
-        per_view[v.name] = float(np.sqrt(np.mean(np.sum(err ** 2, 1))))
+        per_view[v.name] = float(np.sqrt(np.mean(np.sum(err**2, 1))))
     residuals = {"rms_px": float(rms), "per_view_rms_px": per_view, "rejected_views": rejected, "views_used": len(good)}
     return K, dist.ravel(), residuals
 
@@ -218,24 +225,47 @@ def _profile(K, size, source, inputs, residuals, dist=(), model=None, **params) 
     vfov = 2 * math.degrees(math.atan2(h / 2.0, K[1, 1]))
     return CameraProfile(
         provenance=make_provenance(inputs, tool="solidkit.calibration.camera", source=source, **params),
-        residuals=residuals, source=source, image_size=(w, h), K=np.asarray(K).tolist(), dist=[float(x) for x in dist],
-        model_input_K=K2.tolist(), crop_box=box, hfov_deg=hfov, vfov_deg=vfov, camera_model=model,
+        residuals=residuals,
+        source=source,
+        image_size=(w, h),
+        K=np.asarray(K).tolist(),
+        dist=[float(x) for x in dist],
+        model_input_K=K2.tolist(),
+        crop_box=box,
+        hfov_deg=hfov,
+        vfov_deg=vfov,
+        camera_model=model,
     )
 
 
-_EXIF_USED = {"make", "model", "width", "height", "exposure_time", "f_number", "iso", "focal_length_mm",
-              "focal_length_35mm", "focal_plane_px_per_mm", "exif_width", "exif_height"}
+_EXIF_USED = {
+    "make",
+    "model",
+    "width",
+    "height",
+    "exposure_time",
+    "f_number",
+    "iso",
+    "focal_length_mm",
+    "focal_length_35mm",
+    "focal_plane_px_per_mm",
+    "exif_width",
+    "exif_height",
+}
 
 
 def _size_only(photo: Path) -> CaptureMetadata:
     """Metadata with only the image size, for a non-JPEG/TIFF photo whose K comes from a FOV."""
     img = imread(photo)
-    return CaptureMetadata(path=str(photo), width=img.shape[1], height=img.shape[0],
-                           warnings=["no_exif: not a JPEG or TIFF/DNG file"])
+    return CaptureMetadata(
+        path=str(photo), width=img.shape[1], height=img.shape[0], warnings=["no_exif: not a JPEG or TIFF/DNG file"]
+    )
 
 
 def calibrate_camera_from_photo(
-    photo: str | os.PathLike, sensor_width_mm: float | None = None, fov_deg: float | None = None,
+    photo: str | os.PathLike,
+    sensor_width_mm: float | None = None,
+    fov_deg: float | None = None,
 ) -> CameraProfile:
     """Camera profile of one photo from its EXIF (or a given horizontal FOV in degrees)."""
     photo = Path(photo)
@@ -254,12 +284,23 @@ def calibrate_camera_from_photo(
     else:
         K, source = intrinsics_from_exif(info, sensor_width_mm)
     exif_used = {k: v for k, v in info.model_dump(include=_EXIF_USED).items() if v is not None}
-    return _profile(K, (info.width, info.height), source, [photo], {"exif": exif_used}, model=info.model,
-                    sensor_width_mm=sensor_width_mm, fov_deg=fov_deg)
+    return _profile(
+        K,
+        (info.width, info.height),
+        source,
+        [photo],
+        {"exif": exif_used},
+        model=info.model,
+        sensor_width_mm=sensor_width_mm,
+        fov_deg=fov_deg,
+    )
 
 
 def calibrate_camera_from_board(
-    images: Sequence[str | os.PathLike], pattern, square: float = 1.0, max_blur_px: float = 4.0,
+    images: Sequence[str | os.PathLike],
+    pattern,
+    square: float = 1.0,
+    max_blur_px: float = 4.0,
 ) -> CameraProfile:
     """Camera profile from checkerboard (``pattern = (cols, rows)`` inner corners) or ChArUco
     (a :class:`~solidkit.calibration.boards.CharucoTarget`) views (``cv2.calibrateCamera``)."""

@@ -52,7 +52,12 @@ class Circle:
 
 
 def fit_image_circle(
-    lum: np.ndarray, center: tuple[float, float], radius: float, *, n_rays: int = 720, search: float = 0.12,
+    lum: np.ndarray,
+    center: tuple[float, float],
+    radius: float,
+    *,
+    n_rays: int = 720,
+    search: float = 0.12,
     rel_threshold: float = 0.1,
 ) -> tuple[float, float, float, float]:
     """Centre and radius of a fisheye's image circle (the edge between image and the dark outside).
@@ -68,7 +73,9 @@ def fit_image_circle(
     rs = np.arange(radius * (1 - search), radius * (1 + search), 0.25)
     X = center[0] + np.cos(ang)[:, None] * rs
     Y = center[1] + np.sin(ang)[:, None] * rs
-    prof = sample_image(np.nan_to_num(lum.astype(np.float32)), X.ravel(), Y.ravel(), border_value=np.nan).reshape(X.shape)
+    prof = sample_image(np.nan_to_num(lum.astype(np.float32)), X.ravel(), Y.ravel(), border_value=np.nan).reshape(
+        X.shape
+    )
     with warnings.catch_warnings():  # rays that leave the frame at once are all-NaN: skipped below
         warnings.simplefilter("ignore", RuntimeWarning)
         inner = np.nanmedian(prof[:, : max(2, len(rs) // 6)], axis=1)
@@ -159,8 +166,11 @@ def find_image_circles(lum: np.ndarray, *, min_radius_frac: float = 0.25) -> tup
     small = cv2.resize(lum, (max(8, round(W / s)), max(8, round(H / s))), interpolation=cv2.INTER_AREA)
     sh, sw = small.shape
     sx, sy = W / sw, H / sh
-    halves = ([(slice(None), slice(0, sw // 2)), (slice(None), slice(sw // 2, sw))] if arrangement == "side_by_side"
-              else [(slice(0, sh // 2), slice(None)), (slice(sh // 2, sh), slice(None))])
+    halves = (
+        [(slice(None), slice(0, sw // 2)), (slice(None), slice(sw // 2, sw))]
+        if arrangement == "side_by_side"
+        else [(slice(0, sh // 2), slice(None)), (slice(sh // 2, sh), slice(None))]
+    )
     circles = []
     for k, (rows, cols) in enumerate(halves):
         part = small[rows, cols]
@@ -168,15 +178,21 @@ def find_image_circles(lum: np.ndarray, *, min_radius_frac: float = 0.25) -> tup
         guess = _first_guess(part, sx, (int(round(off[0])), int(round(off[1]))))
         which = ("left", "right") if arrangement == "side_by_side" else ("top", "bottom")
         if guess is None:
-            raise CircleError(f"no fisheye image circle in the {which[k]} half of the {W}x{H} frame "
-                              "(expected a bright disc on a black surround: is this a dual-fisheye frame?)")
+            raise CircleError(
+                f"no fisheye image circle in the {which[k]} half of the {W}x{H} frame "
+                "(expected a bright disc on a black surround: is this a dual-fisheye frame?)"
+            )
         cx, cy, r = guess
         if r < min_radius_frac * min(H, W):
-            raise CircleError(f"the {which[k]} half of the {W}x{H} frame shows no fisheye image circle "
-                              f"(largest bright region {2 * r:.0f} px across): not a dual-fisheye frame?")
+            raise CircleError(
+                f"the {which[k]} half of the {W}x{H} frame shows no fisheye image circle "
+                f"(largest bright region {2 * r:.0f} px across): not a dual-fisheye frame?"
+            )
         fx, fy, fr, inl = fit_image_circle(lum, (cx, cy), r, search=0.15, rel_threshold=0.25)
         if not (math.isfinite(fr) and inl >= 0.3):
-            raise CircleError(f"the {which[k]} half of the {W}x{H} frame has no circular image edge "
-                              f"(edge found on {100 * inl:.0f} % of the rays): not a dual-fisheye frame?")
+            raise CircleError(
+                f"the {which[k]} half of the {W}x{H} frame has no circular image edge "
+                f"(edge found on {100 * inl:.0f} % of the rays): not a dual-fisheye frame?"
+            )
         circles.append(Circle(fx, fy, fr, inl))
     return circles, arrangement

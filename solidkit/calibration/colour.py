@@ -198,7 +198,9 @@ def fit_white_balance(camera: np.ndarray, reference: np.ndarray) -> np.ndarray:
     return g / g[1]
 
 
-def fit_ccm(camera: np.ndarray, reference: np.ndarray, white_preserving: bool = True, white_index: int = 18) -> np.ndarray:
+def fit_ccm(
+    camera: np.ndarray, reference: np.ndarray, white_preserving: bool = True, white_index: int = 18
+) -> np.ndarray:
     """Least-squares 3x3 ``M`` with ``M · camera_i ≈ reference_i`` over the patches.
 
     With ``white_preserving`` the white patch is mapped exactly (``M · c_w = r_w``): each row is a
@@ -222,7 +224,11 @@ def fit_ccm(camera: np.ndarray, reference: np.ndarray, white_preserving: bool = 
 
 
 def refine_ccm_delta_e(
-    M0: np.ndarray, camera: np.ndarray, reference: np.ndarray, white_preserving: bool = True, white_index: int = 18,
+    M0: np.ndarray,
+    camera: np.ndarray,
+    reference: np.ndarray,
+    white_preserving: bool = True,
+    white_index: int = 18,
 ) -> np.ndarray:
     """Refine a CCM to minimise the patches' CIEDE2000 (sum of squares), starting from ``M0``.
 
@@ -342,15 +348,24 @@ def calibrate_colour(
     # "before": the camera values with one least-squares exposure scalar; "wb": plus a scalar too
     s0 = float((cam[use] * ref[use]).sum() / (cam[use] ** 2).sum())
     s1 = float((cam_wb[use] * ref[use]).sum() / (cam_wb[use] ** 2).sum())
-    de = {k: delta_e2000(v, ref) for k, v in (
-        ("before", cam * s0), ("white_balance", cam_wb * s1), ("ccm_linear_lsq", cam_wb @ ccm_ls.T), ("ccm", after))}
+    de = {
+        k: delta_e2000(v, ref)
+        for k, v in (
+            ("before", cam * s0),
+            ("white_balance", cam_wb * s1),
+            ("ccm_linear_lsq", cam_wb @ ccm_ls.T),
+            ("ccm", after),
+        )
+    }
     # generalisation: each patch predicted by a least-squares CCM fitted without it (white kept)
     loo = []
     for i in use:
         if i == 18:
             continue
         rest = use[use != i]
-        M_i = fit_ccm(cam_wb[rest], ref[rest], white_preserving=white_preserving, white_index=int(np.nonzero(rest == 18)[0][0]))
+        M_i = fit_ccm(
+            cam_wb[rest], ref[rest], white_preserving=white_preserving, white_index=int(np.nonzero(rest == 18)[0][0])
+        )
         loo.append(float(delta_e2000(M_i @ cam_wb[i], ref[i])))
     grey = cam_wb[18]
     y = np.asarray(REC709_LUMINANCE)
@@ -364,10 +379,21 @@ def calibrate_colour(
         "patches_clipped": [int(i) + 1 for i in clipped],
         "patch_noise_rel": float(np.median(std / np.maximum(cam, 1e-9))),
     }
-    prov = make_provenance(list(inputs), tool="solidkit.calibration.colour.calibrate_colour", white_preserving=white_preserving,
-                           objective=objective,
-                           detection=how, corners=None if corners is None else np.asarray(corners).tolist())
+    prov = make_provenance(
+        list(inputs),
+        tool="solidkit.calibration.colour.calibrate_colour",
+        white_preserving=white_preserving,
+        objective=objective,
+        detection=how,
+        corners=None if corners is None else np.asarray(corners).tolist(),
+    )
     return ColourProfile(
-        provenance=prov, residuals=residuals, white_balance=wb.tolist(), ccm=ccm.tolist(), exposure_gain=gain,
-        white_preserving=white_preserving, detection=how, patch_centres_px=patch_centres(H).tolist(),
+        provenance=prov,
+        residuals=residuals,
+        white_balance=wb.tolist(),
+        ccm=ccm.tolist(),
+        exposure_gain=gain,
+        white_preserving=white_preserving,
+        detection=how,
+        patch_centres_px=patch_centres(H).tolist(),
     )

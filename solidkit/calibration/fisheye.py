@@ -120,9 +120,16 @@ class FisheyeFit:
 
     def summary(self) -> dict[str, Any]:
         out = {
-            "model": self.model, "fx": float(self.K[0, 0]), "fy": float(self.K[1, 1]), "skew": float(self.K[0, 1]),
-            "cx": float(self.K[0, 2]), "cy": float(self.K[1, 2]), "D": [float(x) for x in np.ravel(self.D)],
-            "rms_px": self.rms_px, "per_view_rms_px": self.per_view_rms_px, "rejected_views": self.rejected,
+            "model": self.model,
+            "fx": float(self.K[0, 0]),
+            "fy": float(self.K[1, 1]),
+            "skew": float(self.K[0, 1]),
+            "cx": float(self.K[0, 2]),
+            "cy": float(self.K[1, 2]),
+            "D": [float(x) for x in np.ravel(self.D)],
+            "rms_px": self.rms_px,
+            "per_view_rms_px": self.per_view_rms_px,
+            "rejected_views": self.rejected,
         }
         if self.xi is not None:
             out["xi"] = float(self.xi)
@@ -220,10 +227,21 @@ def fit_mei(views: Sequence[BoardView], pattern: tuple[int, int], square: float 
     if not np.isfinite(rms) or len(used) < _MIN_VIEWS:
         raise FisheyeCalibrationError(
             f"the Mei (omnidir) fit kept {len(used)} views (rejected: "
-            + "; ".join(f"{k}: {r}" for k, r in rejected.items()) + ")"
+            + "; ".join(f"{k}: {r}" for k, r in rejected.items())
+            + ")"
         )
-    fit = FisheyeFit("mei", good[0].size, K, D.reshape(-1), float(np.ravel(xi)[0]), float(rms), {}, rejected,
-                     [np.asarray(r) for r in rvecs], [np.asarray(t) for t in tvecs])
+    fit = FisheyeFit(
+        "mei",
+        good[0].size,
+        K,
+        D.reshape(-1),
+        float(np.ravel(xi)[0]),
+        float(rms),
+        {},
+        rejected,
+        [np.asarray(r) for r in rvecs],
+        [np.asarray(t) for t in tvecs],
+    )
     _per_view(fit, used, pattern, square)
     return fit
 
@@ -236,8 +254,9 @@ def _fit_once(model: ModelName, views: Sequence[BoardView], pattern: tuple[int, 
     raise FisheyeCalibrationError(f"unknown fisheye model {model!r} (kb or mei)")
 
 
-def _best_without_one(model: ModelName, views: list[BoardView], pattern: tuple[int, int],
-                      square: float) -> tuple[FisheyeFit, BoardView] | None:
+def _best_without_one(
+    model: ModelName, views: list[BoardView], pattern: tuple[int, int], square: float
+) -> tuple[FisheyeFit, BoardView] | None:
     """The lowest-RMS fit among those leaving one view out, and that view (None when every fit fails)."""
     trials = []
     for v in views:
@@ -265,8 +284,13 @@ def _fit_or_drop_one(model, views, pattern, square, outliers: dict[str, str]) ->
 
 
 def fit_model(
-    model: ModelName, views: Sequence[BoardView], pattern: tuple[int, int], square: float = 1.0,
-    outlier_factor: float = 3.0, outlier_floor_px: float = 1.0, max_rounds: int = 3,
+    model: ModelName,
+    views: Sequence[BoardView],
+    pattern: tuple[int, int],
+    square: float = 1.0,
+    outlier_factor: float = 3.0,
+    outlier_floor_px: float = 1.0,
+    max_rounds: int = 3,
 ) -> FisheyeFit:
     """Fit ``model`` ("kb" or "mei"), rejecting outlier views and refitting.
 
@@ -334,7 +358,11 @@ def fit_pose(fit: FisheyeFit, obj: np.ndarray, corners: np.ndarray) -> tuple[np.
 
 
 def held_out_error(
-    model: ModelName, views: Sequence[BoardView], pattern: tuple[int, int], square: float = 1.0, k: int | None = None,
+    model: ModelName,
+    views: Sequence[BoardView],
+    pattern: tuple[int, int],
+    square: float = 1.0,
+    k: int | None = None,
 ) -> dict[str, Any]:
     """Leave-``k``-views-out reprojection error (px): each fold fits on the other views, then the
     held-out views' poses only. ``k`` defaults to ``ceil(n/5)`` (five folds)."""
@@ -362,9 +390,11 @@ def held_out_error(
                 failed[v.name] = f"pose fit failed: {exc}"
     vals = np.array(list(per.values()))
     return {
-        "k": k, "folds": math.ceil(n / k),
+        "k": k,
+        "folds": math.ceil(n / k),
         "rms_px": float(np.sqrt(np.mean(vals**2))) if vals.size else None,
-        "per_view_rms_px": per, "failed": failed,
+        "per_view_rms_px": per,
+        "failed": failed,
     }
 
 
@@ -397,8 +427,11 @@ def _max_angle_deg(fit: FisheyeFit, limit_deg: float | None) -> float:
 
 
 def lens_model_from_fit(
-    fit: FisheyeFit, name: str = "front", offset: tuple[float, float] = (0.0, 0.0),
-    ypr_deg: tuple[float, float, float] = (0.0, 0.0, 0.0), max_angle_deg: float | None = None,
+    fit: FisheyeFit,
+    name: str = "front",
+    offset: tuple[float, float] = (0.0, 0.0),
+    ypr_deg: tuple[float, float, float] = (0.0, 0.0, 0.0),
+    max_angle_deg: float | None = None,
 ):
     """Export a fit as a :class:`solidkit.camera.lens.LensModel` (centre shifted by ``offset``,
     e.g. the crop origin of this lens' half in a dual-fisheye frame)."""
@@ -410,8 +443,9 @@ def lens_model_from_fit(
         return LensModel(name=name, center=(cx, cy), poly=poly, max_angle_deg=top, ypr_deg=tuple(ypr_deg))
     th = np.arange(0.0, top + 1e-9, 0.5)
     r = fit.radius(np.radians(th))
-    return LensModel.from_table(name, (cx, cy), th, r, ypr_deg=cast("tuple[float, float, float]", tuple(ypr_deg)),
-                                max_angle_deg=top, degree=11)
+    return LensModel.from_table(
+        name, (cx, cy), th, r, ypr_deg=cast("tuple[float, float, float]", tuple(ypr_deg)), max_angle_deg=top, degree=11
+    )
 
 
 class FisheyeProfile(Profile):
@@ -431,14 +465,20 @@ class FisheyeProfile(Profile):
     views: dict[str, str] = Field(default_factory=dict, description="view -> 'used' or the rejection reason")
 
     def lens_model(self):
-            return LensModel.model_validate(self.lens)
+        return LensModel.model_validate(self.lens)
 
 
 def calibrate_fisheye(
-    views: Sequence[BoardView], pattern: tuple[int, int], square: float = 1.0,
-    models: Sequence[ModelName] = ("kb", "mei"), holdout_k: int | None = None, lens_name: str = "front",
-    offset: tuple[float, float] = (0.0, 0.0), ypr_deg: tuple[float, float, float] = (0.0, 0.0, 0.0),
-    max_angle_deg: float | None = None, inputs: Sequence[Any] = (),
+    views: Sequence[BoardView],
+    pattern: tuple[int, int],
+    square: float = 1.0,
+    models: Sequence[ModelName] = ("kb", "mei"),
+    holdout_k: int | None = None,
+    lens_name: str = "front",
+    offset: tuple[float, float] = (0.0, 0.0),
+    ypr_deg: tuple[float, float, float] = (0.0, 0.0, 0.0),
+    max_angle_deg: float | None = None,
+    inputs: Sequence[Any] = (),
 ) -> FisheyeProfile:
     """Fit each model, measure its held-out error, choose the lower one, export it.
 
@@ -469,7 +509,8 @@ def calibrate_fisheye(
     chosen = min(fits, key=score)
     reason = (
         "lowest held-out RMS: " + ", ".join(f"{m} {score(m):.4g} px" for m in fits)
-        if all(info[m]["held_out"]["rms_px"] is not None for m in fits) else "lowest fit RMS (too few views to hold out)"
+        if all(info[m]["held_out"]["rms_px"] is not None for m in fits)
+        else "lowest fit RMS (too few views to hold out)"
     )
     fit = fits[chosen]
     lens = lens_model_from_fit(fit, lens_name, offset, ypr_deg, max_angle_deg)
@@ -482,22 +523,46 @@ def calibrate_fisheye(
     export_err = float(np.abs(lens.radius(th) - fit.radius(th)).max())
     held = info[chosen]["held_out"]
     residuals = {
-        "model": chosen, "rms_px": fit.rms_px, "held_out_rms_px": held["rms_px"],
-        "per_view_rms_px": fit.per_view_rms_px, "held_out_per_view_rms_px": held["per_view_rms_px"],
-        "aspect_fy_over_fx": float(fit.K[1, 1] / fit.K[0, 0]), "export_max_radius_error_px": export_err,
-        "views_used": len(fit.per_view_rms_px), "views_rejected": {k: v for k, v in used_views.items() if v != "used"},
+        "model": chosen,
+        "rms_px": fit.rms_px,
+        "held_out_rms_px": held["rms_px"],
+        "per_view_rms_px": fit.per_view_rms_px,
+        "held_out_per_view_rms_px": held["per_view_rms_px"],
+        "aspect_fy_over_fx": float(fit.K[1, 1] / fit.K[0, 0]),
+        "export_max_radius_error_px": export_err,
+        "views_used": len(fit.per_view_rms_px),
+        "views_rejected": {k: v for k, v in used_views.items() if v != "used"},
     }
-    prov = make_provenance(list(inputs), tool="solidkit.calibration.fisheye.calibrate_fisheye", models=list(models),
-                           holdout_k=holdout_k, pattern=list(pattern), square=square)
+    prov = make_provenance(
+        list(inputs),
+        tool="solidkit.calibration.fisheye.calibrate_fisheye",
+        models=list(models),
+        holdout_k=holdout_k,
+        pattern=list(pattern),
+        square=square,
+    )
     return FisheyeProfile(
-        provenance=prov, residuals=residuals, lens_name=lens_name, image_size=tuple(fit.size), offset=tuple(offset),
-        pattern=tuple(pattern), square=square, chosen_model=chosen, choice_reason=reason, models=info,
-        lens=lens.model_dump(mode="json"), observed_max_angle_deg=obs, views=used_views,
+        provenance=prov,
+        residuals=residuals,
+        lens_name=lens_name,
+        image_size=tuple(fit.size),
+        offset=tuple(offset),
+        pattern=tuple(pattern),
+        square=square,
+        chosen_model=chosen,
+        choice_reason=reason,
+        models=info,
+        lens=lens.model_dump(mode="json"),
+        observed_max_angle_deg=obs,
+        views=used_views,
     )
 
 
 def lens_profile_from_calibrations(
-    calibrations: Sequence[FisheyeProfile], name: str, reference_size: tuple[int, int], camera_models: Sequence[str] = (),
+    calibrations: Sequence[FisheyeProfile],
+    name: str,
+    reference_size: tuple[int, int],
+    camera_models: Sequence[str] = (),
     base=None,
 ):
     """Assemble (or update) a :class:`solidkit.camera.lens.LensProfile` from calibrated lenses.
@@ -508,20 +573,33 @@ def lens_profile_from_calibrations(
     res = dict(base.residuals) if base is not None else {}
     for c in calibrations:
         lenses[c.lens_name] = c.lens_model()
-        res[c.lens_name] = {k: c.residuals[k] for k in ("model", "rms_px", "held_out_rms_px", "views_used", "export_max_radius_error_px")}
+        res[c.lens_name] = {
+            k: c.residuals[k]
+            for k in ("model", "rms_px", "held_out_rms_px", "views_used", "export_max_radius_error_px")
+        }
         res[c.lens_name]["observed_max_angle_deg"] = c.observed_max_angle_deg
-    src = "solidkit calibrate lens (checkerboard views; " + ", ".join(
-        f"{c.lens_name}: {c.chosen_model}, held-out {c.residuals['held_out_rms_px']:.3g} px"
-        if c.residuals["held_out_rms_px"] is not None else f"{c.lens_name}: {c.chosen_model}" for c in calibrations
-    ) + ")"
+    src = (
+        "solidkit calibrate lens (checkerboard views; "
+        + ", ".join(
+            f"{c.lens_name}: {c.chosen_model}, held-out {c.residuals['held_out_rms_px']:.3g} px"
+            if c.residuals["held_out_rms_px"] is not None
+            else f"{c.lens_name}: {c.chosen_model}"
+            for c in calibrations
+        )
+        + ")"
+    )
     if base is not None and base.reference_size != tuple(reference_size):
         raise FisheyeCalibrationError(
             f"the existing profile is for {base.reference_size[0]}x{base.reference_size[1]} images; these views are "
             f"{reference_size[0]}x{reference_size[1]}"
         )
     return LensProfile(
-        model=name, camera_models=list(camera_models) or (list(base.camera_models) if base is not None else []),
-        source=src if base is None else f"{base.source}; {src}", reference_size=tuple(reference_size),
-        lenses=list(lenses.values()), parent=base.parent if base is not None else None, residuals=res,
+        model=name,
+        camera_models=list(camera_models) or (list(base.camera_models) if base is not None else []),
+        source=src if base is None else f"{base.source}; {src}",
+        reference_size=tuple(reference_size),
+        lenses=list(lenses.values()),
+        parent=base.parent if base is not None else None,
+        residuals=res,
         notes="lens orientations (ypr_deg) are not measured by board calibration of each lens alone",
     )

@@ -31,8 +31,8 @@ import cv2
 import numpy as np
 
 from solidkit.calibration.circles import CircleError, arrangement_of_centres, find_image_circles
-from solidkit.calibration.upright import upright_of_panorama
 from solidkit.calibration.seam import LDR_FLOOR, WORK_RADIUS_PX, prepare_seam_image, seam_error
+from solidkit.calibration.upright import upright_of_panorama
 from solidkit.camera.lens import LensProfile
 from solidkit.envmap.io import srgb_decode
 from solidkit.envmap.sun import luminance
@@ -61,8 +61,9 @@ def _working_copy(image: np.ndarray, radius_px: float, bgr: bool = False) -> tup
     return small.astype(np.float32, copy=False), s
 
 
-def check_profile_fit(image: np.ndarray, profile: LensProfile, saturation: float | None = None, *, bgr: bool = False
-                      ) -> tuple[dict[str, Any], list[str]]:
+def check_profile_fit(
+    image: np.ndarray, profile: LensProfile, saturation: float | None = None, *, bgr: bool = False
+) -> tuple[dict[str, Any], list[str]]:
     """Seam error and arrangement checks of ``profile`` on a dual-fisheye ``image`` (module docstring).
 
     ``image``: ``(H, W, C)`` uint8 sRGB or linear float; ``saturation``: the linear clipping level
@@ -81,20 +82,27 @@ def check_profile_fit(image: np.ndarray, profile: LensProfile, saturation: float
     sp = prof.scaled(small.shape[1], small.shape[0]) if s < 1.0 else prof
     seam = prepare_seam_image(small, radius * s, saturation)
     e = seam_error(seam, sp)
-    report.update(seam_error=None if not math.isfinite(e["seam_error"]) else round(e["seam_error"], 4),
-                  seam_samples=e["samples"])
+    report.update(
+        seam_error=None if not math.isfinite(e["seam_error"]) else round(e["seam_error"], 4), seam_samples=e["samples"]
+    )
     if report["seam_error"] is None:
         lum = luminance(small) if small.ndim == 3 else small
         if float(np.median(lum)) > 10 * LDR_FLOOR:  # a well-exposed frame, yet the ring sees black (or clipping)
-            warnings.append("seam_mismatch: the profile's overlap ring falls on black (or clipped) pixels, outside the "
-                            "frame's image circles: another camera or layout? 'solidkit calibrate fisheye FRAME' makes a "
-                            "profile from the frame")
-        report["seam_error_note"] = ("unmeasured: less than 20 % of the overlap ring is usable (a dark or clipped "
-                                     "frame, e.g. a sun frame, or a profile whose ring falls outside the image circles)")
+            warnings.append(
+                "seam_mismatch: the profile's overlap ring falls on black (or clipped) pixels, outside the "
+                "frame's image circles: another camera or layout? 'solidkit calibrate fisheye FRAME' makes a "
+                "profile from the frame"
+            )
+        report["seam_error_note"] = (
+            "unmeasured: less than 20 % of the overlap ring is usable (a dark or clipped "
+            "frame, e.g. a sun frame, or a profile whose ring falls outside the image circles)"
+        )
     if math.isfinite(e["seam_error"]) and e["seam_error"] > SEAM_ERROR_WARN:
-        warnings.append(f"seam_mismatch: seam error {e['seam_error']:.2f} > {SEAM_ERROR_WARN} (0 = the lenses agree, "
-                        "~0.6 = 4° off, 1 = unrelated): the profile does not fit this frame and the seams will show doubled "
-                        "content; 'solidkit calibrate fisheye FRAME' makes a profile from the frame")
+        warnings.append(
+            f"seam_mismatch: seam error {e['seam_error']:.2f} > {SEAM_ERROR_WARN} (0 = the lenses agree, "
+            "~0.6 = 4° off, 1 = unrelated): the profile does not fit this frame and the seams will show doubled "
+            "content; 'solidkit calibrate fisheye FRAME' makes a profile from the frame"
+        )
     want = arrangement_of_centres([lens.center for lens in prof.lenses])
     try:
         _, have = find_image_circles(luminance(small) if small.ndim == 3 else small)
@@ -102,8 +110,10 @@ def check_profile_fit(image: np.ndarray, profile: LensProfile, saturation: float
         have = None
     report["arrangement"] = {"frame": have, "profile": want}
     if have is not None and have != want:
-        warnings.append(f"layout_mismatch: the frame's image circles are {have.replace('_', ' ')}, the profile's "
-                        f"{want.replace('_', ' ')}: another camera or layout (check --profile)")
+        warnings.append(
+            f"layout_mismatch: the frame's image circles are {have.replace('_', ' ')}, the profile's "
+            f"{want.replace('_', ' ')}: another camera or layout (check --profile)"
+        )
     report["ok"] = not warnings
     return report, warnings
 
@@ -115,9 +125,11 @@ def check_upright(pano: np.ndarray, report: dict[str, Any] | None = None) -> lis
     up = upright_of_panorama(pano)
     warnings = []
     if up.roll_deg != 0.0 and up.confident:
-        warnings.append(f"layout_mismatch: the panorama comes out turned by {-up.roll_deg:+.0f}° (by {up.cue}): the "
-                        "frame's image circles are rotated relative to the profile (e.g. a ±90° sensor layout); "
-                        "'solidkit calibrate fisheye FRAME' detects the layout")
+        warnings.append(
+            f"layout_mismatch: the panorama comes out turned by {-up.roll_deg:+.0f}° (by {up.cue}): the "
+            "frame's image circles are rotated relative to the profile (e.g. a ±90° sensor layout); "
+            "'solidkit calibrate fisheye FRAME' detects the layout"
+        )
     if report is not None:
         report.update(roll_deg=up.roll_deg, upright_cue=up.cue, upright_confident=up.confident)
         report["ok"] = bool(report.get("ok", True)) and not warnings

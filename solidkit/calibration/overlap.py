@@ -37,7 +37,7 @@ import numpy as np
 from scipy.optimize import least_squares
 
 from solidkit.calibration.circles import fit_image_circle
-from solidkit.calibration.seam import ring_directions
+from solidkit.calibration.seam import prepare_seam_image, ring_directions, seam_error
 from solidkit.camera.dualfisheye import get_maps, match_gains, read_linear, seam_disagreement, warp_lens
 from solidkit.camera.lens import LensProfile, load_profile, project, rotation_to_ypr_deg
 from solidkit.document import make_provenance
@@ -45,7 +45,6 @@ from solidkit.envmap.coords import rotation_from_rotvec
 from solidkit.envmap.resample import sample_image
 from solidkit.envmap.sun import luminance
 from solidkit.errors import InputError
-from solidkit.calibration.seam import prepare_seam_image, seam_error
 
 __all__ = ["RefineResult", "ring_directions", "apply_params", "refine_overlap", "fit_image_circle", "refine_files"]
 
@@ -152,7 +151,11 @@ def refine_overlap(
     for im in images:
         lum, _ = _luminance(np.asarray(im, np.float32))
         if saturation is not None:
-            sat = np.any(np.asarray(im)[..., :3] >= saturation, axis=-1) if np.asarray(im).ndim == 3 else np.asarray(im) >= saturation
+            sat = (
+                np.any(np.asarray(im)[..., :3] >= saturation, axis=-1)
+                if np.asarray(im).ndim == 3
+                else np.asarray(im) >= saturation
+            )
             lum = np.where(sat, np.nan, lum).astype(np.float32)
         lum_full.append(lum)
     eps = 0.01 * float(np.nanmedian(np.concatenate([x[np.isfinite(x)].ravel()[::97] for x in lum_full])) + 1e-6)
@@ -167,12 +170,20 @@ def refine_overlap(
         lum_mean = np.nanmean(np.stack([np.nan_to_num(x) for x in lum_full]), axis=0)
         for i, lens in enumerate(prof.lenses):
             cx, cy, rad, inl = fit_image_circle(lum_mean, lens.center, lens.max_radius())
-            if math.isfinite(cx) and inl > 0.3 and math.hypot(cx - lens.center[0], cy - lens.center[1]) < 0.1 * lens.max_radius():
+            if (
+                math.isfinite(cx)
+                and inl > 0.3
+                and math.hypot(cx - lens.center[0], cy - lens.center[1]) < 0.1 * lens.max_radius()
+            ):
                 circles[i] = [cx, cy, rad, inl]
                 if start is None:
                     p[3 * i], p[3 * i + 1] = cx - lens.center[0], cy - lens.center[1]
-    circle_target = np.array([(c[0] - lens.center[0], c[1] - lens.center[1]) if c is not None else (p[3 * i], p[3 * i + 1])
-                              for i, (c, lens) in enumerate(zip(circles, prof.lenses))]).ravel()
+    circle_target = np.array(
+        [
+            (c[0] - lens.center[0], c[1] - lens.center[1]) if c is not None else (p[3 * i], p[3 * i + 1])
+            for i, (c, lens) in enumerate(zip(circles, prof.lenses))
+        ]
+    ).ravel()
     lower = np.full_like(p, -np.inf)
     if max_center_px is not None:
         lower[[0, 1, 3, 4]] = -max_center_px
@@ -262,16 +273,30 @@ def refine_overlap(
         r0 = residuals(q0, robust_only=True)
         nz = r0[r0 != 0]
         f_scale = max(1.4826 * float(np.median(np.abs(nz - np.median(nz)))) if nz.size else 0.05, 1e-3)
-        sol = least_squares(residuals, q0, jac=jacobian, loss="cauchy", f_scale=f_scale, max_nfev=max_nfev, method="trf",
-                            bounds=(lb, ub))
+        sol = least_squares(
+            residuals,
+            q0,
+            jac=jacobian,
+            loss="cauchy",
+            f_scale=f_scale,
+            max_nfev=max_nfev,
+            method="trf",
+            bounds=(lb, ub),
+        )
         r1 = residuals(sol.x, robust_only=True)
         p[free] = sol.x * unit
-        report.append({
-            "downsample": f, "f_scale": f_scale, "nfev": int(sol.nfev), "samples": int(keep.sum()),
-            "params": p.tolist(), "status": sol.message,
-            "median_abs_residual_before": float(np.median(np.abs(r0[r0 != 0]))) if np.any(r0 != 0) else math.nan,
-            "median_abs_residual_after": float(np.median(np.abs(r1[r1 != 0]))) if np.any(r1 != 0) else math.nan,
-        })
+        report.append(
+            {
+                "downsample": f,
+                "f_scale": f_scale,
+                "nfev": int(sol.nfev),
+                "samples": int(keep.sum()),
+                "params": p.tolist(),
+                "status": sol.message,
+                "median_abs_residual_before": float(np.median(np.abs(r0[r0 != 0]))) if np.any(r0 != 0) else math.nan,
+                "median_abs_residual_after": float(np.median(np.abs(r1[r1 != 0]))) if np.any(r1 != 0) else math.nan,
+            }
+        )
     # parameters are in pixels of the working size: convert centres to the base reference size
     p_base = p.copy()
     for i in range(L):
@@ -336,12 +361,22 @@ def refine_files(
         cx, cy, r, inl = fit_image_circle(lum0, lens.center, lens.max_radius(), search=0.12, rel_threshold=0.25)
         off = math.hypot(cx - lens.center[0], cy - lens.center[1]) if math.isfinite(cx) else math.inf
         if not (inl >= 0.4 and off <= max(4.0, 0.05 * lens.max_radius())):
-            warnings.append(f"profile_mismatch: lens {k}: the frame's image circle is not where {prof.model!r} puts it "
-                            f"({'none found' if not math.isfinite(off) else f'{off:.0f} px away'}): another camera or "
-                            "layout? 'solidkit calibrate fisheye FRAME' makes a starting profile from the frame itself")
-    res = refine_overlap(images, prof, saturation=sat, circle_sigma_px=circle_sigma_px, scale_sigma=scale_sigma,
-                         fix_scale=fix_scale, max_center_px=BOUNDS["center_frac"] * radius,
-                         max_log_scale=BOUNDS["log_scale"], max_rotation_deg=BOUNDS["rotation_deg"])
+            warnings.append(
+                f"profile_mismatch: lens {k}: the frame's image circle is not where {prof.model!r} puts it "
+                f"({'none found' if not math.isfinite(off) else f'{off:.0f} px away'}): another camera or "
+                "layout? 'solidkit calibrate fisheye FRAME' makes a starting profile from the frame itself"
+            )
+    res = refine_overlap(
+        images,
+        prof,
+        saturation=sat,
+        circle_sigma_px=circle_sigma_px,
+        scale_sigma=scale_sigma,
+        fix_scale=fix_scale,
+        max_center_px=BOUNDS["center_frac"] * radius,
+        max_log_scale=BOUNDS["log_scale"],
+        max_rotation_deg=BOUNDS["rotation_deg"],
+    )
     out_h = max(64, min(512, w // 4))
     seams = [prepare_seam_image(img, radius, sat) for img in images]
 
@@ -357,31 +392,59 @@ def refine_files(
     (err_before, before), (err_after, after) = seam(prof), seam(res.profile)
     refused = None
     if not (math.isfinite(err_after) and math.isfinite(err_before)):
-        refused = (f"refinement refused: the seam error cannot be measured with {prof.model!r} or the result (the overlap "
-                   "ring falls on black or clipped pixels); the base profile's geometry is kept")
+        refused = (
+            f"refinement refused: the seam error cannot be measured with {prof.model!r} or the result (the overlap "
+            "ring falls on black or clipped pixels); the base profile's geometry is kept"
+        )
     elif not err_after < err_before:
-        refused = (f"refinement refused: seam error {err_after:.3f} after vs {err_before:.3f} with {prof.model!r}; "
-                   "the base profile's geometry is kept")
+        refused = (
+            f"refinement refused: seam error {err_after:.3f} after vs {err_before:.3f} with {prof.model!r}; "
+            "the base profile's geometry is kept"
+        )
         warnings.append(refused)
     kept = prof if refused else res.profile
-    refined = kept.model_copy(update={
-        "model": f"{prof.model}-unit",
-        "parent": prof.model,
-        "source": f"refined by solidkit calibrate overlap on {len(paths)} image(s) from the {prof.model!r} profile "
-                  f"(whose source: {prof.source})" + (" -- REFUSED, base geometry kept" if refused else ""),
-        "residuals": {
-            "seam_error_before": err_before, "seam_error_after": err_after, "refused": refused,
-            "seam_mad_linear_before": before, "seam_mad_linear_after": after,
-            "center_shift_px": res.center_shift_px, "scale": res.scale,
-            "back_rotation_change_deg": res.rotation_change_deg, "image_circles_px": res.circles,
-            "levels": [{k: v for k, v in lv.items() if k != "params"} for lv in res.levels],
-        },
-        "provenance": make_provenance(paths, tool="solidkit calibrate overlap", circle_sigma_px=circle_sigma_px,
-                                      scale_sigma=scale_sigma, fix_scale=fix_scale, bounds=BOUNDS),
-    })
+    refined = kept.model_copy(
+        update={
+            "model": f"{prof.model}-unit",
+            "parent": prof.model,
+            "source": f"refined by solidkit calibrate overlap on {len(paths)} image(s) from the {prof.model!r} profile "
+            f"(whose source: {prof.source})" + (" -- REFUSED, base geometry kept" if refused else ""),
+            "residuals": {
+                "seam_error_before": err_before,
+                "seam_error_after": err_after,
+                "refused": refused,
+                "seam_mad_linear_before": before,
+                "seam_mad_linear_after": after,
+                "center_shift_px": res.center_shift_px,
+                "scale": res.scale,
+                "back_rotation_change_deg": res.rotation_change_deg,
+                "image_circles_px": res.circles,
+                "levels": [{k: v for k, v in lv.items() if k != "params"} for lv in res.levels],
+            },
+            "provenance": make_provenance(
+                paths,
+                tool="solidkit calibrate overlap",
+                circle_sigma_px=circle_sigma_px,
+                scale_sigma=scale_sigma,
+                fix_scale=fix_scale,
+                bounds=BOUNDS,
+            ),
+        }
+    )
     refined.save(out)
-    return {"output": str(out), "base": prof.model, "images": len(paths), "seam_error_before": err_before,
-            "seam_error_after": err_after, "refused": refused, "warnings": warnings,
-            "seam_mad_before": before, "seam_mad_after": after, "center_shift_px": res.center_shift_px,
-            "scale": res.scale, "back_rotation_change_deg": res.rotation_change_deg,
-            "back_ypr_deg": list(refined.lenses[1].ypr_deg), "levels": refined.residuals["levels"]}
+    return {
+        "output": str(out),
+        "base": prof.model,
+        "images": len(paths),
+        "seam_error_before": err_before,
+        "seam_error_after": err_after,
+        "refused": refused,
+        "warnings": warnings,
+        "seam_mad_before": before,
+        "seam_mad_after": after,
+        "center_shift_px": res.center_shift_px,
+        "scale": res.scale,
+        "back_rotation_change_deg": res.rotation_change_deg,
+        "back_ypr_deg": list(refined.lenses[1].ypr_deg),
+        "levels": refined.residuals["levels"],
+    }

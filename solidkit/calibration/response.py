@@ -71,7 +71,9 @@ class ResponseProfile(Profile):
         return a
 
 
-def read_brackets(paths: Sequence[str | os.PathLike], times: Sequence[float] | None = None) -> tuple[list[np.ndarray], np.ndarray]:
+def read_brackets(
+    paths: Sequence[str | os.PathLike], times: Sequence[float] | None = None
+) -> tuple[list[np.ndarray], np.ndarray]:
     """Read an exposure bracket as RGB uint8 images plus exposure times in seconds.
 
     Exposure times come from EXIF ``ExposureTime`` unless ``times`` is given. Raises
@@ -213,8 +215,9 @@ def response_sanity(curve: np.ndarray, images: Sequence[np.ndarray] | None = Non
     return out
 
 
-def radiance_consistency(curve: np.ndarray, images: Sequence[np.ndarray], times: Sequence[float] | np.ndarray,
-                         lo: int = 10, hi: int = 245) -> dict:
+def radiance_consistency(
+    curve: np.ndarray, images: Sequence[np.ndarray], times: Sequence[float] | np.ndarray, lo: int = 10, hi: int = 245
+) -> dict:
     """How well one radiance explains every exposure: the fit's residual.
 
     For every pixel and channel, each exposure with a code in ``[lo, hi]`` gives a radiance
@@ -244,7 +247,6 @@ def plot_response(curve: np.ndarray, path: str | os.PathLike, title: str = "inve
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
-
 
     curve = np.asarray(curve)
     fig, ax = plt.subplots(figsize=(5, 4), dpi=100)
@@ -311,8 +313,13 @@ def calibrate_response_files(
         curve = make_monotonic(raw)
         sanity["monotonic_fix_max_stops"] = float(np.abs(np.log2(curve / raw)).max())
     prov = make_provenance(
-        list(paths), tool="solidkit.calibration.response.calibrate_response", method=method, samples=samples,
-        smoothness=smoothness, enforce_monotonic=enforce_monotonic, times_from="cli" if times is not None else "exif",
+        list(paths),
+        tool="solidkit.calibration.response.calibrate_response",
+        method=method,
+        samples=samples,
+        smoothness=smoothness,
+        enforce_monotonic=enforce_monotonic,
+        times_from="cli" if times is not None else "exif",
     )
     return ResponseProfile(
         provenance=prov,

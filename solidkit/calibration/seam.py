@@ -37,8 +37,16 @@ from solidkit.camera.lens import LensProfile, project
 from solidkit.envmap.resample import sample_image
 from solidkit.envmap.sun import luminance
 
-__all__ = ["NULL_SHIFT_DEG", "WORK_RADIUS_PX", "LDR_FLOOR", "SeamImage", "prepare_seam_image", "ring_directions", "seam_error",
-           "sample_lens_view"]
+__all__ = [
+    "NULL_SHIFT_DEG",
+    "WORK_RADIUS_PX",
+    "LDR_FLOOR",
+    "SeamImage",
+    "prepare_seam_image",
+    "ring_directions",
+    "seam_error",
+    "sample_lens_view",
+]
 
 #: Angle (degrees) between the directions compared for the null disagreement.
 NULL_SHIFT_DEG = 4.0
@@ -79,8 +87,9 @@ MIN_USABLE = 0.2
 LDR_FLOOR = 0.003
 
 
-def prepare_seam_image(image: np.ndarray, radius_px: float, saturation: float | None = None,
-                       floor: float | None = None) -> SeamImage:
+def prepare_seam_image(
+    image: np.ndarray, radius_px: float, saturation: float | None = None, floor: float | None = None
+) -> SeamImage:
     """Reduce a linear frame ``(H, W[, C])`` so that a circle of ``radius_px`` becomes ~:data:`WORK_RADIUS_PX`.
 
     ``saturation``: linear level at/above which a pixel (any channel) is clipped (``None``: HDR);
@@ -133,8 +142,15 @@ def sample_lens_view(seam: SeamImage, profile: LensProfile, directions: np.ndarr
     return np.where(th <= math.radians(L.max_angle_deg), v, np.nan)
 
 
-def seam_error(seam: SeamImage, profile: LensProfile, *, n: int = 20000, edge_px: float = 2.0,
-               ring_deg: tuple[float, float] | None = None, seed: int = 0) -> dict[str, float]:
+def seam_error(
+    seam: SeamImage,
+    profile: LensProfile,
+    *,
+    n: int = 20000,
+    edge_px: float = 2.0,
+    ring_deg: tuple[float, float] | None = None,
+    seed: int = 0,
+) -> dict[str, float]:
     """Seam error of ``profile`` on a prepared frame (module docstring).
 
     Parameters
@@ -157,8 +173,14 @@ def seam_error(seam: SeamImage, profile: LensProfile, *, n: int = 20000, edge_px
     prof = profile.scaled(*seam.size)
     m0, m1 = prof.lenses[0].max_angle_deg, prof.lenses[1].max_angle_deg
     lo, hi = ring_deg if ring_deg is not None else (180.0 - m1, m0)
-    out = {"seam_error": math.nan, "seam_log_mad": math.nan, "null_log_mad": math.nan, "gain_log": math.nan, "samples": 0,
-           "coverage": 0.0}
+    out = {
+        "seam_error": math.nan,
+        "seam_log_mad": math.nan,
+        "null_log_mad": math.nan,
+        "gain_log": math.nan,
+        "samples": 0,
+        "coverage": 0.0,
+    }
     if hi <= lo:
         return out
     R0 = prof.lenses[0].rotation
@@ -186,5 +208,11 @@ def seam_error(seam: SeamImage, profile: LensProfile, *, n: int = 20000, edge_px
     dl = d[ok] @ R0  # front-lens frame; geometry only (clipped sky is no gap in the overlap)
     az = np.arctan2(dl[:, 1], dl[:, 0])
     coverage = np.count_nonzero(np.bincount(((az + math.pi) / (2 * math.pi) * 36).astype(int) % 36, minlength=36)) / 36
-    return {"seam_error": mad / max(null, 1e-9), "seam_log_mad": mad, "null_log_mad": null, "gain_log": o,
-            "samples": int(good.sum()), "coverage": float(coverage)}
+    return {
+        "seam_error": mad / max(null, 1e-9),
+        "seam_log_mad": mad,
+        "null_log_mad": null,
+        "gain_log": o,
+        "samples": int(good.sum()),
+        "coverage": float(coverage),
+    }

@@ -36,8 +36,8 @@ replaced by ``R_z(rho) R_lens`` gives an upright panorama.
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import asdict, dataclass
-from typing import Callable
 
 import cv2
 import numpy as np
@@ -51,7 +51,14 @@ CONFIDENT_MARGIN = 0.5
 WEIGHTS = (0.5, 1.0, 2.0, 1.0)
 BRIGHT_FRACTION = 0.1
 
-__all__ = ["CONFIDENT_MARGIN", "UprightEstimate", "estimate_upright", "upright_of_panorama", "upright_from_panoramas", "panorama_from_lenses"]
+__all__ = [
+    "CONFIDENT_MARGIN",
+    "UprightEstimate",
+    "estimate_upright",
+    "upright_of_panorama",
+    "upright_from_panoramas",
+    "panorama_from_lenses",
+]
 
 
 @dataclass(frozen=True)
@@ -76,15 +83,18 @@ class UprightEstimate:
         return d
 
 
-def panorama_from_lenses(sample: Callable[[np.ndarray], np.ndarray], height: int = 128, roll_deg: float = 0.0) -> np.ndarray:
+def panorama_from_lenses(
+    sample: Callable[[np.ndarray], np.ndarray], height: int = 128, roll_deg: float = 0.0
+) -> np.ndarray:
     """``(height, 2 height)`` panorama of ``sample(d_cam (N, 3)) -> (N,)`` with the camera rolled by ``roll_deg``."""
     d = direction_grid(height).reshape(-1, 3)
     R = np.asarray(rotation_z(math.radians(roll_deg)), np.float64)
     return np.asarray(sample(d @ R), np.float32).reshape(height, 2 * height)  # d_cam = R^T d
 
 
-def _vertical_edge_length(pano: np.ndarray, max_offset_deg: float = 2.0, max_elevation_deg: float = 60.0,
-                          bin_deg: float = 6.0) -> float:
+def _vertical_edge_length(
+    pano: np.ndarray, max_offset_deg: float = 2.0, max_elevation_deg: float = 60.0, bin_deg: float = 6.0
+) -> float:
     """Evidence for a vertical vanishing point at the frame's zenith: LSD segments whose great circle
     passes within ``max_offset_deg`` of the zenith, counted by the azimuth of that great circle
     (``bin_deg`` bins over 180°): the number of bins holding a tenth of the image height of
@@ -146,8 +156,11 @@ def upright_of_panorama(pano: np.ndarray, height: int = 256) -> UprightEstimate:
     if k > 1:  # decimate first: the area reduction then reads 1/k² of the pixels
         img = img[::k, ::k]
     if img.shape[0] > height:
-        img = cv2.resize(np.ascontiguousarray(img[..., :3] if img.ndim == 3 else img), (2 * height, height),
-                         interpolation=cv2.INTER_AREA)
+        img = cv2.resize(
+            np.ascontiguousarray(img[..., :3] if img.ndim == 3 else img),
+            (2 * height, height),
+            interpolation=cv2.INTER_AREA,
+        )
     x = (img[..., :3].mean(axis=-1) if img.ndim == 3 else img).astype(np.float32)
     if img.dtype == np.uint8:
         x = (x / 255.0) ** 2.2  # close enough to linear for a log-luminance comparison
@@ -178,7 +191,7 @@ def _texture_below_minus_above(pano: np.ndarray) -> float:
     h = pano.shape[0]
     x = np.nan_to_num(pano, nan=float(np.nanmedian(pano)) if np.isfinite(pano).any() else 0.0).astype(np.float32)
     g = np.hypot(cv2.Sobel(x, cv2.CV_32F, 1, 0, ksize=3), cv2.Sobel(x, cv2.CV_32F, 0, 1, ksize=3))
-    return float(np.median(g[int(0.6 * h):]) - np.median(g[: int(0.4 * h)]))
+    return float(np.median(g[int(0.6 * h) :]) - np.median(g[: int(0.4 * h)]))
 
 
 def upright_from_panoramas(p0: np.ndarray, p90: np.ndarray) -> UprightEstimate:
@@ -192,8 +205,11 @@ def upright_from_panoramas(p0: np.ndarray, p90: np.ndarray) -> UprightEstimate:
     edges = math.log((e0 + 1.0) / (e90 + 1.0))
     # up in p0's frame for the roll rho: R_z(rho)^T (0, -1, 0) = (0, -1, 0), (-1, 0, 0), (1, 0, 0)
     we, wu, wm, wt = WEIGHTS
-    scores = {0.0: we * edges + wu * ud0 - wm * m[1] + wt * t0, 90.0: -we * edges + wu * ud90 - wm * m[0] + wt * t90,
-              -90.0: -we * edges - wu * ud90 + wm * m[0] - wt * t90}
+    scores = {
+        0.0: we * edges + wu * ud0 - wm * m[1] + wt * t0,
+        90.0: -we * edges + wu * ud90 - wm * m[0] + wt * t90,
+        -90.0: -we * edges - wu * ud90 + wm * m[0] - wt * t90,
+    }
     ranked = sorted(scores, key=scores.__getitem__, reverse=True)
     roll = ranked[0]
     margin = scores[roll] - scores[ranked[1]]

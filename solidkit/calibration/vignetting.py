@@ -79,7 +79,9 @@ class VignettingProfile(Profile):
         if abs(height - H * s) > 1.0:
             raise VignettingError(f"vignetting profile is for {W}x{H} images; got {width}x{height}")
         return [
-            l.model_copy(update={"center": tuple(scale_pixel_coordinates(c, s) for c in l.center), "r_norm_px": l.r_norm_px * s})
+            l.model_copy(
+                update={"center": tuple(scale_pixel_coordinates(c, s) for c in l.center), "r_norm_px": l.r_norm_px * s}
+            )
             for l in self.lenses
         ]
 
@@ -129,8 +131,12 @@ def correct_vignetting(image: np.ndarray, profile: VignettingProfile) -> np.ndar
 
 
 def fit_flat_field(
-    image: np.ndarray, lenses: Sequence[LensVignetting], degree: int = 3, bins: int = 64,
-    saturation: float = 0.98, rho_max: float = 0.98,
+    image: np.ndarray,
+    lenses: Sequence[LensVignetting],
+    degree: int = 3,
+    bins: int = 64,
+    saturation: float = 0.98,
+    rho_max: float = 0.98,
 ) -> tuple[list[LensVignetting], dict[str, Any]]:
     """Fit each lens' falloff to a linear flat-field image.
 
@@ -168,14 +174,23 @@ def fit_flat_field(
         coeffs = (sol[1:] / s).tolist()
         rel = y / (s * falloff(coeffs, c)) - 1
         out.append(l.model_copy(update={"coeffs": coeffs}))
-        res[l.name] = {"rms_rel": float(np.sqrt(np.average(rel**2, weights=n))), "pixels": int(sel.sum()),
-                       "falloff_at_rho_0.9": float(falloff(coeffs, 0.9))}
+        res[l.name] = {
+            "rms_rel": float(np.sqrt(np.average(rel**2, weights=n))),
+            "pixels": int(sel.sum()),
+            "falloff_at_rho_0.9": float(falloff(coeffs, 0.9)),
+        }
     return out, res
 
 
 def fit_overlap(
-    image: np.ndarray, lens_profile, degree: int = 1, n_directions: int = 200_000, saturation: float = 0.98,
-    floor: float = 1e-3, max_gradient: float = 0.05, seed: int = 0,
+    image: np.ndarray,
+    lens_profile,
+    degree: int = 1,
+    n_directions: int = 200_000,
+    saturation: float = 0.98,
+    floor: float = 1e-3,
+    max_gradient: float = 0.05,
+    seed: int = 0,
 ) -> tuple[list[LensVignetting], dict[str, Any]]:
     """Fit one shared falloff to the overlap of a linear dual-fisheye image.
 
@@ -251,10 +266,12 @@ def fit_overlap(
         LensVignetting(name=l.name, center=tuple(l.center), r_norm_px=l.max_radius(), coeffs=coeffs) for l in (la, lb)
     ]
     res = {
-        "samples": int(ok.sum()), "dof": dof,
+        "samples": int(ok.sum()),
+        "dof": dof,
         "log_ratio_robust_rms_stops_before": float(1.4826 * np.median(np.abs(before)) / math.log(2)),
         "log_ratio_robust_rms_stops_after": float(1.4826 * np.median(np.abs(sol.fun)) / math.log(2)),
-        "coeff_stderr": stderr, "gain_ratio_per_channel": gains,
+        "coeff_stderr": stderr,
+        "gain_ratio_per_channel": gains,
         "rho_range": [float(min(ra.min(), rb.min())), float(max(ra.max(), rb.max()))],
         "channels": C,
     }
@@ -263,15 +280,28 @@ def fit_overlap(
 
 def lenses_from_profile(lens_profile) -> list[LensVignetting]:
     """Geometry-only :class:`LensVignetting` entries (zero falloff) from a lens profile."""
-    return [LensVignetting(name=l.name, center=tuple(l.center), r_norm_px=l.max_radius(), coeffs=[]) for l in lens_profile.lenses]
+    return [
+        LensVignetting(name=l.name, center=tuple(l.center), r_norm_px=l.max_radius(), coeffs=[])
+        for l in lens_profile.lenses
+    ]
 
 
-def make_profile(method: str, lenses: Sequence[LensVignetting], reference_size: tuple[int, int], residuals: dict,
-                 inputs: Sequence[Any] = (), lens_profile=None, **params) -> VignettingProfile:
+def make_profile(
+    method: str,
+    lenses: Sequence[LensVignetting],
+    reference_size: tuple[int, int],
+    residuals: dict,
+    inputs: Sequence[Any] = (),
+    lens_profile=None,
+    **params,
+) -> VignettingProfile:
     """Wrap fitted lenses into a :class:`VignettingProfile` with provenance."""
     return VignettingProfile(
         provenance=make_provenance(list(inputs), tool=f"solidkit.calibration.vignetting.{method}", **params),
-        residuals=residuals, method=method, reference_size=tuple(reference_size), lenses=list(lenses),
+        residuals=residuals,
+        method=method,
+        reference_size=tuple(reference_size),
+        lenses=list(lenses),
         lens_profile=None if lens_profile is None else f"{lens_profile.model}:{lens_profile.key()}",
     )
 

@@ -26,9 +26,10 @@ import os
 import threading
 import warnings
 from collections import OrderedDict
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field, fields
 from pathlib import Path
-from typing import Any, Callable, ClassVar, Iterator, cast
+from typing import Any, ClassVar, cast
 
 import cv2
 import numpy as np
@@ -41,9 +42,23 @@ from solidkit.errors import InputError
 from solidkit.fsutil import atomic_path
 
 __all__ = [
-    "CACHE_SIZE", "UnwarpMaps", "CutMaps", "feather_weights", "lens_samples", "build_maps", "get_maps", "build_cut_maps",
-    "get_cut_maps", "clear_cache", "srgb8_luts",
-    "encode_srgb8", "warp_lens", "match_gains", "seam_disagreement", "read_input", "read_linear",
+    "CACHE_SIZE",
+    "UnwarpMaps",
+    "CutMaps",
+    "feather_weights",
+    "lens_samples",
+    "build_maps",
+    "get_maps",
+    "build_cut_maps",
+    "get_cut_maps",
+    "clear_cache",
+    "srgb8_luts",
+    "encode_srgb8",
+    "warp_lens",
+    "match_gains",
+    "seam_disagreement",
+    "read_input",
+    "read_linear",
 ]
 
 CACHE_SIZE = 4
@@ -54,7 +69,7 @@ MAX_GRID_STEP = 8
 MAP_TOLERANCE_PX = 1 / 64
 #: Size bound of an on-disk table cache folder (least recently used files go first).
 DISK_CACHE_MAX_BYTES = 2 << 30
-_cache: "OrderedDict[str, Any]" = OrderedDict()  # UnwarpMaps and CutMaps by key
+_cache: OrderedDict[str, Any] = OrderedDict()  # UnwarpMaps and CutMaps by key
 _writing: dict[Path, threading.Thread] = {}  # cache files being written in the background
 
 
@@ -68,6 +83,7 @@ class UnwarpMaps:
     coordinates; ``weight``: ``(L, H, 2H)`` float32 feather weights summing to 1 where any lens
     sees (0 where a lens does not).
     """
+
     map1: np.ndarray
     map2: np.ndarray
     weight: np.ndarray
@@ -165,14 +181,19 @@ class _NodeGrid:
         self.in_size = in_size
         w_in, h_in = in_size
         # a lens whose whole image circle lies in the frame never samples outside it where it sees
-        self.framed = [min(lens.center[0] + 0.5, w_in - 0.5 - lens.center[0], lens.center[1] + 0.5,
-                           h_in - 0.5 - lens.center[1]) >= lens.max_radius() for lens in self.prof.lenses]
+        self.framed = [
+            min(lens.center[0] + 0.5, w_in - 0.5 - lens.center[0], lens.center[1] + 0.5, h_in - 0.5 - lens.center[1])
+            >= lens.max_radius()
+            for lens in self.prof.lenses
+        ]
         self.s = _grid_step(self.prof, self.H)
         self.pad = 1 if self.s > 1 else 0
         if self.s > 1:
             s, pad = self.s, self.pad
-            self.nodes = self._project((np.arange(-(-self.H // s) + 2 * pad) - pad + 0.5) * s,
-                                       (np.arange(-(-self.W // s) + 2 * pad) - pad + 0.5) * s)
+            self.nodes = self._project(
+                (np.arange(-(-self.H // s) + 2 * pad) - pad + 0.5) * s,
+                (np.arange(-(-self.W // s) + 2 * pad) - pad + 0.5) * s,
+            )
 
     def _project(self, ys: np.ndarray, xs: np.ndarray) -> list[list[np.ndarray]]:
         yy, xx = np.meshgrid(ys, xs, indexing="ij")
@@ -180,8 +201,13 @@ class _NodeGrid:
         planes = []
         for lens in self.prof.lenses:
             x, y, theta = project(lens, d_cam)
-            planes.append([x.astype(np.float32), y.astype(np.float32),
-                           (math.radians(lens.max_angle_deg) - theta).astype(np.float32)])
+            planes.append(
+                [
+                    x.astype(np.float32),
+                    y.astype(np.float32),
+                    (math.radians(lens.max_angle_deg) - theta).astype(np.float32),
+                ]
+            )
         return planes
 
     def blocks(self, block_rows: int = _ROWS) -> Iterator[tuple[int, int]]:
@@ -198,7 +224,8 @@ class _NodeGrid:
         s, pad = self.s, self.pad
         p = plane[self.slab(r0, r1)]
         return cv2.resize(p, (p.shape[1] * s, p.shape[0] * s), interpolation=cv2.INTER_LINEAR)[
-            pad * s: pad * s + (r1 - r0), pad * s: pad * s + self.W]
+            pad * s : pad * s + (r1 - r0), pad * s : pad * s + self.W
+        ]
 
     def samples(self, r0: int, r1: int) -> list[tuple[np.ndarray, np.ndarray, np.ndarray]]:
         """``[(x, y, margin) per lens]`` at output rows ``r0:r1`` (see :func:`lens_samples`)."""
@@ -210,7 +237,9 @@ class _NodeGrid:
         out = []
         for (x, y, m), inframe in zip(planes, self.framed):
             if not inframe:
-                outside = (x < -0.5) | (x > w_in - 0.5) | (y < -0.5) | (y > h_in - 0.5)  # never sample outside the frame
+                outside = (
+                    (x < -0.5) | (x > w_in - 0.5) | (y < -0.5) | (y > h_in - 0.5)
+                )  # never sample outside the frame
                 m = np.where(outside, np.minimum(m, np.float32(-1e-6)), m)
             out.append((x, y, m))
         return out
@@ -227,9 +256,12 @@ def build_maps(
     weight = np.empty((L, H, W), np.float32)
     for r0, r1, lenses in lens_samples(profile, in_size, out_height, R_level):
         for i, (x, y, _) in enumerate(lenses):  # clipped: where a lens does not see, its coordinates are unbounded
-            map1[i, r0:r1], map2[i, r0:r1] = cv2.convertMaps(np.clip(x, -2.0, w_in + 1.0), np.clip(y, -2.0, h_in + 1.0),
-                                                             cv2.CV_16SC2)
-        weight[:, r0:r1] = feather_weights(np.stack([m for _, _, m in lenses]), feather_deg)  # per pixel: block by block
+            map1[i, r0:r1], map2[i, r0:r1] = cv2.convertMaps(
+                np.clip(x, -2.0, w_in + 1.0), np.clip(y, -2.0, h_in + 1.0), cv2.CV_16SC2
+            )
+        weight[:, r0:r1] = feather_weights(
+            np.stack([m for _, _, m in lenses]), feather_deg
+        )  # per pixel: block by block
     return UnwarpMaps(map1, map2, weight)
 
 
@@ -312,8 +344,11 @@ def _load_tables(path: Path) -> dict[str, np.ndarray]:
         n = int(np.prod(shape, dtype=np.int64)) * np.dtype(dtype).itemsize
         if offset + n > size:
             raise ValueError(f"{path}: truncated")
-        out[name] = np.memmap(path, dtype=np.dtype(dtype), mode="r", offset=offset, shape=tuple(shape)) if n else \
-            np.zeros(shape, np.dtype(dtype))
+        out[name] = (
+            np.memmap(path, dtype=np.dtype(dtype), mode="r", offset=offset, shape=tuple(shape))
+            if n
+            else np.zeros(shape, np.dtype(dtype))
+        )
     return out
 
 
@@ -338,7 +373,9 @@ def _cached(key: str, cache_dir: str | os.PathLike[str] | None, build: Any, load
     if maps is None:
         maps = build()
         if path is not None:  # written while the caller goes on with the tables (the interpreter waits for it at exit)
-            _writing[path] = threading.Thread(target=_save_tables, args=(path, maps.arrays()), name="solidkit-cache-write")
+            _writing[path] = threading.Thread(
+                target=_save_tables, args=(path, maps.arrays()), name="solidkit-cache-write"
+            )
             _writing[path].start()
     _cache[key] = maps
     while len(_cache) > CACHE_SIZE:
@@ -347,7 +384,11 @@ def _cached(key: str, cache_dir: str | os.PathLike[str] | None, build: Any, load
 
 
 def get_maps(
-    profile: LensProfile, in_size: tuple[int, int], out_height: int, R_level: Any = None, feather_deg: float = 10.0,
+    profile: LensProfile,
+    in_size: tuple[int, int],
+    out_height: int,
+    R_level: Any = None,
+    feather_deg: float = 10.0,
     cache_dir: str | os.PathLike[str] | None = None,
 ) -> tuple[UnwarpMaps, str]:
     """:func:`build_maps` through the in-memory LRU and the optional on-disk cache.
@@ -356,8 +397,12 @@ def get_maps(
     """
     R = np.eye(3) if R_level is None else np.asarray(R_level, dtype=np.float64)
     key = _key(profile, in_size, out_height, R, feather_deg)
-    return _cached(f"unwarp-{key}", cache_dir, lambda: build_maps(profile, in_size, out_height, R, feather_deg),
-                   lambda z: UnwarpMaps(z["map1"], z["map2"], z["weight"]))
+    return _cached(
+        f"unwarp-{key}",
+        cache_dir,
+        lambda: build_maps(profile, in_size, out_height, R, feather_deg),
+        lambda z: UnwarpMaps(z["map1"], z["map2"], z["weight"]),
+    )
 
 
 _BAND_COLS = 4096  # band tables are laid out (rows, 4096): cv2.remap wants both sides below 32767
@@ -380,6 +425,7 @@ class CutMaps:
     ``band_map2`` ``(2, rows, 4096)`` uint16: each lens' tables for the band pixels in order (padded);
     ``coverage``: fraction of output pixels some lens sees.
     """
+
     LAYOUT: ClassVar[int] = 2  # in the cache file names: tables of an earlier layout are never read
     map1: np.ndarray
     map2: np.ndarray
@@ -394,7 +440,7 @@ class CutMaps:
         return {f.name: np.asarray(getattr(self, f.name)) for f in fields(self)}
 
     @classmethod
-    def from_arrays(cls, z: Any) -> "CutMaps":
+    def from_arrays(cls, z: Any) -> CutMaps:
         """From :meth:`arrays` (a cache file); ``ValueError`` when the layout is not this one."""
         m = cls(**{f.name: z[f.name] for f in fields(cls) if f.name != "coverage"}, coverage=float(z["coverage"][()]))
         rows = m.band_map2.shape[1] if m.band_map2.ndim == 3 else -1
@@ -405,8 +451,9 @@ class CutMaps:
     def sample_band(self, image: np.ndarray, i: int) -> np.ndarray:
         """Lens ``i``'s samples of ``image`` (as stored, bilinear) at the band pixels, in the band tables'
         padded layout ``(rows, 4096, C)``: pixel ``k`` of :attr:`band` is ``.reshape(-1, C)[k]``."""
-        v = cv2.remap(image, self.band_map1[i], self.band_map2[i], cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT,
-                      borderValue=0)
+        v = cv2.remap(
+            image, self.band_map1[i], self.band_map2[i], cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=0
+        )
         return v if v.ndim == 3 else v[..., None]
 
 
@@ -417,6 +464,7 @@ def _clip_is_exact(m0: np.ndarray, m1: np.ndarray, f: float) -> bool:
     one sees throughout and leads the other by at least ``f`` (its weight saturates at 1, as it is
     where the other does not see). Then no pixel is unseen either.
     """
+
     def lo(a: np.ndarray) -> np.ndarray:
         return cast(np.ndarray, np.minimum(np.minimum(a[:-1, :-1], a[1:, :-1]), np.minimum(a[:-1, 1:], a[1:, 1:])))
 
@@ -446,7 +494,11 @@ def build_cut_maps(
     def block(rows: tuple[int, int]) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, int]:
         """Rows ``r0:r1`` of the tables (written in place); returns the block's band and its covered count."""
         r0, r1 = rows
-        if grid.s > 1 and all(grid.framed) and _clip_is_exact(m0_nodes[grid.slab(r0, r1)], m1_nodes[grid.slab(r0, r1)], f):
+        if (
+            grid.s > 1
+            and all(grid.framed)
+            and _clip_is_exact(m0_nodes[grid.slab(r0, r1)], m1_nodes[grid.slab(r0, r1)], f)
+        ):
             # every pixel of the block is seen, and where a lens does not see the other one's weight
             # saturates: w0 = clip(0.5 + (m0 - m1) / 2f) alone, from the interpolated margin difference
             x0, y0, x1, y1 = (grid.interpolate(p, r0, r1) for p in (x0n, y0n, x1n, y1n))
@@ -478,9 +530,13 @@ def build_cut_maps(
         cv2.convertMaps(x, y, cv2.CV_16SC2, dstmap1=map1[r0:r1], dstmap2=map2[r0:r1])
         lead[r0:r1] = lens0
         rows_i, cols_i = np.divmod(np.flatnonzero((w0 > 0) & (w0 < 1)), W)  # the band: both lenses weigh in
-        return (rows_i * W + cols_i + r0 * W, w0[rows_i, cols_i],
-                np.stack([x0[rows_i, cols_i], y0[rows_i, cols_i]], axis=-1),
-                np.stack([x1[rows_i, cols_i], y1[rows_i, cols_i]], axis=-1), covered)
+        return (
+            rows_i * W + cols_i + r0 * W,
+            w0[rows_i, cols_i],
+            np.stack([x0[rows_i, cols_i], y0[rows_i, cols_i]], axis=-1),
+            np.stack([x1[rows_i, cols_i], y1[rows_i, cols_i]], axis=-1),
+            covered,
+        )
 
     parts = [block(rows) for rows in grid.blocks()]  # (two threads: no faster on 2 busy cores, +80 MB peak)
     band, band_w0 = [p[0] for p in parts], [p[1] for p in parts]
@@ -502,14 +558,22 @@ def build_cut_maps(
 
 
 def get_cut_maps(
-    profile: LensProfile, in_size: tuple[int, int], out_height: int, R_level: Any = None, feather_deg: float = 10.0,
+    profile: LensProfile,
+    in_size: tuple[int, int],
+    out_height: int,
+    R_level: Any = None,
+    feather_deg: float = 10.0,
     cache_dir: str | os.PathLike[str] | None = None,
 ) -> tuple[CutMaps, str]:
     """:func:`build_cut_maps` through the in-memory LRU and the optional on-disk cache (as :func:`get_maps`)."""
     R = np.eye(3) if R_level is None else np.asarray(R_level, dtype=np.float64)
     key = _key(profile, in_size, out_height, R, feather_deg)
-    return _cached(f"cut{CutMaps.LAYOUT}-{key}", cache_dir, lambda: build_cut_maps(profile, in_size, out_height, R, feather_deg),
-                   CutMaps.from_arrays)
+    return _cached(
+        f"cut{CutMaps.LAYOUT}-{key}",
+        cache_dir,
+        lambda: build_cut_maps(profile, in_size, out_height, R, feather_deg),
+        CutMaps.from_arrays,
+    )
 
 
 # sRGB 8-bit -> linear float32 (exact per code value) and linear -> sRGB 8-bit through a 16-bit index
@@ -555,7 +619,10 @@ def _stride(shape: tuple[int, ...], target: int = 1024) -> int:
 
 
 def match_gains(
-    warped: list[np.ndarray], maps: UnwarpMaps, saturation: float | None = 0.98, floor: float = 1e-3,
+    warped: list[np.ndarray],
+    maps: UnwarpMaps,
+    saturation: float | None = 0.98,
+    floor: float = 1e-3,
     scale: np.ndarray | None = None,
 ) -> np.ndarray:
     """Per-lens, per-channel linear gains ``(L, C)`` equalising the lenses on their overlap.
@@ -606,8 +673,11 @@ def seam_disagreement(warped: list[np.ndarray], maps: UnwarpMaps, gains: np.ndar
     diff = (warped[0][::k, ::k][both] * g[0] - warped[1][::k, ::k][both] * g[1]).mean(axis=-1)
     if diff.size == 0:
         return nan
-    return {"seam_mad": float(np.median(np.abs(diff))), "seam_rmse": float(np.sqrt(np.mean(diff**2))),
-            "overlap_px": int(((maps.weight[0] > 0) & (maps.weight[1] > 0)).sum())}
+    return {
+        "seam_mad": float(np.median(np.abs(diff))),
+        "seam_rmse": float(np.sqrt(np.mean(diff**2))),
+        "overlap_px": int(((maps.weight[0] > 0) & (maps.weight[1] > 0)).sum()),
+    }
 
 
 def read_input(path: Path) -> tuple[np.ndarray, float | None]:

@@ -60,9 +60,9 @@ from typing import Any, ClassVar
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
 
+from solidkit.document import DocumentError, VersionedDocument
 from solidkit.envmap.coords import rotation_from_ypr, ypr_from_rotation
 from solidkit.envmap.perspective import scale_pixel_coordinates
-from solidkit.document import DocumentError, VersionedDocument
 
 __all__ = [
     "FORMAT_VERSION",
@@ -125,7 +125,7 @@ class LensModel(BaseModel):
         return v
 
     @model_validator(mode="after")
-    def _monotonic(self) -> "LensModel":
+    def _monotonic(self) -> LensModel:
         t = np.linspace(0.0, math.radians(self.max_angle_deg), 512)
         if np.any(np.diff(self.radius(t)) <= 0):
             raise ValueError(f"lens {self.name}: r(theta) is not increasing up to {self.max_angle_deg} deg")
@@ -133,15 +133,26 @@ class LensModel(BaseModel):
 
     @classmethod
     def from_table(
-        cls, name: str, center: tuple[float, float], theta_deg: Any, r_px: Any, *, ypr_deg: tuple[float, float, float] = (0.0, 0.0, 0.0),
-        max_angle_deg: float | None = None, degree: int = 13,
-    ) -> "LensModel":
+        cls,
+        name: str,
+        center: tuple[float, float],
+        theta_deg: Any,
+        r_px: Any,
+        *,
+        ypr_deg: tuple[float, float, float] = (0.0, 0.0, 0.0),
+        max_angle_deg: float | None = None,
+        degree: int = 13,
+    ) -> LensModel:
         """Fit the odd polynomial to a table of image height ``r_px`` vs incidence angle ``theta_deg``."""
         t = np.asarray(theta_deg, dtype=np.float64)
         poly = fit_odd_poly(np.radians(t), r_px, degree)
         return cls(
-            name=name, center=center, poly=poly, max_angle_deg=float(max_angle_deg or t.max()),
-            ypr_deg=tuple(ypr_deg), table=LensTable(theta_deg=list(map(float, t)), r_px=list(map(float, r_px))),
+            name=name,
+            center=center,
+            poly=poly,
+            max_angle_deg=float(max_angle_deg or t.max()),
+            ypr_deg=tuple(ypr_deg),
+            table=LensTable(theta_deg=list(map(float, t)), r_px=list(map(float, r_px))),
         )
 
     @property
@@ -229,7 +240,7 @@ class LensProfile(VersionedDocument):
             raise ValueError("a lens profile needs at least one lens")
         return v
 
-    def scaled(self, width: int, height: int) -> "LensProfile":
+    def scaled(self, width: int, height: int) -> LensProfile:
         """This profile for a ``width x height`` image of the same layout (same aspect ratio, ±1 px)."""
         W, H = self.reference_size
         if (width, height) == (W, H):
@@ -245,10 +256,15 @@ class LensProfile(VersionedDocument):
             table = None
             if lens.table is not None:
                 table = LensTable(theta_deg=lens.table.theta_deg, r_px=[r * s for r in lens.table.r_px])
-            lenses.append(lens.model_copy(update={
-                "center": (scale_pixel_coordinates(cx, s), scale_pixel_coordinates(cy, s)),
-                "poly": [k * s for k in lens.poly], "table": table,
-            }))
+            lenses.append(
+                lens.model_copy(
+                    update={
+                        "center": (scale_pixel_coordinates(cx, s), scale_pixel_coordinates(cy, s)),
+                        "poly": [k * s for k in lens.poly],
+                        "table": table,
+                    }
+                )
+            )
         return self.model_copy(update={"reference_size": (width, height), "lenses": lenses})
 
     def key(self) -> str:

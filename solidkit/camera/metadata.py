@@ -109,8 +109,11 @@ class CaptureMetadata(BaseModel):
     exif_height: int | None = Field(None, description="EXIF PixelYDimension")
     datetime_original: _dt.datetime | None = Field(None, description="naive, camera clock")
     utc_offset: str | None = Field(None, description="e.g. '+09:00', as recorded")
-    gps: dict[str, Any] | None = Field(None, description="lat_deg, lon_deg (signed), alt_m (may be None); img_direction_deg, "
-                                               "img_direction_ref ('T' true / 'M' magnetic north) when recorded")
+    gps: dict[str, Any] | None = Field(
+        None,
+        description="lat_deg, lon_deg (signed), alt_m (may be None); img_direction_deg, "
+        "img_direction_ref ('T' true / 'M' magnetic north) when recorded",
+    )
     image_type: ImageType = "unknown"
     zenith_corrected: bool | None = None
     gravity: list[float] | None = Field(
@@ -146,8 +149,12 @@ def level_rotation(meta: CaptureMetadata) -> np.ndarray:
     the residual tilt instead and flag it above 0.5°.
     """
     ricoh_stitched = meta.image_type == "equirect" and meta.ricoh.get("0x0001") == [1]
-    if (meta.pitch_deg is None or meta.roll_deg is None or ricoh_stitched
-            or (meta.image_type == "equirect" and meta.zenith_corrected)):
+    if (
+        meta.pitch_deg is None
+        or meta.roll_deg is None
+        or ricoh_stitched
+        or (meta.image_type == "equirect" and meta.zenith_corrected)
+    ):
         return np.eye(3)
     return np.asarray(rotation_from_ypr(0.0, math.radians(meta.pitch_deg), math.radians(meta.roll_deg)))
 
@@ -203,7 +210,9 @@ def _focal_geometry(tags: dict[str, Any], warnings: list[str]) -> dict[str, Any]
     return out
 
 
-def _first_number(tags: dict[str, Any], keys: tuple[str, ...], name: str, warnings: list[str], positive: bool = True) -> float | None:
+def _first_number(
+    tags: dict[str, Any], keys: tuple[str, ...], name: str, warnings: list[str], positive: bool = True
+) -> float | None:
     for key in keys:
         if key not in tags:
             continue
@@ -244,6 +253,7 @@ def _gps(tags: dict[str, Any], warnings: list[str]) -> dict[str, Any] | None:
     if "GPS GPSLatitude" not in tags or "GPS GPSLongitude" not in tags:
         return None
     try:
+
         def dms(key: str) -> float:
             v = _ratio(tags[key])
             if len(v) != 3 or not all(math.isfinite(x) for x in v):

@@ -39,8 +39,6 @@ def pitch_roll_from_gravity(g_ricoh: Any) -> tuple[float, float]:
     return pitch, roll
 
 
-
-
 def pose_fields(theta: dict[int, Any], gpano: dict[str, Any], warnings: list[str]) -> dict[str, Any]:
     """Gravity and heading of a capture from its RICOH THETA IFD tags, else its GPano pose.
 
@@ -53,14 +51,22 @@ def pose_fields(theta: dict[int, Any], gpano: dict[str, Any], warnings: list[str
     pitch = roll = None
     angles = theta.get(0x0003)
     rvec = theta.get(0x0109)
-    if isinstance(angles, list) and len(angles) == 2 and all(isinstance(a, (int, float)) and math.isfinite(a)
-                                                             and -360 <= a <= 360 for a in angles):
+    if (
+        isinstance(angles, list)
+        and len(angles) == 2
+        and all(isinstance(a, (int, float)) and math.isfinite(a) and -360 <= a <= 360 for a in angles)
+    ):
         # Ricoh writes angles in [0, 360): 359.6 is -0.4 (wrapped to (-180, 180])
         angles = [a - 360.0 if a > 180 else a + 360.0 if a <= -180 else a for a in angles]
     if isinstance(angles, list) and len(angles) == 2 and all(math.isfinite(a) and abs(a) <= 180 for a in angles):
         roll, pitch = float(angles[0]), float(angles[1])
         meta["gravity_source"] = "ricoh:0x0003 [roll, pitch] deg"
-    elif isinstance(rvec, list) and len(rvec) == 3 and all(math.isfinite(a) for a in rvec) and np.linalg.norm(rvec) < 2 * math.pi:
+    elif (
+        isinstance(rvec, list)
+        and len(rvec) == 3
+        and all(math.isfinite(a) for a in rvec)
+        and np.linalg.norm(rvec) < 2 * math.pi
+    ):
         # Ricoh: "Zenith Direction (= Rotation Vector)" in camera axes. We read it as the rotation
         # taking the level frame's up (Z) to the camera's measured zenith: zenith_cam = R e_z.
         R = rotation_from_rotvec(np.asarray(rvec, dtype=np.float64))

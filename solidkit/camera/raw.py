@@ -16,9 +16,10 @@ white level.
 from __future__ import annotations
 
 import os
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Literal, Sequence, cast
+from typing import Literal, cast
 
 import numpy as np
 

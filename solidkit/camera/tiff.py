@@ -76,7 +76,6 @@ class Tiff:
         return list(struct.unpack(bo + fmt * cnt, raw))
 
 
-
 def jpeg_segments(data: bytes) -> tuple[list[tuple[int, bytes]], tuple[int, int] | None]:
     """APPn segments ``(marker, payload)`` and the ``(width, height)`` from the SOF marker."""
     segs: list[tuple[int, bytes]] = []

@@ -20,9 +20,9 @@ at the end of the file stem (``R0010123.JPG`` -> 10123, ``IMG_2600.jpg`` -> 2600
 from __future__ import annotations
 
 import re
+from collections.abc import Sequence
 from dataclasses import dataclass
 from datetime import datetime, timedelta
-from typing import Sequence
 
 __all__ = ["ShotInfo", "group_brackets", "sequence_from_name", "format_exposure", "gain_from"]
 
@@ -118,7 +118,9 @@ def _starts_new(current: list[ShotInfo], s: ShotInfo, max_gap_s: float) -> bool:
             return True
     elif (prev.time is None) != (s.time is None):
         return True
-    if s.effective is not None and any(c.effective is not None and _same_exposure(c.effective, s.effective) for c in current):
+    if s.effective is not None and any(
+        c.effective is not None and _same_exposure(c.effective, s.effective) for c in current
+    ):
         return True
     return False
 

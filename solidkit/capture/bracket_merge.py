@@ -21,8 +21,9 @@ from __future__ import annotations
 
 import dataclasses
 import os
+from collections.abc import Sequence
 from pathlib import Path
-from typing import Any, Sequence, cast
+from typing import Any, cast
 
 import numpy as np
 from PIL import Image
@@ -31,14 +32,25 @@ from solidkit import __version__
 from solidkit.camera.metadata import CaptureMetadata, read_metadata
 from solidkit.camera.raw import is_raw_file, read_raw
 from solidkit.capture.bracket_groups import ShotInfo, gain_from, group_brackets, sequence_from_name
-from solidkit.capture.frame_merge import (DEFAULT_BLACK, DEFAULT_SATURATION, Frame, MergeResult, effective_exposure,
-                                          frame_from_ldr, frame_from_raw, load_response, merge_frames, read_ldr_codes,
-                                          sniff_frame, validate_response)
-from solidkit.envmap.io import write_exr, write_ldr
-from solidkit.fsutil import sha256_file
+from solidkit.capture.frame_merge import (
+    DEFAULT_BLACK,
+    DEFAULT_SATURATION,
+    Frame,
+    MergeResult,
+    effective_exposure,
+    frame_from_ldr,
+    frame_from_raw,
+    load_response,
+    merge_frames,
+    read_ldr_codes,
+    sniff_frame,
+    validate_response,
+)
 from solidkit.capture.register import register_frames, shift_image
 from solidkit.capture.selfcal import response_for_bracket
+from solidkit.envmap.io import write_exr, write_ldr
 from solidkit.errors import InputError
+from solidkit.fsutil import sha256_file
 from solidkit.threads import deterministic
 
 __all__ = ["merge_bracket", "merge_files", "read_codes"]
@@ -51,15 +63,25 @@ def read_codes(path: Path) -> tuple[np.ndarray | None, Any, list[str]]:
     path, kind = sniff_frame(path)
     warnings = []
     if kind in _CONTENT_SUFFIXES and path.suffix.lower() not in _CONTENT_SUFFIXES[kind] and not is_raw_file(path):
-        warnings.append(f"content_not_suffix: {path.name} is a {kind.upper()} file named {path.suffix}; read as {kind.upper()}")
+        warnings.append(
+            f"content_not_suffix: {path.name} is a {kind.upper()} file named {path.suffix}; read as {kind.upper()}"
+        )
     if is_raw_file(path) or kind == "raw":
         return None, read_raw(path), warnings
     return read_ldr_codes(path), None, warnings
 
 
-def merge_bracket(paths: Sequence[str | Path], exposures: Sequence[float], *, response: np.ndarray | None = None,
-                  response_record: dict[str, Any] | None = None, align: bool = True, ghost_k: float = 6.0,
-                  deghost: bool = False, wb: Any = "camera") -> tuple[MergeResult, dict[str, Any]]:
+def merge_bracket(
+    paths: Sequence[str | Path],
+    exposures: Sequence[float],
+    *,
+    response: np.ndarray | None = None,
+    response_record: dict[str, Any] | None = None,
+    align: bool = True,
+    ghost_k: float = 6.0,
+    deghost: bool = False,
+    wb: Any = "camera",
+) -> tuple[MergeResult, dict[str, Any]]:
     """Merge one bracket (module docstring). ``exposures``: effective exposures (s) in ``paths`` order.
 
     ``response``/``response_record``: a curve the user gave and how to record it (None: estimate
@@ -68,13 +90,29 @@ def merge_bracket(paths: Sequence[str | Path], exposures: Sequence[float], *, re
     same whatever the thread count.
     """
     with deterministic():
-        return _merge_bracket(paths, exposures, response=response, response_record=response_record, align=align,
-                              ghost_k=ghost_k, deghost=deghost, wb=wb)
+        return _merge_bracket(
+            paths,
+            exposures,
+            response=response,
+            response_record=response_record,
+            align=align,
+            ghost_k=ghost_k,
+            deghost=deghost,
+            wb=wb,
+        )
 
 
-def _merge_bracket(sources: Sequence[str | Path], exposures: Sequence[float], *, response: np.ndarray | None,
-                   response_record: dict[str, Any] | None, align: bool, ghost_k: float, deghost: bool, wb: Any
-                   ) -> tuple[MergeResult, dict[str, Any]]:
+def _merge_bracket(
+    sources: Sequence[str | Path],
+    exposures: Sequence[float],
+    *,
+    response: np.ndarray | None,
+    response_record: dict[str, Any] | None,
+    align: bool,
+    ghost_k: float,
+    deghost: bool,
+    wb: Any,
+) -> tuple[MergeResult, dict[str, Any]]:
     paths = [Path(p) for p in sources]
     warnings: list[str] = []
     decoded = []
@@ -88,21 +126,27 @@ def _merge_bracket(sources: Sequence[str | Path], exposures: Sequence[float], *,
     shapes = [(c if c is not None else np.asarray(r.linear)).shape[:2] for c, r in decoded]
     for p, shp in zip(paths[1:], shapes[1:]):  # before registration: it needs frames of one size
         if shp != shapes[0]:
-            raise InputError(f"frame {p.name} is {shp[1]}x{shp[0]}, expected {shapes[0][1]}x{shapes[0][0]} "
-                             f"like {paths[0].name}")
+            raise InputError(
+                f"frame {p.name} is {shp[1]}x{shp[0]}, expected {shapes[0][1]}x{shapes[0][0]} like {paths[0].name}"
+            )
 
     def frames_with(curve: np.ndarray | None) -> list[Frame]:
         if ldr:
-            return [frame_from_ldr(cast(np.ndarray, c), t, curve, name=p.name)
-                    for (c, _), t, p in zip(decoded, exposures, paths)]
+            return [
+                frame_from_ldr(cast(np.ndarray, c), t, curve, name=p.name)
+                for (c, _), t, p in zip(decoded, exposures, paths)
+            ]
         return [frame_from_raw(r, t, name=p.name) for (_, r), t, p in zip(decoded, exposures, paths)]
 
     registration = None
     if align and len(paths) >= 2:
         provisional = frames_with(response)  # sRGB (or the given curve) is enough to find shifts
-        reg = register_frames([f.codes if ldr else np.clip(f.linear * 255, 0, 255).astype(np.uint8) for f in provisional],
-                              [f.linear for f in provisional], list(exposures),
-                              [cast(np.ndarray, f.valid().all(axis=-1)) for f in provisional])
+        reg = register_frames(
+            [f.codes if ldr else np.clip(f.linear * 255, 0, 255).astype(np.uint8) for f in provisional],
+            [f.linear for f in provisional],
+            list(exposures),
+            [cast(np.ndarray, f.valid().all(axis=-1)) for f in provisional],
+        )
         warnings += reg.warnings
         registration = reg.to_json()
         for i, (dx, dy) in enumerate(reg.shifts):
@@ -112,12 +156,18 @@ def _merge_bracket(sources: Sequence[str | Path], exposures: Sequence[float], *,
                     decoded[i] = (shift_image(cast(np.ndarray, c), dx, dy), None)
                 else:
                     assert r is not None  # a raw frame
-                    decoded[i] = (None, dataclasses.replace(  # RawImage is frozen
-                        r, linear=shift_image(np.asarray(r.linear, np.float32), dx, dy),
-                        saturated=shift_image(np.asarray(r.saturated, np.uint8), dx, dy).astype(bool)))
+                    decoded[i] = (
+                        None,
+                        dataclasses.replace(  # RawImage is frozen
+                            r,
+                            linear=shift_image(np.asarray(r.linear, np.float32), dx, dy),
+                            saturated=shift_image(np.asarray(r.saturated, np.uint8), dx, dy).astype(bool),
+                        ),
+                    )
     if ldr and all(cast(np.ndarray, c).dtype == np.uint8 for c, _ in decoded):
-        curve, record, w = response_for_bracket([cast(np.ndarray, c) for c, _ in decoded], list(exposures), response,
-                                                response_record)
+        curve, record, w = response_for_bracket(
+            [cast(np.ndarray, c) for c, _ in decoded], list(exposures), response, response_record
+        )
         warnings += w
     elif ldr:  # 16-bit frames: the given curve, else sRGB (looked up at fractional codes)
         curve, record, w = response_for_bracket(None, list(exposures), response, response_record)
@@ -129,8 +179,14 @@ def _merge_bracket(sources: Sequence[str | Path], exposures: Sequence[float], *,
         "response": record,
         "registration": registration,
         "warnings": warnings,
-        "parameters": {"ghost_k": ghost_k, "deghost": deghost, "wb": str(wb), "align": align,
-                       "saturation": DEFAULT_SATURATION, "black": DEFAULT_BLACK},
+        "parameters": {
+            "ghost_k": ghost_k,
+            "deghost": deghost,
+            "wb": str(wb),
+            "align": align,
+            "saturation": DEFAULT_SATURATION,
+            "black": DEFAULT_BLACK,
+        },
         "stats": result.stats(),
     }
     return result, provenance
@@ -199,17 +255,29 @@ def merge_files(
         raise InputError(f"{out}: the output must be an .exr file")
     if response is not None and response_path is not None:
         raise InputError("give a response array or a response file, not both")
-    given = load_response(response_path) if response_path is not None else (
-        validate_response(response) if response is not None else None)
+    given = (
+        load_response(response_path)
+        if response_path is not None
+        else (validate_response(response) if response is not None else None)
+    )
     given_record: dict[str, Any] | None = (
-        {"kind": "file", "path": str(response_path), "sha256": sha256_file(response_path)} if response_path is not None
-        else {"kind": "array"} if response is not None else None)
+        {"kind": "file", "path": str(response_path), "sha256": sha256_file(response_path)}
+        if response_path is not None
+        else {"kind": "array"}
+        if response is not None
+        else None
+    )
     infos = _bracket_infos(files, times)
     if group and times is None:
         shots = [
             ShotInfo(
-                key=str(i), time=m.datetime_original, sequence=m.sequence if m.sequence is not None else sequence_from_name(p.name),
-                exposure=t, camera=" ".join(x for x in (m.make, m.model, m.serial) if x), size=(m.width, m.height), name=p.name,
+                key=str(i),
+                time=m.datetime_original,
+                sequence=m.sequence if m.sequence is not None else sequence_from_name(p.name),
+                exposure=t,
+                camera=" ".join(x for x in (m.make, m.model, m.serial) if x),
+                size=(m.width, m.height),
+                name=p.name,
                 gain=gain_from(m.iso, m.f_number),
             )
             for i, (p, m, t) in enumerate(infos)
@@ -217,21 +285,43 @@ def merge_files(
         brackets = [[infos[int(s.key)] for s in g] for g in group_brackets(shots, max_gap_s=max_gap_s)]
     else:
         brackets = [infos]
-    outputs = [out] if len(brackets) == 1 else [out.with_name(f"{out.stem}-{i + 1}{out.suffix}") for i in range(len(brackets))]
+    outputs = (
+        [out]
+        if len(brackets) == 1
+        else [out.with_name(f"{out.stem}-{i + 1}{out.suffix}") for i in range(len(brackets))]
+    )
     summaries: list[dict[str, Any]] = []
     for bracket, target in zip(brackets, outputs):
         if len(bracket) < 2:
-            raise InputError(f"{bracket[0][0].name} forms a bracket of one frame (by time/sequence/exposure); "
-                             "pass the frames of one bracket, or --no-group to merge them as one")
+            raise InputError(
+                f"{bracket[0][0].name} forms a bracket of one frame (by time/sequence/exposure); "
+                "pass the frames of one bracket, or --no-group to merge them as one"
+            )
         ref_meta = bracket[0][1]
         effs, inputs = [], []
         for p, m, t in bracket:
             eff = t if times is not None else effective_exposure(t, m.iso, m.f_number, ref_meta.iso, ref_meta.f_number)
             effs.append(eff)
-            inputs.append({"path": str(p), "sha256": sha256_file(p), "exposure_time": t, "effective_exposure": eff,
-                           "iso": m.iso, "f_number": m.f_number})
-        result, prov = merge_bracket([p for p, _, _ in bracket], effs, response=given, response_record=given_record,
-                                     align=align, ghost_k=ghost_k, deghost=deghost, wb=wb)
+            inputs.append(
+                {
+                    "path": str(p),
+                    "sha256": sha256_file(p),
+                    "exposure_time": t,
+                    "effective_exposure": eff,
+                    "iso": m.iso,
+                    "f_number": m.f_number,
+                }
+            )
+        result, prov = merge_bracket(
+            [p for p, _, _ in bracket],
+            effs,
+            response=given,
+            response_record=given_record,
+            align=align,
+            ghost_k=ghost_k,
+            deghost=deghost,
+            wb=wb,
+        )
         if progress is not None:
             for _ in bracket:
                 progress()
@@ -247,7 +337,15 @@ def merge_files(
             gm = Path(ghost_mask_path)
             mask_file = gm if len(brackets) == 1 else gm.with_name(f"{gm.stem}-{len(summaries) + 1}{gm.suffix}")
             write_ldr(mask_file, (result.ghost.astype(np.uint8) * 255)[..., None].repeat(3, axis=2))
-        summaries.append({"output": str(target), "frames": [str(p) for p, _, _ in bracket],
-                          "ghost_mask": str(mask_file) if mask_file else None, "response": prov["response"],
-                          "registration": prov["registration"], "warnings": prov["warnings"], **stats})
+        summaries.append(
+            {
+                "output": str(target),
+                "frames": [str(p) for p, _, _ in bracket],
+                "ghost_mask": str(mask_file) if mask_file else None,
+                "response": prov["response"],
+                "registration": prov["registration"],
+                "warnings": prov["warnings"],
+                **stats,
+            }
+        )
     return summaries

@@ -50,22 +50,39 @@ from typing import Any
 
 from pydantic import BaseModel, Field
 
-from solidkit.capture.card import IMAGE_SUFFIXES, CardScan, folder_layout, ingest_file, ingest_notes, scan_card
-from solidkit.capture.grouping import group_shots
-from solidkit.capture.manifest import (MANIFEST_NAME, SCHEMA_VERSION, Bracket, FieldNotesRecord, FileError,
-                                       GroupingParams, Manifest, Probe, Product, Scene, Shot, SkippedFile, SourceRef,
-                                       load_manifest, save_manifest)
-from solidkit.capture.products import make_product, planned_products, record_profile, tilt_warning, to_panorama
-from solidkit.errors import InputError
-from solidkit.fsutil import sha256_file
 from solidkit import __version__
 from solidkit.camera.lens import load_profile
+from solidkit.capture.card import IMAGE_SUFFIXES, CardScan, folder_layout, ingest_file, ingest_notes, scan_card
 from solidkit.capture.frame_merge import load_response
+from solidkit.capture.grouping import group_shots
+from solidkit.capture.manifest import (
+    MANIFEST_NAME,
+    FieldNotesRecord,
+    FileError,
+    GroupingParams,
+    Manifest,
+    Product,
+    Shot,
+    SkippedFile,
+    load_manifest,
+    save_manifest,
+)
+from solidkit.capture.products import make_product, planned_products, record_profile, tilt_warning
 from solidkit.capture.unwarp import load_vignetting
 from solidkit.envmap.coords import CONVENTIONS_VERSION
+from solidkit.errors import InputError
+from solidkit.fsutil import sha256_file
 
-__all__ = ["IMAGE_SUFFIXES", "IngestReport", "CardScan", "ingest", "scan_card", "folder_layout", "group_shots",
-           "summary_rows"]
+__all__ = [
+    "IMAGE_SUFFIXES",
+    "IngestReport",
+    "CardScan",
+    "ingest",
+    "scan_card",
+    "folder_layout",
+    "group_shots",
+    "summary_rows",
+]
 """The manifest's types and loaders live in :mod:`solidkit.capture.manifest`, the products in
 :mod:`solidkit.capture.products` (all of them also in the :mod:`solidkit.capture` façade)."""
 
@@ -80,7 +97,8 @@ class IngestReport(BaseModel):
     new_sources: int = 0
     errors: list[FileError] = Field(default_factory=list)
     transient_errors: list[FileError] = Field(
-        default_factory=list, description="environmental errors (disk full, permissions, I/O): retried next run")
+        default_factory=list, description="environmental errors (disk full, permissions, I/O): retried next run"
+    )
     known_errors: int = 0
     unrelated: list[str] = Field(default_factory=list)
     skip_reasons: dict[str, str] = Field(default_factory=dict, description="why each unrelated entry was skipped")
@@ -94,9 +112,17 @@ class IngestReport(BaseModel):
 
     @property
     def nothing_done(self) -> bool:
-        return not (self.copied or self.new_sources or self.errors or self.transient_errors or self.notes_errors
-                    or self.products_built
-                    or self.products_removed or self.regrouped or self.already_present)
+        return not (
+            self.copied
+            or self.new_sources
+            or self.errors
+            or self.transient_errors
+            or self.notes_errors
+            or self.products_built
+            or self.products_removed
+            or self.regrouped
+            or self.already_present
+        )
 
 
 @contextlib.contextmanager
@@ -163,11 +189,14 @@ def _pool(jobs: int):
         return None
     import multiprocessing as mp
 
-    return ProcessPoolExecutor(max_workers=jobs, mp_context=mp.get_context("spawn"),
-                               initializer=_die_with_parent, initargs=(os.getpid(),))
+    return ProcessPoolExecutor(
+        max_workers=jobs, mp_context=mp.get_context("spawn"), initializer=_die_with_parent, initargs=(os.getpid(),)
+    )
 
 
-def _run_tasks(fn: Callable, tasks: list[tuple], pool: ProcessPoolExecutor | None, on_result: Callable[[tuple, dict], None]) -> None:
+def _run_tasks(
+    fn: Callable, tasks: list[tuple], pool: ProcessPoolExecutor | None, on_result: Callable[[tuple, dict], None]
+) -> None:
     """Run ``fn(*task)`` for every task, inline (no pool) or in the process pool."""
     if pool is None:
         for t in tasks:
@@ -214,7 +243,9 @@ def ingest(
     # validate everything before the campaign directory is created or touched
     for key, value in (grouping.model_dump() if isinstance(grouping, GroupingParams) else grouping or {}).items():
         if not (math.isfinite(value) and value > 0):
-            raise InputError(f"--{key.removesuffix('_s').replace('_', '-')} must be a positive number of seconds, got {value}")
+            raise InputError(
+                f"--{key.removesuffix('_s').replace('_', '-')} must be a positive number of seconds, got {value}"
+            )
     if response_path is not None:
         load_response(Path(response_path))
     if lens_profile is not None:
@@ -266,8 +297,9 @@ def ingest(
             if (cstr, p.as_posix(), why) not in known_skips:
                 manifest.skipped = [r for r in manifest.skipped if (r.card, r.path) != (cstr, p.as_posix())]
                 st = (card / p).lstat()
-                manifest.skipped.append(SkippedFile(card=cstr, path=p.as_posix(), size=st.st_size,
-                                                    mtime_ns=st.st_mtime_ns, reason=why))
+                manifest.skipped.append(
+                    SkippedFile(card=cstr, path=p.as_posix(), size=st.st_size, mtime_ns=st.st_mtime_ns, reason=why)
+                )
         manifest.skipped.sort(key=lambda r: (r.card, r.path))
 
         by_source = {(r.card, r.path, r.size, r.mtime_ns): s for s in manifest.shots for r in s.sources}
@@ -326,9 +358,12 @@ def ingest(
         manifest.shots[:] = [s for s in manifest.shots if s.sources]
         manifest.errors.sort(key=lambda e: (e.card, e.path))
         # field notes: re-read every run (cheap; an edited or fixed file takes effect at once)
-        notes = [FieldNotesRecord.model_validate(ingest_notes(cstr, rel.as_posix(), str(campaign))) for rel in scan.notes]
-        manifest.fieldnotes = sorted([r for r in manifest.fieldnotes if r.card != cstr] + notes,
-                                     key=lambda r: (r.card, r.path))
+        notes = [
+            FieldNotesRecord.model_validate(ingest_notes(cstr, rel.as_posix(), str(campaign))) for rel in scan.notes
+        ]
+        manifest.fieldnotes = sorted(
+            [r for r in manifest.fieldnotes if r.card != cstr] + notes, key=lambda r: (r.card, r.path)
+        )
         report.notes_read = len(notes)
         report.notes_errors = [r.error for r in notes if r.error]
         for s in manifest.shots:
@@ -336,7 +371,8 @@ def ingest(
         old_groups = json.dumps([s.model_dump(mode="json") for s in manifest.scenes], sort_keys=True)
         group_shots(manifest)
         report.regrouped = old_groups != json.dumps(
-            [s.model_dump(mode="json") for s in manifest.scenes], sort_keys=True)
+            [s.model_dump(mode="json") for s in manifest.scenes], sort_keys=True
+        )
         if manifest.model_dump_json() != before:
             save_manifest(campaign, manifest)
 
@@ -348,16 +384,27 @@ def ingest(
     return report
 
 
-def _build_products(manifest: Manifest, campaign: Path, pool: ProcessPoolExecutor | None, report: IngestReport, progress: Any) -> None:
+def _build_products(
+    manifest: Manifest, campaign: Path, pool: ProcessPoolExecutor | None, report: IngestReport, progress: Any
+) -> None:
     wanted = planned_products(manifest)
     existing = {p.id: p for p in manifest.products}
     keep: list[Product] = []
     tasks: list[tuple] = []
     for p in wanted:
         old = existing.get(p.id)
-        if old is not None and old.recipe_hash == p.recipe_hash and (
-            (old.error is not None and not old.error_transient) or (old.path and (campaign / old.path).is_file()
-                                      and (old.path.startswith("originals/") or sha256_file(campaign / old.path) == old.sha256))):
+        if (
+            old is not None
+            and old.recipe_hash == p.recipe_hash
+            and (
+                (old.error is not None and not old.error_transient)
+                or (
+                    old.path
+                    and (campaign / old.path).is_file()
+                    and (old.path.startswith("originals/") or sha256_file(campaign / old.path) == old.sha256)
+                )
+            )
+        ):
             keep.append(old)
             report.products_up_to_date += 1
             if old.error:
@@ -405,27 +452,60 @@ def summary_rows(manifest: Manifest) -> list[tuple[str, str]]:
     no_sun = [f"{sc.id}/{p.id}" for sc, p in positions if p.sun_frame is None]
 
     def listed(ids: list[str]) -> str:
-        return "all have one" if not ids else f"{len(ids)} lack one: {', '.join(ids[:6])}{' ...' if len(ids) > 6 else ''}"
+        return (
+            "all have one" if not ids else f"{len(ids)} lack one: {', '.join(ids[:6])}{' ...' if len(ids) > 6 else ''}"
+        )
 
     return [
         ("shots", f"{len(manifest.shots)} ({', '.join(f'{v} {k}' for k, v in sorted(kinds.items()))})"),
         ("scenes / probes / brackets", f"{len(manifest.scenes)} / {n_probes} / {n_brackets}"),
-        ("camera position marked", f"{sum(1 for sc in manifest.scenes if sc.camera_probe)} of {len(manifest.scenes)} scenes"),
-        ("field notes", f"{sum(1 for sc in manifest.scenes if sc.fieldnotes)} of {len(manifest.scenes)} scenes"
-                        f" ({sum(1 for r in manifest.fieldnotes if r.error)} file(s) refused)"),
+        (
+            "camera position marked",
+            f"{sum(1 for sc in manifest.scenes if sc.camera_probe)} of {len(manifest.scenes)} scenes",
+        ),
+        (
+            "field notes",
+            f"{sum(1 for sc in manifest.scenes if sc.fieldnotes)} of {len(manifest.scenes)} scenes"
+            f" ({sum(1 for r in manifest.fieldnotes if r.error)} file(s) refused)",
+        ),
         ("positions with an HDR product", listed(no_hdr)),
         ("positions with a sun frame", listed(no_sun)),
-        ("positions off level (residual tilt)", (lambda ids: "none above 0.5°" if not ids else
-                                                 f"{len(ids)} above 0.5°: {', '.join(ids[:6])}")(
-            [f"{p.scene}/{p.probe}" for p in manifest.products if tilt_warning(p)])),
-        ("HDR response curves", (lambda kinds: ", ".join(f"{kinds.count(k)} {label}" for k, label in (
-            ("estimated", "estimated from their bracket"), ("file", "given"), ("srgb_assumed", "sRGB ASSUMED"),
-            ("linear_raw", "raw (linear)")) if kinds.count(k)) or "-")(
-            [p.stats.get("response") for p in manifest.products if p.kind == "hdr"])),
+        (
+            "positions off level (residual tilt)",
+            (lambda ids: "none above 0.5°" if not ids else f"{len(ids)} above 0.5°: {', '.join(ids[:6])}")(
+                [f"{p.scene}/{p.probe}" for p in manifest.products if tilt_warning(p)]
+            ),
+        ),
+        (
+            "HDR response curves",
+            (
+                lambda kinds: (
+                    ", ".join(
+                        f"{kinds.count(k)} {label}"
+                        for k, label in (
+                            ("estimated", "estimated from their bracket"),
+                            ("file", "given"),
+                            ("srgb_assumed", "sRGB ASSUMED"),
+                            ("linear_raw", "raw (linear)"),
+                        )
+                        if kinds.count(k)
+                    )
+                    or "-"
+                )
+            )([p.stats.get("response") for p in manifest.products if p.kind == "hdr"]),
+        ),
         ("products", f"{len(manifest.products)} ({sum(1 for p in manifest.products if p.error)} with errors)"),
-        ("profiles", "; ".join(f"{name} {_describe(rec, default)}" for name, rec, default in (
-            ("response", manifest.response, "estimated per bracket (3+ frames), else sRGB assumed"), ("lens", manifest.lens_profile, "model default"),
-            ("vignetting", manifest.vignetting, "none")))),
+        (
+            "profiles",
+            "; ".join(
+                f"{name} {_describe(rec, default)}"
+                for name, rec, default in (
+                    ("response", manifest.response, "estimated per bracket (3+ frames), else sRGB assumed"),
+                    ("lens", manifest.lens_profile, "model default"),
+                    ("vignetting", manifest.vignetting, "none"),
+                )
+            ),
+        ),
     ]
 
 

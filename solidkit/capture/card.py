@@ -19,12 +19,11 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from solidkit.capture.fieldnotes import is_notes_file
+from solidkit.camera.metadata import read_metadata
+from solidkit.capture.fieldnotes import is_notes_file, read_notes
+from solidkit.capture.frame_merge import sniff_format
 from solidkit.errors import InputError, SolidkitError
 from solidkit.fsutil import atomic_path, is_environmental, sha256_file
-from solidkit.camera.metadata import read_metadata
-from solidkit.capture.fieldnotes import read_notes
-from solidkit.capture.frame_merge import sniff_format
 
 __all__ = ["IMAGE_SUFFIXES", "CardScan", "scan_card", "folder_layout", "ingest_file", "copy_original"]
 
@@ -46,8 +45,12 @@ class CardScan:
         return sorted(self.skipped)
 
 
-_KINDS = ((stat.S_ISFIFO, "named pipe"), (stat.S_ISSOCK, "socket"), (stat.S_ISCHR, "character device"),
-          (stat.S_ISBLK, "block device"))
+_KINDS = (
+    (stat.S_ISFIFO, "named pipe"),
+    (stat.S_ISSOCK, "socket"),
+    (stat.S_ISCHR, "character device"),
+    (stat.S_ISBLK, "block device"),
+)
 
 
 def _skip_reason(path: Path, name: str, depth: int) -> str | None:
@@ -168,8 +171,15 @@ def ingest_file(card: str, rel: str, campaign: str, throttle_s: float = 0.0) -> 
     try:
         st = src.stat()
     except OSError as exc:  # vanished or unreadable since the scan: try again next run
-        return {"transient": {"card": card, "path": rel, "size": 0, "mtime_ns": 0,
-                              "message": f"I/O error: {exc.strerror or exc}"}}
+        return {
+            "transient": {
+                "card": card,
+                "path": rel,
+                "size": 0,
+                "mtime_ns": 0,
+                "message": f"I/O error: {exc.strerror or exc}",
+            }
+        }
     ref = {"card": card, "path": rel, "size": st.st_size, "mtime_ns": st.st_mtime_ns}
     try:
         if throttle_s:
@@ -193,8 +203,12 @@ def ingest_file(card: str, rel: str, campaign: str, throttle_s: float = 0.0) -> 
         md["path"] = original.as_posix()
         return {
             "shot": {
-                "sha256": sha, "original": original.as_posix(), "size": st.st_size, "file_format": md.get("file_format", "jpeg"),
-                "sources": [ref], "metadata": md,
+                "sha256": sha,
+                "original": original.as_posix(),
+                "size": st.st_size,
+                "file_format": md.get("file_format", "jpeg"),
+                "sources": [ref],
+                "metadata": md,
             },
             "copied": copied,
         }
@@ -205,7 +219,6 @@ def ingest_file(card: str, rel: str, campaign: str, throttle_s: float = 0.0) -> 
         # run (not remembered); any other OS error belongs to the file and is remembered
         key = "transient" if is_environmental(exc) else "error"
         return {key: {**ref, "message": f"I/O error: {exc.strerror or exc}"}}
-
 
 
 def ingest_notes(card: str, rel: str, campaign: str) -> dict[str, Any]:

@@ -39,16 +39,25 @@ from __future__ import annotations
 
 import json
 import math
-import tomllib
 from pathlib import Path
 from typing import Literal
 
+import tomllib
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
 
 from solidkit.errors import InputError, validation_message
 
-__all__ = ["NOTES_NAMES", "CAMERA_FOLDERS", "PhotoPose", "ProbeNote", "FieldNotes", "CardNotes", "is_notes_file",
-           "read_notes", "notes_text"]
+__all__ = [
+    "NOTES_NAMES",
+    "CAMERA_FOLDERS",
+    "PhotoPose",
+    "ProbeNote",
+    "FieldNotes",
+    "CardNotes",
+    "is_notes_file",
+    "read_notes",
+    "notes_text",
+]
 
 NOTES_NAMES = ("fieldnotes.toml", "fieldnotes.json")
 CAMERA_FOLDERS = ("cam", "camera")
@@ -106,6 +115,7 @@ def is_notes_file(name: str) -> bool:
 
 def notes_text(notes: FieldNotes) -> str:
     """``notes`` as TOML (what the synthetic campaign writes; readable back by :func:`read_notes`)."""
+
     def val(v: object) -> str:
         if isinstance(v, str):
             return json.dumps(v, ensure_ascii=False)  # a JSON string is a valid TOML basic string
@@ -118,11 +128,13 @@ def notes_text(notes: FieldNotes) -> str:
         if getattr(notes, key) is not None:
             lines.append(f"{key} = {val(getattr(notes, key))}")
     if notes.photo_pose is not None:
-        lines += ["", "[photo_pose]"] + [f"{k} = {val(v)}" for k, v in notes.photo_pose.model_dump().items()
-                                         if v is not None]
+        lines += ["", "[photo_pose]"] + [
+            f"{k} = {val(v)}" for k, v in notes.photo_pose.model_dump().items() if v is not None
+        ]
     for pid, pn in notes.probes.items():
-        lines += ["", f"[probes.{json.dumps(pid)}]"] + [f"{k} = {val(v)}" for k, v in pn.model_dump().items()
-                                                        if v is not None]
+        lines += ["", f"[probes.{json.dumps(pid)}]"] + [
+            f"{k} = {val(v)}" for k, v in pn.model_dump().items() if v is not None
+        ]
     return "\n".join(lines) + "\n"
 
 

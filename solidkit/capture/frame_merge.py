@@ -33,9 +33,10 @@ from __future__ import annotations
 
 import json
 import os
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Any
 
 import cv2
 import numpy as np
@@ -375,8 +376,11 @@ def read_ldr_codes(path: str | os.PathLike) -> np.ndarray:
 
 
 def effective_exposure(
-    exposure_time: float, iso: float | None = None, f_number: float | None = None,
-    ref_iso: float | None = None, ref_f_number: float | None = None,
+    exposure_time: float,
+    iso: float | None = None,
+    f_number: float | None = None,
+    ref_iso: float | None = None,
+    ref_f_number: float | None = None,
 ) -> float:
     """Exposure relative to a reference ISO and f-number: ``t · (ISO/ISO_ref) · (N_ref/N)²``.
 
@@ -401,7 +405,9 @@ def sniff_frame(path: str | os.PathLike) -> tuple[Path, str]:
     return path, sniff_format(path)
 
 
-def load_frame(path: str | os.PathLike, exposure: float, response: np.ndarray | None = None, *, wb: Any = "camera") -> Frame:
+def load_frame(
+    path: str | os.PathLike, exposure: float, response: np.ndarray | None = None, *, wb: Any = "camera"
+) -> Frame:
     """Read one bracket frame from disk (JPEG/PNG/TIFF via the response, DNG/raw linearly)."""
     path, kind = sniff_frame(path)
     suffix = path.suffix.lower()
@@ -467,8 +473,10 @@ def _check_frames(frames: Sequence[Frame]) -> None:
     shape = frames[0].linear.shape
     for f in frames[1:]:
         if f.linear.shape != shape:
-            raise InputError(f"frame {f.name or '?'} is {f.linear.shape[1]}x{f.linear.shape[0]}, "
-                             f"expected {shape[1]}x{shape[0]} like {frames[0].name or 'the first frame'}")
+            raise InputError(
+                f"frame {f.name or '?'} is {f.linear.shape[1]}x{f.linear.shape[0]}, "
+                f"expected {shape[1]}x{shape[0]} like {frames[0].name or 'the first frame'}"
+            )
     order = sorted(range(len(frames)), key=lambda i: frames[i].exposure)
     for a, b in zip(order, order[1:]):
         ea, eb = frames[a].exposure, frames[b].exposure
@@ -539,7 +547,12 @@ def merge_frames(
         fill_long = empty & ~sat[..., None]
         out[fill_short] = sub[i_short].linear[fill_short] / np.float32(frames[i_short].exposure)
         out[fill_long] = sub[i_long].linear[fill_long] / np.float32(frames[i_long].exposure)
-        hdr[sl], weight_sum[sl], sat_all[sl], underexposed[sl] = out, den[..., 0] + den[..., 1] + den[..., 2], sat, _any3(fill_long)
+        hdr[sl], weight_sum[sl], sat_all[sl], underexposed[sl] = (
+            out,
+            den[..., 0] + den[..., 1] + den[..., 2],
+            sat,
+            _any3(fill_long),
+        )
     # reference frame: the one with most well-exposed samples
     ref = int(np.argmax(scores))
     ghost, sigmas = detect_ghosts(frames, hdr, k=ghost_k)
@@ -562,8 +575,14 @@ def merge_frames(
     )
 
 
-def detect_ghosts(frames: Sequence[Frame], hdr: np.ndarray, *, k: float = 6.0, min_sigma: float = 1.0 / 255.0,
-                  max_samples: int = 2_000_000) -> tuple[np.ndarray, list[float]]:
+def detect_ghosts(
+    frames: Sequence[Frame],
+    hdr: np.ndarray,
+    *,
+    k: float = 6.0,
+    min_sigma: float = 1.0 / 255.0,
+    max_samples: int = 2_000_000,
+) -> tuple[np.ndarray, list[float]]:
     """Ghost mask: pixels where some frame disagrees with the merged radiance beyond noise.
 
     For each frame the residual (:meth:`Frame.residual`: ``observed − f(E · t)`` in code units for

@@ -43,11 +43,10 @@ from datetime import datetime, timedelta
 from pathlib import Path
 from typing import Any, cast
 
-from solidkit.capture.bracket_groups import format_exposure
+from solidkit.capture.bracket_groups import ShotInfo, format_exposure, gain_from, group_brackets, sequence_from_name
 from solidkit.capture.card import folder_layout
 from solidkit.capture.fieldnotes import CAMERA_FOLDERS, CardNotes, FieldNotes
 from solidkit.capture.manifest import Bracket, GroupingParams, Manifest, Probe, Scene, Shot
-from solidkit.capture.bracket_groups import ShotInfo, gain_from, group_brackets, sequence_from_name
 
 __all__ = ["group_shots", "apply_notes", "shot_time"]
 
@@ -141,7 +140,12 @@ def group_shots(manifest: Manifest) -> None:
                 s.probe = s.layout_probe
             else:
                 t = shot_time(s)
-                if auto_probe is None or t is None or prev_end is None or (t - prev_end).total_seconds() > g.probe_gap_s:
+                if (
+                    auto_probe is None
+                    or t is None
+                    or prev_end is None
+                    or (t - prev_end).total_seconds() > g.probe_gap_s
+                ):
                     if not (t is None and auto_probe is not None):
                         pid_auto += 1
                         auto_probe = f"p{pid_auto:02d}"
@@ -159,9 +163,18 @@ def group_shots(manifest: Manifest) -> None:
             cam = " ".join(str(md.get(k) or "") for k in ("make", "model", "serial")).strip()
             name = min(src.path for src in s.sources)
             seq = md.get("sequence") if md.get("sequence") is not None else sequence_from_name(name)
-            infos.append(ShotInfo(key=str(i), time=shot_time(s), sequence=seq, exposure=_exposure(s), camera=cam,
-                                  size=(md.get("width"), md.get("height")), name=name,
-                                  gain=gain_from(md.get("iso"), md.get("f_number"))))
+            infos.append(
+                ShotInfo(
+                    key=str(i),
+                    time=shot_time(s),
+                    sequence=seq,
+                    exposure=_exposure(s),
+                    camera=cam,
+                    size=(md.get("width"), md.get("height")),
+                    name=name,
+                    gain=gain_from(md.get("iso"), md.get("f_number")),
+                )
+            )
         groups = group_brackets(infos, max_gap_s=g.bracket_gap_s)
         nb = 0
         prev_group: list[Shot] | None = None
@@ -181,12 +194,15 @@ def group_shots(manifest: Manifest) -> None:
                 exposure = _exposure(s)
                 s.kind = "low_exposure" if exposure is not None and exposure <= g.low_exposure_max_s else "probe"
         candidates = [s for s in members if s.kind == "low_exposure"] or [
-            s for s in members if s.kind == "bracket_member" and (_exposure(s) or 1e9) <= g.low_exposure_max_s]
+            s for s in members if s.kind == "bracket_member" and (_exposure(s) or 1e9) <= g.low_exposure_max_s
+        ]
         if candidates:
             probe.sun_frame = min(candidates, key=lambda s: (_exposure(s) or 0.0, _order(s))).sha256
         _availability_warnings(probe, members, g)
         scenes[sid].probes.append(probe)
-    manifest.scenes = [scenes[k] for k in sorted(scenes, key=lambda k: (scenes[k].start is None, scenes[k].start or datetime.min, k))]
+    manifest.scenes = [
+        scenes[k] for k in sorted(scenes, key=lambda k: (scenes[k].start is None, scenes[k].start or datetime.min, k))
+    ]
     manifest.shots = shots
     for sc in manifest.scenes:
         apply_notes(sc, manifest)
@@ -206,8 +222,8 @@ def _repeat_warning(prev: list[Shot], cur: list[Shot], gap_s: float, probe: Prob
         name = min(src.path for src in cur[0].sources)
         probe.warnings.append(
             f"duplicate_exposure: {name} repeats exposure {format_exposure(_exposure(cur[0]))} "
-            f"{(b - a).total_seconds():.0f} s after the previous shot: started a new bracket")
-
+            f"{(b - a).total_seconds():.0f} s after the previous shot: started a new bracket"
+        )
 
 
 def _availability_warnings(probe: Probe, members: list[Shot], g: GroupingParams) -> None:
@@ -221,19 +237,26 @@ def _availability_warnings(probe: Probe, members: list[Shot], g: GroupingParams)
             why = f"{len(members)} shots, some without an exposure time in their metadata"
         else:
             times = [shot_time(s) for s in members]
-            gaps = [(tb - cast(datetime, _end(a))).total_seconds() for a, ta, tb in zip(members, times, times[1:])
-                    if ta is not None and tb is not None]
+            gaps = [
+                (tb - cast(datetime, _end(a))).total_seconds()
+                for a, ta, tb in zip(members, times, times[1:])
+                if ta is not None and tb is not None
+            ]
             gap_text = f"; gaps {', '.join(f'{x:.0f} s' for x in gaps[:8])}" if gaps else ""
-            why = (f"{len(members)} shots ({listed}) but no two distinct exposures within bracket_gap_s "
-                   f"({g.bracket_gap_s:g} s) of each other{gap_text}")
+            why = (
+                f"{len(members)} shots ({listed}) but no two distinct exposures within bracket_gap_s "
+                f"({g.bracket_gap_s:g} s) of each other{gap_text}"
+            )
         probe.warnings.append(f"no_hdr: {why}")
     if probe.sun_frame is None:
         known = [e for e in exposures if e is not None]
         if not known:
             why = "no shot records an exposure time"
         else:
-            why = (f"the shortest exposure, {format_exposure(min(known))}, is longer than low_exposure_max_s "
-                   f"({format_exposure(g.low_exposure_max_s)}); the sun disk needs a low-exposure frame")
+            why = (
+                f"the shortest exposure, {format_exposure(min(known))}, is longer than low_exposure_max_s "
+                f"({format_exposure(g.low_exposure_max_s)}); the sun disk needs a low-exposure frame"
+            )
         probe.warnings.append(f"no_sun_frame: {why}")
 
 
@@ -257,8 +280,9 @@ def _scene_notes(scene: Scene, manifest: Manifest) -> tuple[FieldNotes | None, s
         return None, None
     found.sort(key=lambda f: f[:3])
     if len(found) > 1:
-        scene.warnings.append(f"fieldnotes_several: {len(found)} field notes files cover this scene; "
-                              f"used {found[0][2]} ({found[0][1]})")
+        scene.warnings.append(
+            f"fieldnotes_several: {len(found)} field notes files cover this scene; used {found[0][2]} ({found[0][1]})"
+        )
     return found[0][3], found[0][4]
 
 
@@ -281,30 +305,38 @@ def apply_notes(scene: Scene, manifest: Manifest) -> None:
     scene.photo = photos[0].sha256 if photos else None
     if notes is not None and notes.photo:
         want = notes.photo.lower()
-        match = [s for s in photos if any(Path(r.path).name.lower() == want or r.path.lower() == want for r in s.sources)]
+        match = [
+            s for s in photos if any(Path(r.path).name.lower() == want or r.path.lower() == want for r in s.sources)
+        ]
         if match:
             scene.photo = match[0].sha256
         else:
-            scene.warnings.append(f"fieldnotes_photo_missing: the notes name photo {notes.photo!r}, not found "
-                                  f"among the scene's {len(photos)} photo(s)")
+            scene.warnings.append(
+                f"fieldnotes_photo_missing: the notes name photo {notes.photo!r}, not found "
+                f"among the scene's {len(photos)} photo(s)"
+            )
     elif len(photos) > 1:
-        scene.warnings.append(f"several_photos: {len(photos)} photos and no field notes naming one; "
-                              f"probe pixels and pose refer to {_source_name(photos[0])}")
+        scene.warnings.append(
+            f"several_photos: {len(photos)} photos and no field notes naming one; "
+            f"probe pixels and pose refer to {_source_name(photos[0])}"
+        )
     # the camera position
     scene.camera_probe = None
     if notes is not None and notes.camera_position is not None:
         if notes.camera_position in probes:
             scene.camera_probe = notes.camera_position
         else:
-            scene.warnings.append(f"fieldnotes_unknown_probe: camera_position {notes.camera_position!r} has no "
-                                  "Theta shots on the card")
+            scene.warnings.append(
+                f"fieldnotes_unknown_probe: camera_position {notes.camera_position!r} has no Theta shots on the card"
+            )
     else:
         named = [p.id for p in scene.probes if p.id.lower() in CAMERA_FOLDERS]
         if named:
             scene.camera_probe = named[0]
         else:
-            scene.warnings.append("no_camera_position: neither field notes nor a 'cam' folder mark the Theta "
-                                  "position at the photo camera")
+            scene.warnings.append(
+                "no_camera_position: neither field notes nor a 'cam' folder mark the Theta position at the photo camera"
+            )
     for p in scene.probes:
         p.role = "camera" if p.id == scene.camera_probe else "probe"
         p.photo_pixel = p.note = None
@@ -316,21 +348,26 @@ def apply_notes(scene: Scene, manifest: Manifest) -> None:
     if notes is not None:
         for pid, pn in notes.probes.items():
             if pid not in probes:
-                scene.warnings.append(f"fieldnotes_unknown_probe: notes for {pid!r}, which has no Theta shots on the card")
+                scene.warnings.append(
+                    f"fieldnotes_unknown_probe: notes for {pid!r}, which has no Theta shots on the card"
+                )
                 continue
             pr = probes[pid]
             pr.note = pn.note
             if pn.pixel is not None:
                 pr.photo_pixel = [float(pn.pixel[0]), float(pn.pixel[1])]
                 if size and size[0] and size[1] and not (pn.pixel[0] <= size[0] and pn.pixel[1] <= size[1]):
-                    pr.warnings.append(f"photo_pixel_outside: [{pn.pixel[0]:g}, {pn.pixel[1]:g}] lies outside the "
-                                       f"{size[0]}x{size[1]} photo")
+                    pr.warnings.append(
+                        f"photo_pixel_outside: [{pn.pixel[0]:g}, {pn.pixel[1]:g}] lies outside the "
+                        f"{size[0]}x{size[1]} photo"
+                    )
         for pr in scene.probes:
             if pr.role == "probe" and pr.photo_pixel is None:
                 pr.warnings.append("no_photo_pixel: the field notes give no photo pixel for this position")
     elif any(p.role == "probe" for p in scene.probes):
-        scene.warnings.append("no_fieldnotes: no field notes for this scene: probe photo pixels unknown "
-                              "(mark them in the labeling app)")
+        scene.warnings.append(
+            "no_fieldnotes: no field notes for this scene: probe photo pixels unknown (mark them in the labeling app)"
+        )
     _photo_pose(scene, manifest, notes)
 
 

@@ -27,10 +27,10 @@ from typing import Any, ClassVar, Literal
 
 from pydantic import BaseModel, ConfigDict, Field
 
-from solidkit.document import DocumentError, VersionedDocument, read_json_object
-from solidkit.fsutil import atomic_write_text
 from solidkit import __version__
+from solidkit.document import DocumentError, VersionedDocument, read_json_object
 from solidkit.envmap.coords import CONVENTIONS_VERSION
+from solidkit.fsutil import atomic_write_text
 
 __all__ = [
     "SCHEMA_VERSION",
@@ -115,10 +115,13 @@ class Probe(BaseModel):
     id: str
     shots: list[str]
     role: Literal["camera", "probe"] = Field(
-        "probe", description="'camera': taken at the photo camera's position (field notes or a folder named 'cam')")
+        "probe", description="'camera': taken at the photo camera's position (field notes or a folder named 'cam')"
+    )
     photo_pixel: list[float] | None = Field(
-        None, description="[x, y] full-resolution pixels of the scene's photo where the probe stands, as the field "
-                          "team marked it (field notes; not refined)")
+        None,
+        description="[x, y] full-resolution pixels of the scene's photo where the probe stands, as the field "
+        "team marked it (field notes; not refined)",
+    )
     note: str | None = Field(None, description="the field team's remark on this position")
     brackets: list[Bracket] = Field(default_factory=list)
     sun_frame: str | None = Field(None, description="sha256 of the shot kept as the sun frame")
@@ -134,16 +137,20 @@ class Scene(BaseModel):
     end: datetime | None = None
     photos: list[str] = Field(default_factory=list)
     photo: str | None = Field(
-        None, description="sha256 of the scene's reference photo (named by the field notes, else the first photo): "
-                          "the photo the probe pixels and the photo pose refer to")
+        None,
+        description="sha256 of the scene's reference photo (named by the field notes, else the first photo): "
+        "the photo the probe pixels and the photo pose refer to",
+    )
     camera_probe: str | None = Field(None, description="id of the Theta position at the photo camera's position")
     photo_heading_deg: float | None = Field(
-        None, description="the photo camera's heading, degrees clockwise from north (EXIF GPSImgDirection, else notes)")
+        None, description="the photo camera's heading, degrees clockwise from north (EXIF GPSImgDirection, else notes)"
+    )
     photo_heading_ref: Literal["true", "magnetic"] | None = Field(None, description="north of photo_heading_deg")
     photo_pitch_deg: float | None = Field(None, description="photo camera pitch, degrees (conventions §4), if known")
     photo_roll_deg: float | None = Field(None, description="photo camera roll, degrees (conventions §4), if known")
     photo_pose_source: dict[str, str] = Field(
-        default_factory=dict, description="where each of heading/pitch/roll came from (exif field or 'fieldnotes')")
+        default_factory=dict, description="where each of heading/pitch/roll came from (exif field or 'fieldnotes')"
+    )
     notes: str | None = Field(None, description="the field team's remarks on the scene (field notes)")
     fieldnotes: str | None = Field(None, description="sha256 of the field notes file applied to this scene")
     probes: list[Probe] = Field(default_factory=list)
@@ -169,8 +176,10 @@ class Product(BaseModel):
     solidkit_version: str = ""
     stats: dict[str, Any] = Field(default_factory=dict)
     error: str | None = None
-    error_transient: bool = Field(False, description="the error came from the environment (disk full, I/O): "
-                                                     "the product is built again on the next run")
+    error_transient: bool = Field(
+        False,
+        description="the error came from the environment (disk full, I/O): the product is built again on the next run",
+    )
 
 
 class FileError(BaseModel):
@@ -214,9 +223,11 @@ class Manifest(VersionedDocument):
     response: dict[str, Any] = Field(
         default_factory=lambda: {"kind": "auto"},
         description="{kind: file, path, sha256} (--response), or {kind: auto}: each bracket's curve estimated from "
-                    "its frames (3+), else sRGB assumed (the product's stats say which)")
+        "its frames (3+), else sRGB assumed (the product's stats say which)",
+    )
     lens_profile: dict[str, Any] | None = Field(
-        None, description="per-unit lens profile overriding the model default: {kind: file, path, sha256} or {kind: shipped, name}"
+        None,
+        description="per-unit lens profile overriding the model default: {kind: file, path, sha256} or {kind: shipped, name}",
     )
     vignetting: dict[str, Any] | None = Field(None, description="vignetting profile {kind: file, path, sha256}")
     cards: list[str] = Field(default_factory=list)
@@ -258,10 +269,15 @@ def load_manifest(campaign_dir: str | os.PathLike) -> Manifest:
     if "kind" not in data:
         version = data.get("schema_version")
         if version not in _LEGACY_VERSIONS:
-            raise ManifestError(f"{path}: manifest schema version {version!r}; this solidkit reads format version "
-                                f"{FORMAT_VERSION} and the older schema versions {', '.join(map(str, _LEGACY_VERSIONS))}")
-        data = {"kind": Manifest.KIND, "format_version": FORMAT_VERSION,
-                **{k: v for k, v in data.items() if k != "schema_version"}}
+            raise ManifestError(
+                f"{path}: manifest schema version {version!r}; this solidkit reads format version "
+                f"{FORMAT_VERSION} and the older schema versions {', '.join(map(str, _LEGACY_VERSIONS))}"
+            )
+        data = {
+            "kind": Manifest.KIND,
+            "format_version": FORMAT_VERSION,
+            **{k: v for k, v in data.items() if k != "schema_version"},
+        }
         if isinstance(data.get("response"), dict) and data["response"].get("kind") == "srgb_inverse":
             data["response"] = {"kind": "auto"}  # version 1 silently assumed sRGB; now it is estimated or warned
     return Manifest.from_dict(data, str(path))

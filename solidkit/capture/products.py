@@ -34,20 +34,19 @@ from typing import Any
 
 import numpy as np
 
-from solidkit.camera.metadata import CaptureMetadata
-from solidkit.capture.manifest import Manifest, Product
-from solidkit.envmap.tilt import TILT_FLAG_DEG, TiltEstimate, residual_tilt
-from solidkit.threads import deterministic
-from solidkit.errors import InputError, SolidkitError
-from solidkit.fsutil import atomic_path, is_environmental, sha256_file
 from solidkit import __version__
 from solidkit.camera.lens import load_profile, profile_for_metadata
-from solidkit.camera.metadata import level_rotation
+from solidkit.camera.metadata import CaptureMetadata, level_rotation
 from solidkit.capture.bracket_merge import merge_bracket
 from solidkit.capture.frame_merge import effective_exposure, load_frame, load_response
+from solidkit.capture.manifest import Manifest, Product
 from solidkit.capture.unwarp import check_image_circles, default_out_height, load_vignetting, unwarp
 from solidkit.envmap.io import write_exr, write_ldr
 from solidkit.envmap.resample import rotate
+from solidkit.envmap.tilt import TILT_FLAG_DEG, TiltEstimate, residual_tilt
+from solidkit.errors import InputError, SolidkitError
+from solidkit.fsutil import atomic_path, is_environmental, sha256_file
+from solidkit.threads import deterministic
 
 __all__ = ["planned_products", "to_panorama", "make_product", "record_profile", "tilt_warning", "stored_tilt"]
 
@@ -57,8 +56,10 @@ def tilt_warning(product: Product) -> str | None:
     t = product.stats.get("residual_tilt")
     if not t or not t.get("reliable") or t["tilt_deg"] <= TILT_FLAG_DEG:
         return None
-    return (f"residual_tilt: the levelled panorama is {t['tilt_deg']:.2f}° ± {t['uncertainty_deg']:.2f}° off level "
-            f"(correction pitch {t['pitch_deg']:.2f}°, roll {t['roll_deg']:.2f}°; {t['segments']} vertical edges)")
+    return (
+        f"residual_tilt: the levelled panorama is {t['tilt_deg']:.2f}° ± {t['uncertainty_deg']:.2f}° off level "
+        f"(correction pitch {t['pitch_deg']:.2f}°, roll {t['roll_deg']:.2f}°; {t['segments']} vertical edges)"
+    )
 
 
 def stored_tilt(path: str | os.PathLike, meta: CaptureMetadata) -> TiltEstimate | None:
@@ -86,23 +87,55 @@ def planned_products(manifest: Manifest) -> list[Product]:
             for b in pr.brackets:
                 first = manifest.shot(b.shots[0]).metadata
                 # "tool" is the name manifests record (not a module path to follow): a changed recipe remakes every product
-                recipe = {"tool": "solidkit.capture.bracket_hdr.merge_bracket", "response": manifest.response,
-                          "ghost_k": 6.0, "deghost": False, "wb": "camera", "align": True, "solidkit_version": __version__,
-                          **_unwarp_recipe(manifest, first)}
-                out.append(Product(
-                    id=f"{sc.id}/{pr.id}/hdr-{b.id}", kind="hdr", scene=sc.id, probe=pr.id, inputs=list(b.shots),
-                    layout=first.get("image_type") or "unknown", exposure_time=first.get("exposure_time"),
-                    f_number=first.get("f_number"), iso=first.get("iso"), recipe=recipe,
-                    recipe_hash=_recipe_hash(recipe, list(b.shots)), solidkit_version=__version__))
+                recipe = {
+                    "tool": "solidkit.capture.bracket_hdr.merge_bracket",
+                    "response": manifest.response,
+                    "ghost_k": 6.0,
+                    "deghost": False,
+                    "wb": "camera",
+                    "align": True,
+                    "solidkit_version": __version__,
+                    **_unwarp_recipe(manifest, first),
+                }
+                out.append(
+                    Product(
+                        id=f"{sc.id}/{pr.id}/hdr-{b.id}",
+                        kind="hdr",
+                        scene=sc.id,
+                        probe=pr.id,
+                        inputs=list(b.shots),
+                        layout=first.get("image_type") or "unknown",
+                        exposure_time=first.get("exposure_time"),
+                        f_number=first.get("f_number"),
+                        iso=first.get("iso"),
+                        recipe=recipe,
+                        recipe_hash=_recipe_hash(recipe, list(b.shots)),
+                        solidkit_version=__version__,
+                    )
+                )
             if pr.sun_frame:
                 md = manifest.shot(pr.sun_frame).metadata
-                recipe = {"tool": "solidkit.capture.campaign.sun_frame", "solidkit_version": __version__,
-                          **_unwarp_recipe(manifest, md)}
-                out.append(Product(
-                    id=f"{sc.id}/{pr.id}/sun", kind="sun_frame", scene=sc.id, probe=pr.id, inputs=[pr.sun_frame],
-                    layout=md.get("image_type") or "unknown", exposure_time=md.get("exposure_time"),
-                    f_number=md.get("f_number"), iso=md.get("iso"), recipe=recipe,
-                    recipe_hash=_recipe_hash(recipe, [pr.sun_frame]), solidkit_version=__version__))
+                recipe = {
+                    "tool": "solidkit.capture.campaign.sun_frame",
+                    "solidkit_version": __version__,
+                    **_unwarp_recipe(manifest, md),
+                }
+                out.append(
+                    Product(
+                        id=f"{sc.id}/{pr.id}/sun",
+                        kind="sun_frame",
+                        scene=sc.id,
+                        probe=pr.id,
+                        inputs=[pr.sun_frame],
+                        layout=md.get("image_type") or "unknown",
+                        exposure_time=md.get("exposure_time"),
+                        f_number=md.get("f_number"),
+                        iso=md.get("iso"),
+                        recipe=recipe,
+                        recipe_hash=_recipe_hash(recipe, [pr.sun_frame]),
+                        solidkit_version=__version__,
+                    )
+                )
     return out
 
 
@@ -166,7 +199,9 @@ def _level_rotation(md: dict[str, Any]):
     return np.asarray(level_rotation(meta))
 
 
-def to_panorama(image, md: dict[str, Any], lens_profile: Any = None, vignetting: Any = None) -> tuple[Any, dict[str, Any]]:
+def to_panorama(
+    image, md: dict[str, Any], lens_profile: Any = None, vignetting: Any = None
+) -> tuple[Any, dict[str, Any]]:
     """A linear capture-layout image -> an equirect panorama in the panorama frame (conventions §2).
 
     Equirect: levelled by the metadata's gravity when the camera did not correct it (returned
@@ -193,13 +228,21 @@ def to_panorama(image, md: dict[str, Any], lens_profile: Any = None, vignetting:
         stats: dict[str, Any] = {}
         pano = unwarp(image, prof, default_out_height(w), R, stats=stats, vignetting=vignetting)
         _, circle_warnings = check_image_circles(image, prof)
-        return pano, {"resampled": True, "levelled": not identity, "profile": prof.model, "profile_key": prof.key(),
-                      "vignetting": vignetting is not None, "seam_mad": stats.get("seam_mad"),
-                      "profile_warnings": circle_warnings}
+        return pano, {
+            "resampled": True,
+            "levelled": not identity,
+            "profile": prof.model,
+            "profile_key": prof.key(),
+            "vignetting": vignetting is not None,
+            "seam_mad": stats.get("seam_mad"),
+            "profile_warnings": circle_warnings,
+        }
     raise InputError(f"image type {layout!r} is not a panorama layout (equirect or dual-fisheye)")
 
 
-def make_product(product: dict[str, Any], shots: list[dict[str, Any]], campaign: str, response: dict[str, Any]) -> dict[str, Any]:
+def make_product(
+    product: dict[str, Any], shots: list[dict[str, Any]], campaign: str, response: dict[str, Any]
+) -> dict[str, Any]:
     """Worker: build one product; returns the updated product dict (``error`` set on failure).
 
     Built with the BLAS libraries on one thread (:func:`solidkit.threads.deterministic`): a product's
@@ -209,8 +252,9 @@ def make_product(product: dict[str, Any], shots: list[dict[str, Any]], campaign:
         return _build_product(product, shots, campaign, response)
 
 
-def _build_product(product: dict[str, Any], shots: list[dict[str, Any]], campaign: str, response: dict[str, Any]
-                   ) -> dict[str, Any]:
+def _build_product(
+    product: dict[str, Any], shots: list[dict[str, Any]], campaign: str, response: dict[str, Any]
+) -> dict[str, Any]:
     p = Product.model_validate(product)
     camp = Path(campaign)
     try:
@@ -227,12 +271,24 @@ def _build_product(product: dict[str, Any], shots: list[dict[str, Any]], campaig
                     raise InputError(f"{s['original']}: no exposure time in the metadata")
                 eff = effective_exposure(t, md.get("iso"), md.get("f_number"), ref.get("iso"), ref.get("f_number"))
                 effs.append(eff)
-                inputs.append({"original": s["original"], "sha256": s["sha256"], "exposure_time": t, "effective_exposure": eff})
-            result, prov = merge_bracket([camp / s["original"] for s in shots], effs, response=given,
-                                         response_record=given_record, align=p.recipe.get("align", True),
-                                         ghost_k=p.recipe["ghost_k"], deghost=p.recipe["deghost"])
-            stats = dict(prov["stats"], response=prov["response"]["kind"], registration=prov["registration"],
-                         warnings=prov["warnings"])
+                inputs.append(
+                    {"original": s["original"], "sha256": s["sha256"], "exposure_time": t, "effective_exposure": eff}
+                )
+            result, prov = merge_bracket(
+                [camp / s["original"] for s in shots],
+                effs,
+                response=given,
+                response_record=given_record,
+                align=p.recipe.get("align", True),
+                ghost_k=p.recipe["ghost_k"],
+                deghost=p.recipe["deghost"],
+            )
+            stats = dict(
+                prov["stats"],
+                response=prov["response"]["kind"],
+                registration=prov["registration"],
+                warnings=prov["warnings"],
+            )
             hdr, layout = result.hdr, p.layout
             lens, vig = _load_optics(camp, p.recipe)
             try:
@@ -246,21 +302,38 @@ def _build_product(product: dict[str, Any], shots: list[dict[str, Any]], campaig
             stats.update(pano_info)
             p.layout = layout
             rel = _product_path(p, ".exr")
-            write_exr(camp / rel, hdr, {
-                "exposure_time": ref.get("exposure_time"), "layout": p.layout,
-                "units": "relative radiance: linear code per second at the first frame's ISO and f-number",
-                "provenance": {"tool": p.recipe["tool"], "solidkit_version": p.solidkit_version, "inputs": inputs,
-                               "response": prov["response"], "registration": prov["registration"],
-                               "warnings": prov["warnings"], "recipe": p.recipe, "stats": stats},
-            })
-            p.path, p.sha256, p.stats = rel.as_posix(), sha256_file(camp / rel), {
-                k: (round(v, 6) if isinstance(v, float) else v) for k, v in stats.items() if k != "noise_sigma"}
+            write_exr(
+                camp / rel,
+                hdr,
+                {
+                    "exposure_time": ref.get("exposure_time"),
+                    "layout": p.layout,
+                    "units": "relative radiance: linear code per second at the first frame's ISO and f-number",
+                    "provenance": {
+                        "tool": p.recipe["tool"],
+                        "solidkit_version": p.solidkit_version,
+                        "inputs": inputs,
+                        "response": prov["response"],
+                        "registration": prov["registration"],
+                        "warnings": prov["warnings"],
+                        "recipe": p.recipe,
+                        "stats": stats,
+                    },
+                },
+            )
+            p.path, p.sha256, p.stats = (
+                rel.as_posix(),
+                sha256_file(camp / rel),
+                {k: (round(v, 6) if isinstance(v, float) else v) for k, v in stats.items() if k != "noise_sigma"},
+            )
         else:
-
             s = shots[0]
             md = s["metadata"]
-            if (md.get("image_type") == "equirect" and s["original"].endswith(".jpg")
-                    and np.allclose(_level_rotation(md), np.eye(3), atol=1e-12)):
+            if (
+                md.get("image_type") == "equirect"
+                and s["original"].endswith(".jpg")
+                and np.allclose(_level_rotation(md), np.eye(3), atol=1e-12)
+            ):
                 # the stitched, level JPEG is already the LDR panorama: referenced, not re-encoded
                 p.path, p.sha256 = s["original"], s["sha256"]
                 p.stats = {"resampled": False}
@@ -281,4 +354,3 @@ def _build_product(product: dict[str, Any], shots: list[dict[str, Any]], campaig
         p.error_transient = is_environmental(exc)
         p.path = p.sha256 = None
     return p.model_dump(mode="json")
-

@@ -28,7 +28,8 @@ the right and down, of the frame's content relative to the reference.
 
 from __future__ import annotations
 
-from typing import Any, Sequence
+from collections.abc import Sequence
+from typing import Any
 
 import cv2
 import numpy as np
@@ -39,18 +40,35 @@ __all__ = ["Registration", "register_frames", "shift_image"]
 class Registration:
     """Per frame: ``shifts[i] = (dx, dy)`` px, ``responses[i]`` (ECC correlation; 1 for the reference), ``applied[i]``."""
 
-    def __init__(self, reference: int, shifts: list[tuple[float, float]], responses: list[float], applied: list[bool],
-                 warnings: list[str]):
+    def __init__(
+        self,
+        reference: int,
+        shifts: list[tuple[float, float]],
+        responses: list[float],
+        applied: list[bool],
+        warnings: list[str],
+    ):
         self.reference, self.shifts, self.responses, self.applied, self.warnings = (
-            reference, shifts, responses, applied, warnings)
+            reference,
+            shifts,
+            responses,
+            applied,
+            warnings,
+        )
 
     def to_json(self) -> dict[str, Any]:
-        return {"reference_frame": self.reference, "shifts_px": [[round(dx, 3), round(dy, 3)] for dx, dy in self.shifts],
-                "correlation": [None if r != r else round(r, 3) for r in self.responses], "applied": self.applied}
+        return {
+            "reference_frame": self.reference,
+            "shifts_px": [[round(dx, 3), round(dy, 3)] for dx, dy in self.shifts],
+            "correlation": [None if r != r else round(r, 3) for r in self.responses],
+            "applied": self.applied,
+        }
 
 
 def _log_lum(linear: np.ndarray, exposure: float) -> np.ndarray:
-    return np.log(np.maximum(np.asarray(linear, np.float32).mean(axis=-1) / np.float32(exposure), 1e-6)).astype(np.float32)
+    return np.log(np.maximum(np.asarray(linear, np.float32).mean(axis=-1) / np.float32(exposure), 1e-6)).astype(
+        np.float32
+    )
 
 
 def _ranks(img: np.ndarray, mask: np.ndarray) -> np.ndarray:
@@ -78,9 +96,17 @@ def shift_image(image: np.ndarray, dx: float, dy: float) -> np.ndarray:
     return cv2.warpAffine(image, M, (w, h), flags=interp, borderMode=cv2.BORDER_REPLICATE)
 
 
-def register_frames(codes: Sequence[np.ndarray], linear: Sequence[np.ndarray], exposures: Sequence[float],
-                    valid: Sequence[np.ndarray], *, max_width: int = 2048, min_correlation: float = 0.8,
-                    min_shift_px: float = 0.25, max_shift_px: float = 32.0) -> Registration:
+def register_frames(
+    codes: Sequence[np.ndarray],
+    linear: Sequence[np.ndarray],
+    exposures: Sequence[float],
+    valid: Sequence[np.ndarray],
+    *,
+    max_width: int = 2048,
+    min_correlation: float = 0.8,
+    min_shift_px: float = 0.25,
+    max_shift_px: float = 32.0,
+) -> Registration:
     """Measure each frame's shift against the middle exposure (module docstring).
 
     ``codes``: 8-bit ``(H, W, 3)`` frames (for MTB); ``linear``: their linear values, divided
@@ -135,14 +161,19 @@ def register_frames(codes: Sequence[np.ndarray], linear: Sequence[np.ndarray], e
             except cv2.error:
                 continue
             cand = (float(cc_try), float(warp[0, 2]) / scale, float(warp[1, 2]) / scale)
-            if best is None or cand[0] > best[0] + 1e-3 or (abs(cand[0] - best[0]) <= 1e-3
-                                                              and np.hypot(*cand[1:]) < np.hypot(*best[1:])):
+            if (
+                best is None
+                or cand[0] > best[0] + 1e-3
+                or (abs(cand[0] - best[0]) <= 1e-3 and np.hypot(*cand[1:]) < np.hypot(*best[1:]))
+            ):
                 best = cand
         cc, dx, dy = best if best is not None else (0.0, cx, cy)
         max_shift_px = min(max_shift_px, 0.05 * min(h, w))
         if cc < min_correlation or abs(dx) > max_shift_px or abs(dy) > max_shift_px:
-            warnings.append(f"frame_not_registered: frame {i} (exposure {exposures[i]:.6g}) does not register "
-                            f"(correlation {cc:.3f}, shift ({dx:.2f}, {dy:.2f}) px); merged unshifted")
+            warnings.append(
+                f"frame_not_registered: frame {i} (exposure {exposures[i]:.6g}) does not register "
+                f"(correlation {cc:.3f}, shift ({dx:.2f}, {dy:.2f}) px); merged unshifted"
+            )
             shifts.append((dx, dy))
             scores.append(float(cc))
             applied.append(False)

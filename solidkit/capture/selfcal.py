@@ -25,7 +25,8 @@ or an estimate that failed: the reason is recorded and a warning is returned).
 
 from __future__ import annotations
 
-from typing import Any, Sequence
+from collections.abc import Sequence
+from typing import Any
 
 import numpy as np
 
@@ -47,8 +48,9 @@ def _distinct_codes(codes: np.ndarray) -> int:
     return int(min(np.count_nonzero(np.bincount(flat[:, c], minlength=256)) for c in range(flat.shape[1])))
 
 
-def estimate_response(images: Sequence[np.ndarray], times: Sequence[float], *, samples: int = 400,
-                      smoothness: float | None = None) -> tuple[np.ndarray, dict[str, Any]]:
+def estimate_response(
+    images: Sequence[np.ndarray], times: Sequence[float], *, samples: int = 400, smoothness: float | None = None
+) -> tuple[np.ndarray, dict[str, Any]]:
     """Inverse response ``(256, 3)`` (``curve[128] = 1``) fitted to the bracket itself, and its record.
 
     ``images``: 8-bit ``(H, W, 3)`` frames of one static scene (registered); ``times``: their
@@ -63,16 +65,27 @@ def estimate_response(images: Sequence[np.ndarray], times: Sequence[float], *, s
     sanity = response_sanity(curve, [im[::4, ::4] for im in imgs])
     if not all(d > 2.0 for d in sanity["dynamic_range_stops"]):
         raise ResponseError(f"degenerate curve (dynamic range {sanity['dynamic_range_stops']} stops)")
-    record = {"kind": "estimated", "method": "debevec (OpenCV CalibrateDebevec), made monotonic",
-              "frames": len(imgs), "samples": samples, "smoothness": smoothness,
-              "monotonic_fix_max_stops": round(float(np.abs(np.log2(curve / np.maximum(raw, 1e-30))).max()), 4),
-              "dynamic_range_stops": [round(d, 3) for d in sanity["dynamic_range_stops"]],
-              "curve_log2_at_codes": {str(c): [round(float(v), 4) for v in np.log2(curve[c])] for c in (16, 64, 128, 192, 240)}}
+    record = {
+        "kind": "estimated",
+        "method": "debevec (OpenCV CalibrateDebevec), made monotonic",
+        "frames": len(imgs),
+        "samples": samples,
+        "smoothness": smoothness,
+        "monotonic_fix_max_stops": round(float(np.abs(np.log2(curve / np.maximum(raw, 1e-30))).max()), 4),
+        "dynamic_range_stops": [round(d, 3) for d in sanity["dynamic_range_stops"]],
+        "curve_log2_at_codes": {
+            str(c): [round(float(v), 4) for v in np.log2(curve[c])] for c in (16, 64, 128, 192, 240)
+        },
+    }
     return curve, record
 
 
-def response_for_bracket(images: Sequence[np.ndarray] | None, times: Sequence[float], given: np.ndarray | None,
-                         given_record: dict[str, Any] | None) -> tuple[np.ndarray | None, dict[str, Any], list[str]]:
+def response_for_bracket(
+    images: Sequence[np.ndarray] | None,
+    times: Sequence[float],
+    given: np.ndarray | None,
+    given_record: dict[str, Any] | None,
+) -> tuple[np.ndarray | None, dict[str, Any], list[str]]:
     """The curve a bracket merge uses: ``(curve or None for sRGB, record, warnings)``.
 
     ``images``: the 8-bit frames (None when the frames are raw or 16-bit: linear or decoded
@@ -94,5 +107,11 @@ def response_for_bracket(images: Sequence[np.ndarray] | None, times: Sequence[fl
         except ResponseError as exc:
             why = f"the estimate failed ({exc})"
     record = {"kind": "srgb_assumed", "reason": why}
-    return srgb_response(), record, [f"srgb_assumed: no response curve given and {why}; the sRGB inverse is "
-                                     "assumed (calibrate one with 'solidkit calibrate response' and pass --response)"]
+    return (
+        srgb_response(),
+        record,
+        [
+            f"srgb_assumed: no response curve given and {why}; the sRGB inverse is "
+            "assumed (calibrate one with 'solidkit calibrate response' and pass --response)"
+        ],
+    )

@@ -46,6 +46,8 @@ from typing import Any, cast
 import cv2
 import numpy as np
 
+from solidkit import __version__
+from solidkit.calibration.circles import fit_image_circle
 from solidkit.calibration.fitcheck import check_profile_fit, check_upright
 from solidkit.camera.dualfisheye import (  # noqa: F401  (re-exported: the remap tables are the camera model's)
     CACHE_SIZE,
@@ -68,14 +70,12 @@ from solidkit.camera.metadata import level_rotation, read_metadata
 from solidkit.camera.raw import is_raw_file
 from solidkit.envmap.coords import angles_from_coords
 from solidkit.envmap.io import LDR_SUFFIXES, imread, read_exr, write_exr
-from solidkit.envmap.resample import resize, rotate, sample_panorama
-from solidkit.errors import InputError
-from solidkit.fsutil import atomic_path, sha256_file
-from solidkit import __version__
-from solidkit.calibration.circles import fit_image_circle
 from solidkit.envmap.perspective import scale_pixel_coordinates
+from solidkit.envmap.resample import resize, rotate, sample_panorama
 from solidkit.envmap.sun import LUMINANCE_WEIGHTS
 from solidkit.envmap.tilt import TILT_FLAG_DEG, TiltEstimate, residual_tilt
+from solidkit.errors import InputError
+from solidkit.fsutil import atomic_path, sha256_file
 
 __all__ = [
     "CACHE_SIZE",
@@ -99,6 +99,7 @@ __all__ = [
     "load_vignetting",
     "default_out_height",
 ]
+
 
 def default_out_height(in_width: int) -> int:
     """Default equirect height for a dual-fisheye input ``in_width`` px wide: the panorama is as wide
@@ -151,7 +152,9 @@ def vignetting_gains(maps: UnwarpMaps, vignetting: Any, profile: LensProfile, in
             rho = np.hypot(xy[..., 0][used] - v.center[0], xy[..., 1][used] - v.center[1]) / v.r_norm_px
             V = falloff(v.coeffs, rho)
             if V.size and (not np.all(np.isfinite(V)) or V.min() <= 0.05):
-                raise VignettingError(f"lens {v.name}: the falloff drops below 5 % inside the image circle: the profile is unusable")
+                raise VignettingError(
+                    f"lens {v.name}: the falloff drops below 5 % inside the image circle: the profile is unusable"
+                )
             out[i][used] = (1.0 / V).astype(np.float32)
         return out
 
@@ -249,8 +252,17 @@ def unwarp_srgb8(
         raise InputError("unwarp_srgb8 needs an (H, W, C) uint8 image")
     h, w = image.shape[:2]
     if len(profile.lenses) != 2 or vignetting is not None:
-        linear = unwarp(image, profile, out_height, R_level, feather_deg=feather_deg, gain_match=gain_match,
-                        cache_dir=cache_dir, stats=stats, vignetting=vignetting)
+        linear = unwarp(
+            image,
+            profile,
+            out_height,
+            R_level,
+            feather_deg=feather_deg,
+            gain_match=gain_match,
+            cache_dir=cache_dir,
+            stats=stats,
+            vignetting=vignetting,
+        )
         return encode_srgb8(linear)
     maps, source = get_cut_maps(profile, (w, h), out_height, R_level, feather_deg, cache_dir)
     dec, _ = srgb8_luts()
@@ -270,16 +282,22 @@ def unwarp_srgb8(
     if stats is not None:
         d0 = (lin[0] - lin[1]).mean(-1)
         d1 = (lin[0] * gains[0] - lin[1] * gains[1]).mean(-1)
-        stats.update(gains=gains.tolist(), cache=source, coverage=maps.coverage, overlap_px=int(maps.band.size),
-                     seam_mad_before_gain=float(np.median(np.abs(d0))) if d0.size else math.nan,
-                     seam_mad=float(np.median(np.abs(d1))) if d1.size else math.nan,
-                     seam_rmse=float(np.sqrt(np.mean(d1**2))) if d1.size else math.nan)
+        stats.update(
+            gains=gains.tolist(),
+            cache=source,
+            coverage=maps.coverage,
+            overlap_px=int(maps.band.size),
+            seam_mad_before_gain=float(np.median(np.abs(d0))) if d0.size else math.nan,
+            seam_mad=float(np.median(np.abs(d1))) if d1.size else math.nan,
+            seam_rmse=float(np.sqrt(np.mean(d1**2))) if d1.size else math.nan,
+        )
     out = cv2.remap(image, maps.map1, maps.map2, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
     if out.ndim == 2:
         out = out[..., None]
     if not np.allclose(gains, 1.0):  # each lens' gain, exactly in linear light, through an 8-bit table enc(g dec(v))
-        tables: list[np.ndarray] = [encode_srgb8(dec[:, None] * gains[i].astype(np.float32)[None, :]).reshape(256, 1, C)
-                                    for i in range(2)]
+        tables: list[np.ndarray] = [
+            encode_srgb8(dec[:, None] * gains[i].astype(np.float32)[None, :]).reshape(256, 1, C) for i in range(2)
+        ]
         if C == 1:
             tables = [t.reshape(256, 1) for t in tables]
         lens0 = cv2.LUT(out, tables[0])
@@ -330,10 +348,17 @@ def _write_srgb8(path: Path, enc: np.ndarray, bgr: bool = False) -> None:
     """8-bit sRGB RGB (``bgr``: OpenCV's order) image -> PNG (fast compression) / JPEG (q95) / other LDR, atomically."""
     # PNG: zlib level 1, run-length strategy on the "Sub" filter: at Theta V size half the time of
     # zlib's default strategy with adaptive filters, and a smaller file (6.6 vs 7.1 MB)
-    png = [cv2.IMWRITE_PNG_COMPRESSION, 1, cv2.IMWRITE_PNG_STRATEGY, cv2.IMWRITE_PNG_STRATEGY_RLE,
-           cv2.IMWRITE_PNG_FILTER, cv2.IMWRITE_PNG_FILTER_SUB]
-    params = {".png": png, ".jpg": [cv2.IMWRITE_JPEG_QUALITY, 95],
-              ".jpeg": [cv2.IMWRITE_JPEG_QUALITY, 95]}.get(path.suffix.lower(), [])
+    png = [
+        cv2.IMWRITE_PNG_COMPRESSION,
+        1,
+        cv2.IMWRITE_PNG_STRATEGY,
+        cv2.IMWRITE_PNG_STRATEGY_RLE,
+        cv2.IMWRITE_PNG_FILTER,
+        cv2.IMWRITE_PNG_FILTER_SUB,
+    ]
+    params = {".png": png, ".jpg": [cv2.IMWRITE_JPEG_QUALITY, 95], ".jpeg": [cv2.IMWRITE_JPEG_QUALITY, 95]}.get(
+        path.suffix.lower(), []
+    )
     with atomic_path(path) as tmp:
         if not cv2.imwrite(str(tmp), enc if bgr else cv2.cvtColor(enc, cv2.COLOR_RGB2BGR), params):
             raise InputError(f"{path}: OpenCV cannot write this image format")
@@ -347,9 +372,16 @@ def _write(path: Path, linear: np.ndarray, meta: dict) -> None:
     _write_srgb8(path, encode_srgb8(linear))
 
 
-def check_image_circles(image: np.ndarray, profile: LensProfile, *, max_offset: float = 0.05,
-                        radius_range: tuple[float, float] = (0.85, 1.2), min_inliers: float = 0.4,
-                        max_width: int = 1536, bgr: bool = False) -> tuple[list[dict[str, float]], list[str]]:
+def check_image_circles(
+    image: np.ndarray,
+    profile: LensProfile,
+    *,
+    max_offset: float = 0.05,
+    radius_range: tuple[float, float] = (0.85, 1.2),
+    min_inliers: float = 0.4,
+    max_width: int = 1536,
+    bgr: bool = False,
+) -> tuple[list[dict[str, float]], list[str]]:
     """Does the frame show its image circles where the lens profile puts them?
 
     Each lens's circle is fitted from the profile's position
@@ -386,19 +418,30 @@ def check_image_circles(image: np.ndarray, profile: LensProfile, *, max_offset: 
         # search +-12 %: wider, a ray from one lens reaches into the other's circle (Theta V side by side)
         cx, cy, r, frac = fit_image_circle(lum, small.center, small.max_radius(), search=0.12, rel_threshold=0.25)
         cx, cy, r = scale_pixel_coordinates(cx, k), scale_pixel_coordinates(cy, k), r * k  # full-size pixels
-        fits.append({"center": [round(cx, 2), round(cy, 2)], "radius": round(r, 2), "inliers": round(frac, 3),
-                     "profile_center": [round(lens.center[0], 2), round(lens.center[1], 2)], "profile_radius": round(r0, 2)})
+        fits.append(
+            {
+                "center": [round(cx, 2), round(cy, 2)],
+                "radius": round(r, 2),
+                "inliers": round(frac, 3),
+                "profile_center": [round(lens.center[0], 2), round(lens.center[1], 2)],
+                "profile_radius": round(r0, 2),
+            }
+        )
         if not (math.isfinite(r) and frac >= min_inliers):
-            warnings.append(f"profile_mismatch: lens {i}: no image circle edge near the profile's circle "
-                            f"(centre ({lens.center[0]:.0f}, {lens.center[1]:.0f}), radius {r0:.0f} px): another camera "
-                            "or layout? (check --profile; 'solidkit calibrate overlap' fits a unit's profile)")
+            warnings.append(
+                f"profile_mismatch: lens {i}: no image circle edge near the profile's circle "
+                f"(centre ({lens.center[0]:.0f}, {lens.center[1]:.0f}), radius {r0:.0f} px): another camera "
+                "or layout? (check --profile; 'solidkit calibrate overlap' fits a unit's profile)"
+            )
             continue
         off = math.hypot(cx - lens.center[0], cy - lens.center[1])
         if off > max(4.0, max_offset * r0) or not radius_range[0] <= r / r0 <= radius_range[1]:
-            warnings.append(f"profile_mismatch: lens {i}: image circle at ({cx:.0f}, {cy:.0f}) radius {r:.0f} px, the "
-                            f"profile expects ({lens.center[0]:.0f}, {lens.center[1]:.0f}) radius {r0:.0f} px "
-                            f"({off:.0f} px apart): another camera or layout? (check --profile; 'solidkit calibrate "
-                            "overlap' fits a unit's profile)")
+            warnings.append(
+                f"profile_mismatch: lens {i}: image circle at ({cx:.0f}, {cy:.0f}) radius {r:.0f} px, the "
+                f"profile expects ({lens.center[0]:.0f}, {lens.center[1]:.0f}) radius {r0:.0f} px "
+                f"({off:.0f} px apart): another camera or layout? (check --profile; 'solidkit calibrate "
+                "overlap' fits a unit's profile)"
+            )
     return fits, warnings
 
 
@@ -408,7 +451,10 @@ def default_cache_dir() -> Path:
     older one built). Files are keyed by profile, sizes, levelling and feather
     (:func:`solidkit.camera.dualfisheye.get_maps`) and written atomically (safe for concurrent runs).
     """
-    root = os.environ.get("SOLIDKIT_CACHE_DIR") or Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "solidkit"
+    root = (
+        os.environ.get("SOLIDKIT_CACHE_DIR")
+        or Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "solidkit"
+    )
     return Path(root) / f"v{__version__}" / "unwarp"
 
 
@@ -429,7 +475,8 @@ def report_tilt(summary: dict, pano: Any) -> None:
     if est.reliable and est.tilt_deg > TILT_FLAG_DEG:
         summary["warnings"].append(
             f"residual_tilt: the panorama is {est.tilt_deg:.2f}° ± {est.uncertainty_deg:.2f}° off level by its vertical "
-            f"edges (correction pitch {est.pitch_deg:.2f}°, roll {est.roll_deg:.2f}°)")
+            f"edges (correction pitch {est.pitch_deg:.2f}°, roll {est.roll_deg:.2f}°)"
+        )
 
 
 def unwarp_file(
@@ -477,7 +524,9 @@ def unwarp_file(
     if stitched:
         assert meta is not None
         if vprof is not None:
-            summary["warnings"].append("vignetting_ignored: stitched input; the camera applied its own lens corrections")
+            summary["warnings"].append(
+                "vignetting_ignored: stitched input; the camera applied its own lens corrections"
+            )
         w, h = meta.width, meta.height
         if w != 2 * h:
             raise InputError(f"{src}: marked equirectangular but {w}x{h} is not 2:1")
@@ -495,21 +544,27 @@ def unwarp_file(
             elif out_h is not None and out_h != img.shape[0]:
                 img = resize(img, out_h)
             _write(dst, img, {"source": str(src), "source_sha256": sha256_file(src), "rotation": R.tolist()})
-            summary.update(mode="stitched: levelled from metadata" if not identity else "stitched: re-encoded", resampled=not identity or out_h is not None)
+            summary.update(
+                mode="stitched: levelled from metadata" if not identity else "stitched: re-encoded",
+                resampled=not identity or out_h is not None,
+            )
         report_tilt(summary, dst)
         summary["seconds"] = time.perf_counter() - t0
         return summary
     if profile is not None:
         prof = load_profile(profile)
-    img, saturation, bgr = _read_for_unwarp(src, len(prof.lenses) == 2 if profile is not None else True,
-                                            dst.suffix.lower() != ".exr" and vprof is None)
+    img, saturation, bgr = _read_for_unwarp(
+        src, len(prof.lenses) == 2 if profile is not None else True, dst.suffix.lower() != ".exr" and vprof is None
+    )
     h, w = img.shape[:2]
     if profile is None:
         prof = profile_for_metadata(meta.model if meta else None, w, h)
         if bgr and len(prof.lenses) != 2:  # the 8-bit path needs two lenses: RGB for the general one
             img, bgr = cv2.cvtColor(img, cv2.COLOR_BGR2RGB), False
     if meta is not None and meta.image_type == "dual_fisheye_upright":
-        summary["warnings"].append("upright_dual_fisheye: the camera already rotated the circles upright; no gravity applied")
+        summary["warnings"].append(
+            "upright_dual_fisheye: the camera already rotated the circles upright; no gravity applied"
+        )
         R = np.eye(3)
     out_h = out_h or default_out_height(w)
     stats: dict[str, Any] = {}
@@ -518,13 +573,32 @@ def unwarp_file(
     with ThreadPoolExecutor(1) as pool:  # the frame's checks run on the other core while the tables are applied
         checks = pool.submit(_frame_checks, img, prof, saturation, bgr)
         if fast:  # 8-bit in and out: blend in linear light only where two lenses overlap
-            pano = unwarp_srgb8(img, prof, out_h, R, feather_deg=feather_deg, gain_match=gain_match, cache_dir=cache_dir,
-                                stats=stats, vignetting=vprof)
+            pano = unwarp_srgb8(
+                img,
+                prof,
+                out_h,
+                R,
+                feather_deg=feather_deg,
+                gain_match=gain_match,
+                cache_dir=cache_dir,
+                stats=stats,
+                vignetting=vprof,
+            )
             if bgr:
                 stats["gains"] = [g[::-1] for g in stats["gains"]]
         else:
-            pano = unwarp(img, prof, out_h, R, feather_deg=feather_deg, gain_match=gain_match, saturation=saturation,
-                          cache_dir=cache_dir, stats=stats, vignetting=vprof)
+            pano = unwarp(
+                img,
+                prof,
+                out_h,
+                R,
+                feather_deg=feather_deg,
+                gain_match=gain_match,
+                saturation=saturation,
+                cache_dir=cache_dir,
+                stats=stats,
+                vignetting=vprof,
+            )
         circles, circle_warnings, fit, fit_warnings = checks.result()
     del img
     summary["image_circles"] = circles
@@ -537,13 +611,27 @@ def unwarp_file(
         if fast:
             _write_srgb8(dst, pano, bgr=bgr)
         else:
-            meta_out = {"source": str(src), "source_sha256": sha256_file(src), "profile": prof.model,
-                        "profile_key": prof.key(), "rotation": R.tolist(), "gains": stats["gains"],
-                        "vignetting": None if vignetting is None else {"path": str(vignetting), "sha256": sha256_file(vignetting)}}
+            meta_out = {
+                "source": str(src),
+                "source_sha256": sha256_file(src),
+                "profile": prof.model,
+                "profile_key": prof.key(),
+                "rotation": R.tolist(),
+                "gains": stats["gains"],
+                "vignetting": None
+                if vignetting is None
+                else {"path": str(vignetting), "sha256": sha256_file(vignetting)},
+            }
             _write(dst, pano, meta_out)
         est = tilt.result()
-    summary.update(mode="dual-fisheye unwarped", profile=prof.model, size=[2 * out_h, out_h], resampled=True,
-                   unwarp_seconds=t2 - t1, **stats)
+    summary.update(
+        mode="dual-fisheye unwarped",
+        profile=prof.model,
+        size=[2 * out_h, out_h],
+        resampled=True,
+        unwarp_seconds=t2 - t1,
+        **stats,
+    )
     summary["warnings"] += check_upright(pano, fit)  # a sideways panorama: the layout contradicts the profile
     report_tilt(summary, est)
     summary["seconds"] = time.perf_counter() - t0

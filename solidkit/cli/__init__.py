@@ -20,34 +20,68 @@ from solidkit.threads import MAX_DEFAULT_THREADS, THREADS_ENV, apply_threads
 _GROUPS = {
     "envmap": ("solidkit.cli.envmap", "app", "Inspect, rotate, crop panoramas and find the sun."),
     "capture": ("solidkit.cli.capture", "app", "Theta captures: metadata, dual-fisheye unwarping."),
-    "calibrate": ("solidkit.cli.calibrate", "app", "Lens, response-curve, colour, vignetting and photo-camera profiles."),
+    "calibrate": (
+        "solidkit.cli.calibrate",
+        "app",
+        "Lens, response-curve, colour, vignetting and photo-camera profiles.",
+    ),
     "synth": ("solidkit.cli.synth", "app", "Synthetic SOLID-Img-style data and a virtual campaign (Mitsuba 3)."),
     "testset": ("solidkit.cli.testset", "app", "Build, validate, inspect and export a real test set."),
-    "label": ("solidkit.cli.label", "app", "Browser labeling app (sun, probe pixels, headings, review) and label export."),
+    "label": (
+        "solidkit.cli.label",
+        "app",
+        "Browser labeling app (sun, probe pixels, headings, review) and label export.",
+    ),
 }
 _COMMANDS = {  # name -> (module, attribute, the one-line help the command list shows without importing it)
-    "ingest": ("solidkit.cli.ingest", "ingest_cli",
-               "Copy a card's captures into a checksummed campaign, group scenes/probes/brackets, build products."),
-    "align": ("solidkit.cli.align", "align_cli",
-              "Sun labels, every capture's yaw in the photo's view frame, probe pixels and aligned probes."),
-    "predict": ("solidkit.cli.predict", "predict_command",
-                "Predict the global HDR sky, its sun direction and a local HDR panorama at each --at pixel."),
-    "train": ("solidkit.cli.train", "train_command",
-              "Train I-Net then P-Net; writes last.pt (resumable state), best_*.pt, model.pt, metrics.csv, tb/."),
-    "eval": ("solidkit.cli.eval", "eval_command",
-             "Sun azimuth/elevation error, global MAE and local SSIM/MAE for the model and baselines; a report."),
-    "finetune": ("solidkit.cli.finetune", "finetune_command",
-                 "Fine-tune per fold on the other scenes' LDR probes and sun labels; before/after per fold and pooled."),
-    "demo": ("solidkit.cli.demo", "demo_command", "The whole chain on a small virtual field campaign, into OUT/report.html."),
+    "ingest": (
+        "solidkit.cli.ingest",
+        "ingest_cli",
+        "Copy a card's captures into a checksummed campaign, group scenes/probes/brackets, build products.",
+    ),
+    "align": (
+        "solidkit.cli.align",
+        "align_cli",
+        "Sun labels, every capture's yaw in the photo's view frame, probe pixels and aligned probes.",
+    ),
+    "predict": (
+        "solidkit.cli.predict",
+        "predict_command",
+        "Predict the global HDR sky, its sun direction and a local HDR panorama at each --at pixel.",
+    ),
+    "train": (
+        "solidkit.cli.train",
+        "train_command",
+        "Train I-Net then P-Net; writes last.pt (resumable state), best_*.pt, model.pt, metrics.csv, tb/.",
+    ),
+    "eval": (
+        "solidkit.cli.eval",
+        "eval_command",
+        "Sun azimuth/elevation error, global MAE and local SSIM/MAE for the model and baselines; a report.",
+    ),
+    "finetune": (
+        "solidkit.cli.finetune",
+        "finetune_command",
+        "Fine-tune per fold on the other scenes' LDR probes and sun labels; before/after per fold and pooled.",
+    ),
+    "demo": (
+        "solidkit.cli.demo",
+        "demo_command",
+        "The whole chain on a small virtual field campaign, into OUT/report.html.",
+    ),
 }
 _HELP = "Real outdoor 360° captures -> a SOLID-Net real test set; evaluate and fine-tune SOLID-Net."
 
 
 def _root_options(
     threads: int | None = typer.Option(
-        None, "--threads", min=1, metavar="N",
+        None,
+        "--threads",
+        min=1,
+        metavar="N",
         help=f"Threads for torch, OpenCV and the BLAS libraries (default: ${THREADS_ENV}, else half the cores, "
-             f"at most {MAX_DEFAULT_THREADS}). Products and alignments are the same bytes whatever N is."),
+        f"at most {MAX_DEFAULT_THREADS}). Products and alignments are the same bytes whatever N is.",
+    ),
 ) -> None:
     apply_threads(threads)
 
@@ -56,8 +90,9 @@ def build_app(only: str | None = None, *, listing: bool = False) -> typer.Typer:
     """The ``solidkit`` typer app with every sub-command, or with only the one named ``only`` (what
     :func:`main` runs: the other sub-commands' modules are not imported). ``listing``: every command
     by name and one-line help only, importing none of them (``solidkit --help`` in a fraction of the time)."""
-    root = typer.Typer(name="solidkit", help=_HELP, no_args_is_help=True, pretty_exceptions_enable=False,
-                       add_completion=False)
+    root = typer.Typer(
+        name="solidkit", help=_HELP, no_args_is_help=True, pretty_exceptions_enable=False, add_completion=False
+    )
     root.callback()(_root_options)  # a group even when one sub-command is registered
     if listing:  # in the order typer lists them: commands, then groups
         for name, (_, _, help_text) in (*_COMMANDS.items(), *_GROUPS.items()):
@@ -141,12 +176,15 @@ def main() -> None:
     """Entry point: user errors become one line on stderr and exit code 2 (unforeseen ones exit 1), never a
     traceback unless ``SOLIDKIT_DEBUG=1`` asks for it."""
     args = sys.argv[1:]
-    first = next((a for i, a in enumerate(args) if not a.startswith("-") and (i == 0 or args[i - 1] != "--threads")),
-                 None)
+    first = next(
+        (a for i, a in enumerate(args) if not a.startswith("-") and (i == 0 or args[i - 1] != "--threads")), None
+    )
     try:
         known = first in _GROUPS or first in _COMMANDS
         listing = first is None and (not args or args[-1] in ("--help", "-h"))  # the command list alone
-        code = build_app(first if known else None, listing=listing)(standalone_mode=False)  # a typer.Exit(n) raised in a command comes back as n here
+        code = build_app(first if known else None, listing=listing)(
+            standalone_mode=False
+        )  # a typer.Exit(n) raised in a command comes back as n here
     except SolidkitError as exc:
         _fail(str(exc), 2)
     except (typer.Abort, KeyboardInterrupt):

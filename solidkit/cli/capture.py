@@ -52,7 +52,9 @@ def info(
         table.add_row("taken (camera clock)", f"{meta.datetime_original} {meta.utc_offset or ''}")
         table.add_row("zenith corrected", str(meta.zenith_corrected))
         if meta.pitch_deg is not None:
-            table.add_row("pitch / roll", f"{meta.pitch_deg:.2f}° / {meta.roll_deg:.2f}°  ({escape(meta.gravity_source or '')})")
+            table.add_row(
+                "pitch / roll", f"{meta.pitch_deg:.2f}° / {meta.roll_deg:.2f}°  ({escape(meta.gravity_source or '')})"
+            )
         if meta.heading_deg is not None:
             table.add_row("heading", f"{meta.heading_deg:.1f}°")
         if meta.gps:
@@ -61,9 +63,13 @@ def info(
             table.add_row("GPano", escape(", ".join(f"{k}={v}" for k, v in meta.gpano.items())))
         tilt = stored_tilt(path, meta)
         if tilt is not None:
-            table.add_row("residual tilt (as stored)", f"{tilt.tilt_deg:.2f}° ± {tilt.uncertainty_deg:.2f}° "
-                          f"(correction pitch {tilt.pitch_deg:.2f}°, roll {tilt.roll_deg:.2f}°; {tilt.segments} vertical edges"
-                          + ("" if tilt.reliable else "; unreliable") + ")")
+            table.add_row(
+                "residual tilt (as stored)",
+                f"{tilt.tilt_deg:.2f}° ± {tilt.uncertainty_deg:.2f}° "
+                f"(correction pitch {tilt.pitch_deg:.2f}°, roll {tilt.roll_deg:.2f}°; {tilt.segments} vertical edges"
+                + ("" if tilt.reliable else "; unreliable")
+                + ")",
+            )
         for w in meta.warnings:
             table.add_row("[yellow]warning[/]", escape(w))
         console.print(table)
@@ -73,10 +79,20 @@ def info(
 def merge(
     frames: list[Path] = typer.Argument(..., help="Bracket frames (JPEG via the response curve, DNG linearly)."),
     out: Path = typer.Option(..., "-o", "--out", help="Output EXR (several brackets: OUT-1.exr, OUT-2.exr, ...)."),
-    times: str | None = typer.Option(None, "--times", help="Exposure times in seconds, comma-separated, in FRAMES order (default: EXIF)."),
-    response: Path | None = typer.Option(None, "--response", help="Inverse response curve (.json profile, .npy, .csv); default: estimated from the bracket (3+ frames), else sRGB assumed (warned)."),
-    align: bool = typer.Option(True, "--align/--no-align", help="Register the frames (sub-pixel shifts) before merging."),
-    group: bool = typer.Option(True, "--group/--no-group", help="Split FRAMES into brackets by time, sequence and exposure."),
+    times: str | None = typer.Option(
+        None, "--times", help="Exposure times in seconds, comma-separated, in FRAMES order (default: EXIF)."
+    ),
+    response: Path | None = typer.Option(
+        None,
+        "--response",
+        help="Inverse response curve (.json profile, .npy, .csv); default: estimated from the bracket (3+ frames), else sRGB assumed (warned).",
+    ),
+    align: bool = typer.Option(
+        True, "--align/--no-align", help="Register the frames (sub-pixel shifts) before merging."
+    ),
+    group: bool = typer.Option(
+        True, "--group/--no-group", help="Split FRAMES into brackets by time, sequence and exposure."
+    ),
     deghost: bool = typer.Option(False, "--deghost", help="Replace ghost pixels by the reference frame."),
     ghost_mask: Path | None = typer.Option(None, "--ghost-mask", help="Write the ghost mask as a PNG."),
     wb: str = typer.Option("camera", "--wb", help="Raw white balance: camera, daylight, none or r,g,b."),
@@ -89,8 +105,17 @@ def merge(
     wb_arg: object = tuple(parse_floats(wb, "--wb", 3, positive=True)) if "," in wb else wb
     if isinstance(wb_arg, str) and wb_arg not in ("camera", "daylight", "none"):
         raise InputError(f"--wb: unknown white balance '{wb}' (camera, daylight, none or r,g,b)")
-    summaries = merge_files(frames, out, times=t, response_path=response, group=group, deghost=deghost,
-                            ghost_mask_path=ghost_mask, wb=wb_arg, align=align)
+    summaries = merge_files(
+        frames,
+        out,
+        times=t,
+        response_path=response,
+        group=group,
+        deghost=deghost,
+        ghost_mask_path=ghost_mask,
+        wb=wb_arg,
+        align=align,
+    )
     if as_json:
         echo_json(summaries, indent=2)
         return
@@ -99,16 +124,33 @@ def merge(
         table.add_row("frames", escape(", ".join(Path(f).name for f in s["frames"])))
         table.add_row("exposures (s)", ", ".join(f"{e:.6g}" for e in s["exposures"]))
         table.add_row("dynamic range", f"{s['dynamic_range_stops']:.1f} stops")
-        table.add_row("saturated in every frame", f"{100 * s['saturated_in_all_frames_fraction']:.2f} % (shortest exposure used)")
+        table.add_row(
+            "saturated in every frame", f"{100 * s['saturated_in_all_frames_fraction']:.2f} % (shortest exposure used)"
+        )
         table.add_row("black in every frame", f"{100 * s['underexposed_in_all_frames_fraction']:.2f} %")
-        table.add_row("ghosts", f"{100 * s['ghost_fraction']:.2f} % of pixels" + (f" -> {escape(s['ghost_mask'])}" if s["ghost_mask"] else ""))
+        table.add_row(
+            "ghosts",
+            f"{100 * s['ghost_fraction']:.2f} % of pixels"
+            + (f" -> {escape(s['ghost_mask'])}" if s["ghost_mask"] else ""),
+        )
         rk = s["response"]["kind"]
-        table.add_row("response curve", {"file": f"given ({escape(str(s['response'].get('path')))})", "array": "given",
-                                         "estimated": f"estimated from these {s['response'].get('frames')} frames (Debevec)",
-                                         "linear_raw": "none needed (raw frames)"}.get(rk, "[yellow]sRGB assumed[/]"))
+        table.add_row(
+            "response curve",
+            {
+                "file": f"given ({escape(str(s['response'].get('path')))})",
+                "array": "given",
+                "estimated": f"estimated from these {s['response'].get('frames')} frames (Debevec)",
+                "linear_raw": "none needed (raw frames)",
+            }.get(rk, "[yellow]sRGB assumed[/]"),
+        )
         if s.get("registration"):
-            table.add_row("frame shifts (px)", ", ".join(f"({dx:+.2f}, {dy:+.2f})" + ("" if a else " not applied")
-                                                        for (dx, dy), a in zip(s["registration"]["shifts_px"], s["registration"]["applied"])))
+            table.add_row(
+                "frame shifts (px)",
+                ", ".join(
+                    f"({dx:+.2f}, {dy:+.2f})" + ("" if a else " not applied")
+                    for (dx, dy), a in zip(s["registration"]["shifts_px"], s["registration"]["applied"])
+                ),
+            )
         console.print(table)
         for w in s["warnings"]:
             console.print(f"[yellow]warning[/] {escape(w)}")
@@ -118,14 +160,34 @@ def merge(
 def unwarp(
     src: Path = typer.Argument(..., help="Dual-fisheye (JPEG, DNG, EXR) or stitched equirect capture."),
     out: Path = typer.Option(..., "-o", "--out", help="Output panorama: .exr (linear HDR) or .png/.jpg (sRGB)."),
-    profile: str | None = typer.Option(None, "--profile", help="Lens profile: a shipped name (theta-v, theta-z1, theta-s, theta-s-video) or a unit.json; default from the EXIF model."),
-    size: str | None = typer.Option(None, "--size", help="Output WxH (W = 2H); default: as wide as the input (the size ingest products get too)."),
+    profile: str | None = typer.Option(
+        None,
+        "--profile",
+        help="Lens profile: a shipped name (theta-v, theta-z1, theta-s, theta-s-video) or a unit.json; default from the EXIF model.",
+    ),
+    size: str | None = typer.Option(
+        None, "--size", help="Output WxH (W = 2H); default: as wide as the input (the size ingest products get too)."
+    ),
     feather: float = typer.Option(10.0, "--feather", help="Seam cross-fade band, degrees of incidence angle."),
-    level: bool = typer.Option(True, "--level/--no-level", help="Apply the metadata's gravity (pitch/roll) so the horizon is level."),
+    level: bool = typer.Option(
+        True, "--level/--no-level", help="Apply the metadata's gravity (pitch/roll) so the horizon is level."
+    ),
     gain: bool = typer.Option(True, "--gain/--no-gain", help="Match the lenses' gains on the overlap (linear light)."),
-    cache_dir: Path | None = typer.Option(None, "--cache-dir", help="On-disk cache of remap tables (default: per user, ~/.cache/solidkit/<version>/unwarp; $SOLIDKIT_CACHE_DIR overrides)."),
-    disk_cache: bool = typer.Option(True, "--disk-cache/--no-disk-cache", help="Keep remap tables on disk between runs (a second file of the same camera and size skips the table build)."),
-    vignetting: Path | None = typer.Option(None, "--vignetting", help="Vignetting profile (solidkit calibrate vignetting): each lens divided by its falloff before gain matching and blending."),
+    cache_dir: Path | None = typer.Option(
+        None,
+        "--cache-dir",
+        help="On-disk cache of remap tables (default: per user, ~/.cache/solidkit/<version>/unwarp; $SOLIDKIT_CACHE_DIR overrides).",
+    ),
+    disk_cache: bool = typer.Option(
+        True,
+        "--disk-cache/--no-disk-cache",
+        help="Keep remap tables on disk between runs (a second file of the same camera and size skips the table build).",
+    ),
+    vignetting: Path | None = typer.Option(
+        None,
+        "--vignetting",
+        help="Vignetting profile (solidkit calibrate vignetting): each lens divided by its falloff before gain matching and blending.",
+    ),
     as_json: bool = typer.Option(False, "--json", help="Print the summary as JSON."),
 ) -> None:
     """Dual-fisheye -> equirectangular panorama in the panorama frame (docs/conventions.md)."""
@@ -134,8 +196,17 @@ def unwarp(
     from solidkit.capture.unwarp import default_cache_dir
 
     cache_dir = (cache_dir or default_cache_dir()) if disk_cache else None
-    s = unwarp_file(src, out, profile=profile, out_height=out_height, feather_deg=feather, level=level, gain_match=gain,
-                    cache_dir=cache_dir, vignetting=vignetting)
+    s = unwarp_file(
+        src,
+        out,
+        profile=profile,
+        out_height=out_height,
+        feather_deg=feather,
+        level=level,
+        gain_match=gain,
+        cache_dir=cache_dir,
+        vignetting=vignetting,
+    )
     if as_json:
         echo_json(s, indent=1, default=str)
         return
@@ -143,22 +214,33 @@ def unwarp(
     table.add_row("mode", escape(s["mode"]))
     if "profile" in s:
         table.add_row("profile / size", f"{escape(s['profile'])} -> {s['size'][0]} x {s['size'][1]}")
-        table.add_row("vignetting", "corrected before blending" if s.get("vignetting") else "not corrected (no --vignetting)")
+        table.add_row(
+            "vignetting", "corrected before blending" if s.get("vignetting") else "not corrected (no --vignetting)"
+        )
         table.add_row("lens gains (R,G,B)", "; ".join(", ".join(f"{g:.3f}" for g in lg) for lg in s["gains"]))
-        table.add_row("seam disagreement", f"median |diff| {s['seam_mad']:.4g} (before gain match {s['seam_mad_before_gain']:.4g}), rmse {s['seam_rmse']:.4g}")
+        table.add_row(
+            "seam disagreement",
+            f"median |diff| {s['seam_mad']:.4g} (before gain match {s['seam_mad_before_gain']:.4g}), rmse {s['seam_rmse']:.4g}",
+        )
         fit = s.get("profile_fit") or {}
         if fit:
             seam = "unmeasured (dark or clipped frame)" if fit.get("seam_error") is None else f"{fit['seam_error']:.3f}"
-            table.add_row("profile fit", f"seam error {seam} (warns above {fit['seam_error_warn']}; 0 = the lenses agree, "
-                          f"1 = unrelated), layout {'ok' if fit.get('ok') else '[yellow]see warnings[/]'}")
+            table.add_row(
+                "profile fit",
+                f"seam error {seam} (warns above {fit['seam_error_warn']}; 0 = the lenses agree, "
+                f"1 = unrelated), layout {'ok' if fit.get('ok') else '[yellow]see warnings[/]'}",
+            )
         table.add_row("coverage", f"{100 * s['coverage']:.2f} % of output pixels")
         table.add_row("remap tables", s["cache"])
     if s.get("level_pitch_roll_deg"):
         table.add_row("levelled (pitch, roll)", ", ".join(f"{a:.2f}°" for a in s["level_pitch_roll_deg"]))
     if s.get("residual_tilt"):
         t = s["residual_tilt"]
-        table.add_row("residual tilt (vertical edges)", f"{t['tilt_deg']:.2f}° ± {t['uncertainty_deg']:.2f}° from {t['segments']} edges"
-                      + ("" if t["reliable"] else " [dim](unreliable: few vertical edges)[/]"))
+        table.add_row(
+            "residual tilt (vertical edges)",
+            f"{t['tilt_deg']:.2f}° ± {t['uncertainty_deg']:.2f}° from {t['segments']} edges"
+            + ("" if t["reliable"] else " [dim](unreliable: few vertical edges)[/]"),
+        )
     table.add_row("time", f"{s['seconds']:.2f} s")
     for w in s["warnings"]:
         table.add_row("[yellow]warning[/]", escape(w))

@@ -15,9 +15,15 @@ __all__ = ["demo_command"]
 
 
 def demo_command(
-    out: Path = typer.Option(Path("demo_out"), "-o", "--out", help="Output folder (report.html, campaign/, testset/, ...)."),
-    card: Path | None = typer.Option(None, "--card", help="A card folder to run on instead of the shipped mini campaign."),
-    truth: Path | None = typer.Option(None, "--truth", help="The card's truth folder (virtual campaigns), for the truth check."),
+    out: Path = typer.Option(
+        Path("demo_out"), "-o", "--out", help="Output folder (report.html, campaign/, testset/, ...)."
+    ),
+    card: Path | None = typer.Option(
+        None, "--card", help="A card folder to run on instead of the shipped mini campaign."
+    ),
+    truth: Path | None = typer.Option(
+        None, "--truth", help="The card's truth folder (virtual campaigns), for the truth check."
+    ),
     model: Path | None = typer.Option(None, "--model", help="SOLID-Net checkpoint (default: the shipped one)."),
     folds: int = typer.Option(3, min=2, help="Scene-level folds of the fine-tuning."),
     epochs: int = typer.Option(3, min=1, help="Most fine-tuning epochs per fold."),

@@ -45,9 +45,13 @@ def info(
     lum = luminance(img)
     positive = lum[lum > 0]
     summary = {
-        "path": str(pano), "width": w, "height": h, "channels": int(img.shape[2]),
+        "path": str(pano),
+        "width": w,
+        "height": h,
+        "channels": int(img.shape[2]),
         "kind": "ldr" if meta.get("ldr") else "hdr",
-        "luminance_min": float(lum.min()), "luminance_max": float(lum.max()),
+        "luminance_min": float(lum.min()),
+        "luminance_max": float(lum.max()),
         "dynamic_range_stops": float(np.log2(positive.max() / max(positive.min(), 1e-12))) if positive.size else None,
         "mean_rgb": [float(c) for c in img.reshape(-1, 3).mean(0)],
         "luminance_integral": float((lum * solid_angle(h)).sum()),
@@ -152,12 +156,21 @@ def rotate(
     result = rotate_pano(img, R, interp.value)
     if interp is Interp.cubic and img.min() >= 0:
         result = np.maximum(result, 0.0)  # bicubic overshoot next to the sun
-    prov = {"op": "envmap rotate", "source": str(pano), "yaw_deg": yaw, "pitch_deg": pitch, "roll_deg": roll, "interp": interp.value}
+    prov = {
+        "op": "envmap rotate",
+        "source": str(pano),
+        "yaw_deg": yaw,
+        "pitch_deg": pitch,
+        "roll_deg": roll,
+        "interp": interp.value,
+    }
     write(result, meta, prov)
     if as_json:
         echo_json({**prov, "output": str(out), "size": [result.shape[1], result.shape[0]]})
         return
-    console.print(f"rotated {pano} by yaw {yaw}°, pitch {pitch}°, roll {roll}° -> {out}", highlight=False, soft_wrap=True)
+    console.print(
+        f"rotated {pano} by yaw {yaw}°, pitch {pitch}°, roll {roll}° -> {out}", highlight=False, soft_wrap=True
+    )
 
 
 @app.command()
@@ -184,8 +197,15 @@ def crop(
     if interp is Interp.cubic and img.min() >= 0:
         result = np.maximum(result, 0.0)
     prov = {
-        "op": "envmap crop", "source": str(pano), "fov_deg": fov, "yaw_deg": yaw, "pitch_deg": pitch,
-        "roll_deg": roll, "size": [width, height], "K": K.tolist(), "interp": interp.value,
+        "op": "envmap crop",
+        "source": str(pano),
+        "fov_deg": fov,
+        "yaw_deg": yaw,
+        "pitch_deg": pitch,
+        "roll_deg": roll,
+        "size": [width, height],
+        "K": K.tolist(),
+        "interp": interp.value,
     }
     write(result, meta, prov)
     if as_json:

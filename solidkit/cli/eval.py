@@ -31,18 +31,35 @@ def eval_command(
     model: Path | None = typer.Option(None, "--model", help="SOLID-Net checkpoint (default: the shipped one)."),
     testset: Path | None = typer.Option(None, "--testset", help="Real test set folder (testset.json)."),
     synthetic: Path | None = typer.Option(None, "--synthetic", help="Synthetic split (solidkit synth dataset folder)."),
-    out: Path = typer.Option(Path("eval_report"), "-o", "--out", help="Report folder (report.html, report.md, figures/, results.json)."),
-    baseline: list[str] | None = typer.Option(None, "--baseline", help="Extra checkpoint NAME=CKPT evaluated side by side (ablations; repeatable)."),
-    panoramas: list[Path] | None = typer.Option(None, "--panoramas", help="Real HDR panorama (EXR) or a folder of them: photos "
-                                                "cropped at 8 headings, global map and sun only (repeatable)."),
-    shipped_panoramas: bool = typer.Option(False, "--shipped-panoramas", help="Add the real HDR panoramas shipped with solidkit."),
-    sun_crops: list[Path] | None = typer.Option(None, "--sun-crops", help="Folder of HDR panoramas with a known sun (real "
-                                                "ones with catalog.json, e.g. ../shared/data/real/hdr_outdoor, or rendered "
-                                                "sources): the sun protocol with baselines and cone coverage (repeatable)."),
+    out: Path = typer.Option(
+        Path("eval_report"), "-o", "--out", help="Report folder (report.html, report.md, figures/, results.json)."
+    ),
+    baseline: list[str] | None = typer.Option(
+        None, "--baseline", help="Extra checkpoint NAME=CKPT evaluated side by side (ablations; repeatable)."
+    ),
+    panoramas: list[Path] | None = typer.Option(
+        None,
+        "--panoramas",
+        help="Real HDR panorama (EXR) or a folder of them: photos "
+        "cropped at 8 headings, global map and sun only (repeatable).",
+    ),
+    shipped_panoramas: bool = typer.Option(
+        False, "--shipped-panoramas", help="Add the real HDR panoramas shipped with solidkit."
+    ),
+    sun_crops: list[Path] | None = typer.Option(
+        None,
+        "--sun-crops",
+        help="Folder of HDR panoramas with a known sun (real "
+        "ones with catalog.json, e.g. ../shared/data/real/hdr_outdoor, or rendered "
+        "sources): the sun protocol with baselines and cone coverage (repeatable).",
+    ),
     sun_split: str = typer.Option("test", "--sun-split", help="Split of the --sun-crops panoramas (train, val, test)."),
     limit: int | None = typer.Option(None, min=1, help="Evaluate only the first N photos of each dataset."),
-    grids: int | None = typer.Option(None, min=0, help="Qualitative grids per dataset (default: every scene of a real "
-                                     "test set, 6 of the other datasets)."),
+    grids: int | None = typer.Option(
+        None,
+        min=0,
+        help="Qualitative grids per dataset (default: every scene of a real test set, 6 of the other datasets).",
+    ),
     as_json: bool = typer.Option(False, "--json", help="Print the summaries as JSON on stdout."),
 ) -> None:
     """Sun azimuth/elevation error, global MAE and local SSIM/MAE for the model and baselines; a report."""
@@ -63,8 +80,10 @@ def eval_command(
 
         panos += sorted(SHIPPED_PANORAMAS.glob("*.exr"))
     if testset is None and synthetic is None and not panos and not sun_crops:
-        raise InputError("give a real test set (--testset DIR), a synthetic split (--synthetic DIR), HDR panoramas "
-                         "(--panoramas, --shipped-panoramas) and/or --sun-crops FOLDER")
+        raise InputError(
+            "give a real test set (--testset DIR), a synthetic split (--synthetic DIR), HDR panoramas "
+            "(--panoramas, --shipped-panoramas) and/or --sun-crops FOLDER"
+        )
     for p in sun_crops or []:
         if not p.is_dir():
             raise InputError(f"--sun-crops {p}: not a folder")
@@ -81,10 +100,19 @@ def eval_command(
     # torch is imported only once the arguments are known to be good (a bad call answers at once)
     from solidkit.finetune.report import evaluation_report
 
-    res = evaluation_report(out, model, testset, synthetic, cast("dict[str, str | os.PathLike]", extra),
-                            limit=limit, max_grids=grids,
-                            log=lambda s: typer.echo(s, err=True), panoramas=panos,
-                              sun_crops=sun_crops, sun_split=sun_split)
+    res = evaluation_report(
+        out,
+        model,
+        testset,
+        synthetic,
+        cast("dict[str, str | os.PathLike]", extra),
+        limit=limit,
+        max_grids=grids,
+        log=lambda s: typer.echo(s, err=True),
+        panoramas=panos,
+        sun_crops=sun_crops,
+        sun_split=sun_split,
+    )
     if as_json:
         echo_json({ds: r["summary"] for ds, r in res["results"].items()}, indent=1, default=float)
     typer.echo(f"report: {res['report']}", err=True)

@@ -12,9 +12,9 @@ from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, T
 from rich.table import Table
 
 from solidkit.capture.campaign import IngestReport, ingest, load_manifest, summary_rows
+from solidkit.capture.products import tilt_warning
 from solidkit.cli.output import echo_json, json_option
 from solidkit.cli.parsing import parse_exposure
-from solidkit.capture.products import tilt_warning
 from solidkit.errors import InputError
 
 
@@ -34,11 +34,21 @@ def ingest_command(
 ) -> IngestReport:
     """Run :func:`ingest` with a rich progress bar (stderr) and print the summary (stdout; not when ``quiet``)."""
     console = Console(stderr=True)
-    given = {"scene_gap_s": scene_gap, "probe_gap_s": probe_gap, "bracket_gap_s": bracket_gap,
-             "low_exposure_max_s": low_exposure_max}
+    given = {
+        "scene_gap_s": scene_gap,
+        "probe_gap_s": probe_gap,
+        "bracket_gap_s": bracket_gap,
+        "low_exposure_max_s": low_exposure_max,
+    }
     grouping = {k: v for k, v in given.items() if v is not None}  # others: the campaign's stored values
-    with Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(), TimeRemainingColumn(),
-                  console=console, transient=True) as bar:
+    with Progress(
+        TextColumn("{task.description}"),
+        BarColumn(),
+        MofNCompleteColumn(),
+        TimeRemainingColumn(),
+        console=console,
+        transient=True,
+    ) as bar:
         ids: dict[str, Any] = {}
 
         def progress(phase: str, done: int, total: int) -> None:
@@ -46,23 +56,38 @@ def ingest_command(
                 ids[phase] = bar.add_task("copying originals" if phase == "files" else "building products", total=total)
             bar.update(ids[phase], completed=done, total=total)
 
-        report = ingest(card_dir, campaign_dir, jobs=jobs, grouping=grouping, response_path=response,
-                        products=products, progress=progress, lens_profile=lens_profile, vignetting_path=vignetting)
+        report = ingest(
+            card_dir,
+            campaign_dir,
+            jobs=jobs,
+            grouping=grouping,
+            response_path=response,
+            products=products,
+            progress=progress,
+            lens_profile=lens_profile,
+            vignetting_path=vignetting,
+        )
     manifest = load_manifest(campaign_dir)
     if quiet:
         return report
     out = Console()
     if report.nothing_done:
-        out.print(f"[green]nothing to do:[/] {escape(str(campaign_dir))} is up to date with {escape(str(card_dir))} "
-                  f"({report.unchanged} captures already ingested, {report.products_up_to_date} products up to date)")
+        out.print(
+            f"[green]nothing to do:[/] {escape(str(campaign_dir))} is up to date with {escape(str(card_dir))} "
+            f"({report.unchanged} captures already ingested, {report.products_up_to_date} products up to date)"
+        )
     table = Table(title=f"ingest {escape(str(card_dir))} -> {escape(str(campaign_dir))}", show_header=False)
     table.add_row("captures on the card", str(report.files_seen))
-    table.add_row("copied / already present / unchanged", f"{report.copied} / {report.already_present} / {report.unchanged}")
+    table.add_row(
+        "copied / already present / unchanged", f"{report.copied} / {report.already_present} / {report.unchanged}"
+    )
     table.add_row("unrelated files skipped", str(len(report.unrelated)))
     for label, value in summary_rows(manifest):
         table.add_row(label, value)
-    table.add_row("products built / up to date / removed",
-                  f"{report.products_built} / {report.products_up_to_date} / {report.products_removed}")
+    table.add_row(
+        "products built / up to date / removed",
+        f"{report.products_built} / {report.products_up_to_date} / {report.products_removed}",
+    )
     out.print(table)
     for msg in report.notes_errors:
         out.print(f"[red]field notes refused[/] {escape(msg)}")
@@ -74,7 +99,9 @@ def ingest_command(
                 out.print(f"[yellow]warning[/] {escape(sc.id)}/{escape(pr.id)}: {escape(w)}")
     for i, name in enumerate(report.unrelated):
         if i == 20:
-            out.print(f"  ... and {len(report.unrelated) - 20} more unrelated file(s) (listed in the manifest's 'skipped')")
+            out.print(
+                f"  ... and {len(report.unrelated) - 20} more unrelated file(s) (listed in the manifest's 'skipped')"
+            )
             break
         why = report.skip_reasons.get(name, "not a capture (.jpg/.jpeg/.dng)")
         out.print(f"[dim]skipped[/] {escape(name)}: {why}")
@@ -85,8 +112,10 @@ def ingest_command(
     for msg in report.product_errors:
         out.print(f"[yellow]product not built[/] {escape(msg)}")
     if report.transient_errors:
-        out.print(f"[red]{len(report.transient_errors)} file(s) could not be copied[/] (the environment, not the file: "
-                  "fix it and run ingest again, they will be retried):")
+        out.print(
+            f"[red]{len(report.transient_errors)} file(s) could not be copied[/] (the environment, not the file: "
+            "fix it and run ingest again, they will be retried):"
+        )
         for e in report.transient_errors:
             out.print(f"  [red]error[/] {escape(e.path)}: {escape(e.message)}")
     errors = [e for e in manifest.errors if e.card == str(Path(card_dir).resolve())]
@@ -99,16 +128,37 @@ def ingest_command(
 
 def ingest_cli(
     card_dir: Path = typer.Argument(..., help="The card (or a copy of it): DCIM/... or <scene>/<probe>/... folders."),
-    out: Path = typer.Option(..., "-o", "--out", help="The campaign folder to write (created; ingest more cards into it later)."),
+    out: Path = typer.Option(
+        ..., "-o", "--out", help="The campaign folder to write (created; ingest more cards into it later)."
+    ),
     jobs: int = typer.Option(1, "--jobs", "-j", min=1, help="Worker processes."),
-    response: Path | None = typer.Option(None, "--response", help="Inverse response curve for HDR products (default sRGB inverse)."),
-    products: bool = typer.Option(True, "--products/--no-products", help="Build the derived products (HDR merges, sun frames)."),
-    scene_gap: float | None = typer.Option(None, help="Seconds between shots that start a new scene (automatic layout; default 600, then the campaign's value)."),
-    probe_gap: float | None = typer.Option(None, help="Seconds between Theta shots that start a new probe position (default 45)."),
+    response: Path | None = typer.Option(
+        None, "--response", help="Inverse response curve for HDR products (default sRGB inverse)."
+    ),
+    products: bool = typer.Option(
+        True, "--products/--no-products", help="Build the derived products (HDR merges, sun frames)."
+    ),
+    scene_gap: float | None = typer.Option(
+        None,
+        help="Seconds between shots that start a new scene (automatic layout; default 600, then the campaign's value).",
+    ),
+    probe_gap: float | None = typer.Option(
+        None, help="Seconds between Theta shots that start a new probe position (default 45)."
+    ),
     bracket_gap: float | None = typer.Option(None, help="Seconds between shots that end a bracket (default 10)."),
-    low_exposure_max: str | None = typer.Option(None, help="Longest exposure (s) of a sun frame, e.g. 1/4000 (the default)."),
-    profile: str | None = typer.Option(None, "--profile", help="Per-unit lens profile (unit.json from 'solidkit calibrate overlap', or a shipped name) overriding the camera model's default; recorded in the campaign."),
-    vignetting: Path | None = typer.Option(None, "--vignetting", help="Vignetting profile ('solidkit calibrate vignetting'): each lens divided by its falloff before the lenses are blended; recorded in the campaign."),
+    low_exposure_max: str | None = typer.Option(
+        None, help="Longest exposure (s) of a sun frame, e.g. 1/4000 (the default)."
+    ),
+    profile: str | None = typer.Option(
+        None,
+        "--profile",
+        help="Per-unit lens profile (unit.json from 'solidkit calibrate overlap', or a shipped name) overriding the camera model's default; recorded in the campaign.",
+    ),
+    vignetting: Path | None = typer.Option(
+        None,
+        "--vignetting",
+        help="Vignetting profile ('solidkit calibrate vignetting'): each lens divided by its falloff before the lenses are blended; recorded in the campaign.",
+    ),
     as_json: bool = json_option("what this run did"),
 ) -> None:
     """Copy a card's captures into a checksummed campaign, group scenes/probes/brackets, build products.
@@ -117,16 +167,31 @@ def ingest_cli(
     ingested they are listed, everything else is processed, and the exit code is 2.
     """
     low = parse_exposure(low_exposure_max, "--low-exposure-max") if low_exposure_max is not None else None
-    report = ingest_command(card_dir, out, jobs, response, products, scene_gap, probe_gap, bracket_gap,
-                            low, lens_profile=profile, vignetting=vignetting, quiet=as_json)
+    report = ingest_command(
+        card_dir,
+        out,
+        jobs,
+        response,
+        products,
+        scene_gap,
+        probe_gap,
+        bracket_gap,
+        low,
+        lens_profile=profile,
+        vignetting=vignetting,
+        quiet=as_json,
+    )
     if as_json:
         echo_json({"card": str(card_dir), "campaign": str(out), **report.model_dump(mode="json")})
     if report.errors or report.known_errors or report.transient_errors:
         n = len(report.errors) + report.known_errors + len(report.transient_errors)
         raise InputError(f"{n} file(s) on {card_dir} could not be ingested (listed above); everything else was")
     if report.product_errors:
-        raise InputError(f"{len(report.product_errors)} product(s) could not be built (listed above); "
-                         "everything else was")
+        raise InputError(
+            f"{len(report.product_errors)} product(s) could not be built (listed above); everything else was"
+        )
     if report.notes_errors:
-        raise InputError(f"{len(report.notes_errors)} field notes file(s) on {card_dir} refused (listed above); "
-                         "everything else was ingested")
+        raise InputError(
+            f"{len(report.notes_errors)} field notes file(s) on {card_dir} refused (listed above); "
+            "everything else was ingested"
+        )

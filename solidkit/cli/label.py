@@ -6,7 +6,6 @@ import ipaddress
 import json
 import secrets
 from pathlib import Path
-from typing import Optional
 
 import typer
 from rich.console import Console
@@ -44,8 +43,9 @@ def serve(
     campaign: Path = typer.Argument(..., help="Campaign folder (manifest.json; labels go to CAMPAIGN/labels/)."),
     host: str = typer.Option("127.0.0.1", help="Address to bind. Anything but loopback requires a token."),
     port: int = typer.Option(8765, min=1, max=65535, help="TCP port."),
-    token: Optional[str] = typer.Option(
-        None, envvar="SOLIDKIT_LABEL_TOKEN",
+    token: str | None = typer.Option(
+        None,
+        envvar="SOLIDKIT_LABEL_TOKEN",
         help="Access token (also from $SOLIDKIT_LABEL_TOKEN). Generated and printed when binding beyond loopback.",
     ),  # fmt: skip
 ) -> None:
@@ -77,7 +77,7 @@ def serve(
 def export(
     campaign: Path = typer.Argument(..., help="Campaign folder."),
     as_json: bool = typer.Option(False, "--json", help="Print the export (JSON) on stdout."),
-    out: Optional[Path] = typer.Option(None, "-o", "--out", help="Write the export (JSON) to this file."),
+    out: Path | None = typer.Option(None, "-o", "--out", help="Write the export (JSON) to this file."),
 ) -> None:
     """Export the current labels (for the test-set builder); without --json/-o, a summary."""
     if not campaign.is_dir():

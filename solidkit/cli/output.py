@@ -7,7 +7,8 @@ document. Every reporter declares the option with :func:`json_option` and prints
 from __future__ import annotations
 
 import json
-from typing import Any, Callable
+from collections.abc import Callable
+from typing import Any
 
 import typer
 

@@ -41,7 +41,9 @@ MAX_SIDE = 32000  # OpenCV's remap and most image codecs stop below 32767 px
 _SIZE = re.compile(r"\s*(\d+)\s*[xX]\s*(\d+)\s*")
 
 
-def parse_size(text: str, option: str = "--size", *, equirect: bool = False, max_side: int = MAX_SIDE) -> tuple[int, int]:
+def parse_size(
+    text: str, option: str = "--size", *, equirect: bool = False, max_side: int = MAX_SIDE
+) -> tuple[int, int]:
     """``"640x480"`` -> ``(640, 480)``: positive integers up to ``max_side``; ``equirect``: ``W = 2 H``."""
     m = _SIZE.fullmatch(text or "")
     if not m:
@@ -88,8 +90,9 @@ def parse_exposures(text: str, option: str = "--times", count: int | None = None
     return values
 
 
-def parse_angle(value: float, option: str, lo: float | None = None, hi: float | None = None, *,
-                open_interval: bool = False) -> float:
+def parse_angle(
+    value: float, option: str, lo: float | None = None, hi: float | None = None, *, open_interval: bool = False
+) -> float:
     """A finite angle in degrees, within ``[lo, hi]`` (``(lo, hi)`` with ``open_interval``) when given."""
     v = float(value)
     if not math.isfinite(v):

@@ -21,8 +21,8 @@ from rich.table import Table
 from solidkit.cli.output import echo_json
 from solidkit.cli.parsing import output_folder, parse_angle, parse_floats, parse_pixel
 from solidkit.envmap.coords import CONVENTIONS_VERSION
-from solidkit.envmap.perspective import intrinsics_from_fov
 from solidkit.envmap.io import read_ldr, tonemap, write_exr, write_ldr
+from solidkit.envmap.perspective import intrinsics_from_fov
 from solidkit.errors import InputError
 from solidkit.fsutil import atomic_write_text
 
@@ -45,7 +45,9 @@ def predict_command(
     at: list[str] = typer.Option(..., "--at", help="Probe pixel X,Y in IMAGE (repeatable)."),
     out: Path = typer.Option(..., "-o", "--out", help="Output folder (created)."),
     checkpoint: Path | None = typer.Option(None, help="SOLID-Net checkpoint (default: the shipped one)."),
-    hfov_deg: float | None = typer.Option(None, "--hfov-deg", help="Horizontal field of view of IMAGE in degrees (default: the checkpoint's)."),
+    hfov_deg: float | None = typer.Option(
+        None, "--hfov-deg", help="Horizontal field of view of IMAGE in degrees (default: the checkpoint's)."
+    ),
     intrinsics: str | None = typer.Option(None, help="fx,fy,cx,cy of IMAGE in pixels (overrides --hfov-deg)."),
     pitch: float = typer.Option(0.0, help="Camera pitch in degrees (positive = looking up)."),
     roll: float = typer.Option(0.0, help="Camera roll in degrees (positive = right side down)."),
@@ -76,8 +78,13 @@ def predict_command(
         write_exr(out / f"{name}.exr", local, {**meta, "kind": "local H_l", "pixel": px.tolist()})
         write_ldr(out / f"{name}.png", tonemap(local))
         probes.append(
-            {"pixel": [float(px[0]), float(px[1])], "centre_m": [round(float(c), 4) for c in centre],
-             "geometry_valid": bool(ok), "exr": f"{name}.exr", "png": f"{name}.png"}
+            {
+                "pixel": [float(px[0]), float(px[1])],
+                "centre_m": [round(float(c), 4) for c in centre],
+                "geometry_valid": bool(ok),
+                "exr": f"{name}.exr",
+                "png": f"{name}.png",
+            }
         )
     report = {
         "image": str(image),
@@ -104,11 +111,14 @@ def predict_command(
     )
     net = report.get("sun_network")
     if net and "cone_68_deg" in net:
-        table.add_row("sun network", f"azimuth {net['azimuth_deg']:.1f}°, elevation {net['elevation_deg']:.1f}°, "
-                      f"{'sun' if net.get('says_sun') else 'no sun'} (p = {net.get('visible_prob', float('nan')):.2f}), "
-                      f"68 % / 90 % cones {net['cone_68_deg']:.0f}° / {net['cone_90_deg']:.0f}°"
-                      f"{'' if net['cones_calibrated'] else ' (uncalibrated)'}"
-                      f"{', on the clipped sun in the photo' if net.get('in_image_blob') else ''}")
+        table.add_row(
+            "sun network",
+            f"azimuth {net['azimuth_deg']:.1f}°, elevation {net['elevation_deg']:.1f}°, "
+            f"{'sun' if net.get('says_sun') else 'no sun'} (p = {net.get('visible_prob', float('nan')):.2f}), "
+            f"68 % / 90 % cones {net['cone_68_deg']:.0f}° / {net['cone_90_deg']:.0f}°"
+            f"{'' if net['cones_calibrated'] else ' (uncalibrated)'}"
+            f"{', on the clipped sun in the photo' if net.get('in_image_blob') else ''}",
+        )
     for p in probes:
         table.add_row(p["exr"], f"pixel ({p['pixel'][0]:g}, {p['pixel'][1]:g}), centre {p['centre_m']} m")
     console.print(table)

@@ -5,7 +5,6 @@ from __future__ import annotations
 import logging
 import time
 from pathlib import Path
-from typing import Optional
 
 import typer
 from rich.console import Console
@@ -22,25 +21,35 @@ summary = Console()  # results (stdout)
 
 
 def _progress() -> Progress:
-    return Progress(TextColumn("[bold]{task.description}"), BarColumn(), MofNCompleteColumn(), TimeElapsedColumn(),
-                    TimeRemainingColumn(), console=console)
+    return Progress(
+        TextColumn("[bold]{task.description}"),
+        BarColumn(),
+        MofNCompleteColumn(),
+        TimeElapsedColumn(),
+        TimeRemainingColumn(),
+        console=console,
+    )
 
 
 @app.command()
 def dataset(
     n: int = typer.Option(..., "--n", min=1, help="Total number of samples of the dataset (all shards)."),
     out: Path = typer.Option(..., "-o", "--out", help="Dataset folder (created; re-running resumes)."),
-    shard: Optional[str] = typer.Option(None, "--shard", help="Render only shard i/N (contiguous index range)."),
+    shard: str | None = typer.Option(None, "--shard", help="Render only shard i/N (contiguous index range)."),
     spp: int = typer.Option(64, "--spp", min=1, help="Samples per pixel of the photo."),
     probe_spp: int = typer.Option(32, "--probe-spp", min=1, help="Samples per pixel of the local probes."),
     seed: int = typer.Option(0, "--seed", help="Master seed (blocks, views, lighting, noise)."),
     width: int = typer.Option(320, "--width", min=8),
     height: int = typer.Option(240, "--height", min=6),
-    hfov_deg: float = typer.Option(60.0, "--hfov-deg", min=10.0, max=150.0, help="Horizontal field of view of the photo, degrees."),
+    hfov_deg: float = typer.Option(
+        60.0, "--hfov-deg", min=10.0, max=150.0, help="Horizontal field of view of the photo, degrees."
+    ),
     candidates: int = typer.Option(12, "--candidates", min=1, help="Candidate cameras per 60° sector."),
-    reference: Optional[Path] = typer.Option(None, "--reference", help="Folder of real LDR photos for the colour filter."),
+    reference: Path | None = typer.Option(None, "--reference", help="Folder of real LDR photos for the colour filter."),
     threshold: float = typer.Option(0.7, "--threshold", min=0.0, max=1.0, help="Histogram-intersection threshold."),
-    variant: Optional[str] = typer.Option(None, "--variant", help="Force a Mitsuba variant (default: cuda > llvm > scalar)."),
+    variant: str | None = typer.Option(
+        None, "--variant", help="Force a Mitsuba variant (default: cuda > llvm > scalar)."
+    ),
     as_json: bool = json_option("the counts"),
 ) -> None:
     """Render SOLID-Img-style samples: photo (HDR+LDR), buffers, global map, 4 local probes, JSON."""
@@ -54,7 +63,9 @@ def dataset(
     sh = parse_shard(shard)
     used = select_variant(variant)
     ref = ReferenceSet.from_dir(reference) if reference is not None else None
-    cfg = SampleConfig(width=width, height=height, hfov_deg=hfov_deg, spp=spp, probe_spp=probe_spp, candidates=candidates)
+    cfg = SampleConfig(
+        width=width, height=height, hfov_deg=hfov_deg, spp=spp, probe_spp=probe_spp, candidates=candidates
+    )
     t0 = time.perf_counter()
     with _progress() as bar:
         task = bar.add_task(f"synth {sh[0]}/{sh[1]} [{used}]", total=None)
@@ -82,20 +93,28 @@ def dataset(
 def sources(
     n: int = typer.Option(..., "--n", min=1, help="Total number of panoramas (all shards)."),
     out: Path = typer.Option(..., "-o", "--out", help="Folder (created; re-running resumes)."),
-    shard: Optional[str] = typer.Option(None, "--shard", help="Render only shard i/N (contiguous index range)."),
+    shard: str | None = typer.Option(None, "--shard", help="Render only shard i/N (contiguous index range)."),
     seed: int = typer.Option(0, "--seed", help="Master seed (blocks, positions, lighting, noise)."),
     height: int = typer.Option(768, "--height", min=64, help="Panorama height (width twice that)."),
     spp: int = typer.Option(12, "--spp", min=1, help="Samples per pixel."),
-    exclude_hdr: list[str] = typer.Option([], "--exclude-hdr", help="HDR lighting maps to leave out (e.g. a held-out real test)."),
-    variant: Optional[str] = typer.Option(None, "--variant", help="Force a Mitsuba variant (default: cuda > llvm > scalar)."),
-    positions_per_block: int = typer.Option(8, "--positions-per-block", min=1,
-                                            help="Consecutive panoramas that share one city block (1: every panorama a new block)."),
+    exclude_hdr: list[str] = typer.Option(
+        [], "--exclude-hdr", help="HDR lighting maps to leave out (e.g. a held-out real test)."
+    ),
+    variant: str | None = typer.Option(
+        None, "--variant", help="Force a Mitsuba variant (default: cuda > llvm > scalar)."
+    ),
+    positions_per_block: int = typer.Option(
+        8,
+        "--positions-per-block",
+        min=1,
+        help="Consecutive panoramas that share one city block (1: every panorama a new block).",
+    ),
     as_json: bool = json_option("the counts"),
 ) -> None:
     """Render city-block HDR panoramas + their lighting: sources of the crop path of I-Net training."""
     from solidkit.synth.dataset import parse_shard
-    from solidkit.synth.panocrops import SourceConfig, render_sources
     from solidkit.synth.mitsuba_variant import select_variant
+    from solidkit.synth.panocrops import SourceConfig, render_sources
 
     output_folder(out)
     sh = parse_shard(shard)
@@ -104,14 +123,23 @@ def sources(
     t0 = time.perf_counter()
     with _progress() as bar:
         task = bar.add_task(f"sources {sh[0]}/{sh[1]} [{used}]", total=None)
-        counts = render_sources(out, n, seed=seed, shard=sh, config=cfg,
-                                progress=lambda done, total: bar.update(task, completed=done, total=total))
+        counts = render_sources(
+            out,
+            n,
+            seed=seed,
+            shard=sh,
+            config=cfg,
+            progress=lambda done, total: bar.update(task, completed=done, total=total),
+        )
     dt = time.perf_counter() - t0
     if as_json:
         echo_json({"output": str(out), "variant": used, "shard": list(sh), **counts, "seconds": dt})
         return
-    summary.print(f"rendered {counts['rendered']}, skipped {counts['skipped']}"
-                  + (f", {dt / counts['rendered']:.1f} s each" if counts["rendered"] else "") + f" -> {out}")
+    summary.print(
+        f"rendered {counts['rendered']}, skipped {counts['skipped']}"
+        + (f", {dt / counts['rendered']:.1f} s each" if counts["rendered"] else "")
+        + f" -> {out}"
+    )
 
 
 @app.command(name="filter")
@@ -128,8 +156,10 @@ def filter_cmd(
     if as_json:
         echo_json({"dataset": str(dataset), "threshold": threshold, **counts})
         return
-    summary.print(f"kept {counts['kept']} / {counts['samples']} samples (threshold {threshold}, "
-                  f"{counts['references']} reference images)")
+    summary.print(
+        f"kept {counts['kept']} / {counts['samples']} samples (threshold {threshold}, "
+        f"{counts['references']} reference images)"
+    )
 
 
 @app.command()
@@ -138,23 +168,44 @@ def campaign(
     probes: int = typer.Option(67, "--probes", min=0, help="Number of probe positions in all (the paper: 67)."),
     out: Path = typer.Option(..., "-o", "--out", help="Output folder: card/ (what the field team brings) and truth/."),
     seed: int = typer.Option(0, "--seed", help="Master seed."),
-    photo_spp: Optional[int] = typer.Option(None, "--photo-spp", min=1, help="Samples per pixel of the photo (default 32)."),
-    pano_height: Optional[int] = typer.Option(None, "--pano-height", min=8,
-                                              help="Height of the HDR panorama behind each Theta shot (default 512)."),
-    pano_spp: Optional[int] = typer.Option(None, "--pano-spp", min=1, help="Samples per pixel of that panorama (default 16)."),
-    probe_spp: Optional[int] = typer.Option(None, "--probe-spp", min=1,
-                                            help="Samples per pixel of the truth probes (glass scenes: x4; default 256); see 'campaign-truth'."),
-    fisheye_width: Optional[int] = typer.Option(None, "--fisheye-width", min=64,
-                                                help="Width of the dual-fisheye JPEGs (default 1920)."),
-    brackets: Optional[str] = typer.Option(None, "--brackets",
-                                           help="Exposures (s) after the 1/25000 s sun frame and the 1/2500 s probe "
-                                                "shot, same bracket; default '1/640,1/160,1/40'; 'none': no more."),
-    preset: str = typer.Option("default", "--preset", help="Settings preset: 'default' or 'mini' (the small campaign "
-                                                           "shipped in solidkit/assets/campaign_mini); options given override it."),
-    glass_every: Optional[int] = typer.Option(None, "--glass-every", min=0,
-                                              help="Every n-th scene (scene02, scene05, ...) has glass facades that glint; 0: none (default 3)."),
-    photo_width: Optional[int] = typer.Option(None, "--photo-width", min=16, help="Photo width (px); height at 4:3."),
-    variant: Optional[str] = typer.Option(None, "--variant", help="Force a Mitsuba variant."),
+    photo_spp: int | None = typer.Option(
+        None, "--photo-spp", min=1, help="Samples per pixel of the photo (default 32)."
+    ),
+    pano_height: int | None = typer.Option(
+        None, "--pano-height", min=8, help="Height of the HDR panorama behind each Theta shot (default 512)."
+    ),
+    pano_spp: int | None = typer.Option(
+        None, "--pano-spp", min=1, help="Samples per pixel of that panorama (default 16)."
+    ),
+    probe_spp: int | None = typer.Option(
+        None,
+        "--probe-spp",
+        min=1,
+        help="Samples per pixel of the truth probes (glass scenes: x4; default 256); see 'campaign-truth'.",
+    ),
+    fisheye_width: int | None = typer.Option(
+        None, "--fisheye-width", min=64, help="Width of the dual-fisheye JPEGs (default 1920)."
+    ),
+    brackets: str | None = typer.Option(
+        None,
+        "--brackets",
+        help="Exposures (s) after the 1/25000 s sun frame and the 1/2500 s probe "
+        "shot, same bracket; default '1/640,1/160,1/40'; 'none': no more.",
+    ),
+    preset: str = typer.Option(
+        "default",
+        "--preset",
+        help="Settings preset: 'default' or 'mini' (the small campaign "
+        "shipped in solidkit/assets/campaign_mini); options given override it.",
+    ),
+    glass_every: int | None = typer.Option(
+        None,
+        "--glass-every",
+        min=0,
+        help="Every n-th scene (scene02, scene05, ...) has glass facades that glint; 0: none (default 3).",
+    ),
+    photo_width: int | None = typer.Option(None, "--photo-width", min=16, help="Photo width (px); height at 4:3."),
+    variant: str | None = typer.Option(None, "--variant", help="Force a Mitsuba variant."),
     as_json: bool = json_option(),
 ) -> None:
     """A virtual field campaign: photos, Theta dual-fisheye shots (card layout) and a separate truth file."""
@@ -169,8 +220,13 @@ def campaign(
     given: dict[str, object] = {}
     if brackets is not None:
         given["brackets_s"] = [] if brackets.strip().lower() == "none" else parse_exposures(brackets, "--brackets")
-    for name, value in (("photo_spp", photo_spp), ("pano_height", pano_height), ("pano_spp", pano_spp),
-                        ("probe_spp", probe_spp), ("fisheye_width", fisheye_width)):
+    for name, value in (
+        ("photo_spp", photo_spp),
+        ("pano_height", pano_height),
+        ("pano_spp", pano_spp),
+        ("probe_spp", probe_spp),
+        ("fisheye_width", fisheye_width),
+    ):
         if value is not None:  # else the preset's value, or CampaignConfig's default
             given[name] = value
     if glass_every is not None:
@@ -187,9 +243,17 @@ def campaign(
 
         truth = generate_campaign(out, scenes, probes, seed=seed, config=cfg, progress=report)
     if as_json:
-        echo_json({"output": str(out), "variant": used, "scenes": len(truth.scenes),
-                   "captures": sum(len(s.captures) for s in truth.scenes), "card": str(out / "card"),
-                   "truth": str(out / "truth" / "truth.json"), "seconds": time.perf_counter() - t0})
+        echo_json(
+            {
+                "output": str(out),
+                "variant": used,
+                "scenes": len(truth.scenes),
+                "captures": sum(len(s.captures) for s in truth.scenes),
+                "card": str(out / "card"),
+                "truth": str(out / "truth" / "truth.json"),
+                "seconds": time.perf_counter() - t0,
+            }
+        )
         return
     table = Table(title=f"solidkit synth campaign -> {out}", show_header=False)
     table.add_row("scenes / captures", f"{len(truth.scenes)} / {sum(len(s.captures) for s in truth.scenes)}")
@@ -202,16 +266,26 @@ def campaign(
 @app.command(name="campaign-truth")
 def campaign_truth(
     campaign: Path = typer.Argument(..., help="A folder of 'solidkit synth campaign' (card/ and truth/)."),
-    spp: Optional[int] = typer.Option(None, "--spp", min=1, help="Samples per pixel of a truth probe's first render "
-                                                                 "(glass scenes: x the campaign's glass factor); "
-                                                                 "default 256."),
-    noise_db: Optional[float] = typer.Option(None, "--noise-db", min=0.0,
-                                             help="Noise target (PSNR dB, paper tonemap): probes whose first render is "
-                                                  "noisier get a fresh render with more samples; 0: none; default 40."),
-    max_spp: Optional[int] = typer.Option(None, "--max-spp", min=1, help="Most samples per pixel for the noise target "
-                                                                         "(default 2048)."),
+    spp: int | None = typer.Option(
+        None,
+        "--spp",
+        min=1,
+        help="Samples per pixel of a truth probe's first render "
+        "(glass scenes: x the campaign's glass factor); "
+        "default 256.",
+    ),
+    noise_db: float | None = typer.Option(
+        None,
+        "--noise-db",
+        min=0.0,
+        help="Noise target (PSNR dB, paper tonemap): probes whose first render is "
+        "noisier get a fresh render with more samples; 0: none; default 40.",
+    ),
+    max_spp: int | None = typer.Option(
+        None, "--max-spp", min=1, help="Most samples per pixel for the noise target (default 2048)."
+    ),
     scene: list[str] = typer.Option([], "--scene", help="Only this scene (repeatable); default: all."),
-    variant: Optional[str] = typer.Option(None, "--variant", help="Force a Mitsuba variant."),
+    variant: str | None = typer.Option(None, "--variant", help="Force a Mitsuba variant."),
     as_json: bool = json_option(),
 ) -> None:
     """Re-render only the truth probes of a virtual campaign (the card is not touched); idempotent, resumable.
@@ -231,23 +305,35 @@ def campaign_truth(
     t0 = time.perf_counter()
     with _progress() as bar:
         task = bar.add_task(f"truth probes [{used}]", total=total)
-        res = rerender_truth(campaign, spp=spp, noise_db=noise_db, max_spp=max_spp, scenes=scene or None,
-                             progress=lambda sid, cid, what: bar.advance(task))
+        res = rerender_truth(
+            campaign,
+            spp=spp,
+            noise_db=noise_db,
+            max_spp=max_spp,
+            scenes=scene or None,
+            progress=lambda sid, cid, what: bar.advance(task),
+        )
     res["seconds"] = time.perf_counter() - t0
     if as_json:
         echo_json(res)
         return
     table = Table(title=f"solidkit synth campaign-truth {campaign}", show_header=False)
     table.add_row("truth probes rendered / kept / up to date", f"{res['rendered']} / {res['kept']} / {res['skipped']}")
-    table.add_row("first render spp (non-glass) / noise target / max spp",
-                  f"{res['spp']} / {res['noise_db']:g} dB / {res['max_spp']}")
+    table.add_row(
+        "first render spp (non-glass) / noise target / max spp",
+        f"{res['spp']} / {res['noise_db']:g} dB / {res['max_spp']}",
+    )
     if res["probes"]:
         noise = [p["noise_psnr_db"] for p in res["probes"] if p["noise_psnr_db"] is not None]
         if noise:
-            table.add_row("noise of these probes (min / median)", f"{min(noise):.1f} / {sorted(noise)[len(noise) // 2]:.1f} dB")
+            table.add_row(
+                "noise of these probes (min / median)", f"{min(noise):.1f} / {sorted(noise)[len(noise) // 2]:.1f} dB"
+            )
     if res["rendered"]:
         table.add_row("seconds per rendered probe", f"{res['seconds_per_probe']:.1f}")
-        table.add_row("new vs stored probe at 1/4 size (min)",
-                      f"{min(p['check_psnr_db'] for p in res['probes'] if p['what'] == 'rendered'):.1f} dB")
+        table.add_row(
+            "new vs stored probe at 1/4 size (min)",
+            f"{min(p['check_psnr_db'] for p in res['probes'] if p['what'] == 'rendered'):.1f} dB",
+        )
     table.add_row("all probes done with this recipe", "yes" if res["complete"] else "no")
     summary.print(table)

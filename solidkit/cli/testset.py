@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Optional
 
 import typer
 
@@ -14,8 +13,12 @@ app = typer.Typer(no_args_is_help=True, help="Build, validate, inspect and expor
 
 @app.command("build")
 def build_command(
-    campaign: Path = typer.Argument(..., help="Campaign folder (ingested, aligned; its label store is used when present)."),
-    out: Path = typer.Option(..., "-o", "--out", help="Test set folder to create (absent, empty, or an earlier test set)."),
+    campaign: Path = typer.Argument(
+        ..., help="Campaign folder (ingested, aligned; its label store is used when present)."
+    ),
+    out: Path = typer.Option(
+        ..., "-o", "--out", help="Test set folder to create (absent, empty, or an earlier test set)."
+    ),
     json_out: bool = json_option("the build report"),
 ) -> None:
     """Assemble a versioned test set (photos, probes, sun, metadata) from an aligned campaign."""
@@ -35,7 +38,9 @@ def build_command(
         echo_json({**report.to_json(), "seconds": round(seconds, 2)}, indent=1)
         return
     table = Table(title=f"solidkit testset build -> {escape(str(out))}", show_header=False)
-    table.add_row("dataset version", report.dataset_version + ("" if report.changed else "  (unchanged: nothing written)"))
+    table.add_row(
+        "dataset version", report.dataset_version + ("" if report.changed else "  (unchanged: nothing written)")
+    )
     table.add_row("scenes / probes (HDR)", f"{report.scenes} / {report.probes} ({report.hdr_probes})")
     table.add_row("scenes with a sun", str(report.sun_found))
     table.add_row("labels used", str(report.labels_used))
@@ -50,7 +55,9 @@ def build_command(
 @app.command("validate")
 def validate_command(
     root: Path = typer.Argument(..., help="Test set folder (holding testset.json)."),
-    allow_flagged: bool = typer.Option(False, "--allow-flagged", help="Do not count labels still flagged for review as problems."),
+    allow_flagged: bool = typer.Option(
+        False, "--allow-flagged", help="Do not count labels still flagged for review as problems."
+    ),
     json_out: bool = json_option("the problems"),
 ) -> None:
     """Check schema, files, checksums, geometry, exposures and flags; exit 1 when any problem is found."""
@@ -70,7 +77,9 @@ def validate_command(
         console = Console(stderr=True)
         for p in problems:
             console.print(f"[red]problem[/red] {escape(str(p))}")
-        console.print(f"{root}: " + ("[green]valid[/green]" if not problems else f"[red]{len(problems)} problem(s)[/red]"))
+        console.print(
+            f"{root}: " + ("[green]valid[/green]" if not problems else f"[red]{len(problems)} problem(s)[/red]")
+        )
     if problems:
         raise typer.Exit(1)
 
@@ -78,7 +87,9 @@ def validate_command(
 @app.command("show")
 def show_command(
     root: Path = typer.Argument(..., help="Test set folder (holding testset.json)."),
-    out: Optional[Path] = typer.Option(None, "-o", "--out", help="Folder for the sheets and index.html (default: ROOT-sheets beside it)."),
+    out: Path | None = typer.Option(
+        None, "-o", "--out", help="Folder for the sheets and index.html (default: ROOT-sheets beside it)."
+    ),
     json_out: bool = json_option("what was written"),
 ) -> None:
     """Contact sheets per scene (PNG) and an HTML index: probe pixels, aligned probes with the photo's FOV, the sun."""
@@ -101,7 +112,9 @@ def show_command(
 @app.command("export")
 def export_command(
     root: Path = typer.Argument(..., help="Test set folder (holding testset.json)."),
-    out: Path = typer.Option(..., "-o", "--out", help="Folder to write, outside the test set (absent, empty, or an earlier export)."),
+    out: Path = typer.Option(
+        ..., "-o", "--out", help="Folder to write, outside the test set (absent, empty, or an earlier export)."
+    ),
     fmt: str = typer.Option(..., "--format", help="Target layout: sold-net (SOLD-Net's real-set folder)."),
     json_out: bool = json_option("the exported items"),
 ) -> None:
@@ -115,7 +128,10 @@ def export_command(
     doc = export_sold_net(root, out)
     typer.echo(f"wrote {len(doc['items'])} items to {out}", err=True)
     if doc["skipped_by_sold_net_loader"]:
-        typer.echo(f"note: SOLD-Net's loader skips items with fewer than 2 probes: {', '.join(doc['skipped_by_sold_net_loader'])}", err=True)
+        typer.echo(
+            f"note: SOLD-Net's loader skips items with fewer than 2 probes: {', '.join(doc['skipped_by_sold_net_loader'])}",
+            err=True,
+        )
     if json_out:
         echo_json({"output": str(out), **doc}, indent=1)
 
@@ -139,7 +155,7 @@ def diff_command(
 
 @app.command("schema")
 def schema_command(
-    out: Optional[Path] = typer.Option(None, "-o", "--out", help="Write the JSON Schema here instead of stdout."),
+    out: Path | None = typer.Option(None, "-o", "--out", help="Write the JSON Schema here instead of stdout."),
 ) -> None:
     """Print (or write) the JSON Schema of testset.json."""
     from solidkit.fsutil import atomic_write_text

@@ -8,7 +8,6 @@ solidkit.cli train CONFIG --device cuda``.
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Optional
 
 import typer
 
@@ -19,10 +18,10 @@ __all__ = ["train_command"]
 
 def train_command(
     config: Path = typer.Argument(..., help="TOML training configuration (see docs and solidkit/model/trainer.py)."),
-    out: Optional[Path] = typer.Option(None, "-o", "--out", help="Run folder (default: the config's 'out')."),
-    device: Optional[str] = typer.Option(None, help="cpu or cuda (default: the config's 'device')."),
-    max_minutes: Optional[float] = typer.Option(None, help="Stop (resumably) after this many minutes."),
-    threads: Optional[int] = typer.Option(None, help="torch CPU threads (default: the config's 'threads')."),
+    out: Path | None = typer.Option(None, "-o", "--out", help="Run folder (default: the config's 'out')."),
+    device: str | None = typer.Option(None, help="cpu or cuda (default: the config's 'device')."),
+    max_minutes: float | None = typer.Option(None, help="Stop (resumably) after this many minutes."),
+    threads: int | None = typer.Option(None, help="torch CPU threads (default: the config's 'threads')."),
     progress: bool = typer.Option(True, help="Show a progress bar on a terminal."),
     as_json: bool = json_option("the run's final state"),
 ) -> None:

@@ -17,7 +17,9 @@ def __getattr__(name: str) -> Any:
         return [n for sub in _SUBMODULES for n in importlib.import_module(f"{__name__}.{sub}").__all__]
     if name.startswith("__"):
         raise AttributeError(name)
-    if importlib.util.find_spec(f"{__name__}.{name}") is not None:  # a sub-module (``from solidkit.envmap import tilt``)
+    if (
+        importlib.util.find_spec(f"{__name__}.{name}") is not None
+    ):  # a sub-module (``from solidkit.envmap import tilt``)
         return importlib.import_module(f"{__name__}.{name}")
     for sub in _SUBMODULES:
         module = importlib.import_module(f"{__name__}.{sub}")

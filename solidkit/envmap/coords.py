@@ -216,9 +216,7 @@ def direction_grid(height: int, xp: Any = np, **kw: Any) -> Any:
     _, theta = angles_from_coords(0.0, ns.arange(height, **kw) + 0.5, height)
     row = direction_from_angles(phi, ns.zeros_like(phi))  # (W, 3) at elevation 0
     ct, st = ns.cos(theta)[:, None], ns.sin(theta)[:, None]  # (H, 1)
-    return ns.stack(
-        [ct * row[None, :, 0], ns.broadcast_to(-st, (height, 2 * height)), ct * row[None, :, 2]], axis=-1
-    )
+    return ns.stack([ct * row[None, :, 0], ns.broadcast_to(-st, (height, 2 * height)), ct * row[None, :, 2]], axis=-1)
 
 
 def solid_angle(height: int, xp: Any = np, **kw: Any) -> Any:
@@ -357,9 +355,14 @@ def rotation_from_rotvec(w: Any) -> Any:
     a = xp.sqrt(xp.sum(w * w, axis=-1))
     k = w / xp.where(a > 1e-12, a, xp.ones_like(a))[..., None]
     zero = xp.zeros_like(a)
-    K = xp.stack([xp.stack([zero, -k[..., 2], k[..., 1]], axis=-1),
-                  xp.stack([k[..., 2], zero, -k[..., 0]], axis=-1),
-                  xp.stack([-k[..., 1], k[..., 0], zero], axis=-1)], axis=-2)
+    K = xp.stack(
+        [
+            xp.stack([zero, -k[..., 2], k[..., 1]], axis=-1),
+            xp.stack([k[..., 2], zero, -k[..., 0]], axis=-1),
+            xp.stack([-k[..., 1], k[..., 0], zero], axis=-1),
+        ],
+        axis=-2,
+    )
     eye = xp.eye(3, dtype=w.dtype, device=array_api_compat.device(w))
     s, c = xp.sin(a)[..., None, None], xp.cos(a)[..., None, None]
     return eye + s * K + (1 - c) * (K @ K)

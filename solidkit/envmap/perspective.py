@@ -293,7 +293,6 @@ def embed_perspective(photo: Any, K: Any, R: Any, height: int, interp: str = "li
     if is_torch(photo):
         import torch  # lazy: only torch inputs need it (NumPy users never import torch)
 
-
         unbatched = photo.ndim == 3
         img = photo[None] if unbatched else photo
         dtype = img.dtype if img.dtype in (torch.float32, torch.float64) else torch.float32

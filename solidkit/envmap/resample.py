@@ -144,6 +144,7 @@ def pad_panorama(pano: Any, pad: int = PAD) -> Any:
 
         def idx(a: int, b: int) -> Any:
             return np.arange(a, b)
+
     w = 2 * h
     # across a pole: padded row -1-k is row k, shifted by W/2 (likewise below the bottom)
     top = xp.roll(xp.flip(xp.take(pano, idx(0, pad), axis=rows), axis=rows), w // 2, axis=cols)
@@ -155,8 +156,14 @@ def pad_panorama(pano: Any, pad: int = PAD) -> Any:
     return xp.concat([left, tall, right], axis=cols)
 
 
-def remap(img: np.ndarray, map_x: np.ndarray, map_y: np.ndarray, interp: str, border: str = "constant",
-          border_value: float = 0.0) -> np.ndarray:
+def remap(
+    img: np.ndarray,
+    map_x: np.ndarray,
+    map_y: np.ndarray,
+    interp: str,
+    border: str = "constant",
+    border_value: float = 0.0,
+) -> np.ndarray:
     """``cv2.remap`` for maps of any shape ``(...)``; returns ``(..., [C])``.
 
     Map values are OpenCV pixel coordinates (pixel centres at integers). ``border`` is
@@ -187,8 +194,9 @@ def remap(img: np.ndarray, map_x: np.ndarray, map_y: np.ndarray, interp: str, bo
     return out.reshape(*shape, *img.shape[2:]).astype(dtype, copy=False)
 
 
-def sample_image(image: np.ndarray, x: Any, y: Any, interp: str = "linear", *, border: str = "constant",
-                 border_value: float = 0.0) -> np.ndarray:
+def sample_image(
+    image: np.ndarray, x: Any, y: Any, interp: str = "linear", *, border: str = "constant", border_value: float = 0.0
+) -> np.ndarray:
     """Samples of an image ``(H, W[, C])`` at pixel coordinates ``x, y`` of any (equal) shape ``(...)``.
 
     Coordinates are OpenCV's (pixel centres at integers; conventions §1); ``interp`` is one of

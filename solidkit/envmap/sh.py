@@ -48,8 +48,9 @@ from __future__ import annotations
 
 import math
 from collections import OrderedDict
+from collections.abc import Callable
 from functools import lru_cache
-from typing import Any, Callable, Literal
+from typing import Any, Literal
 
 import array_api_compat
 import numpy as np
@@ -162,6 +163,7 @@ def _cached(name: str, height: int, builder: Callable[[int], Any], like: Any, xp
         _CACHE.move_to_end(key)
         return hit
     value = builder(height)
+
     def conv(a: Any) -> Any:
         return xp.asarray(a, dtype=like.dtype, device=dev)
 

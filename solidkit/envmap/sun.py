@@ -254,9 +254,8 @@ def _cos_to(h: int, centre: np.ndarray) -> np.ndarray:
     from per-row and per-column factors instead of a full direction grid (large panoramas)."""
     phi, theta = angles_from_coords(np.arange(2 * h) + 0.5, np.arange(h) + 0.5, h)
     cols = (np.sin(phi) * centre[0] + np.cos(phi) * centre[2]).astype(np.float32)
-    return np.cos(theta).astype(np.float32)[:, None] * cols[None, :] - (  # type: ignore[no-any-return]
-        np.sin(theta) * centre[1]
-    ).astype(np.float32)[:, None]
+    rows_sin = (np.sin(theta) * centre[1]).astype(np.float32)[:, None]
+    return cast(np.ndarray, np.cos(theta).astype(np.float32)[:, None] * cols[None, :] - rows_sin)
 
 
 def _weighted_quantile(values: np.ndarray, weights: np.ndarray, q: float) -> float:
@@ -291,7 +290,9 @@ def _background(lum: np.ndarray, centre: np.ndarray, exclude: float, q: float, m
     return _weighted_quantile(lum[outside], solid_angle(h)[outside], q)
 
 
-def _component_stats(labels: np.ndarray, n: int, values: np.ndarray, omega: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def _component_stats(
+    labels: np.ndarray, n: int, values: np.ndarray, omega: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
     """Per-component peak of ``values`` and solid angle, for labels ``1 .. n`` (only labelled pixels are read)."""
     sel = labels > 0
     lab = labels[sel]
@@ -305,7 +306,9 @@ def _prepare(pano: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Validated ``(H, 2H, C)`` float panorama (C in 1, 3; negatives clipped) and its luminance."""
     pano = np.asarray(pano)
     if not np.issubdtype(pano.dtype, np.floating):
-        raise InputError(f"expected a float (linear) panorama, got dtype {pano.dtype}; decode LDR with read_ldr(linear=True)")
+        raise InputError(
+            f"expected a float (linear) panorama, got dtype {pano.dtype}; decode LDR with read_ldr(linear=True)"
+        )
     if pano.ndim == 2:
         pano = pano[..., None]
     if pano.ndim == 3 and pano.shape[2] not in (1, 3):

@@ -67,8 +67,10 @@ class TiltEstimate:
     gravity: tuple[float, float, float]
 
     def to_json(self) -> dict[str, Any]:
-        return {k: (round(v, 4) if isinstance(v, float) else list(v) if isinstance(v, tuple) else v)
-                for k, v in asdict(self).items()}
+        return {
+            k: (round(v, 4) if isinstance(v, float) else list(v) if isinstance(v, tuple) else v)
+            for k, v in asdict(self).items()
+        }
 
 
 def correction_from_gravity(g: np.ndarray) -> tuple[float, float]:
@@ -102,13 +104,14 @@ def _gray8(pano: np.ndarray) -> np.ndarray:
 _LSD_SCALE = 0.8  # OpenCV's default: LSD works on a Gaussian-subsampled copy
 
 
-def _segments(gray: np.ndarray, max_lean_deg: float, max_elevation_deg: float, min_length_px: float
-              ) -> tuple[np.ndarray, np.ndarray]:
+def _segments(
+    gray: np.ndarray, max_lean_deg: float, max_elevation_deg: float, min_length_px: float
+) -> tuple[np.ndarray, np.ndarray]:
     """Great-circle normals ``(N, 3)`` and angular lengths ``(N,)`` of near-vertical segments."""
     h = gray.shape[0]
     lim = h / 2 * (1 - max_elevation_deg / 90.0)  # rows above/below this are too close to a pole
     top = max(0, int(lim) - 2)
-    lines = cv2.createLineSegmentDetector(cv2.LSD_REFINE_STD, _LSD_SCALE).detect(gray[top: h - top])[0]
+    lines = cv2.createLineSegmentDetector(cv2.LSD_REFINE_STD, _LSD_SCALE).detect(gray[top : h - top])[0]
     if lines is None:
         return np.zeros((0, 3)), np.zeros(0)
     # LSD's coordinates put pixel centres at integers and map its subsampled copy back by 1/scale
@@ -145,8 +148,15 @@ def _refine(n: np.ndarray, sigma: np.ndarray, z: np.ndarray, iters: int = 20) ->
     return z, w
 
 
-def _zenith(gray: np.ndarray, max_lean_deg: float, max_elevation_deg: float, ransac_iters: int, edge_px: float,
-            model_deg: float, seed: int) -> tuple[np.ndarray, float, int, bool]:
+def _zenith(
+    gray: np.ndarray,
+    max_lean_deg: float,
+    max_elevation_deg: float,
+    ransac_iters: int,
+    edge_px: float,
+    model_deg: float,
+    seed: int,
+) -> tuple[np.ndarray, float, int, bool]:
     """One pass on an 8-bit panorama: (zenith, uncertainty in degrees, inlier count, azimuth spread ok)."""
     h = gray.shape[0]
     n, ang = _segments(gray, max_lean_deg, max_elevation_deg, max(8.0, h / 64))
@@ -201,10 +211,19 @@ def _zenith(gray: np.ndarray, max_lean_deg: float, max_elevation_deg: float, ran
     return z, unc, m, spread
 
 
-def residual_tilt(pano: np.ndarray, *, max_lean_deg: float = 12.0, max_elevation_deg: float = 60.0,
-                  min_segments: int = 8, max_uncertainty_deg: float = 0.3, ransac_iters: int = 500,
-                  edge_px: float = 1.0, model_deg: float = 0.03, seed: int = 0,
-                  max_height: int = 1024) -> TiltEstimate:
+def residual_tilt(
+    pano: np.ndarray,
+    *,
+    max_lean_deg: float = 12.0,
+    max_elevation_deg: float = 60.0,
+    min_segments: int = 8,
+    max_uncertainty_deg: float = 0.3,
+    ransac_iters: int = 500,
+    edge_px: float = 1.0,
+    model_deg: float = 0.03,
+    seed: int = 0,
+    max_height: int = 1024,
+) -> TiltEstimate:
     """Estimate how far a panorama is from level (module docstring).
 
     Parameters
@@ -260,7 +279,11 @@ def residual_tilt(pano: np.ndarray, *, max_lean_deg: float = 12.0, max_elevation
     if img.dtype != np.uint8:
         gray = _gray8(img)
     if h > max_height:
-        gray = cv2.resize(gray, (2 * max_height, max_height), interpolation=cv2.INTER_AREA) if gray.shape[0] > max_height else gray
+        gray = (
+            cv2.resize(gray, (2 * max_height, max_height), interpolation=cv2.INTER_AREA)
+            if gray.shape[0] > max_height
+            else gray
+        )
         h = max_height
     params = (max_lean_deg, max_elevation_deg, ransac_iters, edge_px, model_deg, seed)
     z, unc, m, spread = _zenith(gray, *params)
@@ -277,5 +300,6 @@ def residual_tilt(pano: np.ndarray, *, max_lean_deg: float = 12.0, max_elevation
     pitch, roll = correction_from_gravity(g)
     tilt = math.degrees(math.acos(max(-1.0, min(1.0, float(g[1])))))
     reliable = m >= min_segments and spread and unc <= max_uncertainty_deg
-    return TiltEstimate(tilt, math.degrees(pitch), math.degrees(roll), unc, m, reliable,
-                        (float(g[0]), float(g[1]), float(g[2])))
+    return TiltEstimate(
+        tilt, math.degrees(pitch), math.degrees(roll), unc, m, reliable, (float(g[0]), float(g[1]), float(g[2]))
+    )

@@ -35,16 +35,13 @@ from typing import Any, cast
 
 import numpy as np
 
-from solidkit.envmap.coords import direction_from_angles
-from solidkit.envmap.io import read_exr, read_ldr, srgb_decode
-from solidkit.envmap.sun import luminance
-from solidkit.errors import InputError
 from solidkit import metrics as M
-from solidkit.envmap.coords import rotation_from_ypr
-from solidkit.envmap.io import read_image, tonemap, validate_panorama
+from solidkit.envmap.coords import direction_from_angles, rotation_from_ypr
+from solidkit.envmap.io import read_exr, read_image, read_ldr, srgb_decode, tonemap, validate_panorama
 from solidkit.envmap.perspective import intrinsics_from_fov, perspective_crop
 from solidkit.envmap.resample import resize, rotate
-from solidkit.envmap.sun import detect_sun
+from solidkit.envmap.sun import detect_sun, luminance
+from solidkit.errors import InputError
 from solidkit.fsutil import atomic_write_text
 from solidkit.model import SolidNet
 from solidkit.testset.build import load_testset
@@ -163,9 +160,10 @@ class ModelMethod(Method):
             h, w = item.image.shape[:2]
             pixels = item.pixels if len(item.pixels) else np.array([[(w - 1) / 2, 0.9 * (h - 1)]])  # global map only
             pred = self.model.predict(item.image, pixels, K=item.K, pitch=item.pitch, roll=item.roll)
-            local = list(pred.local)[:len(item.probe_ids)] if getattr(pred, "local", None) else None
-            self._cache[key] = ItemPrediction(pred.sky, local, time.perf_counter() - t0,
-                                          {"probe_valid": (pred.extra or {}).get("probe_valid")})
+            local = list(pred.local)[: len(item.probe_ids)] if getattr(pred, "local", None) else None
+            self._cache[key] = ItemPrediction(
+                pred.sky, local, time.perf_counter() - t0, {"probe_valid": (pred.extra or {}).get("probe_valid")}
+            )
         return self._cache[key]
 
 
@@ -203,15 +201,19 @@ class MeanBaseline(Method):
     def __init__(self, what: str) -> None:
         self.what = what
         self.name = f"mean-{what}"
-        self.description = (f"mean truth {'global map' if what == 'sky' else 'local probe'} of the other scenes "
-                            "(leave-one-scene-out)")
+        self.description = (
+            f"mean truth {'global map' if what == 'sky' else 'local probe'} of the other scenes (leave-one-scene-out)"
+        )
         self._sums: dict[str, tuple[np.ndarray, int]] = {}
 
     def prepare(self, items: Sequence[EvalItem]) -> None:
         self._sums = {}
         for it in items:
-            maps = ([it.global_hdr] if it.global_hdr is not None else []) if self.what == "sky" else \
-                [_local_truth_linear(it, k) for k in range(len(it.probes_ldr))]
+            maps = (
+                ([it.global_hdr] if it.global_hdr is not None else [])
+                if self.what == "sky"
+                else [_local_truth_linear(it, k) for k in range(len(it.probes_ldr))]
+            )
             for m in maps:
                 y = float(luminance(m).mean())
                 if y <= 0:
@@ -222,7 +224,9 @@ class MeanBaseline(Method):
     def _mean_without(self, scene: str) -> np.ndarray | None:
         parts = [(s, n) for k, (s, n) in self._sums.items() if k != scene]
         n = sum(p[1] for p in parts)
-        return cast(np.ndarray, sum(p[0] for p in parts) / n).astype(np.float32) if n else None  # n > 0: a sum of arrays
+        return (
+            cast(np.ndarray, sum(p[0] for p in parts) / n).astype(np.float32) if n else None
+        )  # n > 0: a sum of arrays
 
     def predict(self, item: EvalItem) -> ItemPrediction:
         mean = self._mean_without(item.scene)
@@ -236,7 +240,9 @@ class MeanBaseline(Method):
 # ------------------------------------------------------------------------------------- data sources
 
 
-def items_from_synth(root: str | os.PathLike, indices: Iterable[int] | None = None, limit: int | None = None) -> list[EvalItem]:
+def items_from_synth(
+    root: str | os.PathLike, indices: Iterable[int] | None = None, limit: int | None = None
+) -> list[EvalItem]:
     """Evaluation items from a synthetic dataset folder (``solidkit synth dataset``).
 
     Each sample is its own scene (samples of one city block share no lighting).
@@ -254,15 +260,25 @@ def items_from_synth(root: str | os.PathLike, indices: Iterable[int] | None = No
         hdr = [p.permute(1, 2, 0).numpy() for p, v in zip(it["probes"], valid) if v]
         sims = [M.simulate_ldr_probe(h) for h in hdr]
         idx = str(int(it["index"]))
-        items.append(EvalItem(
-            scene=f"synth-{idx}", id=idx, image=it["image"].permute(1, 2, 0).numpy(), K=it["K"].numpy().astype(np.float64),
-            pitch=float(it["pitch"]), roll=float(it["roll"]), pixels=it["probe_pixels"].numpy()[valid].astype(np.float64),
-            probe_ids=[str(k) for k in np.nonzero(valid)[0]],
-            sun=it["sun"].numpy().astype(np.float64) if float(it["sun_found"]) > 0 else None,
-            global_hdr=it["global"].permute(1, 2, 0).numpy()[..., :3], probes_ldr=[s[0] for s in sims],
-            probes_saturated=[s[1] for s in sims], probes_hdr=hdr, source="synthetic",
-            photo_path=str(Path(root) / ds.entries[i]["dir"]),
-        ))
+        items.append(
+            EvalItem(
+                scene=f"synth-{idx}",
+                id=idx,
+                image=it["image"].permute(1, 2, 0).numpy(),
+                K=it["K"].numpy().astype(np.float64),
+                pitch=float(it["pitch"]),
+                roll=float(it["roll"]),
+                pixels=it["probe_pixels"].numpy()[valid].astype(np.float64),
+                probe_ids=[str(k) for k in np.nonzero(valid)[0]],
+                sun=it["sun"].numpy().astype(np.float64) if float(it["sun_found"]) > 0 else None,
+                global_hdr=it["global"].permute(1, 2, 0).numpy()[..., :3],
+                probes_ldr=[s[0] for s in sims],
+                probes_saturated=[s[1] for s in sims],
+                probes_hdr=hdr,
+                source="synthetic",
+                photo_path=str(Path(root) / ds.entries[i]["dir"]),
+            )
+        )
     return items
 
 
@@ -289,8 +305,12 @@ def _expose_like_training(photo_hdr: np.ndarray, tonemap: Any, target: float = P
 
 
 def items_from_panoramas(
-    paths: Sequence[str | os.PathLike], yaws: int = 8, pitch_deg: float = 5.0, hfov_deg: float = 60.0,
-    size: tuple[int, int] = (320, 240), height: int = 128,
+    paths: Sequence[str | os.PathLike],
+    yaws: int = 8,
+    pitch_deg: float = 5.0,
+    hfov_deg: float = 60.0,
+    size: tuple[int, int] = (320, 240),
+    height: int = 128,
 ) -> list[EvalItem]:
     """Virtual photos cropped from real HDR panoramas (as Hold-Geoffroy et al. evaluate), global map only.
 
@@ -315,12 +335,25 @@ def items_from_panoramas(
             R = np.asarray(rotation_from_ypr(yaw, math.radians(pitch_deg), 0.0))
             photo = _expose_like_training(perspective_crop(pano, R, size, K=K), tonemap)
             Ry = np.asarray(rotation_from_ypr(yaw))
-            items.append(EvalItem(
-                scene=name, id=f"{name}@{round(math.degrees(yaw)):03d}", image=photo,
-                K=K, pitch=math.radians(pitch_deg), roll=0.0, pixels=np.zeros((0, 2)), probe_ids=[],
-                sun=(Ry.T @ sun.direction) if sun.found else None, global_hdr=rotate(small, Ry.T),
-                probes_ldr=[], probes_saturated=[], probes_hdr=[], source="real-hdr-crops", photo_path=str(path),
-            ))
+            items.append(
+                EvalItem(
+                    scene=name,
+                    id=f"{name}@{round(math.degrees(yaw)):03d}",
+                    image=photo,
+                    K=K,
+                    pitch=math.radians(pitch_deg),
+                    roll=0.0,
+                    pixels=np.zeros((0, 2)),
+                    probe_ids=[],
+                    sun=(Ry.T @ sun.direction) if sun.found else None,
+                    global_hdr=rotate(small, Ry.T),
+                    probes_ldr=[],
+                    probes_saturated=[],
+                    probes_hdr=[],
+                    source="real-hdr-crops",
+                    photo_path=str(path),
+                )
+            )
     return items
 
 
@@ -345,21 +378,33 @@ def items_from_testset(root: str | os.PathLike) -> list[EvalItem]:
         image = read_ldr(root / sc.photo)[..., :3]
         sun = None
         if sc.sun.found and sc.sun.azimuth_deg is not None and sc.sun.elevation_deg is not None:
-            sun = np.asarray(direction_from_angles(math.radians(sc.sun.azimuth_deg), math.radians(sc.sun.elevation_deg)))
+            sun = np.asarray(
+                direction_from_angles(math.radians(sc.sun.azimuth_deg), math.radians(sc.sun.elevation_deg))
+            )
         glob, gvalid = None, None
         if sc.camera is not None and sc.camera.images.hdr:
             glob = read_exr(root / sc.camera.images.hdr)[0][..., :3]
             gvalid = ~_mask(root / sc.camera.images.saturation)
-        items.append(EvalItem(
-            scene=sc.id, id=sc.id, image=image, K=np.asarray(sc.K, dtype=np.float64),
-            pitch=math.radians(sc.pitch_deg), roll=math.radians(sc.roll_deg),
-            pixels=np.asarray([p.pixel for p in sc.probes], dtype=np.float64), probe_ids=[p.id for p in sc.probes],
-            sun=sun, global_hdr=glob, global_valid=gvalid,
-            probes_ldr=[read_ldr(root / p.ldr)[..., :3] for p in sc.probes],
-            probes_saturated=[_mask(root / p.images.saturation) for p in sc.probes],
-            probes_hdr=[read_exr(root / p.hdr)[0][..., :3] if p.hdr else None for p in sc.probes],
-            source="real", photo_path=str(root / sc.photo),
-        ))
+        items.append(
+            EvalItem(
+                scene=sc.id,
+                id=sc.id,
+                image=image,
+                K=np.asarray(sc.K, dtype=np.float64),
+                pitch=math.radians(sc.pitch_deg),
+                roll=math.radians(sc.roll_deg),
+                pixels=np.asarray([p.pixel for p in sc.probes], dtype=np.float64),
+                probe_ids=[p.id for p in sc.probes],
+                sun=sun,
+                global_hdr=glob,
+                global_valid=gvalid,
+                probes_ldr=[read_ldr(root / p.ldr)[..., :3] for p in sc.probes],
+                probes_saturated=[_mask(root / p.images.saturation) for p in sc.probes],
+                probes_hdr=[read_exr(root / p.hdr)[0][..., :3] if p.hdr else None for p in sc.probes],
+                source="real",
+                photo_path=str(root / sc.photo),
+            )
+        )
     if not items:
         raise InputError(f"{root}: the test set has no scene with probes")
     return items
@@ -378,11 +423,14 @@ def shipped_ablations() -> dict[str, Path]:
     the model's ablations (e.g. the paper's sky decoder without the sun head), evaluated side by side."""
     from solidkit.model.solidnet import DEFAULT_CHECKPOINT  # lazy: pulls in torch
 
-    return {p.stem: p for p in sorted(DEFAULT_CHECKPOINT.parent.glob("*.pt")) if p.resolve() != DEFAULT_CHECKPOINT.resolve()}
+    return {
+        p.stem: p for p in sorted(DEFAULT_CHECKPOINT.parent.glob("*.pt")) if p.resolve() != DEFAULT_CHECKPOINT.resolve()
+    }
 
 
-def default_methods(model: Any, name: str = "solidnet", extra: dict[str, Any] | None = None,
-                    baselines: bool = True) -> list[Method]:
+def default_methods(
+    model: Any, name: str = "solidnet", extra: dict[str, Any] | None = None, baselines: bool = True
+) -> list[Method]:
     """The model, the named extra checkpoints (ablations), and the non-learned baselines."""
     main = ModelMethod(name, model, f"{name}: {getattr(model, 'card', {}).get('what', 'SOLID-Net checkpoint')}")
     methods: list[Method] = [main]
@@ -414,13 +462,21 @@ def evaluate_item(method: Method, item: EvalItem) -> dict[str, Any]:
     """All metrics of ``method`` on ``item``: a JSON-able record (see the module docstring)."""
     t0 = time.perf_counter()
     pred = method.predict(item)
-    rec: dict[str, Any] = {"method": method.name, "scene": item.scene, "item": item.id, "source": item.source,
-                           "truth_sun": item.sun is not None}
+    rec: dict[str, Any] = {
+        "method": method.name,
+        "scene": item.scene,
+        "item": item.id,
+        "source": item.source,
+        "truth_sun": item.sun is not None,
+    }
     if pred.sky is not None:
         for recipe in M.SUN_METHODS:
             det = M.find_sun(pred.sky, recipe)
-            rec[f"sun_{recipe}"] = {"azimuth_deg": det.azimuth_deg, "elevation_deg": det.elevation_deg,
-                                   "found": bool(det.found)}
+            rec[f"sun_{recipe}"] = {
+                "azimuth_deg": det.azimuth_deg,
+                "elevation_deg": det.elevation_deg,
+                "found": bool(det.found),
+            }
             if item.sun is not None:
                 rec[f"sun_{recipe}"].update(M.sun_error(det.direction if det.found else None, item.sun).to_json())
         if item.global_hdr is not None:
@@ -442,8 +498,12 @@ def evaluate_item(method: Method, item: EvalItem) -> dict[str, Any]:
 def _metric_values(records: Sequence[dict[str, Any]], key: str) -> tuple[list[float], list[str]]:
     vals, groups = [], []
     if key.startswith("local_"):
-        sub = {"local_ssim": "ssim", "local_mae": "mae", "local_ssim_tonemap": "ssim_tonemap",
-               "local_mae_log1p": "mae_log1p"}[key]
+        sub = {
+            "local_ssim": "ssim",
+            "local_mae": "mae",
+            "local_ssim_tonemap": "ssim_tonemap",
+            "local_mae_log1p": "mae_log1p",
+        }[key]
         for r in records:
             for p in r.get("probes", []):
                 if sub in p:
@@ -475,8 +535,11 @@ def summarise_records(records: Sequence[dict[str, Any]], seed: int = 0) -> dict[
         with_truth = [r for r in records if r["truth_sun"] and f"sun_{recipe}" in r]
         if with_truth:
             found = sum(bool(r[f"sun_{recipe}"]["found"]) for r in with_truth)
-            out[f"no_sun_rate/{recipe}"] = {"n": len(with_truth), "no_sun": len(with_truth) - found,
-                                           "rate": 1 - found / len(with_truth)}
+            out[f"no_sun_rate/{recipe}"] = {
+                "n": len(with_truth),
+                "no_sun": len(with_truth) - found,
+                "rate": 1 - found / len(with_truth),
+            }
     return out
 
 
@@ -498,19 +561,33 @@ def evaluate(
             records.append(evaluate_item(m, item))
         per_scene[item.scene] = per_scene.get(item.scene, 0.0) + time.perf_counter() - t0
         if log is not None:
-            log(f"  [{i + 1}/{len(items)}] {item.scene}: {len(item.probe_ids)} probes, {time.perf_counter() - t0:.1f} s")
+            log(
+                f"  [{i + 1}/{len(items)}] {item.scene}: {len(item.probe_ids)} probes, {time.perf_counter() - t0:.1f} s"
+            )
     summary = {m.name: summarise_records([r for r in records if r["method"] == m.name], seed) for m in methods}
     secs = np.array(list(per_scene.values()))
     return {
         "methods": [{"name": m.name, "kind": m.kind, "description": m.description} for m in methods],
-        "items": [{"scene": it.scene, "item": it.id, "source": it.source, "probes": it.probe_ids,
-                   "truth_sun": it.sun is not None, "truth_global": it.global_hdr is not None} for it in items],
+        "items": [
+            {
+                "scene": it.scene,
+                "item": it.id,
+                "source": it.source,
+                "probes": it.probe_ids,
+                "truth_sun": it.sun is not None,
+                "truth_global": it.global_hdr is not None,
+            }
+            for it in items
+        ],
         "records": records,
         "summary": summary,
-        "timing": {"seconds_total": time.perf_counter() - t_all, "scenes": len(per_scene),
-                   "seconds_per_scene_median": float(np.median(secs)) if secs.size else None,
-                   "seconds_per_scene_mean": float(secs.mean()) if secs.size else None,
-                   "methods": len(methods)},
+        "timing": {
+            "seconds_total": time.perf_counter() - t_all,
+            "scenes": len(per_scene),
+            "seconds_per_scene_median": float(np.median(secs)) if secs.size else None,
+            "seconds_per_scene_mean": float(secs.mean()) if secs.size else None,
+            "methods": len(methods),
+        },
     }
 
 

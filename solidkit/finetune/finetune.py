@@ -50,19 +50,26 @@ import numpy as np
 import torch
 from kornia.metrics import ssim as kornia_ssim
 
+from solidkit import metrics as M
 from solidkit.envmap.io import srgb_decode, srgb_encode
 from solidkit.envmap.sun import LUMINANCE_WEIGHTS
 from solidkit.errors import InputError
-from solidkit import metrics as M
-from solidkit.finetune.evaluate import EvalItem, ModelMethod, evaluate
-from solidkit.finetune.evaluate import items_from_synth, items_from_testset, load_model, summarise_records
+from solidkit.finetune.evaluate import (
+    EvalItem,
+    ModelMethod,
+    evaluate,
+    items_from_synth,
+    items_from_testset,
+    load_model,
+    summarise_records,
+)
 from solidkit.finetune.report import finetune_sections, write_report
-from solidkit.threads import ensure_threads
 from solidkit.fsutil import atomic_write_text
 from solidkit.model.config import SolidNetConfig
 from solidkit.model.fit import batch_from_synth
 from solidkit.model.losses import solidnet_losses, sun_direction_loss
 from solidkit.synth.dataset import SynthDataset
+from solidkit.threads import ensure_threads
 
 __all__ = [
     "TRAINABLE",
@@ -164,9 +171,16 @@ def _tensor(a: Any) -> torch.Tensor:
 def _item_inputs(item: EvalItem, size: tuple[int, int]) -> tuple[torch.Tensor, ...]:
     h, w = item.image.shape[:2]
     if (h, w) != tuple(size):
-        raise InputError(f"{item.scene}: photo is {w}x{h}, the model takes {size[1]}x{size[0]} (build the test set for it)")
-    return (_tensor(item.image[..., :3]).permute(2, 0, 1)[None], _tensor(item.K)[None], _tensor(item.pixels)[None],
-            _tensor([item.pitch]), _tensor([item.roll]))
+        raise InputError(
+            f"{item.scene}: photo is {w}x{h}, the model takes {size[1]}x{size[0]} (build the test set for it)"
+        )
+    return (
+        _tensor(item.image[..., :3]).permute(2, 0, 1)[None],
+        _tensor(item.K)[None],
+        _tensor(item.pixels)[None],
+        _tensor([item.pitch]),
+        _tensor([item.roll]),
+    )
 
 
 def _luma(x: torch.Tensor) -> torch.Tensor:
@@ -227,14 +241,18 @@ def real_losses(model: torch.nn.Module, item: EvalItem, sun_weight: float = 1.0)
 
 def _mean_loss(model: torch.nn.Module, items: Sequence[EvalItem], sun_weight: float) -> float:
     with torch.no_grad():
-        return float(np.mean([float(real_losses(model, it, sun_weight)["total"]) for it in items])) if items else math.nan
+        return (
+            float(np.mean([float(real_losses(model, it, sun_weight)["total"]) for it in items])) if items else math.nan
+        )
 
 
 def _synthetic_batches(dataset: Any, seed: int) -> Any:
     """Endless seeded shuffled batches of one synthetic sample (the model's batch format)."""
     g = torch.Generator().manual_seed(seed)
     while True:
-        yield from torch.utils.data.DataLoader(dataset, batch_size=1, shuffle=True, collate_fn=batch_from_synth, generator=g)
+        yield from torch.utils.data.DataLoader(
+            dataset, batch_size=1, shuffle=True, collate_fn=batch_from_synth, generator=g
+        )
 
 
 def finetune_fold(
@@ -256,7 +274,9 @@ def finetune_fold(
     n_train = set_trainable(net, cfg.trainable)
     opt = torch.optim.Adam([p for p in net.parameters() if p.requires_grad], lr=cfg.lr)
     t0 = time.perf_counter()
-    history = [{"epoch": 0, "train": _mean_loss(net, train, cfg.sun_weight), "val": _mean_loss(net, val, cfg.sun_weight)}]
+    history = [
+        {"epoch": 0, "train": _mean_loss(net, train, cfg.sun_weight), "val": _mean_loss(net, val, cfg.sun_weight)}
+    ]
     best, best_epoch, bad = copy.deepcopy(net.state_dict()), 0, 0
     best_val = history[0]["val"]
     order = list(range(len(train)))
@@ -277,7 +297,12 @@ def finetune_fold(
                 assert syn is not None  # mixing
                 batch = next(syn)
                 o = net(batch["image"], batch["K"], batch["pixels"], batch["pitch"], batch["roll"])
-                loss = solidnet_losses(o, batch, cast(SolidNetConfig, net.config).loss_weights, getattr(net.config, "loss_variant", "paper"))["total"]
+                loss = solidnet_losses(
+                    o,
+                    batch,
+                    cast(SolidNetConfig, net.config).loss_weights,
+                    getattr(net.config, "loss_variant", "paper"),
+                )["total"]
                 opt.zero_grad(set_to_none=True)
                 loss.backward()
                 opt.step()
@@ -299,9 +324,14 @@ def finetune_fold(
     net.load_state_dict(best)
     for p in net.parameters():
         p.requires_grad_(False)
-    return net.eval(), {"history": history, "best_epoch": best_epoch, "epochs_run": history[-1]["epoch"],
-                        "trainable_parameters": n_train, "seconds": time.perf_counter() - t0,
-                        "early_stopping": bool(val)}
+    return net.eval(), {
+        "history": history,
+        "best_epoch": best_epoch,
+        "epochs_run": history[-1]["epoch"],
+        "trainable_parameters": n_train,
+        "seconds": time.perf_counter() - t0,
+        "early_stopping": bool(val),
+    }
 
 
 # -------------------------------------------------------------------------------------- analysis
@@ -331,7 +361,9 @@ def _paired(before: Sequence[dict], after: Sequence[dict], key: str) -> tuple[li
     return diffs, groups
 
 
-def paired_difference(before: Sequence[dict], after: Sequence[dict], key: str, higher_is_better: bool) -> dict[str, Any]:
+def paired_difference(
+    before: Sequence[dict], after: Sequence[dict], key: str, higher_is_better: bool
+) -> dict[str, Any]:
     """Mean paired difference (after - before) with a scene-bootstrap 95 % interval and a verdict."""
     d, g = _paired(before, after, key)
     if not d:
@@ -339,8 +371,13 @@ def paired_difference(before: Sequence[dict], after: Sequence[dict], key: str, h
     s = M.summarise(d, g)
     n_scenes = len(set(g))
     if n_scenes < MIN_SCENES_FOR_VERDICT:
-        return {"n": s["n"], "mean": s["mean"], "mean_ci": s["mean_ci"], "median": s["median"],
-                "verdict": f"too few scenes to tell ({n_scenes} < {MIN_SCENES_FOR_VERDICT})"}
+        return {
+            "n": s["n"],
+            "mean": s["mean"],
+            "mean_ci": s["mean_ci"],
+            "median": s["median"],
+            "verdict": f"too few scenes to tell ({n_scenes} < {MIN_SCENES_FOR_VERDICT})",
+        }
     lo, hi = s["mean_ci"]
     good, bad = (lo > 0, hi < 0) if higher_is_better else (hi < 0, lo > 0)
     verdict = "helps" if good else "hurts" if bad else "no significant change"
@@ -368,42 +405,73 @@ def run_finetune(
     for i, split in enumerate(folds):
         pick = lambda names: [it for s in names for it in by_scene[s]]  # noqa: E731
         train, val, test = pick(split["train"]), pick(split["val"]), pick(split["test"])
-        log(f"  fold {i + 1}/{len(folds)}: train {len(split['train'])} scenes ({len(train)} photos), "
-            f"validation {len(split['val'])}, test {len(split['test'])}")
+        log(
+            f"  fold {i + 1}/{len(folds)}: train {len(split['train'])} scenes ({len(train)} photos), "
+            f"validation {len(split['val'])}, test {len(split['test'])}"
+        )
         tuned, rec = finetune_fold(model, train, val, cfg, synthetic, log)
         after = ModelMethod("fine-tuned", tuned)
         before_res = evaluate(test, [base])
         after_res = evaluate(test, [after])
         before_all += before_res["records"]
         after_all += after_res["records"]
-        out_folds.append({"fold": i, "split": split, **rec,
-                          "before": before_res["summary"]["synthetic-only"], "after": after_res["summary"]["fine-tuned"]})
+        out_folds.append(
+            {
+                "fold": i,
+                "split": split,
+                **rec,
+                "before": before_res["summary"]["synthetic-only"],
+                "after": after_res["summary"]["fine-tuned"],
+            }
+        )
         models.append(tuned)
         log(f"    best epoch {rec['best_epoch']} of {rec['epochs_run']}, {rec['seconds']:.1f} s")
     pooled: dict[str, Any] = {
-        "methods": [{"name": "synthetic-only", "kind": "model", "description": "the checkpoint as shipped (synthetic data only)"},
-                    {"name": "fine-tuned", "kind": "model",
-                     "description": f"fine-tuned per fold on the other scenes ({cfg.trainable}, lr {cfg.lr:g})"}],
+        "methods": [
+            {
+                "name": "synthetic-only",
+                "kind": "model",
+                "description": "the checkpoint as shipped (synthetic data only)",
+            },
+            {
+                "name": "fine-tuned",
+                "kind": "model",
+                "description": f"fine-tuned per fold on the other scenes ({cfg.trainable}, lr {cfg.lr:g})",
+            },
+        ],
         "records": before_all + after_all,
     }
 
-    pooled["summary"] = {"synthetic-only": summarise_records(before_all, cfg.seed),
-                         "fine-tuned": summarise_records(after_all, cfg.seed)}
+    pooled["summary"] = {
+        "synthetic-only": summarise_records(before_all, cfg.seed),
+        "fine-tuned": summarise_records(after_all, cfg.seed),
+    }
     n_scenes = len({it.scene for it in items})
-    pooled["timing"] = {"scenes": n_scenes, "methods": 2, "seconds_total": float(sum(f["seconds"] for f in out_folds)),
-                        "seconds_per_scene_median": None}
+    pooled["timing"] = {
+        "scenes": n_scenes,
+        "methods": 2,
+        "seconds_total": float(sum(f["seconds"] for f in out_folds)),
+        "seconds_per_scene_median": None,
+    }
     effect = {
         "local_ssim": paired_difference(before_all, after_all, "ssim", True),
         "local_mae": paired_difference(before_all, after_all, "mae", False),
         "sun_angle/paper": paired_difference(before_all, after_all, "angle/paper", False),
         "sun_angle/core": paired_difference(before_all, after_all, "angle/core", False),
     }
-    result: dict[str, Any] = {"config": cfg.to_json(), "folds": out_folds, "pooled": pooled, "effect": effect,
-                              "seconds_per_fold": [f["seconds"] for f in out_folds], "models": models}
+    result: dict[str, Any] = {
+        "config": cfg.to_json(),
+        "folds": out_folds,
+        "pooled": pooled,
+        "effect": effect,
+        "seconds_per_fold": [f["seconds"] for f in out_folds],
+        "models": models,
+    }
     if synthetic_eval:
         log("  forgetting check on the synthetic split")
-        result["synthetic"] = evaluate(synthetic_eval, [base] + [ModelMethod(f"fine-tuned fold {i + 1}", m)
-                                                                  for i, m in enumerate(models)])
+        result["synthetic"] = evaluate(
+            synthetic_eval, [base] + [ModelMethod(f"fine-tuned fold {i + 1}", m) for i, m in enumerate(models)]
+        )
     return result
 
 
@@ -423,7 +491,6 @@ def finetune_report(
     ``report.md``/``report.html``, ``figures/`` and ``fold_<i>.pt`` into ``out``."""
     import json
     from pathlib import Path
-
 
     log = log or (lambda s: None)
     cfg = cfg or FineTuneConfig()
@@ -452,8 +519,14 @@ def finetune_report(
     models = res.pop("models")
     if save_models:
         for i, m in enumerate(models):
-            m.save(out / f"fold_{i + 1}.pt", {**getattr(net, "card", {}), "what": f"fine-tuned on real scenes, fold {i + 1}",
-                                             "finetune": {"config": cfg.to_json(), "split": res["folds"][i]["split"]}})
+            m.save(
+                out / f"fold_{i + 1}.pt",
+                {
+                    **getattr(net, "card", {}),
+                    "what": f"fine-tuned on real scenes, fold {i + 1}",
+                    "finetune": {"config": cfg.to_json(), "split": res["folds"][i]["split"]},
+                },
+            )
     atomic_write_text(out / "finetune.json", json.dumps(res, indent=1, default=float))
     md, page = write_report(out, "SOLID-Net fine-tuning on real scenes (k-fold)", finetune_sections(res, out))
     return {**res, "report": str(page), "markdown": str(md)}

@@ -27,19 +27,38 @@ from typing import Any
 
 import numpy as np
 
+from solidkit import metrics as M
 from solidkit.envmap.coords import angles_from_direction
 from solidkit.envmap.io import tonemap
 from solidkit.envmap.sun import luminance
-from solidkit import metrics as M
-from solidkit.finetune.evaluate import METRICS, EvalItem, Method
-from solidkit.threads import ensure_threads
-from solidkit.fsutil import atomic_path, atomic_write_text
 from solidkit.errors import InputError
-from solidkit.finetune.evaluate import default_methods, evaluate, items_from_panoramas, items_from_synth, items_from_testset, load_model, save_json, shipped_ablations
+from solidkit.finetune.evaluate import (
+    METRICS,
+    EvalItem,
+    Method,
+    default_methods,
+    evaluate,
+    items_from_panoramas,
+    items_from_synth,
+    items_from_testset,
+    load_model,
+    save_json,
+    shipped_ablations,
+)
+from solidkit.fsutil import atomic_path, atomic_write_text
 from solidkit.synth.panocrops import load_sources
+from solidkit.threads import ensure_threads
 
-__all__ = ["fmt", "headline_table", "metric_tables", "sun_figures", "qualitative_grid", "write_report", "markdown_table",
-           "evaluation_report"]
+__all__ = [
+    "fmt",
+    "headline_table",
+    "metric_tables",
+    "sun_figures",
+    "qualitative_grid",
+    "write_report",
+    "markdown_table",
+    "evaluation_report",
+]
 
 _CSS = """body{font-family:system-ui,sans-serif;max-width:1200px;margin:2em auto;padding:0 1em;color:#222}
 table{border-collapse:collapse;margin:.6em 0 1.4em}th,td{border:1px solid #bbb;padding:3px 8px;text-align:right}
@@ -89,6 +108,7 @@ def metric_tables(runs: dict[str, dict[str, Any]], methods: Sequence[str] | None
     """Markdown: one table per metric; rows = methods, columns = (dataset x {median, mean}) + n."""
     names = list(methods or dict.fromkeys(m["name"] for r in runs.values() for m in r["methods"]))
     out = []
+
     def has(summary: dict[str, Any], key: str) -> bool:  # a method without any sun still shows its no-sun rate
         return key in summary or ("/" in key and f"no_sun_rate/{key.split('/')[1]}" in summary)
 
@@ -122,23 +142,36 @@ def metric_tables(runs: dict[str, dict[str, Any]], methods: Sequence[str] | None
 
 def headline_table(runs: dict[str, dict[str, Any]]) -> str:
     """Markdown: one row per (dataset, method) with the medians a reader looks at first."""
-    cols = [("azimuth_deg/paper", "azimuth °"), ("elevation_deg/paper", "elevation °"), ("angle_deg/core", "angle ° (default)"),
-            ("global_mae", "global MAE"), ("local_ssim", "local SSIM"), ("local_mae", "local MAE")]
+    cols = [
+        ("azimuth_deg/paper", "azimuth °"),
+        ("elevation_deg/paper", "elevation °"),
+        ("angle_deg/core", "angle ° (default)"),
+        ("global_mae", "global MAE"),
+        ("local_ssim", "local SSIM"),
+        ("local_mae", "local MAE"),
+    ]
     rows = []
     for ds, r in runs.items():
         for m in [x["name"] for x in r["methods"]]:
             s = r["summary"].get(m, {})
             ns = s.get("no_sun_rate/core")
-            cells = [fmt((s.get(k) or {}).get("median")) for k, _ in cols] + [f"{100 * ns['rate']:.0f}% of {ns['n']}" if ns else "—"]
+            cells = [fmt((s.get(k) or {}).get("median")) for k, _ in cols] + [
+                f"{100 * ns['rate']:.0f}% of {ns['n']}" if ns else "—"
+            ]
             if any(c != "—" for c in cells):  # a baseline with nothing to say on this dataset
                 rows.append([ds, m] + cells)
-    return ("Medians (sun errors: paper recipe unless marked; no sun: the default detector's no-sun rate):\n\n"
-            + markdown_table(["dataset", "method"] + [c for _, c in cols] + ["no sun (default)"], rows))
+    return (
+        "Medians (sun errors: paper recipe unless marked; no sun: the default detector's no-sun rate):\n\n"
+        + markdown_table(["dataset", "method"] + [c for _, c in cols] + ["no sun (default)"], rows)
+    )
 
 
 def _sun_values(result: dict[str, Any], method: str, recipe: str, err: str) -> list[float]:
-    return [r[f"sun_{recipe}"][err] for r in result["records"]
-            if r["method"] == method and r["truth_sun"] and f"sun_{recipe}" in r and r[f"sun_{recipe}"].get(err) is not None]
+    return [
+        r[f"sun_{recipe}"][err]
+        for r in result["records"]
+        if r["method"] == method and r["truth_sun"] and f"sun_{recipe}" in r and r[f"sun_{recipe}"].get(err) is not None
+    ]
 
 
 def _n_truth_sun(result: dict[str, Any], method: str, recipe: str) -> int:
@@ -162,12 +195,23 @@ def sun_figures(result: dict[str, Any], folder: Path, prefix: str = "", title: s
                 continue
             v = np.sort(_sun_values(result, m, recipe, "angle_deg"))
             ax.plot(x, np.searchsorted(v, x, side="right") / n, ls, color=colours(i), label=f"{m} ({recipe})")
-    ax.set(xlabel="sun angular error [°]", ylabel="fraction of photos with a true sun", xlim=(0, 180), ylim=(0, 1.02),
-           title=(title + ": " if title else "") + "cumulative sun angular error")
+    ax.set(
+        xlabel="sun angular error [°]",
+        ylabel="fraction of photos with a true sun",
+        xlim=(0, 180),
+        ylim=(0, 1.02),
+        title=(title + ": " if title else "") + "cumulative sun angular error",
+    )
     ax.grid(alpha=0.3)
     ax.legend(fontsize=7, loc="lower right")
-    ax.text(0.01, 0.98, "solid: paper recipe; dashed: default detector\n(no sun found = never reaches the curve)",
-            transform=ax.transAxes, fontsize=7, va="top")
+    ax.text(
+        0.01,
+        0.98,
+        "solid: paper recipe; dashed: default detector\n(no sun found = never reaches the curve)",
+        transform=ax.transAxes,
+        fontsize=7,
+        va="top",
+    )
     paths.append(_save(fig, folder / f"{prefix}sun_cumulative.png"))
 
     fig, axes = plt.subplots(1, 2, figsize=(max(6.4, 1.6 * len(methods) + 3), 4.0))
@@ -188,8 +232,11 @@ def sun_figures(result: dict[str, Any], folder: Path, prefix: str = "", title: s
         ax.set_xticks(range(len(methods)), methods, rotation=20, fontsize=8)
         ax.set(ylabel=f"sun {label} error [°]", title=f"{label} error")
         ax.grid(alpha=0.3, axis="y")
-    fig.suptitle((title + ": " if title else "") + "per method, left = paper recipe, right (lighter) = default detector;"
-                 " white dot = median, bar = 25-75 %", fontsize=9)
+    fig.suptitle(
+        (title + ": " if title else "") + "per method, left = paper recipe, right (lighter) = default detector;"
+        " white dot = median, bar = 25-75 %",
+        fontsize=9,
+    )
     fig.tight_layout()
     paths.append(_save(fig, folder / f"{prefix}sun_violins.png"))
     return paths
@@ -224,9 +271,16 @@ def qualitative_grid(item: EvalItem, method: Method, path: Path, title: str = ""
     ax.set(title=f"photo {item.id}", xticks=[], yticks=[])
     sun_p = M.find_sun(pred.sky, "core") if pred.sky is not None else None
     sun_paper = M.find_sun(pred.sky, "paper") if pred.sky is not None else None
-    for ax, sky, name in ((axes[0, 1], pred.sky, f"predicted global ({method.name}), auto-exposed"),
-                          (axes[0, 2], item.global_hdr, "true global (" + ("the panorama" if item.source == "real-hdr-crops"
-                                                        else "camera position HDR") + "), auto-exposed")):
+    for ax, sky, name in (
+        (axes[0, 1], pred.sky, f"predicted global ({method.name}), auto-exposed"),
+        (
+            axes[0, 2],
+            item.global_hdr,
+            "true global ("
+            + ("the panorama" if item.source == "real-hdr-crops" else "camera position HDR")
+            + "), auto-exposed",
+        ),
+    ):
         if sky is None:
             ax.text(0.5, 0.5, "no HDR global map", ha="center", va="center", transform=ax.transAxes)
             ax.set_axis_off()
@@ -247,12 +301,16 @@ def qualitative_grid(item: EvalItem, method: Method, path: Path, title: str = ""
         shown = truth.copy()
         shown[sat] = 0.5 * shown[sat] + 0.5 * np.array([1.0, 0.0, 1.0])
         axes[k + 1, 0].imshow(shown, extent=ext)
-        axes[k + 1, 0].set_title(f"probe {k + 1} ({item.probe_ids[k]}): true LDR, {100 * sat.mean():.1f}% saturated", fontsize=8)
+        axes[k + 1, 0].set_title(
+            f"probe {k + 1} ({item.probe_ids[k]}): true LDR, {100 * sat.mean():.1f}% saturated", fontsize=8
+        )
         if pred.local is not None:
             local = pred.local[k]
             r = M.local_ldr_metrics(local, truth, item.probes_saturated[k])
             axes[k + 1, 1].imshow(M.ldr_from_hdr(local, r["scale"]), extent=ext)
-            axes[k + 1, 1].set_title(f"predicted, exposed x{r['scale']:.3g}: SSIM {r['ssim']:.3f}, MAE {r['mae']:.3f}", fontsize=8)
+            axes[k + 1, 1].set_title(
+                f"predicted, exposed x{r['scale']:.3g}: SSIM {r['ssim']:.3f}, MAE {r['mae']:.3f}", fontsize=8
+            )
             axes[k + 1, 2].imshow(tonemap(local), extent=ext)
             axes[k + 1, 2].set_title("predicted HDR (paper tonemap)", fontsize=8)
         for a in axes[k + 1]:
@@ -271,8 +329,10 @@ def write_report(folder: str | os.PathLike, title: str, sections: Sequence[tuple
     folder.mkdir(parents=True, exist_ok=True)
     md = f"# {title}\n\n" + "\n".join(f"## {h}\n\n{body}\n" for h, body in sections)
     body = MarkdownIt("commonmark").enable("table").render(md)
-    page = (f"<!doctype html>\n<html><head><meta charset='utf-8'><title>{html.escape(title)}</title>"
-            f"<style>{_CSS}</style></head><body>\n{body}</body></html>\n")
+    page = (
+        f"<!doctype html>\n<html><head><meta charset='utf-8'><title>{html.escape(title)}</title>"
+        f"<style>{_CSS}</style></head><body>\n{body}</body></html>\n"
+    )
     atomic_write_text(folder / "report.md", md)
     atomic_write_text(folder / "report.html", page)
     return folder / "report.md", folder / "report.html"
@@ -319,11 +379,21 @@ def evaluation_sections(
             shown = list(items)[:cap]
             body.append(f"**{ds}**: {len(shown)} of {len(items)} scenes, {method.name}.\n")
             for it in shown:
-                p = qualitative_grid(it, method, figs / f"{prefix}{_slug(ds)}_{_slug(it.scene)}.png", f"{ds}: {it.scene}")
+                p = qualitative_grid(
+                    it, method, figs / f"{prefix}{_slug(ds)}_{_slug(it.scene)}.png", f"{ds}: {it.scene}"
+                )
                 body.append(f"![{it.scene}]({p.relative_to(folder).as_posix()})")
         sections.append(("Qualitative results", "\n\n".join(body)))
-    rows = [[ds, str(r["timing"]["scenes"]), str(r["timing"]["methods"]), fmt(r["timing"]["seconds_per_scene_median"]),
-             fmt(r["timing"]["seconds_total"])] for ds, r in results.items()]
+    rows = [
+        [
+            ds,
+            str(r["timing"]["scenes"]),
+            str(r["timing"]["methods"]),
+            fmt(r["timing"]["seconds_per_scene_median"]),
+            fmt(r["timing"]["seconds_total"]),
+        ]
+        for ds, r in results.items()
+    ]
     sections.append(("Timing", markdown_table(["dataset", "scenes", "methods", "s / scene (median)", "s total"], rows)))
     return sections
 
@@ -355,8 +425,10 @@ def evaluation_report(
     Returns ``{"results": {dataset: result}, "report": path}``."""
     log = log or (lambda s: None)
     if testset is None and synthetic is None and not panoramas and not sun_crops:
-        raise InputError("give a real test set (--testset DIR), a synthetic split (--synthetic DIR), HDR panoramas "
-                         "and/or sun-crop folders")
+        raise InputError(
+            "give a real test set (--testset DIR), a synthetic split (--synthetic DIR), HDR panoramas "
+            "and/or sun-crop folders"
+        )
     ensure_threads()
     datasets: dict[str, Any] = {}
     if testset is not None:
@@ -387,17 +459,36 @@ def evaluation_report(
         for folder in sun_crops:
             crops = protocol_crops(load_sources(folder, split=sun_split))
             log(f"sun protocol on {folder} ({sun_split}): {len(crops)} crops")
-            sun_results[f"{Path(folder).name} ({sun_split})"] = {"crops": len(crops), "figures": evaluate_sun_crops(net, crops)}
+            sun_results[f"{Path(folder).name} ({sun_split})"] = {
+                "crops": len(crops),
+                "figures": evaluate_sun_crops(net, crops),
+            }
     card = getattr(net, "card", {}) or {}
     intro = [
         f"Model: `{model or 'shipped checkpoint'}` ({net.config.name}, {net.num_parameters / 1e6:.2f} M parameters)"
-        + (f": {card['what']}" if card.get("what") else "") + ".",
+        + (f": {card['what']}" if card.get("what") else "")
+        + ".",
         "",
-        markdown_table(["dataset", "photos", "probes", "photos with a true sun", "with a true global HDR map"],
-                       [[ds, str(len(it)), str(sum(len(i.probe_ids) for i in it)), str(sum(i.sun is not None for i in it)),
-                         str(sum(i.global_hdr is not None for i in it))] for ds, it in datasets.items()]),
-        ("Methods: " + "; ".join(f"**{m['name']}**: {m['description']}" for m in next(iter(results.values()))["methods"])
-         + ".") if results else "",
+        markdown_table(
+            ["dataset", "photos", "probes", "photos with a true sun", "with a true global HDR map"],
+            [
+                [
+                    ds,
+                    str(len(it)),
+                    str(sum(len(i.probe_ids) for i in it)),
+                    str(sum(i.sun is not None for i in it)),
+                    str(sum(i.global_hdr is not None for i in it)),
+                ]
+                for ds, it in datasets.items()
+            ],
+        ),
+        (
+            "Methods: "
+            + "; ".join(f"**{m['name']}**: {m['description']}" for m in next(iter(results.values()))["methods"])
+            + "."
+        )
+        if results
+        else "",
     ]
     if not results:
         intro = intro[:1]
@@ -406,8 +497,10 @@ def evaluation_report(
     if sun_results:
         sections.append(("The sun on crops with a known sun", sun_crop_section(sun_results, net.config)))
     out.mkdir(parents=True, exist_ok=True)
-    save_json(out / "results.json", {"model": str(model) if model else "shipped", "results": results,
-                                     "sun_crops": sun_results})
+    save_json(
+        out / "results.json",
+        {"model": str(model) if model else "shipped", "results": results, "sun_crops": sun_results},
+    )
     md, page = write_report(out, "SOLID-Net evaluation", sections)
     return {"results": results, "report": str(page), "markdown": str(md)}
 
@@ -422,20 +515,42 @@ def _num(v: Any, nd: int = 1) -> str:
 
 def sun_crop_section(results: dict[str, Any], config: Any) -> str:
     """Markdown of :func:`solidkit.model.suneval.evaluate_sun_crops` results, one table per crop set."""
-    head = ["method", "sun found", "median angular ° (found)", "az / el °", "in view ° (n; max)", "beside °", "behind °",
-            "suns put in sunless crops", "68 / 90 % cone coverage", "cone median °"]
-    parts = ["Crops at pitch +5°, 60° hfov, the sun at relative azimuths 0, ±30, ±90, 150° (panoramas without a sun "
-             "at the same yaws), metered exposure (`solidkit.model.suneval`). The model: visibility threshold "
-             f"{config.sun_visibility_threshold:.2f}, in-image sun {'on' if config.sun_in_image else 'off'}, cones "
-             f"{'calibrated (scales ' + _num(list(config.sun_cone_scale), 2) + ')' if config.sun_cone_scale else 'uncalibrated'}."]
+    head = [
+        "method",
+        "sun found",
+        "median angular ° (found)",
+        "az / el °",
+        "in view ° (n; max)",
+        "beside °",
+        "behind °",
+        "suns put in sunless crops",
+        "68 / 90 % cone coverage",
+        "cone median °",
+    ]
+    parts = [
+        "Crops at pitch +5°, 60° hfov, the sun at relative azimuths 0, ±30, ±90, 150° (panoramas without a sun "
+        "at the same yaws), metered exposure (`solidkit.model.suneval`). The model: visibility threshold "
+        f"{config.sun_visibility_threshold:.2f}, in-image sun {'on' if config.sun_in_image else 'off'}, cones "
+        f"{'calibrated (scales ' + _num(list(config.sun_cone_scale), 2) + ')' if config.sun_cone_scale else 'uncalibrated'}."
+    ]
     for name, r in results.items():
         rows = []
         for m, f in r["figures"].items():
             cov = " / ".join(f"{round(100 * c)} %" for c in f["cone_coverage"]) if "cone_coverage" in f else "–"
-            rows.append([m, f"{f['found']}/{f['suns']}", _num(f["angular_deg"]),
-                         f"{_num(f['azimuth_deg'])} / {_num(f['elevation_deg'])}",
-                         f"{_num(f['in_view_deg'])} ({f['in_view_n']}; {_num(f['in_view_max_deg'])})", _num(f["beside_deg"]),
-                         _num(f["behind_deg"]), f"{f['false_suns']}/{f['sunless']}", cov, _num(f.get("cone_median_deg"))])
+            rows.append(
+                [
+                    m,
+                    f"{f['found']}/{f['suns']}",
+                    _num(f["angular_deg"]),
+                    f"{_num(f['azimuth_deg'])} / {_num(f['elevation_deg'])}",
+                    f"{_num(f['in_view_deg'])} ({f['in_view_n']}; {_num(f['in_view_max_deg'])})",
+                    _num(f["beside_deg"]),
+                    _num(f["behind_deg"]),
+                    f"{f['false_suns']}/{f['sunless']}",
+                    cov,
+                    _num(f.get("cone_median_deg")),
+                ]
+            )
         parts.append(f"**{name}**: {r['crops']} crops\n\n" + markdown_table(head, rows))
     return "\n\n".join(parts)
 
@@ -450,9 +565,13 @@ def loss_curves(result: dict[str, Any], path: Path) -> Path:
         e = [r["epoch"] for r in h]
         ax.plot(e, [r["train"] for r in h], "-o", ms=3, color=cm(f["fold"]), label=f"fold {f['fold'] + 1} train")
         if f["early_stopping"]:
-            ax.plot(e, [r["val"] for r in h], "--s", ms=3, color=cm(f["fold"]), label=f"fold {f['fold'] + 1} validation")
+            ax.plot(
+                e, [r["val"] for r in h], "--s", ms=3, color=cm(f["fold"]), label=f"fold {f['fold'] + 1} validation"
+            )
             ax.axvline(f["best_epoch"], color=cm(f["fold"]), alpha=0.3, lw=3)
-    ax.set(xlabel="epoch (0 = before fine-tuning)", ylabel="real-label loss", title="fine-tuning loss (bars: kept epoch)")
+    ax.set(
+        xlabel="epoch (0 = before fine-tuning)", ylabel="real-label loss", title="fine-tuning loss (bars: kept epoch)"
+    )
     ax.xaxis.get_major_locator().set_params(integer=True)
     ax.grid(alpha=0.3)
     ax.legend(fontsize=7, ncol=2)
@@ -465,8 +584,11 @@ def finetune_sections(result: dict[str, Any], folder: Path, prefix: str = "finet
     cfg = result["config"]
     figs = folder / "figures"
     n_par = result["folds"][0]["trainable_parameters"] if result["folds"] else 0
-    mix = (f"one synthetic batch after every {cfg['synthetic_every']} real steps" if cfg["synthetic_every"]
-           else "none (real labels only)")
+    mix = (
+        f"one synthetic batch after every {cfg['synthetic_every']} real steps"
+        if cfg["synthetic_every"]
+        else "none (real labels only)"
+    )
     proto = (
         f"Scene-level {len(result['folds'])}-fold cross-validation (seed {cfg['seed']}): each fold tests on its scenes "
         "and trains on the others; one training scene per fold (20 % of them for larger sets) is held out for early "
@@ -479,26 +601,70 @@ def finetune_sections(result: dict[str, Any], folder: Path, prefix: str = "finet
     for f in result["folds"]:
         b, a = f["before"], f["after"]
         cell = lambda s, k: fmt((s.get(k) or {}).get("median"))  # noqa: E731
-        rows.append([str(f["fold"] + 1), ", ".join(f["split"]["train"]), ", ".join(f["split"]["val"]) or "—",
-                     ", ".join(f["split"]["test"]), f"{f['best_epoch']}/{f['epochs_run']}", fmt(f["seconds"]),
-                     f"{cell(b, 'local_ssim')} → {cell(a, 'local_ssim')}", f"{cell(b, 'local_mae')} → {cell(a, 'local_mae')}",
-                     f"{cell(b, 'angle_deg/paper')} → {cell(a, 'angle_deg/paper')}",
-                     f"{cell(b, 'angle_deg/core')} → {cell(a, 'angle_deg/core')}"])
-    table = markdown_table(["fold", "train scenes", "validation", "test scenes", "kept epoch", "s",
-                            "local SSIM (median)", "local MAE (median)", "sun angle paper (°)", "sun angle default (°)"], rows)
-    eff_rows = [[k, str(v["n"]), fmt(v.get("mean")), f"[{fmt((v.get('mean_ci') or [None])[0])}, "
-                 f"{fmt((v.get('mean_ci') or [None, None])[1])}]", f"**{v['verdict']}**"] for k, v in result["effect"].items()]
-    effect = markdown_table(["paired difference (after - before)", "n", "mean", "95% CI (scene bootstrap)", "verdict"], eff_rows)
+        rows.append(
+            [
+                str(f["fold"] + 1),
+                ", ".join(f["split"]["train"]),
+                ", ".join(f["split"]["val"]) or "—",
+                ", ".join(f["split"]["test"]),
+                f"{f['best_epoch']}/{f['epochs_run']}",
+                fmt(f["seconds"]),
+                f"{cell(b, 'local_ssim')} → {cell(a, 'local_ssim')}",
+                f"{cell(b, 'local_mae')} → {cell(a, 'local_mae')}",
+                f"{cell(b, 'angle_deg/paper')} → {cell(a, 'angle_deg/paper')}",
+                f"{cell(b, 'angle_deg/core')} → {cell(a, 'angle_deg/core')}",
+            ]
+        )
+    table = markdown_table(
+        [
+            "fold",
+            "train scenes",
+            "validation",
+            "test scenes",
+            "kept epoch",
+            "s",
+            "local SSIM (median)",
+            "local MAE (median)",
+            "sun angle paper (°)",
+            "sun angle default (°)",
+        ],
+        rows,
+    )
+    eff_rows = [
+        [
+            k,
+            str(v["n"]),
+            fmt(v.get("mean")),
+            f"[{fmt((v.get('mean_ci') or [None])[0])}, {fmt((v.get('mean_ci') or [None, None])[1])}]",
+            f"**{v['verdict']}**",
+        ]
+        for k, v in result["effect"].items()
+    ]
+    effect = markdown_table(
+        ["paired difference (after - before)", "n", "mean", "95% CI (scene bootstrap)", "verdict"], eff_rows
+    )
     curves = loss_curves(result, figs / f"{prefix}loss.png")
-    sections = [("Fine-tuning: protocol and folds", proto + table + f"\n![loss]({curves.relative_to(folder).as_posix()})\n"),
-                ("Fine-tuning: does it help?", effect + "\nPooled over the folds' test scenes (every scene once):\n\n"
-                 + metric_tables({"pooled": result["pooled"]}))]
-    body = [f"![{p.stem}]({p.relative_to(folder).as_posix()})" for p in
-            sun_figures(result["pooled"], figs, prefix=prefix, title="before / after fine-tuning")]
+    sections = [
+        ("Fine-tuning: protocol and folds", proto + table + f"\n![loss]({curves.relative_to(folder).as_posix()})\n"),
+        (
+            "Fine-tuning: does it help?",
+            effect
+            + "\nPooled over the folds' test scenes (every scene once):\n\n"
+            + metric_tables({"pooled": result["pooled"]}),
+        ),
+    ]
+    body = [
+        f"![{p.stem}]({p.relative_to(folder).as_posix()})"
+        for p in sun_figures(result["pooled"], figs, prefix=prefix, title="before / after fine-tuning")
+    ]
     if body:
         sections.append(("Fine-tuning: sun position before / after", "\n\n".join(body)))
     if "synthetic" in result:
-        sections.append(("Fine-tuning: forgetting (synthetic split)",
-                         "Each fold's fine-tuned model on the synthetic split, against the synthetic-only model.\n\n"
-                         + metric_tables({"synthetic": result["synthetic"]})))
+        sections.append(
+            (
+                "Fine-tuning: forgetting (synthetic split)",
+                "Each fold's fine-tuned model on the synthetic split, against the synthetic-only model.\n\n"
+                + metric_tables({"synthetic": result["synthetic"]}),
+            )
+        )
     return sections

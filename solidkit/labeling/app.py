@@ -222,11 +222,23 @@ def create_app(
             rows = [r for r in review_all(index, store) if r.flags or r.open_disagreement or r.opinions]
             order = {"flagged": 0, "left": 1, "done": 2}
             # biggest first, in units of each kind's threshold (degrees and pixels do not compare)
-            rows.sort(key=lambda r: (not r.open_disagreement, order[r.status], -(r.disagreement or r.vs_auto or 0.0) / THRESHOLDS[r.kind]))
+            rows.sort(
+                key=lambda r: (
+                    not r.open_disagreement,
+                    order[r.status],
+                    -(r.disagreement or r.vs_auto or 0.0) / THRESHOLDS[r.kind],
+                )
+            )
             items = [r.as_dict() | {"title": index.items[r.kind][r.key].title} for r in rows]
         else:
             items = [
-                {"kind": kind, "key": r.key, "title": index.items[kind][r.key].title, "status": r.status, "flags": r.flags}
+                {
+                    "kind": kind,
+                    "key": r.key,
+                    "title": index.items[kind][r.key].title,
+                    "status": r.status,
+                    "flags": r.flags,
+                }
                 for r in review_all(index, store, (kind,))
             ]
         return {"kind": kind, "items": items, "progress": progress()}

@@ -66,7 +66,12 @@ def tile_grid(width: int) -> tuple[int, int]:
 
 def tile_box(width: int, height: int, cols: int, rows: int, col: int, row: int) -> tuple[int, int, int, int]:
     """Pixel box ``(x0, y0, x1, y1)`` of tile ``(col, row)``; edges rounded so tiles abut exactly."""
-    return (round(col * width / cols), round(row * height / rows), round((col + 1) * width / cols), round((row + 1) * height / rows))
+    return (
+        round(col * width / cols),
+        round(row * height / rows),
+        round((col + 1) * width / cols),
+        round((row + 1) * height / rows),
+    )
 
 
 def _to_display8(path: Path, hdr: bool) -> np.ndarray:
@@ -201,7 +206,9 @@ class ImageService:
 
         return self._cached((ref.id, "tile", col, row), make)
 
-    def crop(self, ref: ImageRef, x: float, y: float, cw: float, ch: float, out_width: int) -> tuple[bytes, tuple[int, int, int, int]]:
+    def crop(
+        self, ref: ImageRef, x: float, y: float, cw: float, ch: float, out_width: int
+    ) -> tuple[bytes, tuple[int, int, int, int]]:
         """JPEG of the region ``[x, x+cw) x [y, y+ch)`` (full-res px, clamped to the image),
         resized to at most ``out_width`` px wide (never enlarged); returns it and the box used."""
         w, h = self.size(ref)
@@ -215,7 +222,9 @@ class ImageService:
         def make() -> bytes:
             img = self.full(ref)[y0:y1, x0:x1]
             if out_width < x1 - x0:
-                img = cv2.resize(img, (out_width, max(1, round((y1 - y0) * out_width / (x1 - x0)))), interpolation=cv2.INTER_AREA)
+                img = cv2.resize(
+                    img, (out_width, max(1, round((y1 - y0) * out_width / (x1 - x0)))), interpolation=cv2.INTER_AREA
+                )
             return _jpeg(img)
 
         return self._cached((ref.id, "crop", box, out_width), make), box

@@ -104,7 +104,11 @@ def review_item(item: Item, label: Label | None, history: list[Change]) -> Revie
     dists = [p for p in pair if p is not None]
     dis = max(dists) if dists else None
     human = label is not None and label.source in HUMAN_SOURCES
-    auto = item.proposal if item.proposal and (item.kind != "heading" or item.proposal.get("yaw_deg") is not None) else None
+    auto = (
+        item.proposal
+        if item.proposal and (item.kind != "heading" or item.proposal.get("yaw_deg") is not None)
+        else None
+    )
     if auto is None:
         auto = next((c.value for c in reversed(history) if c.source == "auto" and c.value), None)
     vs_auto = distance(item.kind, cast(Label, label).value, auto) if human and auto else None

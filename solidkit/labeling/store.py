@@ -342,7 +342,9 @@ class LabelStore:
                     )
             meta = dict(con.execute("SELECT name, value FROM meta").fetchall())
         if int(meta.get("schema_version", STORE_SCHEMA_VERSION)) != STORE_SCHEMA_VERSION:
-            raise InputError(f"{self.path}: label store schema {meta['schema_version']}, this solidkit reads {STORE_SCHEMA_VERSION}")
+            raise InputError(
+                f"{self.path}: label store schema {meta['schema_version']}, this solidkit reads {STORE_SCHEMA_VERSION}"
+            )
         if int(meta.get("conventions_version", CONVENTIONS_VERSION)) != CONVENTIONS_VERSION:
             raise InputError(f"{self.path}: labels written under conventions version {meta['conventions_version']}")
 
@@ -351,7 +353,9 @@ class LabelStore:
     def _connect(self) -> Iterator[sqlite3.Connection]:
         try:
             if self.readonly:
-                con = sqlite3.connect(f"{self.path.resolve().as_uri()}?mode=ro", uri=True, timeout=10.0, isolation_level=None)
+                con = sqlite3.connect(
+                    f"{self.path.resolve().as_uri()}?mode=ro", uri=True, timeout=10.0, isolation_level=None
+                )
             else:
                 con = sqlite3.connect(self.path, timeout=10.0, isolation_level=None)
         except sqlite3.Error as exc:
@@ -508,7 +512,9 @@ class LabelStore:
                 return current
             self._apply(con, kind, key, version + 1, "put", annotator, value_json, source, annotator, flags_json,
                         parent=row[8] if row else None)  # fmt: skip
-            return cast(Label, self._label(cast(tuple, self._current(con, kind, key))))  # the row just written, with a value
+            return cast(
+                Label, self._label(cast(tuple, self._current(con, kind, key)))
+            )  # the row just written, with a value
 
     def undo(self, kind: str, key: str, annotator: str, *, expected_version: int | None = None) -> Label | None:
         """Restore the state before the label's last applied change; return it (None: absent).

@@ -52,7 +52,9 @@ def inside(root: Path, path: Path) -> Path | None:
     return real
 
 
-def fov_outline(K: np.ndarray, size: tuple[int, int], pitch_deg: float, roll_deg: float, n: int = 12) -> list[list[float]]:
+def fov_outline(
+    K: np.ndarray, size: tuple[int, int], pitch_deg: float, roll_deg: float, n: int = 12
+) -> list[list[float]]:
     """The photo's border as directions in its panorama frame: ``[[azimuth_deg, elevation_deg], ...]``.
 
     Parameters
@@ -139,7 +141,10 @@ class CampaignIndex:
             self.problems.append(f"{rel}: missing or outside the campaign; not served")
             return None
         st = real.stat()  # the id changes with the file, so a browser never shows a stale cached copy
-        img_id = "img-" + hashlib.sha256(f"{real.relative_to(self.root)}:{st.st_size}:{st.st_mtime_ns}".encode()).hexdigest()[:16]
+        img_id = (
+            "img-"
+            + hashlib.sha256(f"{real.relative_to(self.root)}:{st.st_size}:{st.st_mtime_ns}".encode()).hexdigest()[:16]
+        )
         ref = ImageRef(id=img_id, path=real, layout=layout, hdr=real.suffix.lower() in _HDR)
         self.images[img_id] = ref
         return ref
@@ -243,12 +248,23 @@ class CampaignIndex:
 
     def _heading_item(self, key, scene_id, probe_id, label, pano, photo, aprobe) -> Item:
         yaw = aprobe.get("yaw_deg")
-        cues = {n: {k: c.get(k) for k in ("yaw_deg", "weight", "ok", "detail")} for n, c in (aprobe.get("cues") or {}).items()}
-        view = {"image": pano.id, "hdr": pano.hdr, "photo": photo, "cues": cues, "residual_deg": aprobe.get("residual_deg")}
+        cues = {
+            n: {k: c.get(k) for k in ("yaw_deg", "weight", "ok", "detail")}
+            for n, c in (aprobe.get("cues") or {}).items()
+        }
+        view = {
+            "image": pano.id,
+            "hdr": pano.hdr,
+            "photo": photo,
+            "cues": cues,
+            "residual_deg": aprobe.get("residual_deg"),
+        }
         flags = _flags(aprobe, pixel=False)
         if photo.get("outline") is None:
             flags.append("no photo intrinsics")
-        return Item("heading", key, scene_id, probe_id, label, view, {"yaw_deg": yaw} if yaw is not None else None, flags)
+        return Item(
+            "heading", key, scene_id, probe_id, label, view, {"yaw_deg": yaw} if yaw is not None else None, flags
+        )
 
     # -- access ------------------------------------------------------------------------------
     def item(self, kind: str, key: str) -> Item:

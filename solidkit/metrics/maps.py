@@ -49,8 +49,19 @@ from solidkit.envmap.coords import solid_angle
 from solidkit.envmap.io import srgb_decode, srgb_encode, tonemap
 from solidkit.envmap.sun import luminance
 
-__all__ = ["SATURATION_LEVEL", "DARK_FLOOR", "SSIM_WINDOW", "global_mae", "saturation_mask", "exposure_scale",
-           "ldr_from_hdr", "masked_ssim", "local_ldr_metrics", "local_hdr_metrics", "simulate_ldr_probe"]
+__all__ = [
+    "SATURATION_LEVEL",
+    "DARK_FLOOR",
+    "SSIM_WINDOW",
+    "global_mae",
+    "saturation_mask",
+    "exposure_scale",
+    "ldr_from_hdr",
+    "masked_ssim",
+    "local_ldr_metrics",
+    "local_hdr_metrics",
+    "simulate_ldr_probe",
+]
 
 SATURATION_LEVEL = 250.0 / 255.0
 """An LDR probe pixel with any channel at or above this (sRGB-encoded, [0, 1]) is saturated."""
@@ -68,7 +79,9 @@ def _normalised(pano: np.ndarray, region: np.ndarray) -> np.ndarray:
     return pano / mean if mean > 0 else np.zeros_like(pano)
 
 
-def global_mae(predicted: np.ndarray, truth: np.ndarray, valid: np.ndarray | None = None, sky_only: bool = True) -> float:
+def global_mae(
+    predicted: np.ndarray, truth: np.ndarray, valid: np.ndarray | None = None, sky_only: bool = True
+) -> float:
     """The paper's ``xi_HDR``: MAE of the normalised HDR global (sky) maps ``(H, 2H, 3)``.
 
     The region compared: the upper hemisphere (elevation > 0, the sky map the paper predicts; a real
@@ -81,7 +94,7 @@ def global_mae(predicted: np.ndarray, truth: np.ndarray, valid: np.ndarray | Non
     b = np.asarray(truth, dtype=np.float64)[..., :3]
     region = np.ones(a.shape[:2], dtype=bool)
     if sky_only:
-        region[a.shape[0] // 2:] = False
+        region[a.shape[0] // 2 :] = False
     if valid is not None:
         region &= np.asarray(valid, dtype=bool)
     if not region.any():
@@ -90,7 +103,9 @@ def global_mae(predicted: np.ndarray, truth: np.ndarray, valid: np.ndarray | Non
     return float(diff[region].mean())
 
 
-def saturation_mask(probe_ldr: np.ndarray, mask: np.ndarray | None = None, level: float = SATURATION_LEVEL) -> np.ndarray:
+def saturation_mask(
+    probe_ldr: np.ndarray, mask: np.ndarray | None = None, level: float = SATURATION_LEVEL
+) -> np.ndarray:
     """Saturated pixels ``(H, W)`` bool of an sRGB-encoded LDR probe ``(H, W, 3)`` in [0, 1].
 
     A pixel is saturated when any channel is ``>= level``, or where ``mask`` (e.g. the test set's
@@ -120,7 +135,10 @@ def exposure_scale(predicted_hdr: np.ndarray, probe_ldr: np.ndarray, saturated: 
 
 def ldr_from_hdr(hdr: np.ndarray, scale: float) -> np.ndarray:
     """``srgb_encode(clip(scale * H, 0, 1))``: an HDR panorama as the LDR camera would record it."""
-    return cast(np.ndarray, srgb_encode(np.clip(np.asarray(hdr, dtype=np.float32) * np.float32(scale), 0.0, 1.0)).astype(np.float32))
+    return cast(
+        np.ndarray,
+        srgb_encode(np.clip(np.asarray(hdr, dtype=np.float32) * np.float32(scale), 0.0, 1.0)).astype(np.float32),
+    )
 
 
 def _chw(a: np.ndarray) -> torch.Tensor:
@@ -159,8 +177,10 @@ def local_hdr_metrics(predicted_hdr: np.ndarray, truth_hdr: np.ndarray) -> dict[
     """Synthetic probes: SSIM of the paper's tonemap (``L_tom``'s) and MAE of ``log1p`` radiance."""
     p = np.asarray(predicted_hdr, dtype=np.float32)[..., :3]
     t = np.asarray(truth_hdr, dtype=np.float32)[..., :3]
-    return {"ssim_tonemap": masked_ssim(tonemap(p), tonemap(t)),
-            "mae_log1p": float(np.abs(np.log1p(np.clip(p, 0, None)) - np.log1p(np.clip(t, 0, None))).mean())}
+    return {
+        "ssim_tonemap": masked_ssim(tonemap(p), tonemap(t)),
+        "mae_log1p": float(np.abs(np.log1p(np.clip(p, 0, None)) - np.log1p(np.clip(t, 0, None))).mean()),
+    }
 
 
 def simulate_ldr_probe(hdr: np.ndarray, key: float = 0.18) -> tuple[np.ndarray, np.ndarray]:

@@ -8,7 +8,8 @@ probes of one scene are not independent.
 from __future__ import annotations
 
 import math
-from typing import Any, Callable, Sequence, cast
+from collections.abc import Callable, Sequence
+from typing import Any, cast
 
 import numpy as np
 from scipy import stats
@@ -16,8 +17,14 @@ from scipy import stats
 __all__ = ["bootstrap_ci", "summarise"]
 
 
-def _cluster_bootstrap(v: np.ndarray, group_index: np.ndarray, n_groups: int, statistic: Callable[..., Any], n: int,
-                       rng: np.random.Generator) -> np.ndarray | None:
+def _cluster_bootstrap(
+    v: np.ndarray,
+    group_index: np.ndarray,
+    n_groups: int,
+    statistic: Callable[..., Any],
+    n: int,
+    rng: np.random.Generator,
+) -> np.ndarray | None:
     """``statistic`` (``np.mean`` or ``np.median``) of ``n`` cluster resamples, vectorised: each
     resample draws ``n_groups`` groups with replacement and takes every value of each drawn group
     (as often as it was drawn). ``None`` for another statistic."""
@@ -68,8 +75,16 @@ def bootstrap_ci(
         if v.size < 2:
             return float(statistic(v)), float(statistic(v))
         vec = statistic in (np.mean, np.median)
-        res = stats.bootstrap((v,), statistic, n_resamples=n_resamples, confidence_level=level, method="percentile",
-                              random_state=rng, vectorized=vec, **({"axis": -1} if vec else {}))
+        res = stats.bootstrap(
+            (v,),
+            statistic,
+            n_resamples=n_resamples,
+            confidence_level=level,
+            method="percentile",
+            random_state=rng,
+            vectorized=vec,
+            **({"axis": -1} if vec else {}),
+        )
         return float(res.confidence_interval.low), float(res.confidence_interval.high)
     g = np.asarray(list(groups), dtype=object)[keep]
     names = list(dict.fromkeys(g.tolist()))
@@ -79,15 +94,23 @@ def bootstrap_ci(
     boot = _cluster_bootstrap(v, gi, len(names), statistic, n_resamples, rng)
     if boot is None:
         members = [v[gi == k] for k in range(len(names))]
-        res = stats.bootstrap((np.arange(len(names)),), lambda idx: statistic(np.concatenate([members[int(i)] for i in idx])),
-                              n_resamples=n_resamples, confidence_level=level, method="percentile",
-                              random_state=rng, vectorized=False)
+        res = stats.bootstrap(
+            (np.arange(len(names)),),
+            lambda idx: statistic(np.concatenate([members[int(i)] for i in idx])),
+            n_resamples=n_resamples,
+            confidence_level=level,
+            method="percentile",
+            random_state=rng,
+            vectorized=False,
+        )
         return float(res.confidence_interval.low), float(res.confidence_interval.high)
     lo, hi = np.percentile(boot, [alpha, 100 - alpha])
     return float(lo), float(hi)
 
 
-def summarise(values: Sequence[float] | np.ndarray, groups: Sequence[Any] | None = None, seed: int = 0) -> dict[str, Any]:
+def summarise(
+    values: Sequence[float] | np.ndarray, groups: Sequence[Any] | None = None, seed: int = 0
+) -> dict[str, Any]:
     """``n``, median and mean of ``values`` (NaNs dropped), each with its 95 % bootstrap interval."""
     v = np.asarray(values, dtype=np.float64)
     finite = np.isfinite(v)

@@ -15,8 +15,9 @@ statistic. Errors (:func:`direction_errors`): azimuth ``|wrap(phi_p - phi_t)|`` 
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Any, Literal, Sequence
+from typing import Any, Literal
 
 import numpy as np
 
@@ -27,7 +28,6 @@ __all__ = ["SUN_METHODS", "SunError", "direction_errors", "find_sun", "sun_error
 
 SUN_METHODS = ("paper", "core")
 """The sun recipes evaluated: the paper's (always answers) and the package's default detector."""
-
 
 
 def find_sun(sky: np.ndarray, method: Literal["paper", "core"]) -> SunDetection:
@@ -69,8 +69,12 @@ class SunError:
     angle_deg: float | None = None
 
     def to_json(self) -> dict[str, Any]:
-        return {"found": self.found, "azimuth_deg": self.azimuth_deg, "elevation_deg": self.elevation_deg,
-                "angle_deg": self.angle_deg}
+        return {
+            "found": self.found,
+            "azimuth_deg": self.azimuth_deg,
+            "elevation_deg": self.elevation_deg,
+            "angle_deg": self.angle_deg,
+        }
 
 
 def sun_error(predicted: np.ndarray | None, truth: np.ndarray) -> SunError:

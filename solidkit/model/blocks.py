@@ -13,7 +13,15 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-__all__ = ["ConvBlock", "Encoder", "UNetDecoder", "resize_to", "HDR_PARAMETERISATION", "radiance_from_log", "log_from_radiance"]
+__all__ = [
+    "ConvBlock",
+    "Encoder",
+    "UNetDecoder",
+    "resize_to",
+    "HDR_PARAMETERISATION",
+    "radiance_from_log",
+    "log_from_radiance",
+]
 
 HDR_PARAMETERISATION = "log1p"
 """How every HDR output of the model maps to radiance.
@@ -97,9 +105,7 @@ class UNetDecoder(nn.Module):
     def __init__(self, widths: tuple[int, ...], cout: int, extra_in: int = 0, panorama: bool = False) -> None:
         super().__init__()
         rev = list(reversed(widths))
-        self.ups = nn.ModuleList(
-            ConvBlock(rev[i] + rev[i + 1], rev[i + 1], 1, panorama) for i in range(len(rev) - 1)
-        )
+        self.ups = nn.ModuleList(ConvBlock(rev[i] + rev[i + 1], rev[i + 1], 1, panorama) for i in range(len(rev) - 1))
         self.final = ConvBlock(rev[-1] + extra_in, rev[-1], 1, panorama)
         self.head = nn.Conv2d(rev[-1], cout, 1)
 

@@ -213,10 +213,17 @@ class SolidNetConfig:
             raise ConfigError(f"loss_variant must be one of {LOSS_VARIANTS}, got {self.loss_variant!r}")
         if (self.sun_visibility or not self.sun_fine) and not self.sun_head:
             raise ConfigError("sun_visibility / sun_fine=False need sun_head=True")
-        if self.sun_net and (not (self.sun_head and self.sun_visibility) or len(self.sun_net) < 3 or min(self.sun_net) < 1
-                             or len(self.sun_net_size) != 2 or min(self.sun_net_size) < 16):
-            raise ConfigError(f"sun_net needs sun_head and sun_visibility, at least 3 positive widths and a size of at "
-                              f"least 16 x 16; got {self.sun_net}, {self.sun_net_size}")
+        if self.sun_net and (
+            not (self.sun_head and self.sun_visibility)
+            or len(self.sun_net) < 3
+            or min(self.sun_net) < 1
+            or len(self.sun_net_size) != 2
+            or min(self.sun_net_size) < 16
+        ):
+            raise ConfigError(
+                f"sun_net needs sun_head and sun_visibility, at least 3 positive widths and a size of at "
+                f"least 16 x 16; got {self.sun_net}, {self.sun_net_size}"
+            )
         if self.loss_variant == "located" and not self.sun_head:
             raise ConfigError("loss_variant 'located' needs sun_head=True (its sun terms read the sun head)")
         unknown = set(self.loss_weights) - set(_default_loss_weights())
@@ -248,9 +255,16 @@ class SolidNetConfig:
         return cls(**{**data, "loss_weights": weights})
 
 
-_SUN: dict[str, Any] = {"sun_head": True, "sun_visibility": True, "loss_variant": "located", "sky_feature_width": 16,
-        "sky_stages": 3, "exposure_key": 0.18, "sky_footprint": "camera",
-        "loss_weights": {**_default_loss_weights(), "sun_cos": 1.0}}
+_SUN: dict[str, Any] = {
+    "sun_head": True,
+    "sun_visibility": True,
+    "loss_variant": "located",
+    "sky_feature_width": 16,
+    "sky_stages": 3,
+    "exposure_key": 0.18,
+    "sky_footprint": "camera",
+    "loss_weights": {**_default_loss_weights(), "sun_cos": 1.0},
+}
 
 PRESETS: dict[str, SolidNetConfig] = {
     # small widths, the sun head and the located losses

@@ -20,15 +20,13 @@ from typing import Any
 import torch
 
 from solidkit.envmap.coords import direction_from_angles, direction_grid, rotation_from_ypr
+from solidkit.envmap.perspective import intrinsics_from_fov, pixel_rays
 from solidkit.envmap.resample import sample_panorama
 from solidkit.envmap.sun import detect_sun
-from solidkit.model.config import SolidNetConfig
+from solidkit.model.config import SolidNetConfig, preset
 from solidkit.model.losses import solidnet_losses
-from solidkit.envmap.perspective import intrinsics_from_fov, pixel_rays
-from solidkit.model.solidnet import SolidNet
+from solidkit.model.solidnet import SolidNet, save_checkpoint
 from solidkit.model.sunhead import render_sun
-from solidkit.model.config import preset
-from solidkit.model.solidnet import save_checkpoint
 from solidkit.synth.dataset import SynthDataset
 
 __all__ = ["toy_batch", "fit", "batch_to", "batch_from_synth"]
@@ -67,19 +65,38 @@ def toy_batch(
     K = torch.tensor(intrinsics_from_fov(math.radians(config.hfov_deg), W, H), dtype=torch.float32)
     rays = pixel_rays(K, W, H, torch, dtype=K.dtype)  # (H, W, 3), z = 1
     pano_dirs = direction_grid(hp, torch)
-    out: dict[str, list[torch.Tensor]] = {k: [] for k in (
-        "image", "K", "pitch", "roll", "pixels", "albedo", "normal", "distance", "shadow", "geometry_mask", "sky", "local",
-        "sun_dir", "sun_visible",
-    )}
+    out: dict[str, list[torch.Tensor]] = {
+        k: []
+        for k in (
+            "image",
+            "K",
+            "pitch",
+            "roll",
+            "pixels",
+            "albedo",
+            "normal",
+            "distance",
+            "shadow",
+            "geometry_mask",
+            "sky",
+            "local",
+            "sun_dir",
+            "sun_visible",
+        )
+    }
     for _ in range(batch):
         r = torch.rand(6, generator=g)
         pitch, roll = math.radians(-8 + 10 * r[0].item()), math.radians(-4 + 8 * r[1].item())
         cam_h, wall_z = 1.5 + 0.1 * r[2].item(), 6.0 + 6.0 * r[3].item()
         sun = direction_from_angles(torch.tensor(-2.0 + 4.0 * r[4].item()), torch.tensor(0.3 + 0.7 * r[5].item()))
-        R = rotation_from_ypr(*torch.tensor([0.0, pitch, roll], dtype=torch.float64)).to(torch.float32)  # camera -> panorama
+        R = rotation_from_ypr(*torch.tensor([0.0, pitch, roll], dtype=torch.float64)).to(
+            torch.float32
+        )  # camera -> panorama
         d = rays @ R.T  # ray directions (unnormalised) in the panorama frame
         # ground y = cam_h (normal up (0,-1,0)); wall z = wall_z (normal (0,0,-1)), up to 3 m above the camera
-        t_ground = torch.where(d[..., 1] > 1e-6, cam_h / d[..., 1].clamp_min(1e-6), torch.full_like(d[..., 1], math.inf))
+        t_ground = torch.where(
+            d[..., 1] > 1e-6, cam_h / d[..., 1].clamp_min(1e-6), torch.full_like(d[..., 1], math.inf)
+        )
         t_wall = torch.where(d[..., 2] > 1e-6, wall_z / d[..., 2].clamp_min(1e-6), torch.full_like(d[..., 2], math.inf))
         wall_ok = (t_wall * d[..., 1]) > -3.0
         t_wall = torch.where(wall_ok, t_wall, torch.full_like(t_wall, math.inf))
@@ -94,9 +111,7 @@ def toy_batch(
         shadow = torch.where(geo & ~cast & (lit > 0), torch.ones_like(lit), torch.zeros_like(lit))
         albedo = torch.where(on_wall[..., None], torch.tensor([0.6, 0.45, 0.35]), torch.tensor([0.35, 0.35, 0.38]))
         shading = 1.5 * shadow[..., None] * lit[..., None] + 0.25
-        sky_img = torch.from_numpy(
-            sample_panorama(_toy_sky(hp, sun).numpy(), d.numpy()).astype("float32")
-        )
+        sky_img = torch.from_numpy(sample_panorama(_toy_sky(hp, sun).numpy(), d.numpy()).astype("float32"))
         radiance = torch.where(geo[..., None], albedo * shading, sky_img)
         image = radiance.clamp(0, 1) ** (1 / 2.2)
         n_cam = n_pano @ R  # R^T n, row vectors
@@ -133,10 +148,25 @@ def batch_from_synth(items: list[dict[str, Any]]) -> dict[str, torch.Tensor]:
     global map (the truth of the sun terms). Probes the generator could not place (``probe_valid == 0``) are replaced by the
     sample's first valid one, so every sample keeps the same number of probes.
     """
-    out: dict[str, list[torch.Tensor]] = {k: [] for k in (
-        "image", "K", "pitch", "roll", "pixels", "albedo", "normal", "distance", "shadow", "geometry_mask", "sky", "local",
-        "sun_dir", "sun_visible",
-    )}
+    out: dict[str, list[torch.Tensor]] = {
+        k: []
+        for k in (
+            "image",
+            "K",
+            "pitch",
+            "roll",
+            "pixels",
+            "albedo",
+            "normal",
+            "distance",
+            "shadow",
+            "geometry_mask",
+            "sky",
+            "local",
+            "sun_dir",
+            "sun_visible",
+        )
+    }
     for it in items:
         valid = it["probe_valid"] > 0
         if not valid.any():
@@ -242,7 +272,6 @@ def train_on_synth(
     import os
     import platform
 
-
     torch.manual_seed(seed)
     torch.set_num_threads(threads)
     cfg = config or preset("small")
@@ -272,7 +301,12 @@ def train_on_synth(
     card = {
         "what": "first small SOLID-Net checkpoint, trained briefly: a smoke-level model, not an accurate one",
         "config": cfg.name,
-        "data": {"path": str(data), "samples": len(items), "held_out_indices": held, "generator": "solidkit synth dataset"},
+        "data": {
+            "path": str(data),
+            "samples": len(items),
+            "held_out_indices": held,
+            "generator": "solidkit synth dataset",
+        },
         "steps": len(history),
         "batch_size": batch_size,
         "probes_per_sample": probes,

@@ -22,11 +22,20 @@ import cv2
 import numpy as np
 import torch
 
-from solidkit.envmap.perspective import rays_through_pixels
 from solidkit.envmap.coords import coords_from_direction, rotation_from_ypr
+from solidkit.envmap.perspective import rays_through_pixels
 
-__all__ = ["BlobSun", "image_sun_blobs", "put_sun_on_blob", "CLIP_LEVEL", "MAX_RADIUS_DEG", "MIN_INSCRIBED_DEG", "MIN_FILL",
-           "GATE_DEG", "LOGIT_MARGIN"]
+__all__ = [
+    "BlobSun",
+    "image_sun_blobs",
+    "put_sun_on_blob",
+    "CLIP_LEVEL",
+    "MAX_RADIUS_DEG",
+    "MIN_INSCRIBED_DEG",
+    "MIN_FILL",
+    "GATE_DEG",
+    "LOGIT_MARGIN",
+]
 
 CLIP_LEVEL = 0.98
 """Tonemapped value (mean of R, G, B, in [0, 1]) at or above which a pixel counts as clipped."""
@@ -58,9 +67,17 @@ class BlobSun:
     area: int
 
 
-def image_sun_blobs(image: np.ndarray, K: np.ndarray, pitch: float, roll: float, *, level: float = CLIP_LEVEL,
-                    max_radius_deg: float = MAX_RADIUS_DEG, min_inscribed_deg: float = MIN_INSCRIBED_DEG,
-                    min_fill: float = MIN_FILL) -> list[BlobSun]:
+def image_sun_blobs(
+    image: np.ndarray,
+    K: np.ndarray,
+    pitch: float,
+    roll: float,
+    *,
+    level: float = CLIP_LEVEL,
+    max_radius_deg: float = MAX_RADIUS_DEG,
+    min_inscribed_deg: float = MIN_INSCRIBED_DEG,
+    min_fill: float = MIN_FILL,
+) -> list[BlobSun]:
     """Sun-like saturated blobs of ``image (H, W, 3)`` (tonemapped, [0, 1]) with intrinsics ``K (3, 3)``
     (pixels of this image) and the camera's ``pitch``, ``roll`` (radians, conventions §4), largest
     inscribed disc first.
@@ -105,9 +122,19 @@ def image_sun_blobs(image: np.ndarray, K: np.ndarray, pitch: float, roll: float,
     return sorted(out, key=lambda b: -b.inscribed_deg)
 
 
-def put_sun_on_blob(sun_dir: torch.Tensor, visible: torch.Tensor, image: torch.Tensor, K: torch.Tensor,
-                    pitch: torch.Tensor, roll: torch.Tensor, threshold: float, *, logits: torch.Tensor | None = None,
-                    gate_deg: float = GATE_DEG, logit_margin: float = LOGIT_MARGIN) -> tuple[torch.Tensor, torch.Tensor]:
+def put_sun_on_blob(
+    sun_dir: torch.Tensor,
+    visible: torch.Tensor,
+    image: torch.Tensor,
+    K: torch.Tensor,
+    pitch: torch.Tensor,
+    roll: torch.Tensor,
+    threshold: float,
+    *,
+    logits: torch.Tensor | None = None,
+    gate_deg: float = GATE_DEG,
+    logit_margin: float = LOGIT_MARGIN,
+) -> tuple[torch.Tensor, torch.Tensor]:
     """The network's ``sun_dir (B, 3)`` moved onto a sun-like blob of ``image (B, 3, H, W)`` where its
     ``visible (B,)`` probability is ``>= threshold`` and the blob is one the network agrees with: within
     ``gate_deg`` of its direction, or (with its ``logits (B, 1, h, 2h)``) where its logit is within

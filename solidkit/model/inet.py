@@ -37,8 +37,8 @@ from solidkit.envmap.perspective import intrinsics_from_fov
 from solidkit.envmap.sh import sh_basis
 from solidkit.model.blocks import ConvBlock, Encoder, UNetDecoder, radiance_from_log, resize_to
 from solidkit.model.config import SolidNetConfig
-from solidkit.model.sunhead import SunHead, render_sun
 from solidkit.model.imagesun import put_sun_on_blob
+from solidkit.model.sunhead import SunHead, render_sun
 from solidkit.model.sunnet import SunNet
 from solidkit.model.sununcertainty import cone_radii, cones_deg
 from solidkit.model.warp import camera_rotation
@@ -77,8 +77,9 @@ def _mirror(t: torch.Tensor) -> torch.Tensor:
     return 1.0 - torch.abs(torch.remainder(t + 1.0, 4.0) - 2.0)
 
 
-def camera_footprint_grid(pano_height: int, K: torch.Tensor, pitch: torch.Tensor, roll: torch.Tensor,
-                          image_size: tuple[int, int]) -> torch.Tensor:
+def camera_footprint_grid(
+    pano_height: int, K: torch.Tensor, pitch: torch.Tensor, roll: torch.Tensor, image_size: tuple[int, int]
+) -> torch.Tensor:
     """``grid_sample`` grid ``(B, H, 2H, 2)`` that places an image's features on the panorama at their directions.
 
     Every panorama direction ``d`` (panorama frame, conventions §2) is turned into the camera frame,
@@ -161,8 +162,12 @@ class INet(nn.Module):
         self.sky_ups = nn.ModuleList(ConvBlock(sw[i] + 3 + sf + 1, sw[i + 1], panorama=True) for i in range(stages - 1))
         self.sky_head = nn.Conv2d(sw[stages - 1], 3, 1)
         if config.sun_net:
-            self.sun: nn.Module | None = SunNet(config.sun_net, config.sun_net_size, logit_height=config.pano_height // 2,
-                                                       coarse_height=min(16, config.pano_height // 2))
+            self.sun: nn.Module | None = SunNet(
+                config.sun_net,
+                config.sun_net_size,
+                logit_height=config.pano_height // 2,
+                coarse_height=min(16, config.pano_height // 2),
+            )
         elif config.sun_head:
             self.sun = SunHead(lw * 12, sw[stages - 1], visibility=config.sun_visibility, fine=config.sun_fine)
         else:
@@ -179,14 +184,21 @@ class INet(nn.Module):
             padded = flip_pad(resize_to(feats, (fh, fw)), (h, 2 * h), top, left)
         else:
             grid = camera_footprint_grid(h, *camera)
-            padded = F.grid_sample(feats, grid.to(feats.dtype), mode="bilinear", padding_mode="border",
-                                   align_corners=False)
+            padded = F.grid_sample(
+                feats, grid.to(feats.dtype), mode="bilinear", padding_mode="border", align_corners=False
+            )
         _, theta = angles_grid(h, torch, dtype=L.dtype, device=L.device)
         elev = torch.sin(theta).expand(L.shape[0], 1, h, 2 * h)
         return torch.cat([shading, padded, elev], dim=1)
 
-    def forward(self, image: torch.Tensor, intrinsics: bool = True, K: torch.Tensor | None = None,
-                pitch: torch.Tensor | None = None, roll: torch.Tensor | None = None) -> dict[str, torch.Tensor]:
+    def forward(
+        self,
+        image: torch.Tensor,
+        intrinsics: bool = True,
+        K: torch.Tensor | None = None,
+        pitch: torch.Tensor | None = None,
+        roll: torch.Tensor | None = None,
+    ) -> dict[str, torch.Tensor]:
         """``intrinsics=False`` skips the A/N/G/S decoders (lighting outputs only: sky-only training).
 
         ``K (B, 3, 3)`` (pixels of ``image``), ``pitch``, ``roll`` ``(B,)`` (radians, conventions §4) place
@@ -196,8 +208,11 @@ class INet(nn.Module):
         size = tuple(image.shape[-2:])
         b = image.shape[0]
         if K is None:
-            K = torch.as_tensor(intrinsics_from_fov(math.radians(self.config.hfov_deg), size[1], size[0]),
-                                dtype=image.dtype, device=image.device).expand(b, 3, 3)
+            K = torch.as_tensor(
+                intrinsics_from_fov(math.radians(self.config.hfov_deg), size[1], size[0]),
+                dtype=image.dtype,
+                device=image.device,
+            ).expand(b, 3, 3)
         zeros = image.new_zeros(b)
         view = (K.to(image), zeros if pitch is None else pitch.to(image), zeros if roll is None else roll.to(image))
         camera = (*view, size) if self.config.sky_footprint == "camera" else None
@@ -232,23 +247,33 @@ class INet(nn.Module):
         sun = render_sun(out["sun_dir"], out["sun_energy"], out["sun_sigma"].detach(), self.config.pano_height)
         if "sun_visible" in out:
             # a sun only in skies that have one: soft while training, a decision at evaluation
-            gate = (out["sun_visible"] if self.training
-                    else (out["sun_visible"] >= self.config.sun_visibility_threshold).to(sun.dtype))
+            gate = (
+                out["sun_visible"]
+                if self.training
+                else (out["sun_visible"] >= self.config.sun_visibility_threshold).to(sun.dtype)
+            )
             sun = sun * gate[:, None, None, None]
         out["sky_np_log"] = sky_log
         out["sky"] = radiance_from_log(sky_log) + sun
         out["sky_log"] = torch.log1p(out["sky"])
         return out
 
-    def finish_sun(self, out: dict[str, torch.Tensor], image: torch.Tensor,
-                   view: tuple[torch.Tensor, torch.Tensor, torch.Tensor]) -> None:
+    def finish_sun(
+        self, out: dict[str, torch.Tensor], image: torch.Tensor, view: tuple[torch.Tensor, torch.Tensor, torch.Tensor]
+    ) -> None:
         """The network's sun moved onto a sun-like image blob (``config.sun_in_image``; ``sun_on_blob (B,)``)
         and its cones (``sun_cone_deg (B, 2)``: 68 % / 90 %, calibrated where the config has the scales)."""
         on = torch.zeros(image.shape[0], dtype=torch.bool, device=image.device)
         if self.config.sun_in_image and "sun_visible" in out:
-            out["sun_dir"], on = put_sun_on_blob(out["sun_dir"], out["sun_visible"], image, *view,
-                                                 threshold=self.config.sun_visibility_threshold,
-                                                 logits=out.get("sun_logits"), gate_deg=self.config.sun_blob_gate_deg)
+            out["sun_dir"], on = put_sun_on_blob(
+                out["sun_dir"],
+                out["sun_visible"],
+                image,
+                *view,
+                threshold=self.config.sun_visibility_threshold,
+                logits=out.get("sun_logits"),
+                gate_deg=self.config.sun_blob_gate_deg,
+            )
         out["sun_on_blob"] = on
         if "sun_logits" in out:
             radii = cone_radii(out["sun_logits"], out["sun_dir"])

@@ -58,12 +58,11 @@ import torch.nn.functional as F
 from kornia.filters import otsu_threshold
 from kornia.losses import ssim_loss
 
-from solidkit.envmap.io import PAPER_EXPOSURE, PAPER_GAMMA, tonemap
 from solidkit.envmap.coords import direction_grid, solid_angle
+from solidkit.envmap.io import PAPER_EXPOSURE, PAPER_GAMMA, tonemap
 from solidkit.envmap.sh import diffuse_convolution, lambertian_sphere, sh_render
 from solidkit.model.blocks import log_from_radiance
-from solidkit.model.sunhead import log_solid_angle
-from solidkit.model.sunhead import SIGMA_MAX, SIGMA_MIN
+from solidkit.model.sunhead import SIGMA_MAX, SIGMA_MIN, log_solid_angle
 
 __all__ = [
     "masked_mean",
@@ -155,8 +154,13 @@ def _cos_to(directions: torch.Tensor, height: int) -> torch.Tensor:
     return torch.einsum("hwk,bk->bhw", grid, directions)
 
 
-def sun_energy(sky: torch.Tensor, direction: torch.Tensor, visible: torch.Tensor | None = None,
-               cap: float = SUN_CAP, annulus: tuple[float, float] = SUN_ANNULUS) -> torch.Tensor:
+def sun_energy(
+    sky: torch.Tensor,
+    direction: torch.Tensor,
+    visible: torch.Tensor | None = None,
+    cap: float = SUN_CAP,
+    annulus: tuple[float, float] = SUN_ANNULUS,
+) -> torch.Tensor:
     """Energy ``(B, C)`` (radiance x sr) of the sun at ``direction (B, 3)`` in ``sky (B, C, H, 2H)``.
 
     ``sum over the cap of max(L - L_bg, 0) Omega`` with ``L_bg`` the per-channel median of the
@@ -170,9 +174,7 @@ def sun_energy(sky: torch.Tensor, direction: torch.Tensor, visible: torch.Tensor
     cos = _cos_to(direction, h)
     omega = solid_angle(h, torch, dtype=sky.dtype, device=sky.device)
     ring = (cos < math.cos(annulus[0])) & (cos > math.cos(annulus[1]))
-    bg = torch.stack([
-        sky[i][:, ring[i]].median(dim=1).values if ring[i].any() else sky.new_zeros(c) for i in range(b)
-    ])
+    bg = torch.stack([sky[i][:, ring[i]].median(dim=1).values if ring[i].any() else sky.new_zeros(c) for i in range(b)])
     inside = (cos > math.cos(cap)).to(sky.dtype)
     e = ((sky - bg[:, :, None, None]).clamp_min(0.0) * (inside * omega)[:, None]).sum(dim=(2, 3))
     if visible is not None:
@@ -180,8 +182,9 @@ def sun_energy(sky: torch.Tensor, direction: torch.Tensor, visible: torch.Tensor
     return e
 
 
-def sun_size(sky: torch.Tensor, direction: torch.Tensor, cap: float = SUN_CAP,
-             annulus: tuple[float, float] = SUN_ANNULUS) -> torch.Tensor:
+def sun_size(
+    sky: torch.Tensor, direction: torch.Tensor, cap: float = SUN_CAP, annulus: tuple[float, float] = SUN_ANNULUS
+) -> torch.Tensor:
     """Angular standard deviation ``(B,)`` (radians) of the sun at ``direction (B, 3)`` in ``sky (B, C, H, 2H)``.
 
     ``sqrt(sum w (1 - cos t) / sum w)`` over the cap, ``w`` the luminance above the annulus median
@@ -202,7 +205,9 @@ def sun_size(sky: torch.Tensor, direction: torch.Tensor, cap: float = SUN_CAP,
     return torch.sqrt(((wgt * (1.0 - cos)).sum(dim=(1, 2)) / wgt.sum(dim=(1, 2)).clamp_min(1e-12)).clamp_min(0.0))
 
 
-def sun_size_loss(sigma: torch.Tensor, sky: torch.Tensor, direction: torch.Tensor, visible: torch.Tensor) -> torch.Tensor:
+def sun_size_loss(
+    sigma: torch.Tensor, sky: torch.Tensor, direction: torch.Tensor, visible: torch.Tensor
+) -> torch.Tensor:
     """L1 between ``log sigma~ (B,)`` and the log of the true sun's :func:`sun_size` (clamped to the head's
     range), over skies with a visible sun."""
     keep = visible > 0.5
@@ -216,17 +221,25 @@ def _size_l1(sigma: torch.Tensor, true: torch.Tensor) -> torch.Tensor:
     return (torch.log(sigma) - torch.log(true.clamp(SIGMA_MIN, SIGMA_MAX))).abs().mean()
 
 
-def sun_terms(out: dict[str, torch.Tensor], direction: torch.Tensor, visible: torch.Tensor, energy: torch.Tensor,
-              size: torch.Tensor, sun_sigma: float = SUN_TARGET_SIGMA) -> dict[str, torch.Tensor]:
+def sun_terms(
+    out: dict[str, torch.Tensor],
+    direction: torch.Tensor,
+    visible: torch.Tensor,
+    energy: torch.Tensor,
+    size: torch.Tensor,
+    sun_sigma: float = SUN_TARGET_SIGMA,
+) -> dict[str, torch.Tensor]:
     """The sun head's own terms from known targets (the sun stage of training, whose crops carry their
     sun's ``direction (B, 3)``, ``visible (B,)``, ``energy (B, 3)`` and angular ``size (B,)`` radians instead
     of a sky): ``sun_dir``, ``sun_cos``, ``sun_vis``, ``sun_energy`` (skies with a sun) and ``sun_size``
     (:func:`sun_size_loss`'s log L1)."""
     keep = visible > 0.5
     zero = out["sun_log_energy"].sum() * 0.0
-    terms = {"sun_dir": sun_direction_loss(out["sun_logits"], direction, visible, sun_sigma),
-             "sun_cos": sun_cosine_loss(out["sun_logits"], direction, visible),
-             "sun_vis": sun_visibility_loss(out["sun_visible_logit"], visible)}
+    terms = {
+        "sun_dir": sun_direction_loss(out["sun_logits"], direction, visible, sun_sigma),
+        "sun_cos": sun_cosine_loss(out["sun_logits"], direction, visible),
+        "sun_vis": sun_visibility_loss(out["sun_visible_logit"], visible),
+    }
     if keep.any():
         terms["sun_energy"] = sun_energy_loss(out["sun_log_energy"][keep], energy[keep])
         terms["sun_size"] = _size_l1(out["sun_sigma"][keep], size[keep])
@@ -235,8 +248,9 @@ def sun_terms(out: dict[str, torch.Tensor], direction: torch.Tensor, visible: to
     return terms
 
 
-def sun_direction_loss(logits: torch.Tensor, direction: torch.Tensor, visible: torch.Tensor,
-                       sigma: float = SUN_TARGET_SIGMA) -> torch.Tensor:
+def sun_direction_loss(
+    logits: torch.Tensor, direction: torch.Tensor, visible: torch.Tensor, sigma: float = SUN_TARGET_SIGMA
+) -> torch.Tensor:
     """Cross-entropy of ``p ∝ exp(logits) Omega`` (``logits (B, 1, H, 2H)``) against a Gaussian of
     ``sigma`` radians at ``direction (B, 3)``, over skies with ``visible (B,)``, divided by ``log(H W)``."""
     b, _, h, w = logits.shape
@@ -285,8 +299,9 @@ def sun_peak_loss(sky_log: torch.Tensor, target: torch.Tensor, fraction: float =
     return (p - t).abs().mean()
 
 
-def sky_away_from_sun_loss(sky_log: torch.Tensor, target: torch.Tensor, direction: torch.Tensor,
-                           visible: torch.Tensor, cap: float = SUN_CAP) -> torch.Tensor:
+def sky_away_from_sun_loss(
+    sky_log: torch.Tensor, target: torch.Tensor, direction: torch.Tensor, visible: torch.Tensor, cap: float = SUN_CAP
+) -> torch.Tensor:
     """L1 on ``log1p`` over the pixels farther than ``cap`` from the true sun (all pixels without one)."""
     h = target.shape[-2]
     near = (_cos_to(direction, h) > math.cos(cap)) & (visible > 0.5)[:, None, None]
@@ -303,8 +318,12 @@ def hdr_l1_loss(pred_log: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
     return (pred_log - log_from_radiance(target)).abs().mean()
 
 
-def sup1_loss(out: dict[str, torch.Tensor], batch: dict[str, torch.Tensor], variant: str = "paper",
-              sun_sigma: float = SUN_TARGET_SIGMA) -> dict[str, torch.Tensor]:
+def sup1_loss(
+    out: dict[str, torch.Tensor],
+    batch: dict[str, torch.Tensor],
+    variant: str = "paper",
+    sun_sigma: float = SUN_TARGET_SIGMA,
+) -> dict[str, torch.Tensor]:
     """The terms of ``L_sup1`` (keys ``albedo, normal, distance, shadow, sky``) that both the
     model output and the batch provide (a sky-only baseline gets ``sky`` alone).
 
@@ -313,8 +332,12 @@ def sup1_loss(out: dict[str, torch.Tensor], batch: dict[str, torch.Tensor], vari
     """
     mask = batch.get("geometry_mask")
     located = variant == "located"
-    pixel_terms = {"albedo": albedo_loss, "normal": normal_loss,
-                   "distance": relative_distance_loss if located else distance_loss, "shadow": shadow_loss}
+    pixel_terms = {
+        "albedo": albedo_loss,
+        "normal": normal_loss,
+        "distance": relative_distance_loss if located else distance_loss,
+        "shadow": shadow_loss,
+    }
     terms = {k: f(out[k], batch[k], mask) for k, f in pixel_terms.items() if k in out and k in batch}
     if "sky_log" in out and "sky" in batch:
         if located and "sun_logits" in out and "sun_dir" in batch:
@@ -325,8 +348,11 @@ def sup1_loss(out: dict[str, torch.Tensor], batch: dict[str, torch.Tensor], vari
             if "sun_visible_logit" in out:
                 terms["sun_vis"] = sun_visibility_loss(out["sun_visible_logit"], vis)
                 keep = vis > 0.5
-                terms["sun_energy"] = (sun_energy_loss(out["sun_log_energy"][keep], sun_energy(sky[keep], sd[keep]))
-                                       if keep.any() else out["sun_log_energy"].sum() * 0.0)
+                terms["sun_energy"] = (
+                    sun_energy_loss(out["sun_log_energy"][keep], sun_energy(sky[keep], sd[keep]))
+                    if keep.any()
+                    else out["sun_log_energy"].sum() * 0.0
+                )
             else:
                 terms["sun_energy"] = sun_energy_loss(out["sun_log_energy"], sun_energy(sky, sd, vis))
             terms["sun_peak"] = sun_peak_loss(out["sky_log"], sky)
@@ -443,8 +469,13 @@ def solidnet_losses(
         shadow = batch.get("shadow", out["shadow"])
         mask = non_shadow_mask(shadow, batch.get("geometry_mask"))
         terms["rec"] = reconstruction_loss(
-            batch["image"], out["albedo"], out["normal"], out["sh"], mask, out.get("rotation"),
-            consistent=variant == "located"
+            batch["image"],
+            out["albedo"],
+            out["normal"],
+            out["sh"],
+            mask,
+            out.get("rotation"),
+            consistent=variant == "located",
         )
     if "local_log" in out and "local" in batch:
         terms["local"] = sup2_loss(out["local_log"], batch["local"])

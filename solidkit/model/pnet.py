@@ -69,6 +69,8 @@ class PNet(nn.Module):
 
     def forward(self, x: torch.Tensor) -> dict[str, torch.Tensor]:
         if x.shape[1] != self.in_channels:
-            raise ValueError(f"P-Net expects {self.in_channels} input channels ({self.config.pnet_inputs}), got {x.shape[1]}")
+            raise ValueError(
+                f"P-Net expects {self.in_channels} input channels ({self.config.pnet_inputs}), got {x.shape[1]}"
+            )
         y = F.softplus(self.decoder(self.encoder(x), tuple(x.shape[-2:]), x))
         return {"local_log": y, "local": radiance_from_log(y)}

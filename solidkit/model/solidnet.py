@@ -41,17 +41,17 @@ import torch
 from torch import nn
 
 from solidkit.envmap.coords import CONVENTIONS_VERSION, angles_from_direction
+from solidkit.envmap.io import inverse_tonemap, read_ldr, tonemap
 from solidkit.envmap.perspective import intrinsics_from_fov, scale_intrinsics, scale_pixel_coordinates
-from solidkit.threads import ensure_threads
+from solidkit.envmap.sun import Method, detect_sun
 from solidkit.errors import ConventionsError, InputError, SolidkitError
 from solidkit.fsutil import atomic_write_bytes
 from solidkit.model.config import ConfigError, SolidNetConfig, preset
 from solidkit.model.inet import INet
 from solidkit.model.pnet import PNet, pnet_input
 from solidkit.model.warp import camera_rotation, points_from_plane_distance, sample_at_pixels, warp_to_probes
-from solidkit.envmap.io import inverse_tonemap, read_ldr, tonemap
-from solidkit.envmap.sun import Method, detect_sun
 from solidkit.synth.panocrops import metered_gain
+from solidkit.threads import ensure_threads
 
 __all__ = [
     "CHECKPOINT_FORMAT",
@@ -178,7 +178,9 @@ class SolidNet(nn.Module):
             model.load_state_dict(ckpt["state_dict"])
         except RuntimeError as exc:
             first = str(exc).strip().splitlines()
-            raise CheckpointError(f"{path}: weights do not fit the stored configuration ({first[-1].strip()})") from None
+            raise CheckpointError(
+                f"{path}: weights do not fit the stored configuration ({first[-1].strip()})"
+            ) from None
         model.card = ckpt.get("card", {})
         return model.eval()
 
@@ -236,7 +238,11 @@ class SolidNet(nn.Module):
         outside = (pix[:, 0] < -0.5) | (pix[:, 0] > w0 - 0.5) | (pix[:, 1] < -0.5) | (pix[:, 1] > h0 - 0.5)
         if outside.any():
             raise InputError(f"probe pixel {pix[outside][0].tolist()} lies outside the {w0}x{h0} image")
-        K = intrinsics_from_fov(math.radians(self.config.hfov_deg), w0, h0) if K is None else np.asarray(K, dtype=np.float64)
+        K = (
+            intrinsics_from_fov(math.radians(self.config.hfov_deg), w0, h0)
+            if K is None
+            else np.asarray(K, dtype=np.float64)
+        )
         if K.shape != (3, 3):
             raise InputError(f"K must be 3x3, got {K.shape}")
         H, W = self.config.image_size
@@ -269,7 +275,9 @@ class SolidNet(nn.Module):
                 net.update(visible_prob=p, says_sun=p >= self.config.sun_visibility_threshold)
             if "sun_cone_deg" in out:
                 c = out["sun_cone_deg"][0].cpu().numpy()
-                net.update(cone_68_deg=float(c[0]), cone_90_deg=float(c[1]), cones_calibrated=bool(self.config.sun_cone_scale))
+                net.update(
+                    cone_68_deg=float(c[0]), cone_90_deg=float(c[1]), cones_calibrated=bool(self.config.sun_cone_scale)
+                )
             if "sun_on_blob" in out:
                 net["in_image_blob"] = bool(out["sun_on_blob"][0])
             extra["sun_network"] = net

@@ -120,13 +120,23 @@ class SunCropBank:
         image, K, roll, gain = render_view(self._panos[k].astype(np.float32), view, config)
         sun = self._suns[k]
         d = view_direction(sun.direction, view)
-        return {"image": image, "K": K, "pitch": np.float32(view.pitch), "roll": np.float32(roll),
-                "yaw": np.float32(view.yaw), "sun_dir": (d if sun.visible else np.zeros(3)).astype(np.float32),
-                "sun_visible": np.float32(sun.visible), "sun_energy": (sun.energy * gain).astype(np.float32),
-                "sun_size": np.float32(sun.size), "source": self.names[k], "flip": view.flip}
+        return {
+            "image": image,
+            "K": K,
+            "pitch": np.float32(view.pitch),
+            "roll": np.float32(roll),
+            "yaw": np.float32(view.yaw),
+            "sun_dir": (d if sun.visible else np.zeros(3)).astype(np.float32),
+            "sun_visible": np.float32(sun.visible),
+            "sun_energy": (sun.energy * gain).astype(np.float32),
+            "sun_size": np.float32(sun.size),
+            "source": self.names[k],
+            "flip": view.flip,
+        }
 
-    def batch(self, seed: int, step: int, size: int, config: Any, rank: int = 0, world: int = 1
-              ) -> dict[str, torch.Tensor]:
+    def batch(
+        self, seed: int, step: int, size: int, config: Any, rank: int = 0, world: int = 1
+    ) -> dict[str, torch.Tensor]:
         """``size`` crops (this rank's share) collated: ``image (B, 3, H, W)``, ``K``, ``pitch``, ``roll``,
         ``sun_dir (B, 3)``, ``sun_visible``, ``sun_energy (B, 3)``, ``sun_size``."""
         if not self.names:
@@ -135,6 +145,13 @@ class SunCropBank:
         seeds = np.random.default_rng(derive_seed(seed, 13, step)).integers(0, 2**31 - 1, size)[rank::world]
         items = [self.crop(np.random.default_rng(int(s)), c) for s in seeds]
         t = lambda key: torch.as_tensor(np.stack([it[key] for it in items]), dtype=torch.float32)  # noqa: E731
-        return {"image": t("image").permute(0, 3, 1, 2).contiguous(), "K": t("K"), "pitch": t("pitch"),
-                "roll": t("roll"), "sun_dir": t("sun_dir"), "sun_visible": t("sun_visible"),
-                "sun_energy": t("sun_energy"), "sun_size": t("sun_size")}
+        return {
+            "image": t("image").permute(0, 3, 1, 2).contiguous(),
+            "K": t("K"),
+            "pitch": t("pitch"),
+            "roll": t("roll"),
+            "sun_dir": t("sun_dir"),
+            "sun_visible": t("sun_visible"),
+            "sun_energy": t("sun_energy"),
+            "sun_size": t("sun_size"),
+        }

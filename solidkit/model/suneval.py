@@ -28,12 +28,23 @@ from solidkit.envmap.perspective import project_to_pixels, rays_through_pixels
 from solidkit.envmap.sun import luminance
 from solidkit.metrics.sun import direction_errors
 from solidkit.model.suncrops import source_sun
-from solidkit.synth.panocrops import CropConfig, View, render_view, view_direction
 from solidkit.model.sununcertainty import calibrate_cone_scales
+from solidkit.synth.panocrops import CropConfig, View, render_view, view_direction
 
-__all__ = ["RELATIVE_AZIMUTHS_DEG", "PITCH_DEG", "HFOV_DEG", "BASELINE_ELEVATION_DEG", "ProtocolCrop",
-           "protocol_crops", "predict_model", "predict_constant", "predict_brightest_column", "sun_figures",
-           "evaluate_sun_crops", "calibrate_sun"]
+__all__ = [
+    "RELATIVE_AZIMUTHS_DEG",
+    "PITCH_DEG",
+    "HFOV_DEG",
+    "BASELINE_ELEVATION_DEG",
+    "ProtocolCrop",
+    "protocol_crops",
+    "predict_model",
+    "predict_constant",
+    "predict_brightest_column",
+    "sun_figures",
+    "evaluate_sun_crops",
+    "calibrate_sun",
+]
 
 RELATIVE_AZIMUTHS_DEG = (0.0, 30.0, -30.0, 90.0, -90.0, 150.0)
 PITCH_DEG = 5.0
@@ -59,9 +70,15 @@ class ProtocolCrop:
     in_view: bool
 
 
-def protocol_crops(sources: list[Any], size: tuple[int, int] = (240, 320), *, exposure_key: float = 0.18,
-                   relative_azimuths_deg: tuple[float, ...] = RELATIVE_AZIMUTHS_DEG, pitch_deg: float = PITCH_DEG,
-                   hfov_deg: float = HFOV_DEG) -> list[ProtocolCrop]:
+def protocol_crops(
+    sources: list[Any],
+    size: tuple[int, int] = (240, 320),
+    *,
+    exposure_key: float = 0.18,
+    relative_azimuths_deg: tuple[float, ...] = RELATIVE_AZIMUTHS_DEG,
+    pitch_deg: float = PITCH_DEG,
+    hfov_deg: float = HFOV_DEG,
+) -> list[ProtocolCrop]:
     """The protocol's crops of ``sources`` (:class:`solidkit.synth.panocrops.Source`; the sun is the
     catalogue's where the source has one, else the crop path's detector on its lighting)."""
     cfg = CropConfig(width=size[1], height=size[0], exposure_key=exposure_key)
@@ -80,8 +97,11 @@ def protocol_crops(sources: list[Any], size: tuple[int, int] = (240, 320), *, ex
                 cam = np.asarray(rotation_from_ypr(0.0, view.pitch, 0.0)).T @ d
                 x, y, front = project_to_pixels(K.astype(np.float64), cam)
                 in_view = bool(front) and 0 <= float(x) < size[1] and 0 <= float(y) < size[0]
-            out.append(ProtocolCrop(image, K, view.pitch, roll, src.name, rel, d.astype(np.float32),
-                                    bool(sun.visible), in_view))
+            out.append(
+                ProtocolCrop(
+                    image, K, view.pitch, roll, src.name, rel, d.astype(np.float32), bool(sun.visible), in_view
+                )
+            )
     return out
 
 
@@ -102,15 +122,19 @@ def predict_model(model: Any, crops: list[ProtocolCrop], batch_size: int = 16) -
     keys = ("sun_dir", "sun_visible", "sun_on_blob", "sun_cone_deg")
     acc: dict[str, list[np.ndarray]] = {k: [] for k in keys}
     for s in range(0, len(crops), batch_size):
-        image, K, pitch, roll = _batch(crops[s:s + batch_size])
+        image, K, pitch, roll = _batch(crops[s : s + batch_size])
         out = dict(inet.sun(image, K, pitch, roll))
         inet.finish_sun(out, image, (K, pitch, roll))
         for k in keys:
             acc[k].append(out[k].float().numpy() if k != "sun_on_blob" else out[k].numpy())
     prob = np.concatenate(acc["sun_visible"])
-    return {"direction": np.concatenate(acc["sun_dir"]), "visible_prob": prob,
-            "says_sun": prob >= model.config.sun_visibility_threshold,
-            "on_blob": np.concatenate(acc["sun_on_blob"]), "cone_deg": np.concatenate(acc["sun_cone_deg"])}
+    return {
+        "direction": np.concatenate(acc["sun_dir"]),
+        "visible_prob": prob,
+        "says_sun": prob >= model.config.sun_visibility_threshold,
+        "on_blob": np.concatenate(acc["sun_on_blob"]),
+        "cone_deg": np.concatenate(acc["sun_cone_deg"]),
+    }
 
 
 def predict_constant(crops: list[ProtocolCrop], elevation_deg: float = BASELINE_ELEVATION_DEG) -> dict[str, np.ndarray]:
@@ -119,15 +143,17 @@ def predict_constant(crops: list[ProtocolCrop], elevation_deg: float = BASELINE_
     return {"direction": np.tile(d, (len(crops), 1)), "says_sun": np.ones(len(crops), bool)}
 
 
-def predict_brightest_column(crops: list[ProtocolCrop], elevation_deg: float = BASELINE_ELEVATION_DEG
-                             ) -> dict[str, np.ndarray]:
+def predict_brightest_column(
+    crops: list[ProtocolCrop], elevation_deg: float = BASELINE_ELEVATION_DEG
+) -> dict[str, np.ndarray]:
     """The azimuth of the image column of highest mean luminance (its ray at the principal point's row,
     turned by the camera's pitch and roll) at ``elevation_deg``, always "sun"."""
     dirs = []
     for c in crops:
         col = int(np.argmax(luminance(c.image).mean(axis=0)))
-        ray = np.asarray(rays_through_pixels(c.K.astype(np.float64), np.array([col + 0.0]),
-                                             np.array([float(c.K[1, 2])])))[0]
+        ray = np.asarray(
+            rays_through_pixels(c.K.astype(np.float64), np.array([col + 0.0]), np.array([float(c.K[1, 2])]))
+        )[0]
         az, _ = angles_from_direction(np.asarray(rotation_from_ypr(0.0, c.pitch, c.roll)) @ ray)
         dirs.append(direction_from_angles(float(az), math.radians(elevation_deg)))
     return {"direction": np.asarray(dirs, np.float32), "says_sun": np.ones(len(crops), bool)}
@@ -149,13 +175,19 @@ def sun_figures(crops: list[ProtocolCrop], pred: dict[str, np.ndarray]) -> dict[
     found = vis & says
     med = lambda x: float(np.median(x)) if len(x) else None  # noqa: E731
     f: dict[str, Any] = {
-        "suns": int(vis.sum()), "sunless": int((~vis).sum()), "found": int(found.sum()),
+        "suns": int(vis.sum()),
+        "sunless": int((~vis).sum()),
+        "found": int(found.sum()),
         "found_rate": float(found.sum() / vis.sum()) if vis.any() else None,
-        "angular_deg": med(err[found]), "azimuth_deg": med(daz[found]), "elevation_deg": med(delv[found]),
+        "angular_deg": med(err[found]),
+        "azimuth_deg": med(daz[found]),
+        "elevation_deg": med(delv[found]),
         "angular_all_deg": med(err[vis]),
-        "in_view_deg": med(err[vis & in_view]), "in_view_n": int((vis & in_view).sum()),
+        "in_view_deg": med(err[vis & in_view]),
+        "in_view_n": int((vis & in_view).sum()),
         "in_view_max_deg": float(err[vis & in_view].max()) if (vis & in_view).any() else None,
-        "beside_deg": med(err[vis & ~in_view & (rel <= 100)]), "behind_deg": med(err[vis & ~in_view & (rel > 100)]),
+        "beside_deg": med(err[vis & ~in_view & (rel <= 100)]),
+        "behind_deg": med(err[vis & ~in_view & (rel > 100)]),
         "false_suns": int((~vis & says).sum()),
         "false_sun_rate": float((~vis & says).sum() / (~vis).sum()) if (~vis).any() else None,
     }
@@ -188,12 +220,15 @@ GATE_GRID_DEG = (15.0, 30.0, 60.0)
 
 
 def _balanced_accuracy(prob: np.ndarray, vis: np.ndarray, t: float) -> float:
-    rates = ([float(np.mean(prob[vis] >= t))] if vis.any() else []) + ([float(np.mean(prob[~vis] < t))] if (~vis).any() else [])
+    rates = ([float(np.mean(prob[vis] >= t))] if vis.any() else []) + (
+        [float(np.mean(prob[~vis] < t))] if (~vis).any() else []
+    )
     return float(np.mean(rates))
 
 
-def calibrate_sun(model: Any, domains: dict[str, list[ProtocolCrop]], levels: tuple[float, ...] = (0.68, 0.90)
-                  ) -> dict[str, Any]:
+def calibrate_sun(
+    model: Any, domains: dict[str, list[ProtocolCrop]], levels: tuple[float, ...] = (0.68, 0.90)
+) -> dict[str, Any]:
     """The sun settings of a checkpoint from validation crops of one or more ``domains`` (e.g. real and rendered
     panoramas; each counts equally, whatever its number of crops):
 
@@ -218,8 +253,14 @@ def calibrate_sun(model: Any, domains: dict[str, list[ProtocolCrop]], levels: tu
         for on, gate in [(False, saved.sun_blob_gate_deg)] + [(True, g) for g in GATE_GRID_DEG]:
             model.reconfigure(sun_in_image=on, sun_blob_gate_deg=gate)
             errs = [sun_figures(c, predict_model(model, c))["angular_deg"] for c in domains.values()]
-            trials.append({"sun_in_image": on, "gate_deg": gate, "angular_deg": [e for e in errs],
-                           "score": float(np.mean([90.0 if e is None else e for e in errs]))})
+            trials.append(
+                {
+                    "sun_in_image": on,
+                    "gate_deg": gate,
+                    "angular_deg": [e for e in errs],
+                    "score": float(np.mean([90.0 if e is None else e for e in errs])),
+                }
+            )
         best = min(trials, key=lambda t: t["score"])
         model.reconfigure(sun_in_image=best["sun_in_image"], sun_blob_gate_deg=best["gate_deg"])
         errs, radii = [], []
@@ -234,6 +275,13 @@ def calibrate_sun(model: Any, domains: dict[str, list[ProtocolCrop]], levels: tu
         scale = calibrate_cone_scales(err, rad, levels) if len(err) >= 10 else ()
     finally:
         model.reconfigure(**saved.to_dict())
-    return {"threshold": threshold, "balanced_accuracy": float(max(acc)), "sun_in_image": best["sun_in_image"],
-            "gate_deg": best["gate_deg"], "cone_scale": tuple(float(s) for s in scale), "trials": trials,
-            "n": {d: {"crops": len(c), "suns": int(vis[d].sum())} for d, c in domains.items()} | {"found_suns": int(len(err))}}
+    return {
+        "threshold": threshold,
+        "balanced_accuracy": float(max(acc)),
+        "sun_in_image": best["sun_in_image"],
+        "gate_deg": best["gate_deg"],
+        "cone_scale": tuple(float(s) for s in scale),
+        "trials": trials,
+        "n": {d: {"crops": len(c), "suns": int(vis[d].sum())} for d, c in domains.items()}
+        | {"found_suns": int(len(err))},
+    }

@@ -105,8 +105,15 @@ class SunHead(nn.Module):
         Add a 1x1 convolution of the sky decoder's features to the coarse global logits.
     """
 
-    def __init__(self, global_features: int, sky_features: int, coarse_height: int = 16, hidden: int = 128,
-                 visibility: bool = False, fine: bool = True) -> None:
+    def __init__(
+        self,
+        global_features: int,
+        sky_features: int,
+        coarse_height: int = 16,
+        hidden: int = 128,
+        visibility: bool = False,
+        fine: bool = True,
+    ) -> None:
         super().__init__()
         self.coarse_height = coarse_height
         self.mlp = nn.Sequential(nn.Linear(global_features, hidden), nn.ELU(inplace=True))
@@ -130,8 +137,13 @@ class SunHead(nn.Module):
         log_energy = par[:, :3]
         sigma = SIGMA_MIN + (SIGMA_MAX - SIGMA_MIN) * torch.sigmoid(par[:, 3])
         direction = local_soft_argmax(logits)
-        out = {"sun_logits": logits, "sun_dir": direction, "sun_log_energy": log_energy,
-               "sun_energy": torch.exp(log_energy.clamp(max=20.0)), "sun_sigma": sigma}
+        out = {
+            "sun_logits": logits,
+            "sun_dir": direction,
+            "sun_log_energy": log_energy,
+            "sun_energy": torch.exp(log_energy.clamp(max=20.0)),
+            "sun_sigma": sigma,
+        }
         if self.visible is not None:
             vis = self.visible(hid)[:, 0]
             out.update(sun_visible_logit=vis, sun_visible=torch.sigmoid(vis))

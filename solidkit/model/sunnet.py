@@ -59,8 +59,9 @@ def ray_directions(K: torch.Tensor, pitch: torch.Tensor, roll: torch.Tensor, siz
     return F.normalize(world, dim=-1).transpose(1, 2).reshape(-1, 3, h, w)
 
 
-def image_grid_on_panorama(pano_height: int, K: torch.Tensor, pitch: torch.Tensor, roll: torch.Tensor,
-                           size: tuple[int, int]) -> tuple[torch.Tensor, torch.Tensor]:
+def image_grid_on_panorama(
+    pano_height: int, K: torch.Tensor, pitch: torch.Tensor, roll: torch.Tensor, size: tuple[int, int]
+) -> tuple[torch.Tensor, torch.Tensor]:
     """Where every panorama direction lands in a pinhole image: ``grid_sample`` grid ``(B, H, 2H, 2)``
     (normalised, ``align_corners=False``) and a mask ``(B, 1, H, 2H)`` of the directions inside the image.
 
@@ -94,8 +95,14 @@ class SunNet(nn.Module):
         Width of the hidden layers.
     """
 
-    def __init__(self, widths: tuple[int, ...] = (16, 32, 64, 128), size: tuple[int, int] = (96, 128),
-                 logit_height: int = 64, coarse_height: int = 16, hidden: int = 256) -> None:
+    def __init__(
+        self,
+        widths: tuple[int, ...] = (16, 32, 64, 128),
+        size: tuple[int, int] = (96, 128),
+        logit_height: int = 64,
+        coarse_height: int = 16,
+        hidden: int = 256,
+    ) -> None:
         super().__init__()
         if len(widths) < 3:
             raise ValueError(f"SunNet needs at least 3 encoder levels, got {widths}")
@@ -103,15 +110,17 @@ class SunNet(nn.Module):
         self.logit_height, self.coarse_height = logit_height, coarse_height
         self.encoder = Encoder(6, tuple(widths))
         self.pool = nn.AdaptiveAvgPool2d((3, 4))
-        self.mlp = nn.Sequential(nn.Linear(widths[-1] * 12, hidden), nn.ELU(inplace=True),
-                                 nn.Linear(hidden, hidden), nn.ELU(inplace=True))
+        self.mlp = nn.Sequential(
+            nn.Linear(widths[-1] * 12, hidden), nn.ELU(inplace=True), nn.Linear(hidden, hidden), nn.ELU(inplace=True)
+        )
         self.coarse = nn.Linear(hidden, 2 * coarse_height**2)
         self.params = nn.Linear(hidden, 4)
         self.visible = nn.Linear(hidden, 1)
         self.fine = nn.Conv2d(widths[1] + widths[-1], 1, 1)
 
-    def forward(self, image: torch.Tensor, K: torch.Tensor, pitch: torch.Tensor, roll: torch.Tensor
-                ) -> dict[str, torch.Tensor]:
+    def forward(
+        self, image: torch.Tensor, K: torch.Tensor, pitch: torch.Tensor, roll: torch.Tensor
+    ) -> dict[str, torch.Tensor]:
         """``image (B, 3, H, W)`` in [0, 1] with intrinsics ``K (B, 3, 3)`` (pixels of ``image``), ``pitch``,
         ``roll (B,)`` radians -> the :class:`~solidkit.model.sunhead.SunHead` outputs (``sun_logits
         (B, 1, logit_height, 2 logit_height)``, ``sun_dir``, ``sun_energy``, ``sun_log_energy``,
@@ -129,12 +138,18 @@ class SunNet(nn.Module):
         level = feats[1]
         fine = self.fine(torch.cat([level, resize_to(feats[-1], level.shape[-2:])], dim=1))
         grid, inside = image_grid_on_panorama(lh, Ks, pitch.to(image), roll.to(image), self.size)
-        logits = logits + inside * F.grid_sample(fine, grid, mode="bilinear", padding_mode="border",
-                                                 align_corners=False)
+        logits = logits + inside * F.grid_sample(
+            fine, grid, mode="bilinear", padding_mode="border", align_corners=False
+        )
         par = self.params(hid)
         log_energy = par[:, :3]
         vis = self.visible(hid)[:, 0]
-        return {"sun_logits": logits, "sun_dir": local_soft_argmax(logits, radius=math.radians(10.0)),
-                "sun_log_energy": log_energy, "sun_energy": torch.exp(log_energy.clamp(max=20.0)),
-                "sun_sigma": SIGMA_MIN + (SIGMA_MAX - SIGMA_MIN) * torch.sigmoid(par[:, 3]),
-                "sun_visible_logit": vis, "sun_visible": torch.sigmoid(vis)}
+        return {
+            "sun_logits": logits,
+            "sun_dir": local_soft_argmax(logits, radius=math.radians(10.0)),
+            "sun_log_energy": log_energy,
+            "sun_energy": torch.exp(log_energy.clamp(max=20.0)),
+            "sun_sigma": SIGMA_MIN + (SIGMA_MAX - SIGMA_MIN) * torch.sigmoid(par[:, 3]),
+            "sun_visible_logit": vis,
+            "sun_visible": torch.sigmoid(vis),
+        }

@@ -41,7 +41,9 @@ def cone_radii(logits: torch.Tensor, direction: torch.Tensor, levels: tuple[floa
     ang_sorted = torch.gather(ang, 1, order)
     out = []
     for q in levels:
-        k = torch.searchsorted(cum.contiguous(), torch.full((b, 1), float(q), device=logits.device)).clamp(max=h * w - 1)
+        k = torch.searchsorted(cum.contiguous(), torch.full((b, 1), float(q), device=logits.device)).clamp(
+            max=h * w - 1
+        )
         out.append(torch.gather(ang_sorted, 1, k)[:, 0])
     # a cone is never narrower than one logit pixel's half-width
     return torch.stack(out, dim=1).clamp_min(90.0 / h)
@@ -56,8 +58,9 @@ def conformal_quantile(scores: np.ndarray, q: float) -> float:
     return float(s[k - 1]) if 0 < k <= n else math.inf
 
 
-def calibrate_cone_scales(errors_deg: np.ndarray, radii_deg: np.ndarray, levels: tuple[float, ...] = LEVELS
-                          ) -> tuple[float, ...]:
+def calibrate_cone_scales(
+    errors_deg: np.ndarray, radii_deg: np.ndarray, levels: tuple[float, ...] = LEVELS
+) -> tuple[float, ...]:
     """Factors ``s_q`` on :func:`cone_radii` so that ``error <= s_q radius_q`` covers ``q`` of calibration
     crops (``errors_deg (n,)``, ``radii_deg (n, len(levels))``), made non-decreasing across levels."""
     e, r = np.asarray(errors_deg, np.float64), np.asarray(radii_deg, np.float64)

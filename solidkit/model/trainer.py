@@ -41,36 +41,46 @@ import os
 import platform
 import sys
 import time
-import tomllib
+from collections.abc import Callable
 from dataclasses import asdict, dataclass, field, fields
 from pathlib import Path
-from typing import Any, Callable, cast
+from typing import Any, cast
 
 import numpy as np
+import tomllib
 import torch
 
-from solidkit.envmap.sun import detect_sun
-from solidkit.errors import InputError
-from solidkit.fsutil import atomic_write_bytes, atomic_write_text
-from solidkit.model.config import SolidNetConfig, preset
-from solidkit.metrics.sun import direction_errors, sun_error
-from solidkit.model.losses import solidnet_losses, sun_energy
-from solidkit.model.solidnet import SolidNet, save_checkpoint
-from solidkit.model.warp import camera_rotation
 from solidkit.envmap.coords import CONVENTIONS_VERSION
 from solidkit.envmap.io import tonemap
-from solidkit.fsutil import sha256_file
-from solidkit.model.losses import sun_terms
-from solidkit.model.solidnet import CHECKPOINT_VERSION, load_checkpoint
-from solidkit.model.suncrops import SunCropBank
+from solidkit.envmap.sun import detect_sun
+from solidkit.errors import InputError
+from solidkit.fsutil import atomic_write_bytes, atomic_write_text, sha256_file
+from solidkit.metrics.sun import direction_errors, sun_error
+from solidkit.model.config import SolidNetConfig, preset
 from solidkit.model.fit import batch_from_synth
+from solidkit.model.losses import solidnet_losses, sun_energy, sun_terms
+from solidkit.model.solidnet import CHECKPOINT_VERSION, SolidNet, load_checkpoint, save_checkpoint
+from solidkit.model.suncrops import SunCropBank
+from solidkit.model.warp import camera_rotation
 from solidkit.synth.dataset import SynthDataset
 from solidkit.synth.panocrops import CropConfig, CropSampler, load_sources
 from solidkit.synth.sample import derive_seed
 
-__all__ = ["StageConfig", "TrainConfig", "load_train_config", "Trainer", "crop_batch", "synth_batch", "evaluate_lighting",
-           "evaluate_sun", "best_visibility_threshold", "tune_visibility_threshold", "set_visibility_threshold", "export_checkpoint",
-           "model_from_state"]
+__all__ = [
+    "StageConfig",
+    "TrainConfig",
+    "load_train_config",
+    "Trainer",
+    "crop_batch",
+    "synth_batch",
+    "evaluate_lighting",
+    "evaluate_sun",
+    "best_visibility_threshold",
+    "tune_visibility_threshold",
+    "set_visibility_threshold",
+    "export_checkpoint",
+    "model_from_state",
+]
 
 STAGES = ("sun", "inet", "pnet")
 _STAGE_SEED = {"inet": 0, "pnet": 1, "sun": 2}  # batch seeds of a stage (fixed when the sun stage came)
@@ -153,6 +163,7 @@ class TrainConfig:
 
     def to_toml(self) -> str:
         """The configuration as TOML (written into the run folder)."""
+
         def val(v: Any) -> str:
             if isinstance(v, bool):
                 return "true" if v else "false"
@@ -207,16 +218,25 @@ def load_train_config(path: str | os.PathLike, **overrides: Any) -> TrainConfig:
         if st.steps < 0 or st.batch_size < 1 or not st.lr > 0 or not 0.0 <= st.crop_fraction <= 1.0:
             raise InputError(f"{path}: [{name}] needs steps >= 0, batch_size >= 1, lr > 0, 0 <= crop_fraction <= 1")
     if not 1 <= len(cfg.sun_target_deg) <= 2 or not all(0.0 < float(v) <= 90.0 for v in cfg.sun_target_deg):
-        raise InputError(f"{path}: sun_target_deg must be one or two widths in (0, 90] degrees, got {cfg.sun_target_deg}")
-    if cfg.crop_weights and (len(cfg.crop_weights) != len(cfg.crops) or not all(float(w) >= 0 for w in cfg.crop_weights)
-                             or not sum(cfg.crop_weights) > 0):
-        raise InputError(f"{path}: crop_weights needs one weight >= 0 per crops folder (not all 0), got {cfg.crop_weights}")
+        raise InputError(
+            f"{path}: sun_target_deg must be one or two widths in (0, 90] degrees, got {cfg.sun_target_deg}"
+        )
+    if cfg.crop_weights and (
+        len(cfg.crop_weights) != len(cfg.crops)
+        or not all(float(w) >= 0 for w in cfg.crop_weights)
+        or not sum(cfg.crop_weights) > 0
+    ):
+        raise InputError(
+            f"{path}: crop_weights needs one weight >= 0 per crops folder (not all 0), got {cfg.crop_weights}"
+        )
     if cfg.sun.steps and not (cfg.crops and cfg.model_config().sun_net):
         raise InputError(f"{path}: [sun] steps need a model with a sun_net and crops = [folders of panoramas]")
     if cfg.inet.steps and cfg.inet.crop_fraction > 0 and not cfg.crops:
         raise InputError(f"{path}: [inet] crop_fraction > 0 needs crops = [folders of panoramas]")
     if (cfg.inet.steps and cfg.inet.crop_fraction < 1 or cfg.pnet.steps) and not cfg.synth:
-        raise InputError(f"{path}: full-sample batches (crop_fraction < 1, or a pnet stage) need synth = [dataset folders]")
+        raise InputError(
+            f"{path}: full-sample batches (crop_fraction < 1, or a pnet stage) need synth = [dataset folders]"
+        )
     return cfg
 
 
@@ -248,8 +268,17 @@ def synth_batch(items: list[dict[str, Any]]) -> dict[str, torch.Tensor]:
 class _Data:
     """The crop sources and synthetic datasets of a run, with deterministic batch drawing."""
 
-    def __init__(self, crops: list[str], exclude: list[str], synth: list[str], seed: int,
-                 exposure_key: float = 0.0, *, split: str = "train", weights: list[float] | None = None) -> None:
+    def __init__(
+        self,
+        crops: list[str],
+        exclude: list[str],
+        synth: list[str],
+        seed: int,
+        exposure_key: float = 0.0,
+        *,
+        split: str = "train",
+        weights: list[float] | None = None,
+    ) -> None:
         self.crop_dirs, self.exclude, self.seed = list(crops), tuple(exclude), seed
         self.split, self.folder_weights = split, list(weights or [])
         self.source_folders: list[int] = []
@@ -265,8 +294,11 @@ class _Data:
     def refresh(self, names: list[str] | None = None) -> None:
         """Rescan the crop folders (or restore the list ``names`` saved in a checkpoint)."""
         # keyed by folder too: two source folders both hold a 000000
-        found = [(f"{Path(d).name}/{s.name}", (k, s)) for k, d in enumerate(self.crop_dirs)
-                 for s in load_sources(d, self.exclude, self.split)]
+        found = [
+            (f"{Path(d).name}/{s.name}", (k, s))
+            for k, d in enumerate(self.crop_dirs)
+            for s in load_sources(d, self.exclude, self.split)
+        ]
         if names is not None:
             by = dict(found)
             missing = [n for n in names if n not in by]
@@ -285,16 +317,18 @@ class _Data:
         w = np.asarray(self.folder_weights, np.float64)[folders] / counts[folders]
         return w / w.sum()
 
-    def batch(self, stage: str, step: int, size: int, crop_fraction: float, rank: int = 0, world: int = 1
-              ) -> tuple[str, dict[str, torch.Tensor]]:
+    def batch(
+        self, stage: str, step: int, size: int, crop_fraction: float, rank: int = 0, world: int = 1
+    ) -> tuple[str, dict[str, torch.Tensor]]:
         if stage == "sun":
             if self.bank is None:
                 self.bank = SunCropBank()
             if self.bank.names != self.source_names:
                 self.bank.sync(self.source_names, self.sources)
                 self.bank.weights = self.source_weights()
-            return "suncrops", self.bank.batch(derive_seed(self.seed, 7), step, size,
-                                               CropConfig(exposure_key=self.exposure_key), rank, world)
+            return "suncrops", self.bank.batch(
+                derive_seed(self.seed, 7), step, size, CropConfig(exposure_key=self.exposure_key), rank, world
+            )
         rng = np.random.default_rng(derive_seed(self.seed, _STAGE_SEED[stage], step))
         use_crops = bool(self.sources) and (not self.synth_index or rng.random() < crop_fraction)
         if use_crops:
@@ -367,8 +401,12 @@ def evaluate_lighting(model: SolidNet, batches: list[dict[str, torch.Tensor]]) -
     l1, found, ang, daz, del_, ratio, n_sun, head, n_none, false = [], 0, [], [], [], [], 0, [], 0, 0
     for b in batches:
         b = {k: v.cpu() for k, v in b.items()}
-        out = {k: v.cpu() for k, v in model.inet(b["image"].to(dev), intrinsics=False, K=b["K"].to(dev),
-                                                 pitch=b["pitch"].to(dev), roll=b["roll"].to(dev)).items()}
+        out = {
+            k: v.cpu()
+            for k, v in model.inet(
+                b["image"].to(dev), intrinsics=False, K=b["K"].to(dev), pitch=b["pitch"].to(dev), roll=b["roll"].to(dev)
+            ).items()
+        }
         l1.append(float((out["sky_log"] - torch.log1p(b["sky"].clamp_min(0))).abs().mean()))
         for i in range(b["image"].shape[0]):
             det = detect_sun(out["sky"][i].permute(1, 2, 0).numpy())
@@ -392,17 +430,34 @@ def evaluate_lighting(model: SolidNet, batches: list[dict[str, torch.Tensor]]) -
             e_t = sun_energy(b["sky"][i : i + 1], b["sun_dir"][i : i + 1]).sum()
             ratio.append(float(e_p / e_t.clamp_min(1e-9)))
     med = lambda v: float(np.median(v)) if v else float("nan")  # noqa: E731
-    return {"sky_l1": float(np.mean(l1)) if l1 else float("nan"), "suns": n_sun,
-            "sun_found_rate": found / n_sun if n_sun else float("nan"), "sun_err_deg": med(ang),
-            "sun_az_err_deg": med(daz), "sun_el_err_deg": med(del_), "sun_energy_ratio": med(ratio),
-            "head_err_deg": med(head), "sunless": n_none, "false_suns": false / n_none if n_none else float("nan")}
+    return {
+        "sky_l1": float(np.mean(l1)) if l1 else float("nan"),
+        "suns": n_sun,
+        "sun_found_rate": found / n_sun if n_sun else float("nan"),
+        "sun_err_deg": med(ang),
+        "sun_az_err_deg": med(daz),
+        "sun_el_err_deg": med(del_),
+        "sun_energy_ratio": med(ratio),
+        "head_err_deg": med(head),
+        "sunless": n_none,
+        "false_suns": false / n_none if n_none else float("nan"),
+    }
 
 
 # ----------------------------------------------------------------------------------------- trainer
 
 
-RESUME_FIXED = ("model", "model_overrides", "init", "seed", "batch_size", "lr", "lr_halve_every", "probes",
-                "teacher_geometry")
+RESUME_FIXED = (
+    "model",
+    "model_overrides",
+    "init",
+    "seed",
+    "batch_size",
+    "lr",
+    "lr_halve_every",
+    "probes",
+    "teacher_geometry",
+)
 """Settings a resumed run must share with the stored one; the others (data folders, stage lengths, the
 crop fraction, logging) may change, and the batches after the resumption follow the new values."""
 
@@ -423,8 +478,9 @@ def evaluate_sun(net: torch.nn.Module, batches: list[dict[str, torch.Tensor]]) -
     m: dict[str, float] = {"suns": float(v.sum()), "sunless": float((~v).sum())}
     if v.any():
         err, daz, delv = (torch.rad2deg(e) for e in direction_errors(d[v].double(), t[v].double()))
-        m.update(head_err_deg=float(err.median()), sun_az_err_deg=float(daz.median()),
-                 sun_el_err_deg=float(delv.median()))
+        m.update(
+            head_err_deg=float(err.median()), sun_az_err_deg=float(daz.median()), sun_el_err_deg=float(delv.median())
+        )
     rates = [float((p[v] >= 0.5).float().mean())] if v.any() else []
     rates += [float((p[~v] < 0.5).float().mean())] if (~v).any() else []
     m["vis_balanced_accuracy"] = float(np.mean(rates))
@@ -484,17 +540,28 @@ class Trainer:
             self.model.load_state_dict(fit, strict=False)
             fresh = sorted(set(own) - set(fit))
             if fresh:
-                self.log(f"init {init.name}: {len(fit)} tensors copied, {len(fresh)} fresh ({', '.join(fresh[:6])}"
-                         f"{', ...' if len(fresh) > 6 else ''})")
+                self.log(
+                    f"init {init.name}: {len(fit)} tensors copied, {len(fresh)} fresh ({', '.join(fresh[:6])}"
+                    f"{', ...' if len(fresh) > 6 else ''})"
+                )
         self.model.to(self.device)
         key = self.model.config.exposure_key
         self.data = _Data(cfg.crops, cfg.crops_exclude, cfg.synth, cfg.seed, key, weights=cfg.crop_weights)
         if cfg.crops:
             self.data.refresh()  # bad data folders fail here, before the run folder is created
-        self.val = (_Data(cfg.val_crops, [], cfg.val_synth, cfg.seed + 1, key, split="val")
-                    if (cfg.val_crops or cfg.val_synth) else None)
-        self.state: dict[str, Any] = {"stage": STAGES[0], "step": 0, "best": None, "seconds": 0.0, "samples": 0,
-                                      "sources": None}
+        self.val = (
+            _Data(cfg.val_crops, [], cfg.val_synth, cfg.seed + 1, key, split="val")
+            if (cfg.val_crops or cfg.val_synth)
+            else None
+        )
+        self.state: dict[str, Any] = {
+            "stage": STAGES[0],
+            "step": 0,
+            "best": None,
+            "seconds": 0.0,
+            "samples": 0,
+            "sources": None,
+        }
         self._tb: Any = None  # a SummaryWriter once opened (tensorboard is optional)
 
     # -------------------------------------------------------------- state
@@ -527,10 +594,15 @@ class Trainer:
             return
         import io
 
-        payload = {"format": "solidkit.train_state", "config": self.cfg.to_toml(), "state": json.dumps(self.state),
-                   "model_config": json.dumps(self.model.config.to_dict()),
-                   "model": {k: v.detach().cpu() for k, v in self.model.state_dict().items()},
-                   "optimizer": opt.state_dict(), "scheduler": sched.state_dict()}
+        payload = {
+            "format": "solidkit.train_state",
+            "config": self.cfg.to_toml(),
+            "state": json.dumps(self.state),
+            "model_config": json.dumps(self.model.config.to_dict()),
+            "model": {k: v.detach().cpu() for k, v in self.model.state_dict().items()},
+            "optimizer": opt.state_dict(),
+            "scheduler": sched.state_dict(),
+        }
         buf = io.BytesIO()
         torch.save(payload, buf)
         atomic_write_bytes(self.out / "last.pt", buf.getvalue())
@@ -542,7 +614,9 @@ class Trainer:
         try:
             payload = torch.load(path, map_location="cpu", weights_only=True)
         except Exception as exc:
-            raise InputError(f"{path}: unreadable training state ({type(exc).__name__}); delete it to start over") from None
+            raise InputError(
+                f"{path}: unreadable training state ({type(exc).__name__}); delete it to start over"
+            ) from None
         if payload.get("format") != "solidkit.train_state":
             raise InputError(f"{path}: not a solidkit training state")
         old = tomllib.loads(payload["config"])
@@ -550,9 +624,13 @@ class Trainer:
         changed = _changed_settings(old, new)
         state = json.loads(payload["state"])
         begun = STAGES[: STAGES.index(state["stage"]) + 1]  # a stage not begun yet may still be configured freely
-        fixed = [k for k in changed if k in RESUME_FIXED or (k.split(".")[0] in begun and k.split(".")[-1] in RESUME_FIXED)]
+        fixed = [
+            k for k in changed if k in RESUME_FIXED or (k.split(".")[0] in begun and k.split(".")[-1] in RESUME_FIXED)
+        ]
         if fixed:
-            raise InputError(f"{self.out}: holds a run with other settings ({', '.join(fixed)}); use another out folder")
+            raise InputError(
+                f"{self.out}: holds a run with other settings ({', '.join(fixed)}); use another out folder"
+            )
         if changed:
             self.log(f"resuming with changed settings: {', '.join(changed)} (later batches follow the new ones)")
         mine = self.model.config.to_dict()
@@ -560,11 +638,15 @@ class Trainer:
             stored = json.loads(payload["model_config"])
             differ = sorted(k for k in set(stored) | set(mine) if stored.get(k) != mine.get(k))
             if differ:
-                raise InputError(f"{self.out}: holds a run of another model configuration ({', '.join(differ)}: "
-                                 f"the preset changed?); start a new run with init = its last.pt")
+                raise InputError(
+                    f"{self.out}: holds a run of another model configuration ({', '.join(differ)}: "
+                    f"the preset changed?); start a new run with init = its last.pt"
+                )
         else:
-            self.log(f"{path}: a training state without its model configuration (an older trainer's); resuming with "
-                     f"the current preset's: exposure_key {mine['exposure_key']}, sky_footprint {mine['sky_footprint']}")
+            self.log(
+                f"{path}: a training state without its model configuration (an older trainer's); resuming with "
+                f"the current preset's: exposure_key {mine['exposure_key']}, sky_footprint {mine['sky_footprint']}"
+            )
         self.model.load_state_dict(payload["model"])
         self.state = state
         return payload
@@ -575,11 +657,46 @@ class Trainer:
         if not self.is_main:
             return
         path = self.out / "metrics.csv"
-        cols = ["time", "stage", "step", "kind", "lr", "samples_per_s", "total", "inet", "pnet", "albedo", "normal",
-                "distance", "shadow", "sky", "sun_dir", "sun_energy", "sun_peak", "sun_size", "dif", "rec", "local", "tom",
-                "sky_l1", "suns", "sun_found_rate", "sun_err_deg", "sun_az_err_deg", "sun_el_err_deg",
-                "sun_energy_ratio", "local_l1", "score", "sun_cos", "sun_vis", "sun_target_deg", "head_err_deg",
-                "sunless", "false_suns", "vis_balanced_accuracy"]
+        cols = [
+            "time",
+            "stage",
+            "step",
+            "kind",
+            "lr",
+            "samples_per_s",
+            "total",
+            "inet",
+            "pnet",
+            "albedo",
+            "normal",
+            "distance",
+            "shadow",
+            "sky",
+            "sun_dir",
+            "sun_energy",
+            "sun_peak",
+            "sun_size",
+            "dif",
+            "rec",
+            "local",
+            "tom",
+            "sky_l1",
+            "suns",
+            "sun_found_rate",
+            "sun_err_deg",
+            "sun_az_err_deg",
+            "sun_el_err_deg",
+            "sun_energy_ratio",
+            "local_l1",
+            "score",
+            "sun_cos",
+            "sun_vis",
+            "sun_target_deg",
+            "head_err_deg",
+            "sunless",
+            "false_suns",
+            "vis_balanced_accuracy",
+        ]
         new = not path.is_file()
         with path.open("a", newline="") as f:
             w = csv.DictWriter(f, fieldnames=cols, extrasaction="ignore")
@@ -646,8 +763,12 @@ class Trainer:
             err = m.get("sun_err_deg", float("nan"))
             rate = m.get("sun_found_rate", float("nan"))
             false = m.get("false_suns", float("nan"))
-            m["score"] = m.get("sky_l1", 0.0) + (1.0 - (rate if math.isfinite(rate) else 0.0)) + (
-                (err if math.isfinite(err) else 90.0) / 90.0) + (false if math.isfinite(false) else 0.0)
+            m["score"] = (
+                m.get("sky_l1", 0.0)
+                + (1.0 - (rate if math.isfinite(rate) else 0.0))
+                + ((err if math.isfinite(err) else 90.0) / 90.0)
+                + (false if math.isfinite(false) else 0.0)
+            )
         self.model.train()
         return m
 
@@ -658,15 +779,27 @@ class Trainer:
         return {
             "what": "SOLID-Net trained by solidkit train",
             "config_file": c.to_toml(),
-            "model": c.model, "stage": stage, "step": self.state["step"],
-            "inet_steps": c.inet.steps, "pnet_steps": c.pnet.steps,
-            "data": {"crops": c.crops, "crops_exclude": c.crops_exclude, "crop_weights": c.crop_weights,
-                     "crop_split": self.data.split, "crop_sources": len(self.data.sources),
-                     "synth": c.synth, "synth_samples": len(self.data.synth_index)},
-            "samples_seen": self.state["samples"], "seconds": round(self.state["seconds"], 1),
+            "model": c.model,
+            "stage": stage,
+            "step": self.state["step"],
+            "inet_steps": c.inet.steps,
+            "pnet_steps": c.pnet.steps,
+            "data": {
+                "crops": c.crops,
+                "crops_exclude": c.crops_exclude,
+                "crop_weights": c.crop_weights,
+                "crop_split": self.data.split,
+                "crop_sources": len(self.data.sources),
+                "synth": c.synth,
+                "synth_samples": len(self.data.synth_index),
+            },
+            "samples_seen": self.state["samples"],
+            "seconds": round(self.state["seconds"], 1),
             "hardware": f"{platform.machine()}, {os.cpu_count()} CPU cores, {c.threads} torch thread(s), "
-                        f"device {self.device}, world size {self.world}",
-            "torch": str(torch.__version__), "seed": c.seed, "validation": metrics or {},
+            f"device {self.device}, world size {self.world}",
+            "torch": str(torch.__version__),
+            "seed": c.seed,
+            "validation": metrics or {},
         }
 
     def run(self, max_minutes: float | None = None) -> dict[str, Any]:
@@ -679,7 +812,7 @@ class Trainer:
         payload = self.load_state()
         limit = (max_minutes if max_minutes is not None else cfg.max_minutes) * 60.0
         t_start = time.monotonic()
-        for stage in STAGES[STAGES.index(self.state["stage"]):]:
+        for stage in STAGES[STAGES.index(self.state["stage"]) :]:
             st = getattr(cfg, stage)
             if self.state["stage"] != stage:
                 self.state.update(stage=stage, step=0, best=None)
@@ -694,8 +827,10 @@ class Trainer:
             if self.world > 1:
                 # crop batches leave the intrinsic decoders unused: DDP must not wait for their gradients
                 ddp = torch.nn.parallel.DistributedDataParallel(
-                    module, device_ids=[self.device.index] if self.device.type == "cuda" else None,
-                    find_unused_parameters=True)
+                    module,
+                    device_ids=[self.device.index] if self.device.type == "cuda" else None,
+                    find_unused_parameters=True,
+                )
             if self.data.crop_dirs and stage in ("sun", "inet"):
                 self.data.refresh(self.state.get("sources"))
                 self.state["sources"] = self.data.source_names
@@ -707,15 +842,18 @@ class Trainer:
                 if limit and time.monotonic() - t_start > limit:
                     self.save_state(opt, sched)
                     bar.close()
-                    self.log(f"stopped after {limit / 60:.1f} min at {stage} step {self.state['step']} (resume: run again)")
+                    self.log(
+                        f"stopped after {limit / 60:.1f} min at {stage} step {self.state['step']} (resume: run again)"
+                    )
                     return self.state
                 step = self.state["step"]
                 if stage in ("sun", "inet") and self.data.crop_dirs and step and step % cfg.refresh_sources_every == 0:
                     self.data.refresh()
                     self.state["sources"] = self.data.source_names
                 t0 = time.monotonic()
-                kind, batch = self.data.batch(stage, step, st.batch_size, st.crop_fraction if stage == "inet" else 0.0,
-                                              self.rank, self.world)
+                kind, batch = self.data.batch(
+                    stage, step, st.batch_size, st.crop_fraction if stage == "inet" else 0.0, self.rank, self.world
+                )
                 batch = {k: v.to(self.device) for k, v in batch.items()}
                 losses = self._step(stage, kind, batch, ddp, st)
                 opt.zero_grad(set_to_none=True)
@@ -733,20 +871,33 @@ class Trainer:
                 if self.state["step"] % cfg.log_every == 0 or self.state["step"] == st.steps:
                     mean = {k: float(np.mean([r[k] for r in window if k in r])) for k in set().union(*window)}
                     rate = n_win / max(time.monotonic() - t_win, 1e-9)
-                    self._write_row({"time": round(time.time(), 1), "stage": stage, "step": self.state["step"],
-                                     "kind": kind, "lr": sched.get_last_lr()[0], "samples_per_s": rate,
-                                     "sun_target_deg": self.sun_target_deg(), **mean})
+                    self._write_row(
+                        {
+                            "time": round(time.time(), 1),
+                            "stage": stage,
+                            "step": self.state["step"],
+                            "kind": kind,
+                            "lr": sched.get_last_lr()[0],
+                            "samples_per_s": rate,
+                            "sun_target_deg": self.sun_target_deg(),
+                            **mean,
+                        }
+                    )
                     if not bar.enabled and self.is_main:
-                        self.log(f"{stage} {self.state['step']}/{st.steps} total {mean['total']:.4f} "
-                                 f"{rate:.2f} samples/s")
+                        self.log(
+                            f"{stage} {self.state['step']}/{st.steps} total {mean['total']:.4f} {rate:.2f} samples/s"
+                        )
                     window, t_win, n_win = [], time.monotonic(), 0
                 last = self.state["step"] == st.steps
                 if self.val is not None and self.is_main and (self.state["step"] % cfg.val_every == 0 or last):
                     m = self.validate(stage)
-                    self._write_row({"time": round(time.time(), 1), "stage": stage, "step": self.state["step"],
-                                     "kind": "val", **m})
-                    self.log(f"validation {stage} {self.state['step']}: " + ", ".join(
-                        f"{k} {v:.3g}" for k, v in m.items() if isinstance(v, float)))
+                    self._write_row(
+                        {"time": round(time.time(), 1), "stage": stage, "step": self.state["step"], "kind": "val", **m}
+                    )
+                    self.log(
+                        f"validation {stage} {self.state['step']}: "
+                        + ", ".join(f"{k} {v:.3g}" for k, v in m.items() if isinstance(v, float))
+                    )
                     best = self.state.get("best")
                     if best is None or m["score"] < best:
                         self.state["best"] = m["score"]
@@ -756,8 +907,11 @@ class Trainer:
                 if self.world > 1:
                     torch.distributed.barrier()
             bar.close()
-            if stage == STAGES[-1] or (stage == "inet" and cfg.pnet.steps == 0) or (stage == "sun" and not (
-                    cfg.inet.steps or cfg.pnet.steps)):
+            if (
+                stage == STAGES[-1]
+                or (stage == "inet" and cfg.pnet.steps == 0)
+                or (stage == "sun" and not (cfg.inet.steps or cfg.pnet.steps))
+            ):
                 break
             self.state.update(stage=STAGES[STAGES.index(stage) + 1], step=0, best=None)
             self.save_state(*self._make_opt(self.state["stage"]))
@@ -779,23 +933,37 @@ class Trainer:
         t = min(1.0, self.state["step"] / max(1, span)) if self.state["stage"] in ("sun", "inet") else 1.0
         return widths[0] * (widths[1] / widths[0]) ** t
 
-    def _step(self, stage: str, kind: str, batch: dict[str, torch.Tensor], ddp: Any, st: StageConfig
-              ) -> dict[str, torch.Tensor]:
+    def _step(
+        self, stage: str, kind: str, batch: dict[str, torch.Tensor], ddp: Any, st: StageConfig
+    ) -> dict[str, torch.Tensor]:
         cfg = self.model.config
         if stage == "sun":
             net = ddp if ddp is not None else self.model.inet.sun
             assert net is not None
             out = net(batch["image"], batch["K"], batch["pitch"], batch["roll"])
-            terms = sun_terms(out, batch["sun_dir"], batch["sun_visible"], batch["sun_energy"], batch["sun_size"],
-                              math.radians(self.sun_target_deg()))
+            terms = sun_terms(
+                out,
+                batch["sun_dir"],
+                batch["sun_visible"],
+                batch["sun_energy"],
+                batch["sun_size"],
+                math.radians(self.sun_target_deg()),
+            )
             weighted = {k: v * cfg.loss_weights.get(k, 1.0) for k, v in terms.items()}
             return {**weighted, "total": cast(torch.Tensor, sum(weighted.values()))}
         if stage == "inet":
             inet = ddp if ddp is not None else self.model.inet
-            out = inet(batch["image"], intrinsics=kind != "crops", K=batch["K"], pitch=batch["pitch"], roll=batch["roll"])
+            out = inet(
+                batch["image"], intrinsics=kind != "crops", K=batch["K"], pitch=batch["pitch"], roll=batch["roll"]
+            )
             out["rotation"] = camera_rotation(batch["pitch"], batch["roll"])
-            losses = solidnet_losses(out, {k: v for k, v in batch.items() if k not in ("local",)},
-                                     cfg.loss_weights, cfg.loss_variant, math.radians(self.sun_target_deg()))
+            losses = solidnet_losses(
+                out,
+                {k: v for k, v in batch.items() if k not in ("local",)},
+                cfg.loss_weights,
+                cfg.loss_variant,
+                math.radians(self.sun_target_deg()),
+            )
             return {**losses, "total": losses["inet"]}
         # pnet: I-Net frozen; P-Net through the model's forward (its warping), DDP on P-Net only
         g = torch.Generator().manual_seed(self.state["step"])
@@ -823,8 +991,14 @@ class _Bar:
         from rich.console import Console
         from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
 
-        self.p = Progress(TextColumn(f"{stage}"), BarColumn(), MofNCompleteColumn(), TextColumn("loss {task.fields[loss]}"),
-                          TimeRemainingColumn(), console=Console(stderr=True))
+        self.p = Progress(
+            TextColumn(f"{stage}"),
+            BarColumn(),
+            MofNCompleteColumn(),
+            TextColumn("loss {task.fields[loss]}"),
+            TimeRemainingColumn(),
+            console=Console(stderr=True),
+        )
         self.task = self.p.add_task(stage, total=total, completed=start, loss="-")
         self.p.start()
 
@@ -848,19 +1022,28 @@ def best_visibility_threshold(probs: np.ndarray, truth: np.ndarray, grid: np.nda
     p, t = np.asarray(probs, dtype=np.float64), np.asarray(truth, dtype=bool)
     if t.all() or not t.any():
         raise InputError("tuning the visibility threshold needs skies with and without a sun")
-    grid = (np.r_[np.round(np.arange(0.05, 0.951, 0.05), 2), 0.97, 0.99] if grid is None
-            else np.asarray(grid, dtype=np.float64))
+    grid = (
+        np.r_[np.round(np.arange(0.05, 0.951, 0.05), 2), 0.97, 0.99]
+        if grid is None
+        else np.asarray(grid, dtype=np.float64)
+    )
     balanced = lambda th: 0.5 * (float(np.mean(p[t] >= th)) + float(np.mean(p[~t] < th)))  # noqa: E731
     scores = np.array([balanced(th) for th in grid])
     best = np.flatnonzero(scores >= scores.max() - 1e-12)
     th = float(grid[best[np.argmin(np.abs(grid[best] - 0.5))]])
-    return {"threshold": th, "balanced_accuracy": round(balanced(th), 4),
-            "balanced_accuracy_at_0.5": round(balanced(0.5), 4), "with_sun": int(t.sum()), "without_sun": int((~t).sum())}
+    return {
+        "threshold": th,
+        "balanced_accuracy": round(balanced(th), 4),
+        "balanced_accuracy_at_0.5": round(balanced(0.5), 4),
+        "with_sun": int(t.sum()),
+        "without_sun": int((~t).sum()),
+    }
 
 
 @torch.no_grad()
-def tune_visibility_threshold(model: SolidNet, batches: list[dict[str, torch.Tensor]],
-                              grid: np.ndarray | None = None) -> dict[str, Any]:
+def tune_visibility_threshold(
+    model: SolidNet, batches: list[dict[str, torch.Tensor]], grid: np.ndarray | None = None
+) -> dict[str, Any]:
     """:func:`best_visibility_threshold` of ``model``'s sun-visibility output on crop ``batches``
     (:func:`crop_batch`) of a *validation* split (never the test split)."""
     if not model.config.sun_visibility:
@@ -869,8 +1052,9 @@ def tune_visibility_threshold(model: SolidNet, batches: list[dict[str, torch.Ten
     dev = next(model.parameters()).device
     probs, truth = [], []
     for b in batches:
-        out = model.inet(b["image"].to(dev), intrinsics=False, K=b["K"].to(dev), pitch=b["pitch"].to(dev),
-                         roll=b["roll"].to(dev))
+        out = model.inet(
+            b["image"].to(dev), intrinsics=False, K=b["K"].to(dev), pitch=b["pitch"].to(dev), roll=b["roll"].to(dev)
+        )
         probs.append(out["sun_visible"].cpu().numpy())
         truth.append(b["sun_visible"].cpu().numpy() > 0.5)
     return best_visibility_threshold(np.concatenate(probs), np.concatenate(truth), grid)
@@ -892,13 +1076,20 @@ def model_from_state(path: str | os.PathLike) -> SolidNet:
         return SolidNet.from_checkpoint(path)
     model = SolidNet(SolidNetConfig.from_dict(json.loads(payload["model_config"])))
     model.load_state_dict(payload["model"])
-    model.card = {"what": "SOLID-Net trained by solidkit train", "state": json.loads(payload["state"]),
-                  "config_file": payload["config"]}
+    model.card = {
+        "what": "SOLID-Net trained by solidkit train",
+        "state": json.loads(payload["state"]),
+        "config_file": payload["config"],
+    }
     return model.eval()
 
 
-def export_checkpoint(src: str | os.PathLike, dst: str | os.PathLike, extra: dict[str, Any] | None = None,
-                      visibility_threshold: float | None = None) -> dict[str, Any]:
+def export_checkpoint(
+    src: str | os.PathLike,
+    dst: str | os.PathLike,
+    extra: dict[str, Any] | None = None,
+    visibility_threshold: float | None = None,
+) -> dict[str, Any]:
     """Write the model checkpoint or training state ``src`` to ``dst`` (float16 weights) with ``extra`` merged
     into its card, and ``dst``'s ``.card.json`` beside it (sha256, bytes, config, parameters, card); returns that
     JSON. ``visibility_threshold`` (e.g. from :func:`tune_visibility_threshold`) replaces the configured one."""
@@ -908,8 +1099,15 @@ def export_checkpoint(src: str | os.PathLike, dst: str | os.PathLike, extra: dic
     card = {**getattr(model, "card", {}), **(extra or {})}
     dst = Path(dst)
     save_checkpoint(model, dst, card, half=True)
-    doc = {"file": dst.name, "sha256": sha256_file(dst), "bytes": dst.stat().st_size,
-           "conventions_version": CONVENTIONS_VERSION, "format_version": CHECKPOINT_VERSION,
-           "config": model.config.to_dict(), "parameters": model.num_parameters, "card": card}
+    doc = {
+        "file": dst.name,
+        "sha256": sha256_file(dst),
+        "bytes": dst.stat().st_size,
+        "conventions_version": CONVENTIONS_VERSION,
+        "format_version": CHECKPOINT_VERSION,
+        "config": model.config.to_dict(),
+        "parameters": model.num_parameters,
+        "card": card,
+    }
     atomic_write_text(dst.with_suffix(".card.json"), json.dumps(doc, indent=1, default=str))
     return doc

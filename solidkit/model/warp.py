@@ -55,7 +55,9 @@ def points_from_plane_distance(
     points (B, 3, H, W) metres (invalid pixels hold 0) and valid (B, 1, H, W) bool.
     """
     b, _, h, w = normal.shape
-    v = pixel_rays(K.to(normal.dtype), w, h, torch, dtype=normal.dtype, device=normal.device).movedim(-1, -3)  # (B,3,H,W)
+    v = pixel_rays(K.to(normal.dtype), w, h, torch, dtype=normal.dtype, device=normal.device).movedim(
+        -1, -3
+    )  # (B,3,H,W)
     vn = (v * normal).sum(1, keepdim=True)
     cos = vn / v.norm(dim=1, keepdim=True)
     valid = (cos < -min_cos) & (distance > 0)

@@ -55,7 +55,7 @@ class Camera:
         """The camera's panorama frame -> scene frame, ``R_y(yaw)``."""
         return np.asarray(rotation_y(self.yaw))
 
-    def scaled(self, width: int, height: int) -> "Camera":
+    def scaled(self, width: int, height: int) -> Camera:
         """The same camera at another resolution (same FOV, principal point scaled about pixel centres)."""
         K = scale_intrinsics(self.K, width / self.width, height / self.height)
         return Camera(K, width, height, self.position.copy(), self.yaw, self.pitch, self.roll)
@@ -75,15 +75,28 @@ class Camera:
 
     def to_json(self) -> dict[str, Any]:
         """JSON-ready pose (angles in degrees, as at every user-facing edge)."""
-        return {"K": self.K.tolist(), "width": self.width, "height": self.height,
-                "position": [float(v) for v in self.position], "yaw_deg": math.degrees(self.yaw),
-                "pitch_deg": math.degrees(self.pitch), "roll_deg": math.degrees(self.roll),
-                "R_scene_from_camera": self.rotation.tolist()}
+        return {
+            "K": self.K.tolist(),
+            "width": self.width,
+            "height": self.height,
+            "position": [float(v) for v in self.position],
+            "yaw_deg": math.degrees(self.yaw),
+            "pitch_deg": math.degrees(self.pitch),
+            "roll_deg": math.degrees(self.roll),
+            "R_scene_from_camera": self.rotation.tolist(),
+        }
 
     @classmethod
-    def from_json(cls, d: dict[str, Any]) -> "Camera":
-        return cls(np.asarray(d["K"], float), int(d["width"]), int(d["height"]), np.asarray(d["position"], float),
-                   math.radians(d["yaw_deg"]), math.radians(d["pitch_deg"]), math.radians(d["roll_deg"]))
+    def from_json(cls, d: dict[str, Any]) -> Camera:
+        return cls(
+            np.asarray(d["K"], float),
+            int(d["width"]),
+            int(d["height"]),
+            np.asarray(d["position"], float),
+            math.radians(d["yaw_deg"]),
+            math.radians(d["pitch_deg"]),
+            math.radians(d["roll_deg"]),
+        )
 
 
 def _to_world(mi: Any, R: np.ndarray, t: np.ndarray) -> Any:
@@ -94,36 +107,66 @@ def _to_world(mi: Any, R: np.ndarray, t: np.ndarray) -> Any:
 
 
 def _film(width: int, height: int) -> dict[str, Any]:
-    return {"type": "hdrfilm", "width": int(width), "height": int(height), "rfilter": {"type": "box"},
-            "pixel_format": "rgb", "sample_border": False}
+    return {
+        "type": "hdrfilm",
+        "width": int(width),
+        "height": int(height),
+        "rfilter": {"type": "box"},
+        "pixel_format": "rgb",
+        "sample_border": False,
+    }
 
 
 def pinhole_sensor(cam: Camera, *, jitter: bool = True, seed: int = 0, spp: int = 1) -> Any:
     """A Mitsuba ``sk_pinhole`` sensor for ``cam`` (box filter, independent sampler)."""
     mi = mitsuba()
     K = cam.K
-    return mi.load_dict({"type": "sk_pinhole", "fx": float(K[0, 0]), "fy": float(K[1, 1]), "cx": float(K[0, 2]),
-                         "cy": float(K[1, 2]), "jitter": jitter, "to_world": _to_world(mi, cam.rotation, cam.position),
-                         "film": _film(cam.width, cam.height),
-                         "sampler": {"type": "independent", "sample_count": int(spp), "seed": int(seed)}})
+    return mi.load_dict(
+        {
+            "type": "sk_pinhole",
+            "fx": float(K[0, 0]),
+            "fy": float(K[1, 1]),
+            "cx": float(K[0, 2]),
+            "cy": float(K[1, 2]),
+            "jitter": jitter,
+            "to_world": _to_world(mi, cam.rotation, cam.position),
+            "film": _film(cam.width, cam.height),
+            "sampler": {"type": "independent", "sample_count": int(spp), "seed": int(seed)},
+        }
+    )
 
 
-def equirect_sensor(position: np.ndarray, rotation: np.ndarray, height: int, *, jitter: bool = True,
-                    seed: int = 0, spp: int = 1) -> Any:
+def equirect_sensor(
+    position: np.ndarray, rotation: np.ndarray, height: int, *, jitter: bool = True, seed: int = 0, spp: int = 1
+) -> Any:
     """A Mitsuba ``sk_equirect`` sensor: a ``(height, 2 height)`` panorama at ``position`` whose frame is ``rotation``."""
     mi = mitsuba()
     to_world = _to_world(mi, np.asarray(rotation), np.asarray(position))
-    return mi.load_dict({"type": "sk_equirect", "jitter": jitter, "to_world": to_world,
-                         "film": _film(2 * height, height),
-                         "sampler": {"type": "independent", "sample_count": int(spp), "seed": int(seed)}})
+    return mi.load_dict(
+        {
+            "type": "sk_equirect",
+            "jitter": jitter,
+            "to_world": to_world,
+            "film": _film(2 * height, height),
+            "sampler": {"type": "independent", "sample_count": int(spp), "seed": int(seed)},
+        }
+    )
 
 
 def _inside(rects: list[tuple[float, float, float, float]], x: float, z: float) -> bool:
     return any(x0 <= x <= x1 and z0 <= z <= z1 for x0, x1, z0, z1 in rects)
 
 
-def sample_candidate(block: CityBlock, rng: np.random.Generator, sector: int, K: np.ndarray, width: int, height: int,
-                     *, max_roll_deg: float = 2.0) -> Camera:
+def sample_candidate(
+    block: CityBlock,
+    rng: np.random.Generator,
+    sector: int,
+    K: np.ndarray,
+    width: int,
+    height: int,
+    *,
+    max_roll_deg: float = 2.0,
+) -> Camera:
     """One random camera in heading sector ``sector`` (0..5: yaw in ``[-180 + 60 s, -120 + 60 s)`` degrees)."""
     areas = np.array([(r[1] - r[0]) * (r[3] - r[2]) for r in block.walkable])
     for _ in range(1000):

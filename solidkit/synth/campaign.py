@@ -106,28 +106,72 @@ import cv2
 import numpy as np
 
 from solidkit.calibration.camera import FULL_FRAME_DIAGONAL_MM
+from solidkit.camera.lens import load_profile
 from solidkit.capture.fieldnotes import NOTES_NAMES, FieldNotes, PhotoPose, ProbeNote, notes_text
 from solidkit.capture.unwarp import render_fisheye
-from solidkit.envmap import (CONVENTIONS_VERSION, angles_from_direction, angular_distance, rotation_from_ypr, srgb_encode,
-                             write_exr)
+from solidkit.envmap import (
+    CONVENTIONS_VERSION,
+    angles_from_direction,
+    angular_distance,
+    rotation_from_ypr,
+    srgb_encode,
+    write_exr,
+)
 from solidkit.errors import InputError
 from solidkit.fsutil import atomic_write_bytes, atomic_write_text
 from solidkit.synth.cameras import pinhole_sensor
+from solidkit.synth.campaign_truth import (
+    PRESETS,
+    SCHEMA_VERSION,
+    CampaignConfig,
+    CampaignTruth,
+    CaptureTruth,
+    PhotoTruth,
+    ProbeTruth,
+    SceneTruth,
+    Shot,
+    SolarTruth,
+    load_truth,
+)
 from solidkit.synth.exif import exif_app1, insert_app1
 from solidkit.synth.fieldwork import GlassPanel, add_glass_facades, glint_direction, occluded, pick_reachable_probes
-from solidkit.synth.sample import (Generator, SampleConfig, derive_seed, render_buffers, render_panorama, render_rgb,
-                                   sun_mask_image, sun_mask_panorama, suppress_fireflies)
-from solidkit.synth.scene import CATEGORIES, to_mitsuba
-from solidkit.synth.truth_probes import clean_truth_probe
-from solidkit.synth.campaign_truth import (PRESETS, SCHEMA_VERSION, CampaignConfig, CampaignTruth, CaptureTruth,
-                                           PhotoTruth, ProbeTruth, SceneTruth, Shot, SolarTruth, load_truth)
-from solidkit.synth.solar import place_sun, solar_angles_deg, solar_direction, solar_position, utc_offset_text
-from solidkit.camera.lens import load_profile
 from solidkit.synth.mitsuba_variant import mitsuba, variant
+from solidkit.synth.sample import (
+    Generator,
+    SampleConfig,
+    derive_seed,
+    render_buffers,
+    render_panorama,
+    render_rgb,
+    sun_mask_image,
+    sun_mask_panorama,
+    suppress_fireflies,
+)
+from solidkit.synth.scene import CATEGORIES, to_mitsuba
+from solidkit.synth.solar import place_sun, solar_angles_deg, solar_direction, solar_position, utc_offset_text
+from solidkit.synth.truth_probes import clean_truth_probe
 
-__all__ = ["K_SENSOR", "PRESETS", "CampaignConfig", "Shot", "ProbeTruth", "CaptureTruth", "PhotoTruth", "SceneTruth",
-           "SolarTruth", "CampaignTruth", "expose", "generate_campaign", "load_truth", "open_campaign", "scene_block",
-           "scene_lighting", "write_truth_exr", "SCENE_FILE", "SETTINGS_FILE"]
+__all__ = [
+    "K_SENSOR",
+    "PRESETS",
+    "CampaignConfig",
+    "Shot",
+    "ProbeTruth",
+    "CaptureTruth",
+    "PhotoTruth",
+    "SceneTruth",
+    "SolarTruth",
+    "CampaignTruth",
+    "expose",
+    "generate_campaign",
+    "load_truth",
+    "open_campaign",
+    "scene_block",
+    "scene_lighting",
+    "write_truth_exr",
+    "SCENE_FILE",
+    "SETTINGS_FILE",
+]
 
 K_SENSOR = 3500.0
 SETTINGS_FILE = "campaign.json"
@@ -135,8 +179,15 @@ SCENE_FILE = "scene.json"
 log = logging.getLogger(__name__)
 
 
-def expose(radiance: np.ndarray, exposure_time: float, f_number: float, iso: float, rng: np.random.Generator,
-           *, quality: int = 92) -> tuple[np.ndarray, bytes]:
+def expose(
+    radiance: np.ndarray,
+    exposure_time: float,
+    f_number: float,
+    iso: float,
+    rng: np.random.Generator,
+    *,
+    quality: int = 92,
+) -> tuple[np.ndarray, bytes]:
     """Sensor model of the module doc: HDR radiance ``(H, W, 3)`` -> 8-bit sRGB image and its JPEG bytes."""
     x = K_SENSOR * np.clip(radiance, 0.0, None) * exposure_time * (iso / 100.0) / f_number**2
     x = x + rng.standard_normal(x.shape) * np.sqrt(1e-3 * np.clip(x, 0.0, 1.0) + 2e-3**2)
@@ -157,15 +208,24 @@ def _split(total: int, parts: int) -> list[int]:
     return [total // parts + (1 if i < total % parts else 0) for i in range(parts)]
 
 
-def open_campaign(out: Path, scenes: int, probes: int, seed: int, config: CampaignConfig, variant: str) -> dict[str, Any]:
+def open_campaign(
+    out: Path, scenes: int, probes: int, seed: int, config: CampaignConfig, variant: str
+) -> dict[str, Any]:
     """Create ``truth/campaign.json`` or check that the existing one has the same settings.
 
     Raises :class:`InputError` naming every differing setting, or when ``out`` holds files but
     no campaign settings.
     """
-    settings = {"kind": "solidkit-synth-campaign-settings", "schema_version": SCHEMA_VERSION,
-                "conventions_version": CONVENTIONS_VERSION, "seed": int(seed), "scenes": int(scenes),
-                "probes": int(probes), "variant": variant, "config": config.model_dump(mode="json")}
+    settings = {
+        "kind": "solidkit-synth-campaign-settings",
+        "schema_version": SCHEMA_VERSION,
+        "conventions_version": CONVENTIONS_VERSION,
+        "seed": int(seed),
+        "scenes": int(scenes),
+        "probes": int(probes),
+        "variant": variant,
+        "config": config.model_dump(mode="json"),
+    }
     path = out / "truth" / SETTINGS_FILE
     if path.is_file():
         try:
@@ -173,11 +233,16 @@ def open_campaign(out: Path, scenes: int, probes: int, seed: int, config: Campai
         except (OSError, ValueError):
             raise InputError(f"{path}: unreadable campaign settings; use a new --out") from None
         flat_old, flat_new = _flatten(old), _flatten(settings)
-        diff = [f"{k}: {flat_old.get(k, '-')} here, {flat_new.get(k, '-')} asked"
-                for k in sorted(set(flat_old) | set(flat_new)) if flat_old.get(k) != flat_new.get(k)]
+        diff = [
+            f"{k}: {flat_old.get(k, '-')} here, {flat_new.get(k, '-')} asked"
+            for k in sorted(set(flat_old) | set(flat_new))
+            if flat_old.get(k) != flat_new.get(k)
+        ]
         if diff:
-            raise InputError(f"{out}: holds a campaign made with other settings ({'; '.join(diff)}); "
-                             "re-run with the same settings to resume, or use a new --out")
+            raise InputError(
+                f"{out}: holds a campaign made with other settings ({'; '.join(diff)}); "
+                "re-run with the same settings to resume, or use a new --out"
+            )
         return old
     if out.exists() and any((out / d).exists() for d in ("card", "truth")):
         raise InputError(f"{out}: holds card/ or truth/ but no {SETTINGS_FILE}; use a new --out")
@@ -212,8 +277,15 @@ def _last_shot_no(scene: SceneTruth) -> int:
     return max(nos, default=0)
 
 
-def generate_campaign(out: str | os.PathLike, scenes: int, probes: int, *, seed: int = 0,
-                      config: CampaignConfig | None = None, progress: Any = None) -> CampaignTruth:
+def generate_campaign(
+    out: str | os.PathLike,
+    scenes: int,
+    probes: int,
+    *,
+    seed: int = 0,
+    config: CampaignConfig | None = None,
+    progress: Any = None,
+) -> CampaignTruth:
     """Render the campaign (see module doc) into ``out``; returns the truth (also written to truth/truth.json).
 
     Resumable and idempotent: complete scenes (``truth/<scene>/scene.json``) are skipped; other
@@ -230,8 +302,15 @@ def generate_campaign(out: str | os.PathLike, scenes: int, probes: int, *, seed:
     profile = load_profile(cfg.lens_profile)
     rw, rh = profile.reference_size
     profile = profile.scaled(cfg.fisheye_width, int(round(cfg.fisheye_width * rh / rw)))
-    scfg = SampleConfig(width=cfg.photo_width, height=cfg.photo_height, hfov_deg=cfg.hfov_deg, candidates=cfg.candidates,
-                        p_sunsky=cfg.p_sunsky, probe_height=cfg.probe_height, block_length=cfg.block_length)
+    scfg = SampleConfig(
+        width=cfg.photo_width,
+        height=cfg.photo_height,
+        hfov_deg=cfg.hfov_deg,
+        candidates=cfg.candidates,
+        p_sunsky=cfg.p_sunsky,
+        probe_height=cfg.probe_height,
+        block_length=cfg.block_length,
+    )
     gen = Generator(seed, scfg)
     per_scene = _split(probes, scenes)
     shot_no = 1
@@ -260,17 +339,28 @@ def generate_campaign(out: str | os.PathLike, scenes: int, probes: int, *, seed:
         scenes_truth.append(st)
     if skipped:
         log.info("campaign %s: %d scene(s) rendered, %d complete scene(s) skipped", out, rendered, skipped)
-    truth = CampaignTruth(seed=seed, scenes_requested=scenes, probes_requested=probes, config=cfg,
-                          renderer={"mitsuba": mi.__version__, "variant": variant()},
-                          radiometry={"K_SENSOR": K_SENSOR, "response": "sRGB (IEC 61966-2-1)",
-                                      "noise": "var = 1e-3 x + (2e-3)^2, x in [0, 1] before clipping",
-                                      "lens_profile": cfg.lens_profile, "fisheye_size": list(profile.reference_size)},
-                          scenes=scenes_truth)
+    truth = CampaignTruth(
+        seed=seed,
+        scenes_requested=scenes,
+        probes_requested=probes,
+        config=cfg,
+        renderer={"mitsuba": mi.__version__, "variant": variant()},
+        radiometry={
+            "K_SENSOR": K_SENSOR,
+            "response": "sRGB (IEC 61966-2-1)",
+            "noise": "var = 1e-3 x + (2e-3)^2, x in [0, 1] before clipping",
+            "lens_profile": cfg.lens_profile,
+            "fisheye_size": list(profile.reference_size),
+        },
+        scenes=scenes_truth,
+    )
     atomic_write_text(truth_dir / "truth.json", truth.model_dump_json(indent=1))
     return truth
 
 
-def scene_block(gen: Generator, s: int, sector: int, seed: int, cfg: CampaignConfig) -> tuple[Any, Any, list[GlassPanel], bool]:
+def scene_block(
+    gen: Generator, s: int, sector: int, seed: int, cfg: CampaignConfig
+) -> tuple[Any, Any, list[GlassPanel], bool]:
     """Scene ``s``'s city block (with its glass facades in a glass scene), photo camera, glass panels, glass flag
     (the same for the same arguments: :mod:`solidkit.synth.truth_rerender` rebuilds scenes with it)."""
     block, (cam, _) = gen.block_and_view(s, sector)
@@ -281,8 +371,19 @@ def scene_block(gen: Generator, s: int, sector: int, seed: int, cfg: CampaignCon
     return block, cam, panels, glass
 
 
-def scene_lighting(mi: Any, gen: Generator, geometry: Any, cam: Any, positions: list[np.ndarray],
-                   panels: list[GlassPanel], glass: bool, s: int, seed: int, cfg: CampaignConfig, sid: str) -> Any:
+def scene_lighting(
+    mi: Any,
+    gen: Generator,
+    geometry: Any,
+    cam: Any,
+    positions: list[np.ndarray],
+    panels: list[GlassPanel],
+    glass: bool,
+    s: int,
+    seed: int,
+    cfg: CampaignConfig,
+    sid: str,
+) -> Any:
     """A sunny spot (and, for a glass scene, a sun whose glint some position sees), as a team would pick; the
     lighting of scene ``s`` (``sid``) of :func:`scene_block`, ``positions`` its capture positions (scene frame)."""
     attempts = cfg.sun_attempts * (4 if glass else 1)  # a glint needs the sun on the glass and at a position
@@ -294,24 +395,39 @@ def scene_lighting(mi: Any, gen: Generator, geometry: Any, cam: Any, positions: 
             continue
         if light.sun is not None and occluded(mi, geometry, cam.position, light.sun):
             continue
-        if glass and not any(glint_direction(mi, geometry, pos, cast(np.ndarray, light.sun), panels) is not None
-                             for pos in positions):
+        if glass and not any(
+            glint_direction(mi, geometry, pos, cast(np.ndarray, light.sun), panels) is not None for pos in positions
+        ):
             continue
         break
     else:
-        log.warning("%s: no lighting in %d attempts met the protocol (sun at the camera%s); kept the last",
-                    sid, attempts, ", a visible glint" if glass else "")
+        log.warning(
+            "%s: no lighting in %d attempts met the protocol (sun at the camera%s); kept the last",
+            sid,
+            attempts,
+            ", a visible glint" if glass else "",
+        )
     return light
 
 
 def probe_exr_meta(sid: str, cid: str, record: dict[str, Any]) -> dict[str, Any]:
     """The EXR header attributes of a truth probe (its render record among them)."""
-    return {"scene": sid, "probe": cid, "frame": "photo panorama frame",
-            **{f"truth_{k}": v for k, v in record.items()}}
+    return {"scene": sid, "probe": cid, "frame": "photo panorama frame", **{f"truth_{k}": v for k, v in record.items()}}
 
 
-def _render_scene(out: Path, s: int, sid: str, seed: int, cfg: CampaignConfig, gen: Generator, n_probes: int,
-                  shot_no: int, profile: Any, mi: Any, progress: Any) -> SceneTruth:
+def _render_scene(
+    out: Path,
+    s: int,
+    sid: str,
+    seed: int,
+    cfg: CampaignConfig,
+    gen: Generator,
+    n_probes: int,
+    shot_no: int,
+    profile: Any,
+    mi: Any,
+    progress: Any,
+) -> SceneTruth:
     """Render scene ``s`` (photo, probes, Theta captures, field notes) into ``out``; returns its truth (not yet written)."""
     truth_dir = out / "truth"
     model = profile.camera_models[0] if profile.camera_models else "RICOH THETA V"
@@ -321,9 +437,19 @@ def _render_scene(out: Path, s: int, sid: str, seed: int, cfg: CampaignConfig, g
     geometry = to_mitsuba(block, None, tex_size=4)
     # --- where the team can put the Theta: the photo camera's position, then probes on reachable surfaces
     buf = render_buffers(geometry, cam, spp=1, shadows=False)
-    picks = pick_reachable_probes(mi, geometry, block, cam, buf, n_probes, rng, lens_height_m=cfg.lens_height_m,
-                                  clearance_m=cfg.probe_clearance_m, max_surface_height_m=cfg.max_surface_height_m,
-                                  max_distance_m=cfg.max_probe_distance_m)
+    picks = pick_reachable_probes(
+        mi,
+        geometry,
+        block,
+        cam,
+        buf,
+        n_probes,
+        rng,
+        lens_height_m=cfg.lens_height_m,
+        clearance_m=cfg.probe_clearance_m,
+        max_surface_height_m=cfg.max_surface_height_m,
+        max_distance_m=cfg.max_probe_distance_m,
+    )
     if len(picks) < n_probes:
         log.warning("%s: only %d of %d probe positions are reachable in this view", sid, len(picks), n_probes)
     R = cam.rotation
@@ -331,16 +457,24 @@ def _render_scene(out: Path, s: int, sid: str, seed: int, cfg: CampaignConfig, g
     for k, p in enumerate(picks):
         x, y = p["pixel"]
         point = p["point"]
-        spot = {"pixel": [int(x), int(y)], "quadrant": p["quadrant"], "point_scene": point.tolist(),
-                "normal_scene": p["normal"].tolist(), "point_camera": ((point - cam.position) @ R).tolist(),
-                "depth": float(buf["depth"][y, x]), "category": CATEGORIES[block.category_of(np.array([p["label"]]))[0]],
-                "surface_height_m": float(-point[1]) + 0.0}
+        spot = {
+            "pixel": [int(x), int(y)],
+            "quadrant": p["quadrant"],
+            "point_scene": point.tolist(),
+            "normal_scene": p["normal"].tolist(),
+            "point_camera": ((point - cam.position) @ R).tolist(),
+            "depth": float(buf["depth"][y, x]),
+            "category": CATEGORIES[block.category_of(np.array([p["label"]]))[0]],
+            "surface_height_m": float(-point[1]) + 0.0,
+        }
         positions.append((f"p{k + 1:02d}", p["position"], spot))
     light = scene_lighting(mi, gen, geometry, cam, [pos for _, pos, _ in positions], panels, glass, s, seed, cfg, sid)
     scene = to_mitsuba(block, light.emitter())
     # place and time: pvlib's sun = the rendered sun (overcast: a daytime sun hidden by the clouds)
     srng = np.random.default_rng(derive_seed(seed, s, 79))
-    sun_dir = light.sun if light.sun is not None else solar_direction(srng.uniform(0.0, 360.0), srng.uniform(15.0, 60.0))
+    sun_dir = (
+        light.sun if light.sun is not None else solar_direction(srng.uniform(0.0, 360.0), srng.uniform(15.0, 60.0))
+    )
     fix = place_sun(sun_dir, srng)
     heading = math.degrees(cam.yaw) % 360.0
     t0 = fix.when_local
@@ -349,8 +483,9 @@ def _render_scene(out: Path, s: int, sid: str, seed: int, cfg: CampaignConfig, g
     # glass reflects the sun onto the street (caustics): more samples keep that noise near the others' level
     spp_scale = cfg.glass_spp_factor if glass else 1
     photo_spp = cfg.photo_spp * spp_scale
-    hdr = render_rgb(scene, pinhole_sensor(cam, spp=photo_spp, seed=derive_seed(seed, s, 1)), photo_spp,
-                     seed=derive_seed(seed, s, 1))
+    hdr = render_rgb(
+        scene, pinhole_sensor(cam, spp=photo_spp, seed=derive_seed(seed, s, 1)), photo_spp, seed=derive_seed(seed, s, 1)
+    )
     hdr, _ = suppress_fireflies(hdr, sun_mask_image(light.sun, cam, 6.0), cfg.firefly_k)
     f_number, iso = 2.8, 100
     mean = float(np.mean(hdr))
@@ -360,15 +495,30 @@ def _render_scene(out: Path, s: int, sid: str, seed: int, cfg: CampaignConfig, g
     f_mm = cam.K[0, 0] * sensor_w / cam.width
     # FocalLengthIn35mmFilm is defined on the 43.27 mm diagonal (CIPA DC-008), as calibrate camera reads it
     f_35 = cam.K[0, 0] * FULL_FRAME_DIAGONAL_MM / math.hypot(cam.width, cam.height)
-    app = exif_app1(make="SOLIDKIT", model="Virtual Photo Camera", when=t0, exposure_time=t_photo, f_number=f_number,
-                    iso=iso, gps=gps, focal_length_mm=f_mm, focal_35mm=f_35, img_direction_deg=heading)
+    app = exif_app1(
+        make="SOLIDKIT",
+        model="Virtual Photo Camera",
+        when=t0,
+        exposure_time=t_photo,
+        f_number=f_number,
+        iso=iso,
+        gps=gps,
+        focal_length_mm=f_mm,
+        focal_35mm=f_35,
+        img_direction_deg=heading,
+    )
     photo_name = f"IMG_{s + 1:04d}.JPG"
     photo_file = f"card/{sid}/photo/{photo_name}"
     atomic_write_bytes(out / photo_file, insert_app1(jpg, app))
     write_truth_exr(truth_dir / sid / "photo.exr", hdr, {"scene": sid})
-    photo = PhotoTruth(shot=Shot(file=photo_file, exposure_time=t_photo, f_number=f_number, iso=iso, time=t0, role="photo"),
-                       camera=cam.to_json(), focal_length_mm=f_mm, sensor_width_mm=sensor_w, focal_35mm=f_35,
-                       hdr_file=f"truth/{sid}/photo.exr")
+    photo = PhotoTruth(
+        shot=Shot(file=photo_file, exposure_time=t_photo, f_number=f_number, iso=iso, time=t0, role="photo"),
+        camera=cam.to_json(),
+        focal_length_mm=f_mm,
+        sensor_width_mm=sensor_w,
+        focal_35mm=f_35,
+        hdr_file=f"truth/{sid}/photo.exr",
+    )
     # --- the Theta positions: the camera's first, then the probes, one every position_interval_s
     captures = []
     for c, (cid, pos, info) in enumerate(positions):
@@ -380,8 +530,9 @@ def _render_scene(out: Path, s: int, sid: str, seed: int, cfg: CampaignConfig, g
         rec_pitch = math.degrees(pitch) + rng.normal(0.0, cfg.gravity_noise_deg)
         rec_roll = math.degrees(roll) + rng.normal(0.0, cfg.gravity_noise_deg)
         rec_heading = (math.degrees(yaw) + rng.normal(0.0, cfg.compass_noise_deg)) % 360.0
-        pano = render_panorama(scene, pos, np.eye(3), cfg.pano_height, cfg.pano_spp * spp_scale,
-                               seed=derive_seed(seed, s, 100 + c))
+        pano = render_panorama(
+            scene, pos, np.eye(3), cfg.pano_height, cfg.pano_spp * spp_scale, seed=derive_seed(seed, s, 100 + c)
+        )
         keep = sun_mask_panorama(light.sun, np.eye(3), cfg.pano_height, 2.0)
         glint = glint_direction(mi, geometry, pos, light.sun, panels) if (panels and light.sun is not None) else None
         if glint is not None:  # a glint is a real, sharp highlight: not a firefly
@@ -395,9 +546,16 @@ def _render_scene(out: Path, s: int, sid: str, seed: int, cfg: CampaignConfig, g
         for k, (t_exp, iso_c, role) in enumerate(plan):
             when = tc + dt.timedelta(seconds=cfg.shot_interval_s * k)
             _, jpg = expose(fish, t_exp, 2.0, iso_c, rng, quality=cfg.jpeg_quality)
-            app = exif_app1(make="RICOH", model=model, when=when, exposure_time=t_exp, f_number=2.0, iso=iso_c,
-                            gps=gps, theta={"image_type": 2, "roll_deg": rec_roll, "pitch_deg": rec_pitch,
-                                            "heading_deg": rec_heading})
+            app = exif_app1(
+                make="RICOH",
+                model=model,
+                when=when,
+                exposure_time=t_exp,
+                f_number=2.0,
+                iso=iso_c,
+                gps=gps,
+                theta={"image_type": 2, "roll_deg": rec_roll, "pitch_deg": rec_pitch, "heading_deg": rec_heading},
+            )
             f = f"card/{sid}/{cid}/R{10000 + shot_no:07d}.JPG"
             shot_no += 1
             atomic_write_bytes(out / f, insert_app1(jpg, app))
@@ -405,14 +563,26 @@ def _render_scene(out: Path, s: int, sid: str, seed: int, cfg: CampaignConfig, g
         probe = None
         if info is not None:
             base = cfg.probe_spp * spp_scale
-            local, record = clean_truth_probe(scene, pos, cam.pano_rotation, cfg.probe_height, base,
-                                              seed=derive_seed(seed, s, 200 + c), noise_target_db=cfg.probe_noise_db,
-                                              max_spp=max(base, cfg.probe_max_spp), sun=light.sun, glint=glint,
-                                              firefly_k=cfg.firefly_k, firefly_spp=cfg.pano_spp * spp_scale)
+            local, record = clean_truth_probe(
+                scene,
+                pos,
+                cam.pano_rotation,
+                cfg.probe_height,
+                base,
+                seed=derive_seed(seed, s, 200 + c),
+                noise_target_db=cfg.probe_noise_db,
+                max_spp=max(base, cfg.probe_max_spp),
+                sun=light.sun,
+                glint=glint,
+                firefly_k=cfg.firefly_k,
+                firefly_spp=cfg.pano_spp * spp_scale,
+            )
             assert local is not None  # rendered: no pilot given
             write_truth_exr(truth_dir / sid / f"{cid}.exr", local, probe_exr_meta(sid, cid, record))
             marked = np.asarray(info["pixel"], np.float64) + rng.normal(0.0, cfg.mark_noise_px, 2)
-            marked = np.round(np.clip(marked, 0.0, [cam.width - 1, cam.height - 1]) * 2.0) / 2.0  # a tablet's half pixels
+            marked = (
+                np.round(np.clip(marked, 0.0, [cam.width - 1, cam.height - 1]) * 2.0) / 2.0
+            )  # a tablet's half pixels
             probe = ProbeTruth(**info, marked_pixel=marked.tolist(), hdr_file=f"truth/{sid}/{cid}.exr", render=record)
         sun_body = sun_drift = None
         if light.sun is not None:
@@ -421,34 +591,78 @@ def _render_scene(out: Path, s: int, sid: str, seed: int, cfg: CampaignConfig, g
             real = solar_direction(*solar_position(normal_time, fix.lat_deg, fix.lon_deg, fix.alt_m))
             sun_drift = math.degrees(float(angular_distance(real, light.sun)))
         sun_visible = light.sun is not None and not occluded(mi, geometry, pos, light.sun)
-        captures.append(CaptureTruth(
-            id=cid, kind="probe" if info is not None else "camera_position", position=pos.tolist(),
-            yaw_deg=math.degrees(yaw), pitch_deg=math.degrees(pitch), roll_deg=math.degrees(roll),
-            R_scene_from_body=Rb.tolist(), R_pano_from_body=(cam.pano_rotation.T @ Rb).tolist(),
-            recorded_pitch_deg=rec_pitch, recorded_roll_deg=rec_roll, recorded_heading_deg=rec_heading,
-            sun_body=sun_body, sun_visible=sun_visible, sun_drift_deg=sun_drift,
-            glint_body=None if glint is None else (Rb.T @ glint).tolist(), shots=shots, probe=probe))
+        captures.append(
+            CaptureTruth(
+                id=cid,
+                kind="probe" if info is not None else "camera_position",
+                position=pos.tolist(),
+                yaw_deg=math.degrees(yaw),
+                pitch_deg=math.degrees(pitch),
+                roll_deg=math.degrees(roll),
+                R_scene_from_body=Rb.tolist(),
+                R_pano_from_body=(cam.pano_rotation.T @ Rb).tolist(),
+                recorded_pitch_deg=rec_pitch,
+                recorded_roll_deg=rec_roll,
+                recorded_heading_deg=rec_heading,
+                sun_body=sun_body,
+                sun_visible=sun_visible,
+                sun_drift_deg=sun_drift,
+                glint_body=None if glint is None else (Rb.T @ glint).tolist(),
+                shots=shots,
+                probe=probe,
+            )
+        )
         if progress:
             progress(sid, cid)
     sun_az = sun_el = None
     if light.sun is not None:
         az, el = angles_from_direction(cam.pano_rotation.T @ light.sun)
         sun_az, sun_el = math.degrees(float(az)), math.degrees(float(el))
-    solar = SolarTruth(time_utc=fix.when_utc, utc_offset=utc_offset_text(fix.utc_offset_min), latitude_deg=fix.lat_deg,
-                       longitude_deg=fix.lon_deg, altitude_m=fix.alt_m, azimuth_deg=fix.azimuth_deg,
-                       elevation_deg=fix.elevation_deg, error_deg=fix.error_deg, rendered=light.sun is not None)
+    solar = SolarTruth(
+        time_utc=fix.when_utc,
+        utc_offset=utc_offset_text(fix.utc_offset_min),
+        latitude_deg=fix.lat_deg,
+        longitude_deg=fix.lon_deg,
+        altitude_m=fix.alt_m,
+        azimuth_deg=fix.azimuth_deg,
+        elevation_deg=fix.elevation_deg,
+        error_deg=fix.error_deg,
+        rendered=light.sun is not None,
+    )
     # --- the field notes, as the team fills them in at the scene (pixels as marked, pose off a level)
-    pose = PhotoPose(pitch_deg=round(math.degrees(cam.pitch) + float(rng.normal(0.0, cfg.level_noise_deg)), 1),
-                     roll_deg=round(math.degrees(cam.roll) + float(rng.normal(0.0, cfg.level_noise_deg)), 1))
+    pose = PhotoPose(
+        pitch_deg=round(math.degrees(cam.pitch) + float(rng.normal(0.0, cfg.level_noise_deg)), 1),
+        roll_deg=round(math.degrees(cam.roll) + float(rng.normal(0.0, cfg.level_noise_deg)), 1),
+    )
     notes = FieldNotes(
-        camera_position="cam", photo=photo_name, photo_pose=pose,
-        notes=f"{light.meta.get('kind', 'lighting')}; " + ("curtain-wall glass along the street" if glass else "no glass facades"),
-        probes={c.id: ProbeNote(pixel=tuple(c.probe.marked_pixel), note=f"on the {c.probe.category}")
-                for c in captures if c.probe is not None})
+        camera_position="cam",
+        photo=photo_name,
+        photo_pose=pose,
+        notes=f"{light.meta.get('kind', 'lighting')}; "
+        + ("curtain-wall glass along the street" if glass else "no glass facades"),
+        probes={
+            c.id: ProbeNote(pixel=tuple(c.probe.marked_pixel), note=f"on the {c.probe.category}")
+            for c in captures
+            if c.probe is not None
+        },
+    )
     notes_file = f"card/{sid}/{NOTES_NAMES[0]}"
     atomic_write_text(out / notes_file, notes_text(notes))
     return SceneTruth(
-        id=sid, block_seed=block.seed, sector=sector, lighting=light.meta, sun_found=light.sun is not None,
-        sun_scene=None if light.sun is None else [float(v) for v in light.sun], sun_azimuth_deg=sun_az,
-        sun_elevation_deg=sun_el, heading_deg=heading, solar=solar, gps=list(gps), photo=photo, captures=captures,
-        camera_position="cam", fieldnotes_file=notes_file, glass_panels=[p.to_json() for p in panels])
+        id=sid,
+        block_seed=block.seed,
+        sector=sector,
+        lighting=light.meta,
+        sun_found=light.sun is not None,
+        sun_scene=None if light.sun is None else [float(v) for v in light.sun],
+        sun_azimuth_deg=sun_az,
+        sun_elevation_deg=sun_el,
+        heading_deg=heading,
+        solar=solar,
+        gps=list(gps),
+        photo=photo,
+        captures=captures,
+        camera_position="cam",
+        fieldnotes_file=notes_file,
+        glass_panels=[p.to_json() for p in panels],
+    )

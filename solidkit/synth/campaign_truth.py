@@ -20,8 +20,21 @@ from solidkit.envmap import CONVENTIONS_VERSION
 from solidkit.errors import ConventionsError
 from solidkit.synth.solar import TEMPERATURE_C
 
-__all__ = ["SCHEMA_VERSION", "FORMAT_VERSION", "TruthError", "PRESETS", "CampaignConfig", "Shot", "ProbeTruth", "CaptureTruth", "PhotoTruth",
-           "SolarTruth", "SceneTruth", "CampaignTruth", "load_truth"]
+__all__ = [
+    "SCHEMA_VERSION",
+    "FORMAT_VERSION",
+    "TruthError",
+    "PRESETS",
+    "CampaignConfig",
+    "Shot",
+    "ProbeTruth",
+    "CaptureTruth",
+    "PhotoTruth",
+    "SolarTruth",
+    "SceneTruth",
+    "CampaignTruth",
+    "load_truth",
+]
 
 SCHEMA_VERSION = 3  # of the campaign settings file (truth/campaign.json); truth files before format 4
 FORMAT_VERSION = 4  # of truth files (CampaignTruth)
@@ -39,19 +52,29 @@ class CampaignConfig(BaseModel):
     pano_height: int = 512
     pano_spp: int = 16
     probe_height: int = 128
-    probe_spp: int = Field(256, description="samples per pixel of a truth probe's first render (solidkit.synth."
-                                            "truth_probes); truth recipe 1: 32 (16 in its first campaigns), all")
-    probe_noise_db: float = Field(40.0, description="noise target of the truth probes (PSNR, paper tonemap): more "
-                                                    "samples where the first render is noisier; 0: none")
+    probe_spp: int = Field(
+        256,
+        description="samples per pixel of a truth probe's first render (solidkit.synth."
+        "truth_probes); truth recipe 1: 32 (16 in its first campaigns), all",
+    )
+    probe_noise_db: float = Field(
+        40.0,
+        description="noise target of the truth probes (PSNR, paper tonemap): more "
+        "samples where the first render is noisier; 0: none",
+    )
     probe_max_spp: int = Field(2048, description="most samples per pixel a truth probe gets for its noise target")
     fisheye_width: int = 1920
     lens_profile: str = "theta-v"
     normal_exposure_s: float = 1 / 2500
     low_exposure_s: float = 1 / 25000
-    brackets_s: list[float] = Field(default_factory=lambda: [1 / 640, 1 / 160, 1 / 40],
-                                    description="longer exposures after the normal one, same bracket")
+    brackets_s: list[float] = Field(
+        default_factory=lambda: [1 / 640, 1 / 160, 1 / 40],
+        description="longer exposures after the normal one, same bracket",
+    )
     shot_interval_s: float = Field(3.0, description="between the shots of one position (one bracket: < 10 s)")
-    position_interval_s: float = Field(60.0, description="from one Theta position to the next (the sun moves 0.25°/min)")
+    position_interval_s: float = Field(
+        60.0, description="from one Theta position to the next (the sun moves 0.25°/min)"
+    )
     max_tilt_deg: float = 5.0
     gravity_noise_deg: float = 0.3
     compass_noise_deg: float = 5.0
@@ -61,8 +84,11 @@ class CampaignConfig(BaseModel):
     max_probe_distance_m: float = Field(25.0, description="farthest probe from the photo camera (horizontal)")
     mark_noise_px: float = Field(2.0, description="rms error of the probe pixels the team marks in the field notes")
     level_noise_deg: float = Field(0.5, description="rms error of the photo pitch/roll read off the tripod level")
-    glass_every: int = Field(3, description="every n-th scene (scene02, scene05, ...) has curtain-wall glass along "
-                                            "the street and a sun whose glint a position sees; 0: none")
+    glass_every: int = Field(
+        3,
+        description="every n-th scene (scene02, scene05, ...) has curtain-wall glass along "
+        "the street and a sun whose glint a position sees; 0: none",
+    )
     glass_spp_factor: int = Field(4, description="samples per pixel multiplier of glass scenes (sun caustics)")
     jpeg_quality: int = 92
     candidates: int = 8
@@ -100,9 +126,12 @@ class ProbeTruth(BaseModel):
     depth: float
     category: str
     hdr_file: str
-    render: dict[str, Any] | None = Field(None, description="how the truth probe was rendered (solidkit.synth.truth_probes: "
-                                                            "spp, passes, seed, fireflies replaced, version); None: "
-                                                            "version 1, config.probe_spp in one pass")
+    render: dict[str, Any] | None = Field(
+        None,
+        description="how the truth probe was rendered (solidkit.synth.truth_probes: "
+        "spp, passes, seed, fireflies replaced, version); None: "
+        "version 1, config.probe_spp in one pass",
+    )
 
 
 class CaptureTruth(BaseModel):
@@ -119,10 +148,12 @@ class CaptureTruth(BaseModel):
     recorded_heading_deg: float
     sun_body: list[float] | None
     sun_visible: bool = Field(description="the sun's centre is unoccluded from the capture position")
-    sun_drift_deg: float | None = Field(None, description="angle between the rendered sun and pvlib's sun at the "
-                                                           "time of the capture's normal shot")
-    glint_body: list[float] | None = Field(None, description="body-frame direction of a sun glint on glass seen from "
-                                                             "the capture (None: none)")
+    sun_drift_deg: float | None = Field(
+        None, description="angle between the rendered sun and pvlib's sun at the time of the capture's normal shot"
+    )
+    glint_body: list[float] | None = Field(
+        None, description="body-frame direction of a sun glint on glass seen from the capture (None: none)"
+    )
     shots: list[Shot]
     probe: ProbeTruth | None = None
 
@@ -132,7 +163,9 @@ class PhotoTruth(BaseModel):
     camera: dict[str, Any]
     focal_length_mm: float
     sensor_width_mm: float
-    focal_35mm: float | None = Field(None, description="35 mm-equivalent focal length (diagonal), before EXIF rounds it")
+    focal_35mm: float | None = Field(
+        None, description="35 mm-equivalent focal length (diagonal), before EXIF rounds it"
+    )
     hdr_file: str
 
 
@@ -161,15 +194,19 @@ class SceneTruth(BaseModel):
     sun_scene: list[float] | None = Field(description="scene frame: x east, y down, z north")
     sun_azimuth_deg: float | None = Field(None, description="in the photo's panorama frame")
     sun_elevation_deg: float | None = None
-    heading_deg: float = Field(description="true heading of the photo camera (its panorama frame's forward), "
-                                           "clockwise from true north; EXIF GPSImgDirection")
+    heading_deg: float = Field(
+        description="true heading of the photo camera (its panorama frame's forward), "
+        "clockwise from true north; EXIF GPSImgDirection"
+    )
     solar: SolarTruth
     gps: list[float]
     photo: PhotoTruth
     captures: list[CaptureTruth]
     camera_position: str = Field("cam", description="the capture taken at the photo camera's position")
     fieldnotes_file: str | None = Field(None, description="the field notes on the card (relative to the campaign)")
-    glass_panels: list[dict[str, float]] = Field(default_factory=list, description="curtain-wall glass (fieldwork.GlassPanel)")
+    glass_panels: list[dict[str, float]] = Field(
+        default_factory=list, description="curtain-wall glass (fieldwork.GlassPanel)"
+    )
 
 
 class TruthError(DocumentError):
@@ -206,10 +243,15 @@ def load_truth(path: str | os.PathLike) -> CampaignTruth:
     if data.get("kind") == _LEGACY_KIND:
         version = data.get("schema_version")
         if version not in _LEGACY_VERSIONS:
-            raise TruthError(f"{p}: campaign truth schema version {version!r}; this solidkit reads format version "
-                             f"{FORMAT_VERSION} and the older schema versions {', '.join(map(str, _LEGACY_VERSIONS))}")
-        data = {"kind": CampaignTruth.KIND, "format_version": FORMAT_VERSION,
-                **{k: v for k, v in data.items() if k not in ("kind", "schema_version")}}
+            raise TruthError(
+                f"{p}: campaign truth schema version {version!r}; this solidkit reads format version "
+                f"{FORMAT_VERSION} and the older schema versions {', '.join(map(str, _LEGACY_VERSIONS))}"
+            )
+        data = {
+            "kind": CampaignTruth.KIND,
+            "format_version": FORMAT_VERSION,
+            **{k: v for k, v in data.items() if k not in ("kind", "schema_version")},
+        }
     truth = CampaignTruth.from_dict(data, str(p))
     if truth.conventions_version != CONVENTIONS_VERSION:
         raise ConventionsError(f"{p}: written under conventions version {truth.conventions_version}")

@@ -30,7 +30,16 @@ from solidkit.fsutil import atomic_write_text
 from solidkit.synth.filter import ReferenceSet
 from solidkit.synth.sample import FILES, Generator, SampleConfig
 
-__all__ = ["parse_shard", "shard_range", "open_dataset", "generate", "build_index", "rescore", "SynthDataset", "chw_tensor"]
+__all__ = [
+    "parse_shard",
+    "shard_range",
+    "open_dataset",
+    "generate",
+    "build_index",
+    "rescore",
+    "SynthDataset",
+    "chw_tensor",
+]
 
 INDEX = "index.json"
 MANIFEST = "dataset.json"
@@ -61,8 +70,13 @@ def sample_dir(root: Path, index: int) -> Path:
 def open_dataset(root: str | os.PathLike, n: int, seed: int, config: SampleConfig) -> dict[str, Any]:
     """Create ``dataset.json`` or check that an existing one has the same seed and config."""
     root = Path(root)
-    manifest = {"n": int(n), "seed": int(seed), "config": config.to_json(), "conventions_version": CONVENTIONS_VERSION,
-                "generator": "solidkit synth dataset"}
+    manifest = {
+        "n": int(n),
+        "seed": int(seed),
+        "config": config.to_json(),
+        "conventions_version": CONVENTIONS_VERSION,
+        "generator": "solidkit synth dataset",
+    }
     path = root / MANIFEST
     if path.is_file():
         old = json.loads(path.read_text())
@@ -71,7 +85,9 @@ def open_dataset(root: str | os.PathLike, n: int, seed: int, config: SampleConfi
         if old.get("config") != manifest["config"]:
             oc, nc = old.get("config") or {}, manifest["config"]
             diff = sorted(k for k in set(oc) | set(nc) if oc.get(k) != nc.get(k))
-            raise InputError(f"{root}: holds a dataset rendered with other settings ({', '.join(diff)}); use a new --out")
+            raise InputError(
+                f"{root}: holds a dataset rendered with other settings ({', '.join(diff)}); use a new --out"
+            )
         if int(old.get("n", 0)) < n:
             old["n"] = int(n)
             atomic_write_text(path, json.dumps(old, indent=1))
@@ -81,9 +97,17 @@ def open_dataset(root: str | os.PathLike, n: int, seed: int, config: SampleConfi
     return manifest
 
 
-def generate(root: str | os.PathLike, n: int, *, seed: int = 0, shard: tuple[int, int] = (0, 1),
-             config: SampleConfig | None = None, reference: ReferenceSet | None = None, threshold: float = 0.7,
-             progress: Callable[[int, int, dict[str, Any] | None], None] | None = None) -> dict[str, int]:
+def generate(
+    root: str | os.PathLike,
+    n: int,
+    *,
+    seed: int = 0,
+    shard: tuple[int, int] = (0, 1),
+    config: SampleConfig | None = None,
+    reference: ReferenceSet | None = None,
+    threshold: float = 0.7,
+    progress: Callable[[int, int, dict[str, Any] | None], None] | None = None,
+) -> dict[str, int]:
     """Render the missing samples of one shard; returns counts ``{"rendered", "skipped", "kept"}``.
 
     ``reference``: real photographs; each new sample gets ``filter.score`` and ``filter.keep``
@@ -105,8 +129,12 @@ def generate(root: str | os.PathLike, n: int, *, seed: int = 0, shard: tuple[int
         record = gen.render(i, d)
         if reference is not None:
             score = reference.score(read_ldr(d / FILES["ldr"]))
-            record["filter"] = {"score": score, "threshold": threshold, "keep": bool(score >= threshold),
-                                "references": len(reference.names)}
+            record["filter"] = {
+                "score": score,
+                "threshold": threshold,
+                "keep": bool(score >= threshold),
+                "references": len(reference.names),
+            }
             atomic_write_text(d / FILES["meta"], json.dumps(record, indent=1))
             counts["kept"] += int(score >= threshold)
         counts["rendered"] += 1
@@ -126,14 +154,26 @@ def build_index(root: str | os.PathLike) -> list[dict[str, Any]]:
         except (OSError, ValueError):
             continue
         filt = rec.get("filter", {})
-        entries.append({"index": rec["index"], "dir": str(meta.parent.relative_to(root)), "sun": rec["sun"],
-                        "lighting": rec["lighting"].get("kind"), "score": filt.get("score"),
-                        "keep": filt.get("keep", True), "variant": rec["renderer"]["variant"]})
-    atomic_write_text(root / INDEX, json.dumps({"conventions_version": CONVENTIONS_VERSION, "samples": entries}, indent=1))
+        entries.append(
+            {
+                "index": rec["index"],
+                "dir": str(meta.parent.relative_to(root)),
+                "sun": rec["sun"],
+                "lighting": rec["lighting"].get("kind"),
+                "score": filt.get("score"),
+                "keep": filt.get("keep", True),
+                "variant": rec["renderer"]["variant"],
+            }
+        )
+    atomic_write_text(
+        root / INDEX, json.dumps({"conventions_version": CONVENTIONS_VERSION, "samples": entries}, indent=1)
+    )
     return entries
 
 
-def rescore(root: str | os.PathLike, reference: ReferenceSet | str | os.PathLike, threshold: float = 0.7) -> dict[str, int]:
+def rescore(
+    root: str | os.PathLike, reference: ReferenceSet | str | os.PathLike, threshold: float = 0.7
+) -> dict[str, int]:
     """Score every complete sample of the dataset at ``root`` against real photographs, in place.
 
     ``reference``: a :class:`ReferenceSet`, or a folder of LDR photos (read once samples are found).
@@ -152,8 +192,12 @@ def rescore(root: str | os.PathLike, reference: ReferenceSet | str | os.PathLike
     for meta in metas:
         rec = json.loads(meta.read_text())
         score = reference.score(read_ldr(meta.parent / FILES["ldr"]))
-        rec["filter"] = {"score": score, "threshold": threshold, "keep": bool(score >= threshold),
-                         "references": len(reference.names)}
+        rec["filter"] = {
+            "score": score,
+            "threshold": threshold,
+            "keep": bool(score >= threshold),
+            "references": len(reference.names),
+        }
         kept += int(score >= threshold)
         atomic_write_text(meta, json.dumps(rec, indent=1))
     build_index(root)
@@ -185,8 +229,14 @@ class SynthDataset(torch.utils.data.Dataset):
 
     ALL = ("image", "hdr", "albedo", "normal", "plane_distance", "depth", "shadow", "global", "probes")
 
-    def __init__(self, root: str | os.PathLike, *, keep_only: bool = True, fields: Iterable[str] | None = None,
-                 indices: Iterable[int] | None = None) -> None:
+    def __init__(
+        self,
+        root: str | os.PathLike,
+        *,
+        keep_only: bool = True,
+        fields: Iterable[str] | None = None,
+        indices: Iterable[int] | None = None,
+    ) -> None:
         self.root = Path(root)
         path = self.root / INDEX
         if not path.is_file():
@@ -217,15 +267,21 @@ class SynthDataset(torch.utils.data.Dataset):
         d = self.root / e["dir"]
         rec = json.loads((d / FILES["meta"]).read_text())
         item: dict[str, Any] = {"index": rec["index"]}
-        files = {"hdr": FILES["image"],
-                 **{k: FILES[k] for k in ("albedo", "normal", "plane_distance", "depth", "shadow", "global")}}
+        files = {
+            "hdr": FILES["image"],
+            **{k: FILES[k] for k in ("albedo", "normal", "plane_distance", "depth", "shadow", "global")},
+        }
         for f in self.fields:
             if f == "image":
                 item["image"] = chw_tensor(read_ldr(d / FILES["ldr"]))
             elif f == "probes":
                 h = int(rec["renderer"]["probe_height"])
-                item["probes"] = torch.stack([chw_tensor(read_exr(d / p)[0][..., :3]) if (d / p).is_file()
-                                              else torch.zeros(3, h, 2 * h) for p in FILES["probes"]])
+                item["probes"] = torch.stack(
+                    [
+                        chw_tensor(read_exr(d / p)[0][..., :3]) if (d / p).is_file() else torch.zeros(3, h, 2 * h)
+                        for p in FILES["probes"]
+                    ]
+                )
             else:
                 item[f] = chw_tensor(read_exr(d / files[f])[0])
         pix = np.zeros((4, 2), np.float32)

@@ -66,8 +66,11 @@ def _ifd(entries: list[tuple[int, int, bytes, int]], base: int) -> tuple[bytes, 
 
 def _ricoh_makernote(base: int, image_type: int, roll_deg: float, pitch_deg: float, heading_deg: float | None) -> bytes:
     """Maker note bytes for placement at TIFF offset ``base``."""
-    theta_entries = [_entry(0x0001, SHORT, image_type), _entry(0x0003, SRATIONAL, [roll_deg, pitch_deg]),
-                     _entry(0x0007, SHORT, 0)]
+    theta_entries = [
+        _entry(0x0001, SHORT, image_type),
+        _entry(0x0003, SRATIONAL, [roll_deg, pitch_deg]),
+        _entry(0x0007, SHORT, 0),
+    ]
     if heading_deg is not None:
         theta_entries.append(_entry(0x0004, RATIONAL, heading_deg % 360.0))
     main_base = base + 8
@@ -79,10 +82,21 @@ def _ricoh_makernote(base: int, image_type: int, roll_deg: float, pitch_deg: flo
     return b"Ricoh\x00\x00\x00" + main + theta
 
 
-def exif_app1(*, make: str, model: str, when: dt.datetime, exposure_time: float, f_number: float, iso: int,
-              gps: tuple[float, float, float] | None = None, focal_length_mm: float | None = None,
-              focal_35mm: float | None = None, theta: dict[str, Any] | None = None, software: str = "solidkit synth",
-              img_direction_deg: float | None = None) -> bytes:
+def exif_app1(
+    *,
+    make: str,
+    model: str,
+    when: dt.datetime,
+    exposure_time: float,
+    f_number: float,
+    iso: int,
+    gps: tuple[float, float, float] | None = None,
+    focal_length_mm: float | None = None,
+    focal_35mm: float | None = None,
+    theta: dict[str, Any] | None = None,
+    software: str = "solidkit synth",
+    img_direction_deg: float | None = None,
+) -> bytes:
     """APP1 payload (``b"Exif\\0\\0"`` + TIFF) with the given fields.
 
     ``when``: naive (camera clock, no offset written) or aware: ``DateTime(Original)`` is then its
@@ -94,12 +108,21 @@ def exif_app1(*, make: str, model: str, when: dt.datetime, exposure_time: float,
     the Ricoh maker note.
     """
     stamp = when.strftime("%Y:%m:%d %H:%M:%S")
-    ifd0 = [_entry(0x010F, ASCII, make), _entry(0x0110, ASCII, model), _entry(0x0131, ASCII, software),
-            _entry(0x0132, ASCII, stamp), _entry(0x8769, LONG, 0)]
+    ifd0 = [
+        _entry(0x010F, ASCII, make),
+        _entry(0x0110, ASCII, model),
+        _entry(0x0131, ASCII, software),
+        _entry(0x0132, ASCII, stamp),
+        _entry(0x8769, LONG, 0),
+    ]
     if gps is not None:
         ifd0.append(_entry(0x8825, LONG, 0))
-    exif = [_entry(0x829A, RATIONAL, exposure_time), _entry(0x829D, RATIONAL, f_number), _entry(0x8827, SHORT, iso),
-            _entry(0x9003, ASCII, stamp)]
+    exif = [
+        _entry(0x829A, RATIONAL, exposure_time),
+        _entry(0x829D, RATIONAL, f_number),
+        _entry(0x8827, SHORT, iso),
+        _entry(0x9003, ASCII, stamp),
+    ]
     utc = None
     if when.tzinfo is not None and when.utcoffset() is not None:
         minutes = int(cast(dt.timedelta, when.utcoffset()).total_seconds() // 60)
@@ -114,11 +137,14 @@ def exif_app1(*, make: str, model: str, when: dt.datetime, exposure_time: float,
     ifd0_bytes, _ = _ifd(ifd0, 8)
     exif_off = 8 + len(ifd0_bytes)
     if theta is not None:
-        placeholder = _ricoh_makernote(0, theta["image_type"], theta["roll_deg"], theta["pitch_deg"], theta.get("heading_deg"))
+        placeholder = _ricoh_makernote(
+            0, theta["image_type"], theta["roll_deg"], theta["pitch_deg"], theta.get("heading_deg")
+        )
         exif_probe = exif + [_entry(0x927C, UNDEFINED, placeholder)]
         _, where = _ifd(exif_probe, exif_off)
-        mn = _ricoh_makernote(where[0x927C], theta["image_type"], theta["roll_deg"], theta["pitch_deg"],
-                              theta.get("heading_deg"))
+        mn = _ricoh_makernote(
+            where[0x927C], theta["image_type"], theta["roll_deg"], theta["pitch_deg"], theta.get("heading_deg")
+        )
         exif = exif + [_entry(0x927C, UNDEFINED, mn)]
     exif_bytes, _ = _ifd(exif, exif_off)
     gps_off = exif_off + len(exif_bytes)
@@ -134,14 +160,25 @@ def exif_app1(*, make: str, model: str, when: dt.datetime, exposure_time: float,
 
         gps_extra = []
         if utc is not None:
-            gps_extra += [_entry(0x0007, RATIONAL, [utc.hour, utc.minute, utc.second + utc.microsecond / 1e6]),
-                          _entry(0x001D, ASCII, utc.strftime("%Y:%m:%d"))]
+            gps_extra += [
+                _entry(0x0007, RATIONAL, [utc.hour, utc.minute, utc.second + utc.microsecond / 1e6]),
+                _entry(0x001D, ASCII, utc.strftime("%Y:%m:%d")),
+            ]
         if img_direction_deg is not None:
             gps_extra += [_entry(0x0010, ASCII, "T"), _entry(0x0011, RATIONAL, float(img_direction_deg) % 360.0)]
-        gps_bytes, _ = _ifd([_entry(0x0000, BYTE, [2, 3, 0, 0]), _entry(0x0001, ASCII, "N" if lat >= 0 else "S"),
-                             _entry(0x0002, RATIONAL, dms(lat)), _entry(0x0003, ASCII, "E" if lon >= 0 else "W"),
-                             _entry(0x0004, RATIONAL, dms(lon)), _entry(0x0005, BYTE, 0 if alt >= 0 else 1),
-                             _entry(0x0006, RATIONAL, abs(alt))] + gps_extra, gps_off)
+        gps_bytes, _ = _ifd(
+            [
+                _entry(0x0000, BYTE, [2, 3, 0, 0]),
+                _entry(0x0001, ASCII, "N" if lat >= 0 else "S"),
+                _entry(0x0002, RATIONAL, dms(lat)),
+                _entry(0x0003, ASCII, "E" if lon >= 0 else "W"),
+                _entry(0x0004, RATIONAL, dms(lon)),
+                _entry(0x0005, BYTE, 0 if alt >= 0 else 1),
+                _entry(0x0006, RATIONAL, abs(alt)),
+            ]
+            + gps_extra,
+            gps_off,
+        )
     # now fill in the pointers
     ifd0 = [e for e in ifd0 if e[0] not in (0x8769, 0x8825)] + [_entry(0x8769, LONG, exif_off)]
     if gps is not None:

@@ -29,13 +29,20 @@ from typing import Any
 import numpy as np
 
 from solidkit.synth.cameras import Camera
-from solidkit.synth.sample import pick_probe_pixels
-from solidkit.synth.scene import CityBlock, box
 from solidkit.synth.materials import materials_of
-from solidkit.synth.scene import CATEGORIES
+from solidkit.synth.sample import pick_probe_pixels
+from solidkit.synth.scene import CATEGORIES, CityBlock, box
 
-__all__ = ["REACHABLE_CATEGORIES", "GlassPanel", "reachable_mask", "pick_reachable_probes", "add_glass_facades",
-           "glint_direction", "first_hit", "occluded"]
+__all__ = [
+    "REACHABLE_CATEGORIES",
+    "GlassPanel",
+    "reachable_mask",
+    "pick_reachable_probes",
+    "add_glass_facades",
+    "glint_direction",
+    "first_hit",
+    "occluded",
+]
 
 REACHABLE_CATEGORIES = ("road", "sidewalk", "marking", "bench")
 _UP = np.array([0.0, -1.0, 0.0])
@@ -56,8 +63,15 @@ def occluded(mi: Any, scene: Any, origin: np.ndarray, direction: np.ndarray, max
     return first_hit(mi, scene, origin, direction, maxt) is not None
 
 
-def reachable_mask(block: CityBlock, cam: Camera, buf: dict[str, np.ndarray], *, max_surface_height_m: float = 1.0,
-                   max_distance_m: float = 25.0, max_slope_deg: float = 20.0) -> np.ndarray:
+def reachable_mask(
+    block: CityBlock,
+    cam: Camera,
+    buf: dict[str, np.ndarray],
+    *,
+    max_surface_height_m: float = 1.0,
+    max_distance_m: float = 25.0,
+    max_slope_deg: float = 20.0,
+) -> np.ndarray:
     """Photo pixels ``(H, W)`` bool whose surface a person can reach (module docstring; clearance not tested).
 
     ``buf``: :func:`solidkit.synth.sample.render_buffers` of ``cam`` (``hit``, ``t``, ``normal_world``, ``label``).
@@ -74,10 +88,22 @@ def reachable_mask(block: CityBlock, cam: Camera, buf: dict[str, np.ndarray], *,
     return hit & up & low & near & allowed
 
 
-def pick_reachable_probes(mi: Any, scene: Any, block: CityBlock, cam: Camera, buf: dict[str, np.ndarray], n: int,
-                          rng: np.random.Generator, *, lens_height_m: float = 0.10, clearance_m: float = 0.30,
-                          min_spacing_m: float = 1.0, max_surface_height_m: float = 1.0, max_distance_m: float = 25.0,
-                          rounds: int = 40) -> list[dict[str, Any]]:
+def pick_reachable_probes(
+    mi: Any,
+    scene: Any,
+    block: CityBlock,
+    cam: Camera,
+    buf: dict[str, np.ndarray],
+    n: int,
+    rng: np.random.Generator,
+    *,
+    lens_height_m: float = 0.10,
+    clearance_m: float = 0.30,
+    min_spacing_m: float = 1.0,
+    max_surface_height_m: float = 1.0,
+    max_distance_m: float = 25.0,
+    rounds: int = 40,
+) -> list[dict[str, Any]]:
     """Up to ``n`` probe placements: one per photo quadrant first (:func:`pick_probe_pixels`), then anywhere.
 
     Each candidate pixel's lens position must be clear (module docstring) and at least
@@ -108,11 +134,21 @@ def pick_reachable_probes(mi: Any, scene: Any, block: CityBlock, cam: Camera, bu
             lens = point + lens_height_m * normal
             if min(np.linalg.norm(lens - q) for q in taken) < min_spacing_m:
                 continue
-            if occluded(mi, scene, lens, _UP, 2.0) or any(occluded(mi, scene, lens, h, clearance_m) for h in horizontal):
+            if occluded(mi, scene, lens, _UP, 2.0) or any(
+                occluded(mi, scene, lens, h, clearance_m) for h in horizontal
+            ):
                 continue
             taken.append(lens)
-            chosen.append({"pixel": [int(x), int(y)], "quadrant": int(p["quadrant"]) if r == 0 else -1,
-                           "point": point, "normal": normal, "position": lens, "label": int(buf["label"][y, x])})
+            chosen.append(
+                {
+                    "pixel": [int(x), int(y)],
+                    "quadrant": int(p["quadrant"]) if r == 0 else -1,
+                    "point": point,
+                    "normal": normal,
+                    "position": lens,
+                    "label": int(buf["label"][y, x]),
+                }
+            )
     return chosen
 
 
@@ -127,15 +163,31 @@ class GlassPanel:
         return np.array([self.nx, 0.0, 0.0])
 
     def contains(self, p: np.ndarray, tol: float = 0.05) -> bool:
-        return (abs(p[0] - self.x_plane) <= tol and self.y0 - tol <= p[1] <= self.y1 + tol
-                and self.z0 - tol <= p[2] <= self.z1 + tol)
+        return (
+            abs(p[0] - self.x_plane) <= tol
+            and self.y0 - tol <= p[1] <= self.y1 + tol
+            and self.z0 - tol <= p[2] <= self.z1 + tol
+        )
 
     def to_json(self) -> dict[str, float]:
-        return {"x_plane": self.x_plane, "normal_x": self.nx, "y0": self.y0, "y1": self.y1, "z0": self.z0, "z1": self.z1}
+        return {
+            "x_plane": self.x_plane,
+            "normal_x": self.nx,
+            "y0": self.y0,
+            "y1": self.y1,
+            "z0": self.z0,
+            "z1": self.z1,
+        }
 
 
-def add_glass_facades(block: CityBlock, rng: np.random.Generator, *, from_height_m: float = 0.6,
-                      offset_m: float = 0.03, thickness_m: float = 0.02) -> tuple[CityBlock, list[GlassPanel]]:
+def add_glass_facades(
+    block: CityBlock,
+    rng: np.random.Generator,
+    *,
+    from_height_m: float = 0.6,
+    offset_m: float = 0.03,
+    thickness_m: float = 0.02,
+) -> tuple[CityBlock, list[GlassPanel]]:
     """A copy of ``block`` whose street-facing building fronts (both sides) carry curtain-wall glass.
 
     Each building box standing on the ground with its front within 2 m of the sidewalks' outer
@@ -170,8 +222,9 @@ def add_glass_facades(block: CityBlock, rng: np.random.Generator, *, from_height
     return out, panels
 
 
-def glint_direction(mi: Any, scene: Any, position: np.ndarray, sun: np.ndarray,
-                    panels: list[GlassPanel]) -> np.ndarray | None:
+def glint_direction(
+    mi: Any, scene: Any, position: np.ndarray, sun: np.ndarray, panels: list[GlassPanel]
+) -> np.ndarray | None:
     """Scene-frame unit direction of a sun glint seen from ``position``, or None (module docstring)."""
     for panel in panels:
         n = panel.normal

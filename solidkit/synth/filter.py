@@ -46,7 +46,7 @@ class ReferenceSet:
         self.bins = bins
 
     @classmethod
-    def from_dir(cls, folder: str | os.PathLike, bins: int = 8, max_side: int = 640) -> "ReferenceSet":
+    def from_dir(cls, folder: str | os.PathLike, bins: int = 8, max_side: int = 640) -> ReferenceSet:
         """All LDR images under ``folder`` (recursively), downscaled to at most ``max_side`` pixels."""
         import cv2
 

@@ -38,8 +38,17 @@ from typing import Any
 import cv2
 import numpy as np
 
-from solidkit.envmap import (angles_from_direction, coords_from_direction, direction_from_angles, direction_grid, read_exr,
-                             luminance, rotation_y, solid_angle, spherical_centroid)
+from solidkit.envmap import (
+    angles_from_direction,
+    coords_from_direction,
+    direction_from_angles,
+    direction_grid,
+    luminance,
+    read_exr,
+    rotation_y,
+    solid_angle,
+    spherical_centroid,
+)
 from solidkit.errors import InputError
 from solidkit.synth.mitsuba_variant import is_vectorized, mitsuba, variant
 
@@ -71,8 +80,11 @@ class Lighting:
         mi = mitsuba()
         m = np.eye(4)
         m[:3, :3] = self.rotation @ M0
-        return {"type": "envmap", "bitmap": mi.Bitmap(np.ascontiguousarray(self.panorama, dtype=np.float32)),
-                "to_world": mi.ScalarTransform4f(m.tolist())}
+        return {
+            "type": "envmap",
+            "bitmap": mi.Bitmap(np.ascontiguousarray(self.panorama, dtype=np.float32)),
+            "to_world": mi.ScalarTransform4f(m.tolist()),
+        }
 
 
 def horizontal_irradiance(pano: np.ndarray) -> float:
@@ -101,8 +113,15 @@ def _normalise(pano: np.ndarray, rng: np.random.Generator) -> tuple[np.ndarray, 
     return (pano * scale).astype(np.float32), scale
 
 
-def sunsky(sun: np.ndarray, turbidity: float = 3.0, *, height: int = 512, rng: np.random.Generator | None = None,
-           sun_aperture_deg: float = 0.5358, normalise: bool = True) -> Lighting:
+def sunsky(
+    sun: np.ndarray,
+    turbidity: float = 3.0,
+    *,
+    height: int = 512,
+    rng: np.random.Generator | None = None,
+    sun_aperture_deg: float = 0.5358,
+    normalise: bool = True,
+) -> Lighting:
     """Mitsuba's Hosek-Wilkie sun and sky for a unit ``sun`` direction (scene frame, y down).
 
     Returns a :class:`Lighting` with a ``(height, 2 height, 3)`` panorama (sky evaluated at
@@ -145,13 +164,20 @@ def sunsky(sun: np.ndarray, turbidity: float = 3.0, *, height: int = 512, rng: n
     if normalise:
         pano, scale = _normalise(pano, rng or np.random.default_rng(0))
     az, el = angles_from_direction(sun)
-    meta = {"kind": "sunsky", "turbidity": float(turbidity), "sun_azimuth_deg": math.degrees(az),
-            "sun_elevation_deg": math.degrees(el), "sun_aperture_deg": sun_aperture_deg, "scale": scale}
+    meta = {
+        "kind": "sunsky",
+        "turbidity": float(turbidity),
+        "sun_azimuth_deg": math.degrees(az),
+        "sun_elevation_deg": math.degrees(el),
+        "sun_aperture_deg": sun_aperture_deg,
+        "scale": scale,
+    }
     return Lighting(pano, np.eye(3), sun, meta)
 
 
-def hdr(path: str | Path, rotation_deg: float = 0.0, *, rng: np.random.Generator | None = None,
-        normalise: bool = True) -> Lighting:
+def hdr(
+    path: str | Path, rotation_deg: float = 0.0, *, rng: np.random.Generator | None = None, normalise: bool = True
+) -> Lighting:
     """A real HDR panorama turned about the vertical by ``rotation_deg`` (moves the sun to the right)."""
     pano, _ = read_exr(path)
     pano = np.clip(pano[..., :3], 0.0, None)
@@ -168,8 +194,14 @@ def hdr(path: str | Path, rotation_deg: float = 0.0, *, rng: np.random.Generator
     return Lighting(pano, np.asarray(R), sun, meta)
 
 
-def random_lighting(rng: np.random.Generator, *, p_sunsky: float = 0.5, height: int = 512,
-                    hdr_dir: Path = HDR_DIR, exclude: tuple[str, ...] = ()) -> Lighting:
+def random_lighting(
+    rng: np.random.Generator,
+    *,
+    p_sunsky: float = 0.5,
+    height: int = 512,
+    hdr_dir: Path = HDR_DIR,
+    exclude: tuple[str, ...] = (),
+) -> Lighting:
     """Draw a lighting: sunsky (elevation 5-75°, any azimuth, turbidity 2-6) or an HDR map turned by 0-60°.
 
     ``exclude``: HDR map names (stems) not to draw, e.g. those held out for a real test.
@@ -190,7 +222,7 @@ def _has_sunsky() -> bool:
     return _has_sunsky_in(variant())
 
 
-@functools.lru_cache(maxsize=None)
+@functools.cache
 def _has_sunsky_in(name: str) -> bool:
     try:
         mitsuba().load_dict({"type": "sunsky"})

@@ -59,7 +59,9 @@ def find_libllvm() -> Path | None:
 
 
 def _cuda_present() -> bool:
-    return any(Path(p).exists() for p in ("/dev/nvidia0", "/dev/nvidiactl")) or bool(os.environ.get("CUDA_VISIBLE_DEVICES"))
+    return any(Path(p).exists() for p in ("/dev/nvidia0", "/dev/nvidiactl")) or bool(
+        os.environ.get("CUDA_VISIBLE_DEVICES")
+    )
 
 
 def select_variant(prefer: str | None = None) -> str:
@@ -104,7 +106,9 @@ def select_variant(prefer: str | None = None) -> str:
         if threads.isdigit() and int(threads) > 0 and dr.thread_count() != int(threads):
             dr.set_thread_count(int(threads))  # drjit itself does not read this variable
         if _state.get("variant") != name:
-            log.info("mitsuba %s: variant %s%s", mi.__version__, name, f" (LLVM {llvm})" if name.startswith("llvm") else "")
+            log.info(
+                "mitsuba %s: variant %s%s", mi.__version__, name, f" (LLVM {llvm})" if name.startswith("llvm") else ""
+            )
         _state["variant"] = name
         return name
     raise RendererError("no usable Mitsuba variant: " + "; ".join(errors))
@@ -119,7 +123,6 @@ def mitsuba() -> ModuleType:
         mi.set_variant(name)
     registered = cast(set[str], _state.setdefault("registered", set()))
     if name not in registered:
-
         register(mi)
         registered.add(name)
     return mi

@@ -41,8 +41,17 @@ from typing import Any
 
 import numpy as np
 
-from solidkit.envmap import (detect_sun, downsample, perspective_crop, read_exr, rotate, rotation_from_ypr, rotation_y,
-                             tonemap, write_exr)
+from solidkit.envmap import (
+    detect_sun,
+    downsample,
+    perspective_crop,
+    read_exr,
+    rotate,
+    rotation_from_ypr,
+    rotation_y,
+    tonemap,
+    write_exr,
+)
 from solidkit.envmap.coords import direction_from_angles
 from solidkit.envmap.io import read_panorama
 from solidkit.envmap.perspective import intrinsics_from_fov
@@ -55,9 +64,25 @@ from solidkit.synth.mitsuba_variant import mitsuba, variant
 from solidkit.synth.sample import derive_seed, render_panorama, sun_mask_panorama, suppress_fireflies
 from solidkit.synth.scene import city_block, to_mitsuba
 
-__all__ = ["metered_gain", "SourceConfig", "render_source", "real_source", "render_sources", "Source", "CatalogSun",
-           "load_sources", "read_catalog", "real_split", "SPLITS", "CropSampler", "CropConfig", "View", "draw_view",
-           "render_view", "view_direction"]
+__all__ = [
+    "metered_gain",
+    "SourceConfig",
+    "render_source",
+    "real_source",
+    "render_sources",
+    "Source",
+    "CatalogSun",
+    "load_sources",
+    "read_catalog",
+    "real_split",
+    "SPLITS",
+    "CropSampler",
+    "CropConfig",
+    "View",
+    "draw_view",
+    "render_view",
+    "view_direction",
+]
 
 CACHE_SIZE = 720
 """Rendered sources kept in memory (least recently used first out; ~3.5 MB each at 512 x 1024 as
@@ -106,15 +131,20 @@ class SourceConfig:
         return d
 
 
-def render_source(seed: int, index: int, out_dir: str | os.PathLike, config: SourceConfig | None = None,
-                  *, hdr_dir: Path | None = None) -> dict[str, Any]:
+def render_source(
+    seed: int,
+    index: int,
+    out_dir: str | os.PathLike,
+    config: SourceConfig | None = None,
+    *,
+    hdr_dir: Path | None = None,
+) -> dict[str, Any]:
     """Render source ``index`` of the set ``seed`` into ``out_dir`` (``source.json`` written last).
 
     Block ``index // positions_per_block`` (the geometry of consecutive indices is shared), a
     random walkable camera position, a random lighting; returns the JSON record.
     """
     import time
-
 
     cfg = config or SourceConfig()
     t0 = time.perf_counter()
@@ -123,13 +153,19 @@ def render_source(seed: int, index: int, out_dir: str | os.PathLike, config: Sou
     block = city_block(derive_seed(seed, block_id, 1), length=cfg.block_length)
     rng = np.random.default_rng(derive_seed(seed, index, 2))
     cam = sample_candidate(block, rng, int(rng.integers(6)), intrinsics_from_fov(math.radians(60.0), 64, 48), 64, 48)
-    light = random_lighting(np.random.default_rng(derive_seed(seed, index, 3)), p_sunsky=cfg.p_sunsky,
-                            height=cfg.light_height, hdr_dir=hdr_dir or HDR_DIR, exclude=cfg.exclude_hdr)
+    light = random_lighting(
+        np.random.default_rng(derive_seed(seed, index, 3)),
+        p_sunsky=cfg.p_sunsky,
+        height=cfg.light_height,
+        hdr_dir=hdr_dir or HDR_DIR,
+        exclude=cfg.exclude_hdr,
+    )
     scene = to_mitsuba(block, light.emitter(), tex_size=cfg.tex_size)
     sseed = derive_seed(seed, index, 4)
     img = render_panorama(scene, cam.position, np.eye(3), cfg.height, cfg.spp, max_depth=cfg.max_depth, seed=sseed)
-    img, fireflies = suppress_fireflies(img, sun_mask_panorama(light.sun, np.eye(3), cfg.height), cfg.firefly_k,
-                                        wrap=True)
+    img, fireflies = suppress_fireflies(
+        img, sun_mask_panorama(light.sun, np.eye(3), cfg.height), cfg.firefly_k, wrap=True
+    )
     env = np.asarray(rotate(light.panorama, light.rotation), dtype=np.float32)
     target = downsample(env, env.shape[0] // cfg.target_height)
     out = Path(out_dir)
@@ -137,17 +173,33 @@ def render_source(seed: int, index: int, out_dir: str | os.PathLike, config: Sou
     prov = {"generator": "solidkit.synth.panocrops", "seed": int(seed), "index": int(index)}
     write_exr(out / SOURCE_FILES["scene"], img, {**prov, "frame": "scene"})
     write_exr(out / SOURCE_FILES["light"], target, {**prov, "frame": "scene"})
-    record = {"kind": "rendered", "seed": int(seed), "index": int(index), "block_id": block_id,
-              "block_seed": int(block.seed), "position": [float(v) for v in cam.position], "lighting": light.meta,
-              "sun_scene": None if light.sun is None else [float(v) for v in light.sun], "fireflies": fireflies,
-              "renderer": {"mitsuba": mi.__version__, "variant": variant(), **cfg.to_json()},
-              "seconds": round(time.perf_counter() - t0, 2), "files": {k: v for k, v in SOURCE_FILES.items()}}
+    record = {
+        "kind": "rendered",
+        "seed": int(seed),
+        "index": int(index),
+        "block_id": block_id,
+        "block_seed": int(block.seed),
+        "position": [float(v) for v in cam.position],
+        "lighting": light.meta,
+        "sun_scene": None if light.sun is None else [float(v) for v in light.sun],
+        "fireflies": fireflies,
+        "renderer": {"mitsuba": mi.__version__, "variant": variant(), **cfg.to_json()},
+        "seconds": round(time.perf_counter() - t0, 2),
+        "files": {k: v for k, v in SOURCE_FILES.items()},
+    }
     atomic_write_text(out / SOURCE_FILES["meta"], json.dumps(record, indent=1))
     return record
 
 
-def render_sources(root: str | os.PathLike, n: int, *, seed: int = 0, shard: tuple[int, int] = (0, 1),
-                   config: SourceConfig | None = None, progress: Any = None) -> dict[str, int]:
+def render_sources(
+    root: str | os.PathLike,
+    n: int,
+    *,
+    seed: int = 0,
+    shard: tuple[int, int] = (0, 1),
+    config: SourceConfig | None = None,
+    progress: Any = None,
+) -> dict[str, int]:
     """Render the missing sources ``0 .. n-1`` of shard ``shard`` into ``root/NNNNNN`` (resumable)."""
     from solidkit.synth.dataset import shard_range  # lazy: pulls in torch
 
@@ -207,9 +259,16 @@ def read_catalog(root: str | os.PathLike) -> dict[str, CatalogSun]:
         out = {}
         for r in records:
             visible = bool(r["sun_visible"])
-            d = (np.asarray(direction_from_angles(math.radians(float(r["sun_azimuth_deg"])),
-                                                  math.radians(float(r["sun_elevation_deg"]))), np.float32)
-                 if visible else np.zeros(3, np.float32))
+            d = (
+                np.asarray(
+                    direction_from_angles(
+                        math.radians(float(r["sun_azimuth_deg"])), math.radians(float(r["sun_elevation_deg"]))
+                    ),
+                    np.float32,
+                )
+                if visible
+                else np.zeros(3, np.float32)
+            )
             out[Path(r["file"]).stem] = CatalogSun(visible, d)
     except (ValueError, KeyError, TypeError) as exc:
         raise InputError(f"{path}: not a panorama catalogue ({type(exc).__name__}: {exc})") from None
@@ -242,8 +301,7 @@ class Source:
         if hit is None:
             scene = read_exr(self.path / SOURCE_FILES["scene"])[0][..., :3]
             # float16 halves the memory; the crop is tonemapped (saturating near 1), so the sun may clip
-            hit = (np.minimum(scene, 6.0e4).astype(np.float16),
-                   read_exr(self.path / SOURCE_FILES["light"])[0][..., :3])
+            hit = (np.minimum(scene, 6.0e4).astype(np.float16), read_exr(self.path / SOURCE_FILES["light"])[0][..., :3])
             _CACHE[key] = hit
             while len(_CACHE) > CACHE_SIZE:
                 _CACHE.popitem(last=False)
@@ -285,8 +343,10 @@ def load_sources(root: str | os.PathLike, exclude: tuple[str, ...] = (), split: 
         if any(p.stem in table for p in files):  # a folder the split covers: a panorama it does not list only trains
             files = [p for p in files if table.get(p.stem, "train") == split]
     if not files:
-        raise InputError(f"{root}: no rendered sources (*/source.json) and no HDR panoramas"
-                         + (f" of the '{split}' split" if split else ""))
+        raise InputError(
+            f"{root}: no rendered sources (*/source.json) and no HDR panoramas"
+            + (f" of the '{split}' split" if split else "")
+        )
     catalog = read_catalog(root)
     return [real_source(p, sun=catalog.get(p.stem)) for p in files]
 
@@ -345,11 +405,18 @@ class CropSampler:
         else:
             sun = detect_sun(sky)
             found, direction = sun.found, np.asarray(sun.direction if sun.found else np.zeros(3))
-        return {"image": image, "K": K, "pitch": np.float32(view.pitch), "roll": np.float32(roll),
-                "yaw": np.float32(view.yaw), "sky": np.ascontiguousarray(sky, dtype=np.float32),
-                "sun_dir": (direction if found else np.zeros(3)).astype(np.float32),
-                "sun_visible": np.float32(found), "source": src.name,
-                "gain": np.float32(np.mean(gain))}
+        return {
+            "image": image,
+            "K": K,
+            "pitch": np.float32(view.pitch),
+            "roll": np.float32(roll),
+            "yaw": np.float32(view.yaw),
+            "sky": np.ascontiguousarray(sky, dtype=np.float32),
+            "sun_dir": (direction if found else np.zeros(3)).astype(np.float32),
+            "sun_visible": np.float32(found),
+            "source": src.name,
+            "gain": np.float32(np.mean(gain)),
+        }
 
 
 @dataclass(frozen=True)

@@ -31,25 +31,40 @@ from typing import Any
 
 import numpy as np
 
-from solidkit.envmap import CONVENTIONS_VERSION, angles_from_direction, tonemap, write_exr, write_ldr
+from solidkit.envmap import CONVENTIONS_VERSION, angles_from_direction, direction_grid, tonemap, write_exr, write_ldr
 from solidkit.envmap.perspective import intrinsics_from_fov
 from solidkit.envmap.sun import LUMINANCE_WEIGHTS
 from solidkit.fsutil import atomic_write_text
 from solidkit.synth.cameras import Camera, equirect_sensor, pinhole_sensor
 from solidkit.synth.lighting import Lighting, random_lighting
+from solidkit.synth.mitsuba_variant import mitsuba, variant
 from solidkit.synth.render import render_buffers, render_rgb
 from solidkit.synth.scene import CATEGORIES, CityBlock, city_block, to_mitsuba
 from solidkit.synth.views import best_views
-from solidkit.envmap import direction_grid
-from solidkit.synth.mitsuba_variant import mitsuba, variant
 
-__all__ = ["SampleConfig", "render_rgb", "render_buffers", "render_panorama", "pick_probe_pixels", "Generator",
-           "derive_seed", "FILES"]
+__all__ = [
+    "SampleConfig",
+    "render_rgb",
+    "render_buffers",
+    "render_panorama",
+    "pick_probe_pixels",
+    "Generator",
+    "derive_seed",
+    "FILES",
+]
 
 FILES: dict[str, Any] = {  # file names; "probes" lists one per probe
-    "image": "image.exr", "ldr": "image.png", "albedo": "albedo.exr", "normal": "normal.exr", "depth": "depth.exr",
-    "plane_distance": "plane_distance.exr", "shadow": "shadow.exr", "category": "category.png", "global": "global.exr",
-    "probes": ["probe_0.exr", "probe_1.exr", "probe_2.exr", "probe_3.exr"], "meta": "sample.json",
+    "image": "image.exr",
+    "ldr": "image.png",
+    "albedo": "albedo.exr",
+    "normal": "normal.exr",
+    "depth": "depth.exr",
+    "plane_distance": "plane_distance.exr",
+    "shadow": "shadow.exr",
+    "category": "category.png",
+    "global": "global.exr",
+    "probes": ["probe_0.exr", "probe_1.exr", "probe_2.exr", "probe_3.exr"],
+    "meta": "sample.json",
 }
 VIEWS_PER_BLOCK = 6
 
@@ -92,7 +107,7 @@ class SampleConfig:
         return d
 
     @classmethod
-    def from_json(cls, d: dict[str, Any]) -> "SampleConfig":
+    def from_json(cls, d: dict[str, Any]) -> SampleConfig:
         d = dict(d)
         d["item_size"] = tuple(d.get("item_size", (64, 48)))
         d["exclude_hdr"] = tuple(d.get("exclude_hdr", ()))
@@ -101,18 +116,22 @@ class SampleConfig:
 
 def derive_seed(*parts: int) -> int:
     """A 31-bit seed derived from integers (stable across runs and platforms; fits Mitsuba's samplers)."""
-    return int(np.random.SeedSequence([int(p) & 0xFFFFFFFF for p in parts]).generate_state(1, np.uint32)[0] & 0x7FFFFFFF)
+    return int(
+        np.random.SeedSequence([int(p) & 0xFFFFFFFF for p in parts]).generate_state(1, np.uint32)[0] & 0x7FFFFFFF
+    )
 
 
-def render_panorama(scene: Any, position: np.ndarray, rotation: np.ndarray, height: int, spp: int, *,
-                    max_depth: int = 6, seed: int = 0) -> np.ndarray:
+def render_panorama(
+    scene: Any, position: np.ndarray, rotation: np.ndarray, height: int, spp: int, *, max_depth: int = 6, seed: int = 0
+) -> np.ndarray:
     """HDR equirect ``(height, 2 height, 3)`` seen from ``position`` in the frame ``rotation`` (conventions §3)."""
     sensor = equirect_sensor(position, rotation, height, jitter=True, spp=spp, seed=seed)
     return render_rgb(scene, sensor, spp, max_depth=max_depth, seed=seed)
 
 
-def suppress_fireflies(img: np.ndarray, protect: np.ndarray | None = None, k: float = 10.0, *,
-                       wrap: bool = False) -> tuple[np.ndarray, int]:
+def suppress_fireflies(
+    img: np.ndarray, protect: np.ndarray | None = None, k: float = 10.0, *, wrap: bool = False
+) -> tuple[np.ndarray, int]:
     """Replace isolated path-tracing outliers ("fireflies") by their 3x3 median; returns (image, count).
 
     A pixel is an outlier when its luminance exceeds ``k`` times the median luminance of its
@@ -146,7 +165,9 @@ def suppress_fireflies(img: np.ndarray, protect: np.ndarray | None = None, k: fl
     return img, n
 
 
-def sun_mask_panorama(sun: np.ndarray | None, rotation: np.ndarray, height: int, radius_deg: float = 3.0) -> np.ndarray | None:
+def sun_mask_panorama(
+    sun: np.ndarray | None, rotation: np.ndarray, height: int, radius_deg: float = 3.0
+) -> np.ndarray | None:
     """Pixels of a ``(height, 2 height)`` panorama in frame ``rotation`` within ``radius_deg`` of the sun."""
     if sun is None:
         return None
@@ -180,8 +201,14 @@ def pick_probe_pixels(hit: np.ndarray, rng: np.random.Generator, border: float =
     if not valid.any():
         return []
     out = []
-    for q, (ys, xs) in enumerate([(slice(0, h // 2), slice(0, w // 2)), (slice(0, h // 2), slice(w // 2, w)),
-                                  (slice(h // 2, h), slice(0, w // 2)), (slice(h // 2, h), slice(w // 2, w))]):
+    for q, (ys, xs) in enumerate(
+        [
+            (slice(0, h // 2), slice(0, w // 2)),
+            (slice(0, h // 2), slice(w // 2, w)),
+            (slice(h // 2, h), slice(0, w // 2)),
+            (slice(h // 2, h), slice(w // 2, w)),
+        ]
+    ):
         mask = np.zeros_like(valid)
         mask[ys, xs] = valid[ys, xs]
         quadrant = q
@@ -198,8 +225,13 @@ def _sun_json(sun: np.ndarray | None, cam: Camera) -> dict[str, Any]:
         return {"found": False}
     d = cam.pano_rotation.T @ sun
     az, el = angles_from_direction(d)
-    return {"found": True, "direction_scene": [float(x) for x in sun], "direction_pano": [float(x) for x in d],
-            "azimuth_deg": math.degrees(float(az)), "elevation_deg": math.degrees(float(el))}
+    return {
+        "found": True,
+        "direction_scene": [float(x) for x in sun],
+        "direction_pano": [float(x) for x in d],
+        "azimuth_deg": math.degrees(float(az)),
+        "elevation_deg": math.degrees(float(el)),
+    }
 
 
 @dataclass
@@ -212,7 +244,9 @@ class Generator:
 
     seed: int
     config: SampleConfig = field(default_factory=SampleConfig)
-    _cache: dict[int, tuple[CityBlock, Any, dict[int, tuple[Camera, dict[str, Any]]]]] = field(default_factory=dict, repr=False)
+    _cache: dict[int, tuple[CityBlock, Any, dict[int, tuple[Camera, dict[str, Any]]]]] = field(
+        default_factory=dict, repr=False
+    )
 
     def block_and_view(self, block_id: int, sector: int) -> tuple[CityBlock, tuple[Camera, dict[str, Any]]]:
         """The block ``block_id`` and its best view in heading sector ``sector`` (cached per block)."""
@@ -225,16 +259,27 @@ class Generator:
         if sector not in views:
             K = intrinsics_from_fov(math.radians(cfg.hfov_deg), cfg.width, cfg.height)
             rng = np.random.default_rng(derive_seed(self.seed, block_id, 2, sector))
-            views[sector] = best_views(block, geometry, rng, K, cfg.width, cfg.height, candidates=cfg.candidates,
-                                       min_categories=cfg.min_categories, max_object_share=cfg.max_object_share,
-                                       min_sky=cfg.min_sky,
-                                       item_size=cfg.item_size, sectors=(sector,))[0]
+            views[sector] = best_views(
+                block,
+                geometry,
+                rng,
+                K,
+                cfg.width,
+                cfg.height,
+                candidates=cfg.candidates,
+                min_categories=cfg.min_categories,
+                max_object_share=cfg.max_object_share,
+                min_sky=cfg.min_sky,
+                item_size=cfg.item_size,
+                sectors=(sector,),
+            )[0]
         return block, views[sector]
 
     def lighting(self, index: int) -> Lighting:
         rng = np.random.default_rng(derive_seed(self.seed, index, 3))
-        return random_lighting(rng, p_sunsky=self.config.p_sunsky, height=self.config.light_height,
-                               exclude=tuple(self.config.exclude_hdr))
+        return random_lighting(
+            rng, p_sunsky=self.config.p_sunsky, height=self.config.light_height, exclude=tuple(self.config.exclude_hdr)
+        )
 
     def render(self, index: int, out_dir: str | Path, *, timings: dict[str, float] | None = None) -> dict[str, Any]:
         """Render sample ``index`` into ``out_dir`` (created); returns its JSON record.
@@ -242,7 +287,6 @@ class Generator:
         ``sample.json`` is written last, so a folder with it is complete (resumability).
         """
         import time
-
 
         mi = mitsuba()
         cfg = self.config
@@ -261,7 +305,9 @@ class Generator:
         sseed = derive_seed(self.seed, index, 4)
 
         t0 = time.perf_counter()
-        hdr = render_rgb(scene, pinhole_sensor(cam, spp=cfg.spp, seed=sseed), cfg.spp, max_depth=cfg.max_depth, seed=sseed)
+        hdr = render_rgb(
+            scene, pinhole_sensor(cam, spp=cfg.spp, seed=sseed), cfg.spp, max_depth=cfg.max_depth, seed=sseed
+        )
         hdr, fireflies = suppress_fireflies(hdr, sun_mask_image(light.sun, cam), cfg.firefly_k)
         tm["image"] = time.perf_counter() - t0
         t0 = time.perf_counter()
@@ -283,13 +329,26 @@ class Generator:
             point = cam.position + float(buf["t"][y, x]) * d
             n = buf["normal_world"][y, x].astype(np.float64)
             centre = point + cfg.probe_offset_m * n
-            p.update(point_scene=point.tolist(), normal_scene=n.tolist(), centre_scene=centre.tolist(),
-                     point_camera=((point - cam.position) @ R).tolist(), depth=float(buf["depth"][y, x]),
-                     category=CATEGORIES[block.category_of(np.array([buf["label"][y, x]]))[0]])
-            img = render_panorama(scene, centre, cam.pano_rotation, cfg.probe_height, cfg.probe_spp,
-                                  max_depth=cfg.max_depth, seed=sseed + 10 + k)
-            img, n_ff = suppress_fireflies(img, sun_mask_panorama(light.sun, cam.pano_rotation, cfg.probe_height),
-                                           cfg.firefly_k, wrap=True)
+            p.update(
+                point_scene=point.tolist(),
+                normal_scene=n.tolist(),
+                centre_scene=centre.tolist(),
+                point_camera=((point - cam.position) @ R).tolist(),
+                depth=float(buf["depth"][y, x]),
+                category=CATEGORIES[block.category_of(np.array([buf["label"][y, x]]))[0]],
+            )
+            img = render_panorama(
+                scene,
+                centre,
+                cam.pano_rotation,
+                cfg.probe_height,
+                cfg.probe_spp,
+                max_depth=cfg.max_depth,
+                seed=sseed + 10 + k,
+            )
+            img, n_ff = suppress_fireflies(
+                img, sun_mask_panorama(light.sun, cam.pano_rotation, cfg.probe_height), cfg.firefly_k, wrap=True
+            )
             fireflies += n_ff
             probe_imgs.append(img)
         tm["probes"] = time.perf_counter() - t0
@@ -310,15 +369,27 @@ class Generator:
         for k, img in enumerate(probe_imgs):
             write_exr(out / FILES["probes"][k], img, {**prov, "frame": "camera panorama frame", "probe": k})
         record = {
-            "index": int(index), "seed": int(self.seed), "sample_seed": int(sseed), "block_seed": int(block.seed),
-            "block_id": block_id, "sector": sector, "conventions_version": CONVENTIONS_VERSION,
-            "camera": cam.to_json(), "view_selection": view_stats, "lighting": light.meta,
-            "sun": _sun_json(light.sun, cam), "probes": probes, "fireflies_suppressed": fireflies,
+            "index": int(index),
+            "seed": int(self.seed),
+            "sample_seed": int(sseed),
+            "block_seed": int(block.seed),
+            "block_id": block_id,
+            "sector": sector,
+            "conventions_version": CONVENTIONS_VERSION,
+            "camera": cam.to_json(),
+            "view_selection": view_stats,
+            "lighting": light.meta,
+            "sun": _sun_json(light.sun, cam),
+            "probes": probes,
+            "fireflies_suppressed": fireflies,
             "categories": list(CATEGORIES),
             "files": {k: v for k, v in FILES.items() if k != "meta"},
             "renderer": {"mitsuba": mi.__version__, "variant": variant(), **cfg.to_json()},
-            "frames": {"scene": "x right, y down (gravity), z forward; ground y = 0; metres",
-                       "pano": "R_y(yaw) of the camera (conventions §2)", "normal": "camera frame"},
+            "frames": {
+                "scene": "x right, y down (gravity), z forward; ground y = 0; metres",
+                "pano": "R_y(yaw) of the camera (conventions §2)",
+                "normal": "camera frame",
+            },
         }
         atomic_write_text(out / FILES["meta"], json.dumps(record, indent=1))
         tm["write"] = time.perf_counter() - t0

@@ -140,11 +140,42 @@ def quad(x0: float, x1: float, z0: float, z1: float, y: float, material: str, ca
 def blob(centre: Any, radii: Any, material: str, category: str) -> Part:
     """Low-poly ellipsoid (subdivided icosahedron, 80 faces), e.g. a tree canopy."""
     t = (1 + 5**0.5) / 2
-    v = [(-1, t, 0), (1, t, 0), (-1, -t, 0), (1, -t, 0), (0, -1, t), (0, 1, t), (0, -1, -t), (0, 1, -t),
-         (t, 0, -1), (t, 0, 1), (-t, 0, -1), (-t, 0, 1)]
-    f = [(0, 11, 5), (0, 5, 1), (0, 1, 7), (0, 7, 10), (0, 10, 11), (1, 5, 9), (5, 11, 4), (11, 10, 2), (10, 7, 6),
-         (7, 1, 8), (3, 9, 4), (3, 4, 2), (3, 2, 6), (3, 6, 8), (3, 8, 9), (4, 9, 5), (2, 4, 11), (6, 2, 10),
-         (8, 6, 7), (9, 8, 1)]
+    v = [
+        (-1, t, 0),
+        (1, t, 0),
+        (-1, -t, 0),
+        (1, -t, 0),
+        (0, -1, t),
+        (0, 1, t),
+        (0, -1, -t),
+        (0, 1, -t),
+        (t, 0, -1),
+        (t, 0, 1),
+        (-t, 0, -1),
+        (-t, 0, 1),
+    ]
+    f = [
+        (0, 11, 5),
+        (0, 5, 1),
+        (0, 1, 7),
+        (0, 7, 10),
+        (0, 10, 11),
+        (1, 5, 9),
+        (5, 11, 4),
+        (11, 10, 2),
+        (10, 7, 6),
+        (7, 1, 8),
+        (3, 9, 4),
+        (3, 4, 2),
+        (3, 2, 6),
+        (3, 6, 8),
+        (3, 8, 9),
+        (4, 9, 5),
+        (2, 4, 11),
+        (6, 2, 10),
+        (8, 6, 7),
+        (9, 8, 1),
+    ]
     verts = [np.array(p, float) / np.linalg.norm(p) for p in v]
     faces = []
     cache: dict[tuple[int, int], int] = {}
@@ -286,7 +317,14 @@ def city_block(seed: int, *, length: float = 60.0) -> CityBlock:
                 h = float(rng.uniform(5.0, 8.0))
                 blk.begin_object()
                 blk.add(box((x - 0.07, fy - h, z - 0.07), (x + 0.07, fy, z + 0.07), pole, "lamp"))
-                blk.add(box((x - side * 1.2 - 0.15, fy - h - 0.15, z - 0.2), (x + 0.15, fy - h + 0.05, z + 0.2), pole, "lamp"))
+                blk.add(
+                    box(
+                        (x - side * 1.2 - 0.15, fy - h - 0.15, z - 0.2),
+                        (x + 0.15, fy - h + 0.05, z + 0.2),
+                        pole,
+                        "lamp",
+                    )
+                )
                 blk.end_object()
                 obstacle(x - 0.07, x + 0.07, z - 0.07, z + 0.07)
             z += float(rng.uniform(15.0, 25.0))
@@ -306,7 +344,11 @@ def city_block(seed: int, *, length: float = 60.0) -> CityBlock:
                 blk.end_object()
                 obstacle(x - 0.25, x + 0.25, z - 0.9, z + 0.9)
             elif kind < 0.7:  # bin
-                blk.add(box((x - 0.3, fy - 0.9, z - 0.3), (x + 0.3, fy, z + 0.3), _pick(rng, materials_of("plastic")), "bin"))
+                blk.add(
+                    box(
+                        (x - 0.3, fy - 0.9, z - 0.3), (x + 0.3, fy, z + 0.3), _pick(rng, materials_of("plastic")), "bin"
+                    )
+                )
                 obstacle(x - 0.3, x + 0.3, z - 0.3, z + 0.3)
             else:  # sign
                 blk.begin_object()
@@ -320,7 +362,9 @@ def city_block(seed: int, *, length: float = 60.0) -> CityBlock:
             if on_cross(z):
                 continue
             x = side * (hw + 0.25)
-            blk.add(box((x - 0.1, fy - 0.9, z - 0.1), (x + 0.1, fy, z + 0.1), _pick(rng, materials_of("metal")), "bollard"))
+            blk.add(
+                box((x - 0.1, fy - 0.9, z - 0.1), (x + 0.1, fy, z + 0.1), _pick(rng, materials_of("metal")), "bollard")
+            )
             obstacle(x - 0.1, x + 0.1, z - 0.1, z + 0.1)
         # parked cars along the curb
         z = -L + float(rng.uniform(0, 8))
@@ -331,9 +375,13 @@ def city_block(seed: int, *, length: float = 60.0) -> CityBlock:
                 ln, wd = float(rng.uniform(3.8, 4.8)), float(rng.uniform(1.7, 1.9))
                 blk.begin_object()
                 blk.add(box((x - wd / 2, -1.0, z), (x + wd / 2, -0.3, z + ln), paint, "car"))
-                blk.add(box((x - wd / 2 + 0.1, -1.5, z + 0.25 * ln), (x + wd / 2 - 0.1, -1.0, z + 0.75 * ln), paint, "car"))
+                blk.add(
+                    box((x - wd / 2 + 0.1, -1.5, z + 0.25 * ln), (x + wd / 2 - 0.1, -1.0, z + 0.75 * ln), paint, "car")
+                )
                 for dz in (0.6, ln - 0.6):
-                    blk.add(box((x - wd / 2, -0.6, z + dz - 0.3), (x + wd / 2, 0.0, z + dz + 0.3), "rubber_black", "car"))
+                    blk.add(
+                        box((x - wd / 2, -0.6, z + dz - 0.3), (x + wd / 2, 0.0, z + dz + 0.3), "rubber_black", "car")
+                    )
                 blk.end_object()
                 obstacle(x - wd / 2, x + wd / 2, z, z + ln, margin=1.5)
             z += float(rng.uniform(5.0, 9.0))
@@ -348,14 +396,17 @@ def _bsdf(mi: ModuleType, name: str, rng: np.random.Generator, *, white: bool = 
     common = {"type": "bitmap", "raw": True, "filter_type": "bilinear", "wrap_mode": "repeat"}
     tex = {**common, "bitmap": mi.Bitmap(albedo)}
     rtex = {**common, "bitmap": mi.Bitmap(rough[..., None])}
-    return mi.load_dict({"type": "principled", "base_color": tex, "roughness": rtex, "metallic": float(mat.metallic),
-                         "specular": 0.5})
+    return mi.load_dict(
+        {"type": "principled", "base_color": tex, "roughness": rtex, "metallic": float(mat.metallic), "specular": 0.5}
+    )
 
 
 def _mesh(mi: ModuleType, part: Part, bsdf: Any, name: str) -> Any:
     props = mi.Properties()
     props["bsdf"] = bsdf
-    mesh = mi.Mesh(name, len(part.vertices), len(part.faces), props, has_vertex_normals=False, has_vertex_texcoords=True)
+    mesh = mi.Mesh(
+        name, len(part.vertices), len(part.faces), props, has_vertex_normals=False, has_vertex_texcoords=True
+    )
     params = mi.traverse(mesh)
     params["vertex_positions"] = part.vertices.ravel().astype(np.float32)
     params["faces"] = part.faces.ravel().astype(np.uint32)
@@ -365,8 +416,14 @@ def _mesh(mi: ModuleType, part: Part, bsdf: Any, name: str) -> Any:
     return mesh
 
 
-def to_mitsuba(block: CityBlock | None, emitter: dict[str, Any] | None, *, white: bool = False,
-               tex_size: int = 64, extra: dict[str, Any] | None = None) -> Any:
+def to_mitsuba(
+    block: CityBlock | None,
+    emitter: dict[str, Any] | None,
+    *,
+    white: bool = False,
+    tex_size: int = 64,
+    extra: dict[str, Any] | None = None,
+) -> Any:
     """A Mitsuba scene of ``block`` (None: no geometry) lit by ``emitter`` (a plugin dict).
 
     Textures are drawn from a generator seeded by the block's seed, so the same block always

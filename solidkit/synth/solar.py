@@ -113,8 +113,15 @@ def _latitudes(sin_el: float, cos_el: float, cos_az: float, decl: np.ndarray) ->
     return phi
 
 
-def place_sun(direction: np.ndarray, rng: np.random.Generator, *, year: int = 2024, max_abs_lat_deg: float = 60.0,
-              alt_range_m: tuple[float, float] = (0.0, 400.0), tol_deg: float = 1e-4) -> SolarFix:
+def place_sun(
+    direction: np.ndarray,
+    rng: np.random.Generator,
+    *,
+    year: int = 2024,
+    max_abs_lat_deg: float = 60.0,
+    alt_range_m: tuple[float, float] = (0.0, 400.0),
+    tol_deg: float = 1e-4,
+) -> SolarFix:
     """A place and UTC time at which pvlib puts the sun at scene-frame ``direction`` (see module doc).
 
     ``direction``: unit ``(3,)``, x east, y down, z north, elevation above -0.5°. The day, the

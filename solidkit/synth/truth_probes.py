@@ -41,8 +41,16 @@ import numpy as np
 from solidkit.envmap import tonemap
 from solidkit.synth.sample import derive_seed, render_panorama, sun_mask_panorama, suppress_fireflies
 
-__all__ = ["PASS_SAMPLES", "TRUTH_RENDER_VERSION", "clean_truth_probe", "needed_spp", "noise_psnr_db", "pass_plan", "psnr",
-           "render_truth_probe"]
+__all__ = [
+    "PASS_SAMPLES",
+    "TRUTH_RENDER_VERSION",
+    "clean_truth_probe",
+    "needed_spp",
+    "noise_psnr_db",
+    "pass_plan",
+    "psnr",
+    "render_truth_probe",
+]
 
 PASS_SAMPLES = 1 << 23
 """Most samples (pixels x spp) of one Mitsuba pass (8.4 M: a 512-px campaign panorama at 16 spp)."""
@@ -79,13 +87,25 @@ def noise_psnr_db(half_a: np.ndarray, half_b: np.ndarray) -> float:
     the mean's noise PSNR is ``PSNR(tonemap(a), tonemap(b)) + 10 log10(4)`` (the tonemap linearised
     around the image: exact for small noise).
     """
-    return psnr(tonemap(np.asarray(half_a, np.float32)), tonemap(np.asarray(half_b, np.float32))) + 10.0 * math.log10(4.0)
+    return psnr(tonemap(np.asarray(half_a, np.float32)), tonemap(np.asarray(half_b, np.float32))) + 10.0 * math.log10(
+        4.0
+    )
 
 
-def render_truth_probe(scene: Any, position: np.ndarray, rotation: np.ndarray, height: int, spp: int, *,
-                       seed: int, sun: np.ndarray | None = None, glint: np.ndarray | None = None,
-                       firefly_k: float = 10.0, firefly_spp: int | None = None,
-                       pass_samples: int = PASS_SAMPLES) -> tuple[np.ndarray, dict[str, Any]]:
+def render_truth_probe(
+    scene: Any,
+    position: np.ndarray,
+    rotation: np.ndarray,
+    height: int,
+    spp: int,
+    *,
+    seed: int,
+    sun: np.ndarray | None = None,
+    glint: np.ndarray | None = None,
+    firefly_k: float = 10.0,
+    firefly_spp: int | None = None,
+    pass_samples: int = PASS_SAMPLES,
+) -> tuple[np.ndarray, dict[str, Any]]:
     """One truth probe (module doc): HDR ``(height, 2 height, 3)`` float32 and its render record.
 
     Parameters
@@ -132,9 +152,17 @@ def render_truth_probe(scene: Any, position: np.ndarray, rotation: np.ndarray, h
         noise = round(noise_psnr_db(halves[0] / sum(plan[0::2]), halves[1] / sum(plan[1::2])), 2)
     if not firefly_spp:
         img, replaced = suppress_fireflies(img, keep, firefly_k, wrap=True)
-    record = {"version": TRUTH_RENDER_VERSION, "spp": int(sum(plan)), "passes": len(plan), "seed": int(seed),
-              "firefly_k": float(firefly_k), "firefly_spp": int(firefly_spp) if firefly_spp else None,
-              "fireflies_replaced": int(replaced), "height": int(height), "noise_psnr_db": noise}
+    record = {
+        "version": TRUTH_RENDER_VERSION,
+        "spp": int(sum(plan)),
+        "passes": len(plan),
+        "seed": int(seed),
+        "firefly_k": float(firefly_k),
+        "firefly_spp": int(firefly_spp) if firefly_spp else None,
+        "fireflies_replaced": int(replaced),
+        "height": int(height),
+        "noise_psnr_db": noise,
+    }
     return img, record
 
 
@@ -152,11 +180,23 @@ def needed_spp(noise_db: float | None, spp: int, target_db: float | None, max_sp
     return n if n > spp else None
 
 
-def clean_truth_probe(scene: Any, position: np.ndarray, rotation: np.ndarray, height: int, spp: int, *, seed: int,
-                      noise_target_db: float | None, max_spp: int, sun: np.ndarray | None = None,
-                      glint: np.ndarray | None = None, firefly_k: float = 10.0, firefly_spp: int | None = None,
-                      pilot: dict[str, Any] | None = None,
-                      pass_samples: int = PASS_SAMPLES) -> tuple[np.ndarray | None, dict[str, Any]]:
+def clean_truth_probe(
+    scene: Any,
+    position: np.ndarray,
+    rotation: np.ndarray,
+    height: int,
+    spp: int,
+    *,
+    seed: int,
+    noise_target_db: float | None,
+    max_spp: int,
+    sun: np.ndarray | None = None,
+    glint: np.ndarray | None = None,
+    firefly_k: float = 10.0,
+    firefly_spp: int | None = None,
+    pilot: dict[str, Any] | None = None,
+    pass_samples: int = PASS_SAMPLES,
+) -> tuple[np.ndarray | None, dict[str, Any]]:
     """A truth probe whose noise reaches ``noise_target_db`` where ``max_spp`` allows (recipe version 3).
 
     A pilot of ``spp`` samples (:func:`render_truth_probe`, ``seed``) measures the probe's noise; when
@@ -174,8 +214,9 @@ def clean_truth_probe(scene: Any, position: np.ndarray, rotation: np.ndarray, he
     record : the kept render's record (:func:`render_truth_probe`) plus ``version`` 3, ``base_spp``,
         ``noise_target_db``, ``max_spp`` and ``pilot`` (its ``spp`` and ``noise_psnr_db``).
     """
-    kw: dict[str, Any] = dict(sun=sun, glint=glint, firefly_k=firefly_k, firefly_spp=firefly_spp,
-                              pass_samples=pass_samples)
+    kw: dict[str, Any] = dict(
+        sun=sun, glint=glint, firefly_k=firefly_k, firefly_spp=firefly_spp, pass_samples=pass_samples
+    )
     img: np.ndarray | None = None
     if pilot is None:
         img, record = render_truth_probe(scene, position, rotation, height, spp, seed=seed, **kw)
@@ -185,6 +226,11 @@ def clean_truth_probe(scene: Any, position: np.ndarray, rotation: np.ndarray, he
     n = needed_spp(record["noise_psnr_db"], spp, noise_target_db, max_spp)
     if n is not None:
         img, record = render_truth_probe(scene, position, rotation, height, n, seed=derive_seed(seed, 1000), **kw)
-    record.update(version=TRUTH_RENDER_VERSION, base_spp=int(spp), noise_target_db=noise_target_db,
-                  max_spp=int(max_spp), pilot=first)
+    record.update(
+        version=TRUTH_RENDER_VERSION,
+        base_spp=int(spp),
+        noise_target_db=noise_target_db,
+        max_spp=int(max_spp),
+        pilot=first,
+    )
     return img, record

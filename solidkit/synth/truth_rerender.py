@@ -34,8 +34,9 @@ import json
 import logging
 import math
 import os
+from collections.abc import Callable
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any
 
 import numpy as np
 
@@ -43,8 +44,14 @@ from solidkit.envmap import read_exr, tonemap
 from solidkit.envmap.resample import resize
 from solidkit.errors import InputError
 from solidkit.fsutil import atomic_write_text
-from solidkit.synth.campaign import (SCENE_FILE, SETTINGS_FILE, probe_exr_meta, scene_block, scene_lighting,
-                                     write_truth_exr)
+from solidkit.synth.campaign import (
+    SCENE_FILE,
+    SETTINGS_FILE,
+    probe_exr_meta,
+    scene_block,
+    scene_lighting,
+    write_truth_exr,
+)
 from solidkit.synth.campaign_truth import CampaignConfig, SceneTruth, TruthError, load_truth
 from solidkit.synth.mitsuba_variant import mitsuba, variant
 from solidkit.synth.sample import Generator, SampleConfig, derive_seed
@@ -98,12 +105,15 @@ def _rebuild(mi: Any, gen: Generator, st: SceneTruth, seed: int, cfg: CampaignCo
         if not _same(json.loads(json.dumps(light.meta, default=float)), st.lighting):
             problems.append("lighting")
         sun_ok = (light.sun is None) == (st.sun_scene is None) and (
-            light.sun is None or float(np.asarray(light.sun) @ np.asarray(st.sun_scene)) > math.cos(math.radians(1e-3)))
+            light.sun is None or float(np.asarray(light.sun) @ np.asarray(st.sun_scene)) > math.cos(math.radians(1e-3))
+        )
         if not sun_ok:
             problems.append("sun direction")
     if problems:
-        raise InputError(f"{st.id}: this solidkit does not rebuild the scene the campaign was rendered from "
-                         f"({', '.join(problems)} differ); truth left unchanged")
+        raise InputError(
+            f"{st.id}: this solidkit does not rebuild the scene the campaign was rendered from "
+            f"({', '.join(problems)} differ); truth left unchanged"
+        )
     return {"scene": to_mitsuba(block, light.emitter()), "cam": cam, "light": light, "glass": glass, "s": s}
 
 
@@ -113,23 +123,34 @@ def read_campaign(campaign: str | os.PathLike) -> tuple[dict[str, Any], Any]:
     root = Path(campaign)
     settings_path, truth_path = root / "truth" / SETTINGS_FILE, root / "truth" / "truth.json"
     if not settings_path.is_file() or not truth_path.is_file():
-        raise InputError(f"{root}: not a complete virtual campaign (needs truth/{SETTINGS_FILE} and truth/truth.json "
-                         "from 'solidkit synth campaign')")
+        raise InputError(
+            f"{root}: not a complete virtual campaign (needs truth/{SETTINGS_FILE} and truth/truth.json "
+            "from 'solidkit synth campaign')"
+        )
     try:
         settings = json.loads(settings_path.read_text())
         truth = load_truth(truth_path)
     except (OSError, ValueError, TruthError) as exc:
         raise InputError(f"{root}: unreadable campaign truth ({str(exc).splitlines()[0]})") from None
     if not isinstance(settings, dict) or settings.get("seed") != truth.seed:
-        raise InputError(f"{settings_path}: seed {settings.get('seed') if isinstance(settings, dict) else None} "
-                         f"is not truth.json's seed {truth.seed}")
+        raise InputError(
+            f"{settings_path}: seed {settings.get('seed') if isinstance(settings, dict) else None} "
+            f"is not truth.json's seed {truth.seed}"
+        )
     return settings, truth
 
 
-def rerender_truth(campaign: str | os.PathLike, *, spp: int | None = None, noise_db: float | None = None,
-                   max_spp: int | None = None, scenes: list[str] | None = None, min_check_db: float = 25.0,
-                   pass_samples: int = PASS_SAMPLES,
-                   progress: Callable[[str, str, str], None] | None = None) -> dict[str, Any]:
+def rerender_truth(
+    campaign: str | os.PathLike,
+    *,
+    spp: int | None = None,
+    noise_db: float | None = None,
+    max_spp: int | None = None,
+    scenes: list[str] | None = None,
+    min_check_db: float = 25.0,
+    pass_samples: int = PASS_SAMPLES,
+    progress: Callable[[str, str, str], None] | None = None,
+) -> dict[str, Any]:
     """Re-render the truth probes of ``campaign`` (module doc) with the recipe of :func:`clean_truth_probe`.
 
     Parameters
@@ -152,7 +173,6 @@ def rerender_truth(campaign: str | os.PathLike, *, spp: int | None = None, noise
     """
     import time
 
-
     root = Path(campaign)
     truth_dir = root / "truth"
     settings_path, truth_path = truth_dir / SETTINGS_FILE, truth_dir / "truth.json"
@@ -168,8 +188,15 @@ def rerender_truth(campaign: str | os.PathLike, *, spp: int | None = None, noise
     known = {st.id for st in truth.scenes}
     if wanted and not wanted <= known:
         raise InputError(f"{root}: no scene {', '.join(sorted(wanted - known))} (scenes: {', '.join(sorted(known))})")
-    scfg = SampleConfig(width=cfg.photo_width, height=cfg.photo_height, hfov_deg=cfg.hfov_deg, candidates=cfg.candidates,
-                        p_sunsky=cfg.p_sunsky, probe_height=cfg.probe_height, block_length=cfg.block_length)
+    scfg = SampleConfig(
+        width=cfg.photo_width,
+        height=cfg.photo_height,
+        hfov_deg=cfg.hfov_deg,
+        candidates=cfg.candidates,
+        p_sunsky=cfg.p_sunsky,
+        probe_height=cfg.probe_height,
+        block_length=cfg.block_length,
+    )
     gen = Generator(truth.seed, scfg)
     target = noise_db or None
     mi = None
@@ -183,8 +210,12 @@ def rerender_truth(campaign: str | os.PathLike, *, spp: int | None = None, noise
         return base, max(base, max_spp)
 
     def up_to_date(rec: dict[str, Any], base: int, cap: int) -> bool:
-        return (rec.get("version") == TRUTH_RENDER_VERSION and rec.get("base_spp") == base
-                and rec.get("noise_target_db") == target and rec.get("max_spp") == cap)
+        return (
+            rec.get("version") == TRUTH_RENDER_VERSION
+            and rec.get("base_spp") == base
+            and rec.get("noise_target_db") == target
+            and rec.get("max_spp") == cap
+        )
 
     new_scenes = []
     for st0 in truth.scenes:
@@ -212,14 +243,35 @@ def rerender_truth(campaign: str | os.PathLike, *, spp: int | None = None, noise
             pseed = derive_seed(truth.seed, built["s"], 200 + c)
             # the stored probe is this recipe's first render when it was made at `base` spp with this seed
             fspp = cfg.pano_spp * base // spp  # the captures' samples per pixel (glass: times the factor)
-            pilot = rec if (rec.get("version", 1) >= 4 and rec.get("spp") == base and rec.get("seed") == pseed
-                            and rec.get("firefly_spp") == fspp and rec.get("noise_psnr_db") is not None
-                            and exr.is_file()) else None
+            pilot = (
+                rec
+                if (
+                    rec.get("version", 1) >= 4
+                    and rec.get("spp") == base
+                    and rec.get("seed") == pseed
+                    and rec.get("firefly_spp") == fspp
+                    and rec.get("noise_psnr_db") is not None
+                    and exr.is_file()
+                )
+                else None
+            )
             glint = None if ct.glint_body is None else np.asarray(ct.R_scene_from_body) @ np.asarray(ct.glint_body)
-            img, record = clean_truth_probe(built["scene"], np.asarray(ct.position), built["cam"].pano_rotation,
-                                            cfg.probe_height, base, seed=pseed, noise_target_db=target, max_spp=cap,
-                                            sun=built["light"].sun, glint=glint, firefly_k=cfg.firefly_k,
-                                            firefly_spp=fspp, pilot=pilot, pass_samples=pass_samples)
+            img, record = clean_truth_probe(
+                built["scene"],
+                np.asarray(ct.position),
+                built["cam"].pano_rotation,
+                cfg.probe_height,
+                base,
+                seed=pseed,
+                noise_target_db=target,
+                max_spp=cap,
+                sun=built["light"].sun,
+                glint=glint,
+                firefly_k=cfg.firefly_k,
+                firefly_spp=fspp,
+                pilot=pilot,
+                pass_samples=pass_samples,
+            )
             old, _ = read_exr(exr)
             if img is None:  # the stored render is kept: only its record changes
                 what, img, check = "kept", old[..., :3], rec.get("check_psnr_db")
@@ -227,43 +279,72 @@ def rerender_truth(campaign: str | os.PathLike, *, spp: int | None = None, noise
             else:
                 what, check = "rendered", round(check_psnr_db(img, old[..., :3]), 2)
                 if check < min_check_db:
-                    raise InputError(f"{st.id}/{ct.id}: the re-rendered truth probe disagrees with the stored one "
-                                     f"({check:.1f} dB < {min_check_db:g} dB at 1/4 size): not the scene the captures "
-                                     "show; truth left unchanged")
-                record.update(previous={"spp": rec.get("spp", cfg.probe_spp * base // spp),
-                                        "version": rec.get("version", 1),
-                                        "noise_psnr_db": rec.get("noise_psnr_db")},
-                              check_psnr_db=check,
-                              rendered_utc=dt.datetime.now(dt.timezone.utc).isoformat(timespec="seconds"))
+                    raise InputError(
+                        f"{st.id}/{ct.id}: the re-rendered truth probe disagrees with the stored one "
+                        f"({check:.1f} dB < {min_check_db:g} dB at 1/4 size): not the scene the captures "
+                        "show; truth left unchanged"
+                    )
+                record.update(
+                    previous={
+                        "spp": rec.get("spp", cfg.probe_spp * base // spp),
+                        "version": rec.get("version", 1),
+                        "noise_psnr_db": rec.get("noise_psnr_db"),
+                    },
+                    check_psnr_db=check,
+                    rendered_utc=dt.datetime.now(dt.timezone.utc).isoformat(timespec="seconds"),
+                )
                 seconds += time.perf_counter() - t0
             write_truth_exr(exr, img, probe_exr_meta(st.id, ct.id, record))
             ct.probe.render = record
             atomic_write_text(marker, st.model_dump_json(indent=1))  # after the EXR: a killed run redoes this probe
             counts[what] += 1
-            probes.append({"scene": st.id, "probe": ct.id, "what": what, "spp": record["spp"],
-                           "noise_psnr_db": record["noise_psnr_db"], "pilot": record["pilot"], "check_psnr_db": check,
-                           "fireflies_replaced": record["fireflies_replaced"],
-                           "seconds": round(time.perf_counter() - t0, 1)})
-            log.info("%s/%s: %s, %d spp, noise %.1f dB (first render %.1f dB), %.1f s", st.id, ct.id, what,
-                     record["spp"], record["noise_psnr_db"], record["pilot"]["noise_psnr_db"], time.perf_counter() - t0)
+            probes.append(
+                {
+                    "scene": st.id,
+                    "probe": ct.id,
+                    "what": what,
+                    "spp": record["spp"],
+                    "noise_psnr_db": record["noise_psnr_db"],
+                    "pilot": record["pilot"],
+                    "check_psnr_db": check,
+                    "fireflies_replaced": record["fireflies_replaced"],
+                    "seconds": round(time.perf_counter() - t0, 1),
+                }
+            )
+            log.info(
+                "%s/%s: %s, %d spp, noise %.1f dB (first render %.1f dB), %.1f s",
+                st.id,
+                ct.id,
+                what,
+                record["spp"],
+                record["noise_psnr_db"],
+                record["pilot"]["noise_psnr_db"],
+                time.perf_counter() - t0,
+            )
             if progress:
                 progress(st.id, ct.id, what)
         new_scenes.append(st)
-    done_all = all(up_to_date(ct.probe.render or {}, *plan(st))
-                   for st in new_scenes for ct in st.captures if ct.probe is not None)
+    done_all = all(
+        up_to_date(ct.probe.render or {}, *plan(st)) for st in new_scenes for ct in st.captures if ct.probe is not None
+    )
     wanted_cfg = {"probe_spp": spp, "probe_noise_db": noise_db, "probe_max_spp": max_spp}
-    recorded = (all(getattr(cfg, k) == v for k, v in wanted_cfg.items())
-                and (truth.renderer.get("truth_probes") or {}).get("version") == TRUTH_RENDER_VERSION)
+    recorded = (
+        all(getattr(cfg, k) == v for k, v in wanted_cfg.items())
+        and (truth.renderer.get("truth_probes") or {}).get("version") == TRUTH_RENDER_VERSION
+    )
     changed = counts["rendered"] + counts["kept"]
     if changed or (done_all and not recorded):
         new_truth = truth.model_copy(update={"scenes": new_scenes})
         if done_all:
             new_truth.config = cfg.model_copy(update=wanted_cfg)
             renderer = dict(truth.renderer)
-            renderer["truth_probes"] = {"version": TRUTH_RENDER_VERSION, **wanted_cfg,
-                                        "glass_spp_factor": cfg.glass_spp_factor,
-                                        "mitsuba": mi.__version__ if mi is not None else truth.renderer.get("mitsuba"),
-                                        "variant": variant() if mi is not None else truth.renderer.get("variant")}
+            renderer["truth_probes"] = {
+                "version": TRUTH_RENDER_VERSION,
+                **wanted_cfg,
+                "glass_spp_factor": cfg.glass_spp_factor,
+                "mitsuba": mi.__version__ if mi is not None else truth.renderer.get("mitsuba"),
+                "variant": variant() if mi is not None else truth.renderer.get("variant"),
+            }
             new_truth.renderer = renderer
         text = new_truth.model_dump_json(indent=1)
         if text != truth_path.read_text():
@@ -271,5 +352,13 @@ def rerender_truth(campaign: str | os.PathLike, *, spp: int | None = None, noise
         if done_all and any(settings.get("config", {}).get(k) != v for k, v in wanted_cfg.items()):
             settings["config"].update(wanted_cfg)
             atomic_write_text(settings_path, json.dumps(settings, indent=1))
-    return {"campaign": str(root), "spp": spp, "noise_db": noise_db, "max_spp": max_spp, **counts, "complete": done_all,
-            "seconds_per_probe": seconds / counts["rendered"] if counts["rendered"] else None, "probes": probes}
+    return {
+        "campaign": str(root),
+        "spp": spp,
+        "noise_db": noise_db,
+        "max_spp": max_spp,
+        **counts,
+        "complete": done_all,
+        "seconds_per_probe": seconds / counts["rendered"] if counts["rendered"] else None,
+        "probes": probes,
+    }

@@ -17,10 +17,21 @@ from solidkit.synth.scene import CityBlock
 __all__ = ["best_views"]
 
 
-def best_views(block: CityBlock, scene: Any, rng: np.random.Generator, K: np.ndarray, width: int, height: int, *,
-               candidates: int = 16, min_categories: int = 3, max_object_share: float = 0.35,
-               min_sky: float = 0.05, item_size: tuple[int, int] = (64, 48),
-               sectors: tuple[int, ...] = (0, 1, 2, 3, 4, 5)) -> list[tuple[Camera, dict[str, Any]]]:
+def best_views(
+    block: CityBlock,
+    scene: Any,
+    rng: np.random.Generator,
+    K: np.ndarray,
+    width: int,
+    height: int,
+    *,
+    candidates: int = 16,
+    min_categories: int = 3,
+    max_object_share: float = 0.35,
+    min_sky: float = 0.05,
+    item_size: tuple[int, int] = (64, 48),
+    sectors: tuple[int, ...] = (0, 1, 2, 3, 4, 5),
+) -> list[tuple[Camera, dict[str, Any]]]:
     """The best camera of each sector and its selection stats (coverage, categories, tries).
 
     When no candidate of a sector qualifies, the one with the most categories (less its largest
@@ -42,8 +53,11 @@ def best_views(block: CityBlock, scene: Any, rng: np.random.Generator, K: np.nda
             ok = ncat >= min_categories and largest <= max_object_share and 1.0 - cov >= min_sky
             key = (ok, cov if ok else float(ncat) - largest, ncat)
             if best is None or key > best[0]:
-                best = (key, cam, {"coverage": cov, "categories": ncat, "largest_object_share": largest,
-                                   "accepted": ok})
+                best = (
+                    key,
+                    cam,
+                    {"coverage": cov, "categories": ncat, "largest_object_share": largest, "accepted": ok},
+                )
         assert best is not None
         best[2]["candidates"] = candidates
         out.append((best[1], best[2]))

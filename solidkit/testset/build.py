@@ -50,6 +50,7 @@ from typing import Any, cast
 import cv2
 import numpy as np
 
+from solidkit import __version__
 from solidkit.align.schema import (
     CampaignAlignment,
     ProbeAlignment,
@@ -61,18 +62,21 @@ from solidkit.align.schema import (
 )
 from solidkit.calibration.camera import resize_crop
 from solidkit.capture.manifest import Manifest, load_manifest
+from solidkit.document import read_json_object, validate_versioned
 from solidkit.envmap.coords import CONVENTIONS_VERSION, direction_from_angles, solid_angle
 from solidkit.envmap.io import imread, read_exr, read_ldr, write_exr, write_ldr
 from solidkit.envmap.resample import rotate
 from solidkit.errors import InputError
 from solidkit.flags import Flag, FlagCode
 from solidkit.fsutil import atomic_path, sha256_file
+from solidkit.labeling.store import LabelStore, store_path
 from solidkit.testset.schema import (
     FORMAT,
+    GPS,
     MODEL_INPUT_SIZE,
     PROBE_SIZE,
+    SCHEMA_VERSION,
     SOURCE_RANK,
-    GPS,
     Alignment,
     CameraCapture,
     Cue,
@@ -90,10 +94,6 @@ from solidkit.testset.schema import (
     canonical_json,
     content_version,
 )
-from solidkit import __version__
-from solidkit.document import read_json_object, validate_versioned
-from solidkit.labeling.store import LabelStore, store_path
-from solidkit.testset.schema import SCHEMA_VERSION
 
 __all__ = ["BuildReport", "build_testset", "load_testset", "pixel_to_model", "Candidate", "choose", "merge_flags"]
 
@@ -159,10 +159,23 @@ class _Labels:
         lab = self.labels.get((kind, key))
         if lab is None:
             return None
-        self.used[(kind, key)] = {"kind": kind, "key": key, "value": lab.value, "source": lab.source,
-                                  "annotator": lab.annotator, "version": lab.version, "flags": list(lab.flags)}
-        return Candidate(value(lab.value), lab.source, lab.annotator if lab.source != "auto" else None, lab.version,
-                         tuple(lab.flags), True)
+        self.used[(kind, key)] = {
+            "kind": kind,
+            "key": key,
+            "value": lab.value,
+            "source": lab.source,
+            "annotator": lab.annotator,
+            "version": lab.version,
+            "flags": list(lab.flags),
+        }
+        return Candidate(
+            value(lab.value),
+            lab.source,
+            lab.annotator if lab.source != "auto" else None,
+            lab.version,
+            tuple(lab.flags),
+            True,
+        )
 
     def digest(self) -> str | None:
         if not self.present:
@@ -174,7 +187,9 @@ class _Labels:
 # --------------------------------------------------------------------------- geometry helpers
 def pixel_to_model(pixel_full: tuple[float, float], K_full: np.ndarray, K_model: np.ndarray) -> tuple[float, float]:
     """The 320x240 pixel showing the same ray as ``pixel_full``: ``K_model K_full⁻¹ (x, y, 1)``."""
-    p = np.asarray(K_model, np.float64) @ np.linalg.solve(np.asarray(K_full, np.float64), [pixel_full[0], pixel_full[1], 1.0])
+    p = np.asarray(K_model, np.float64) @ np.linalg.solve(
+        np.asarray(K_full, np.float64), [pixel_full[0], pixel_full[1], 1.0]
+    )
     return float(p[0] / p[2]), float(p[1] / p[2])
 
 
@@ -202,14 +217,26 @@ class BuildReport:
     changed: bool = True
 
     def to_json(self) -> dict[str, Any]:
-        return {"out": str(self.out), "dataset_version": self.dataset_version, "scenes": self.scenes, "probes": self.probes,
-                "hdr_probes": self.hdr_probes, "sun_found": self.sun_found, "labels_used": self.labels_used,
-                "overrides": self.overrides, "excluded": self.excluded, "warnings": self.warnings, "changed": self.changed}
+        return {
+            "out": str(self.out),
+            "dataset_version": self.dataset_version,
+            "scenes": self.scenes,
+            "probes": self.probes,
+            "hdr_probes": self.hdr_probes,
+            "sun_found": self.sun_found,
+            "labels_used": self.labels_used,
+            "overrides": self.overrides,
+            "excluded": self.excluded,
+            "warnings": self.warnings,
+            "changed": self.changed,
+        }
 
 
 # --------------------------------------------------------------------------- the builder
 class _Builder:
-    def __init__(self, campaign: Path, staging: Path, manifest: Manifest, alignment: CampaignAlignment, report: BuildReport):
+    def __init__(
+        self, campaign: Path, staging: Path, manifest: Manifest, alignment: CampaignAlignment, report: BuildReport
+    ):
         self.campaign = campaign
         self.root = staging
         self.manifest = manifest
@@ -281,11 +308,23 @@ class _Builder:
         self.report.hdr_probes += sum(p.hdr is not None for p in probes)
         self.report.sun_found += int(sun.found)
         return Scene(
-            id=sid, photo=f"{d}/photo.png", photo_full=photo_full, photo_size=MODEL_INPUT_SIZE,
-            photo_full_size=(int(image.shape[1]), int(image.shape[0])), crop_box=tuple(int(v) for v in box),
-            K=K_model.tolist(), K_full=K_full.tolist(), K_source=photo.K_source or "unknown",
-            pitch_deg=float(photo.pitch_deg or 0.0), roll_deg=float(photo.roll_deg or 0.0), heading_deg=photo.heading_deg,
-            sun=sun, camera=camera, probes=probes, capture=self.photo_capture(photo.sha256, photo.heading_deg), flags=flags,
+            id=sid,
+            photo=f"{d}/photo.png",
+            photo_full=photo_full,
+            photo_size=MODEL_INPUT_SIZE,
+            photo_full_size=(int(image.shape[1]), int(image.shape[0])),
+            crop_box=tuple(int(v) for v in box),
+            K=K_model.tolist(),
+            K_full=K_full.tolist(),
+            K_source=photo.K_source or "unknown",
+            pitch_deg=float(photo.pitch_deg or 0.0),
+            roll_deg=float(photo.roll_deg or 0.0),
+            heading_deg=photo.heading_deg,
+            sun=sun,
+            camera=camera,
+            probes=probes,
+            capture=self.photo_capture(photo.sha256, photo.heading_deg),
+            flags=flags,
             notes=self._scene_notes(sid),
         )
 
@@ -300,16 +339,26 @@ class _Builder:
         md = shot.metadata if shot else {}
         gps = md.get("gps") or None
         return PhotoCapture(
-            original_sha256=sha, time_local=md.get("datetime_original"), utc_offset=md.get("utc_offset"),
+            original_sha256=sha,
+            time_local=md.get("datetime_original"),
+            utc_offset=md.get("utc_offset"),
             gps=GPS(lat_deg=gps["lat_deg"], lon_deg=gps["lon_deg"], alt_m=gps.get("alt_m")) if gps else None,
-            make=md.get("make"), model=md.get("model"),
+            make=md.get("make"),
+            model=md.get("model"),
             exposure=Exposure(exposure_time_s=md.get("exposure_time"), f_number=md.get("f_number"), iso=md.get("iso")),
-            focal_length_mm=md.get("focal_length_mm"), heading_deg=heading if heading is not None else md.get("heading_deg"),
+            focal_length_mm=md.get("focal_length_mm"),
+            heading_deg=heading if heading is not None else md.get("heading_deg"),
         )
 
     # -- per capture
-    def capture(self, sid: str, pa: ProbeAlignment, K_full: np.ndarray, K_model: np.ndarray,
-                yaws: dict[str, tuple[float, Candidate, float | None]]) -> Probe | CameraCapture | None:
+    def capture(
+        self,
+        sid: str,
+        pa: ProbeAlignment,
+        K_full: np.ndarray,
+        K_model: np.ndarray,
+        yaws: dict[str, tuple[float, Candidate, float | None]],
+    ) -> Probe | CameraCapture | None:
         key = f"{sid}/{pa.id}"
         auto_yaw = None if pa.yaw_deg is None else Candidate(float(pa.yaw_deg), pa.yaw_source, None, None, (), False)
         yaw = choose(auto_yaw, self.labels.candidate("heading", key, lambda v: float(v["yaw_deg"])))
@@ -317,7 +366,9 @@ class _Builder:
             self.report.excluded.append(f"{key}: no yaw (not aligned, no heading label)")
             return None
         if pa.yaw_deg is None:
-            self.report.excluded.append(f"{key}: heading labeled but align wrote no aligned products; re-run solidkit align")
+            self.report.excluded.append(
+                f"{key}: heading labeled but align wrote no aligned products; re-run solidkit align"
+            )
             return None
         delta = wrap_deg(yaw.value - pa.yaw_deg)
         yaws[pa.id] = (float(yaw.value), yaw, delta)
@@ -331,11 +382,16 @@ class _Builder:
             self.report.excluded.append(f"{key}: {exc}")
             return None
         human_yaw = yaw.from_store and yaw.source in ("annotator", "reviewed")
-        flags = merge_flags(_drop(pa.flags, ("yaw", "heading", "cue", "residual")) if human_yaw else pa.flags, yaw.flags)
+        flags = merge_flags(
+            _drop(pa.flags, ("yaw", "heading", "cue", "residual")) if human_yaw else pa.flags, yaw.flags
+        )
         alignment = Alignment(
-            yaw_deg=float(yaw.value), residual_deg=pa.residual_deg,
+            yaw_deg=float(yaw.value),
+            residual_deg=pa.residual_deg,
             cues={k: Cue(yaw_deg=c.yaw_deg, weight=c.weight, ok=c.ok) for k, c in sorted(pa.cues.items())},
-            source=yaw.source, annotator=yaw.annotator, flags=flags,
+            source=yaw.source,
+            annotator=yaw.annotator,
+            flags=flags,
         )
         cap = self.probe_capture(sid, pa.id)
         if pa.role == "camera":
@@ -353,10 +409,21 @@ class _Builder:
             return None
         pixel = pixel_to_model(px.value, K_full, K_model)
         return Probe(
-            id=pa.id, pixel=pixel, pixel_full=px.value, pixel_source=px.source, pixel_annotator=px.annotator,
-            ldr=images.ldr, hdr=images.hdr, rotation=rotation.tolist(), alignment=alignment, images=images, capture=cap,
-            flags=merge_flags(_drop(flags, ("pixel",)) if px.from_store and px.source in ("annotator", "reviewed") else flags,
-                              px.flags),
+            id=pa.id,
+            pixel=pixel,
+            pixel_full=px.value,
+            pixel_source=px.source,
+            pixel_annotator=px.annotator,
+            ldr=images.ldr,
+            hdr=images.hdr,
+            rotation=rotation.tolist(),
+            alignment=alignment,
+            images=images,
+            capture=cap,
+            flags=merge_flags(
+                _drop(flags, ("pixel",)) if px.from_store and px.source in ("annotator", "reviewed") else flags,
+                px.flags,
+            ),
             note=self._probe_note(sid, pa.id),
         )
 
@@ -372,9 +439,14 @@ class _Builder:
         prod = pa.products
         out: dict[str, str | None] = {}
         R = level_to_pano(delta) if abs(delta) > 1e-9 else None
-        for name, rel, kind in (("ldr", prod.ldr_256, "ldr"), ("ldr_full", prod.ldr_full, "ldr"),
-                                ("hdr", prod.hdr_256, "hdr"), ("hdr_full", prod.hdr_full, "hdr"),
-                                ("saturation", prod.saturation_256, "mask"), ("saturation_full", prod.saturation_full, "mask")):
+        for name, rel, kind in (
+            ("ldr", prod.ldr_256, "ldr"),
+            ("ldr_full", prod.ldr_full, "ldr"),
+            ("hdr", prod.hdr_256, "hdr"),
+            ("hdr_full", prod.hdr_full, "hdr"),
+            ("saturation", prod.saturation_256, "mask"),
+            ("saturation_full", prod.saturation_full, "mask"),
+        ):
             if rel is None:
                 out[name] = None
                 continue
@@ -399,18 +471,27 @@ class _Builder:
             raise InputError(f"align wrote no aligned {missing} product")
         ldr = imread(self.root / out["ldr"])
         if ldr.shape[:2] != (PROBE_SIZE[1], PROBE_SIZE[0]):
-            raise InputError(f"aligned ldr_256 is {ldr.shape[1]}x{ldr.shape[0]}, expected {PROBE_SIZE[0]}x{PROBE_SIZE[1]}")
+            raise InputError(
+                f"aligned ldr_256 is {ldr.shape[1]}x{ldr.shape[0]}, expected {PROBE_SIZE[0]}x{PROBE_SIZE[1]}"
+            )
         full = imread(self.root / out["ldr_full"])
         for name, size in (("saturation", ldr), ("saturation_full", full)):
             if out[name] is None:  # align gave none: clipped LDR pixels
-                mask = (size.reshape(size.shape[0], size.shape[1], -1)[..., :3].max(axis=-1) >= SATURATION_LEVEL)
+                mask = size.reshape(size.shape[0], size.shape[1], -1)[..., :3].max(axis=-1) >= SATURATION_LEVEL
                 out[name] = f"{d}/{name}.png"
                 _write_u8(self.root / cast(str, out[name]), mask.astype(np.float32) * 255.0)
         sat = imread(self.root / cast(str, out["saturation"]))
         sat = sat if sat.ndim == 2 else sat[..., 0]
-        return ProbeImages(ldr=out["ldr"], ldr_full=out["ldr_full"], hdr=out["hdr"], hdr_full=out["hdr_full"],
-                           saturation=out["saturation"], saturation_full=out["saturation_full"],
-                           ldr_full_size=(int(full.shape[1]), int(full.shape[0])), saturated_fraction=_saturated_fraction(sat))
+        return ProbeImages(
+            ldr=out["ldr"],
+            ldr_full=out["ldr_full"],
+            hdr=out["hdr"],
+            hdr_full=out["hdr_full"],
+            saturation=out["saturation"],
+            saturation_full=out["saturation_full"],
+            ldr_full_size=(int(full.shape[1]), int(full.shape[0])),
+            saturated_fraction=_saturated_fraction(sat),
+        )
 
     def probe_capture(self, sid: str, pid: str) -> ProbeCapture:
         probe = None
@@ -424,20 +505,30 @@ class _Builder:
         hdr = self._product(sid, pid, "hdr")
         sun = self._product(sid, pid, "sun_frame")
         return ProbeCapture(
-            time_local=first.get("datetime_original"), camera_model=first.get("model"), shots=list(probe.shots),
+            time_local=first.get("datetime_original"),
+            camera_model=first.get("model"),
+            shots=list(probe.shots),
             bracket_exposures_s=[float(t) for t in (bracket.exposure_times if bracket else []) if t is not None],
-            bracket_f_number=hdr.f_number if hdr else None, bracket_iso=hdr.iso if hdr else None,
-            sun_frame_exposure=Exposure(exposure_time_s=sun.exposure_time, f_number=sun.f_number, iso=sun.iso) if sun else None,
-            recorded_pitch_deg=first.get("pitch_deg"), recorded_roll_deg=first.get("roll_deg"),
+            bracket_f_number=hdr.f_number if hdr else None,
+            bracket_iso=hdr.iso if hdr else None,
+            sun_frame_exposure=Exposure(exposure_time_s=sun.exposure_time, f_number=sun.f_number, iso=sun.iso)
+            if sun
+            else None,
+            recorded_pitch_deg=first.get("pitch_deg"),
+            recorded_roll_deg=first.get("roll_deg"),
         )
 
     # -- the sun
     def sun(self, sa: SceneAlignment, yaws: dict[str, tuple[float, Candidate, float | None]]) -> Sun:
         s = sa.sun
-        auto = Candidate((s.found, s.azimuth_deg, s.elevation_deg, s.uncertainty_deg), s.source, None, None, tuple(s.flags))
+        auto = Candidate(
+            (s.found, s.azimuth_deg, s.elevation_deg, s.uncertainty_deg), s.source, None, None, tuple(s.flags)
+        )
         label = self.labels.candidate(
-            "sun_scene", sa.id,
-            lambda v: (bool(v["found"]), v.get("azimuth_deg"), v.get("elevation_deg"), v.get("uncertainty_deg")))
+            "sun_scene",
+            sa.id,
+            lambda v: (bool(v["found"]), v.get("azimuth_deg"), v.get("elevation_deg"), v.get("uncertainty_deg")),
+        )
         win = choose(auto, label)
         assert win is not None  # auto is always a candidate
         found, az, el, unc = win.value
@@ -447,11 +538,21 @@ class _Builder:
         if found:
             direction = [float(v) for v in direction_from_angles(math.radians(az), math.radians(el))]
         # the low-exposure panorama: the capture whose sun entered the consensus best (camera first)
-        found_caps = sorted((c for c in s.captures if c.found and c.probe in yaws),
-                            key=lambda c: (c.probe != sa.camera_probe, c.uncertainty_deg if c.uncertainty_deg is not None else 1e9, c.probe))
+        found_caps = sorted(
+            (c for c in s.captures if c.found and c.probe in yaws),
+            key=lambda c: (
+                c.probe != sa.camera_probe,
+                c.uncertainty_deg if c.uncertainty_deg is not None else 1e9,
+                c.probe,
+            ),
+        )
         pick = found_caps[0].probe if found_caps else (sa.camera_probe if sa.camera_probe in yaws else None)
         panorama = exposure = None
-        flags = list(win.flags) if win.from_store and win.source != "auto" else merge_flags(auto.flags, label.flags if label else ())
+        flags = (
+            list(win.flags)
+            if win.from_store and win.source != "auto"
+            else merge_flags(auto.flags, label.flags if label else ())
+        )
         if pick is not None:
             prod = self._product(sa.id, pick, "sun_frame")
             if prod is None:
@@ -464,16 +565,29 @@ class _Builder:
                     panorama = f"scenes/{sa.id}/sun_panorama.png"
                     write_ldr(self.root / panorama, rotate(pano, level_to_pano(yaws[pick][0]), "linear"))
                     exposure = Exposure(exposure_time_s=prod.exposure_time, f_number=prod.f_number, iso=prod.iso)
-        return Sun(found=bool(found), azimuth_deg=float(az) if found else None, elevation_deg=float(el) if found else None,
-                   uncertainty_deg=None if unc is None else float(unc), direction=direction, source=win.source,
-                   annotator=win.annotator, label_version=win.label_version, flags=flags, panorama=panorama,
-                   panorama_capture=pick if panorama else None, panorama_exposure=exposure)
+        return Sun(
+            found=bool(found),
+            azimuth_deg=float(az) if found else None,
+            elevation_deg=float(el) if found else None,
+            uncertainty_deg=None if unc is None else float(unc),
+            direction=direction,
+            source=win.source,
+            annotator=win.annotator,
+            label_version=win.label_version,
+            flags=flags,
+            panorama=panorama,
+            panorama_capture=pick if panorama else None,
+            panorama_exposure=exposure,
+        )
 
     # -- profiles
     def profiles(self) -> list[ProfileRef]:
         """Every calibration profile the campaign's products were made with, copied by content hash."""
-        refs = [self._profile("response", self.manifest.response),
-                self._profile("lens", self.manifest.lens_profile), self._profile("vignetting", self.manifest.vignetting)]
+        refs = [
+            self._profile("response", self.manifest.response),
+            self._profile("lens", self.manifest.lens_profile),
+            self._profile("vignetting", self.manifest.vignetting),
+        ]
         if self.manifest.lens_profile is None:  # the camera models' shipped profiles, as the products record them
             names = sorted({str(p.stats["profile"]) for p in self.manifest.products if p.stats.get("profile")})
             refs += [self._profile("lens", {"kind": "shipped", "name": n}) for n in names]
@@ -486,8 +600,13 @@ class _Builder:
         if kind == "file":
             src = self._src(entry.get("path"), f"{role} profile")
             sha = sha256_file(src)
-            return ProfileRef(role=role, kind="file", name=Path(entry.get("path", "")).name, sha256=sha,
-                              path=self._copy(src, f"profiles/{sha}{src.suffix}"))
+            return ProfileRef(
+                role=role,
+                kind="file",
+                name=Path(entry.get("path", "")).name,
+                sha256=sha,
+                path=self._copy(src, f"profiles/{sha}{src.suffix}"),
+            )
         if kind == "shipped":
             from importlib import resources
 
@@ -536,7 +655,9 @@ def _check_out(out: Path, campaign: Path) -> None:
         except (OSError, ValueError, AttributeError):
             fmt = None
         if fmt != FORMAT:
-            raise InputError(f"{out}: exists and is not a solidkit test set (no {MANIFEST_FILE}); refusing to overwrite it")
+            raise InputError(
+                f"{out}: exists and is not a solidkit test set (no {MANIFEST_FILE}); refusing to overwrite it"
+            )
 
 
 def load_testset(root: str | os.PathLike) -> TestSet:
@@ -545,12 +666,21 @@ def load_testset(root: str | os.PathLike) -> TestSet:
     if not path.is_file():
         raise InputError(f"{root}: not a test set (no {MANIFEST_FILE})")
     data = read_json_object(path, InputError, "test set manifest")
-    return validate_versioned(path, data, TestSet, kind_key="format", kind=FORMAT, version_key="version",
-                              version=SCHEMA_VERSION, what="test set manifest")
+    return validate_versioned(
+        path,
+        data,
+        TestSet,
+        kind_key="format",
+        kind=FORMAT,
+        version_key="version",
+        version=SCHEMA_VERSION,
+        what="test set manifest",
+    )
 
 
-def build_testset(campaign: str | os.PathLike, out: str | os.PathLike, *,
-                  log: Callable[[str], None] | None = None) -> BuildReport:
+def build_testset(
+    campaign: str | os.PathLike, out: str | os.PathLike, *, log: Callable[[str], None] | None = None
+) -> BuildReport:
     """Build the test set of ``campaign`` into ``out`` (see the module docstring); returns a :class:`BuildReport`."""
     campaign, out = Path(campaign), Path(out)
     if not (campaign / "manifest.json").is_file():
@@ -583,8 +713,15 @@ def _exclusive(out: Path) -> Iterator[None]:
             fcntl.flock(fh, fcntl.LOCK_UN)
 
 
-def _build(campaign: Path, out: Path, manifest: Manifest, alignment: CampaignAlignment, manifest_sha: str,
-           report: BuildReport, log: Callable[[str], None] | None) -> BuildReport:
+def _build(
+    campaign: Path,
+    out: Path,
+    manifest: Manifest,
+    alignment: CampaignAlignment,
+    manifest_sha: str,
+    report: BuildReport,
+    log: Callable[[str], None] | None,
+) -> BuildReport:
     for stale in out.parent.glob(f".{out.name}.build-*"):  # left by a killed build
         shutil.rmtree(stale, ignore_errors=True)
     staging = Path(tempfile.mkdtemp(prefix=f".{out.name}.build-", dir=out.parent))
@@ -603,11 +740,18 @@ def _build(campaign: Path, out: Path, manifest: Manifest, alignment: CampaignAli
         labels_sha = b.labels.digest()
         report.labels_used = len(b.labels.used)
         ts = TestSet(
-            conventions_version=CONVENTIONS_VERSION, solidkit_version=__version__,
-            inputs=Inputs(campaign=campaign.resolve().name, manifest_sha256=manifest_sha,
-                          alignment_sha256=sha256_file(campaign / "align" / "alignment.json"),
-                          labels_sha256=labels_sha, labels_used=len(b.labels.used)),
-            profiles=profiles, scenes=scenes, files=_files(staging),
+            conventions_version=CONVENTIONS_VERSION,
+            solidkit_version=__version__,
+            inputs=Inputs(
+                campaign=campaign.resolve().name,
+                manifest_sha256=manifest_sha,
+                alignment_sha256=sha256_file(campaign / "align" / "alignment.json"),
+                labels_sha256=labels_sha,
+                labels_used=len(b.labels.used),
+            ),
+            profiles=profiles,
+            scenes=scenes,
+            files=_files(staging),
         )
         ts.dataset_version = content_version(ts)
         report.dataset_version = ts.dataset_version

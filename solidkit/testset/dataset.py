@@ -56,8 +56,14 @@ class TestsetDataset(torch.utils.data.Dataset):
     ALL = ("image", "probes", "probes_ldr", "saturation", "global")
     __test__ = False
 
-    def __init__(self, root: str | os.PathLike, *, fields: Iterable[str] | None = None, scenes: Iterable[str] | None = None,
-                 max_probes: int | None = None) -> None:
+    def __init__(
+        self,
+        root: str | os.PathLike,
+        *,
+        fields: Iterable[str] | None = None,
+        scenes: Iterable[str] | None = None,
+        max_probes: int | None = None,
+    ) -> None:
         self.root = Path(root)
         self.testset = load_testset(self.root)
         self.scenes = list(self.testset.scenes)
@@ -72,7 +78,9 @@ class TestsetDataset(torch.utils.data.Dataset):
         bad = set(self.fields) - set(self.ALL)
         if bad:
             raise InputError(f"unknown fields {sorted(bad)}; choose from {self.ALL}")
-        self.max_probes = int(max_probes) if max_probes is not None else max((len(s.probes) for s in self.scenes), default=0)
+        self.max_probes = (
+            int(max_probes) if max_probes is not None else max((len(s.probes) for s in self.scenes), default=0)
+        )
         self.dataset_version = self.testset.dataset_version
 
     def __len__(self) -> int:
@@ -84,7 +92,11 @@ class TestsetDataset(torch.utils.data.Dataset):
         s = self.scenes[i]
         P, (w, h) = self.max_probes, PROBE_SIZE
         probes = s.probes[:P]
-        item: dict[str, Any] = {"index": i, "scene": s.id, "probe_ids": [p.id for p in probes] + [""] * (P - len(probes))}
+        item: dict[str, Any] = {
+            "index": i,
+            "scene": s.id,
+            "probe_ids": [p.id for p in probes] + [""] * (P - len(probes)),
+        }
         if "image" in self.fields:
             item["image"] = chw_tensor(read_ldr(self.root / s.photo))
         hdr_valid = np.zeros(P, np.float32)
@@ -120,7 +132,9 @@ class TestsetDataset(torch.utils.data.Dataset):
         item["probe_valid"] = torch.from_numpy(valid)
         item["probe_hdr_valid"] = torch.from_numpy(hdr_valid)
         sun = s.sun
-        item["sun"] = torch.tensor(sun.direction if sun.found and sun.direction else [0.0, 0.0, 0.0], dtype=torch.float32)
+        item["sun"] = torch.tensor(
+            sun.direction if sun.found and sun.direction else [0.0, 0.0, 0.0], dtype=torch.float32
+        )
         item["sun_found"] = torch.tensor(float(sun.found))
         item["sun_uncertainty_deg"] = torch.tensor(float("nan") if sun.uncertainty_deg is None else sun.uncertainty_deg)
         item["K"] = torch.tensor(s.K, dtype=torch.float32)

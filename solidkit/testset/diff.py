@@ -55,7 +55,9 @@ class TestsetDiff:
         out += [f"+ scene {s}" for s in self.scenes_added] + [f"- scene {s}" for s in self.scenes_removed]
         out += [f"+ probe {p}" for p in self.probes_added] + [f"- probe {p}" for p in self.probes_removed]
         out += [f"~ {c['what']} {c['where']}: {c['detail']}" for c in self.changes]
-        out.append(f"files: {len(self.files_changed)} changed, {len(self.files_added)} added, {len(self.files_removed)} removed")
+        out.append(
+            f"files: {len(self.files_changed)} changed, {len(self.files_added)} added, {len(self.files_removed)} removed"
+        )
         return out
 
 
@@ -68,7 +70,9 @@ def _rot_angle(a, b) -> float:
     return math.degrees(math.acos(float(np.clip((np.trace(R) - 1.0) / 2.0, -1.0, 1.0))))
 
 
-def diff_testsets(old: str | os.PathLike, new: str | os.PathLike, *, tol_deg: float = 1e-6, tol_px: float = 1e-6) -> TestsetDiff:
+def diff_testsets(
+    old: str | os.PathLike, new: str | os.PathLike, *, tol_deg: float = 1e-6, tol_px: float = 1e-6
+) -> TestsetDiff:
     """Compare the test sets at ``old`` and ``new`` (see the module docstring)."""
     a, b = load_testset(Path(old)), load_testset(Path(new))
     d = TestsetDiff(a.dataset_version, b.dataset_version)
@@ -79,12 +83,20 @@ def diff_testsets(old: str | os.PathLike, new: str | os.PathLike, *, tol_deg: fl
         s0, s1 = sa[sid], sb[sid]
         u0, u1 = _sun_dir(s0.sun), _sun_dir(s1.sun)
         if (u0 is None) != (u1 is None):
-            d.changes.append({"what": "sun", "where": sid, "detail": f"found {s0.sun.found} -> {s1.sun.found} ({s1.sun.source})"})
+            d.changes.append(
+                {"what": "sun", "where": sid, "detail": f"found {s0.sun.found} -> {s1.sun.found} ({s1.sun.source})"}
+            )
         elif u0 is not None:
             ang = math.degrees(float(angular_distance(u0, u1)))
             if ang > tol_deg or s0.sun.source != s1.sun.source:
-                d.changes.append({"what": "sun", "where": sid, "angle_deg": ang,
-                                  "detail": f"moved {ang:.3f} deg ({s0.sun.source} -> {s1.sun.source})"})
+                d.changes.append(
+                    {
+                        "what": "sun",
+                        "where": sid,
+                        "angle_deg": ang,
+                        "detail": f"moved {ang:.3f} deg ({s0.sun.source} -> {s1.sun.source})",
+                    }
+                )
         p0, p1 = {p.id: p for p in s0.probes}, {p.id: p for p in s1.probes}
         d.probes_added += [f"{sid}/{p}" for p in sorted(set(p1) - set(p0))]
         d.probes_removed += [f"{sid}/{p}" for p in sorted(set(p0) - set(p1))]
@@ -92,12 +104,24 @@ def diff_testsets(old: str | os.PathLike, new: str | os.PathLike, *, tol_deg: fl
             q0, q1 = p0[pid], p1[pid]
             dist = float(np.hypot(q1.pixel_full[0] - q0.pixel_full[0], q1.pixel_full[1] - q0.pixel_full[1]))
             if dist > tol_px or q0.pixel_source != q1.pixel_source:
-                d.changes.append({"what": "pixel", "where": f"{sid}/{pid}", "distance_px": dist,
-                                  "detail": f"moved {dist:.2f} px ({q0.pixel_source} -> {q1.pixel_source})"})
+                d.changes.append(
+                    {
+                        "what": "pixel",
+                        "where": f"{sid}/{pid}",
+                        "distance_px": dist,
+                        "detail": f"moved {dist:.2f} px ({q0.pixel_source} -> {q1.pixel_source})",
+                    }
+                )
             ang = _rot_angle(q0.rotation, q1.rotation)
             if ang > tol_deg or q0.alignment.source != q1.alignment.source:
-                d.changes.append({"what": "rotation", "where": f"{sid}/{pid}", "angle_deg": ang,
-                                  "detail": f"turned {ang:.3f} deg ({q0.alignment.source} -> {q1.alignment.source})"})
+                d.changes.append(
+                    {
+                        "what": "rotation",
+                        "where": f"{sid}/{pid}",
+                        "angle_deg": ang,
+                        "detail": f"turned {ang:.3f} deg ({q0.alignment.source} -> {q1.alignment.source})",
+                    }
+                )
             if sorted(q0.flags) != sorted(q1.flags):
                 d.changes.append({"what": "flags", "where": f"{sid}/{pid}", "detail": f"{q0.flags} -> {q1.flags}"})
     fa, fb = a.files, b.files

@@ -29,9 +29,7 @@ from __future__ import annotations
 import hashlib
 import json
 import math
-from typing import Any, Final, Literal
-
-from typing import Annotated
+from typing import Annotated, Any, Final, Literal
 
 from pydantic import AfterValidator, BaseModel, ConfigDict, Field, field_validator
 
@@ -72,7 +70,6 @@ Source = Literal["auto", "field_notes", "annotator", "reviewed"]
 SOURCE_RANK: dict[str, int] = {"auto": 0, "field_notes": 1, "annotator": 2, "reviewed": 3}
 
 
-
 def _check_matrix3(value: list[list[float]]) -> list[list[float]]:
     if len(value) != 3 or any(len(row) != 3 for row in value):
         raise ValueError("must be a 3x3 matrix (3 rows of 3 numbers)")
@@ -87,7 +84,6 @@ Pixel = tuple[float, float]
 
 class _Model(BaseModel):
     model_config = ConfigDict(extra="forbid")
-
 
 
 class FileEntry(_Model):
@@ -122,7 +118,9 @@ class PhotoCapture(_Model):
     model: str | None = None
     exposure: Exposure = Field(default_factory=Exposure)
     focal_length_mm: float | None = None
-    heading_deg: float | None = Field(None, description="compass heading of the optical axis (EXIF GPSImgDirection), from north")
+    heading_deg: float | None = Field(
+        None, description="compass heading of the optical axis (EXIF GPSImgDirection), from north"
+    )
 
 
 class ProbeCapture(_Model):
@@ -143,15 +141,21 @@ class Sun(_Model):
     """The sun in the photo's panorama frame, or ``found = false`` (overcast, occluded, night)."""
 
     found: bool
-    azimuth_deg: float | None = Field(None, description="conventions §3: 0 = forward, positive to the right, [-180, 180)")
+    azimuth_deg: float | None = Field(
+        None, description="conventions §3: 0 = forward, positive to the right, [-180, 180)"
+    )
     elevation_deg: float | None = Field(None, description="above the horizon, degrees")
     uncertainty_deg: float | None = Field(None, description="1-sigma angular uncertainty, degrees")
-    direction: list[float] | None = Field(None, description="unit vector (x right, y down, z forward) of azimuth/elevation")
+    direction: list[float] | None = Field(
+        None, description="unit vector (x right, y down, z forward) of azimuth/elevation"
+    )
     source: Source = Field(description="provenance: auto (detector), field_notes, annotator or reviewed")
     annotator: str | None = None
     label_version: int | None = Field(None, description="version of the label in the campaign's label store")
     flags: list[str] = Field(default_factory=list, description="open problems (a label still flagged for review, ...)")
-    panorama: str | None = Field(None, description="the low-exposure panorama it was labeled on, in the photo's panorama frame")
+    panorama: str | None = Field(
+        None, description="the low-exposure panorama it was labeled on, in the photo's panorama frame"
+    )
     panorama_capture: str | None = Field(None, description="id of the Theta position whose sun frame that is")
     panorama_exposure: Exposure | None = None
 
@@ -177,7 +181,9 @@ class Alignment(_Model):
     yaw_deg: float | None = Field(None, description="yaw of the capture's level frame in the photo's panorama frame")
     residual_deg: float | None = Field(None, description="disagreement of the cues with the chosen rotation, degrees")
     cues: dict[str, Cue] = Field(default_factory=dict)
-    source: Source = Field("auto", description="who set the rotation (a heading label in the store overrides the auto value)")
+    source: Source = Field(
+        "auto", description="who set the rotation (a heading label in the store overrides the auto value)"
+    )
     annotator: str | None = None
     flags: list[str] = Field(default_factory=list)
 
@@ -192,7 +198,9 @@ class ProbeImages(_Model):
     saturation: str = Field(description="256x128 mask PNG: 255 where the LDR probe is clipped")
     saturation_full: str
     ldr_full_size: tuple[int, int] = Field(description="width, height of ldr_full")
-    saturated_fraction: float = Field(ge=0.0, le=1.0, description="solid-angle-weighted share of clipped pixels (256x128)")
+    saturated_fraction: float = Field(
+        ge=0.0, le=1.0, description="solid-angle-weighted share of clipped pixels (256x128)"
+    )
 
 
 class Probe(_Model):
@@ -213,7 +221,6 @@ class Probe(_Model):
     note: str | None = None
 
 
-
 class CameraCapture(_Model):
     """The Theta capture at the photo camera's position (global lighting), aligned like a probe."""
 
@@ -224,27 +231,29 @@ class CameraCapture(_Model):
     capture: ProbeCapture = Field(default_factory=ProbeCapture)
 
 
-
 class Scene(_Model):
     id: str
     photo: str = Field(description="path of the photo at the model input size (320x240 PNG)")
     photo_full: str = Field(description="path of the original photo (byte-identical copy)")
     photo_size: tuple[int, int] = Field(description="width, height of photo")
     photo_full_size: tuple[int, int] = Field(description="width, height of photo_full")
-    crop_box: tuple[int, int, int, int] = Field(description="x0, y0, width, height of the centre crop in photo_full before resizing")
+    crop_box: tuple[int, int, int, int] = Field(
+        description="x0, y0, width, height of the centre crop in photo_full before resizing"
+    )
     K: Matrix3 = Field(description="3x3 intrinsics of photo (OpenCV pixel centres)")
     K_full: Matrix3 = Field(description="3x3 intrinsics of photo_full")
     K_source: str = Field(description="where K_full came from (camera profile, EXIF route, ...)")
     pitch_deg: float = Field(description="photo camera pitch in its panorama frame (conventions §4)")
     roll_deg: float
-    heading_deg: float | None = Field(None, description="compass heading of the panorama frame's forward axis, from true north")
+    heading_deg: float | None = Field(
+        None, description="compass heading of the panorama frame's forward axis, from true north"
+    )
     sun: Sun
     camera: CameraCapture | None = Field(None, description="the capture at the photo camera's position, if any")
     probes: list[Probe]
     capture: PhotoCapture
     flags: list[str] = Field(default_factory=list)
     notes: str | None = None
-
 
 
 class ProfileRef(_Model):
@@ -263,7 +272,9 @@ class Inputs(_Model):
     campaign: str = Field(description="the campaign folder's name")
     manifest_sha256: str
     alignment_sha256: str
-    labels_sha256: str | None = Field(None, description="SHA-256 of the label store's canonical export; null without a store")
+    labels_sha256: str | None = Field(
+        None, description="SHA-256 of the label store's canonical export; null without a store"
+    )
     labels_used: int = 0
 
 

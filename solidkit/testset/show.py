@@ -13,8 +13,8 @@ import html
 import math
 import os
 import textwrap
+from collections.abc import Callable
 from pathlib import Path
-from typing import Callable
 
 import cv2
 import numpy as np
@@ -33,13 +33,22 @@ PANO_SCALE = 2  # 256x128 probes drawn at 512x256
 PHOTO_W = 640
 SUN_COLOUR = (0, 215, 255)  # BGR: amber
 FOV_COLOUR = (255, 255, 0)  # cyan
-PROBE_COLOURS = [(60, 76, 231), (113, 204, 46), (219, 152, 52), (15, 196, 241), (182, 89, 155), (34, 126, 230),
-                 (160, 160, 160), (94, 73, 52)]
+PROBE_COLOURS = [
+    (60, 76, 231),
+    (113, 204, 46),
+    (219, 152, 52),
+    (15, 196, 241),
+    (182, 89, 155),
+    (34, 126, 230),
+    (160, 160, 160),
+    (94, 73, 52),
+]
 FONT = cv2.FONT_HERSHEY_SIMPLEX
 
 
-def fov_outline(K: np.ndarray, size: tuple[int, int], pitch_deg: float, roll_deg: float, height: int,
-                samples: int = 64) -> list[np.ndarray]:
+def fov_outline(
+    K: np.ndarray, size: tuple[int, int], pitch_deg: float, roll_deg: float, height: int, samples: int = 64
+) -> list[np.ndarray]:
     """The photo's border as polylines in an equirect image of ``height`` (pixel coordinates).
 
     Border pixels ``(x, y)`` -> rays ``R K⁻¹ (x, y, 1)`` with ``R = R(0, pitch, roll)`` -> continuous
@@ -80,8 +89,11 @@ def _label(img: np.ndarray, text: str, org: tuple[int, int], colour=(255, 255, 2
 
 def _pano_panel(img: np.ndarray, scene: Scene, title: str, colour=(255, 255, 255), width: int = 512) -> np.ndarray:
     h = width // 2
-    pano = cv2.resize(img[..., :3] if img.ndim == 3 else cv2.cvtColor(img, cv2.COLOR_GRAY2BGR), (width, h),
-                      interpolation=cv2.INTER_AREA if img.shape[1] > width else cv2.INTER_NEAREST)
+    pano = cv2.resize(
+        img[..., :3] if img.ndim == 3 else cv2.cvtColor(img, cv2.COLOR_GRAY2BGR),
+        (width, h),
+        interpolation=cv2.INTER_AREA if img.shape[1] > width else cv2.INTER_NEAREST,
+    )
     shift = 4  # sub-pixel drawing
     for line in fov_outline(np.asarray(scene.K), scene.photo_size, scene.pitch_deg, scene.roll_deg, h):
         cv2.polylines(pano, [np.round(line * (1 << shift)).astype(np.int32)], False, FOV_COLOUR, 1, cv2.LINE_AA, shift)
@@ -108,14 +120,24 @@ def scene_sheet(root: Path, scene: Scene) -> np.ndarray:
     cv2.rectangle(ph, (int(x0 * s), int(y0 * s)), (int((x0 + cw) * s) - 1, int((y0 + chh) * s) - 1), FOV_COLOUR, 1)
     for k, p in enumerate(scene.probes):
         col = PROBE_COLOURS[k % len(PROBE_COLOURS)]
-        c = (int(round(scale_pixel_coordinates(p.pixel_full[0], s))), int(round(scale_pixel_coordinates(p.pixel_full[1], s))))
+        c = (
+            int(round(scale_pixel_coordinates(p.pixel_full[0], s))),
+            int(round(scale_pixel_coordinates(p.pixel_full[1], s))),
+        )
         cv2.circle(ph, c, 7, col, 2, cv2.LINE_AA)
         _label(ph, str(k + 1), (c[0] + 9, c[1] - 6), col, 0.6)
     sun = scene.sun
-    sun_txt = (f"sun az {sun.azimuth_deg:.1f} el {sun.elevation_deg:.1f} +-{sun.uncertainty_deg or 0:.1f} deg ({sun.source})"
-               if sun.found else f"no sun ({sun.source})")
+    sun_txt = (
+        f"sun az {sun.azimuth_deg:.1f} el {sun.elevation_deg:.1f} +-{sun.uncertainty_deg or 0:.1f} deg ({sun.source})"
+        if sun.found
+        else f"no sun ({sun.source})"
+    )
     head = np.zeros((44, PHOTO_W, 3), np.uint8)
-    _label(head, f"{scene.id}: {len(scene.probes)} probes, pitch {scene.pitch_deg:.1f} roll {scene.roll_deg:.1f} deg", (4, 17))
+    _label(
+        head,
+        f"{scene.id}: {len(scene.probes)} probes, pitch {scene.pitch_deg:.1f} roll {scene.roll_deg:.1f} deg",
+        (4, 17),
+    )
     _label(head, sun_txt, (4, 37), SUN_COLOUR)
     left = [head, ph]
     flags = sorted(set(scene.flags) | set(sun.flags) | {f for p in scene.probes for f in p.flags})
@@ -127,18 +149,34 @@ def scene_sheet(root: Path, scene: Scene) -> np.ndarray:
         left.append(bar)
     panels = []
     if sun.panorama:
-        panels.append(_pano_panel(imread(root / sun.panorama), scene, f"sun panorama ({sun.panorama_capture}, low exposure)", SUN_COLOUR))
+        panels.append(
+            _pano_panel(
+                imread(root / sun.panorama), scene, f"sun panorama ({sun.panorama_capture}, low exposure)", SUN_COLOUR
+            )
+        )
     if scene.camera is not None:
-        panels.append(_pano_panel(imread(root / scene.camera.images.ldr), scene, f"camera position ({scene.camera.id})"))
+        panels.append(
+            _pano_panel(imread(root / scene.camera.images.ldr), scene, f"camera position ({scene.camera.id})")
+        )
     for k, p in enumerate(scene.probes):
         res = p.alignment.residual_deg
-        title = (f"{k + 1}: {p.id} px ({p.pixel[0]:.0f},{p.pixel[1]:.0f}) {p.pixel_source}, yaw {p.alignment.yaw_deg:.1f}"
-                 + (f" res {res:.2f}" if res is not None else "") + f" {p.alignment.source}" + (" HDR" if p.hdr else ""))
+        title = (
+            f"{k + 1}: {p.id} px ({p.pixel[0]:.0f},{p.pixel[1]:.0f}) {p.pixel_source}, yaw {p.alignment.yaw_deg:.1f}"
+            + (f" res {res:.2f}" if res is not None else "")
+            + f" {p.alignment.source}"
+            + (" HDR" if p.hdr else "")
+        )
         panels.append(_pano_panel(imread(root / p.ldr), scene, title, PROBE_COLOURS[k % len(PROBE_COLOURS)]))
     left_img = np.vstack(left)
     cols = 2
-    rows = [np.hstack(panels[i:i + cols] + [np.zeros_like(panels[0])] * (cols - len(panels[i:i + cols])))
-            for i in range(0, len(panels), cols)] if panels else [np.zeros((1, 1024, 3), np.uint8)]
+    rows = (
+        [
+            np.hstack(panels[i : i + cols] + [np.zeros_like(panels[0])] * (cols - len(panels[i : i + cols])))
+            for i in range(0, len(panels), cols)
+        ]
+        if panels
+        else [np.zeros((1, 1024, 3), np.uint8)]
+    )
     right = np.vstack(rows)
     height = max(left_img.shape[0], right.shape[0])
     pad = lambda a: np.vstack([a, np.zeros((height - a.shape[0], a.shape[1], 3), np.uint8)])  # noqa: E731
@@ -150,21 +188,32 @@ def _html(ts: TestSet, sheets: dict[str, str]) -> str:
     rows = []
     for s in ts.scenes:
         sun = s.sun
-        sun_txt = (f"{sun.azimuth_deg:.2f}, {sun.elevation_deg:.2f} ± {sun.uncertainty_deg or 0:.2f}°" if sun.found else "no sun")
+        sun_txt = (
+            f"{sun.azimuth_deg:.2f}, {sun.elevation_deg:.2f} ± {sun.uncertainty_deg or 0:.2f}°"
+            if sun.found
+            else "no sun"
+        )
         probes = "".join(
             f"<tr><td>{k + 1}</td><td>{e(p.id)}</td><td>{p.pixel[0]:.1f}, {p.pixel[1]:.1f}</td><td>{e(p.pixel_source)}</td>"
             f"<td>{p.alignment.yaw_deg:.2f}</td><td>{'' if p.alignment.residual_deg is None else f'{p.alignment.residual_deg:.2f}'}</td>"
             f"<td>{e(p.alignment.source)}</td><td>{'yes' if p.hdr else 'no'}</td><td>{100 * p.images.saturated_fraction:.2f} %</td>"
-            f"<td class=flag>{e(', '.join(p.flags))}</td></tr>" for k, p in enumerate(s.probes))
+            f"<td class=flag>{e(', '.join(p.flags))}</td></tr>"
+            for k, p in enumerate(s.probes)
+        )
         rows.append(
             f"<section id='{e(s.id)}'><h2>{e(s.id)}</h2>"
             f"<p>sun (photo panorama frame): <b>{e(sun_txt)}</b> — {e(sun.source)}"
             f"{' by ' + e(sun.annotator) if sun.annotator else ''}; pitch {s.pitch_deg:.2f}°, roll {s.roll_deg:.2f}°; "
             f"K from {e(s.K_source)}; photo {s.photo_full_size[0]}×{s.photo_full_size[1]}</p>"
-            + (f"<p class=flag>flags: {e(', '.join(sorted(set(s.flags) | set(sun.flags))))}</p>" if s.flags or sun.flags else "")
+            + (
+                f"<p class=flag>flags: {e(', '.join(sorted(set(s.flags) | set(sun.flags))))}</p>"
+                if s.flags or sun.flags
+                else ""
+            )
             + "<table><tr><th>#</th><th>probe</th><th>pixel (320×240)</th><th>pixel from</th><th>yaw °</th>"
             "<th>residual °</th><th>rotation from</th><th>HDR</th><th>clipped (solid angle)</th><th>flags</th></tr>"
-            f"{probes}</table><img src='{e(sheets[s.id])}' alt='contact sheet of {e(s.id)}'></section>")
+            f"{probes}</table><img src='{e(sheets[s.id])}' alt='contact sheet of {e(s.id)}'></section>"
+        )
     n_probes = sum(len(s.probes) for s in ts.scenes)
     return (
         "<!doctype html><html lang=en><head><meta charset=utf-8><title>test set "
@@ -174,8 +223,12 @@ def _html(ts: TestSet, sheets: dict[str, str]) -> str:
         f"<h1>Test set {e(ts.dataset_version)}</h1><p>{len(ts.scenes)} scenes, {n_probes} probes; campaign "
         f"{e(ts.inputs.campaign)}; schema v{ts.version}; solidkit {e(ts.solidkit_version)}. Cyan: the photo's field of "
         "view; amber: the sun (circle: its uncertainty).</p>"
-        + "<nav>" + " · ".join(f"<a href='#{e(s.id)}'>{e(s.id)}</a>" for s in ts.scenes) + "</nav>"
-        + "".join(rows) + "</body></html>\n")
+        + "<nav>"
+        + " · ".join(f"<a href='#{e(s.id)}'>{e(s.id)}</a>" for s in ts.scenes)
+        + "</nav>"
+        + "".join(rows)
+        + "</body></html>\n"
+    )
 
 
 def show_testset(root: str | os.PathLike, out: str | os.PathLike, *, log: Callable[[str], None] | None = None) -> Path:

@@ -81,5 +81,5 @@ def on_sky(mask: np.ndarray, x: float, y: float, radius: int = 2, share: float =
     """True when at least ``share`` of the ``(2 radius + 1)²`` pixels around ``(x, y)`` are sky."""
     h, w = mask.shape
     xi, yi = int(round(x)), int(round(y))
-    win = mask[max(0, yi - radius): min(h, yi + radius + 1), max(0, xi - radius): min(w, xi + radius + 1)]
+    win = mask[max(0, yi - radius) : min(h, yi + radius + 1), max(0, xi - radius) : min(w, xi + radius + 1)]
     return bool(win.size) and float(win.mean()) >= share

@@ -49,7 +49,15 @@ from solidkit.errors import InputError
 from solidkit.fsutil import atomic_path, atomic_write_text
 from solidkit.testset.build import load_testset
 
-__all__ = ["LOCAL_HEIGHT", "SUN_GRID", "sun_grid_position", "sun_angles", "export_sold_net", "SoldNetItem", "read_sold_net"]
+__all__ = [
+    "LOCAL_HEIGHT",
+    "SUN_GRID",
+    "sun_grid_position",
+    "sun_angles",
+    "export_sold_net",
+    "SoldNetItem",
+    "read_sold_net",
+]
 
 LOCAL_HEIGHT = 64  # 128x64 local maps
 SUN_GRID = (128, 32)  # columns, rows of the sun-position grid (upper hemisphere)
@@ -87,7 +95,9 @@ def export_sold_net(root: str | os.PathLike, dest: str | os.PathLike) -> dict[st
     if dest.resolve() == root.resolve() or root.resolve() in dest.resolve().parents:
         raise InputError(f"{dest}: write the export outside the test set (its files are checksummed)")
     if dest.exists() and (not dest.is_dir() or (any(dest.iterdir()) and not (dest / ITEMS_FILE).is_file())):
-        raise InputError(f"{dest}: exists and is not an earlier SOLD-Net export (no {ITEMS_FILE}); refusing to write there")
+        raise InputError(
+            f"{dest}: exists and is not an earlier SOLD-Net export (no {ITEMS_FILE}); refusing to write there"
+        )
     dest.mkdir(parents=True, exist_ok=True)
     for stale in dest.glob("[0-9][0-9][0-9]_*"):  # an earlier export: items are rewritten from scratch
         stale.unlink()
@@ -97,7 +107,9 @@ def export_sold_net(root: str | os.PathLike, dest: str | os.PathLike) -> dict[st
         photo = cv2.imread(str(root / scene.photo), cv2.IMREAD_COLOR)
         assert photo is not None, f"{root / scene.photo}: OpenCV could not read it"
         _write_image(dest / f"{xxx}_persp.JPG", photo, [cv2.IMWRITE_JPEG_QUALITY, JPEG_QUALITY])
-        pos = np.array([[int(round(p.pixel[1])), int(round(p.pixel[0]))] for p in scene.probes], dtype=np.int64).reshape(-1, 2)
+        pos = np.array(
+            [[int(round(p.pixel[1])), int(round(p.pixel[0]))] for p in scene.probes], dtype=np.int64
+        ).reshape(-1, 2)
         with atomic_path(dest / f"{xxx}_local.npy") as tmp:
             np.save(tmp, pos)
         sources = []
@@ -115,11 +127,19 @@ def export_sold_net(root: str | os.PathLike, dest: str | os.PathLike) -> dict[st
             atomic_write_text(dest / f"{xxx}_sun_pos.txt", f"{col:.6f}\n{row:.6f}\n")
         if len(scene.probes) < 2:
             skipped.append(xxx)
-        items[xxx] = {"scene": scene.id, "probes": [p.id for p in scene.probes], "local_sources": sources,
-                      "sun_found": scene.sun.found}
-    doc = {"format": "sold-net-real", "testset": ts.dataset_version, "items": items,
-           "skipped_by_sold_net_loader": skipped,
-           "note": "local_pos rows are (row, col) in the 320x240 photo; sun_pos is (col, row) on the 128x32 grid"}
+        items[xxx] = {
+            "scene": scene.id,
+            "probes": [p.id for p in scene.probes],
+            "local_sources": sources,
+            "sun_found": scene.sun.found,
+        }
+    doc = {
+        "format": "sold-net-real",
+        "testset": ts.dataset_version,
+        "items": items,
+        "skipped_by_sold_net_loader": skipped,
+        "note": "local_pos rows are (row, col) in the 320x240 photo; sun_pos is (col, row) on the 128x32 grid",
+    }
     atomic_write_text(dest / ITEMS_FILE, json.dumps(doc, indent=1, sort_keys=True) + "\n")
     return doc
 
@@ -169,11 +189,16 @@ def read_sold_net(folder: str | os.PathLike) -> list[SoldNetItem]:
         sun_file = folder / f"{xxx}_sun_pos.txt"
         sun = np.loadtxt(sun_file) if sun_file.is_file() else np.array([-1.0, -1.0])
         sunny = bool(sun[0] >= 0)
-        out.append(SoldNetItem(
-            id=xxx, persp=img[..., ::-1].astype(np.float32) / 255.0, local_pos=pos,
-            local_pano=np.stack(panos) if panos else np.zeros((0, LOCAL_HEIGHT, 2 * LOCAL_HEIGHT, 3), np.float32),
-            sun_pos=sun, is_sunny=sunny,
-            loadable=(folder / f"{xxx}_local_0.hdr").is_file() and (folder / f"{xxx}_local_1.hdr").is_file(),
-            sun_deg=sun_angles(float(sun[0]), float(sun[1])) if sunny else None,
-        ))
+        out.append(
+            SoldNetItem(
+                id=xxx,
+                persp=img[..., ::-1].astype(np.float32) / 255.0,
+                local_pos=pos,
+                local_pano=np.stack(panos) if panos else np.zeros((0, LOCAL_HEIGHT, 2 * LOCAL_HEIGHT, 3), np.float32),
+                sun_pos=sun,
+                is_sunny=sunny,
+                loadable=(folder / f"{xxx}_local_0.hdr").is_file() and (folder / f"{xxx}_local_1.hdr").is_file(),
+                sun_deg=sun_angles(float(sun[0]), float(sun[1])) if sunny else None,
+            )
+        )
     return out

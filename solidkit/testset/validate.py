@@ -78,7 +78,12 @@ class _Checker:
     def files(self) -> None:
         ts, root = self.ts, self.root
         if ts.dataset_version != content_version(ts):
-            self.add("files", None, MANIFEST_FILE, f"dataset_version {ts.dataset_version} is not the content hash {content_version(ts)}")
+            self.add(
+                "files",
+                None,
+                MANIFEST_FILE,
+                f"dataset_version {ts.dataset_version} is not the content hash {content_version(ts)}",
+            )
         for rel, entry in ts.files.items():
             p = root / rel
             if not p.is_file():
@@ -99,7 +104,12 @@ class _Checker:
             if prof.path and prof.path not in ts.files:
                 self.add("files", None, prof.path, "profile named but not listed in files")
             elif prof.path and prof.sha256 and ts.files[prof.path].sha256 != prof.sha256:
-                self.add("files", None, prof.path, f"{prof.role} profile {prof.name}: content hash differs from the one recorded")
+                self.add(
+                    "files",
+                    None,
+                    prof.path,
+                    f"{prof.role} profile {prof.name}: content hash differs from the one recorded",
+                )
 
     def _image(self, scene: str, rel: str | None, hdr: bool = False) -> np.ndarray | None:
         if rel is None or rel in self.bad_files:
@@ -114,22 +124,39 @@ class _Checker:
     def scene(self, s: Scene) -> None:
         photo = self._image(s.id, s.photo)
         if photo is not None and (photo.shape[1], photo.shape[0]) != MODEL_INPUT_SIZE:
-            self.add("images", s.id, s.photo, f"is {photo.shape[1]}x{photo.shape[0]}, expected {MODEL_INPUT_SIZE[0]}x{MODEL_INPUT_SIZE[1]}")
+            self.add(
+                "images",
+                s.id,
+                s.photo,
+                f"is {photo.shape[1]}x{photo.shape[0]}, expected {MODEL_INPUT_SIZE[0]}x{MODEL_INPUT_SIZE[1]}",
+            )
         full = self._image(s.id, s.photo_full)
         if full is not None and (full.shape[1], full.shape[0]) != tuple(s.photo_full_size):
-            self.add("images", s.id, s.photo_full, f"is {full.shape[1]}x{full.shape[0]}, recorded {s.photo_full_size[0]}x{s.photo_full_size[1]}")
+            self.add(
+                "images",
+                s.id,
+                s.photo_full,
+                f"is {full.shape[1]}x{full.shape[0]}, recorded {s.photo_full_size[0]}x{s.photo_full_size[1]}",
+            )
             full = None
         K, K_full = np.asarray(s.K), np.asarray(s.K_full)
         for name, M in (("K", K), ("K_full", K_full)):
             if not (M[0, 0] > 0 and M[1, 1] > 0 and abs(M[2, 2] - 1) < 1e-9 and not M[2, :2].any()):
-                self.add("geometry", s.id, MANIFEST_FILE, f"{name} is not an intrinsics matrix (positive focal lengths, last row 0 0 1)")
+                self.add(
+                    "geometry",
+                    s.id,
+                    MANIFEST_FILE,
+                    f"{name} is not an intrinsics matrix (positive focal lengths, last row 0 0 1)",
+                )
         sky = None
         if full is not None:
             rgb = full[..., ::-1] if full.ndim == 3 else np.repeat(full[..., None], 3, -1)
             sky = sky_mask(rgb, K_full, s.pitch_deg, s.roll_deg)
         captures = [(p.id, p.rotation, p.images, p.capture, p.alignment.flags) for p in s.probes]
         if s.camera is not None:
-            captures.append((s.camera.id, s.camera.rotation, s.camera.images, s.camera.capture, s.camera.alignment.flags))
+            captures.append(
+                (s.camera.id, s.camera.rotation, s.camera.images, s.camera.capture, s.camera.alignment.flags)
+            )
         for pid, rotation, images, capture, _ in captures:
             self.rotation(s.id, pid, rotation)
             self.images(s.id, pid, images)
@@ -143,10 +170,18 @@ class _Checker:
                 if v is not None and not (math.isfinite(v) and v > 0):
                     self.add("exposure", s.id, s.photo_full, f"photo {name} = {v} is not positive")
         if not self.allow_flagged:
-            for what, flags in ([("scene", s.flags), ("sun", s.sun.flags)] + [(f"probe {p.id}", p.flags) for p in s.probes]
-                                + ([("camera capture", s.camera.alignment.flags)] if s.camera else [])):
+            for what, flags in (
+                [("scene", s.flags), ("sun", s.sun.flags)]
+                + [(f"probe {p.id}", p.flags) for p in s.probes]
+                + ([("camera capture", s.camera.alignment.flags)] if s.camera else [])
+            ):
                 if flags:
-                    self.add("flags", s.id, MANIFEST_FILE, f"{what} still flagged: {', '.join(flags)} (review, or --allow-flagged)")
+                    self.add(
+                        "flags",
+                        s.id,
+                        MANIFEST_FILE,
+                        f"{what} still flagged: {', '.join(flags)} (review, or --allow-flagged)",
+                    )
 
     def rotation(self, sid: str, pid: str, rotation: list[list[float]]) -> None:
         R = np.asarray(rotation, np.float64)
@@ -159,16 +194,26 @@ class _Checker:
     def images(self, sid: str, pid: str, im) -> None:
         want = {"ldr": (PROBE_SIZE[1], PROBE_SIZE[0]), "ldr_full": (im.ldr_full_size[1], im.ldr_full_size[0])}
         shapes = {}
-        for name, rel, hdr in (("ldr", im.ldr, False), ("ldr_full", im.ldr_full, False), ("hdr", im.hdr, True),
-                               ("hdr_full", im.hdr_full, True), ("saturation", im.saturation, False),
-                               ("saturation_full", im.saturation_full, False)):
+        for name, rel, hdr in (
+            ("ldr", im.ldr, False),
+            ("ldr_full", im.ldr_full, False),
+            ("hdr", im.hdr, True),
+            ("hdr_full", im.hdr_full, True),
+            ("saturation", im.saturation, False),
+            ("saturation_full", im.saturation_full, False),
+        ):
             img = self._image(sid, rel, hdr)
             if img is None:
                 continue
             shapes[name] = img.shape[:2]
             expect = want["ldr_full" if name.endswith("_full") else "ldr"]
             if img.shape[:2] != expect:
-                self.add("images", sid, rel, f"{pid}: {name} is {img.shape[1]}x{img.shape[0]}, expected {expect[1]}x{expect[0]}")
+                self.add(
+                    "images",
+                    sid,
+                    rel,
+                    f"{pid}: {name} is {img.shape[1]}x{img.shape[0]}, expected {expect[1]}x{expect[0]}",
+                )
             if img.shape[1] != 2 * img.shape[0]:
                 self.add("images", sid, rel, f"{pid}: {name} is not an equirect panorama (width != 2 x height)")
             if hdr and not (np.isfinite(img).all() and (img >= 0).all()):
@@ -182,13 +227,23 @@ class _Checker:
         w, h = MODEL_INPUT_SIZE
         xs, ys = p.pixel
         if not (-0.5 <= xs <= w - 0.5 and -0.5 <= ys <= h - 0.5):
-            self.add("geometry", s.id, s.photo, f"{p.id}: pixel ({xs:.1f}, {ys:.1f}) outside the {w}x{h} photo (cropped away)")
+            self.add(
+                "geometry",
+                s.id,
+                s.photo,
+                f"{p.id}: pixel ({xs:.1f}, {ys:.1f}) outside the {w}x{h} photo (cropped away)",
+            )
         try:
             ex, ey = pixel_to_model(p.pixel_full, K_full, K)
         except np.linalg.LinAlgError:
             return
         if math.hypot(ex - xs, ey - ys) > PIXEL_TOL:
-            self.add("geometry", s.id, MANIFEST_FILE, f"{p.id}: pixel ({xs:.2f}, {ys:.2f}) is not pixel_full under K K_full⁻¹ ({ex:.2f}, {ey:.2f})")
+            self.add(
+                "geometry",
+                s.id,
+                MANIFEST_FILE,
+                f"{p.id}: pixel ({xs:.2f}, {ys:.2f}) is not pixel_full under K K_full⁻¹ ({ex:.2f}, {ey:.2f})",
+            )
         if sky is not None and 0 <= round(y) < sky.shape[0] and 0 <= round(x) < sky.shape[1] and on_sky(sky, x, y):
             self.add("geometry", s.id, s.photo_full, f"{p.id}: pixel ({x:.0f}, {y:.0f}) is on the sky")
 
@@ -202,18 +257,27 @@ class _Checker:
             self.add("geometry", s.id, MANIFEST_FILE, "sun found without azimuth/elevation")
             return
         if not (sun.elevation_deg > 0.0):
-            self.add("geometry", s.id, MANIFEST_FILE, f"sun elevation {sun.elevation_deg:.2f} deg is not above the horizon")
+            self.add(
+                "geometry", s.id, MANIFEST_FILE, f"sun elevation {sun.elevation_deg:.2f} deg is not above the horizon"
+            )
         if not -180.0 <= sun.azimuth_deg < 180.0:
             self.add("geometry", s.id, MANIFEST_FILE, f"sun azimuth {sun.azimuth_deg:.2f} deg outside [-180, 180)")
         if sun.uncertainty_deg is not None and not (math.isfinite(sun.uncertainty_deg) and sun.uncertainty_deg >= 0):
-            self.add("geometry", s.id, MANIFEST_FILE, f"sun uncertainty {sun.uncertainty_deg} is not a non-negative angle")
+            self.add(
+                "geometry", s.id, MANIFEST_FILE, f"sun uncertainty {sun.uncertainty_deg} is not a non-negative angle"
+            )
         if sun.direction is not None:
             d = np.asarray(direction_from_angles(math.radians(sun.azimuth_deg), math.radians(sun.elevation_deg)))
             v = np.asarray(sun.direction, np.float64)
             n = float(np.linalg.norm(v))
             ang = math.degrees(math.acos(float(np.clip(v @ d / n, -1, 1)))) if n > 0 else 180.0
             if abs(n - 1) > 1e-6 or ang > DIRECTION_TOL_DEG:
-                self.add("geometry", s.id, MANIFEST_FILE, f"sun direction disagrees with its azimuth/elevation by {ang:.3f} deg")
+                self.add(
+                    "geometry",
+                    s.id,
+                    MANIFEST_FILE,
+                    f"sun direction disagrees with its azimuth/elevation by {ang:.3f} deg",
+                )
 
     def exposure(self, sid: str, pid: str, cap) -> None:
         br = cap.bracket_exposures_s
@@ -225,10 +289,16 @@ class _Checker:
         sf = cap.sun_frame_exposure
         if sf is not None and sf.exposure_time_s is not None:
             if not (math.isfinite(sf.exposure_time_s) and sf.exposure_time_s > 0):
-                self.add("exposure", sid, MANIFEST_FILE, f"{pid}: sun frame exposure {sf.exposure_time_s} s is not positive")
+                self.add(
+                    "exposure", sid, MANIFEST_FILE, f"{pid}: sun frame exposure {sf.exposure_time_s} s is not positive"
+                )
             elif br and sf.exposure_time_s > min(br) * (1 + 1e-9):
-                self.add("exposure", sid, MANIFEST_FILE,
-                         f"{pid}: sun frame exposure {sf.exposure_time_s:.3g} s is longer than the bracket's shortest {min(br):.3g} s")
+                self.add(
+                    "exposure",
+                    sid,
+                    MANIFEST_FILE,
+                    f"{pid}: sun frame exposure {sf.exposure_time_s:.3g} s is longer than the bracket's shortest {min(br):.3g} s",
+                )
 
     def sun_panorama_exposure(self, s: Scene) -> None:
         sun = s.sun
@@ -239,9 +309,16 @@ class _Checker:
             caps[s.camera.id] = s.camera.capture
         cap = caps.get(sun.panorama_capture)
         if cap is None:
-            self.add("exposure", s.id, sun.panorama, f"sun panorama from capture {sun.panorama_capture!r}, which the scene lacks")
+            self.add(
+                "exposure",
+                s.id,
+                sun.panorama,
+                f"sun panorama from capture {sun.panorama_capture!r}, which the scene lacks",
+            )
         elif cap.sun_frame_exposure is not None and sun.panorama_exposure != cap.sun_frame_exposure:
-            self.add("exposure", s.id, sun.panorama, "sun panorama exposure differs from its capture's sun frame exposure")
+            self.add(
+                "exposure", s.id, sun.panorama, "sun panorama exposure differs from its capture's sun frame exposure"
+            )
 
 
 def _paths(scene: Scene) -> list[str]:

@@ -24,16 +24,19 @@ pytestmark = pytest.mark.slow
 @pytest.fixture(scope="module")
 def campaign(tmp_path_factory) -> tuple[Path, Path]:
     """synth campaign -> ingest -> align, each through the ``solidkit`` entry point (in-process)."""
+    import os
     import sys
 
     from solidkit.cli import main
 
-    import os
-
     root = tmp_path_factory.mktemp("align_mini")
     synth, camp = root / "virtual", root / "campaign"
-    steps = [["synth", "campaign", "--scenes", "1", "--probes", "3", "--out", str(synth), "--seed", "7", "--preset", "mini"]]
-    if os.environ.get("SOLIDKIT_ALIGN_SYNTH"):  # an already rendered virtual campaign (card/ + truth/), to save the render
+    steps = [
+        ["synth", "campaign", "--scenes", "1", "--probes", "3", "--out", str(synth), "--seed", "7", "--preset", "mini"]
+    ]
+    if os.environ.get(
+        "SOLIDKIT_ALIGN_SYNTH"
+    ):  # an already rendered virtual campaign (card/ + truth/), to save the render
         synth, steps = Path(os.environ["SOLIDKIT_ALIGN_SYNTH"]), []
     steps += [["ingest", str(synth / "card"), "-o", str(camp)], ["align", str(camp), "--json"]]
     argv = sys.argv
@@ -153,7 +156,9 @@ def test_a_probe_pixel_marked_a_tenth_of_the_photo_off_is_flagged(campaign, tmp_
     """The field notes' pixel of a probe moved by 10 % of the photo width: the geometry check flags it."""
     camp0, _ = campaign
     sa = load_alignment(camp0).scenes[0]
-    checked = [p for p in sa.probes if p.role == "probe" and p.pixel_geometry is not None and p.pixel_source == "field_notes"]
+    checked = [
+        p for p in sa.probes if p.role == "probe" and p.pixel_geometry is not None and p.pixel_source == "field_notes"
+    ]
     assert checked, "no probe with a geometric pixel check"
     assert not any(f.startswith("pixel_disagrees") for p in checked for f in p.flags)
     probe = checked[0]

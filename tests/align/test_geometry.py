@@ -88,8 +88,11 @@ def test_heading_convention() -> None:
 
 
 def test_fuse_cues_flags_the_odd_one() -> None:
-    cues = {"features": Cue(yaw_deg=10.1, sigma_deg=0.2, ok=True), "sun": Cue(yaw_deg=9.8, sigma_deg=0.3, ok=True),
-            "compass": Cue(yaw_deg=100.0, sigma_deg=8.0, ok=True)}  # a probe rotated 90 deg by mistake
+    cues = {
+        "features": Cue(yaw_deg=10.1, sigma_deg=0.2, ok=True),
+        "sun": Cue(yaw_deg=9.8, sigma_deg=0.3, ok=True),
+        "compass": Cue(yaw_deg=100.0, sigma_deg=8.0, ok=True),
+    }  # a probe rotated 90 deg by mistake
     f = fuse_cues(cues)
     assert abs(f.yaw_deg - 10.0) < 0.15
     assert not cues["compass"].ok and cues["features"].ok and cues["sun"].ok
@@ -140,7 +143,9 @@ def test_level_pose_baseline_sigma_is_calibrated() -> None:
         pts = np.c_[rng.uniform(-15, 15, 60), rng.uniform(-6, 0.5, 60), rng.uniform(-15, 15, 60)]
         c2 = np.array([rng.uniform(3, 8), 1.4, rng.uniform(-3, 3)])
         R2 = np.asarray(rotation_y(rng.uniform(-math.pi, math.pi)))
-        a = _unit(pts + rng.normal(scale=math.radians(0.05), size=pts.shape) * np.linalg.norm(pts, axis=1, keepdims=True))
+        a = _unit(
+            pts + rng.normal(scale=math.radians(0.05), size=pts.shape) * np.linalg.norm(pts, axis=1, keepdims=True)
+        )
         b = _unit((pts - c2) @ R2.T)
         fit = estimate_level_pose(a, b)
         assert fit is not None and fit.t_support >= 20 and math.isfinite(fit.t_sigma)

@@ -4,12 +4,12 @@ from __future__ import annotations
 
 import cv2
 
-from tests.support.testset_campaign import make_campaign
 from solidkit.align.pipeline import _write_labels
 from solidkit.align.report import write_report
 from solidkit.align.schema import load_alignment
 from solidkit.capture.manifest import load_manifest
 from solidkit.labeling.store import LabelStore
+from tests.support.testset_campaign import make_campaign
 
 
 def test_report_and_labels(tmp_path) -> None:

@@ -13,8 +13,15 @@ from solidkit.align.sky import relative_sky_yaw, sky_layer, without_sun_drift
 from solidkit.envmap.coords import angles_grid, direction_from_angles, direction_grid
 
 
-def _panorama(sun_az_deg: float, *, h: int = 256, sun_el_deg: float = 35.0, seed: int = 0, uniform: bool = False,
-              walls: tuple[tuple[float, float, float], ...] = ((-20.0, 70.0, 40.0), (150.0, 230.0, 25.0))) -> np.ndarray:
+def _panorama(
+    sun_az_deg: float,
+    *,
+    h: int = 256,
+    sun_el_deg: float = 35.0,
+    seed: int = 0,
+    uniform: bool = False,
+    walls: tuple[tuple[float, float, float], ...] = ((-20.0, 70.0, 40.0), (150.0, 230.0, 25.0)),
+) -> np.ndarray:
     """A level linear RGB panorama: a clear sky whose radiance rises toward the sun (hidden behind a
     wall) and toward the horizon (a Perez-like gradient), under noisy brownish walls
     ``(azimuth from, azimuth to, top elevation)`` in the capture's frame, and a grey ground."""
@@ -117,8 +124,14 @@ def test_links_without_an_anchor_average_the_group_compasses_leaving_each_own_ou
         assert out[n].sigma_deg == pytest.approx(5.0 / math.sqrt(2.0), rel=0.05)
         assert out[n].anchors == ()
     # a node linked to nothing gets no entry (its yaw would be its own compass)
-    lone = solve_links(["a", "d"], [Link(GROUND, "a", 0.0, 5.0, "compass"), Link(GROUND, "d", 3.0, 5.0, "compass"),
-                                    Link(GROUND, "a", 1.0, 0.5, "sky_via_cam")])
+    lone = solve_links(
+        ["a", "d"],
+        [
+            Link(GROUND, "a", 0.0, 5.0, "compass"),
+            Link(GROUND, "d", 3.0, 5.0, "compass"),
+            Link(GROUND, "a", 1.0, 0.5, "sky_via_cam"),
+        ],
+    )
     assert "d" not in lone and lone["a"].yaw_deg == pytest.approx(1.0)
     # a node nothing ties to the ground (no compass, no link) does not stop the others
     free = solve_links(["a", "e"], [Link(GROUND, "a", 0.0, 5.0, "compass"), Link(GROUND, "a", 1.0, 0.5, "sky_via_cam")])
@@ -134,8 +147,9 @@ def test_a_real_cloudy_sky_gives_a_known_yaw(real_data):
 
     img = read_exr(real_data / "hdr_panoramas" / "city.exr")[0][..., :3].astype(np.float32)
     a = rotate(img, np.eye(3), "linear", 512)
-    b = 0.5 * rotate(img, np.asarray(rotation_from_ypr(math.radians(-37.3), math.radians(0.1), math.radians(-0.1))),
-                     "linear", 512)
+    b = 0.5 * rotate(
+        img, np.asarray(rotation_from_ypr(math.radians(-37.3), math.radians(0.1), math.radians(-0.1))), "linear", 512
+    )
     az, el = angles_grid(512)
     for a0, top in ((10.0, 30.0), (150.0, 40.0)):
         b[(((np.degrees(az) - a0) % 360.0) <= 40.0) & (el < np.radians(top))] = (0.1, 0.08, 0.06)

@@ -11,12 +11,42 @@ import pytest
 from solidkit.align.captures import Capture
 from solidkit.align.ephemeris import DRIFT_HOURS, at_photo_time, hours_apart
 from solidkit.align.geometry import LevelPoseFit
-from solidkit.align.pipeline import (AlignSettings, CaptureView, ProbePixel, capture_yaw, clock_mismatch, compass_cue,
-                                     explain_rejections, probe_pixel)
-from solidkit.align.schema import (Cue, Ephemeris, Levelling, PhotoInfo, ProbeAlignment, SceneSun, CaptureSun,
-                                   SunCandidate, photo_azimuth_from_solar, solar_azimuth_from_photo, wrap_deg)
-from solidkit.align.sun import (Blob, CaptureSunInput, SunScene, SunSettings, best_hypothesis, capture_results,
-                                choose_candidates, choose_sun, consensus, hard_rejections, scene_sun)
+from solidkit.align.pipeline import (
+    AlignSettings,
+    CaptureView,
+    ProbePixel,
+    capture_yaw,
+    clock_mismatch,
+    compass_cue,
+    explain_rejections,
+    probe_pixel,
+)
+from solidkit.align.schema import (
+    CaptureSun,
+    Cue,
+    Ephemeris,
+    Levelling,
+    PhotoInfo,
+    ProbeAlignment,
+    SceneSun,
+    SunCandidate,
+    photo_azimuth_from_solar,
+    solar_azimuth_from_photo,
+    wrap_deg,
+)
+from solidkit.align.sun import (
+    Blob,
+    CaptureSunInput,
+    SunScene,
+    SunSettings,
+    best_hypothesis,
+    capture_results,
+    choose_candidates,
+    choose_sun,
+    consensus,
+    hard_rejections,
+    scene_sun,
+)
 from solidkit.capture.manifest import Probe
 from solidkit.envmap.coords import direction_from_angles
 from solidkit.flags import FlagCode, flag_codes
@@ -57,8 +87,13 @@ def test_the_sun_moves_to_the_photo_time_within_an_hour() -> None:
 
 # --------------------------------------------------------------------------- the sun, step by step
 def test_hard_rejections_say_why() -> None:
-    caps = [_cap("cam", [_blob(20.0, 35.0), _blob(60.0, 30.0, size=4.0), _blob(-40.0, 35.0, sky=0.1),
-                         _blob(100.0, -5.0)], 0.0)]
+    caps = [
+        _cap(
+            "cam",
+            [_blob(20.0, 35.0), _blob(60.0, 30.0, size=4.0), _blob(-40.0, 35.0, sky=0.1), _blob(100.0, -5.0)],
+            0.0,
+        )
+    ]
     hard = hard_rejections(caps, STATIC)
     assert hard[0, 0] == []
     assert "too large for the sun" in hard[0, 1][0]
@@ -90,8 +125,10 @@ def test_a_candidate_seen_once_and_off_the_ephemeris_is_rejected_as_a_glint() ->
 def test_an_outranked_candidate_is_named_by_index() -> None:
     """p1 (no yaw) sees the sun and a glint at the same elevation: the closer one (through its compass) is
     chosen, the other passed every test and is outranked."""
-    caps = [_cap("cam", [_blob(20.0, 35.0)], 0.0),
-            _cap("p1", [_blob(-60.0, 35.0), _blob(40.0, 35.0)], None, compass_yaw_deg=80.0)]
+    caps = [
+        _cap("cam", [_blob(20.0, 35.0)], 0.0),
+        _cap("p1", [_blob(-60.0, 35.0), _blob(40.0, 35.0)], None, compass_yaw_deg=80.0),
+    ]
     scene = SunScene(caps, _eph(200.0, 35.0), 180.0, STATIC)
     best, hard = best_hypothesis(scene, hard_rejections(caps, STATIC))
     chosen, hard = choose_candidates(scene, best, hard)
@@ -107,20 +144,29 @@ def test_an_outranked_candidate_is_named_by_index() -> None:
 def test_consensus_flags_by_code() -> None:
     caps = [_cap("cam", [_blob(20.0, 35.0)], 0.0), _cap("p1", [], 10.0)]
     scene = SunScene(caps, _eph(200.0, 30.0), 180.0, STATIC)
-    results = [CaptureSun(probe="cam", found=True, azimuth_deg=20.0, elevation_deg=35.0, uncertainty_deg=0.2),
-               CaptureSun(probe="p1", found=False)]
+    results = [
+        CaptureSun(probe="cam", found=True, azimuth_deg=20.0, elevation_deg=35.0, uncertainty_deg=0.2),
+        CaptureSun(probe="p1", found=False),
+    ]
     sun = consensus(scene, results)
     assert sun.found and sun.n_captures == 1 and sun.azimuth_deg == pytest.approx(20.0)
     assert sun.world_azimuth_deg == pytest.approx(200.0)
     assert flag_codes(sun.flags) == [FlagCode.EPHEMERIS_DISAGREES, FlagCode.SINGLE_POSITION]
-    none = consensus(SunScene(caps, None, None, STATIC), [CaptureSun(probe="cam", found=False),
-                                                          CaptureSun(probe="p1", found=False)])
+    none = consensus(
+        SunScene(caps, None, None, STATIC), [CaptureSun(probe="cam", found=False), CaptureSun(probe="p1", found=False)]
+    )
     assert not none.found and none.flags == [FlagCode.NO_SUN_FOUND.value]
 
 
 # --------------------------------------------------------------------------- a scene, step by step
-def _view(pid: str, *, heading: float | None = None, eph: Ephemeris | None = None, pixel: list[float] | None = None,
-          flags: tuple[str, ...] = ()) -> CaptureView:
+def _view(
+    pid: str,
+    *,
+    heading: float | None = None,
+    eph: Ephemeris | None = None,
+    pixel: list[float] | None = None,
+    flags: tuple[str, ...] = (),
+) -> CaptureView:
     cap = Capture("s1", Probe(id=pid, shots=[], photo_pixel=pixel), None, None, None, [])
     return CaptureView(cap, heading=heading, ephemeris=eph, flags=flags)
 
@@ -166,23 +212,45 @@ def test_probe_pixel_from_field_notes_checked_against_the_geometry() -> None:
     assert px.pixel_source == "geometry" and flag_codes(px.flags) == [FlagCode.PIXEL_FROM_GEOMETRY]
     px = probe_pixel(_view("p1", pixel=[700.0, 240.0]), None, None, photo, None, s)
     assert px.pixel_geometry is None and flag_codes(px.flags) == [FlagCode.PIXEL_OUTSIDE_PHOTO]
-    assert probe_pixel(_view("p1"), None, None, photo, None, s) == ProbePixel(flags=(px.flags[0].replace(
-        "pixel_outside_photo", "no_pixel: no marked pixel and no relative pose with parallax to the camera position"),))
+    assert probe_pixel(_view("p1"), None, None, photo, None, s) == ProbePixel(
+        flags=(
+            px.flags[0].replace(
+                "pixel_outside_photo",
+                "no_pixel: no marked pixel and no relative pose with parallax to the camera position",
+            ),
+        )
+    )
 
 
 def test_outranked_candidates_are_explained_once_the_yaw_is_known() -> None:
-    cands = [SunCandidate(azimuth_deg=-60.0, elevation_deg=35.0, size_deg=0.9, n_pixels=40, contrast=20.0, chosen=True),
-             SunCandidate(azimuth_deg=40.0, elevation_deg=35.0, size_deg=0.9, n_pixels=40, contrast=20.0,
-                          reasons=["another candidate fits better"])]
-    sun = SceneSun(found=True, azimuth_deg=20.0, elevation_deg=35.0,
-                   captures=[CaptureSun(probe="p1", found=True, azimuth_deg=-60.0, elevation_deg=35.0, candidates=cands)])
+    cands = [
+        SunCandidate(azimuth_deg=-60.0, elevation_deg=35.0, size_deg=0.9, n_pixels=40, contrast=20.0, chosen=True),
+        SunCandidate(
+            azimuth_deg=40.0,
+            elevation_deg=35.0,
+            size_deg=0.9,
+            n_pixels=40,
+            contrast=20.0,
+            reasons=["another candidate fits better"],
+        ),
+    ]
+    sun = SceneSun(
+        found=True,
+        azimuth_deg=20.0,
+        elevation_deg=35.0,
+        captures=[CaptureSun(probe="p1", found=True, azimuth_deg=-60.0, elevation_deg=35.0, candidates=cands)],
+    )
     lev = Levelling(pitch_deg=0.0, roll_deg=0.0, source="none")
     probes = [ProbeAlignment(id="p1", role="probe", levelling=lev, rotation=np.eye(3).tolist(), yaw_deg=80.0)]
     explain_rejections(sun, frozenset(), probes)
     assert cands[1].reasons == ["another candidate fits better"]  # not outranked: left alone
     explain_rejections(sun, frozenset({("p1", 1)}), probes)
     assert cands[1].reasons[0].startswith("not where the scene's sun is: ") and "glint" in cands[1].reasons[0]
-    d = math.degrees(math.acos(math.sin(math.radians(35.0)) ** 2
-                               + math.cos(math.radians(35.0)) ** 2 * math.cos(math.radians(wrap_deg(40.0 + 80.0 - 20.0)))))
+    d = math.degrees(
+        math.acos(
+            math.sin(math.radians(35.0)) ** 2
+            + math.cos(math.radians(35.0)) ** 2 * math.cos(math.radians(wrap_deg(40.0 + 80.0 - 20.0)))
+        )
+    )
     assert cands[1].scores["distance_to_scene_sun_deg"] == pytest.approx(d)
     assert cands[0].reasons == []

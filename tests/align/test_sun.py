@@ -43,8 +43,15 @@ def _sun_frame(spots: list[tuple[float, float]]) -> np.ndarray:
     return np.repeat(img[..., None], 3, axis=2)
 
 
-def _capture(pid: str, yaw: float, *, sun: bool = True, glint: tuple[float, float] | None = None,
-             facade: tuple[float, float] | None = None, eph_el: float | None = SUN_P[1]) -> CaptureSunInput:
+def _capture(
+    pid: str,
+    yaw: float,
+    *,
+    sun: bool = True,
+    glint: tuple[float, float] | None = None,
+    facade: tuple[float, float] | None = None,
+    eph_el: float | None = SUN_P[1],
+) -> CaptureSunInput:
     """A capture whose level frame is the photo frame turned by -yaw (so that level + yaw = photo)."""
     spots = [(wrap_deg(SUN_P[0] - yaw), SUN_P[1])] if sun else []
     if glint is not None:
@@ -54,13 +61,27 @@ def _capture(pid: str, yaw: float, *, sun: bool = True, glint: tuple[float, floa
     from solidkit.align.sun import Blob
 
     blobs = [Blob(**{**b.__dict__, "sky_fraction": sky_fraction(normal, b.direction)}) for b in blobs]
-    eph = None if eph_el is None else Ephemeris(time_utc="2024-06-01T12:00:00+00:00", latitude_deg=45.0, longitude_deg=7.0,
-                                                azimuth_deg=180.0 + SUN_P[0], elevation_deg=eph_el)
+    eph = (
+        None
+        if eph_el is None
+        else Ephemeris(
+            time_utc="2024-06-01T12:00:00+00:00",
+            latitude_deg=45.0,
+            longitude_deg=7.0,
+            azimuth_deg=180.0 + SUN_P[0],
+            elevation_deg=eph_el,
+        )
+    )
     return CaptureSunInput(pid, blobs, eph, yaw_deg=yaw + 0.2, yaw_sigma_deg=0.3, heading_deg=None)
 
 
-PHOTO_EPH = Ephemeris(time_utc="2024-06-01T12:00:00+00:00", latitude_deg=45.0, longitude_deg=7.0,
-                      azimuth_deg=180.0 + SUN_P[0], elevation_deg=SUN_P[1])
+PHOTO_EPH = Ephemeris(
+    time_utc="2024-06-01T12:00:00+00:00",
+    latitude_deg=45.0,
+    longitude_deg=7.0,
+    azimuth_deg=180.0 + SUN_P[0],
+    elevation_deg=SUN_P[1],
+)
 STATIC = SunSettings(sun_moves=False)
 
 
@@ -81,9 +102,11 @@ def test_sky_fraction_tells_sky_from_facade() -> None:
 def test_glints_rejected_sun_chosen() -> None:
     """Capture p1 sees a glint on a dark facade (same elevation: a vertical mirror), p2 a bright spot in the sky
     that no other position sees; both are rejected with reasons, the sun is chosen everywhere."""
-    caps = [_capture("cam", 0.0),
-            _capture("p1", 150.0, glint=(-40.0, SUN_P[1]), facade=(-60.0, -20.0)),
-            _capture("p2", -120.0, glint=(100.0, 20.0))]
+    caps = [
+        _capture("cam", 0.0),
+        _capture("p1", 150.0, glint=(-40.0, SUN_P[1]), facade=(-60.0, -20.0)),
+        _capture("p2", -120.0, glint=(100.0, 20.0)),
+    ]
     sun = scene_sun(caps, photo_ephemeris=PHOTO_EPH, photo_heading_deg=180.0, settings=STATIC)
     assert sun.found and all(c.found for c in sun.captures)
     for cap, res in zip(caps, sun.captures):
@@ -93,7 +116,9 @@ def test_glints_rejected_sun_chosen() -> None:
     glint = [c for c in sun.captures[1].candidates if not c.chosen]
     assert len(glint) == 1 and any("not in the sky" in r for r in glint[0].reasons)
     spot = [c for c in sun.captures[2].candidates if not c.chosen]
-    assert len(spot) == 1 and any("disagrees with the scene's sun" in r or "this position only" in r for r in spot[0].reasons)
+    assert len(spot) == 1 and any(
+        "disagrees with the scene's sun" in r or "this position only" in r for r in spot[0].reasons
+    )
     assert abs(sun.elevation_deg - SUN_P[1]) < 0.1
     assert abs(wrap_deg(sun.azimuth_deg - (SUN_P[0] + 0.2))) < 0.2  # the captures' yaws carry a 0.2 deg offset
     assert sun.world_azimuth_deg == pytest.approx((sun.azimuth_deg + 180.0) % 360.0)
@@ -102,8 +127,11 @@ def test_glints_rejected_sun_chosen() -> None:
 
 def test_occluded_position_and_lone_glint() -> None:
     """The sun is occluded at p1, which sees only a glint: p1 reports no sun (the glint rejected), the scene is fine."""
-    caps = [_capture("cam", 0.0), _capture("p1", 150.0, sun=False, glint=(-40.0, SUN_P[1]), facade=(-60.0, -20.0)),
-            _capture("p2", -120.0)]
+    caps = [
+        _capture("cam", 0.0),
+        _capture("p1", 150.0, sun=False, glint=(-40.0, SUN_P[1]), facade=(-60.0, -20.0)),
+        _capture("p2", -120.0),
+    ]
     sun = scene_sun(caps, photo_ephemeris=PHOTO_EPH, photo_heading_deg=180.0, settings=STATIC)
     assert sun.found and sun.n_captures == 2
     p1 = sun.captures[1]
@@ -114,8 +142,11 @@ def test_occluded_position_and_lone_glint() -> None:
 def test_clock_off_by_hours_is_flagged() -> None:
     """The images agree with each other; the ephemeris (a clock three hours off) does not: flagged, not averaged."""
     bad = PHOTO_EPH.model_copy(update={"elevation_deg": SUN_P[1] - 25.0, "azimuth_deg": 180.0 + SUN_P[0] + 45.0})
-    caps = [_capture("cam", 0.0, eph_el=SUN_P[1] - 25.0), _capture("p1", 75.0, eph_el=SUN_P[1] - 25.0),
-            _capture("p2", -120.0, eph_el=SUN_P[1] - 25.0)]
+    caps = [
+        _capture("cam", 0.0, eph_el=SUN_P[1] - 25.0),
+        _capture("p1", 75.0, eph_el=SUN_P[1] - 25.0),
+        _capture("p2", -120.0, eph_el=SUN_P[1] - 25.0),
+    ]
     sun = scene_sun(caps, photo_ephemeris=bad, photo_heading_deg=180.0, settings=STATIC)
     assert sun.found and abs(sun.elevation_deg - SUN_P[1]) < 0.1
     assert any(f.startswith("ephemeris_disagrees") for f in sun.flags)
@@ -148,8 +179,12 @@ def test_without_any_yaw_the_compass_and_ephemeris_rank_a_glint_below_the_sun() 
         c = _capture(pid, yaw, glint=(wrap_deg(SUN_P[0] - yaw - 35.0), SUN_P[1] + 0.05))
         sun_el = next(b.elevation_deg for b in c.blobs if abs(wrap_deg(b.azimuth_deg - (SUN_P[0] - yaw))) < 1.0)
         # the real sun 0.3 deg lower than the glint: elevation alone prefers the glint
-        c.blobs = [replace(b, elevation_deg=b.elevation_deg - 0.3) if abs(b.elevation_deg - sun_el) < 1e-9
-                   and abs(wrap_deg(b.azimuth_deg - (SUN_P[0] - yaw))) < 1.0 else b for b in c.blobs]
+        c.blobs = [
+            replace(b, elevation_deg=b.elevation_deg - 0.3)
+            if abs(b.elevation_deg - sun_el) < 1e-9 and abs(wrap_deg(b.azimuth_deg - (SUN_P[0] - yaw))) < 1.0
+            else b
+            for b in c.blobs
+        ]
         c.yaw_deg, c.yaw_sigma_deg, c.compass_yaw_deg = None, None, yaw + compass_err
         caps.append(c)
     sun = scene_sun(caps, photo_ephemeris=PHOTO_EPH, photo_heading_deg=180.0, settings=STATIC)

@@ -174,7 +174,10 @@ def test_board_files_profile(tmp_path):
 
 
 def test_too_few_views_says_which_and_why():
-    views = [BoardView("a.jpg", (10, 10), reason="no 7x5 board found"), BoardView("b.jpg", (10, 10), reason="blurred: edge width 6 px")]
+    views = [
+        BoardView("a.jpg", (10, 10), reason="no 7x5 board found"),
+        BoardView("b.jpg", (10, 10), reason="blurred: edge width 6 px"),
+    ]
     with pytest.raises(IntrinsicsError, match="a.jpg: no 7x5 board found; b.jpg: blurred"):
         calibrate_checkerboard(views, (7, 5))
     assert board_points((3, 2), 2.0)[4].tolist() == [2.0, 2.0, 0.0]

@@ -69,9 +69,8 @@ def test_camera_command(tmp_path):
 
 def test_lens_command_writes_lens_profile(tmp_path):
     from solidkit.calibration.boards import render_board, subpixel_rays
-    from solidkit.camera.lens import LensModel
+    from solidkit.camera.lens import LensModel, unproject
     from solidkit.camera.lens import load_profile as load_lens
-    from solidkit.camera.lens import unproject
 
     truth = LensModel(name="t", center=(161.2, 158.7), poly=[110.0, -2.0, 1.0], max_angle_deg=95)
     rays = subpixel_rays(lambda x, y: unproject(truth, x, y)[0], (320, 320))
@@ -84,7 +83,9 @@ def test_lens_command_writes_lens_profile(tmp_path):
         img = render_board(rays, (320, 320), R, -R @ np.array([2.5, 1.5, 0]) + look * 6.5, (6, 4))
         cv2.imwrite(str(tmp_path / f"v{i}.png"), img)
         paths.append(tmp_path / f"v{i}.png")
-    out = _ok(["lens", *paths, "--pattern", "6x4", "-o", tmp_path / "lens.json", "--model", "kb", "--profile-name", "unit"])
+    out = _ok(
+        ["lens", *paths, "--pattern", "6x4", "-o", tmp_path / "lens.json", "--model", "kb", "--profile-name", "unit"]
+    )
     assert "held-out" in out
     lp = load_lens(tmp_path / "lens.json")
     assert lp.model == "unit" and lp.reference_size == (320, 320)
@@ -99,16 +100,44 @@ def test_lens_command_writes_lens_profile(tmp_path):
         wide.append(p.with_name("w" + p.name))
     common = ["--pattern", "6x4", "--model", "kb"]
     _ok(["lens", *wide, *common, "-o", tmp_path / "dual.json", "--crop", "0,0,320,320", "--profile-name", "dual"])
-    _ok(["lens", *wide, *common, "-o", tmp_path / "dual.json", "--crop", "320,0,320,320", "--name", "back",
-         "--ypr", "180,0,0", "--add-to", tmp_path / "dual.json", "--profile-name", "dual"])
+    _ok(
+        [
+            "lens",
+            *wide,
+            *common,
+            "-o",
+            tmp_path / "dual.json",
+            "--crop",
+            "320,0,320,320",
+            "--name",
+            "back",
+            "--ypr",
+            "180,0,0",
+            "--add-to",
+            tmp_path / "dual.json",
+            "--profile-name",
+            "dual",
+        ]
+    )
     dual = load_lens(tmp_path / "dual.json")
     assert dual.reference_size == (640, 320) and [l.name for l in dual.lenses] == ["front", "back"]
     front, back = dual.lenses
     assert back.ypr_deg == (180.0, 0.0, 0.0) and back.poly == front.poly
     assert abs(back.center[0] - front.center[0] - 320) < 1e-6 and abs(back.center[1] - front.center[1]) < 1e-6
     assert abs(front.center[0] - lp.lenses[0].center[0]) < 1e-6  # same fit as the single-lens run
-    r = runner.invoke(app, ["calibrate", "lens", *map(str, paths), *common, "-o", str(tmp_path / "x.json"),
-                            "--add-to", str(tmp_path / "dual.json")])
+    r = runner.invoke(
+        app,
+        [
+            "calibrate",
+            "lens",
+            *map(str, paths),
+            *common,
+            "-o",
+            str(tmp_path / "x.json"),
+            "--add-to",
+            str(tmp_path / "dual.json"),
+        ],
+    )
     assert r.exit_code != 0 and "640x320" in str(r.exception)  # other image size than the profile
 
 
@@ -123,7 +152,20 @@ def test_vignetting_command_flat(tmp_path):
         rho = np.hypot(xx - l.center[0], yy - l.center[1]) / l.max_radius()
         flat = np.where(rho <= 1, 0.6 * falloff([-0.25], rho), flat)
     write_exr(tmp_path / "flat.exr", np.repeat(flat[..., None], 3, 2).astype(np.float32))
-    out = _ok(["vignetting", tmp_path / "flat.exr", "--lens-profile", "theta-s", "--method", "flat", "--degree", "1", "-o", tmp_path / "v.json"])
+    out = _ok(
+        [
+            "vignetting",
+            tmp_path / "flat.exr",
+            "--lens-profile",
+            "theta-s",
+            "--method",
+            "flat",
+            "--degree",
+            "1",
+            "-o",
+            tmp_path / "v.json",
+        ]
+    )
     assert "front" in out and "back" in out
     prof = load_calibration_profile(tmp_path / "v.json")
     assert all(abs(l.coeffs[0] + 0.25) < 0.005 for l in prof.lenses)
@@ -131,11 +173,23 @@ def test_vignetting_command_flat(tmp_path):
 
 def test_errors_are_one_line(tmp_path):
     r = subprocess.run(
-        [sys.executable, "-m", "solidkit.cli", "calibrate", "camera", str(tmp_path / "missing.jpg"), "-o", str(tmp_path / "x.json")],
-        capture_output=True, text=True,
+        [
+            sys.executable,
+            "-m",
+            "solidkit.cli",
+            "calibrate",
+            "camera",
+            str(tmp_path / "missing.jpg"),
+            "-o",
+            str(tmp_path / "x.json"),
+        ],
+        capture_output=True,
+        text=True,
     )
     assert r.returncode == 2 and r.stderr.strip().startswith("error:") and len(r.stderr.strip().splitlines()) == 1
-    r = runner.invoke(app, ["calibrate", "lens", str(tmp_path / "a.png"), "--pattern", "6by4", "-o", str(tmp_path / "l.json")])
+    r = runner.invoke(
+        app, ["calibrate", "lens", str(tmp_path / "a.png"), "--pattern", "6by4", "-o", str(tmp_path / "l.json")]
+    )
     assert r.exit_code != 0 and "COLSxROWS" in str(r.exception)
     assert not (tmp_path / "x.json").exists()
 
@@ -151,8 +205,14 @@ def test_camera_command_charuco(tmp_path):
     for i in range(6):
         R, _ = cv2.Rodrigues(rng.uniform(-0.45, 0.45, 3))
         t = -R @ np.array([3.5, 2.5, 0.0]) + np.array([*rng.uniform(-1, 1, 2), 9.0])
-        img = render_board(lambda x, y: np.stack([x, y, np.ones_like(x)], -1) @ Ki.T, (640, 480), R, t, target.pattern,
-                           texture=target.texture(48))
+        img = render_board(
+            lambda x, y: np.stack([x, y, np.ones_like(x)], -1) @ Ki.T,
+            (640, 480),
+            R,
+            t,
+            target.pattern,
+            texture=target.texture(48),
+        )
         cv2.imwrite(str(tmp_path / f"c{i}.png"), img)
         paths.append(tmp_path / f"c{i}.png")
     out = _ok(["camera", *paths, "--charuco", "7x5", "-o", tmp_path / "cam.json"])
@@ -161,5 +221,18 @@ def test_camera_command_charuco(tmp_path):
     Kf = prof.matrix()
     # measured: f +0.3 %, centre off by (-0.63, +0.87) px, RMS 0.11 px (small board, 48 px/square texture)
     assert abs(Kf[0, 0] / 400 - 1) < 0.01 and abs(Kf[0, 2] - 321.0) < 1.5 and abs(Kf[1, 2] - 238.5) < 1.5
-    r = runner.invoke(app, ["calibrate", "camera", *map(str, paths), "--charuco", "7x5", "--pattern", "6x4", "-o", str(tmp_path / "x.json")])
+    r = runner.invoke(
+        app,
+        [
+            "calibrate",
+            "camera",
+            *map(str, paths),
+            "--charuco",
+            "7x5",
+            "--pattern",
+            "6x4",
+            "-o",
+            str(tmp_path / "x.json"),
+        ],
+    )
     assert r.exit_code != 0 and "exactly one of --pattern" in str(r.exception)

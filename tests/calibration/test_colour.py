@@ -16,8 +16,8 @@ from solidkit.calibration.colour import (
     fit_ccm,
     lab_from_linear_srgb,
     read_linear_image,
-    refine_ccm_delta_e,
     reference_linear_srgb,
+    refine_ccm_delta_e,
     sample_patches,
 )
 from solidkit.calibration.profile import load_calibration_profile
@@ -37,7 +37,9 @@ def render_chart(h=480, w=640, noise=0.002, seed=0):
     chart = cv2.perspectiveTransform(np.stack([xs.ravel(), ys.ravel()], 1)[None], np.linalg.inv(H))[0]
     cx, cy = chart[:, 0], chart[:, 1]
     col, row = np.round(cx).astype(int), np.round(cy).astype(int)
-    inside_patch = (np.abs(cx - col) < 0.42) & (np.abs(cy - row) < 0.42) & (col >= 0) & (col < 6) & (row >= 0) & (row < 4)
+    inside_patch = (
+        (np.abs(cx - col) < 0.42) & (np.abs(cy - row) < 0.42) & (col >= 0) & (col < 6) & (row >= 0) & (row < 4)
+    )
     body = (cx > -0.6) & (cx < 5.6) & (cy > -0.6) & (cy < 3.6)
     img = np.full((h * w, 3), 0.25) * np.array([0.9, 1.0, 0.8])  # background (table)
     img[body] = 0.01

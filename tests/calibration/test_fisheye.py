@@ -20,9 +20,8 @@ from solidkit.calibration.fisheye import (
     lens_profile_from_calibrations,
 )
 from solidkit.calibration.profile import load_calibration_profile
-from solidkit.camera.lens import LensModel
+from solidkit.camera.lens import LensModel, project, unproject
 from solidkit.camera.lens import load_profile as load_lens_profile
-from solidkit.camera.lens import project, unproject
 
 SIZE = (512, 512)
 F = 240.0
@@ -125,7 +124,9 @@ def test_crop_offset_moves_the_centre(rendered):
 
 def test_offset_and_second_lens_added(calibrated, tmp_path):
     base = lens_profile_from_calibrations([calibrated], "dual", (1024, 512))
-    back = calibrated.model_copy(update={"lens_name": "back", "lens": calibrated.lens | {"name": "back", "ypr_deg": [180.0, 0.0, 0.0]}})
+    back = calibrated.model_copy(
+        update={"lens_name": "back", "lens": calibrated.lens | {"name": "back", "ypr_deg": [180.0, 0.0, 0.0]}}
+    )
     both = lens_profile_from_calibrations([back], "dual", (1024, 512), base=base)
     assert [l.name for l in both.lenses] == ["front", "back"]
     with pytest.raises(FisheyeCalibrationError, match="1024x512"):
@@ -135,12 +136,17 @@ def test_offset_and_second_lens_added(calibrated, tmp_path):
 def test_omnidir_all_views_rejected_names_them():
     rng = np.random.default_rng(0)
     views = [BoardView(f"junk{i}.jpg", SIZE, rng.uniform(0, 512, (48, 2))) for i in range(4)]
-    with pytest.raises(FisheyeCalibrationError, match=r"cv2.omnidir rejected every view \(junk0.jpg, junk1.jpg, junk2.jpg, junk3.jpg\)"):
+    with pytest.raises(
+        FisheyeCalibrationError, match=r"cv2.omnidir rejected every view \(junk0.jpg, junk1.jpg, junk2.jpg, junk3.jpg\)"
+    ):
         fit_mei(views, PATTERN)
 
 
 def test_too_few_views_lists_rejections():
-    views = [BoardView("a.jpg", SIZE, reason="no 8x6 board found"), BoardView("b.jpg", SIZE, reason="blurred: edge width 9 px")]
+    views = [
+        BoardView("a.jpg", SIZE, reason="no 8x6 board found"),
+        BoardView("b.jpg", SIZE, reason="blurred: edge width 9 px"),
+    ]
     with pytest.raises(FisheyeCalibrationError, match="a.jpg: no 8x6 board found; b.jpg: blurred"):
         fit_kb(views, PATTERN)
 

@@ -11,8 +11,8 @@ import cv2
 import numpy as np
 import pytest
 
-from solidkit.camera.lens import load_profile, project
 from solidkit.calibration.overlap import apply_params, fit_image_circle, refine_overlap, ring_directions
+from solidkit.camera.lens import load_profile, project
 from solidkit.capture.unwarp import render_fisheye
 from solidkit.envmap.coords import rotation_from_rotvec
 from solidkit.envmap.io import read_exr, tonemap
@@ -37,7 +37,9 @@ def test_helpers():
     assert theta.min() >= 80 - 1e-9 and theta.max() <= 100 + 1e-9 and np.allclose(np.linalg.norm(d, axis=1), 1)
     w = np.array([0.01, -0.02, 0.03])
     R = rotation_from_rotvec(w)
-    assert np.allclose(R @ R.T, np.eye(3)) and rotation_error_deg(R, np.eye(3)) == pytest.approx(math.degrees(np.linalg.norm(w)))
+    assert np.allclose(R @ R.T, np.eye(3)) and rotation_error_deg(R, np.eye(3)) == pytest.approx(
+        math.degrees(np.linalg.norm(w))
+    )
     base = load_profile("theta-v")
     p = np.zeros(10)
     p[6:9] = w
@@ -118,5 +120,7 @@ def test_cli_calibrate_overlap_bad_input(tmp_path, cli):
     assert code == 2 and "same size" in err and not (tmp_path / "x.json").exists()
     code, _, err = cli("calibrate", "overlap", str(a), "--base", "theta-nope", "-o", str(tmp_path / "x.json"))
     assert code == 2 and "unknown lens profile" in err
-    code, _, err = cli("calibrate", "overlap", str(tmp_path / "missing.png"), "--base", "theta-v", "-o", str(tmp_path / "x.json"))
+    code, _, err = cli(
+        "calibrate", "overlap", str(tmp_path / "missing.png"), "--base", "theta-v", "-o", str(tmp_path / "x.json")
+    )
     assert code == 2 and "no such file" in err

@@ -16,7 +16,9 @@ def _profile(tmp_path):
     src = tmp_path / "input.bin"
     src.write_bytes(b"abc")
     prov = make_provenance([src], tool="test", answer=42)
-    return ResponseProfile(provenance=prov, method="debevec", curve=[[1.0, 1.0, 1.0]] * 256, residuals={"rms": 0.1}), src
+    return ResponseProfile(
+        provenance=prov, method="debevec", curve=[[1.0, 1.0, 1.0]] * 256, residuals={"rms": 0.1}
+    ), src
 
 
 def test_provenance_and_roundtrip(tmp_path):

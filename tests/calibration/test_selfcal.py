@@ -69,18 +69,25 @@ def test_image_circles_side_by_side_and_stacked(city):
         find_image_circles(np.zeros((320, 640), np.float32))
 
 
-@pytest.mark.parametrize("family, half_fov, roll, layout", [
-    ("equidistant", 95.0, 0.0, "side by side, upright"),
-    pytest.param("equisolid", 100.0, 90.0, "side by side, rotated +90°", marks=pytest.mark.slow),  # the CLI test has one
-    ("theta", 100.0, -90.0, "side by side, rotated -90°"),
-])
+@pytest.mark.parametrize(
+    "family, half_fov, roll, layout",
+    [
+        ("equidistant", 95.0, 0.0, "side by side, upright"),
+        pytest.param(
+            "equisolid", 100.0, 90.0, "side by side, rotated +90°", marks=pytest.mark.slow
+        ),  # the CLI test has one
+        ("theta", 100.0, -90.0, "side by side, rotated -90°"),
+    ],
+)
 def test_start_profile_recovers_family_fov_layout(city, family, half_fov, roll, layout):
     truth = truth_profile(family, half_fov, roll)
     fit = fit_dual_fisheye(camera_frame(city, truth), 0.98, refine=False)
     fov = 2 * fit.half_fov_deg
     centre_err = [math.dist(a.center, b.center) for a, b in zip(fit.profile.lenses, truth.lenses)]
-    print(f"{family} {2 * half_fov}° roll {roll}: found {fit.family} {fov:.2f}°, {fit.layout}, centres {centre_err} px, "
-          f"seam {fit.seam_final['seam_error']:.3f}, families {fit.scans['families']}")
+    print(
+        f"{family} {2 * half_fov}° roll {roll}: found {fit.family} {fov:.2f}°, {fit.layout}, centres {centre_err} px, "
+        f"seam {fit.seam_final['seam_error']:.3f}, families {fit.scans['families']}"
+    )
     assert fit.family == family
     assert abs(fov - 2 * half_fov) < 1.5
     assert fit.layout == layout and fit.upright.confident
@@ -95,16 +102,28 @@ def test_refinement_brings_back_a_perturbed_profile(city, tmp_path, cli):
     src = tmp_path / "frame.png"
     write_ldr(src, camera_frame(city, truth), encode_srgb=True)
     start = truth_profile("equidistant", 97.0, offset=(1.0, -1.1))
-    start = start.model_copy(update={"lenses": [start.lenses[0].model_copy(update={"center": (162.3, 159.2)}), start.lenses[1]]})
+    start = start.model_copy(
+        update={"lenses": [start.lenses[0].model_copy(update={"center": (162.3, 159.2)}), start.lenses[1]]}
+    )
     start.save(tmp_path / "perturbed.json")
-    code, out, err = cli("calibrate", "overlap", str(src), "--base", str(tmp_path / "perturbed.json"), "-o",
-                         str(tmp_path / "unit.json"), "--json")
+    code, out, err = cli(
+        "calibrate",
+        "overlap",
+        str(src),
+        "--base",
+        str(tmp_path / "perturbed.json"),
+        "-o",
+        str(tmp_path / "unit.json"),
+        "--json",
+    )
     assert code == 0, err
     s = json.loads(out)
     unit = load_profile(tmp_path / "unit.json")
     before = math.dist(start.lenses[0].center, truth.lenses[0].center)
     after = math.dist(unit.lenses[0].center, truth.lenses[0].center)
-    print(f"perturbed: seam error {s['seam_error_before']:.3f} -> {s['seam_error_after']:.3f}, front centre {before:.2f} -> {after:.2f} px")
+    print(
+        f"perturbed: seam error {s['seam_error_before']:.3f} -> {s['seam_error_after']:.3f}, front centre {before:.2f} -> {after:.2f} px"
+    )
     assert s["refused"] is None and s["seam_error_after"] < 0.5 * s["seam_error_before"] and after < 0.5 * before
 
 
@@ -121,15 +140,20 @@ def test_refinement_from_another_cameras_profile_is_bounded_and_flagged(city, tm
     write_ldr(src, camera_frame(city, truth_profile("equidistant", 97.5, circles=GEAR)), encode_srgb=True)
     s = refine_files([src], "theta-v", tmp_path / "unit.json")
     shift = [math.hypot(*c) for c in s["center_shift_px"]]  # px at theta-v's 5792-px reference size
-    print(f"theta-v on a Gear-like frame: seam error {s['seam_error_before']} -> {s['seam_error_after']}, "
-          f"refused {s['refused']}, centre shifts {shift} px, back lens {s['back_rotation_change_deg']:.2f}°")
+    print(
+        f"theta-v on a Gear-like frame: seam error {s['seam_error_before']} -> {s['seam_error_after']}, "
+        f"refused {s['refused']}, centre shifts {shift} px, back lens {s['back_rotation_change_deg']:.2f}°"
+    )
     bound = 0.03 * load_profile("theta-v").lenses[0].max_radius() * math.sqrt(2)
     assert max(shift) <= bound + 1e-6 and s["back_rotation_change_deg"] <= 3.0 * math.sqrt(3) + 1e-6
     assert sum(w.startswith("profile_mismatch") for w in s["warnings"]) == 2
     kept = load_profile(tmp_path / "unit.json")
     r = kept.residuals  # never worse than the start: better, or refused and the start kept (NaN: unmeasurable)
-    assert (r["seam_error_before"] is not None and r["seam_error_after"] is not None
-            and r["seam_error_after"] < r["seam_error_before"]) or (s["refused"] and kept.lenses == load_profile("theta-v").lenses)
+    assert (
+        r["seam_error_before"] is not None
+        and r["seam_error_after"] is not None
+        and r["seam_error_after"] < r["seam_error_before"]
+    ) or (s["refused"] and kept.lenses == load_profile("theta-v").lenses)
 
 
 def test_profile_fit_checks_correct_wrong_and_turned(city):
@@ -142,11 +166,19 @@ def test_profile_fit_checks_correct_wrong_and_turned(city):
     other = to_uint8(camera_frame(city, truth_profile("equidistant", 95.0)))
     report, warns = check_profile_fit(other, theta, 0.98)
     assert report["seam_error"] > SEAM_ERROR_WARN and any(w.startswith("seam_mismatch") for w in warns)
-    elsewhere = to_uint8(camera_frame(city, truth_profile("equidistant", 97.5, circles=GEAR)))  # theta-v's ring on black
+    elsewhere = to_uint8(
+        camera_frame(city, truth_profile("equidistant", 97.5, circles=GEAR))
+    )  # theta-v's ring on black
     report, warns = check_profile_fit(elsewhere, theta, 0.98)
     assert report["seam_error"] is None and any(w.startswith("seam_mismatch") for w in warns)
-    turned_truth = start_profile([Circle(l.center[0], l.center[1], l.max_radius(), 1) for l in theta.scaled(*SIZE).lenses],
-                                 SIZE, "theta", 100.0, 0.0, 90.0)
+    turned_truth = start_profile(
+        [Circle(l.center[0], l.center[1], l.max_radius(), 1) for l in theta.scaled(*SIZE).lenses],
+        SIZE,
+        "theta",
+        100.0,
+        0.0,
+        90.0,
+    )
     turned = to_uint8(render_fisheye(city, turned_truth, SIZE))
     report, warns = check_profile_fit(turned, theta, 0.98)
     assert report["seam_error"] < SEAM_ERROR_WARN  # a turned camera still agrees with itself on the overlap
@@ -157,8 +189,19 @@ def test_profile_fit_checks_correct_wrong_and_turned(city):
 def test_cli_unwarp_reports_seam_error_and_warns_with_exit_0(city, tmp_path, cli):
     other = tmp_path / "gear.png"
     write_ldr(other, camera_frame(city, truth_profile("equidistant", 95.0)), encode_srgb=True)
-    code, out, err = cli("capture", "unwarp", str(other), "-o", str(tmp_path / "p.png"), "--profile", "theta-v",
-                         "--size", "256x128", "--json", "--no-disk-cache")
+    code, out, err = cli(
+        "capture",
+        "unwarp",
+        str(other),
+        "-o",
+        str(tmp_path / "p.png"),
+        "--profile",
+        "theta-v",
+        "--size",
+        "256x128",
+        "--json",
+        "--no-disk-cache",
+    )
     assert code == 0, err
     s = json.loads(out)
     assert s["seam_error"] > s["profile_fit"]["seam_error_warn"] and not s["profile_fit"]["ok"]
@@ -170,14 +213,29 @@ def test_cli_calibrate_fisheye_writes_a_profile_unwarp_uses(city, tmp_path, cli)
     src = tmp_path / "cam.png"
     write_ldr(src, camera_frame(city, truth), encode_srgb=True)
     out = tmp_path / "cam.json"
-    code, text, err = cli("calibrate", "fisheye", str(src), "-o", str(out), "--json", "--no-refine", "--family", "equisolid")
+    code, text, err = cli(
+        "calibrate", "fisheye", str(src), "-o", str(out), "--json", "--no-refine", "--family", "equisolid"
+    )
     assert code == 0, err
     s = json.loads(text)
-    assert s["family"] == "equisolid" and s["layout"] == "side by side, rotated +90°" and abs(s["fov_deg"] - 198.0) < 1.0
+    assert (
+        s["family"] == "equisolid" and s["layout"] == "side by side, rotated +90°" and abs(s["fov_deg"] - 198.0) < 1.0
+    )
     prof = load_profile(out)
     assert prof.provenance.inputs[0].sha256 and prof.residuals["layout"] == s["layout"]
-    code, text, err = cli("capture", "unwarp", str(src), "-o", str(tmp_path / "p.png"), "--profile", str(out),
-                          "--size", "256x128", "--json", "--no-disk-cache")
+    code, text, err = cli(
+        "capture",
+        "unwarp",
+        str(src),
+        "-o",
+        str(tmp_path / "p.png"),
+        "--profile",
+        str(out),
+        "--size",
+        "256x128",
+        "--json",
+        "--no-disk-cache",
+    )
     assert code == 0, err
     u = json.loads(text)
     assert u["profile_fit"]["ok"] and u["seam_error"] < 0.2, u["warnings"]
@@ -189,8 +247,12 @@ def test_seam_error_is_scale_free(city):
     frame = camera_frame(city, prof)
     a = seam_error(prepare_seam_image(frame, 150.0, None), prof)["seam_error"]
     b = seam_error(prepare_seam_image(0.1 * frame**1.5, 150.0, None), prof)["seam_error"]
-    off = [seam_error(prepare_seam_image(frame, 150.0, None), truth_profile("equidistant", 97.0, offset=(o, 0.0)))["seam_error"]
-           for o in (1.0, 2.0, 4.0, 8.0)]  # back lens yawed by this many degrees (measured 0.21, 0.35, 0.59, 0.84)
+    off = [
+        seam_error(prepare_seam_image(frame, 150.0, None), truth_profile("equidistant", 97.0, offset=(o, 0.0)))[
+            "seam_error"
+        ]
+        for o in (1.0, 2.0, 4.0, 8.0)
+    ]  # back lens yawed by this many degrees (measured 0.21, 0.35, 0.59, 0.84)
     assert a < 0.15 and abs(a - b) < 0.05 and np.all(np.diff(off) > 0) and off[0] > a and off[-1] > 0.75
 
 
@@ -204,14 +266,33 @@ def test_real_theta_s_frame_layout_and_circles(real_data, tmp_path):
     src = real_data / "theta_s_dualfisheye" / "thetaS_dualfisheye_raw_1920x1080.jpg"
     fit, s = fit_file(src, tmp_path / "ts.json")
     shipped = load_profile("theta-s-video")
-    print(json.dumps({k: s[k] for k in ("layout", "family", "fov_deg", "centers", "seam_error_start", "seam_error_refined",
-                                        "seam_error", "refusal", "shipped_profiles_seam_error")}, default=str))
+    print(
+        json.dumps(
+            {
+                k: s[k]
+                for k in (
+                    "layout",
+                    "family",
+                    "fov_deg",
+                    "centers",
+                    "seam_error_start",
+                    "seam_error_refined",
+                    "seam_error",
+                    "refusal",
+                    "shipped_profiles_seam_error",
+                )
+            },
+            default=str,
+        )
+    )
     assert s["arrangement"] == "side_by_side" and s["roll_deg"] == 90.0
     assert [round(a) for a in shipped.lenses[0].ypr_deg] == [0, 0, 90]
     for c, ref in zip(s["circles"], shipped.residuals["image_circles_px"]):
         assert math.hypot(c["cx"] - ref[0], c["cy"] - ref[1]) < 4.0 and abs(c["r"] - ref[2]) < 6.0
     assert s["seam_error"] <= s["seam_error_start"] + 1e-12
-    assert 190.0 < s["fov_deg"] < 210.0  # Ricoh's design table puts 100° on the circle (200°); measured 193.7 (equisolid)
+    assert (
+        190.0 < s["fov_deg"] < 210.0
+    )  # Ricoh's design table puts 100° on the circle (200°); measured 193.7 (equisolid)
 
 
 @pytest.mark.real
@@ -223,11 +304,22 @@ def test_real_theta_s_turned_circles_warn(real_data, tmp_path, cli):
     im = cv2.imread(str(real_data / "theta_s_dualfisheye" / "thetaS_dualfisheye_raw_1920x1080.jpg"))
     for (cx, cy), turn in (((461, 481), cv2.ROTATE_90_CLOCKWISE), ((1456, 470), cv2.ROTATE_90_COUNTERCLOCKWISE)):
         r = 460
-        im[cy - r:cy + r, cx - r:cx + r] = cv2.rotate(im[cy - r:cy + r, cx - r:cx + r].copy(), turn)
+        im[cy - r : cy + r, cx - r : cx + r] = cv2.rotate(im[cy - r : cy + r, cx - r : cx + r].copy(), turn)
     src = tmp_path / "turned.png"
     cv2.imwrite(str(src), im)
-    code, out, err = cli("capture", "unwarp", str(src), "-o", str(tmp_path / "p.png"), "--profile", "theta-s-video",
-                         "--size", "512x256", "--json", "--no-disk-cache")
+    code, out, err = cli(
+        "capture",
+        "unwarp",
+        str(src),
+        "-o",
+        str(tmp_path / "p.png"),
+        "--profile",
+        "theta-s-video",
+        "--size",
+        "512x256",
+        "--json",
+        "--no-disk-cache",
+    )
     assert code == 0, err
     s = json.loads(out)
     print(s["seam_error"], s["profile_fit"], s["warnings"])

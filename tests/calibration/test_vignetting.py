@@ -31,7 +31,12 @@ def lens_profile():
 def _scene(d):
     """A smooth outdoor-like radiance field (RGB, linear)."""
     return 0.4 * np.stack(
-        [1 + 0.4 * d[:, 0] + 0.2 * d[:, 1] ** 2, 0.9 + 0.3 * d[:, 2] - 0.2 * d[:, 0] * d[:, 1], 0.8 + 0.3 * np.sin(2 * d[:, 0])], -1
+        [
+            1 + 0.4 * d[:, 0] + 0.2 * d[:, 1] ** 2,
+            0.9 + 0.3 * d[:, 2] - 0.2 * d[:, 0] * d[:, 1],
+            0.8 + 0.3 * np.sin(2 * d[:, 0]),
+        ],
+        -1,
     )
 
 

@@ -47,7 +47,9 @@ def test_interpolated_tables_within_tolerance_of_exact_projection():
         assert err.max() < D.MAP_TOLERANCE_PX, (i, err.max())
 
 
-@pytest.mark.parametrize("feather, in_size, H", [(10.0, (1024, 512), 256), (0.0, (1024, 512), 256), (10.0, (1920, 960), 960)])
+@pytest.mark.parametrize(
+    "feather, in_size, H", [(10.0, (1024, 512), 256), (0.0, (1024, 512), 256), (10.0, (1920, 960), 960)]
+)
 def test_cut_tables_are_the_full_tables_of_the_dominant_lens(feather, in_size, H):
     """Exact projection (256 rows) and the node grid, where the weights come from the interpolated
     margin difference alone (960 rows: every block passes _clip_is_exact)."""
@@ -57,7 +59,9 @@ def test_cut_tables_are_the_full_tables_of_the_dominant_lens(feather, in_size, H
     assert (grid.s > 1) == (H == 960)
     if grid.s > 1:
         (_, _, m0), (_, _, m1) = grid.nodes
-        assert all(D._clip_is_exact(m0[grid.slab(a, b)], m1[grid.slab(a, b)], math.radians(feather)) for a, b in grid.blocks())
+        assert all(
+            D._clip_is_exact(m0[grid.slab(a, b)], m1[grid.slab(a, b)], math.radians(feather)) for a, b in grid.blocks()
+        )
     full = D.build_maps(prof, in_size, H, R, feather)
     cut = D.build_cut_maps(prof, in_size, H, R, feather)
     lead, idx, w0 = full.band()
@@ -91,8 +95,21 @@ def test_cut_tables_cached_on_disk_memory_mapped(tmp_path):
     D.clear_cache()
 
 
-HEAVY = ("torch", "kornia", "colour", "pycolmap", "mitsuba", "drjit", "fastapi", "uvicorn", "scipy", "OpenEXR",
-         "PIL", "rawpy", "pvlib")
+HEAVY = (
+    "torch",
+    "kornia",
+    "colour",
+    "pycolmap",
+    "mitsuba",
+    "drjit",
+    "fastapi",
+    "uvicorn",
+    "scipy",
+    "OpenEXR",
+    "PIL",
+    "rawpy",
+    "pvlib",
+)
 
 _RUN = """
 import json, sys
@@ -113,10 +130,26 @@ def test_unwarp_command_imports_no_heavy_library(tmp_path):
     img = render_fisheye(lambda d: 0.2 + 0.6 * (d[..., :1] > 0) * np.ones(3), prof, (512, 256))
     src = tmp_path / "dual.png"
     cv2.imwrite(str(src), (np.clip(img, 0, 1) * 255).astype(np.uint8))
-    env_cmd = [sys.executable, "-c", _RUN, "capture", "unwarp", str(src), "-o", str(tmp_path / "pano.png"),
-               "--profile", "theta-v", "--json"]
-    proc = subprocess.run(env_cmd, capture_output=True, text=True, timeout=120,
-                          env={**__import__("os").environ, "SOLIDKIT_CACHE_DIR": str(tmp_path / "cache")})
+    env_cmd = [
+        sys.executable,
+        "-c",
+        _RUN,
+        "capture",
+        "unwarp",
+        str(src),
+        "-o",
+        str(tmp_path / "pano.png"),
+        "--profile",
+        "theta-v",
+        "--json",
+    ]
+    proc = subprocess.run(
+        env_cmd,
+        capture_output=True,
+        text=True,
+        timeout=120,
+        env={**__import__("os").environ, "SOLIDKIT_CACHE_DIR": str(tmp_path / "cache")},
+    )
     assert proc.returncode == 0, proc.stderr
     modules = set(json.loads(proc.stdout.strip().splitlines()[-1]))
     loaded = {m.split(".")[0] for m in modules}

@@ -62,7 +62,9 @@ def test_project_unproject_round_trip(name):
     front = prof.lenses[0]
     x, y, _ = project(front, np.array([0.0, 0.0, 1.0]))
     assert (float(x), float(y)) == pytest.approx(front.center)
-    x, y, _ = project(front, np.array([1.0, 0.0, 0.0]))  # camera right -> image right of centre (turned by the lens roll)
+    x, y, _ = project(
+        front, np.array([1.0, 0.0, 0.0])
+    )  # camera right -> image right of centre (turned by the lens roll)
     ux, uy = (front.rotation.T @ np.array([1.0, 0.0, 0.0]))[:2]
     assert float(x) - front.center[0] == pytest.approx(front.radius(math.pi / 2) * ux, abs=1e-6)
     assert float(y) - front.center[1] == pytest.approx(front.radius(math.pi / 2) * uy, abs=1e-6)
@@ -99,7 +101,9 @@ def test_profile_files_and_errors(tmp_path):
     assert load_profile(path) == p
     data = json.loads(path.read_text())
     assert data["kind"] == "lens" and data["format_version"] == 1
-    legacy = {("schema_version" if k == "format_version" else k): v for k, v in data.items()}  # before the document base
+    legacy = {
+        ("schema_version" if k == "format_version" else k): v for k, v in data.items()
+    }  # before the document base
     (tmp_path / "legacy.json").write_text(json.dumps(legacy))
     assert load_profile(tmp_path / "legacy.json") == p
     data["format_version"] = 99

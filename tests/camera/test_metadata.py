@@ -59,7 +59,9 @@ def test_gravity_frames_round_trip():
     assert gravity_from_pitch_roll(0.2, 0.0)[1] < 0
     # roll > 0 = right side down: gravity toward +X (right)
     assert gravity_from_pitch_roll(0.0, 0.2)[0] > 0
-    m = CaptureMetadata(path="x", width=2, height=1, pitch_deg=10.0, roll_deg=5.0, image_type="equirect", zenith_corrected=True)
+    m = CaptureMetadata(
+        path="x", width=2, height=1, pitch_deg=10.0, roll_deg=5.0, image_type="equirect", zenith_corrected=True
+    )
     assert np.allclose(level_rotation(m), np.eye(3))
     m.zenith_corrected = False
     assert np.allclose(level_rotation(m), rotation_from_ypr(0.0, math.radians(10), math.radians(5)))

@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from solidkit.capture.frame_merge import load_frame
 from solidkit.camera.raw import read_raw
+from solidkit.capture.frame_merge import load_frame
 from solidkit.errors import InputError
 
 

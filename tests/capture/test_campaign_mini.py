@@ -19,8 +19,11 @@ from solidkit.capture.manifest import load_manifest
 from solidkit.envmap.coords import angular_distance, direction_from_angles, rotation_from_ypr
 from solidkit.synth.campaign import load_truth
 
-MINI = Path(os.environ.get("SOLIDKIT_MINI_CAMPAIGN", Path(__file__).resolve().parents[2] / "solidkit" / "assets"
-                           / "campaign_mini"))
+MINI = Path(
+    os.environ.get(
+        "SOLIDKIT_MINI_CAMPAIGN", Path(__file__).resolve().parents[2] / "solidkit" / "assets" / "campaign_mini"
+    )
+)
 E_Y = np.array([0.0, 1.0, 0.0])
 
 
@@ -71,8 +74,9 @@ def test_camera_position_notes_and_photo_pose(mini_grouped):
     for sc in t.scenes:
         msc = m.scene(sc.id)
         assert msc.camera_probe == sc.camera_position and msc.fieldnotes is not None
-        assert {p.id: p.role for p in msc.probes} == {c.id: ("camera" if c.id == sc.camera_position else "probe")
-                                                      for c in sc.captures}
+        assert {p.id: p.role for p in msc.probes} == {
+            c.id: ("camera" if c.id == sc.camera_position else "probe") for c in sc.captures
+        }
         for c in sc.captures:
             p = next(p for p in msc.probes if p.id == c.id)
             assert not [w for w in p.warnings if w.startswith(("no_hdr", "no_sun_frame", "no_photo_pixel"))]
@@ -81,7 +85,10 @@ def test_camera_position_notes_and_photo_pose(mini_grouped):
                 assert 0 < math.dist(p.photo_pixel, c.probe.pixel) < 8.0
         cam = Camera.from_json(sc.photo.camera)
         assert msc.photo_heading_deg == pytest.approx(sc.heading_deg, abs=1e-4) and msc.photo_heading_ref == "true"
-        assert abs(msc.photo_pitch_deg - math.degrees(cam.pitch)) < 2.0 and abs(msc.photo_roll_deg - math.degrees(cam.roll)) < 2.0
+        assert (
+            abs(msc.photo_pitch_deg - math.degrees(cam.pitch)) < 2.0
+            and abs(msc.photo_roll_deg - math.degrees(cam.roll)) < 2.0
+        )
         # K from the photo's EXIF (FocalLengthIn35mmFilm on the diagonal) within its integer rounding
         K, source = intrinsics_from_exif(read_metadata(camp / m.shot(msc.photo).original))
         assert source == "exif-35mm" and K[0, 0] == pytest.approx(cam.K[0, 0], rel=0.02)
@@ -119,8 +126,10 @@ def test_every_position_gets_hdr_and_a_sun_frame_that_agree_with_the_truth(mini)
                 ok = (a > 0) & (b > 0) & (b < np.percentile(b, 99))
                 lr = np.log(a[ok] / b[ok])
                 hdr_errors.append(float(np.median(np.abs(lr - np.median(lr)))))
-    print(f"mini campaign: sun frame vs truth {np.round(sun_errors, 2)} deg (glass scene, plain detector: "
-          f"{glass_cases} deg); HDR median |log ratio| {np.round(hdr_errors, 3)}")
+    print(
+        f"mini campaign: sun frame vs truth {np.round(sun_errors, 2)} deg (glass scene, plain detector: "
+        f"{glass_cases} deg); HDR median |log ratio| {np.round(hdr_errors, 3)}"
+    )
     assert sun_errors and max(sun_errors) < 2.0
     assert len(hdr_errors) == sum(c.probe is not None for sc in t.scenes for c in sc.captures)
     assert max(hdr_errors) < 0.15
@@ -144,7 +153,7 @@ def test_glint_is_in_the_sun_frame(mini):
             h = img.shape[0]
             g = _level(c) @ np.asarray(c.glint_body)
             x, y = (int(v) for v in coords_from_direction(g, h))
-            patch = img[max(0, y - 2): y + 3, [(x + dx) % (2 * h) for dx in range(-2, 3)]]
+            patch = img[max(0, y - 2) : y + 3, [(x + dx) % (2 * h) for dx in range(-2, 3)]]
             assert patch.max() >= 250, (sc.id, c.id, patch.max())
             if c.sun_body is not None:
                 assert math.degrees(float(angular_distance(g, _level(c) @ np.asarray(c.sun_body)))) > 5.0
@@ -159,8 +168,14 @@ def test_residual_tilt_flags_match_the_truth(mini):
     errors = []
     for sc in t.scenes:
         for c in sc.captures:
-            est = next(p for p in m.products if p.scene == sc.id and p.probe == c.id and p.kind == "hdr").stats["residual_tilt"]
-            g_true = _level(c) @ np.asarray(rotation_from_ypr(0.0, math.radians(c.pitch_deg), math.radians(c.roll_deg))).T @ E_Y
+            est = next(p for p in m.products if p.scene == sc.id and p.probe == c.id and p.kind == "hdr").stats[
+                "residual_tilt"
+            ]
+            g_true = (
+                _level(c)
+                @ np.asarray(rotation_from_ypr(0.0, math.radians(c.pitch_deg), math.radians(c.roll_deg))).T
+                @ E_Y
+            )
             if est["reliable"]:
                 errors.append(math.degrees(float(angular_distance(np.asarray(est["gravity"]), g_true))))
     print(f"mini campaign: residual tilt error vs truth {np.round(errors, 2)} deg")

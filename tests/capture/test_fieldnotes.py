@@ -9,13 +9,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 from PIL import Image
-from tests.capture.test_ingest import make_card, write_shot
 
 from solidkit.capture.campaign import ingest
-from solidkit.capture.manifest import load_manifest
 from solidkit.capture.fieldnotes import FieldNotes, PhotoPose, ProbeNote, notes_text, read_notes
+from solidkit.capture.manifest import load_manifest
 from solidkit.errors import InputError
 from solidkit.synth.exif import exif_app1, insert_app1
+from tests.capture.test_ingest import make_card, write_shot
 
 T0 = datetime(2024, 6, 1, 12, 0, 0)
 
@@ -44,8 +44,16 @@ def write_photo(path: Path, heading: float | None = 213.0) -> None:
 
     buf = io.BytesIO()
     Image.fromarray(np.full((48, 64, 3), 120, np.uint8)).save(buf, "JPEG", quality=90)
-    app = exif_app1(make="Canon", model="EOS R", when=T0.replace(tzinfo=timezone(timedelta(hours=2))),
-                    exposure_time=1 / 200, f_number=2.8, iso=100, gps=(48.2, 16.4, 180.0), img_direction_deg=heading)
+    app = exif_app1(
+        make="Canon",
+        model="EOS R",
+        when=T0.replace(tzinfo=timezone(timedelta(hours=2))),
+        exposure_time=1 / 200,
+        f_number=2.8,
+        iso=100,
+        gps=(48.2, 16.4, 180.0),
+        img_direction_deg=heading,
+    )
     path.parent.mkdir(parents=True, exist_ok=True)
     path.write_bytes(insert_app1(buf.getvalue(), app))
 
@@ -97,7 +105,9 @@ def test_notes_fill_the_manifest(tmp_path):
 
 
 def test_json_notes_and_an_edit_take_effect(tmp_path):
-    card = make_scene_card(tmp_path / "card", notes='{"fieldnotes": 1, "camera_position": "p01"}', name="fieldnotes.json")
+    card = make_scene_card(
+        tmp_path / "card", notes='{"fieldnotes": 1, "camera_position": "p01"}', name="fieldnotes.json"
+    )
     camp = tmp_path / "camp"
     ingest(card, camp)
     sc = load_manifest(camp).scene("scene01")
@@ -109,12 +119,15 @@ def test_json_notes_and_an_edit_take_effect(tmp_path):
     assert report.regrouped and load_manifest(camp).scene("scene01").camera_probe == "cam"
 
 
-@pytest.mark.parametrize("text, expect", [
-    ("fieldnotes = 1\n[probes.p01]\npixle = [1, 2]\n", "probes.p01.pixle: Extra inputs are not permitted"),
-    ("fieldnotes = 1\n[probes.p01]\npixel = [1, -2]\n", "pixel coordinates must be finite and >= 0"),
-    ("camera_position = cam\n", "not valid TOML"),
-    ("fieldnotes = 2\n", "fieldnotes: Input should be 1"),
-])
+@pytest.mark.parametrize(
+    "text, expect",
+    [
+        ("fieldnotes = 1\n[probes.p01]\npixle = [1, 2]\n", "probes.p01.pixle: Extra inputs are not permitted"),
+        ("fieldnotes = 1\n[probes.p01]\npixel = [1, -2]\n", "pixel coordinates must be finite and >= 0"),
+        ("camera_position = cam\n", "not valid TOML"),
+        ("fieldnotes = 2\n", "fieldnotes: Input should be 1"),
+    ],
+)
 def test_bad_notes_are_a_scene_error_not_a_crash(tmp_path, cli, text, expect):
     card = make_scene_card(tmp_path / "card", notes=text)
     camp = tmp_path / "camp"
@@ -132,8 +145,10 @@ def test_bad_notes_are_a_scene_error_not_a_crash(tmp_path, cli, text, expect):
 
 
 def test_notes_that_do_not_match_the_card_are_warnings(tmp_path):
-    notes = 'fieldnotes = 1\ncamera_position = "nope"\nphoto = "IMG_9.JPG"\n[probes.p07]\npixel = [1, 2]\n' \
-            '[probes.p01]\npixel = [900, 10]\n'
+    notes = (
+        'fieldnotes = 1\ncamera_position = "nope"\nphoto = "IMG_9.JPG"\n[probes.p07]\npixel = [1, 2]\n'
+        "[probes.p01]\npixel = [900, 10]\n"
+    )
     camp = tmp_path / "camp"
     ingest(make_scene_card(tmp_path / "card", notes=notes), camp)
     sc = load_manifest(camp).scene("scene01")
@@ -149,7 +164,8 @@ def test_card_level_notes_for_a_camera_card(tmp_path):
     card = make_card(tmp_path / "card", bad=False)
     (card / "fieldnotes.toml").write_text(
         'fieldnotes = 1\n[scenes."scene-20240601-120000"]\ncamera_position = "p02"\nnotes = "first square"\n'
-        '[scenes."scene-20240601-120000".probes.p01]\npixel = [10, 20]\n')
+        '[scenes."scene-20240601-120000".probes.p01]\npixel = [10, 20]\n'
+    )
     camp = tmp_path / "camp"
     ingest(card, camp)
     m = load_manifest(camp)
@@ -159,8 +175,12 @@ def test_card_level_notes_for_a_camera_card(tmp_path):
 
 
 def test_notes_text_round_trips(tmp_path):
-    notes = FieldNotes(camera_position="cam", notes='say "hi"\nsecond line', photo_pose=PhotoPose(pitch_deg=-3.0),
-                       probes={"p01": ProbeNote(pixel=(1.5, 2.0), note="grass")})
+    notes = FieldNotes(
+        camera_position="cam",
+        notes='say "hi"\nsecond line',
+        photo_pose=PhotoPose(pitch_deg=-3.0),
+        probes={"p01": ProbeNote(pixel=(1.5, 2.0), note="grass")},
+    )
     p = tmp_path / "fieldnotes.toml"
     p.write_text(notes_text(notes))
     assert read_notes(p) == notes

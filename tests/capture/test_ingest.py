@@ -33,7 +33,9 @@ XMP_EQUIRECT = (
 RADIANCE = np.exp(np.linspace(np.log(0.5), np.log(500.0), 64))[None, :, None] * np.array([1.0, 0.8, 0.6])
 
 
-def write_shot(path: Path, when: datetime, exposure: tuple[int, int], make: str = "RICOH", model: str = "RICOH THETA V") -> None:
+def write_shot(
+    path: Path, when: datetime, exposure: tuple[int, int], make: str = "RICOH", model: str = "RICOH THETA V"
+) -> None:
     """A 64x32 equirect JPEG of a synthetic gradient scene exposed for ``exposure`` seconds, with EXIF."""
     t = exposure[0] / exposure[1]
     code = np.round(255 * np.clip(RADIANCE * t, 0, 1) ** (1 / 2.2)).astype(np.uint8)
@@ -72,7 +74,9 @@ def make_card(root: Path, bad: bool = True, extra_brackets: int = 0) -> Path:
         base = 14400 + 60 * i
         shot(base, (1, 1000)), shot(base + 1, (1, 100)), shot(base + 2, (1, 10))
     # the scene photo from another camera
-    write_shot(root / "DCIM" / "100CANON" / "IMG_0001.JPG", T0 + timedelta(seconds=60), (1, 200), make="Canon", model="EOS R")
+    write_shot(
+        root / "DCIM" / "100CANON" / "IMG_0001.JPG", T0 + timedelta(seconds=60), (1, 200), make="Canon", model="EOS R"
+    )
     (root / "notes.txt").write_text("field notes\n")
     (root / ".hidden.JPG").write_bytes(b"x")
     (d / "R0010099.MP4").write_bytes(b"\x00\x00\x00\x18ftypmp42")
@@ -85,8 +89,11 @@ def make_card(root: Path, bad: bool = True, extra_brackets: int = 0) -> Path:
 
 
 def tree_digest(root: Path) -> dict[str, tuple[str, int]]:
-    return {str(p.relative_to(root)): (hashlib.sha256(p.read_bytes()).hexdigest(), p.stat().st_mtime_ns)
-            for p in sorted(root.rglob("*")) if p.is_file()}
+    return {
+        str(p.relative_to(root)): (hashlib.sha256(p.read_bytes()).hexdigest(), p.stat().st_mtime_ns)
+        for p in sorted(root.rglob("*"))
+        if p.is_file()
+    }
 
 
 @pytest.fixture
@@ -188,7 +195,9 @@ def test_fixed_file_is_picked_up_and_error_cleared(card, tmp_path):
 def test_duplicate_exposure_is_reported(tmp_path):
     card = tmp_path / "card"
     for i, dt in enumerate((0, 1, 2)):
-        write_shot(card / "s1" / "p1" / f"R00100{i + 1:02d}.JPG", T0 + timedelta(seconds=dt), (1, 8) if i < 2 else (1, 2))
+        write_shot(
+            card / "s1" / "p1" / f"R00100{i + 1:02d}.JPG", T0 + timedelta(seconds=dt), (1, 8) if i < 2 else (1, 2)
+        )
     ingest(card, tmp_path / "camp")
     m = load_manifest(tmp_path / "camp")
     probe = m.scenes[0].probes[0]
@@ -210,7 +219,10 @@ def test_kill9_mid_run_then_resume(tmp_path):
     env = {**os.environ, "SOLIDKIT_INGEST_THROTTLE_S": "0.15"}
     proc = subprocess.Popen(
         [sys.executable, "-c", "from solidkit.cli import main; main()", "ingest", str(card), "-o", str(camp)],
-        cwd=REPO, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+        cwd=REPO,
+        env=env,
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
     )
     deadline = time.monotonic() + 60
     originals = camp / "originals"
@@ -265,12 +277,10 @@ def test_real_theta_jpeg_ingests_with_metadata(real_data, tmp_path):
 
 def test_dual_fisheye_products_become_panoramas():
     """A dual-fisheye capture (Theta V layout) goes through the shipped lens profile."""
-    from solidkit.capture.products import to_panorama
     from solidkit.camera.lens import load_profile
-    from solidkit.capture.unwarp import render_fisheye
+    from solidkit.capture.products import to_panorama
+    from solidkit.capture.unwarp import default_out_height, render_fisheye
     from solidkit.envmap.coords import direction_grid
-
-    from solidkit.capture.unwarp import default_out_height
 
     H = 64
 
@@ -345,16 +355,40 @@ def test_synthetic_campaign_end_to_end(tmp_path):
     from solidkit.envmap.resample import resize, rotate
 
     out = tmp_path / "syn"
-    r = CliRunner().invoke(app, ["synth", "campaign", "--scenes", "1", "--probes", "1", "--out", str(out), "--photo-spp", "4",
-                                 "--pano-height", "64", "--pano-spp", "4", "--fisheye-width", "256",
-                                 "--brackets", "1/640,1/160,1/40"])
+    r = CliRunner().invoke(
+        app,
+        [
+            "synth",
+            "campaign",
+            "--scenes",
+            "1",
+            "--probes",
+            "1",
+            "--out",
+            str(out),
+            "--photo-spp",
+            "4",
+            "--pano-height",
+            "64",
+            "--pano-spp",
+            "4",
+            "--fisheye-width",
+            "256",
+            "--brackets",
+            "1/640,1/160,1/40",
+        ],
+    )
     assert r.exit_code == 0, r.output
     ingest(out / "card", tmp_path / "camp")
     m = load_manifest(tmp_path / "camp")
     truth = json.loads((out / "truth" / "truth.json").read_text())
     # the field protocol: every Theta shot of a position belongs to its one bracket
-    role_to_kind = {"photo": "photo", "bracket": "bracket_member", "low_exposure": "bracket_member",
-                    "normal": "bracket_member"}
+    role_to_kind = {
+        "photo": "photo",
+        "bracket": "bracket_member",
+        "low_exposure": "bracket_member",
+        "normal": "bracket_member",
+    }
     by_path = {s.sources[0].path: s for s in m.shots}
     sc = truth["scenes"][0]
     shots = [sc["photo"]["shot"]] + [s for c in sc["captures"] for s in c["shots"]]
@@ -365,7 +399,9 @@ def test_synthetic_campaign_end_to_end(tmp_path):
     prod = next(p for p in m.products if p.id == f"{sc['id']}/{cap['id']}/hdr-b01")
     ours, _ = read_exr(tmp_path / "camp" / prod.path)
     true, _ = read_exr(out / cap["probe"]["hdr_file"])
-    R_level = np.asarray(rotation_from_ypr(0.0, math.radians(cap["recorded_pitch_deg"]), math.radians(cap["recorded_roll_deg"])))
+    R_level = np.asarray(
+        rotation_from_ypr(0.0, math.radians(cap["recorded_pitch_deg"]), math.radians(cap["recorded_roll_deg"]))
+    )
 
     def err(R):
         a, b = resize(np.asarray(rotate(ours, R, "linear")), 32).mean(-1), resize(true[..., :3], 32).mean(-1)
@@ -374,8 +410,10 @@ def test_synthetic_campaign_end_to_end(tmp_path):
         return float(np.median(np.abs(lr - np.median(lr))))
 
     aligned = err(np.asarray(cap["R_pano_from_body"]) @ R_level.T)
-    print(f"synthetic probe HDR vs truth: median |log ratio| {aligned:.3f} (not levelled: "
-          f"{err(np.asarray(cap['R_pano_from_body'])):.3f}, not rotated: {err(np.eye(3)):.3f})")
+    print(
+        f"synthetic probe HDR vs truth: median |log ratio| {aligned:.3f} (not levelled: "
+        f"{err(np.asarray(cap['R_pano_from_body'])):.3f}, not rotated: {err(np.eye(3)):.3f})"
+    )
     assert aligned < 0.1 and aligned < err(np.eye(3)) / 2
 
 
@@ -400,9 +438,18 @@ def _dual_fisheye_card(root: Path, lens, vignetting, size=(512, 256)) -> tuple[P
     d = root / "DCIM" / "100RICOH"
     d.mkdir(parents=True)
     for i, t in enumerate((1 / 500, 1 / 125)):
-        ok, jpg = cv2.imencode(".jpg", cv2.cvtColor(encode_srgb8(fish * t), cv2.COLOR_RGB2BGR), [cv2.IMWRITE_JPEG_QUALITY, 98])
-        app1 = exif_app1(make="RICOH", model="RICOH THETA V", when=T0 + timedelta(seconds=i), exposure_time=t,
-                         f_number=2.0, iso=100, theta={"image_type": 2, "roll_deg": 0.0, "pitch_deg": 0.0})
+        ok, jpg = cv2.imencode(
+            ".jpg", cv2.cvtColor(encode_srgb8(fish * t), cv2.COLOR_RGB2BGR), [cv2.IMWRITE_JPEG_QUALITY, 98]
+        )
+        app1 = exif_app1(
+            make="RICOH",
+            model="RICOH THETA V",
+            when=T0 + timedelta(seconds=i),
+            exposure_time=t,
+            f_number=2.0,
+            iso=100,
+            theta={"image_type": 2, "roll_deg": 0.0, "pitch_deg": 0.0},
+        )
         (d / f"R00100{i + 1:02d}.JPG").write_bytes(insert_app1(jpg.tobytes(), app1))
     return root, sample_panorama(radiance, direction_grid(default_out_height(size[0])))
 
@@ -426,18 +473,35 @@ def test_ingest_unit_profile_and_vignetting(tmp_path):
     base = load_profile("theta-v")
     # this unit: back lens centre 30 px (at 5792 wide) off the model's, rotated 0.5 deg
     ref = base.lenses[1]
-    unit = base.model_copy(update={"model": "theta-v unit 123", "lenses": [base.lenses[0], ref.model_copy(update={
-        "center": (ref.center[0] + 30.0, ref.center[1] - 20.0), "ypr_deg": tuple(v + 0.5 for v in ref.ypr_deg)})]})
+    unit = base.model_copy(
+        update={
+            "model": "theta-v unit 123",
+            "lenses": [
+                base.lenses[0],
+                ref.model_copy(
+                    update={
+                        "center": (ref.center[0] + 30.0, ref.center[1] - 20.0),
+                        "ypr_deg": tuple(v + 0.5 for v in ref.ypr_deg),
+                    }
+                ),
+            ],
+        }
+    )
     unit_file = unit.save(tmp_path / "unit.json")
     size = (512, 256)
-    lenses = [l.model_copy(update={"coeffs": c}) for l, c in zip(lenses_from_profile(unit.scaled(*size)), ([-0.3], [-0.45, 0.05]))]
+    lenses = [
+        l.model_copy(update={"coeffs": c})
+        for l, c in zip(lenses_from_profile(unit.scaled(*size)), ([-0.3], [-0.45, 0.05]))
+    ]
     vig = make_profile("flat-field", lenses, size, {})
     vig_file = vig.save(tmp_path / "vignetting.json")
     card, truth = _dual_fisheye_card(tmp_path / "card", unit, vig, size)
 
     runner = CliRunner()
     camp = tmp_path / "camp"
-    r = runner.invoke(app, ["ingest", str(card), "-o", str(camp), "--profile", str(unit_file), "--vignetting", str(vig_file)])
+    r = runner.invoke(
+        app, ["ingest", str(card), "-o", str(camp), "--profile", str(unit_file), "--vignetting", str(vig_file)]
+    )
     assert r.exit_code == 0, r.output
     m = load_manifest(camp)
     assert m.lens_profile["kind"] == "file" and m.lens_profile["model"] == "theta-v unit 123"
@@ -458,9 +522,11 @@ def test_ingest_unit_profile_and_vignetting(tmp_path):
     ingest(card, tmp_path / "no-unit", vignetting_path=vig_file)
     err_no_unit, stats_no_unit = _hdr_error(tmp_path / "no-unit", truth)
     p95_both, p95_no_unit = _hdr_error(camp, truth, 95)[0], _hdr_error(tmp_path / "no-unit", truth, 95)[0]
-    print(f"HDR product median relative error: profile+vignetting {err_both:.4f} (p95 {p95_both:.4f}, seam "
-          f"{stats['seam_mad']:.4g}), no vignetting {err_no_vig:.4f} (seam {stats_no_vig['seam_mad']:.4g}), "
-          f"model-default lens {err_no_unit:.4f} (p95 {p95_no_unit:.4f}, seam {stats_no_unit['seam_mad']:.4g})")
+    print(
+        f"HDR product median relative error: profile+vignetting {err_both:.4f} (p95 {p95_both:.4f}, seam "
+        f"{stats['seam_mad']:.4g}), no vignetting {err_no_vig:.4f} (seam {stats_no_vig['seam_mad']:.4g}), "
+        f"model-default lens {err_no_unit:.4f} (p95 {p95_no_unit:.4f}, seam {stats_no_unit['seam_mad']:.4g})"
+    )
     # measured: median 0.0039 / 0.203 / 0.0056; p95 0.0195 vs 0.0915 (model lens); seam 0.35 / 1.82 / 0.62
     assert err_both < 0.02 and err_no_vig > 0.1 and stats["seam_mad"] < 0.3 * stats_no_vig["seam_mad"]
     assert p95_no_unit > 3 * p95_both and stats_no_unit["seam_mad"] > 1.5 * stats["seam_mad"]
@@ -541,11 +607,26 @@ def test_kill9_takes_the_workers_with_it(tmp_path):
     camp = tmp_path / "camp"
     env = {**os.environ, "SOLIDKIT_INGEST_THROTTLE_S": "0.3"}
     proc = subprocess.Popen(
-        [sys.executable, "-c", "from solidkit.cli import main; main()", "ingest", "-j", "2", str(card), "-o", str(camp)],
-        cwd=REPO, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+        [
+            sys.executable,
+            "-c",
+            "from solidkit.cli import main; main()",
+            "ingest",
+            "-j",
+            "2",
+            str(card),
+            "-o",
+            str(camp),
+        ],
+        cwd=REPO,
+        env=env,
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
     )
     deadline = time.monotonic() + 60
-    while time.monotonic() < deadline and not ((camp / "originals").is_dir() and any((camp / "originals").rglob("*.jpg"))):
+    while time.monotonic() < deadline and not (
+        (camp / "originals").is_dir() and any((camp / "originals").rglob("*.jpg"))
+    ):
         time.sleep(0.02)
     workers = _children(proc.pid)
     assert proc.poll() is None and len(workers) >= 2, "ingest finished (or had no workers) before it could be killed"
@@ -555,7 +636,12 @@ def test_kill9_takes_the_workers_with_it(tmp_path):
     alive = workers
     while alive and time.monotonic() < deadline:
         time.sleep(0.1)
-        alive = [w for w in alive if Path(f"/proc/{w}").exists() and "Z" not in Path(f"/proc/{w}/stat").read_text().rsplit(")", 1)[1].split()[0]]
+        alive = [
+            w
+            for w in alive
+            if Path(f"/proc/{w}").exists()
+            and "Z" not in Path(f"/proc/{w}/stat").read_text().rsplit(")", 1)[1].split()[0]
+        ]
     assert not alive, f"workers {alive} outlived the killed ingest"
 
 
@@ -616,8 +702,13 @@ def test_products_are_the_same_bytes_whatever_the_thread_count(tmp_path):
     for n in (1, 2):
         camp = tmp_path / f"camp{n}"
         env = dict(os.environ, OMP_NUM_THREADS=str(n), OPENBLAS_NUM_THREADS=str(n))
-        subprocess.run([sys.executable, "-m", "solidkit.cli", "--threads", str(n), "ingest", str(card), "-o", str(camp)],
-                       check=True, env=env, capture_output=True, timeout=1200)
+        subprocess.run(
+            [sys.executable, "-m", "solidkit.cli", "--threads", str(n), "ingest", str(card), "-o", str(camp)],
+            check=True,
+            env=env,
+            capture_output=True,
+            timeout=1200,
+        )
         files = sorted(p for p in camp.rglob("*") if p.is_file())
         digests.append({p.relative_to(camp).as_posix(): hashlib.sha256(p.read_bytes()).hexdigest() for p in files})
     assert sum(k.endswith(".exr") for k in digests[0]) >= 7, "the card makes HDR products"

@@ -11,7 +11,9 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
+from solidkit.camera.raw import RawImage
 from solidkit.capture.bracket_groups import ShotInfo, format_exposure, group_brackets, sequence_from_name
+from solidkit.capture.bracket_merge import merge_files
 from solidkit.capture.frame_merge import (
     dynamic_range_stops,
     frame_from_ldr,
@@ -22,8 +24,6 @@ from solidkit.capture.frame_merge import (
     srgb_response,
     validate_response,
 )
-from solidkit.camera.raw import RawImage
-from solidkit.capture.bracket_merge import merge_files
 from solidkit.envmap.io import read_exr
 from solidkit.errors import InputError
 
@@ -79,8 +79,10 @@ def test_merge_recovers_synthetic_hdr(scene):
     # the merged dynamic range matches the scene's (sun excluded: it clips in every frame)
     dr, dr_true = dynamic_range_stops(res.hdr, res.saturated), dynamic_range_stops(scene, res.saturated)
     assert abs(dr - dr_true) < 0.25, (dr, dr_true)
-    print(f"synthetic merge: median relative error {100 * err:.2f} % on {100 * good.mean():.1f} % of pixels; "
-          f"dynamic range {dr:.2f} stops (truth {dr_true:.2f})")
+    print(
+        f"synthetic merge: median relative error {100 * err:.2f} % on {100 * good.mean():.1f} % of pixels; "
+        f"dynamic range {dr:.2f} stops (truth {dr_true:.2f})"
+    )
     assert res.ghost_fraction < 0.002  # a static scene has (almost) no ghosts
 
 
@@ -207,8 +209,10 @@ def test_bracket_grouping():
     noclock = [ShotInfo(k, None, n, e) for k, n, e in [("x", 10, 0.1), ("y", 11, 1.0), ("z", 14, 0.1)]]
     assert [[s.key for s in g] for g in group_brackets(noclock)] == [["x", "y"], ["z"]]
     # an ISO bracket at a fixed shutter is one bracket; a repeated (time, ISO) is not
-    iso = [ShotInfo(k, t0 + timedelta(seconds=i), None, 0.01, gain=g) for i, (k, g) in
-           enumerate([("i1", 1.0), ("i2", 4.0), ("i3", 16.0), ("i4", 16.0)])]
+    iso = [
+        ShotInfo(k, t0 + timedelta(seconds=i), None, 0.01, gain=g)
+        for i, (k, g) in enumerate([("i1", 1.0), ("i2", 4.0), ("i3", 16.0), ("i4", 16.0)])
+    ]
     assert [[s.key for s in g] for g in group_brackets(iso)] == [["i1", "i2", "i3"], ["i4"]]
     assert sequence_from_name("DCIM/100RICOH/R0010123.JPG") == 10123
     assert format_exposure(1 / 25000) == "1/25000 s" and format_exposure(8) == "8 s"
@@ -219,7 +223,10 @@ def _write_bracket(tmp_path: Path, scene: np.ndarray) -> list[Path]:
     paths = []
     for i, t in enumerate(TIMES[:3]):
         p = tmp_path / f"R00100{i + 1:02d}.png"
-        cv2.imwrite(str(p), cv2.cvtColor(expose(scene, t, rng, curve=lambda x: np.clip(x, 0, 1) ** (1 / 2.2)), cv2.COLOR_RGB2BGR))
+        cv2.imwrite(
+            str(p),
+            cv2.cvtColor(expose(scene, t, rng, curve=lambda x: np.clip(x, 0, 1) ** (1 / 2.2)), cv2.COLOR_RGB2BGR),
+        )
         paths.append(p)
     return paths
 
@@ -247,7 +254,9 @@ def test_merge_cli_errors(tmp_path, scene):
 
     paths = _write_bracket(tmp_path, scene)
     runner = CliRunner()
-    r = runner.invoke(app, ["capture", "merge", *map(str, paths[:2]), "-o", str(tmp_path / "x.exr"), "--times", "1/8,0.125"])
+    r = runner.invoke(
+        app, ["capture", "merge", *map(str, paths[:2]), "-o", str(tmp_path / "x.exr"), "--times", "1/8,0.125"]
+    )
     assert r.exit_code != 0 and "same exposure" in str(r.exception)
     r = runner.invoke(app, ["capture", "merge", *map(str, paths[:2]), "-o", str(tmp_path / "x.exr")])
     assert "no exposure time" in str(r.exception)  # PNGs carry no EXIF
@@ -279,8 +288,10 @@ def test_real_frobisher_brackets_merge(real_data, tmp_path):
     assert [i["exposure_time"] for i in meta["provenance"]["inputs"]] == [0.125, 1.0, 8.0]  # from EXIF
     # 3 frames, 6 stops apart: well beyond one JPEG's ~8 stops
     assert stats["dynamic_range_stops"] > 10
-    print(f"frobisher: dynamic range {stats['dynamic_range_stops']:.2f} stops, ghosts {100 * stats['ghost_fraction']:.2f} %, "
-          f"saturated in all frames {100 * stats['saturated_in_all_frames_fraction']:.2f} %")
+    print(
+        f"frobisher: dynamic range {stats['dynamic_range_stops']:.2f} stops, ghosts {100 * stats['ghost_fraction']:.2f} %, "
+        f"saturated in all frames {100 * stats['saturated_in_all_frames_fraction']:.2f} %"
+    )
 
 
 @pytest.mark.real
@@ -302,8 +313,10 @@ def test_real_frobisher_with_calibrated_response(real_data, tmp_path):
     assert meta["provenance"]["response"]["kind"] == "estimated" and meta["provenance"]["response"]["frames"] == 3
     assert auto["response"]["kind"] == "estimated" and not auto["warnings"]
     assert all(abs(dx) < 0.5 and abs(dy) < 0.5 for dx, dy in auto["registration"]["shifts_px"])  # a tripod bracket
-    print(f"frobisher ghost fraction: sRGB response {100 * srgb['ghost_fraction']:.2f} %, estimated from the frames "
-          f"{100 * auto['ghost_fraction']:.2f} %, calibrated {100 * cal['ghost_fraction']:.2f} %")
+    print(
+        f"frobisher ghost fraction: sRGB response {100 * srgb['ghost_fraction']:.2f} %, estimated from the frames "
+        f"{100 * auto['ghost_fraction']:.2f} %, calibrated {100 * cal['ghost_fraction']:.2f} %"
+    )
     assert auto["ghost_fraction"] <= 0.02 and cal["ghost_fraction"] < 0.01 < srgb["ghost_fraction"]
     # two frames: nothing to estimate from -> sRGB assumed, and said so
     two = merge_files(frames[:2], tmp_path / "two.exr")[0]
@@ -324,14 +337,18 @@ def test_frames_read_by_content_and_registered(tmp_path, scene):
     # shift the longest frame's content by (-0.7, +0.8) px
     long = cv2.imread(str(paths[2]))
     h, w = long.shape[:2]
-    shifted = cv2.warpAffine(long, np.float32([[1, 0, -0.7], [0, 1, 0.8]]), (w, h), flags=cv2.INTER_CUBIC,
-                             borderMode=cv2.BORDER_REPLICATE)
+    shifted = cv2.warpAffine(
+        long, np.float32([[1, 0, -0.7], [0, 1, 0.8]]), (w, h), flags=cv2.INTER_CUBIC, borderMode=cv2.BORDER_REPLICATE
+    )
     cv2.imwrite(str(tmp_path / "shifted.png"), shifted)
-    s = merge_files([paths[0], paths[1], tmp_path / "shifted.png"], tmp_path / "b.exr", times=TIMES[:3], response=gamma)[0]
+    s = merge_files(
+        [paths[0], paths[1], tmp_path / "shifted.png"], tmp_path / "b.exr", times=TIMES[:3], response=gamma
+    )[0]
     dx, dy = s["registration"]["shifts_px"][2]
     assert s["registration"]["applied"][2] and abs(dx + 0.7) < 0.25 and abs(dy - 0.8) < 0.25, s["registration"]
-    unaligned = merge_files([paths[0], paths[1], tmp_path / "shifted.png"], tmp_path / "c.exr", times=TIMES[:3],
-                            response=gamma, align=False)[0]
+    unaligned = merge_files(
+        [paths[0], paths[1], tmp_path / "shifted.png"], tmp_path / "c.exr", times=TIMES[:3], response=gamma, align=False
+    )[0]
     assert s["ghost_fraction"] <= unaligned["ghost_fraction"]
 
 
@@ -355,8 +372,16 @@ def test_a_merged_bracket_is_the_same_whatever_the_thread_count():
 
     frames = sorted((ASSETS.parent / "campaign_mini" / "card" / "scene02" / "p01").glob("R*.JPG"))
     assert len(frames) == 3
-    digests = {subprocess.run([sys.executable, "-c", _THREADED_MERGE, str(n), *map(str, frames)], check=True,
-                              capture_output=True, text=True, timeout=300).stdout.strip() for n in (1, 2)}
+    digests = {
+        subprocess.run(
+            [sys.executable, "-c", _THREADED_MERGE, str(n), *map(str, frames)],
+            check=True,
+            capture_output=True,
+            text=True,
+            timeout=300,
+        ).stdout.strip()
+        for n in (1, 2)
+    }
     assert len(digests) == 1, digests
 
 

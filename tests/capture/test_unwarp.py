@@ -33,8 +33,24 @@ H_OUT = 1024
 FISH = (2048, 1024)
 SIGMA = math.radians(0.5)
 # azimuth, elevation (deg): seam (±90° azimuth at the horizon is 90° from both lens axes), poles, anywhere
-MARKERS_DEG = [(0, 0), (90, 0), (-90, 0), (91, 3), (-89, -4), (88, 30), (-92, -45), (180, 0), (179, 20),
-               (30, 45), (150, -60), (-120, 70), (45, -30), (0, 80), (60, -75), (-135, 10)]
+MARKERS_DEG = [
+    (0, 0),
+    (90, 0),
+    (-90, 0),
+    (91, 3),
+    (-89, -4),
+    (88, 30),
+    (-92, -45),
+    (180, 0),
+    (179, 20),
+    (30, 45),
+    (150, -60),
+    (-120, 70),
+    (45, -30),
+    (0, 80),
+    (60, -75),
+    (-135, 10),
+]
 MARKERS = np.array([np.asarray(direction_from_angles(math.radians(a), math.radians(e))) for a, e in MARKERS_DEG])
 
 
@@ -104,8 +120,10 @@ def test_round_trip_markers_and_psnr(rendered, reference):
     assert errs.max() < 0.5, errs
     ref = reference
     outside = ~seam_band(H_OUT, 2.0)
-    print(f"markers: max {errs.max():.4f} px, mean {errs.mean():.4f} px; PSNR outside seam band "
-          f"{psnr(out[..., :3], ref, outside):.2f} dB, inside {psnr(out[..., :3], ref, ~outside):.2f} dB")
+    print(
+        f"markers: max {errs.max():.4f} px, mean {errs.mean():.4f} px; PSNR outside seam band "
+        f"{psnr(out[..., :3], ref, outside):.2f} dB, inside {psnr(out[..., :3], ref, ~outside):.2f} dB"
+    )
     assert psnr(out[..., :3], ref, outside) >= 40.0  # measured: ~55 dB
     assert psnr(out[..., :3], ref, ~outside) >= 35.0  # the seam band itself (blend of two lenses)
 
@@ -117,7 +135,12 @@ def test_wrong_profile_fails_the_thresholds(rendered, reference, wrong):
         z1 = load_profile("theta-z1").scaled(*FISH)
         bad = prof.scaled(*FISH).model_copy(update={"lenses": z1.lenses})
     else:
-        lenses = [prof.lenses[0].model_copy(update={"center": (prof.lenses[0].center[0] + 2 * 5792 / FISH[0], prof.lenses[0].center[1])}), prof.lenses[1]]
+        lenses = [
+            prof.lenses[0].model_copy(
+                update={"center": (prof.lenses[0].center[0] + 2 * 5792 / FISH[0], prof.lenses[0].center[1])}
+            ),
+            prof.lenses[1],
+        ]
         bad = prof.model_copy(update={"lenses": lenses})
     out = unwarp(fish, bad, H_OUT)
     errs = marker_errors_px(out[..., 3])
@@ -144,7 +167,9 @@ def test_levelling_from_metadata(scene):
     """A tilted camera: unwarping with the metadata's gravity puts the markers back in place."""
     _, source = scene
     prof = load_profile("theta-v")
-    meta = CaptureMetadata(path="x", width=FISH[0], height=FISH[1], image_type="dual_fisheye", pitch_deg=7.0, roll_deg=-4.0)
+    meta = CaptureMetadata(
+        path="x", width=FISH[0], height=FISH[1], image_type="dual_fisheye", pitch_deg=7.0, roll_deg=-4.0
+    )
     R = level_rotation(meta)
     assert np.allclose(R, rotation_from_ypr(0.0, math.radians(7.0), math.radians(-4.0)))
     fish = render_fisheye(source, prof, (1024, 512), R_level=R)
@@ -162,7 +187,12 @@ def test_remap_cache_memory_and_disk(tmp_path, rendered):
     assert (s1, s2) == ("built", "memory") and m2 is m1
     clear_cache()
     m3, s3 = get_maps(prof, (512, 256), 64, cache_dir=tmp_path)
-    assert s3 == "disk" and np.array_equal(m3.map1, m1.map1) and np.array_equal(m3.map2, m1.map2) and np.array_equal(m3.weight, m1.weight)
+    assert (
+        s3 == "disk"
+        and np.array_equal(m3.map1, m1.map1)
+        and np.array_equal(m3.map2, m1.map2)
+        and np.array_equal(m3.weight, m1.weight)
+    )
     _, s4 = get_maps(prof, (512, 256), 32, cache_dir=tmp_path)  # another output size: other tables
     clear_cache()  # also waits for the background writes
     assert s4 == "built" and len(list(tmp_path.glob("unwarp-*.tables"))) == 2
@@ -173,14 +203,18 @@ def test_remap_cache_memory_and_disk(tmp_path, rendered):
 def test_cli_unwarp_and_bad_input(tmp_path, rendered, cli):
     prof, fish = rendered
     src = tmp_path / "dual.png"
-    write_ldr(src, cv2.resize(np.clip(fish[..., :3], 0, 1), (1024, 512), interpolation=cv2.INTER_AREA), encode_srgb=False)
+    write_ldr(
+        src, cv2.resize(np.clip(fish[..., :3], 0, 1), (1024, 512), interpolation=cv2.INTER_AREA), encode_srgb=False
+    )
     out = tmp_path / "pano.png"
     code, _, err = cli("capture", "unwarp", str(src), "-o", str(out), "--profile", "theta-v", "--size", "512x256")
     assert code == 0, err
     assert cv2.imread(str(out)).shape == (256, 512, 3)
     code, _, err = cli("capture", "unwarp", str(src), "-o", str(tmp_path / "x.png"))  # no EXIF, no --profile
     assert code == 2 and "no shipped lens profile" in err and "Traceback" not in err
-    code, _, err = cli("capture", "unwarp", str(src), "-o", str(tmp_path / "x.png"), "--profile", "theta-v", "--size", "500x300")
+    code, _, err = cli(
+        "capture", "unwarp", str(src), "-o", str(tmp_path / "x.png"), "--profile", "theta-v", "--size", "500x300"
+    )
     assert code == 2 and "W = 2 H" in err
     code, _, err = cli("capture", "unwarp", str(src), "-o", str(tmp_path / "x.png"), "--profile", "theta-s-video")
     assert code == 2 and "aspect" in err
@@ -202,8 +236,10 @@ def test_real_theta_s_live_frame(real_data, tmp_path):
     assert s["coverage"] == 1.0
     img = cv2.imread(str(tmp_path / "s.png"))
     assert img.shape == (512, 1024, 3)  # every output pixel is seen by a lens (coverage 1.0)
-    print(f"theta-s-video seam disagreement (linear): median {s['seam_mad']:.5f}, rmse {s['seam_rmse']:.4f}, "
-          f"seam error {s['seam_error']}, gains {s['gains']}, fit {s['profile_fit']}")
+    print(
+        f"theta-s-video seam disagreement (linear): median {s['seam_mad']:.5f}, rmse {s['seam_rmse']:.4f}, "
+        f"seam error {s['seam_error']}, gains {s['gains']}, fit {s['profile_fit']}"
+    )
     # the band runs through the poles of the upright panorama (ceiling lamp, floor): 0.0155 measured
     assert s["seam_mad"] < 0.02 and s["seam_error"] < 0.6
     assert s["profile_fit"]["ok"] and s["profile_fit"]["roll_deg"] == 0.0  # upright, no warning
@@ -252,12 +288,27 @@ def test_real_theta_s_seam_vs_ffmpeg_v360(real_data, tmp_path):
     bgr = cv2.imread(str(src))
     circles = prof.residuals["image_circles_px"]
     R = int(round(max(c[2] for c in circles)))
-    cv2.imwrite(str(tmp_path / "ff_in.png"), np.concatenate([cv2.getRectSubPix(bgr, (2 * R, 2 * R), (c[0], c[1])) for c in circles], 1))
+    cv2.imwrite(
+        str(tmp_path / "ff_in.png"),
+        np.concatenate([cv2.getRectSubPix(bgr, (2 * R, 2 * R), (c[0], c[1])) for c in circles], 1),
+    )
     ff = {}
     for fov in (190, 195, 200, 205, 210):
         out = tmp_path / f"ff_{fov}.png"
-        subprocess.run(["ffmpeg", "-y", "-loglevel", "error", "-i", str(tmp_path / "ff_in.png"), "-vf",
-                        f"v360=input=dfisheye:output=equirect:ih_fov={fov}:iv_fov={fov}:w={W}:h={H}", str(out)], check=True)
+        subprocess.run(
+            [
+                "ffmpeg",
+                "-y",
+                "-loglevel",
+                "error",
+                "-i",
+                str(tmp_path / "ff_in.png"),
+                "-vf",
+                f"v360=input=dfisheye:output=equirect:ih_fov={fov}:iv_fov={fov}:w={W}:h={H}",
+                str(out),
+            ],
+            check=True,
+        )
         gray = cv2.cvtColor(cv2.imread(str(out)), cv2.COLOR_BGR2GRAY)
         ff[fov] = seam_step(gray, [[W // 4, 3 * W // 4]] * H)["step"]
     pano = unwarp(read_ldr(src, linear=True), prof, H, feather_deg=0.0, saturation=0.98)
@@ -296,7 +347,9 @@ def _falloff_profile(prof, coeffs=([-0.3], [-0.45, 0.05])):
     """A vignetting profile with a known, different falloff per lens (geometry from the lens profile)."""
     from solidkit.calibration.vignetting import lenses_from_profile, make_profile
 
-    lenses = [l.model_copy(update={"coeffs": list(c)}) for l, c in zip(lenses_from_profile(prof.scaled(*V_SIZE)), coeffs)]
+    lenses = [
+        l.model_copy(update={"coeffs": list(c)}) for l, c in zip(lenses_from_profile(prof.scaled(*V_SIZE)), coeffs)
+    ]
     return make_profile("flat-field", lenses, V_SIZE, {})
 
 
@@ -330,9 +383,11 @@ def test_vignetting_corrected_before_gain_matching_and_blending(vignetted):
     on = unwarp(fish, prof, V_OUT, stats=st_on, vignetting=vprof)
     ref = unwarp(clean, prof, V_OUT, stats=st_clean)
     err_off, err_on = _median_rel_error(off, truth), _median_rel_error(on, truth)
-    print(f"vignetting off: seam_mad {st_off['seam_mad']:.5f}, median rel error {err_off:.4f}; "
-          f"on: seam_mad {st_on['seam_mad']:.5f}, median rel error {err_on:.4f}; "
-          f"no falloff: seam_mad {st_clean['seam_mad']:.5f}, error {_median_rel_error(ref, truth):.4f}")
+    print(
+        f"vignetting off: seam_mad {st_off['seam_mad']:.5f}, median rel error {err_off:.4f}; "
+        f"on: seam_mad {st_on['seam_mad']:.5f}, median rel error {err_on:.4f}; "
+        f"no falloff: seam_mad {st_clean['seam_mad']:.5f}, error {_median_rel_error(ref, truth):.4f}"
+    )
     # measured: off 0.0133 / 0.203, on 0.00009 / 0.0003 (= the falloff-free rendering)
     assert st_off["seam_mad"] > 0.005 and err_off > 0.1  # gain matching alone cannot undo a radial falloff
     assert st_on["seam_mad"] < 0.02 * st_off["seam_mad"] and st_on["seam_mad"] < 2 * st_clean["seam_mad"] + 1e-4
@@ -352,7 +407,10 @@ def test_vignetting_8bit_path_and_saturation(vignetted):
     st_on: dict = {}
     off = unwarp_srgb8(img8, prof, V_OUT, stats=st_off)
     on = unwarp_srgb8(img8, prof, V_OUT, stats=st_on, vignetting=vprof)
-    assert on.dtype == np.uint8 and np.abs(on.astype(int) - encode_srgb8(unwarp(img8, prof, V_OUT, vignetting=vprof)).astype(int)).max() == 0
+    assert (
+        on.dtype == np.uint8
+        and np.abs(on.astype(int) - encode_srgb8(unwarp(img8, prof, V_OUT, vignetting=vprof)).astype(int)).max() == 0
+    )
     t8 = encode_srgb8(truth).astype(int)
     assert np.median(np.abs(on.astype(int) - t8)) <= 1 < np.median(np.abs(off.astype(int) - t8))
     # measured: off 0.0144, on 0.0026: what is left is 8-bit quantisation, amplified by 1/V (one code
@@ -382,15 +440,34 @@ def test_cli_unwarp_vignetting(tmp_path, vignetted, cli):
     vfile = vprof.save(tmp_path / "vignetting.json")
     size = f"{2 * V_OUT}x{V_OUT}"
     for name, extra in (("off", []), ("on", ["--vignetting", str(vfile)])):
-        code, _, err = cli("capture", "unwarp", str(src), "-o", str(tmp_path / f"{name}.exr"),
-                         "--profile", "theta-v", "--size", size, *extra)
+        code, _, err = cli(
+            "capture",
+            "unwarp",
+            str(src),
+            "-o",
+            str(tmp_path / f"{name}.exr"),
+            "--profile",
+            "theta-v",
+            "--size",
+            size,
+            *extra,
+        )
         assert code == 0, err
     on, meta = read_exr(tmp_path / "on.exr")
     off, _ = read_exr(tmp_path / "off.exr")
     assert _median_rel_error(on, truth) < 0.005 < 0.1 < _median_rel_error(off, truth)
     assert meta["vignetting"]["sha256"] and meta["vignetting"]["path"] == str(vfile)
-    code, _, err = cli("capture", "unwarp", str(src), "-o", str(tmp_path / "x.exr"), "--profile", "theta-v",
-                     "--vignetting", str(tmp_path / "missing.json"))
+    code, _, err = cli(
+        "capture",
+        "unwarp",
+        str(src),
+        "-o",
+        str(tmp_path / "x.exr"),
+        "--profile",
+        "theta-v",
+        "--vignetting",
+        str(tmp_path / "missing.json"),
+    )
     assert code == 2 and "missing.json" in err and "Traceback" not in err
 
 
@@ -405,11 +482,18 @@ def test_a_profile_that_does_not_fit_the_frame_is_not_silent(tmp_path):
     fish = render_fisheye(sky, prof, (1024, 512))
     fits, warns = check_image_circles(fish, prof)
     assert not warns and all(abs(f["center"][0] - f["profile_center"][0]) < 2 for f in fits)
-    moved = prof.model_copy(update={"lenses": [prof.lenses[0].model_copy(update={"center": (prof.lenses[0].center[0] + 25,
-                                                                                            prof.lenses[0].center[1])}),
-                                               prof.lenses[1]]})
+    moved = prof.model_copy(
+        update={
+            "lenses": [
+                prof.lenses[0].model_copy(update={"center": (prof.lenses[0].center[0] + 25, prof.lenses[0].center[1])}),
+                prof.lenses[1],
+            ]
+        }
+    )
     _, warns = check_image_circles(fish, moved)
     assert len(warns) == 1 and warns[0].startswith("profile_mismatch: lens 0")
-    smaller = prof.model_copy(update={"lenses": [L.model_copy(update={"poly": [c * 0.75 for c in L.poly]}) for L in prof.lenses]})
+    smaller = prof.model_copy(
+        update={"lenses": [L.model_copy(update={"poly": [c * 0.75 for c in L.poly]}) for L in prof.lenses]}
+    )
     _, warns = check_image_circles(fish, smaller)
     assert len(warns) == 2

@@ -30,8 +30,13 @@ def test_demo_json_is_its_summary(cli, monkeypatch, tmp_path):
 
     import solidkit.demo
 
-    summary = {"card": "card", "out": str(tmp_path), "seconds": 1.5, "report": str(tmp_path / "report.html"),
-               "steps": [{"name": "ingest", "status": "ok", "seconds": 0.5, "note": "3 scenes"}]}
+    summary = {
+        "card": "card",
+        "out": str(tmp_path),
+        "seconds": 1.5,
+        "report": str(tmp_path / "report.html"),
+        "steps": [{"name": "ingest", "status": "ok", "seconds": 0.5, "note": "3 scenes"}],
+    }
     monkeypatch.setattr(solidkit.demo, "run_demo", lambda out, cfg, log: summary)
     code, out, _ = cli("demo", "-o", tmp_path, "--json")
     assert code == 0 and json.loads(out) == summary
@@ -55,7 +60,9 @@ def test_the_command_list_is_the_full_apps_and_imports_no_command():
         return res.output
 
     assert help_of(build_app(listing=True)) == help_of(build_app())
-    probe = ("import sys; sys.argv = ['solidkit', '--help']\nfrom solidkit.cli import main\ntry:\n    main()\n"
-             "except SystemExit:\n    pass\nprint(sorted(m for m in sys.modules if m.startswith('solidkit.cli.')))")
+    probe = (
+        "import sys; sys.argv = ['solidkit', '--help']\nfrom solidkit.cli import main\ntry:\n    main()\n"
+        "except SystemExit:\n    pass\nprint(sorted(m for m in sys.modules if m.startswith('solidkit.cli.')))"
+    )
     out = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True, check=True).stdout
     assert out.strip().splitlines()[-1] == "[]"

@@ -5,13 +5,17 @@ Usage: ``[H=1024] python tests/data/make_tilt_fixtures.py OUT_DIR K:BLOCK ...`` 
 OUT_DIR/level_street_K_H.jpg (level_street_{0,1,2}.jpg: H=512, renamed; level_street_3_1024.jpg:
 H=1024, K:BLOCK 3:3).
 """
+
 import os
 import sys
+
+import cv2
 import numpy as np
+
+from solidkit.envmap.io import srgb_encode
 from solidkit.synth.sample import Generator, SampleConfig, derive_seed, render_panorama
 from solidkit.synth.scene import to_mitsuba
-from solidkit.envmap.io import srgb_encode
-import cv2
+
 gen = Generator(0, SampleConfig(width=64, height=48, candidates=2))
 for k, blk in [(int(a), int(b)) for a, b in (x.split(":") for x in sys.argv[2:])]:
     block, (cam, _) = gen.block_and_view(blk, 1)

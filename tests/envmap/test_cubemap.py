@@ -7,12 +7,12 @@ import math
 import numpy as np
 import pytest
 import torch
-from tests.envmap.test_resample import blob, smooth_field, smooth_pano, spherical_centroid, to_numpy, to_torch
 
 from solidkit.envmap import coords as C
 from solidkit.envmap.cubemap import CUBE_FACES, cube_face_rotations, cube_from_equirect, equirect_from_cube
 from solidkit.envmap.perspective import intrinsics_from_fov, pixel_rays
 from solidkit.errors import InputError
+from tests.envmap.test_resample import blob, smooth_field, smooth_pano, spherical_centroid, to_numpy, to_torch
 
 H = 96
 S = 64
@@ -30,7 +30,14 @@ def analytic_faces(size: int) -> np.ndarray:
 def test_face_order_and_orientation_are_as_documented():
     assert CUBE_FACES == ("front", "right", "back", "left", "up", "down")
     R = cube_face_rotations()
-    axes = {"front": [0, 0, 1], "right": [1, 0, 0], "back": [0, 0, -1], "left": [-1, 0, 0], "up": [0, -1, 0], "down": [0, 1, 0]}
+    axes = {
+        "front": [0, 0, 1],
+        "right": [1, 0, 0],
+        "back": [0, 0, -1],
+        "left": [-1, 0, 0],
+        "up": [0, -1, 0],
+        "down": [0, 1, 0],
+    }
     image_up = {"front": "up", "right": "up", "back": "up", "left": "up", "up": "back", "down": "front"}
     for k, name in enumerate(CUBE_FACES):
         np.testing.assert_allclose(R[k] @ [0, 0, 1], axes[name], atol=1e-12)  # optical axis

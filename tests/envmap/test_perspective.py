@@ -8,7 +8,6 @@ import numpy as np
 import pytest
 import torch
 from scipy import ndimage
-from tests.envmap.test_resample import PITCH, blob, smooth_field, smooth_pano, spherical_centroid, to_numpy, to_torch
 
 from solidkit.envmap import coords as C
 from solidkit.envmap.perspective import (
@@ -19,6 +18,7 @@ from solidkit.envmap.perspective import (
     project_to_pixels,
 )
 from solidkit.errors import InputError
+from tests.envmap.test_resample import PITCH, blob, smooth_field, smooth_pano, spherical_centroid, to_numpy, to_torch
 
 H = 128
 CAMERAS = [
@@ -77,7 +77,9 @@ def test_marker_lands_at_the_projected_pixel(cam):
 def test_roll_sign_turns_the_view():
     """roll > 0 turns the camera's right axis down, so a level point to the right appears higher."""
     p = blob(C.direction_grid(H), C.direction_from_angles(math.radians(15.0), 0.0), 2 * PITCH)
-    crop = perspective_crop(p.astype(np.float32), C.rotation_from_ypr(0.0, 0.0, math.radians(20.0)), (101, 101), fov=math.radians(60))
+    crop = perspective_crop(
+        p.astype(np.float32), C.rotation_from_ypr(0.0, 0.0, math.radians(20.0)), (101, 101), fov=math.radians(60)
+    )
     cy, cx = ndimage.center_of_mass(crop)
     assert cx > 50 and cy < 50 - 5
 
@@ -122,7 +124,9 @@ def test_torch_embed_and_batched_crops_match_numpy_and_are_differentiable():
     crops = perspective_crop(torch.cat([t, t]), Rs, (64, 48), K=K)
     assert crops.shape == (2, 3, 48, 64)
     for i in range(2):
-        np.testing.assert_allclose(to_numpy(crops[i : i + 1]), perspective_crop(p, CAMERAS[i], (64, 48), K=K), atol=1e-4)
+        np.testing.assert_allclose(
+            to_numpy(crops[i : i + 1]), perspective_crop(p, CAMERAS[i], (64, 48), K=K), atol=1e-4
+        )
     crops.sum().backward()
     assert Rs.grad is not None and Rs.grad.abs().sum() > 0
     pano_t, mask_t = embed_perspective(crops.detach(), K, Rs.detach(), 64)

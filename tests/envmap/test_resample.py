@@ -98,7 +98,7 @@ def test_rotation_matches_analytic_rotated_field_everywhere():
     """out(d) = in(Rᵀ d) against the analytic field, poles and seam included."""
     p = smooth_pano()
     d = C.direction_grid(H)
-    rng = (p.max() - p.min())
+    rng = p.max() - p.min()
     for R in ROTATIONS:
         truth = smooth_field(d @ R)
         for interp, tol in (("linear", 2e-3), ("cubic", 5e-4)):
@@ -292,7 +292,6 @@ def test_torch_resizing_matches_numpy_and_is_differentiable():
     assert torch.allclose((resize(t, 27)[0] * omega).sum((-2, -1)), torch.from_numpy(ref), rtol=1e-6)
 
 
-
 # --- CLI: solidkit envmap rotate / crop ---------------------------------------------------
 
 
@@ -388,7 +387,20 @@ def test_cli_error_is_one_line_and_exit_code_2(tmp_path):
 
     write_exr(bad, np.ones((16, 30, 3), np.float32))
     run = subprocess.run(
-        [sys.executable, "-m", "solidkit.cli", "envmap", "crop", str(bad), "-o", str(tmp_path / "o.png"), "--hfov-deg", "60", "--size", "32x24"],
+        [
+            sys.executable,
+            "-m",
+            "solidkit.cli",
+            "envmap",
+            "crop",
+            str(bad),
+            "-o",
+            str(tmp_path / "o.png"),
+            "--hfov-deg",
+            "60",
+            "--size",
+            "32x24",
+        ],
         capture_output=True,
         text=True,
     )

@@ -11,7 +11,6 @@ from solidkit.envmap import sh
 from solidkit.errors import InputError, PanoramaError
 
 
-
 @pytest.fixture
 def rng():
     """A fresh generator per test: results do not depend on test order (pytest-xdist)."""
@@ -140,7 +139,9 @@ def test_sh_irradiance_of_constant_environment_is_analytic(rng):
     pano = np.broadcast_to(c, (32, 64, 3)).copy()
     L = sh.sh_project(pano)
     n = unit(rng.normal(size=(20, 3)))
-    np.testing.assert_allclose(sh.sh_render(sh.sh_irradiance(L, "irradiance"), n), np.tile(math.pi * c, (20, 1)), rtol=1e-9)
+    np.testing.assert_allclose(
+        sh.sh_render(sh.sh_irradiance(L, "irradiance"), n), np.tile(math.pi * c, (20, 1)), rtol=1e-9
+    )
     np.testing.assert_allclose(sh.sh_render(sh.sh_irradiance(L, "radiance"), n), np.tile(c, (20, 1)), rtol=1e-9)
     np.testing.assert_allclose(sh.sh_render(sh.sh_irradiance(L), n), np.tile(c / 2, (20, 1)), rtol=1e-9)
     with pytest.raises(InputError):
@@ -152,7 +153,9 @@ def test_sh_irradiance_of_linear_environment_is_analytic(rng):
     L = np.zeros((1, 9))
     L[0, 1:4] = a  # H(w) = a . w
     n = unit(rng.normal(size=(20, 3)))
-    np.testing.assert_allclose(sh.sh_render(sh.sh_irradiance(L, "irradiance"), n)[:, 0], 2 * math.pi / 3 * n @ a, rtol=1e-12)
+    np.testing.assert_allclose(
+        sh.sh_render(sh.sh_irradiance(L, "irradiance"), n)[:, 0], 2 * math.pi / 3 * n @ a, rtol=1e-12
+    )
     np.testing.assert_allclose(sh.sh_render(sh.sh_irradiance(L), n)[:, 0], n @ a / 3, rtol=1e-12)
 
 

@@ -233,9 +233,7 @@ def _patch_centroid(az0, az1, el0, el1):
     """Exact solid-angle centroid of the region az in [az0, az1], el in [el0, el1] (radians)."""
     cc = (el1 - el0) / 2 + (math.sin(2 * el1) - math.sin(2 * el0)) / 4  # int cos^2
     sc = (math.sin(el1) ** 2 - math.sin(el0) ** 2) / 2  # int sin cos
-    v = np.array(
-        [cc * (math.cos(az0) - math.cos(az1)), -sc * (az1 - az0), cc * (math.sin(az1) - math.sin(az0))]
-    )
+    v = np.array([cc * (math.cos(az0) - math.cos(az1)), -sc * (az1 - az0), cc * (math.sin(az1) - math.sin(az0))])
     return v / np.linalg.norm(v)
 
 

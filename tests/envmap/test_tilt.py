@@ -41,7 +41,10 @@ def _errors(k: int | str, tilts: list[tuple[float, float, float]]) -> list[float
         est = residual_tilt(img)
         assert est.reliable, (k, ypr, est)
         true_tilt = math.degrees(math.acos(float((Rt @ E_Y) @ E_Y)))
-        assert abs(est.tilt_deg - true_tilt) <= math.degrees(float(angular_distance(np.asarray(est.gravity), Rt @ E_Y))) + 1e-9
+        assert (
+            abs(est.tilt_deg - true_tilt)
+            <= math.degrees(float(angular_distance(np.asarray(est.gravity), Rt @ E_Y))) + 1e-9
+        )
         out.append(math.degrees(float(angular_distance(np.asarray(est.gravity), Rt @ E_Y))))
     return out
 
@@ -52,7 +55,11 @@ def test_tilt_of_a_rendered_panorama_within_0p2_deg():
     noise model), and the reported correction levels it."""
     errors = _errors(0, [(0.0, 0.0, 0.0), (40.0, -3.2, 0.5), (75.0, 0.0, -4.0)])
     assert max(errors) < 0.2, errors
-    tilted = rotate(_street(0).astype(np.float32), np.asarray(rotation_from_ypr(0.0, math.radians(2.0), math.radians(-1.0))), "cubic")
+    tilted = rotate(
+        _street(0).astype(np.float32),
+        np.asarray(rotation_from_ypr(0.0, math.radians(2.0), math.radians(-1.0))),
+        "cubic",
+    )
     est = residual_tilt(np.clip(tilted, 0, 255).astype(np.uint8))
     fixed = rotate(tilted, np.asarray(rotation_from_ypr(0.0, math.radians(est.pitch_deg), math.radians(est.roll_deg))))
     assert residual_tilt(np.clip(fixed, 0, 255).astype(np.uint8)).tilt_deg < 0.25
@@ -88,14 +95,21 @@ def test_no_structure_is_not_reliable():
 
 def test_ricoh_roll_of_359p6_is_minus_0p4(tmp_path):
     """The maker note's [roll, pitch] in [0, 360): 359.6 means -0.4, not a bad_gravity warning."""
+    import datetime as dt
+
     from solidkit.camera.metadata import read_metadata
     from solidkit.synth.exif import exif_app1, insert_app1
 
-    import datetime as dt
-
     ok, buf = cv2.imencode(".jpg", np.zeros((32, 64, 3), np.uint8))
-    app = exif_app1(make="RICOH", model="RICOH THETA S", when=dt.datetime(2024, 6, 1, 12), exposure_time=1 / 500,
-                    f_number=2.0, iso=100, theta={"image_type": 1, "roll_deg": 359.6, "pitch_deg": 2.5})
+    app = exif_app1(
+        make="RICOH",
+        model="RICOH THETA S",
+        when=dt.datetime(2024, 6, 1, 12),
+        exposure_time=1 / 500,
+        f_number=2.0,
+        iso=100,
+        theta={"image_type": 1, "roll_deg": 359.6, "pitch_deg": 2.5},
+    )
     (tmp_path / "a.jpg").write_bytes(insert_app1(buf.tobytes(), app))
     m = read_metadata(tmp_path / "a.jpg")
     assert m.roll_deg == pytest.approx(-0.4, abs=1e-6) and m.pitch_deg == pytest.approx(2.5)
@@ -114,7 +128,8 @@ def test_ricoh_stitched_still_is_not_relevelled_by_its_pose(real_data):
     stored = residual_tilt(small, max_height=1024)
     assert stored.reliable and stored.uncertainty_deg < 0.1 and 1.2 < stored.tilt_deg < 2.3, stored
     R_pose = np.asarray(rotation_from_ypr(0.0, math.radians(meta.pitch_deg), math.radians(meta.roll_deg)))
-    posed = residual_tilt(np.clip(rotate(small.astype(np.float32), R_pose, "cubic"), 0, 255).astype(np.uint8),
-                          max_height=1024)
+    posed = residual_tilt(
+        np.clip(rotate(small.astype(np.float32), R_pose, "cubic"), 0, 255).astype(np.uint8), max_height=1024
+    )
     assert posed.tilt_deg > stored.tilt_deg + 0.2  # applying the recorded pose makes it worse
     assert np.allclose(level_rotation(meta), np.eye(3))  # so solidkit does not apply it

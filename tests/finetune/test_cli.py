@@ -14,7 +14,14 @@ from solidkit.testset.build import build_testset
 from tests.support.testset_campaign import make_campaign
 
 SCENES = {
-    "sA": (35.0, 40.0, -6.0, 1.0, {"p01": (200.0, 420.0), "p02": (470.0, 395.0)}, {"cam": -20.0, "p01": 70.0, "p02": -130.0}),
+    "sA": (
+        35.0,
+        40.0,
+        -6.0,
+        1.0,
+        {"p01": (200.0, 420.0), "p02": (470.0, 395.0)},
+        {"cam": -20.0, "p01": 70.0, "p02": -130.0},
+    ),
     "sB": (None, 30.0, -3.0, -0.5, {"p01": (320.0, 430.0)}, {"cam": 10.0, "p01": 160.0}),
     "sC": (-120.0, 25.0, -4.0, 0.0, {"p01": (150.0, 440.0)}, {"cam": 40.0, "p01": -70.0}),
     "sD": (160.0, 55.0, -2.0, 0.5, {"p01": (300.0, 400.0)}, {"cam": 0.0, "p01": 90.0}),
@@ -33,8 +40,9 @@ def testset(tmp_path_factory):
 
 def test_eval_writes_report_figures_and_json(testset, cli, torch_one_thread):
     out = testset / "report"
-    code, stdout, err = cli("eval", "--testset", testset / "testset", "--model", testset / "tiny.pt", "-o", out, "--json",
-                            "--grids", "1")
+    code, stdout, err = cli(
+        "eval", "--testset", testset / "testset", "--model", testset / "tiny.pt", "-o", out, "--json", "--grids", "1"
+    )
     assert code == 0, err
     summary = json.loads(stdout)["real"]
     assert set(summary) == {"solidnet", "global-as-local", "mean-sky", "mean-probe"}
@@ -55,8 +63,20 @@ def test_eval_writes_report_figures_and_json(testset, cli, torch_one_thread):
 @pytest.mark.slow  # the k-fold loop itself is in the default suite (test_finetune.py); this adds the CLI and its files
 def test_finetune_kfold_writes_split_report_and_fold_checkpoints(testset, cli, torch_one_thread):
     out = testset / "ft"
-    code, stdout, err = cli("finetune", "--testset", testset / "testset", "--model", testset / "tiny.pt", "-o", out,
-                            "--folds", "2", "--epochs", "1", "--json")
+    code, stdout, err = cli(
+        "finetune",
+        "--testset",
+        testset / "testset",
+        "--model",
+        testset / "tiny.pt",
+        "-o",
+        out,
+        "--folds",
+        "2",
+        "--epochs",
+        "1",
+        "--json",
+    )
     assert code == 0, err
     res = json.loads(stdout)
     assert len(res["folds"]) == 2

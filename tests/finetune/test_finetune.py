@@ -8,14 +8,14 @@ import numpy as np
 import pytest
 import torch
 
-from solidkit.envmap.coords import direction_from_angles, direction_grid
-from solidkit.envmap.io import srgb_decode, srgb_encode
-from solidkit.errors import InputError
 from solidkit import metrics as M
+from solidkit.envmap.coords import direction_from_angles, direction_grid
+from solidkit.envmap.io import srgb_decode
+from solidkit.envmap.perspective import intrinsics_from_fov
+from solidkit.errors import InputError
 from solidkit.finetune.evaluate import EvalItem, ItemPrediction, MeanBaseline, Method, evaluate
 from solidkit.finetune.finetune import FineTuneConfig, local_ldr_loss, run_finetune, scene_folds
 from solidkit.model.config import preset
-from solidkit.envmap.perspective import intrinsics_from_fov
 from solidkit.model.solidnet import SolidNet
 
 H = 128
@@ -36,11 +36,20 @@ def _item(scene: str, az: float = 30.0, el: float = 40.0, n: int = 2, seed: int 
     world = _world(az, el, seed)
     probes = [M.simulate_ldr_probe(world * (1 + 0.1 * k)) for k in range(n)]
     return EvalItem(
-        scene=scene, id=scene, image=rng.uniform(0, 1, (240, 320, 3)).astype(np.float32),
-        K=intrinsics_from_fov(math.radians(60.0), 320, 240), pitch=0.0, roll=0.0,
-        pixels=np.array([[80.0 + 100 * k, 200.0] for k in range(n)]), probe_ids=[f"p{k}" for k in range(n)],
-        sun=np.asarray(direction_from_angles(math.radians(az), math.radians(el))), global_hdr=world,
-        probes_ldr=[p[0] for p in probes], probes_saturated=[p[1] for p in probes], probes_hdr=[None] * n, source="real",
+        scene=scene,
+        id=scene,
+        image=rng.uniform(0, 1, (240, 320, 3)).astype(np.float32),
+        K=intrinsics_from_fov(math.radians(60.0), 320, 240),
+        pitch=0.0,
+        roll=0.0,
+        pixels=np.array([[80.0 + 100 * k, 200.0] for k in range(n)]),
+        probe_ids=[f"p{k}" for k in range(n)],
+        sun=np.asarray(direction_from_angles(math.radians(az), math.radians(el))),
+        global_hdr=world,
+        probes_ldr=[p[0] for p in probes],
+        probes_saturated=[p[1] for p in probes],
+        probes_hdr=[None] * n,
+        source="real",
     )
 
 

@@ -17,10 +17,10 @@ import numpy as np
 import pytest
 from fastapi.testclient import TestClient
 
-from tests.support.labeling_campaign import PHOTO_DOT, SUN_DOTS, make_campaign
 from solidkit.labeling.app import MAX_BODY_BYTES, create_app
 from solidkit.labeling.images import tile_grid
 from solidkit.labeling.store import LabelStore
+from tests.support.labeling_campaign import PHOTO_DOT, SUN_DOTS, make_campaign
 
 W = {"X-Solidkit": "1"}  # the page sends it with every write
 
@@ -54,8 +54,18 @@ def put(client, kind, key, value, version, annotator="ann", **kw):
 def test_queues_follow_the_manifest_and_alignment(client):
     c = client.get("/api/campaign").json()
     assert c["progress"]["sun"] == {"done": 0, "flagged": 1, "left": 4, "total": 5}  # p2: align found no sun
-    assert [i["key"] for i in client.get("/api/queue/sun").json()["items"]] == ["city/cam", "city/p1", "s1/cam", "s1/p1", "s1/p2"]
-    assert [i["key"] for i in client.get("/api/queue/probe_pixel").json()["items"]] == ["city/p1", "s1/p1", "s1/p2"]  # not the camera
+    assert [i["key"] for i in client.get("/api/queue/sun").json()["items"]] == [
+        "city/cam",
+        "city/p1",
+        "s1/cam",
+        "s1/p1",
+        "s1/p2",
+    ]
+    assert [i["key"] for i in client.get("/api/queue/probe_pixel").json()["items"]] == [
+        "city/p1",
+        "s1/p1",
+        "s1/p2",
+    ]  # not the camera
     sun = item(client, "sun", "s1/p1")
     assert sun["proposal"]["azimuth_deg"] == SUN_DOTS["p1"][0]
     assert [c["chosen"] for c in sun["view"]["candidates"]] == [True, False]
@@ -63,13 +73,17 @@ def test_queues_follow_the_manifest_and_alignment(client):
     assert (img["width"], img["height"], img["tiles"]) == (1024, 512, {"cols": 2, "rows": 1})
     pix = item(client, "probe_pixel", "s1/p1")
     assert pix["proposal"] == {"x": 402.0, "y": 297.0} and pix["view"]["proposal_source"] == "field_notes"
-    assert item(client, "probe_pixel", "s1/p2")["flags"] == ["pixel_disagrees: the marked pixel is 40 px from the geometry's"]
+    assert item(client, "probe_pixel", "s1/p2")["flags"] == [
+        "pixel_disagrees: the marked pixel is 40 px from the geometry's"
+    ]
     assert item(client, "heading", "s1/p2")["flags"] == ["low_confidence"]  # each task gets align's flags about it
     head = item(client, "heading", "s1/p1")
     assert head["proposal"] == {"yaw_deg": -30.0} and head["view"]["image"]["hdr"] is True
     outline = np.array(head["view"]["photo"]["outline"])
     hfov = 2 * math.degrees(math.atan(320 / 500))
-    assert outline[:, 0].min() == pytest.approx(-hfov / 2, abs=0.01) and outline[:, 0].max() == pytest.approx(hfov / 2, abs=0.01)
+    assert outline[:, 0].min() == pytest.approx(-hfov / 2, abs=0.01) and outline[:, 0].max() == pytest.approx(
+        hfov / 2, abs=0.01
+    )
 
 
 def test_save_conflict_loses_nothing_and_review_compares(client, campaign):
@@ -88,10 +102,15 @@ def test_save_conflict_loses_nothing_and_review_compares(client, campaign):
     assert set(rev["opinions"]) == {"ann", "bob"} and rev["open_disagreement"] and rev["status"] == "flagged"
     assert rev["disagreement"] == pytest.approx(2.6, abs=0.1)  # degrees of arc, not of azimuth
     queue = client.get("/api/queue/review").json()["items"]
-    assert queue[0]["key"] == "s1/p1" and queue[0]["flags"] == ["annotators_disagree: 2.6 deg (ann)", "differs_from_auto"]
+    assert queue[0]["key"] == "s1/p1" and queue[0]["flags"] == [
+        "annotators_disagree: 2.6 deg (ann)",
+        "differs_from_auto",
+    ]
     r = put(client, "sun", "s1/p1", v, 2, annotator="rev", source="reviewed")
     assert item(client, "sun", "s1/p1")["review"]["status"] == "done" and r.json()["label"]["flags"] == []
-    r = client.post("/api/undo", json={"kind": "sun", "key": "s1/p1", "annotator": "rev", "expected_version": 3}, headers=W)
+    r = client.post(
+        "/api/undo", json={"kind": "sun", "key": "s1/p1", "annotator": "rev", "expected_version": 3}, headers=W
+    )
     assert r.status_code == 200 and r.json()["label"]["annotator"] == "bob" and r.json()["version"] == 4
     exported = client.get("/api/export").json()
     assert exported["labels"][0]["value"]["azimuth_deg"] == 43.0
@@ -100,12 +119,27 @@ def test_save_conflict_loses_nothing_and_review_compares(client, campaign):
 
 def test_bad_bodies(client):
     assert put(client, "sun", "s1/p1", {"found": True, "azimuth_deg": 1.0}, 0).status_code == 422  # no elevation
-    assert put(client, "sun", "s1/p1", {"found": True, "azimuth_deg": 1, "elevation_deg": 2, "x": 3}, 0).status_code == 422
+    assert (
+        put(client, "sun", "s1/p1", {"found": True, "azimuth_deg": 1, "elevation_deg": 2, "x": 3}, 0).status_code == 422
+    )
     assert put(client, "sun", "nope/p9", {"found": False}, 0).status_code == 404
     assert put(client, "heading", "s1/p1", {"yaw_deg": "east"}, 0).status_code == 422
-    body = {"kind": "sun", "key": "s1/p1", "value": {"found": False}, "expected_version": 0, "annotator": "ann", "admin": True}
+    body = {
+        "kind": "sun",
+        "key": "s1/p1",
+        "value": {"found": False},
+        "expected_version": 0,
+        "annotator": "ann",
+        "admin": True,
+    }
     assert client.put("/api/label", json=body, headers=W).status_code == 422
-    big = {"kind": "sun", "key": "s1/p1", "value": {"found": False}, "expected_version": 0, "annotator": "a" * MAX_BODY_BYTES}
+    big = {
+        "kind": "sun",
+        "key": "s1/p1",
+        "value": {"found": False},
+        "expected_version": 0,
+        "annotator": "a" * MAX_BODY_BYTES,
+    }
     assert client.put("/api/label", json=big, headers=W).status_code == 413
     assert put(client, "sun", "s1/p1", {"found": False}, 0, annotator="").status_code == 422
     assert client.get("/api/item", params={"kind": "sun", "key": "s1/zz"}).status_code == 404
@@ -174,7 +208,10 @@ def test_cross_site_writes_refused(client):
     ok = client.put("/api/label", json=v, headers={**W, "Origin": "http://testserver", "Sec-Fetch-Site": "same-origin"})
     assert ok.status_code == 200
     page = client.get("/")
-    assert "frame-ancestors 'none'" in page.headers["content-security-policy"] and page.headers["x-frame-options"] == "DENY"
+    assert (
+        "frame-ancestors 'none'" in page.headers["content-security-policy"]
+        and page.headers["x-frame-options"] == "DENY"
+    )
 
 
 def test_token_mode(campaign):
@@ -215,7 +252,15 @@ def test_cli_export(cli, campaign, tmp_path):
 def test_proposal_from_the_store_without_alignment(tmp_path):
     """`solidkit label sun` writes auto labels (with candidates) but no alignment.json: they are the proposal."""
     root, _ = make_campaign(tmp_path / "camp", with_alignment=False, with_city=False)
-    cand = [{"azimuth_deg": -60.0, "elevation_deg": 10.0, "size_deg": 0.5, "chosen": False, "reasons": ["below the ephemeris"]}]
+    cand = [
+        {
+            "azimuth_deg": -60.0,
+            "elevation_deg": 10.0,
+            "size_deg": 0.5,
+            "chosen": False,
+            "reasons": ["below the ephemeris"],
+        }
+    ]
     LabelStore(root).put("sun", "s1/p1", {"found": True, "azimuth_deg": 40.0, "elevation_deg": 25.0, "uncertainty_deg": 0.4,
                                           "candidates": cand}, source="auto", annotator="align", flags=["glint"])  # fmt: skip
     c = TestClient(create_app(root, allowed_hosts=["testserver"]))

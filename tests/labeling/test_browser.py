@@ -19,17 +19,22 @@ import cv2
 import numpy as np
 import pytest
 
-from tests.support.labeling_campaign import HEADING_DOT_AZ, PHOTO_DOT, SUN_DOTS, make_campaign
 from solidkit.labeling.store import LabelStore
+from tests.support.labeling_campaign import HEADING_DOT_AZ, PHOTO_DOT, SUN_DOTS, make_campaign
 
 CHROMIUM = shutil.which("chromium") or "/usr/bin/chromium"
 SHOTS = Path(__file__).resolve().parents[2] / "docs" / "screenshots"
 VIEWPORT = {"width": 1366, "height": 768}  # a laptop screen
 
 pytestmark = [
-    pytest.mark.skipif(not Path(CHROMIUM).is_file(), reason="Debian's chromium is not installed (make installs it as root: apt-get install chromium)"),
+    pytest.mark.skipif(
+        not Path(CHROMIUM).is_file(),
+        reason="Debian's chromium is not installed (make installs it as root: apt-get install chromium)",
+    ),
 ]
-playwright_api = pytest.importorskip("playwright.sync_api", reason="playwright not installed (pip install -e '.[test]')")
+playwright_api = pytest.importorskip(
+    "playwright.sync_api", reason="playwright not installed (pip install -e '.[test]')"
+)
 
 
 def _serve(app):
@@ -85,7 +90,9 @@ def open_page(browser, url, annotator="ann"):
 
 def loaded(page, task, key=None):
     """Wait until the page shows ``task``'s item ``key`` (set by the app once drawn)."""
-    page.wait_for_selector(f"body[data-item='{task}:{key}']" if key else f"body[data-item='{task}']", timeout=60000)  # generous: CI machines may be loaded
+    page.wait_for_selector(
+        f"body[data-item='{task}:{key}']" if key else f"body[data-item='{task}']", timeout=60000
+    )  # generous: CI machines may be loaded
     page.wait_for_timeout(150)  # a frame or two for WebGL
 
 
@@ -156,7 +163,9 @@ def test_sun_click_markers_store_the_drawn_direction(server, browser, campaign):
         page.wait_for_selector(f"body[data-saved^='sun:{key}:']")
         lab = LabelStore(root).get("sun", key)
         assert (lab.source, lab.annotator, lab.value["found"]) == ("annotator", "ann", True)
-        assert lab.value["azimuth_deg"] == pytest.approx(az, abs=0.3) and lab.value["elevation_deg"] == pytest.approx(el, abs=0.3)
+        assert lab.value["azimuth_deg"] == pytest.approx(az, abs=0.3) and lab.value["elevation_deg"] == pytest.approx(
+            el, abs=0.3
+        )
     # the save moves on to the next item, and that rewrites the address: let it finish first, or
     # the reload below may open the next item instead of s1/cam (seen under load)
     page.wait_for_selector("body[data-item^='sun:']:not([data-item='sun:s1/p2'])", timeout=60000)
@@ -165,7 +174,9 @@ def test_sun_click_markers_store_the_drawn_direction(server, browser, campaign):
     loaded(page, "sun", "s1/cam")
     page.wait_for_selector("#saved-value")
     saved = numbers(page.locator("#saved-value").text_content())
-    assert saved[0] == pytest.approx(SUN_DOTS["cam"][0], abs=0.3) and saved[1] == pytest.approx(SUN_DOTS["cam"][1], abs=0.3)
+    assert saved[0] == pytest.approx(SUN_DOTS["cam"][0], abs=0.3) and saved[1] == pytest.approx(
+        SUN_DOTS["cam"][1], abs=0.3
+    )
     assert not errors
 
 
@@ -177,8 +188,10 @@ def test_sun_accept_with_one_key(server, browser, campaign):
     page.wait_for_selector("#auto-value")
     shot(page, "sun")
     page.keyboard.press("a")
-    page.wait_for_selector(f"body[data-saved^='sun:city/p1:']")
-    proposal = next(c for s in alignment["scenes"] if s["id"] == "city" for c in s["sun"]["captures"] if c["probe"] == "p1")
+    page.wait_for_selector("body[data-saved^='sun:city/p1:']")
+    proposal = next(
+        c for s in alignment["scenes"] if s["id"] == "city" for c in s["sun"]["captures"] if c["probe"] == "p1"
+    )
     lab = LabelStore(root).get("sun", "city/p1")
     assert lab.value["azimuth_deg"] == pytest.approx(proposal["azimuth_deg"], abs=1e-6)
     keys = ["city/cam", "city/p1", "s1/cam", "s1/p1", "s1/p2"]
@@ -199,7 +212,7 @@ def test_probe_pixel_click_and_concurrent_edit(server, browser, campaign):
     x, y = blob(a, "#pixel-view", (255, 0, 0), tol=120)
     a.mouse.click(x, y)
     a.keyboard.press("s")
-    a.wait_for_selector(f"body[data-saved^='probe_pixel:s1/p1:']")
+    a.wait_for_selector("body[data-saved^='probe_pixel:s1/p1:']")
     first = LabelStore(root).get("probe_pixel", "s1/p1")
     scale = 640 / a.locator("#pixel-view").bounding_box()["width"]  # photo px per screen px (fit to width)
     assert (first.value["x"], first.value["y"]) == pytest.approx(PHOTO_DOT, abs=max(1.0, 1.5 * scale))
@@ -212,7 +225,7 @@ def test_probe_pixel_click_and_concurrent_edit(server, browser, campaign):
     assert "ann" in b.locator("#conflict-text").text_content()
     assert LabelStore(root).get("probe_pixel", "s1/p1") == first  # the first label stands
     b.click("#conflict-keep-mine")
-    b.wait_for_selector(f"body[data-saved^='probe_pixel:s1/p1:2']")
+    b.wait_for_selector("body[data-saved^='probe_pixel:s1/p1:2']")
     second = LabelStore(root).get("probe_pixel", "s1/p1")
     assert second.annotator == "bob" and second.version == 2
     assert [c.annotator for c in LabelStore(root).history("probe_pixel", "s1/p1")] == ["ann", "bob"]
@@ -230,7 +243,9 @@ def test_heading_frame_and_yaw(server, browser, campaign):
     page.keyboard.press("f")
     x, y = centred_blob(page, "#heading-sphere", (255, 0, 0), tol=150, within=12)
     box = page.locator("#heading-sphere").bounding_box()
-    assert x == pytest.approx(box["x"] + box["width"] / 2, abs=6) and y == pytest.approx(box["y"] + box["height"] / 2, abs=6)
+    assert x == pytest.approx(box["x"] + box["width"] / 2, abs=6) and y == pytest.approx(
+        box["y"] + box["height"] / 2, abs=6
+    )
     x0 = box["x"] + box["width"] / 2
     page.mouse.move(x0, y)  # drag the frame 60 px to the right: the photo turns right, yaw decreases
     page.mouse.down()
@@ -244,7 +259,7 @@ def test_heading_frame_and_yaw(server, browser, campaign):
     page.keyboard.press("ArrowRight")  # turns the frame to the right: yaw decreases
     page.keyboard.press("o")  # overlay back on
     page.keyboard.press("s")
-    page.wait_for_selector(f"body[data-saved^='heading:s1/p1:']")
+    page.wait_for_selector("body[data-saved^='heading:s1/p1:']")
     assert LabelStore(root).get("heading", "s1/p1").value["yaw_deg"] == pytest.approx(-HEADING_DOT_AZ - 0.2, abs=1e-6)
     goto(page, "heading", "city/p1")
     shot(page, "heading")
@@ -255,7 +270,9 @@ def test_heading_frame_and_yaw(server, browser, campaign):
 def test_review_lists_the_disagreement(server, browser, campaign):
     store = LabelStore(campaign[0])
     store.put("heading", "city/cam", {"yaw_deg": 1.0}, source="annotator", annotator="ann")
-    store.put("heading", "city/cam", {"yaw_deg": 9.0}, source="annotator", annotator="bob")  # 8 deg apart: 4x the threshold
+    store.put(
+        "heading", "city/cam", {"yaw_deg": 9.0}, source="annotator", annotator="bob"
+    )  # 8 deg apart: 4x the threshold
     page, errors = open_page(browser, f"{server}/#task=review")
     loaded(page, "review")
     row = page.locator("#review-table tr[data-key='heading:city/cam']")
@@ -279,7 +296,11 @@ def test_traversal_404_and_token_401(server, browser, campaign):
     from solidkit.labeling.app import create_app
 
     page, _ = open_page(browser, f"{server}/")
-    for url in ("/static/%2e%2e/%2e%2e/manifest.json", "/static/..%2f..%2fstore.py", "/api/img/..%2fmanifest.json/preview.jpg"):
+    for url in (
+        "/static/%2e%2e/%2e%2e/manifest.json",
+        "/static/..%2f..%2fstore.py",
+        "/api/img/..%2fmanifest.json/preview.jpg",
+    ):
         assert page.request.get(server + url).status == 404
     root, alignment = campaign
     token = "token-for-the-browser-test"

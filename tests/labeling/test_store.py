@@ -28,7 +28,9 @@ def test_put_get_versions_and_normalisation(store, tmp_path):
     assert store.get("sun", "s1/p1") is None and store.version("sun", "s1/p1") == 0
     a = store.put("sun", "s1/p1", SUN, source="annotator", annotator="ann", expected_version=0)
     assert (a.version, a.source, a.annotator, a.value["azimuth_deg"]) == (1, "annotator", "ann", 12.5)
-    b = store.put("sun", "s1/p1", {**SUN, "azimuth_deg": 180.0}, source="annotator", annotator="ann", expected_version=1)
+    b = store.put(
+        "sun", "s1/p1", {**SUN, "azimuth_deg": 180.0}, source="annotator", annotator="ann", expected_version=1
+    )
     assert b.version == 2 and b.value["azimuth_deg"] == -180.0  # azimuth in [-180, 180)
     assert store.get("sun", "s1/p1") == b
     h = store.put("heading", "s1/p1", {"yaw_deg": 370.0}, source="auto", annotator="align")
@@ -197,7 +199,9 @@ _CHILD = textwrap.dedent(
 
 def _child(campaign, mode):
     env = {**os.environ, "OMP_NUM_THREADS": "1"}
-    return subprocess.Popen([sys.executable, "-c", _CHILD, str(campaign), mode], stdout=subprocess.PIPE, text=True, env=env)
+    return subprocess.Popen(
+        [sys.executable, "-c", _CHILD, str(campaign), mode], stdout=subprocess.PIPE, text=True, env=env
+    )
 
 
 def test_survives_kill_9_mid_transaction(store, tmp_path):
@@ -210,7 +214,10 @@ def test_survives_kill_9_mid_transaction(store, tmp_path):
     assert store.check() == []
     assert store.get("sun", "s1/p1") == before
     assert len(store.history("sun", "s1/p1")) == 1  # the half-written change left no trace
-    assert store.put("sun", "s1/p1", {"found": False}, source="annotator", annotator="ann", expected_version=1).version == 2
+    assert (
+        store.put("sun", "s1/p1", {"found": False}, source="annotator", annotator="ann", expected_version=1).version
+        == 2
+    )
 
 
 def test_survives_kill_9_during_a_stream_of_writes(store, tmp_path):

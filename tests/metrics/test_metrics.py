@@ -7,10 +7,9 @@ import math
 import numpy as np
 import pytest
 
-from solidkit.envmap.coords import direction_from_angles, direction_grid, rotation_from_ypr
-from solidkit.envmap.io import srgb_encode
-from solidkit.envmap.resample import rotate
 from solidkit import metrics as M
+from solidkit.envmap.coords import direction_from_angles, direction_grid, rotation_from_ypr
+from solidkit.envmap.resample import rotate
 from solidkit.metrics.stats import _cluster_bootstrap
 
 H = 64
@@ -133,7 +132,9 @@ def test_an_external_saturation_mask_is_honoured():
     hdr = srgb_decode(ldr).astype(np.float32)
     hdr2 = hdr.copy()
     hdr2[:, :10] = 0.0
-    assert M.local_ldr_metrics(hdr2, ldr, mask)["mae"] == pytest.approx(M.local_ldr_metrics(hdr, ldr, mask)["mae"], abs=1e-7)
+    assert M.local_ldr_metrics(hdr2, ldr, mask)["mae"] == pytest.approx(
+        M.local_ldr_metrics(hdr, ldr, mask)["mae"], abs=1e-7
+    )
 
 
 def test_a_constant_prediction_scores_below_a_correct_one():
@@ -184,7 +185,11 @@ def test_vectorised_cluster_bootstrap_matches_the_concatenated_statistic():
     boot_rng = np.random.default_rng(11)
     for stat in (np.median, np.mean):
         got = _cluster_bootstrap(v, gi, 9, stat, 50, np.random.default_rng(11))
-        idx = boot_rng.integers(0, 9, size=(50, 9)) if stat is np.median else np.random.default_rng(11).integers(0, 9, size=(50, 9))
+        idx = (
+            boot_rng.integers(0, 9, size=(50, 9))
+            if stat is np.median
+            else np.random.default_rng(11).integers(0, 9, size=(50, 9))
+        )
         want = [stat(np.concatenate([v[gi == k] for k in row])) for row in idx]
         assert np.allclose(got, want)
 
@@ -192,7 +197,7 @@ def test_vectorised_cluster_bootstrap_matches_the_concatenated_statistic():
 def test_global_mae_compares_the_sky_only_and_skips_invalid_pixels():
     sky = _sky(10.0, 40.0)
     ground = sky.copy()
-    ground[H // 2:] = 123.0  # a truth map taken at the camera position also holds the ground
+    ground[H // 2 :] = 123.0  # a truth map taken at the camera position also holds the ground
     assert M.global_mae(sky, ground) == pytest.approx(0.0, abs=1e-6)
     assert M.global_mae(sky, ground, sky_only=False) > 0.1
     bad = sky.copy()

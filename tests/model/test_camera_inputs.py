@@ -51,8 +51,9 @@ def test_metered_crops_do_not_depend_on_the_stored_hdr_scale():
     # a source stored 16x darker gives the same image and the same target: the scale is the camera's
     light = _scene(64)
     a = CropSampler([Source("a", "real", None, _scene(256), light)], seed=3, config=CropConfig(exposure_key=0.18))
-    b = CropSampler([Source("b", "real", None, _scene(256, 1 / 16), light / 16)], seed=3,
-                    config=CropConfig(exposure_key=0.18))
+    b = CropSampler(
+        [Source("b", "real", None, _scene(256, 1 / 16), light / 16)], seed=3, config=CropConfig(exposure_key=0.18)
+    )
     fixed = CropSampler([Source("c", "real", None, _scene(256, 1 / 16), light / 16)], seed=3)
     for i in range(3):
         x, y, z = a(i), b(i), fixed(i)
@@ -88,8 +89,9 @@ def test_camera_footprint_follows_pitch_roll_and_field_of_view():
     # everything lands inside the image (mirror tiling), and a level camera gives the "level" box
     assert g.abs().max() <= 1.0 + 1e-9
     feats = torch.stack(torch.meshgrid(torch.linspace(-1, 1, 30), torch.linspace(-1, 1, 40), indexing="ij"))[None]
-    cam = F.grid_sample(feats.double(), camera_footprint_grid(H, K, z, z, (240, 320)), align_corners=False,
-                        padding_mode="border")
+    cam = F.grid_sample(
+        feats.double(), camera_footprint_grid(H, K, z, z, (240, 320)), align_corners=False, padding_mode="border"
+    )
     cfg = preset("small")
     fh, fw, top, left = image_footprint(H, 60.0, cfg.vfov_deg)
     level = flip_pad(F.interpolate(feats, size=(fh, fw), mode="bilinear", align_corners=False), (H, 2 * H), top, left)

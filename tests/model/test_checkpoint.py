@@ -25,7 +25,6 @@ from solidkit.model.solidnet import (
     save_checkpoint,
 )
 
-
 pytestmark = pytest.mark.usefixtures("torch_one_thread")
 
 
@@ -124,7 +123,21 @@ def test_cli_predict_writes_exr_png_json(tiny_ckpt, tmp_path):
     write_ldr(photo, toy_batch(preset("tiny"), 1, 1, 5)["image"][0].permute(1, 2, 0).numpy())
     out = tmp_path / "pred"
     res = CliRunner().invoke(
-        app, ["predict", str(photo), "--at", "100,200", "--at", "250,190", "--out", str(out), "--checkpoint", str(path), "--pitch", "-2"]
+        app,
+        [
+            "predict",
+            str(photo),
+            "--at",
+            "100,200",
+            "--at",
+            "250,190",
+            "--out",
+            str(out),
+            "--checkpoint",
+            str(path),
+            "--pitch",
+            "-2",
+        ],
     )
     assert res.exit_code == 0, res.output
     for name in ("sky.exr", "sky.png", "local_00.exr", "local_00.png", "local_01.exr", "local_01.png"):
@@ -141,16 +154,27 @@ def test_cli_bad_input_is_one_line_error(tiny_ckpt, tmp_path):
     _, path = tiny_ckpt
     photo = tmp_path / "photo.png"
     write_ldr(photo, np.full((24, 32, 3), 0.5, np.float32))
-    cmd = [sys.executable, "-c", "from solidkit.cli import main; main()", "predict", str(photo), "--at", "12;3",
-           "--out", str(tmp_path / "o"), "--checkpoint", str(path)]
+    cmd = [
+        sys.executable,
+        "-c",
+        "from solidkit.cli import main; main()",
+        "predict",
+        str(photo),
+        "--at",
+        "12;3",
+        "--out",
+        str(tmp_path / "o"),
+        "--checkpoint",
+        str(path),
+    ]
     res = subprocess.run(cmd, capture_output=True, text=True, timeout=120)
     assert res.returncode == 2
     assert res.stderr.strip().count("\n") == 0 and "X,Y" in res.stderr
 
 
 def test_shipped_checkpoint_predicts_out_of_the_box():
-    from solidkit.model.solidnet import DEFAULT_CHECKPOINT
     from solidkit.fsutil import sha256_file
+    from solidkit.model.solidnet import DEFAULT_CHECKPOINT
 
     card = json.loads(DEFAULT_CHECKPOINT.with_suffix(".card.json").read_text())
     assert card["sha256"] == sha256_file(DEFAULT_CHECKPOINT)

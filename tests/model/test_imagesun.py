@@ -8,8 +8,13 @@ import numpy as np
 import pytest
 import torch
 
-from solidkit.envmap.coords import (angles_from_direction, angular_distance, coords_from_direction, direction_from_angles,
-                                    wrap_angle)
+from solidkit.envmap.coords import (
+    angles_from_direction,
+    angular_distance,
+    coords_from_direction,
+    direction_from_angles,
+    wrap_angle,
+)
 from solidkit.envmap.perspective import intrinsics_from_fov
 from solidkit.model import suneval
 from solidkit.model.imagesun import image_sun_blobs, put_sun_on_blob
@@ -29,7 +34,7 @@ def _image_with_disc(cx: float, cy: float, r: float) -> np.ndarray:
 
 def test_a_clipped_disc_is_found_at_its_ray_and_strips_and_sparkles_are_not():
     img = _image_with_disc(200.0, 60.0, 8.0)
-    img[200:203, :] = 1.0          # a clipped strip (a roofline of sky): not compact
+    img[200:203, :] = 1.0  # a clipped strip (a roofline of sky): not compact
     img[30, 30] = img[30, 31] = 1.0  # a sparkle: two pixels
     blobs = image_sun_blobs(img, K, 0.0, 0.0)
     assert len(blobs) == 1
@@ -37,8 +42,9 @@ def test_a_clipped_disc_is_found_at_its_ray_and_strips_and_sparkles_are_not():
     assert math.degrees(float(angular_distance(blobs[0].direction, ray / np.linalg.norm(ray)))) < 0.3
     # the camera's pitch turns the blob's direction into the level frame: 10° up raises it by 10°
     up = image_sun_blobs(img, K, math.radians(10.0), 0.0)[0]
-    assert math.degrees(float(angles_from_direction(up.direction)[1] - angles_from_direction(blobs[0].direction)[1])) \
-        == pytest.approx(10.0, abs=0.5)
+    assert math.degrees(
+        float(angles_from_direction(up.direction)[1] - angles_from_direction(blobs[0].direction)[1])
+    ) == pytest.approx(10.0, abs=0.5)
 
 
 def test_the_network_sun_moves_onto_a_blob_only_when_it_says_sun_and_agrees():
@@ -94,10 +100,10 @@ def test_conformal_scales_cover_new_draws_at_the_stated_rate():
 def _sunny_source(az_deg: float, el_deg: float) -> Source:
     h = 128
     pano = np.full((h, 2 * h, 3), 0.3, np.float32)
-    pano[h // 2:] = 0.08
+    pano[h // 2 :] = 0.08
     d = np.asarray(direction_from_angles(math.radians(az_deg), math.radians(el_deg)))
     x, y = coords_from_direction(d, h)
-    pano[int(y) - 1:int(y) + 2, int(x) - 1:int(x) + 2] = 2.0e4
+    pano[int(y) - 1 : int(y) + 2, int(x) - 1 : int(x) + 2] = 2.0e4
     light = pano[::1]
     return Source("sunny", "real", None, pano, light, CatalogSun(True, d.astype(np.float32)))
 
@@ -124,10 +130,18 @@ def test_calibration_picks_settings_from_its_grids_and_leaves_the_model_as_it_wa
     model = SolidNet(preset("small-sun")).eval()
     before = model.config
     srcs = [_sunny_source(az, 15.0) for az in (0.0, 90.0)]
-    grey = Source("grey", "real", None, np.full((128, 256, 3), 0.3, np.float32), np.full((128, 256, 3), 0.3, np.float32),
-                  CatalogSun(False, np.zeros(3, np.float32)))
-    domains = {"a": suneval.protocol_crops(srcs + [grey], size=(120, 160)),
-               "b": suneval.protocol_crops(srcs[:1] + [grey], size=(120, 160))}
+    grey = Source(
+        "grey",
+        "real",
+        None,
+        np.full((128, 256, 3), 0.3, np.float32),
+        np.full((128, 256, 3), 0.3, np.float32),
+        CatalogSun(False, np.zeros(3, np.float32)),
+    )
+    domains = {
+        "a": suneval.protocol_crops(srcs + [grey], size=(120, 160)),
+        "b": suneval.protocol_crops(srcs[:1] + [grey], size=(120, 160)),
+    }
     cal = suneval.calibrate_sun(model, domains)
     assert 0.05 <= cal["threshold"] <= 0.99 and 0.0 <= cal["balanced_accuracy"] <= 1.0
     assert cal["gate_deg"] in suneval.GATE_GRID_DEG or not cal["sun_in_image"]

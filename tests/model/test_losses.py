@@ -23,7 +23,6 @@ from solidkit.model.losses import (
     tonemapped_ssim_loss,
 )
 
-
 pytestmark = pytest.mark.usefixtures("torch_one_thread")
 
 
@@ -46,7 +45,9 @@ def test_constant_sky_sh_relighting_matches_analytic_value():
     L = sh_irradiance(sh_project(sky))
     assert torch.allclose(L[..., 0], c / 2, atol=1e-5) and L[..., 1:].abs().max() < 1e-5
     normals = _unit(2, 3, 10, 12)
-    shade = sh_shading(normals, L, rotation_from_ypr(torch.tensor([0.0, 0.0]), torch.tensor([0.3, -0.2]), torch.tensor([0.1, 0.0])))
+    shade = sh_shading(
+        normals, L, rotation_from_ypr(torch.tensor([0.0, 0.0]), torch.tensor([0.3, -0.2]), torch.tensor([0.1, 0.0]))
+    )
     assert torch.allclose(shade, (c / 2).view(1, 3, 1, 1).expand_as(shade), atol=1e-5)
     assert diffuse_loss(sky, L) < 1e-6
     assert diffuse_loss(sky, L * 1.2) > 1e-3
@@ -183,4 +184,6 @@ def test_reconstruction_and_diffuse_losses_pinned():
     sky = c.view(1, 3, 1, 1).expand(1, 3, 32, 64).contiguous()
     L = torch.zeros(1, 3, 9, dtype=torch.float64)
     L[..., 0] = 0.6 * c
-    assert diffuse_loss(sky, L).item() == pytest.approx(((0.1 * c) ** 2).mean().item(), rel=1e-3)  # 0.0175; D on a 32x64 grid
+    assert diffuse_loss(sky, L).item() == pytest.approx(
+        ((0.1 * c) ** 2).mean().item(), rel=1e-3
+    )  # 0.0175; D on a 32x64 grid

@@ -12,7 +12,6 @@ from solidkit.model.inet import flip_pad
 from solidkit.model.losses import solidnet_losses
 from solidkit.model.solidnet import SolidNet
 
-
 pytestmark = pytest.mark.usefixtures("torch_one_thread")
 
 
@@ -91,10 +90,17 @@ def test_gradients_reach_every_parameter(name):
     # the sun logits' 1x1-convolution bias shifts every logit alike: the softmax-based sun losses are
     # invariant to it, so its gradient is zero up to rounding
     shift_invariant = {"inet.sun.fine.bias"}
-    missing = [n for n, p in model.named_parameters() if n not in shift_invariant and (
-        p.grad is None or not torch.isfinite(p.grad).all() or p.grad.abs().sum() == 0)]
+    missing = [
+        n
+        for n, p in model.named_parameters()
+        if n not in shift_invariant and (p.grad is None or not torch.isfinite(p.grad).all() or p.grad.abs().sum() == 0)
+    ]
     assert not missing, missing
-    expected = {"sky"} if name == "lenet_reg" else {"albedo", "normal", "distance", "shadow", "sky", "dif", "rec", "local", "tom"}
+    expected = (
+        {"sky"}
+        if name == "lenet_reg"
+        else {"albedo", "normal", "distance", "shadow", "sky", "dif", "rec", "local", "tom"}
+    )
     assert expected <= set(losses)
 
 

@@ -12,7 +12,7 @@ import torch
 
 from solidkit.envmap import angular_distance, detect_sun, direction_from_angles, solid_angle
 from solidkit.model.config import ConfigError, preset
-from solidkit.model.fit import fit, toy_batch
+from solidkit.model.fit import toy_batch
 from solidkit.model.losses import (
     relative_distance_loss,
     sky_away_from_sun_loss,
@@ -29,7 +29,9 @@ pytestmark = pytest.mark.usefixtures("torch_one_thread")
 
 
 def _dir(az_deg: float, el_deg: float) -> torch.Tensor:
-    return torch.as_tensor(np.asarray(direction_from_angles(math.radians(az_deg), math.radians(el_deg))), dtype=torch.float32)
+    return torch.as_tensor(
+        np.asarray(direction_from_angles(math.radians(az_deg), math.radians(el_deg))), dtype=torch.float32
+    )
 
 
 @pytest.mark.parametrize("sigma_deg", [0.1, 0.5, 3.0])
@@ -60,9 +62,16 @@ def test_local_soft_argmax_is_subpixel_and_ignores_a_weaker_mode():
     h = 64
     true = _dir(20.3, 37.7)
     other = _dir(-120.0, 10.0)
-    grid = torch.as_tensor(np.asarray(direction_from_angles(*np.meshgrid(
-        (np.arange(2 * h) + 0.5) / h * math.pi - math.pi, math.pi / 2 - (np.arange(h) + 0.5) / h * math.pi)[::1])),
-        dtype=torch.float32)
+    grid = torch.as_tensor(
+        np.asarray(
+            direction_from_angles(
+                *np.meshgrid(
+                    (np.arange(2 * h) + 0.5) / h * math.pi - math.pi, math.pi / 2 - (np.arange(h) + 0.5) / h * math.pi
+                )[::1]
+            )
+        ),
+        dtype=torch.float32,
+    )
     logits = (2000.0 * (grid @ true - 1.0) + 2.0 * torch.exp(300.0 * (grid @ other - 1.0)))[None, None]
     est = local_soft_argmax(logits)[0]
     assert math.degrees(float(angular_distance(est.double().numpy(), true.double().numpy()))) < 0.3
@@ -110,8 +119,13 @@ def test_cosine_direction_loss_pulls_a_far_guess_toward_the_sun(off_deg):
     d = _dir(0.0, 20.0)[None]
     grid = torch.as_tensor(direction_grid(h), dtype=torch.float32)
     az = torch.tensor(math.radians(off_deg), requires_grad=True)
-    guess = torch.stack([torch.sin(az) * math.cos(math.radians(20.0)), -torch.tensor(math.sin(math.radians(20.0))),
-                         torch.cos(az) * math.cos(math.radians(20.0))])
+    guess = torch.stack(
+        [
+            torch.sin(az) * math.cos(math.radians(20.0)),
+            -torch.tensor(math.sin(math.radians(20.0))),
+            torch.cos(az) * math.cos(math.radians(20.0)),
+        ]
+    )
     loss = sun_cosine_loss((300.0 * (grid @ guess))[None, None], d, torch.ones(1))
     loss.backward()
     true = float(1.0 - (guess.detach() @ d[0]))
@@ -165,7 +179,10 @@ def _found_within(model, batch, max_deg=5.0, max_ratio=2.0):
             continue
         err = math.degrees(float(angular_distance(det.direction, batch["sun_dir"][i].double().numpy())))
         pd = torch.as_tensor(det.direction, dtype=torch.float32)[None]
-        ratio = float(sun_energy(out["sky"][i : i + 1], pd).sum() / sun_energy(batch["sky"][i : i + 1], batch["sun_dir"][i : i + 1]).sum())
+        ratio = float(
+            sun_energy(out["sky"][i : i + 1], pd).sum()
+            / sun_energy(batch["sky"][i : i + 1], batch["sun_dir"][i : i + 1]).sum()
+        )
         results.append((err <= max_deg and 1 / max_ratio <= ratio <= max_ratio, err, ratio))
     return results
 
@@ -207,7 +224,9 @@ def test_overfitting_eight_toy_skies_puts_a_detectable_sun_in_each_sunny_one_and
     assert len(res) == 6 and all(ok for ok, _, _ in res), res
     with torch.no_grad():
         out = model.inet(batch["image"], intrinsics=False)
-    assert bool((out["sun_visible"][overcast] < 0.5).all()) and bool((out["sun_visible"][batch["sun_visible"] > 0] > 0.5).all())
+    assert bool((out["sun_visible"][overcast] < 0.5).all()) and bool(
+        (out["sun_visible"][batch["sun_visible"] > 0] > 0.5).all()
+    )
     for i in overcast.tolist():
         assert torch.allclose(out["sky"][i], torch.expm1(out["sky_np_log"][i]))  # nothing added
         assert not detect_sun(out["sky"][i].permute(1, 2, 0).numpy()).found
@@ -258,6 +277,14 @@ def test_sun_size_measures_the_rendered_sigma(sigma_deg):
 
     d = _dir(40.0, 25.0)[None]
     sky = 0.3 + render_sun(d, torch.tensor([[3.0, 3.0, 3.0]]), torch.tensor([math.radians(sigma_deg)]), 256)
-    est = math.degrees(float(sun_size(sky, d, cap=math.radians(3 * sigma_deg), annulus=(math.radians(3.5 * sigma_deg),
-                                                                                      math.radians(6 * sigma_deg)))[0]))
+    est = math.degrees(
+        float(
+            sun_size(
+                sky,
+                d,
+                cap=math.radians(3 * sigma_deg),
+                annulus=(math.radians(3.5 * sigma_deg), math.radians(6 * sigma_deg)),
+            )[0]
+        )
+    )
     assert abs(est - sigma_deg) < 0.1 * sigma_deg

@@ -34,8 +34,12 @@ def _sky(height: int, az_deg: float, el_deg: float, energy: float = 2.0) -> np.n
     sun_dir = np.asarray(direction_from_angles(math.radians(az_deg), math.radians(el_deg)))
     lit = 0.25 + 0.6 * np.clip(d @ sun_dir, 0.0, None)
     pano = np.where(up[..., None] > 0, sky, lit[..., None]).astype(np.float32)
-    sun = render_sun(torch.as_tensor(sun_dir, dtype=torch.float32)[None], torch.full((1, 3), energy),
-                     torch.tensor([math.radians(0.3)]), height)[0]
+    sun = render_sun(
+        torch.as_tensor(sun_dir, dtype=torch.float32)[None],
+        torch.full((1, 3), energy),
+        torch.tensor([math.radians(0.3)]),
+        height,
+    )[0]
     return pano + sun.permute(1, 2, 0).numpy()
 
 
@@ -71,7 +75,9 @@ def test_image_grid_puts_each_panorama_direction_on_its_pixel():
     assert (inside[0, 0].numpy() > 0.5).sum() == pytest.approx(want_in.sum(), abs=4)
     i, j = np.argwhere(want_in)[len(np.argwhere(want_in)) // 2]
     gx, gy = grid[0, i, j].tolist()
-    assert (gx + 1) * 32 - 0.5 == pytest.approx(x[i, j], abs=1e-3) and (gy + 1) * 24 - 0.5 == pytest.approx(y[i, j], abs=1e-3)
+    assert (gx + 1) * 32 - 0.5 == pytest.approx(x[i, j], abs=1e-3) and (gy + 1) * 24 - 0.5 == pytest.approx(
+        y[i, j], abs=1e-3
+    )
     assert inside[0, 0, :, :10].sum() == 0  # azimuth near -180°: behind the camera
 
 
@@ -90,7 +96,11 @@ def test_sun_net_outputs_and_config_errors():
     model = SolidNet(cfg).eval()
     with torch.no_grad():
         o = model.inet(torch.rand(1, 3, 240, 320), intrinsics=False)
-    assert isinstance(model.inet.sun, SunNet) and o["sky"].shape == (1, 3, 128, 256) and o["sun_logits"].shape[-2:] == (64, 128)
+    assert (
+        isinstance(model.inet.sun, SunNet)
+        and o["sky"].shape == (1, 3, 128, 256)
+        and o["sun_logits"].shape[-2:] == (64, 128)
+    )
 
 
 def _bank(*suns: tuple[float, float], scale: float = 1.0) -> SunCropBank:
@@ -129,16 +139,20 @@ def test_bank_targets_are_those_of_the_crop_path():
 
 def test_overfitting_eight_crops_finds_each_sun_even_behind_the_camera():
     bank = _bank((40.0, 30.0), (-120.0, 12.0), (170.0, 45.0), (-60.0, 20.0))
-    cfg = CropConfig(width=CROP_SIZE[1], height=CROP_SIZE[0], exposure_key=0.18, exposure_stops=(0.0, 0.0),
-                     white_balance=0.0)
+    cfg = CropConfig(
+        width=CROP_SIZE[1], height=CROP_SIZE[0], exposure_key=0.18, exposure_stops=(0.0, 0.0), white_balance=0.0
+    )
     batch = bank.batch(1, 0, 8, cfg)
     torch.manual_seed(0)
     net = SunNet((8, 16, 32), size=(48, 64), logit_height=32, coarse_height=8, hidden=64)
     opt = torch.optim.Adam(net.parameters(), lr=3e-3)
     for _ in range(250):
         out = net(batch["image"], batch["K"], batch["pitch"], batch["roll"])
-        loss = sum(sun_terms(out, batch["sun_dir"], batch["sun_visible"], batch["sun_energy"], batch["sun_size"],
-                             math.radians(4.0)).values())
+        loss = sum(
+            sun_terms(
+                out, batch["sun_dir"], batch["sun_visible"], batch["sun_energy"], batch["sun_size"], math.radians(4.0)
+            ).values()
+        )
         opt.zero_grad()
         loss.backward()
         opt.step()
@@ -153,14 +167,33 @@ def test_overfitting_eight_crops_finds_each_sun_even_behind_the_camera():
 
 
 def test_sun_stage_trains_the_sun_net_alone_and_inet_leaves_it_frozen(tmp_path, write_sources):
-    root = write_sources(tmp_path / "sources", [(_sky(256, az, el), _sky(128, az, el))
-                                                for az, el in ((30.0, 40.0), (-100.0, 20.0))])
+    root = write_sources(
+        tmp_path / "sources", [(_sky(256, az, el), _sky(128, az, el)) for az, el in ((30.0, 40.0), (-100.0, 20.0))]
+    )
     conf = tmp_path / "run.toml"
-    conf.write_text("\n".join([
-        f'out = "{tmp_path / "run"}"', 'model = "tiny"', 'model_overrides = {sun_head = true, sun_visibility = true, '
-        'loss_variant = "located", sun_net = [4, 8, 8], sun_net_size = [24, 32]}', f'crops = ["{root}"]',
-        f'val_crops = ["{root}"]', "val_samples = 4", "val_every = 2", "log_every = 1", "checkpoint_every = 1",
-        "[sun]", "steps = 3", "batch_size = 4", "[inet]", "steps = 2", "batch_size = 2"]) + "\n")
+    conf.write_text(
+        "\n".join(
+            [
+                f'out = "{tmp_path / "run"}"',
+                'model = "tiny"',
+                "model_overrides = {sun_head = true, sun_visibility = true, "
+                'loss_variant = "located", sun_net = [4, 8, 8], sun_net_size = [24, 32]}',
+                f'crops = ["{root}"]',
+                f'val_crops = ["{root}"]',
+                "val_samples = 4",
+                "val_every = 2",
+                "log_every = 1",
+                "checkpoint_every = 1",
+                "[sun]",
+                "steps = 3",
+                "batch_size = 4",
+                "[inet]",
+                "steps = 2",
+                "batch_size = 2",
+            ]
+        )
+        + "\n"
+    )
     from solidkit.model.trainer import Trainer, load_train_config
 
     tr = Trainer(load_train_config(conf), progress=False)

@@ -28,14 +28,18 @@ def _sky(height: int, az_deg: float, el_deg: float, energy: float = 2.0) -> np.n
     up = -d[..., 1]
     sky = np.stack([0.4 + 0.3 * up, 0.6 + 0.4 * up, 1.0 + 0.5 * up], -1)
     sky = np.where(up[..., None] > 0, sky, 0.25).astype(np.float32)
-    sun_dir = torch.as_tensor(np.asarray(direction_from_angles(math.radians(az_deg), math.radians(el_deg))), dtype=torch.float32)
+    sun_dir = torch.as_tensor(
+        np.asarray(direction_from_angles(math.radians(az_deg), math.radians(el_deg))), dtype=torch.float32
+    )
     sun = render_sun(sun_dir[None], torch.full((1, 3), energy), torch.tensor([math.radians(0.3)]), height)[0]
     return sky + sun.permute(1, 2, 0).numpy()
 
 
 @pytest.fixture
 def sources(tmp_path, write_sources) -> Path:
-    return write_sources(tmp_path / "sources", [(_sky(256, az, el), _sky(128, az, el)) for az, el in ((30.0, 40.0), (-100.0, 20.0))])
+    return write_sources(
+        tmp_path / "sources", [(_sky(256, az, el), _sky(128, az, el)) for az, el in ((30.0, 40.0), (-100.0, 20.0))]
+    )
 
 
 def test_crops_are_reproducible_and_their_sun_follows_the_yaw(sources):
@@ -65,10 +69,22 @@ def test_flipped_crop_mirrors_the_sun():
 
 
 def _config(tmp_path, sources, out, steps=4, **extra) -> Path:
-    lines = [f'out = "{out}"', 'model = "tiny"', f"seed = {extra.pop('seed', 5)}", f'crops = ["{sources}"]', f'val_crops = ["{sources}"]',
-             "val_samples = 2", "val_every = 2", "log_every = 1", "checkpoint_every = 1",
-             *[f"{k} = {json.dumps(v)}" for k, v in extra.items()], "[inet]", f"steps = {steps}", "batch_size = 2",
-             "lr = 1e-3"]
+    lines = [
+        f'out = "{out}"',
+        'model = "tiny"',
+        f"seed = {extra.pop('seed', 5)}",
+        f'crops = ["{sources}"]',
+        f'val_crops = ["{sources}"]',
+        "val_samples = 2",
+        "val_every = 2",
+        "log_every = 1",
+        "checkpoint_every = 1",
+        *[f"{k} = {json.dumps(v)}" for k, v in extra.items()],
+        "[inet]",
+        f"steps = {steps}",
+        "batch_size = 2",
+        "lr = 1e-3",
+    ]
     path = tmp_path / f"{Path(out).name}.toml"
     path.write_text("\n".join(lines) + "\n")
     return path
@@ -145,8 +161,13 @@ def test_torchrun_two_processes_share_each_batch(tmp_path, sources):
     cfg = _config(tmp_path, sources, tmp_path / "ddp", steps=2)
     torchrun = Path(sys.executable).with_name("torchrun")
     env = {**os.environ, "OMP_NUM_THREADS": "1"}
-    res = subprocess.run([str(torchrun), "--nproc_per_node", "2", "-m", "solidkit.cli", "train", str(cfg), "--no-progress"],
-                         capture_output=True, text=True, env=env, timeout=600)
+    res = subprocess.run(
+        [str(torchrun), "--nproc_per_node", "2", "-m", "solidkit.cli", "train", str(cfg), "--no-progress"],
+        capture_output=True,
+        text=True,
+        env=env,
+        timeout=600,
+    )
     assert res.returncode == 0, res.stderr[-2000:]
     states = [json.loads(line) for line in res.stdout.splitlines() if line.startswith("{")]
     assert len(states) == 2 and all(s["step"] == 2 and s["samples"] == 4 for s in states)  # 2 steps x global batch 2
@@ -168,7 +189,9 @@ def test_a_run_is_not_resumed_with_another_model_configuration(tmp_path, sources
     del payload["model_config"]
     torch.save(payload, state)
     lines: list[str] = []
-    t = Trainer(load_train_config(_config(tmp_path, sources, tmp_path / "run", steps=2)), progress=False, log=lines.append)
+    t = Trainer(
+        load_train_config(_config(tmp_path, sources, tmp_path / "run", steps=2)), progress=False, log=lines.append
+    )
     t.run()
     assert t.state["step"] == 2 and any("without its model configuration" in x for x in lines)
 

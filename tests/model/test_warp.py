@@ -9,8 +9,8 @@ import pytest
 import torch
 
 from solidkit.envmap.coords import rotation_from_ypr
-from solidkit.errors import InputError
 from solidkit.envmap.perspective import intrinsics_from_fov, pixel_rays
+from solidkit.errors import InputError
 from solidkit.model.warp import (
     camera_rotation,
     forward_warp,
@@ -18,7 +18,6 @@ from solidkit.model.warp import (
     probe_centres,
     warp_to_probes,
 )
-
 
 pytestmark = pytest.mark.usefixtures("torch_one_thread")
 
@@ -59,7 +58,9 @@ def test_points_lie_on_their_plane_and_reproject_to_their_pixel():
     assert on_plane[valid].abs().max() < 1e-9
     proj = (K[0] @ P[0].reshape(3, -1)).reshape(3, 240, 320)
     xs, ys = proj[0] / proj[2], proj[1] / proj[2]
-    yy, xx = torch.meshgrid(torch.arange(240.0, dtype=torch.float64), torch.arange(320.0, dtype=torch.float64), indexing="ij")
+    yy, xx = torch.meshgrid(
+        torch.arange(240.0, dtype=torch.float64), torch.arange(320.0, dtype=torch.float64), indexing="ij"
+    )
     assert (xs - xx)[valid[0, 0]].abs().max() < 1e-6 and (ys - yy)[valid[0, 0]].abs().max() < 1e-6
     # surfaces seen edge-on or from behind are invalid, and their points are zero
     assert (P * ~valid).abs().max() == 0
@@ -148,12 +149,16 @@ def test_warp_to_probes_ground_plane_with_pitch():
     # analytic: pixel (40, 50)'s ray in the panorama frame hits y = 1.6; seen from the probe
     v = torch.tensor([(40 - K[0, 0, 2]) / K[0, 0, 0], (50 - K[0, 1, 2]) / K[0, 1, 1], 1.0], dtype=torch.float64)
     for px in [(10, 55), (70, 45)]:
-        ray = R @ torch.tensor([(px[0] - K[0, 0, 2]) / K[0, 0, 0], (px[1] - K[0, 1, 2]) / K[0, 1, 1], 1.0], dtype=torch.float64)
+        ray = R @ torch.tensor(
+            [(px[0] - K[0, 0, 2]) / K[0, 0, 0], (px[1] - K[0, 1, 2]) / K[0, 1, 1], 1.0], dtype=torch.float64
+        )
         point = ray * (1.6 / ray[1])
         x, y = _analytic_pixel((point - centres[0, 0]).numpy(), 32)
         u, vv = int(math.floor(x)) % 64, int(math.floor(y))
         assert mask[0, 0, 0, vv, u] == 1
-    assert torch.allclose(centres[0, 0, :], (R @ v) * (1.6 / (R @ v)[1]) + torch.tensor([0, -0.1, 0], dtype=torch.float64))
+    assert torch.allclose(
+        centres[0, 0, :], (R @ v) * (1.6 / (R @ v)[1]) + torch.tensor([0, -0.1, 0], dtype=torch.float64)
+    )
 
 
 def test_probe_centre_normal_faces_camera_and_bad_pixel_fails():

@@ -84,7 +84,9 @@ def move_gps(campaign: Path, scene: str, dlat: float) -> str:
 
 def rotate_heading(campaign: Path, scene: str, probe: str, deg: float) -> str:
     data = _manifest(campaign)
-    shas = {s for sc in data["scenes"] if sc["id"] == scene for pr in sc["probes"] if pr["id"] == probe for s in pr["shots"]}
+    shas = {
+        s for sc in data["scenes"] if sc["id"] == scene for pr in sc["probes"] if pr["id"] == probe for s in pr["shots"]
+    }
     for sh in data["shots"]:
         if sh["sha256"] in shas and sh["metadata"].get("heading_deg") is not None:
             sh["metadata"]["heading_deg"] = (sh["metadata"]["heading_deg"] + deg) % 360.0

@@ -67,13 +67,25 @@ def make_campaign(root: Path, *, with_alignment: bool = True, with_city: bool = 
         rel = f"products/s1/{pid}/sun.png"
         (root / rel).parent.mkdir(parents=True, exist_ok=True)
         cv2.imwrite(str(root / rel), pano)
-        products.append(Product(id=f"s1/{pid}/sun", kind="sun_frame", scene="s1", probe=pid, inputs=[], path=rel, layout="equirect"))
+        products.append(
+            Product(id=f"s1/{pid}/sun", kind="sun_frame", scene="s1", probe=pid, inputs=[], path=rel, layout="equirect")
+        )
         probes.append(Probe(id=pid, shots=[], role="camera" if pid == "cam" else "probe"))
     hdr = np.full((PANO_H, 2 * PANO_H, 3), 0.2, np.float32)
     hdr[PANO_H // 2 :] = 0.05  # ground darker than sky
     disk(hdr, HEADING_DOT_AZ, 0.0, 3.0, (2.0, 0.0, 0.0))  # RGB: red
     write_exr(root / "products/s1/p1/hdr-b01.exr", hdr)
-    products.append(Product(id="s1/p1/hdr-b01", kind="hdr", scene="s1", probe="p1", inputs=[], path="products/s1/p1/hdr-b01.exr", layout="equirect"))
+    products.append(
+        Product(
+            id="s1/p1/hdr-b01",
+            kind="hdr",
+            scene="s1",
+            probe="p1",
+            inputs=[],
+            path="products/s1/p1/hdr-b01.exr",
+            layout="equirect",
+        )
+    )
     scene = Scene(id="s1", grouping="folder", photos=["a" * 64], photo="a" * 64, camera_probe="cam", probes=probes)
     city, city_align = _city(root, shots, products) if with_city else (None, None)
     scenes = [scene, city] if with_city else [scene]

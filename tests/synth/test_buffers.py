@@ -28,8 +28,15 @@ def street() -> CityBlock:
 
 
 def camera(pitch: float = -12.0, roll: float = 3.0, yaw: float = 4.0) -> Camera:
-    return Camera(intrinsics_from_fov(math.radians(70.0), W, H), W, H, np.array([0.3, -1.55, 0.0]), math.radians(yaw), math.radians(pitch),
-                  math.radians(roll))
+    return Camera(
+        intrinsics_from_fov(math.radians(70.0), W, H),
+        W,
+        H,
+        np.array([0.3, -1.55, 0.0]),
+        math.radians(yaw),
+        math.radians(pitch),
+        math.radians(roll),
+    )
 
 
 def sun_only(sun: np.ndarray, height: int = 64) -> Lighting:
@@ -156,8 +163,12 @@ def test_probe_pixels_one_per_quadrant_inside_the_border() -> None:
 
 def test_city_block_is_seeded() -> None:
     a, b, c = city_block(5), city_block(5), city_block(6)
-    assert len(a.parts) == len(b.parts) and all(np.array_equal(p.vertices, q.vertices) for p, q in zip(a.parts, b.parts))
-    assert len(a.parts) != len(c.parts) or not all(np.array_equal(p.vertices, q.vertices) for p, q in zip(a.parts, c.parts))
+    assert len(a.parts) == len(b.parts) and all(
+        np.array_equal(p.vertices, q.vertices) for p, q in zip(a.parts, b.parts)
+    )
+    assert len(a.parts) != len(c.parts) or not all(
+        np.array_equal(p.vertices, q.vertices) for p, q in zip(a.parts, c.parts)
+    )
     cats = {p.category for p in a.parts}
     assert {"road", "sidewalk", "building"} <= cats and len(cats) >= 6
     # every box is closed with outward faces: signed volume > 0

@@ -14,11 +14,17 @@ pytest.importorskip("mitsuba")
 
 from solidkit.camera.lens import load_profile, project  # noqa: E402
 from solidkit.camera.metadata import read_metadata  # noqa: E402
-from solidkit.envmap import (angular_distance, coords_from_direction, direction_from_angles,  # noqa: E402
-                             direction_from_coords, rotation_from_ypr, rotation_y)
 from solidkit.capture.unwarp import render_fisheye  # noqa: E402
-from solidkit.synth.campaign import CampaignConfig, CampaignTruth, expose, generate_campaign, load_truth  # noqa: E402
+from solidkit.envmap import (
+    angular_distance,
+    coords_from_direction,
+    direction_from_angles,  # noqa: E402
+    direction_from_coords,
+    rotation_from_ypr,
+    rotation_y,
+)
 from solidkit.synth.cameras import Camera  # noqa: E402
+from solidkit.synth.campaign import CampaignConfig, CampaignTruth, expose, generate_campaign, load_truth  # noqa: E402
 from solidkit.synth.exif import exif_app1, insert_app1  # noqa: E402
 
 
@@ -26,8 +32,11 @@ from solidkit.synth.exif import exif_app1, insert_app1  # noqa: E402
 def test_fisheye_spot_lands_where_the_lens_model_says(az: float, el: float) -> None:
     h = 64
     # a direction at a pixel centre of the panorama, near (az, el)
-    d = np.asarray(direction_from_coords(np.float64(np.floor((az + 180) / 360 * 2 * h) + 0.5),
-                                         np.float64(np.floor((90 - el) / 180 * h) + 0.5), h))
+    d = np.asarray(
+        direction_from_coords(
+            np.float64(np.floor((az + 180) / 360 * 2 * h) + 0.5), np.float64(np.floor((90 - el) / 180 * h) + 0.5), h
+        )
+    )
     pano = np.zeros((h, 2 * h, 3), np.float32)
     px, py = coords_from_direction(d, h)
     pano[int(py), int(px)] = 100.0
@@ -48,25 +57,53 @@ def test_exif_reads_back_through_capture_metadata(tmp_path: Path) -> None:
 
     ok, buf = cv2.imencode(".jpg", np.zeros((32, 64, 3), np.uint8))
     when = dt.datetime(2024, 6, 1, 12, 0, 7)
-    app = exif_app1(make="RICOH", model="RICOH THETA V", when=when, exposure_time=1 / 25000, f_number=2.0, iso=64,
-                    gps=(48.85, -2.35, 35.0), theta={"image_type": 2, "roll_deg": -1.25, "pitch_deg": 3.5, "heading_deg": 271.0})
+    app = exif_app1(
+        make="RICOH",
+        model="RICOH THETA V",
+        when=when,
+        exposure_time=1 / 25000,
+        f_number=2.0,
+        iso=64,
+        gps=(48.85, -2.35, 35.0),
+        theta={"image_type": 2, "roll_deg": -1.25, "pitch_deg": 3.5, "heading_deg": 271.0},
+    )
     (tmp_path / "a.jpg").write_bytes(insert_app1(buf.tobytes(), app))
     m = read_metadata(tmp_path / "a.jpg")
     assert m.image_type == "dual_fisheye" and m.model == "RICOH THETA V" and not m.warnings
     assert m.exposure_time == pytest.approx(1 / 25000) and m.f_number == 2.0 and m.iso == 64
-    assert m.pitch_deg == pytest.approx(3.5) and m.roll_deg == pytest.approx(-1.25) and m.heading_deg == pytest.approx(271.0)
+    assert (
+        m.pitch_deg == pytest.approx(3.5)
+        and m.roll_deg == pytest.approx(-1.25)
+        and m.heading_deg == pytest.approx(271.0)
+    )
     assert m.datetime_original == when
     assert m.gps["lat_deg"] == pytest.approx(48.85, abs=1e-6) and m.gps["lon_deg"] == pytest.approx(-2.35, abs=1e-6)
-    app = exif_app1(make="SOLIDKIT", model="Virtual Photo Camera", when=when, exposure_time=1 / 500, f_number=2.8, iso=100,
-                    focal_length_mm=5.3, focal_35mm=31)
+    app = exif_app1(
+        make="SOLIDKIT",
+        model="Virtual Photo Camera",
+        when=when,
+        exposure_time=1 / 500,
+        f_number=2.8,
+        iso=100,
+        focal_length_mm=5.3,
+        focal_35mm=31,
+    )
     (tmp_path / "b.jpg").write_bytes(insert_app1(buf.tobytes(), app))
     m = read_metadata(tmp_path / "b.jpg")
     assert m.image_type == "perspective" and m.exposure_time == pytest.approx(1 / 500)
     assert m.utc_offset is None
     # an aware time: local clock + OffsetTime + UTC GPS stamps; the true heading in GPSImgDirection
     local = dt.datetime(2024, 12, 31, 19, 30, 5, tzinfo=dt.timezone(dt.timedelta(hours=-5, minutes=-30)))
-    app = exif_app1(make="SOLIDKIT", model="Virtual Photo Camera", when=local, exposure_time=1 / 500, f_number=2.8,
-                    iso=100, gps=(-33.5, 151.25, 12.0), img_direction_deg=359.123456)
+    app = exif_app1(
+        make="SOLIDKIT",
+        model="Virtual Photo Camera",
+        when=local,
+        exposure_time=1 / 500,
+        f_number=2.8,
+        iso=100,
+        gps=(-33.5, 151.25, 12.0),
+        img_direction_deg=359.123456,
+    )
     (tmp_path / "c.jpg").write_bytes(insert_app1(buf.tobytes(), app))
     m = read_metadata(tmp_path / "c.jpg")
     assert m.datetime_original == local.replace(tzinfo=None) and m.utc_offset == "-05:30" and not m.warnings
@@ -93,8 +130,9 @@ def _photo_sun_from_exif(path: Path) -> tuple[np.ndarray, float]:
     hh, mm = m.utc_offset[1:].split(":")
     tz = dt.timezone(sign * dt.timedelta(hours=int(hh), minutes=int(mm)))
     when = m.datetime_original.replace(tzinfo=tz)
-    sp = pvlib.solarposition.get_solarposition(pd.DatetimeIndex([when]), m.gps["lat_deg"], m.gps["lon_deg"],
-                                               altitude=m.gps["alt_m"])
+    sp = pvlib.solarposition.get_solarposition(
+        pd.DatetimeIndex([when]), m.gps["lat_deg"], m.gps["lon_deg"], altitude=m.gps["alt_m"]
+    )
     heading = float(_exif_tags(path)["GPS GPSImgDirection"].values[0])
     az, el = float(sp["azimuth"].iloc[0]), float(sp["apparent_elevation"].iloc[0])
     return np.array([az, el]), heading
@@ -113,8 +151,19 @@ def test_sensor_model_saturates_the_sun_and_scales_with_exposure() -> None:
 
 
 def test_campaign_truth_round_trips(tmp_path: Path) -> None:
-    cfg = CampaignConfig(photo_width=32, photo_height=24, photo_spp=1, pano_height=16, pano_spp=1, probe_height=8,
-                         probe_spp=1, fisheye_width=128, candidates=2, block_length=25.0, brackets_s=[1 / 640])
+    cfg = CampaignConfig(
+        photo_width=32,
+        photo_height=24,
+        photo_spp=1,
+        pano_height=16,
+        pano_spp=1,
+        probe_height=8,
+        probe_spp=1,
+        fisheye_width=128,
+        candidates=2,
+        block_length=25.0,
+        brackets_s=[1 / 640],
+    )
     truth = generate_campaign(tmp_path, 1, 2, seed=3, config=cfg)
     again = load_truth(tmp_path / "truth" / "truth.json")
     assert again == truth
@@ -136,7 +185,9 @@ def test_campaign_truth_round_trips(tmp_path: Path) -> None:
             assert abs(c.recorded_pitch_deg - c.pitch_deg) < 2.0  # gravity noise 0.3° rms
         if c.probe is not None:
             assert np.allclose(cam.project(np.asarray(c.probe.point_scene)), c.probe.pixel, atol=1e-3)
-            assert np.allclose(np.asarray(c.position) - c.probe.point_scene, 0.1 * np.asarray(c.probe.normal_scene), atol=1e-6)
+            assert np.allclose(
+                np.asarray(c.position) - c.probe.point_scene, 0.1 * np.asarray(c.probe.normal_scene), atol=1e-6
+            )
             assert (tmp_path / c.probe.hdr_file).is_file()
     photo = read_metadata(tmp_path / sc.photo.shot.file)
     assert photo.image_type == "perspective" and photo.gps is not None
@@ -155,8 +206,19 @@ def test_campaign_truth_round_trips(tmp_path: Path) -> None:
 
 
 def _tiny(**kw: object) -> CampaignConfig:
-    base = dict(photo_width=32, photo_height=24, photo_spp=1, pano_height=16, pano_spp=1, probe_height=8, probe_spp=1,
-                fisheye_width=64, candidates=2, block_length=25.0, p_sunsky=1.0)
+    base = dict(
+        photo_width=32,
+        photo_height=24,
+        photo_spp=1,
+        pano_height=16,
+        pano_spp=1,
+        probe_height=8,
+        probe_spp=1,
+        fisheye_width=64,
+        candidates=2,
+        block_length=25.0,
+        p_sunsky=1.0,
+    )
     return CampaignConfig(**{**base, **kw})
 
 
@@ -172,12 +234,20 @@ def test_campaign_resumes_idempotently_and_ties_time_gps_heading_to_the_sun(tmp_
         assert sc.sun_found and sc.solar.rendered
         (az, el), heading = _photo_sun_from_exif(out / sc.photo.shot.file)
         d_pano = np.asarray(direction_from_angles(np.float64(math.radians(az - heading)), np.float64(math.radians(el))))
-        d_truth = np.asarray(direction_from_angles(np.float64(math.radians(sc.sun_azimuth_deg)),
-                                                   np.float64(math.radians(sc.sun_elevation_deg))))
+        d_truth = np.asarray(
+            direction_from_angles(
+                np.float64(math.radians(sc.sun_azimuth_deg)), np.float64(math.radians(sc.sun_elevation_deg))
+            )
+        )
         assert math.degrees(float(angular_distance(d_pano, d_truth))) < 0.1
         # ... and in the world frame (scene frame x east, z north), from pvlib's azimuth alone
-        d_world = np.array([math.cos(math.radians(el)) * math.sin(math.radians(az)), -math.sin(math.radians(el)),
-                            math.cos(math.radians(el)) * math.cos(math.radians(az))])
+        d_world = np.array(
+            [
+                math.cos(math.radians(el)) * math.sin(math.radians(az)),
+                -math.sin(math.radians(el)),
+                math.cos(math.radians(el)) * math.cos(math.radians(az)),
+            ]
+        )
         assert math.degrees(math.acos(min(1.0, float(d_world @ np.asarray(sc.sun_scene))))) < 0.1
         for c in sc.captures:  # Theta shots 1-2 min later: the real sun has moved a little, and the truth says how much
             assert c.sun_drift_deg is not None and c.sun_drift_deg < 0.25 * (1 + 2 * len(sc.captures)) + 0.1
@@ -220,8 +290,18 @@ def test_campaign_through_ingest_finds_the_true_sun(tmp_path: Path) -> None:
     from solidkit.envmap import angular_distance, direction_from_angles, read_ldr
     from solidkit.envmap.sun import detect_sun
 
-    cfg = CampaignConfig(photo_width=64, photo_height=48, photo_spp=2, pano_height=256, pano_spp=8, probe_height=16,
-                         probe_spp=2, fisheye_width=1024, candidates=4, p_sunsky=1.0)
+    cfg = CampaignConfig(
+        photo_width=64,
+        photo_height=48,
+        photo_spp=2,
+        pano_height=256,
+        pano_spp=8,
+        probe_height=16,
+        probe_spp=2,
+        fisheye_width=1024,
+        candidates=4,
+        p_sunsky=1.0,
+    )
     truth = generate_campaign(tmp_path / "sim", 2, 2, seed=5, config=cfg)
     ingest(tmp_path / "sim" / "card", tmp_path / "campaign")
     errors = []

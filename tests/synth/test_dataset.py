@@ -17,8 +17,21 @@ from solidkit.synth.dataset import SynthDataset, build_index, generate, parse_sh
 from solidkit.synth.filter import ReferenceSet, colour_histogram, histogram_intersection  # noqa: E402
 from solidkit.synth.sample import FILES, Generator, SampleConfig  # noqa: E402
 
-TINY = SampleConfig(width=32, height=24, spp=2, buffer_spp=2, env_height=8, env_spp=2, probe_height=8, probe_spp=2,
-                    candidates=2, item_size=(16, 12), light_height=64, tex_size=8, block_length=25.0)
+TINY = SampleConfig(
+    width=32,
+    height=24,
+    spp=2,
+    buffer_spp=2,
+    env_height=8,
+    env_spp=2,
+    probe_height=8,
+    probe_spp=2,
+    candidates=2,
+    item_size=(16, 12),
+    light_height=64,
+    tex_size=8,
+    block_length=25.0,
+)
 
 
 def arrays(folder: Path) -> dict[str, np.ndarray]:

@@ -14,17 +14,17 @@ from solidkit.envmap.coords import angles_from_direction, coords_from_direction,
 from solidkit.envmap.io import read_hdr, read_image, read_panorama
 from solidkit.errors import InputError, PanoramaError
 from solidkit.model.suncrops import SunCropBank
-from solidkit.synth.panocrops import CropConfig, CropSampler, SPLIT_FILE, load_sources, read_catalog, real_split
+from solidkit.synth.panocrops import SPLIT_FILE, CropConfig, CropSampler, load_sources, read_catalog, real_split
 
 REAL = Path(__file__).resolve().parents[3] / "shared" / "data" / "real" / "hdr_outdoor"
 
 
 def _sky_with_sun(h: int, az_deg: float, el_deg: float, peak: float = 5.0e4) -> np.ndarray:
     pano = np.full((h, 2 * h, 3), 0.2, np.float32)
-    pano[h // 2:] = 0.05
+    pano[h // 2 :] = 0.05
     x, y = coords_from_direction(direction_from_angles(math.radians(az_deg), math.radians(el_deg)), h)
     c, r = int(x), int(y)
-    pano[r - 1:r + 2, c - 1:c + 2] = peak
+    pano[r - 1 : r + 2, c - 1 : c + 2] = peak
     return pano
 
 
@@ -58,9 +58,14 @@ def _folder(tmp_path: Path) -> Path:
     root.mkdir()
     _write_hdr(root / "sunny.hdr", _sky_with_sun(128, 36.0, 25.0))
     _write_hdr(root / "grey.hdr", np.full((128, 256, 3), 0.3, np.float32))
-    (root / "catalog.json").write_text(json.dumps([
-        {"file": "sunny.hdr", "sun_visible": True, "sun_azimuth_deg": 36.0, "sun_elevation_deg": 25.0},
-        {"file": "grey.hdr", "sun_visible": False}]))
+    (root / "catalog.json").write_text(
+        json.dumps(
+            [
+                {"file": "sunny.hdr", "sun_visible": True, "sun_azimuth_deg": 36.0, "sun_elevation_deg": 25.0},
+                {"file": "grey.hdr", "sun_visible": False},
+            ]
+        )
+    )
     return root
 
 

@@ -29,8 +29,10 @@ def test_frames() -> None:
     assert utc_offset_text(-330) == "-05:30" and utc_offset_text(120) == "+02:00"
 
 
-@pytest.mark.parametrize("az,el", [(0.0, 5.0), (180.0, 5.0), (90.0, 89.5), (270.0, 85.0), (10.0, 45.0), (200.0, 0.3),
-                                   (300.0, 30.0), (45.0, 70.0)])
+@pytest.mark.parametrize(
+    "az,el",
+    [(0.0, 5.0), (180.0, 5.0), (90.0, 89.5), (270.0, 85.0), (10.0, 45.0), (200.0, 0.3), (300.0, 30.0), (45.0, 70.0)],
+)
 def test_place_sun_reproduces_the_direction_with_pvlib(az: float, el: float) -> None:
     target = solar_direction(az, el)
     fix = place_sun(target, np.random.default_rng(int(az * 10 + el)))

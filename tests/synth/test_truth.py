@@ -18,8 +18,21 @@ from solidkit.synth.campaign import CampaignConfig, generate_campaign, load_trut
 from solidkit.synth.truth_probes import PASS_SAMPLES, needed_spp, pass_plan  # noqa: E402
 from solidkit.synth.truth_rerender import rerender_truth  # noqa: E402
 
-TINY = dict(photo_width=32, photo_height=24, photo_spp=1, pano_height=16, pano_spp=4, probe_height=8, probe_spp=4,
-            fisheye_width=64, candidates=2, block_length=25.0, p_sunsky=1.0, glass_every=0, probe_noise_db=0.0)
+TINY = dict(
+    photo_width=32,
+    photo_height=24,
+    photo_spp=1,
+    pano_height=16,
+    pano_spp=4,
+    probe_height=8,
+    probe_spp=4,
+    fisheye_width=64,
+    candidates=2,
+    block_length=25.0,
+    p_sunsky=1.0,
+    glass_every=0,
+    probe_noise_db=0.0,
+)
 
 
 @pytest.fixture(scope="module")
@@ -30,8 +43,11 @@ def tiny(tmp_path_factory) -> Path:
 
 
 def _digests(folder: Path) -> dict[str, str]:
-    return {str(p.relative_to(folder)): hashlib.sha256(p.read_bytes()).hexdigest()
-            for p in sorted(folder.rglob("*")) if p.is_file()}
+    return {
+        str(p.relative_to(folder)): hashlib.sha256(p.read_bytes()).hexdigest()
+        for p in sorted(folder.rglob("*"))
+        if p.is_file()
+    }
 
 
 def test_pass_plan_splits_the_samples_into_passes_that_fit() -> None:
@@ -113,25 +129,36 @@ def test_truth_rerender_refuses_a_scene_it_cannot_rebuild(tiny: Path, tmp_path: 
 
 def test_truth_probe_noise_falls_with_samples(tiny: Path) -> None:
     """Two independent renders at 2 and at 32 spp: their difference (pure Monte Carlo noise) shrinks ~sqrt(16)."""
+    from solidkit.align.evaluate import psnr
     from solidkit.synth.campaign_truth import load_truth as lt
     from solidkit.synth.mitsuba_variant import mitsuba
     from solidkit.synth.sample import Generator, SampleConfig
     from solidkit.synth.truth_probes import render_truth_probe
     from solidkit.synth.truth_rerender import _rebuild
-    from solidkit.align.evaluate import psnr
 
     t = lt(tiny / "truth" / "truth.json")
     cfg = t.config
-    gen = Generator(t.seed, SampleConfig(width=cfg.photo_width, height=cfg.photo_height, hfov_deg=cfg.hfov_deg,
-                                         candidates=cfg.candidates, p_sunsky=cfg.p_sunsky, block_length=cfg.block_length))
+    gen = Generator(
+        t.seed,
+        SampleConfig(
+            width=cfg.photo_width,
+            height=cfg.photo_height,
+            hfov_deg=cfg.hfov_deg,
+            candidates=cfg.candidates,
+            p_sunsky=cfg.p_sunsky,
+            block_length=cfg.block_length,
+        ),
+    )
     st = t.scenes[0]
     built = _rebuild(mitsuba(), gen, st, t.seed, cfg)
     pos = np.asarray(next(c for c in st.captures if c.probe is not None).position)
 
     def noise(spp: int) -> tuple[float, float]:
         """(rms difference of two independent renders, the renders' own split-half noise PSNR)."""
-        (a, ra), (b, rb) = (render_truth_probe(built["scene"], pos, built["cam"].pano_rotation, 32, spp, seed=seed,
-                                               firefly_k=0.0) for seed in (1, 2))
+        (a, ra), (b, rb) = (
+            render_truth_probe(built["scene"], pos, built["cam"].pano_rotation, 32, spp, seed=seed, firefly_k=0.0)
+            for seed in (1, 2)
+        )
         pair_db = psnr(np.asarray(tonemap(a)), np.asarray(tonemap(b))) + 10.0 * np.log10(2.0)  # one render's noise
         if spp >= 32:  # the split-half estimate linearises the tonemap: not at 1 sample per half
             assert abs(ra["noise_psnr_db"] - pair_db) < 2.0 and abs(rb["noise_psnr_db"] - pair_db) < 2.0
@@ -153,8 +180,18 @@ def test_a_new_campaign_gets_a_truth_clean_to_its_noise_target(tmp_path: Path) -
     from solidkit.synth.truth_probes import clean_truth_probe
     from solidkit.synth.truth_rerender import _rebuild
 
-    cfg = CampaignConfig(photo_width=64, photo_height=48, photo_spp=2, pano_height=64, pano_spp=16, fisheye_width=256,
-                         candidates=2, block_length=25.0, p_sunsky=1.0, glass_every=0)
+    cfg = CampaignConfig(
+        photo_width=64,
+        photo_height=48,
+        photo_spp=2,
+        pano_height=64,
+        pano_spp=16,
+        fisheye_width=256,
+        candidates=2,
+        block_length=25.0,
+        p_sunsky=1.0,
+        glass_every=0,
+    )
     generate_campaign(tmp_path / "c", 1, 1, seed=6, config=cfg)
     t = lt(tmp_path / "c" / "truth" / "truth.json")
     st = t.scenes[0]
@@ -162,12 +199,31 @@ def test_a_new_campaign_gets_a_truth_clean_to_its_noise_target(tmp_path: Path) -
     rec = ct.probe.render
     assert rec["version"] == 4 and rec["base_spp"] == 256 and rec["firefly_spp"] == 16
     assert rec["noise_psnr_db"] >= 38.0 or rec["spp"] == rec["max_spp"], rec
-    gen = Generator(t.seed, SampleConfig(width=cfg.photo_width, height=cfg.photo_height, hfov_deg=cfg.hfov_deg,
-                                         candidates=cfg.candidates, p_sunsky=cfg.p_sunsky, block_length=cfg.block_length))
+    gen = Generator(
+        t.seed,
+        SampleConfig(
+            width=cfg.photo_width,
+            height=cfg.photo_height,
+            hfov_deg=cfg.hfov_deg,
+            candidates=cfg.candidates,
+            p_sunsky=cfg.p_sunsky,
+            block_length=cfg.block_length,
+        ),
+    )
     built = _rebuild(mitsuba(), gen, st, t.seed, cfg)
-    other, orec = clean_truth_probe(built["scene"], np.asarray(ct.position), built["cam"].pano_rotation, 128, 256,
-                                    seed=12345, noise_target_db=40.0, max_spp=2048, sun=built["light"].sun,
-                                    firefly_k=cfg.firefly_k, firefly_spp=16)
+    other, orec = clean_truth_probe(
+        built["scene"],
+        np.asarray(ct.position),
+        built["cam"].pano_rotation,
+        128,
+        256,
+        seed=12345,
+        noise_target_db=40.0,
+        max_spp=2048,
+        sun=built["light"].sun,
+        firefly_k=cfg.firefly_k,
+        firefly_spp=16,
+    )
     stored = read_exr(tmp_path / "c" / ct.probe.hdr_file)[0][..., :3]
     # two independent estimates: their difference carries both noises (~3 dB under one's noise PSNR)
     assert psnr(tonemap(stored), tonemap(other)) > min(rec["noise_psnr_db"], orec["noise_psnr_db"]) - 5.0

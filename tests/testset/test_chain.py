@@ -11,18 +11,17 @@ from __future__ import annotations
 
 import json
 import math
-import tomllib
 from pathlib import Path
 
 import numpy as np
 import pytest
+import tomllib
 
 from solidkit.envmap.coords import angular_distance
 from solidkit.envmap.io import read_exr, read_ldr
 from solidkit.envmap.resample import resize
 from solidkit.testset.build import load_testset
 from solidkit.testset.validate import validate_testset
-
 from tests.testset.test_testset import psnr_ldr
 
 PSNR_MIN_DB = 30.0  # align's target for aligned LDR probes
@@ -47,8 +46,16 @@ def field_note_pixels(card: Path, scene: str) -> dict[str, list[float]]:
 def compare_with_truth(out: Path, truth_dir: Path, card: Path | None = None) -> dict:
     """Numbers of a built test set against a virtual campaign's truth (used by the test and for reports)."""
     ts = load_testset(out)
-    res = {"pixel_err_px": [], "pixel_vs_notes_px": [], "sun_err_deg": [], "psnr_db": [], "rotation_err_deg": [],
-           "sun_found": [], "probe": [], "flagged": []}
+    res = {
+        "pixel_err_px": [],
+        "pixel_vs_notes_px": [],
+        "sun_err_deg": [],
+        "psnr_db": [],
+        "rotation_err_deg": [],
+        "sun_found": [],
+        "probe": [],
+        "flagged": [],
+    }
     for s in ts.scenes:
         t = json.loads((truth_dir / s.id / "scene.json").read_text())
         notes = field_note_pixels(card, s.id) if card is not None else {}
@@ -59,8 +66,18 @@ def compare_with_truth(out: Path, truth_dir: Path, card: Path | None = None) -> 
         if s.sun.found and t["sun_found"]:
             a = np.radians([s.sun.azimuth_deg, s.sun.elevation_deg])
             b = np.radians([t["sun_azimuth_deg"], t["sun_elevation_deg"]])
-            res["sun_err_deg"].append(math.degrees(float(angular_distance(*(np.array(
-                [math.cos(e) * math.sin(z), -math.sin(e), math.cos(e) * math.cos(z)]) for z, e in (a, b))))))
+            res["sun_err_deg"].append(
+                math.degrees(
+                    float(
+                        angular_distance(
+                            *(
+                                np.array([math.cos(e) * math.sin(z), -math.sin(e), math.cos(e) * math.cos(z)])
+                                for z, e in (a, b)
+                            )
+                        )
+                    )
+                )
+            )
         for p in s.probes:
             c = caps[p.id]
             res["probe"].append(f"{s.id}/{p.id}")
@@ -79,7 +96,9 @@ def compare_with_truth(out: Path, truth_dir: Path, card: Path | None = None) -> 
 @pytest.mark.slow
 def test_chain_on_a_virtual_campaign(tmp_path, cli):
     card_root = tmp_path / "virtual"
-    code, _, err = cli("synth", "campaign", "--scenes", "2", "--probes", "4", "--out", card_root, "--seed", "7", "--preset", "mini")
+    code, _, err = cli(
+        "synth", "campaign", "--scenes", "2", "--probes", "4", "--out", card_root, "--seed", "7", "--preset", "mini"
+    )
     assert code == 0, err
     camp = tmp_path / "campaign"
     code, _, err = cli("ingest", card_root / "card", "-o", camp)
@@ -110,7 +129,11 @@ def check_chain(out: Path, virtual: Path) -> dict:
     assert all(a == b for a, b in res["sun_found"]), summary
     assert all(e < SUN_TOL_DEG for e in res["sun_err_deg"]), summary
     assert float(np.median(res["rotation_err_deg"])) < ROTATION_MEDIAN_TOL_DEG, summary
-    below = [pid for pid, db, flagged in zip(res["probe"], res["psnr_db"], res["flagged"]) if db < PSNR_MIN_DB and not flagged]
+    below = [
+        pid
+        for pid, db, flagged in zip(res["probe"], res["psnr_db"], res["flagged"])
+        if db < PSNR_MIN_DB and not flagged
+    ]
     assert not below, f"probes below {PSNR_MIN_DB} dB and not flagged: {below}; {summary}"
     assert float(np.median(res["psnr_db"])) > PSNR_MIN_DB, summary
     flagged = {pid for pid, f in zip(res["probe"], res["flagged"]) if f}
@@ -126,7 +149,12 @@ def test_chain_on_the_shipped_mini_campaign(tmp_path, cli):
 
     virtual = ASSETS / "campaign_mini"
     camp, out = tmp_path / "campaign", tmp_path / "testset"
-    for argv in (("ingest", virtual / "card", "-o", camp), ("label", "sun", camp), ("align", camp), ("testset", "build", camp, "-o", out)):
+    for argv in (
+        ("ingest", virtual / "card", "-o", camp),
+        ("label", "sun", camp),
+        ("align", camp),
+        ("testset", "build", camp, "-o", out),
+    ):
         code, _, err = cli(*argv)
         assert code == 0, (argv, err)
     check_chain(out, virtual)

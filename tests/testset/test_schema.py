@@ -9,7 +9,6 @@ import pytest
 from pydantic import ValidationError
 
 from solidkit.testset.schema import TestSet, canonical_json, content_version, json_schema
-
 from tests.conftest import REPO
 
 DOC = REPO / "docs" / "testset.schema.json"
@@ -17,21 +16,61 @@ DOC = REPO / "docs" / "testset.schema.json"
 
 def _minimal() -> dict:
     eye = [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]]
-    images = {"ldr": "scenes/s/probes/p/ldr.png", "ldr_full": "scenes/s/probes/p/ldr_full.png", "hdr": None, "hdr_full": None,
-              "saturation": "scenes/s/probes/p/saturation.png", "saturation_full": "scenes/s/probes/p/saturation_full.png",
-              "ldr_full_size": [512, 256], "saturated_fraction": 0.01}
-    probe = {"id": "p", "pixel": [10.0, 200.0], "pixel_full": [20.5, 400.5], "pixel_source": "field_notes",
-             "ldr": images["ldr"], "hdr": None, "rotation": eye,
-             "alignment": {"yaw_deg": 3.0, "residual_deg": 0.4, "cues": {"sun": {"yaw_deg": 3.1, "weight": 1.0, "ok": True}}},
-             "images": images}
-    scene = {"id": "s", "photo": "scenes/s/photo.png", "photo_full": "scenes/s/photo_full.jpg", "photo_size": [320, 240],
-             "photo_full_size": [640, 480], "crop_box": [0, 0, 640, 480], "K": eye, "K_full": eye, "K_source": "exif-35mm",
-             "pitch_deg": -2.0, "roll_deg": 0.5,
-             "sun": {"found": True, "azimuth_deg": 20.0, "elevation_deg": 40.0, "uncertainty_deg": 1.0, "source": "annotator"},
-             "probes": [probe], "capture": {"original_sha256": "0" * 64}}
-    return {"version": 1, "conventions_version": 1, "solidkit_version": "0.1.0",
-            "inputs": {"campaign": "c", "manifest_sha256": "1" * 64, "alignment_sha256": "2" * 64},
-            "scenes": [scene], "files": {"scenes/s/photo.png": {"sha256": "a" * 64, "bytes": 10}}}
+    images = {
+        "ldr": "scenes/s/probes/p/ldr.png",
+        "ldr_full": "scenes/s/probes/p/ldr_full.png",
+        "hdr": None,
+        "hdr_full": None,
+        "saturation": "scenes/s/probes/p/saturation.png",
+        "saturation_full": "scenes/s/probes/p/saturation_full.png",
+        "ldr_full_size": [512, 256],
+        "saturated_fraction": 0.01,
+    }
+    probe = {
+        "id": "p",
+        "pixel": [10.0, 200.0],
+        "pixel_full": [20.5, 400.5],
+        "pixel_source": "field_notes",
+        "ldr": images["ldr"],
+        "hdr": None,
+        "rotation": eye,
+        "alignment": {
+            "yaw_deg": 3.0,
+            "residual_deg": 0.4,
+            "cues": {"sun": {"yaw_deg": 3.1, "weight": 1.0, "ok": True}},
+        },
+        "images": images,
+    }
+    scene = {
+        "id": "s",
+        "photo": "scenes/s/photo.png",
+        "photo_full": "scenes/s/photo_full.jpg",
+        "photo_size": [320, 240],
+        "photo_full_size": [640, 480],
+        "crop_box": [0, 0, 640, 480],
+        "K": eye,
+        "K_full": eye,
+        "K_source": "exif-35mm",
+        "pitch_deg": -2.0,
+        "roll_deg": 0.5,
+        "sun": {
+            "found": True,
+            "azimuth_deg": 20.0,
+            "elevation_deg": 40.0,
+            "uncertainty_deg": 1.0,
+            "source": "annotator",
+        },
+        "probes": [probe],
+        "capture": {"original_sha256": "0" * 64},
+    }
+    return {
+        "version": 1,
+        "conventions_version": 1,
+        "solidkit_version": "0.1.0",
+        "inputs": {"campaign": "c", "manifest_sha256": "1" * 64, "alignment_sha256": "2" * 64},
+        "scenes": [scene],
+        "files": {"scenes/s/photo.png": {"sha256": "a" * 64, "bytes": 10}},
+    }
 
 
 def test_docs_schema_in_sync():
@@ -57,12 +96,15 @@ def test_minimal_document_validates_with_both():
     jsonschema.validate(json.loads(TestSet.model_validate(doc).model_dump_json()), json.loads(DOC.read_text()))
 
 
-@pytest.mark.parametrize("path, value", [
-    (("scenes", 0, "probes", 0, "rotation"), [[1.0, 0.0], [0.0, 1.0]]),
-    (("scenes", 0, "sun", "source"), "guess"),
-    (("scenes", 0, "probes", 0, "pixel"), [1.0]),
-    (("files", "scenes/s/photo.png", "sha256"), "xyz"),
-])
+@pytest.mark.parametrize(
+    "path, value",
+    [
+        (("scenes", 0, "probes", 0, "rotation"), [[1.0, 0.0], [0.0, 1.0]]),
+        (("scenes", 0, "sun", "source"), "guess"),
+        (("scenes", 0, "probes", 0, "pixel"), [1.0]),
+        (("files", "scenes/s/photo.png", "sha256"), "xyz"),
+    ],
+)
 def test_schema_rejects(path, value):
     doc = _minimal()
     node = doc

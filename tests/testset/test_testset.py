@@ -14,12 +14,11 @@ from solidkit.align.schema import body_to_pano, level_to_pano
 from solidkit.envmap.io import read_exr, read_ldr
 from solidkit.envmap.resample import resize, rotate
 from solidkit.errors import InputError
-from solidkit.metrics import exposure_scale, ldr_from_hdr
 from solidkit.labeling.store import LabelStore
+from solidkit.metrics import exposure_scale, ldr_from_hdr
 from solidkit.testset.build import build_testset, load_testset
 from solidkit.testset.schema import content_version
 from solidkit.testset.validate import validate_testset
-
 from tests.support.testset_campaign import make_campaign
 
 PSNR_MIN_DB = 30.0
@@ -64,7 +63,9 @@ def test_build_against_truth(campaign, built):
             x, y = t["pixels"][p.id]
             assert p.pixel == pytest.approx(((x + 0.5) / 2 - 0.5, (y + 0.5) / 2 - 0.5), abs=1e-9)
             # rotation: body -> photo panorama of the capture's yaw and levelling
-            np.testing.assert_allclose(np.asarray(p.rotation)[:, 2], body_to_pano(t["yaws"][p.id], 0, 0)[:, 2], atol=0.05)
+            np.testing.assert_allclose(
+                np.asarray(p.rotation)[:, 2], body_to_pano(t["yaws"][p.id], 0, 0)[:, 2], atol=0.05
+            )
             # the aligned probe equals the environment (distant world): LDR and HDR
             truth_small = resize(t["panorama"], 128)
             ldr = read_ldr(built / p.ldr)
@@ -121,8 +122,13 @@ def test_human_labels_win_with_provenance(campaign, tmp_path):
     store = LabelStore(camp)
     store.put("probe_pixel", "sA/p01", {"x": 210.0, "y": 430.0}, source="annotator", annotator="ann")
     store.put("probe_pixel", "sA/p02", {"x": 1.0, "y": 1.0}, source="auto", annotator="align")  # loses to field notes
-    store.put("sun_scene", "sA", {"found": True, "azimuth_deg": 36.0, "elevation_deg": 41.0, "uncertainty_deg": 0.3},
-              source="reviewed", annotator="rev")
+    store.put(
+        "sun_scene",
+        "sA",
+        {"found": True, "azimuth_deg": 36.0, "elevation_deg": 41.0, "uncertainty_deg": 0.3},
+        source="reviewed",
+        annotator="rev",
+    )
     yaw = truth["sA"]["yaws"]["p02"] + 10.0
     store.put("heading", "sA/p02", {"yaw_deg": yaw}, source="annotator", annotator="ann", flags=["check"])
     out = tmp_path / "ts"
@@ -183,7 +189,12 @@ def _skew(data):
 
 
 FAULTS = {
-    "missing file": (lambda r: (r / "scenes/sA/probes/p01/hdr.exr").unlink(), "files", "scenes/sA/probes/p01/hdr.exr", "missing"),
+    "missing file": (
+        lambda r: (r / "scenes/sA/probes/p01/hdr.exr").unlink(),
+        "files",
+        "scenes/sA/probes/p01/hdr.exr",
+        "missing",
+    ),
     "flipped checksum": (lambda r: _flip(r / "scenes/sA/photo.png"), "files", "scenes/sA/photo.png", "checksum"),
     "probe on the sky": (lambda r: _edit(r, _sky_pixel), "geometry", "scenes/sA/photo_full.jpg", "on the sky"),
     "sun below the horizon": (lambda r: _edit(r, _below_horizon), "geometry", "testset.json", "not above the horizon"),
@@ -235,7 +246,9 @@ def test_show_writes_sheets_with_outline_and_sun(built, tmp_path, cli):
     s = ts.scenes[0]
     lines = fov_outline(np.asarray(s.K), (320, 240), 0.0, 0.0, 128)
     u = np.concatenate([ln[:, 0] for ln in lines])
-    assert (u.min() + 0.5) == pytest.approx(128 - 128 * 30 / 180, abs=0.5) and (u.max() + 0.5) == pytest.approx(128 + 128 * 30 / 180, abs=0.5)
+    assert (u.min() + 0.5) == pytest.approx(128 - 128 * 30 / 180, abs=0.5) and (u.max() + 0.5) == pytest.approx(
+        128 + 128 * 30 / 180, abs=0.5
+    )
     code, _, err = cli("testset", "show", built, "-o", built / "sheets")
     assert code == 2 and "outside the test set" in err
     code, out, _ = cli("testset", "show", built, "-o", tmp_path / "sheets", "--json")
@@ -265,10 +278,14 @@ def test_sold_net_export_round_trips(built, tmp_path, cli):
         if s.sun.found:
             assert it.is_sunny and it.sun_deg == pytest.approx((s.sun.azimuth_deg, s.sun.elevation_deg), abs=1e-4)
             col, row = np.loadtxt(dest / f"{it.id}_sun_pos.txt")  # SOLD-Net's estimator_test_real.py, literally
-            assert ((col - 63.5) / 64 * 180, (31.5 - row) / 64 * 180) == pytest.approx((s.sun.azimuth_deg, s.sun.elevation_deg), abs=1e-4)
+            assert ((col - 63.5) / 64 * 180, (31.5 - row) / 64 * 180) == pytest.approx(
+                (s.sun.azimuth_deg, s.sun.elevation_deg), abs=1e-4
+            )
         else:
             assert not it.is_sunny and it.sun_deg is None
-    code, out, _ = cli("testset", "export", built, "--format", "sold-net", "-o", dest, "--json")  # re-export over an earlier one
+    code, out, _ = cli(
+        "testset", "export", built, "--format", "sold-net", "-o", dest, "--json"
+    )  # re-export over an earlier one
     doc = json.loads(out)
     assert code == 0 and doc["output"] == str(dest) and sorted(doc["items"]) == ["001", "002"]
     assert doc["skipped_by_sold_net_loader"] == ["002"] and doc["testset"] == ts.dataset_version
@@ -297,7 +314,19 @@ def test_torch_dataset_keys_match_synth(built):
     assert batch["sun_found"].tolist() == [1.0, 0.0] and batch["sun"][1].abs().sum() == 0
     assert batch["sun_uncertainty_deg"][0].item() == pytest.approx(s.sun.uncertainty_deg or float("nan"), nan_ok=True)
     assert batch["pitch"][0].item() == pytest.approx(math.radians(s.pitch_deg))
-    shared = {"image", "probes", "probe_pixels", "probe_valid", "global", "sun", "sun_found", "K", "pitch", "roll", "index"}
+    shared = {
+        "image",
+        "probes",
+        "probe_pixels",
+        "probe_valid",
+        "global",
+        "sun",
+        "sun_found",
+        "K",
+        "pitch",
+        "roll",
+        "index",
+    }
     assert shared <= set(batch)
     only = TestsetDataset(built, fields=["image"], scenes=["sB"])
     assert len(only) == 1 and "probes" not in only[0] and only[0]["scene"] == "sB"
@@ -310,14 +339,16 @@ def test_torch_dataset_keys_match_synth(built):
 def test_sky_mask_on_real_outdoor_views(real_data, name):
     """Pinhole views of real outdoor HDR panoramas (Poly Haven): sky found above the skyline, none on the ground."""
     from solidkit.envmap.coords import rotation_from_ypr
-    from solidkit.envmap.perspective import intrinsics_from_fov, perspective_crop
     from solidkit.envmap.io import srgb_encode
+    from solidkit.envmap.perspective import intrinsics_from_fov, perspective_crop
     from solidkit.testset.sky import on_sky, sky_mask
 
     pano = read_exr(real_data / "hdr_panoramas" / f"{name}.exr")[0][..., :3]
     K = intrinsics_from_fov(math.radians(60), 640, 480)
     for yaw in (0, 120, 240):
-        view = perspective_crop(pano, np.asarray(rotation_from_ypr(math.radians(yaw), math.radians(5), 0)), (640, 480), K=K)
+        view = perspective_crop(
+            pano, np.asarray(rotation_from_ypr(math.radians(yaw), math.radians(5), 0)), (640, 480), K=K
+        )
         ldr = np.round(srgb_encode(np.clip(view * 0.8 / np.percentile(view, 90), 0, 1)) * 255).astype(np.uint8)
         mask = sky_mask(ldr, K, 5.0, 0.0)
         assert not mask[300:].any()  # rows below the horizon of a camera pitched up by 5 degrees (horizon ~ row 288)
