@@ -18,8 +18,11 @@ $(STAMP): pyproject.toml constraints.txt
 demo: $(STAMP)
 	$(VENV)/bin/solidkit demo --out demo_out
 
+# ruff (lint + formatting) first (a second), then mypy (strict on the bottom layers) beside the suite: both must pass.
 test: $(STAMP)
-	$(PY) -m pytest -q -n 2 -p no:cacheprovider
+	$(VENV)/bin/ruff check solidkit tests benchmarks
+	$(VENV)/bin/ruff format --check solidkit tests benchmarks
+	$(VENV)/bin/mypy & checker=$$!; $(PY) -m pytest -q -n 2 -p no:cacheprovider; tests=$$?; wait $$checker && exit $$tests
 
 test-slow: $(STAMP)
 	$(PY) -m pytest -q -n 2 -p no:cacheprovider -m slow
