@@ -176,8 +176,9 @@ def main() -> None:
         cues = ", ".join(f"{k} {v:+.2f}" for k, v in r["cues"].items() if v is not None and k != "compass")
         flags = ", ".join(sorted({f.split(":")[0] for f in r["flags"]}))
         lines.append(
-            f"| {r['scene']}/{r['probe']} | {_fmt(r.get('yaw_error_deg'))} | {cues or '-'} | {_fmt(r.get('psnr_db'), 1)} | "
-            f"{_fmt(r.get('truth_noise_floor_db'), 1)} | {_fmt(r.get('pixel_geometry_error_deg'), 1)} | {flags} |\n"
+            f"| {r['scene']}/{r['probe']} | {_fmt(r.get('yaw_error_deg'))} | {cues or '-'} | "
+            f"{_fmt(r.get('psnr_db'), 1)} | {_fmt(r.get('truth_noise_floor_db'), 1)} | "
+            f"{_fmt(r.get('pixel_geometry_error_deg'), 1)} | {flags} |\n"
         )
     if args.faults:
         lines.append("\n| fault | injected | flagged | detail |\n|---|---|---|---|\n")

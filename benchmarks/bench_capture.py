@@ -187,7 +187,8 @@ def main() -> None:
         "| method | wall (s) | peak RSS (MiB) | median rel. error (well exposed) |",
         "|---|---|---|---|",
         *[
-            f"| {k} | {m[k]['wall_s']:.2f} | {m[k]['peak_rss_mib']:.0f} | {100 * m[k]['median_rel_error_well_exposed']:.2f} % |"
+            f"| {k} | {m[k]['wall_s']:.2f} | {m[k]['peak_rss_mib']:.0f} | "
+            f"{100 * m[k]['median_rel_error_well_exposed']:.2f} % |"
             for k in ("solidkit", "opencv_debevec")
         ],
         "",

@@ -96,14 +96,14 @@ def main() -> None:
     (OUT / "finetune.json").write_text(json.dumps(res, indent=1) + "\n")
     (OUT / "finetune.md").write_text(
         "# evaluation and k-fold fine-tuning\n\n"
-        f"{N_SCENES} analytic scenes, {n_probes} probes; model `{net.config.name}` ({net.num_parameters / 1e6:.2f} M parameters, "
-        f"{res['trainable_parameters'] / 1e3:.0f} k trainable), 1 torch thread; {res['machine']}, load average "
-        f"{res['load_average_1min']} when measured (shared machine: the ratios hold, absolute times do not)\n\n"
+        f"{N_SCENES} analytic scenes, {n_probes} probes; model `{net.config.name}` ({net.num_parameters / 1e6:.2f} M "
+        f"parameters, {res['trainable_parameters'] / 1e3:.0f} k trainable), 1 torch thread; {res['machine']}, load "
+        f"average {res['load_average_1min']} when measured (shared machine: the ratios hold, absolute times do not)\n\n"
         "| step | seconds | peer | peer seconds | ratio |\n|---|---|---|---|---|\n"
-        f"| evaluation per scene (4 methods, all metrics) | {t_eval:.2f} | SolidNet.predict per scene | {t_predict:.2f} | "
-        f"{t_eval / t_predict:.1f}x |\n"
-        f"| fine-tuning per fold ({cfg.folds} folds, {cfg.epochs} epochs) | {t_fold:.1f} | inference of as many photo passes "
-        f"({res['photo_passes_per_fold']}) | {t_fold_peer:.1f} | {t_fold / t_fold_peer:.1f}x |\n"
+        f"| evaluation per scene (4 methods, all metrics) | {t_eval:.2f} | SolidNet.predict per scene | "
+        f"{t_predict:.2f} | {t_eval / t_predict:.1f}x |\n"
+        f"| fine-tuning per fold ({cfg.folds} folds, {cfg.epochs} epochs) | {t_fold:.1f} | inference of as many photo "
+        f"passes ({res['photo_passes_per_fold']}) | {t_fold_peer:.1f} | {t_fold / t_fold_peer:.1f}x |\n"
     )
     print(json.dumps(res, indent=1))
 

@@ -215,8 +215,9 @@ def sun_campaign(root: Path, n_scenes: int = 5, per_scene: int = 4, seed: int = 
                 )
             )
             probes.append(Probe(id=f"p{p}", shots=[]))
-            captures.append({"probe": f"p{p}", "found": True, "azimuth_deg": az + rng.normal(0, 0.2), "elevation_deg": el + rng.normal(0, 0.2),
-                             "uncertainty_deg": 0.3, "candidates": []})  # fmt: skip
+            captures.append({"probe": f"p{p}", "found": True, "azimuth_deg": az + rng.normal(0, 0.2),
+                             "elevation_deg": el + rng.normal(0, 0.2), "uncertainty_deg": 0.3,
+                             "candidates": []})  # fmt: skip
         scenes.append(Scene(id=f"sc{s:02d}", grouping="folder", probes=probes))
         align["scenes"].append({"id": f"sc{s:02d}", "sun": {"found": True, "captures": captures}, "probes": []})
     save_manifest(root, Manifest(scenes=scenes, products=products))
@@ -243,7 +244,7 @@ def bench_annotator(tmp: Path) -> dict:
             page.goto(f"http://127.0.0.1:{port}/#task=sun&key={keys[0]}")
             page.wait_for_selector(f"body[data-item='sun:{keys[0]}']", timeout=30000)
             t0 = time.perf_counter()
-            for i, key in enumerate(keys):
+            for _, key in enumerate(keys):
                 page.wait_for_selector(f"body[data-item='sun:{key}']", timeout=30000)
                 if mode == "accept":
                     page.keyboard.press("a")
@@ -392,20 +393,23 @@ def bench_virtual_campaign(campaign: Path, truth_json: Path, tmp: Path) -> dict:
             continue
         human = store.get("sun", key).value
         a = auto.get(key, {})
-        rows.append({"key": key, "truth_visible": t[0], "scripted_found": human["found"], "auto_found": bool(a.get("found")),
-                     "scripted_error_deg": err(human, t), "auto_error_deg": err(a, t) if a else None,
-                     "review_flags_it": key in flagged})  # fmt: skip
+        rows.append({"key": key, "truth_visible": t[0], "scripted_found": human["found"],
+                     "auto_found": bool(a.get("found")), "scripted_error_deg": err(human, t),
+                     "auto_error_deg": err(a, t) if a else None, "review_flags_it": key in flagged})  # fmt: skip
     se = [r["scripted_error_deg"] for r in rows if r["scripted_error_deg"] is not None]
     ae = [r["auto_error_deg"] for r in rows if r["auto_error_deg"] is not None]
     out = {
         "campaign": str(campaign), "truth": str(truth_json), "captures": len(rows), "seconds": elapsed,
         "labels_per_minute": 60 * len(keys) / elapsed,
-        "scripted_error_deg_median": statistics.median(se) if se else None, "scripted_error_deg_max": max(se) if se else None,
+        "scripted_error_deg_median": statistics.median(se) if se else None,
+        "scripted_error_deg_max": max(se) if se else None,
         "auto_error_deg_median": statistics.median(ae) if ae else None, "auto_error_deg_max": max(ae) if ae else None,
         "found_agrees_with_truth_scripted": sum(r["scripted_found"] == r["truth_visible"] for r in rows),
         "found_agrees_with_truth_auto": sum(r["auto_found"] == r["truth_visible"] for r in rows),
         "scripted_within_1deg": sum(e <= 1.0 for e in se),
-        "scripted_over_1deg_flagged_by_review": sum(r["review_flags_it"] for r in rows if (r["scripted_error_deg"] or 0) > 1.0),
+        "scripted_over_1deg_flagged_by_review": sum(
+            r["review_flags_it"] for r in rows if (r["scripted_error_deg"] or 0) > 1.0
+        ),
         "scripted_over_1deg": sum(e > 1.0 for e in se),
         "rows": rows,
     }  # fmt: skip
@@ -448,13 +452,19 @@ def main() -> None:
         "",
         "| what | app (preview + tiles) | peer: whole JPEG |",
         "|---|---|---|",
-        f"| first view | preview {s['preview_kb']:.0f} kB in {s['preview_cold_s']:.2f} s cold, {s['preview_warm_s'] * 1e3:.0f} ms warm | {s['file_mb'] * 1e3:.0f} kB in {s['peer_whole_jpeg_s'] * 1e3:.0f} ms + {s['peer_decode_s'] * 1e3:.0f} ms decode |",
-        f"| one pan (~2 new tiles of {s['tiles']['cols']}x{s['tiles']['rows']}) | {2 * s['tile_kb_median']:.0f} kB, {s['tile_encode_median_s'] * 1e3:.0f} ms/tile (encode), {s['tile_warm_median_s'] * 1e3:.1f} ms/tile cached | {s['file_mb'] * 1e3:.0f} kB again |",
-        f"| bytes ratio whole/app | per pan {s['bytes_per_pan_ratio_whole_over_tiles']:.0f}x, first view {s['first_view_ratio_whole_over_preview_plus_4_tiles']:.1f}x | |",
+        f"| first view | preview {s['preview_kb']:.0f} kB in {s['preview_cold_s']:.2f} s cold, "
+        f"{s['preview_warm_s'] * 1e3:.0f} ms warm | {s['file_mb'] * 1e3:.0f} kB in {s['peer_whole_jpeg_s'] * 1e3:.0f} "
+        f"ms + {s['peer_decode_s'] * 1e3:.0f} ms decode |",
+        f"| one pan (~2 new tiles of {s['tiles']['cols']}x{s['tiles']['rows']}) | {2 * s['tile_kb_median']:.0f} kB, "
+        f"{s['tile_encode_median_s'] * 1e3:.0f} ms/tile (encode), {s['tile_warm_median_s'] * 1e3:.1f} ms/tile cached | "
+        f"{s['file_mb'] * 1e3:.0f} kB again |",
+        f"| bytes ratio whole/app | per pan {s['bytes_per_pan_ratio_whole_over_tiles']:.0f}x, first view "
+        f"{s['first_view_ratio_whole_over_preview_plus_4_tiles']:.1f}x | |",
         f"| crop 1024x640 (photo zoom) | {s['crop_median_s'] * 1e3:.0f} ms | |",
         "",
-        f"Server memory: {s['rss_idle_mb']:.0f} MB idle, {s['rss_after_preview_mb']:.0f} MB after the preview (decoded image cached), "
-        f"{s['rss_after_all_tiles_mb']:.0f} MB after all {s['tiles']['cols'] * s['tiles']['rows']} tiles ({s['tiles_all_mb']:.1f} MB encoded, cached), peak {s['rss_peak_mb']:.0f} MB.",
+        f"Server memory: {s['rss_idle_mb']:.0f} MB idle, {s['rss_after_preview_mb']:.0f} MB after the preview (decoded "
+        f"image cached), {s['rss_after_all_tiles_mb']:.0f} MB after all {s['tiles']['cols'] * s['tiles']['rows']} "
+        f"tiles ({s['tiles_all_mb']:.1f} MB encoded, cached), peak {s['rss_peak_mb']:.0f} MB.",
         "",
         "## Scripted annotator in chromium (20 sun frames, 1024x512)",
         "",
@@ -465,7 +475,8 @@ def main() -> None:
         lines += ["| mode | labels/min | median error vs truth | max error |", "|---|---|---|---|"]
         for mode, r in annot.items():
             lines.append(
-                f"| {mode} | {r['labels_per_minute']:.0f} | {r['error_deg_median']:.3f} deg | {r['error_deg_max']:.3f} deg |"
+                f"| {mode} | {r['labels_per_minute']:.0f} | {r['error_deg_median']:.3f} deg | {r['error_deg_max']:.3f} "
+                "deg |"
             )
     lines += ["", "## A virtual campaign's sun frames, labelled blind by the scripted annotator, against the truth", ""]
     if "skipped" in virtual:
@@ -473,15 +484,19 @@ def main() -> None:
     else:
         v = virtual
         lines += [
-            f"{v['captures']} captures of `{v['campaign']}` (truth `{v['truth']}`), {v['labels_per_minute']:.0f} labels/min.",
+            f"{v['captures']} captures of `{v['campaign']}` (truth `{v['truth']}`), {v['labels_per_minute']:.0f} "
+            "labels/min.",
             "",
             "| labels | median error | max error | found/not found agrees with truth |",
             "|---|---|---|---|",
-            f"| scripted annotator in the app | {v['scripted_error_deg_median']:.3f} deg | {v['scripted_error_deg_max']:.3f} deg | {v['found_agrees_with_truth_scripted']}/{v['captures']} |",
-            f"| align/ (auto) | {v['auto_error_deg_median']:.3f} deg | {v['auto_error_deg_max']:.3f} deg | {v['found_agrees_with_truth_auto']}/{v['captures']} |",
+            f"| scripted annotator in the app | {v['scripted_error_deg_median']:.3f} deg | "
+            f"{v['scripted_error_deg_max']:.3f} deg | {v['found_agrees_with_truth_scripted']}/{v['captures']} |",
+            f"| align/ (auto) | {v['auto_error_deg_median']:.3f} deg | {v['auto_error_deg_max']:.3f} deg | "
+            f"{v['found_agrees_with_truth_auto']}/{v['captures']} |",
             "",
-            f"Scripted labels within 1 deg of the truth: {v['scripted_within_1deg']}; more than 1 deg off (a wrong blob clicked): "
-            f"{v['scripted_over_1deg']}, of which the Review tab flags {v['scripted_over_1deg_flagged_by_review']} as `differs_from_auto`.",
+            f"Scripted labels within 1 deg of the truth: {v['scripted_within_1deg']}; more than 1 deg off (a wrong "
+            f"blob clicked): {v['scripted_over_1deg']}, of which the Review tab flags "
+            f"{v['scripted_over_1deg_flagged_by_review']} as `differs_from_auto`.",
         ]
     (OUT / "labeling.md").write_text("\n".join(lines) + "\n")
     print("\n".join(lines))

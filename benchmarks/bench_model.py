@@ -105,7 +105,8 @@ def main() -> None:
             print(
                 f"{config:6s} {threads} thr: I-Net {lat['inet']['median_ms']:8.1f} ms, SolidNet+1 probe "
                 f"{lat['solidnet_1_probe']['median_ms']:8.1f} ms, LENet_reg {lat['lenet_reg']['median_ms']:8.1f} ms, "
-                f"{run['parameters']['solidnet'] / 1e6:.2f} M params, peak RSS +{run['peak_rss_growth_mb_solidnet']:.0f} MB"
+                f"{run['parameters']['solidnet'] / 1e6:.2f} M params, peak RSS "
+                f"+{run['peak_rss_growth_mb_solidnet']:.0f} MB"
             )
     import torch
 
@@ -131,15 +132,17 @@ def main() -> None:
         f"Shared {os.cpu_count()}-core machine (load average {os.getloadavg()[0]:.1f} at the end); "
         "medians of the repeats; peer = LENet_reg of the same config, same process.",
         "",
-        "| config | threads | params (M) | I-Net ms | SolidNet + 1 probe ms | LENet_reg ms | SolidNet / LENet_reg | peak RSS growth MB |",
+        "| config | threads | params (M) | I-Net ms | SolidNet + 1 probe ms | LENet_reg ms | SolidNet / LENet_reg | "
+        "peak RSS growth MB |",
         "|---|---|---|---|---|---|---|---|",
     ]
     for r in runs:
         lat = r["latency"]
         lines.append(
-            f"| {r['config']} | {r['threads']} | {r['parameters']['solidnet'] / 1e6:.2f} | {lat['inet']['median_ms']:.0f} | "
-            f"{lat['solidnet_1_probe']['median_ms']:.0f} | {lat['lenet_reg']['median_ms']:.0f} | "
-            f"{r['ratio_vs_lenet_reg']['solidnet_1_probe']:.1f}x | {r['peak_rss_growth_mb_solidnet']:.0f} |"
+            f"| {r['config']} | {r['threads']} | {r['parameters']['solidnet'] / 1e6:.2f} | "
+            f"{lat['inet']['median_ms']:.0f} | {lat['solidnet_1_probe']['median_ms']:.0f} | "
+            f"{lat['lenet_reg']['median_ms']:.0f} | {r['ratio_vs_lenet_reg']['solidnet_1_probe']:.1f}x | "
+            f"{r['peak_rss_growth_mb_solidnet']:.0f} |"
         )
     args.out.with_suffix(".md").write_text("\n".join(lines) + "\n")
     print(f"wrote {args.out} and {args.out.with_suffix('.md')}")

@@ -364,7 +364,8 @@ def markdown(res: dict) -> str:
         "",
         "## 1. Recovered vs truth (`calibrate fisheye`, refinement on, 960x480 / 480x960)",
         "",
-        "| scene | truth family, fov, layout, back-lens aim | found family, fov | layout | centre err px | back-lens err ° | seam start → refined (kept) | s |",
+        "| scene | truth family, fov, layout, back-lens aim | found family, fov | layout | centre err px | back-lens "
+        "err ° | seam start → refined (kept) | s |",
         "|---|---|---|---|---|---|---|---|",
     ]
     for r in res["recovery"]:
@@ -384,7 +385,8 @@ def markdown(res: dict) -> str:
         "",
         g["frame"],
         "",
-        "| code | seam error before → after | linear seam MAD before → after | centre shifts (px at 5792) | back lens change ° | refused | warnings |",
+        "| code | seam error before → after | linear seam MAD before → after | centre shifts (px at 5792) | back lens "
+        "change ° | refused | warnings |",
         "|---|---|---|---|---|---|---|",
     ]
     for k, v in g.items():
@@ -397,8 +399,8 @@ def markdown(res: dict) -> str:
     f = g["calibrate fisheye"]
     L += [
         "",
-        f"`calibrate fisheye` on the same frame: {f['family']} {f['fov_deg']}° (truth equidistant 195°), {f['layout']}, "
-        f"centres {f['center_error_px']} px from truth, seam error {f['seam_error']}.",
+        f"`calibrate fisheye` on the same frame: {f['family']} {f['fov_deg']}° (truth equidistant 195°), "
+        f"{f['layout']}, centres {f['center_error_px']} px from truth, seam error {f['seam_error']}.",
         "",
         "## 3. Real Theta S live frame (1920x1080, indoor kitchen: objects within a metre)",
         "",
@@ -406,15 +408,19 @@ def markdown(res: dict) -> str:
     rf = res["real"]
     c = rf["calibrate fisheye"]
     L += [
-        f"- `calibrate fisheye`: layout **{c['layout']}**, {c['family']} {c['fov_deg']}°, back lens ypr {c['back_ypr_deg']}, "
-        f"seam error start {c['seam_error_start']:.3f} → refined {c['seam_error_refined']:.3f} → kept {c['seam_error']:.3f}"
-        f"{' (refinement refused)' if c['refusal'] else ''}; the shipped theta-s-video profile (refined unbounded on this very "
-        f"frame) scores {c['shipped_profiles_seam_error']}, listed in the summary ({c['seconds']} s at this load).",
-        f"- `calibrate overlap --base theta-s-video`: seam error {rf['calibrate overlap --base theta-s-video']['seam_error_before']:.3f}"
-        f" → {rf['calibrate overlap --base theta-s-video']['seam_error_after']:.3f}, refused: "
+        f"- `calibrate fisheye`: layout **{c['layout']}**, {c['family']} {c['fov_deg']}°, back lens ypr "
+        f"{c['back_ypr_deg']}, seam error start {c['seam_error_start']:.3f} → refined {c['seam_error_refined']:.3f} → "
+        f"kept {c['seam_error']:.3f}{' (refinement refused)' if c['refusal'] else ''}; the shipped theta-s-video "
+        f"profile (refined unbounded on this very frame) scores {c['shipped_profiles_seam_error']}, listed in the "
+        f"summary ({c['seconds']} s at this load).",
+        "- `calibrate overlap --base theta-s-video`: seam error "
+        f"{rf['calibrate overlap --base theta-s-video']['seam_error_before']:.3f} → "
+        f"{rf['calibrate overlap --base theta-s-video']['seam_error_after']:.3f}, refused: "
         f"{rf['calibrate overlap --base theta-s-video']['refused'] or 'no'}.",
-        f"- `capture unwarp --profile theta-s-video`: seam error {rf['unwarp --profile theta-s-video']['report']['seam_error']}, "
-        f"roll {rf['unwarp --profile theta-s-video']['report'].get('roll_deg')}, warnings {rf['unwarp --profile theta-s-video']['warnings'] or 'none'}.",
+        "- `capture unwarp --profile theta-s-video`: seam error "
+        f"{rf['unwarp --profile theta-s-video']['report']['seam_error']}, roll "
+        f"{rf['unwarp --profile theta-s-video']['report'].get('roll_deg')}, warnings "
+        f"{rf['unwarp --profile theta-s-video']['warnings'] or 'none'}.",
         f"- the frame with its circles turned by 90°, same profile: seam error "
         f"{rf['circles turned by 90°, unwarp --profile theta-s-video']['report']['seam_error']}, warnings "
         f"{rf['circles turned by 90°, unwarp --profile theta-s-video']['warnings']}.",
@@ -427,7 +433,8 @@ def markdown(res: dict) -> str:
     for r in res["warning"]:
         seam = "unmeasured" if r["seam_error"] is None else r["seam_error"]
         L.append(
-            f"| {r['kind']} | {r['case']} | {'yes' if r['correct'] else 'no'} | {seam} | {', '.join(r['warns']) or 'no'} |"
+            f"| {r['kind']} | {r['case']} | {'yes' if r['correct'] else 'no'} | {seam} | "
+            f"{', '.join(r['warns']) or 'no'} |"
         )
     ok = [r["seam_error"] for r in res["warning"] if r["correct"] and r["seam_error"] is not None]
     bad = [r["seam_error"] for r in res["warning"] if not r["correct"] and r["seam_error"] is not None]

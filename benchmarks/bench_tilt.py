@@ -113,7 +113,8 @@ def main() -> int:
     lines = [
         "# Residual tilt of rendered panoramas with known tilts",
         "",
-        f"Machine: {out['machine']}. Cases per panorama: level + {args.tilts} random tilts (yaw ±180°, pitch/roll ±4°, seed 5).",
+        f"Machine: {out['machine']}. Cases per panorama: level + {args.tilts} random tilts (yaw ±180°, pitch/roll ±4°, "
+        "seed 5).",
         "Error = angle between the estimated and the true gravity (degrees). Goal: < 0.2°.",
         *(
             [
@@ -142,19 +143,19 @@ def main() -> int:
     lines += [
         "",
         "The estimator's earlier end-point noise model (sigma ∝ 1/length) on the same kind of cases: "
-        "level_street_3_1024 0.34° off level and tilted (0.22-0.34°); the three 512-px streets median 0.07°, max 0.28°. "
-        "Cause: short segments outweighed the long edges (which are vertical to 0.01°); now a line-fit noise "
+        "level_street_3_1024 0.34° off level and tilted (0.22-0.34°); the three 512-px streets median 0.07°, max "
+        "0.28°. Cause: short segments outweighed the long edges (which are vertical to 0.01°); now a line-fit noise "
         "model (sigma ∝ length^-1.5) weights them by the precision their leans show.",
     ]
     if "theta_s_still" in out:
         t = out["theta_s_still"]
         lines += [
             "",
-            "Theta S stitched still (Jobsite1, 2048x1024; no truth): "
-            f"as stored {t['stored']['tilt_deg']:.2f}° ± {t['stored']['uncertainty_deg']:.2f}°; after the recorded pose "
-            f"(pitch {t['recorded_pitch_roll_deg'][0]:.1f}°, roll {t['recorded_pitch_roll_deg'][1]:.1f}°) "
-            f"{t['after_recorded_pose']['tilt_deg']:.2f}°; after its own correction {t['after_own_estimate']['tilt_deg']:.2f}° "
-            f"± {t['after_own_estimate']['uncertainty_deg']:.2f}°.",
+            f"Theta S stitched still (Jobsite1, 2048x1024; no truth): as stored {t['stored']['tilt_deg']:.2f}° ± "
+            f"{t['stored']['uncertainty_deg']:.2f}°; after the recorded pose (pitch "
+            f"{t['recorded_pitch_roll_deg'][0]:.1f}°, roll {t['recorded_pitch_roll_deg'][1]:.1f}°) "
+            f"{t['after_recorded_pose']['tilt_deg']:.2f}°; after its own correction "
+            f"{t['after_own_estimate']['tilt_deg']:.2f}° ± {t['after_own_estimate']['uncertainty_deg']:.2f}°.",
         ]
     (OUT / "tilt.md").write_text("\n".join(lines) + "\n")
     print("\n".join(lines))

@@ -4,8 +4,8 @@ Model steps (Adam, batch 4, one torch thread, toy batches in the model's format 
 timed): I-Net on panorama crops (lighting decoders only), I-Net on full samples (all decoders), and
 P-Net (I-Net frozen, 2 probes per image), for ``small`` (sun head, located losses) and its peer in the
 same run, ``small-paper`` (the paper's sky decoder and losses at the same widths); for ``small-sun``
-(``small`` with the low-resolution sun network, ``sun_net``, as docs/train_sun_v5.toml) also the ``sun`` stage's step (the sun
-network alone on ``192 x 256`` crops).
+(``small`` with the low-resolution sun network, ``sun_net``, as docs/train_sun_v5.toml) also the ``sun`` stage's
+step (the sun network alone on ``192 x 256`` crops).
 
 Data paths: a crop of a real HDR panorama (:class:`solidkit.synth.panocrops.CropSampler`), a crop of a
 rendered source (EXR read + crop; cached in memory after the first read), a sun-stage crop
@@ -209,8 +209,8 @@ def main(argv: list[str]) -> int:
         f"{res['machine']}; load average {res['load_average_end']} at the end. Peer in the same run: "
         "`small-paper` (the paper's sky decoder and losses, same widths).",
         "",
-        "| config | params (M) | I-Net on crops | I-Net on full samples | P-Net (2 probes) | I-Net on crops vs small-paper "
-        "| sun stage (sun network alone) | sun stage vs small-paper's I-Net on crops |",
+        "| config | params (M) | I-Net on crops | I-Net on full samples | P-Net (2 probes) | I-Net on crops vs "
+        "small-paper | sun stage (sun network alone) | sun stage vs small-paper's I-Net on crops |",
         "|---|---|---|---|---|---|---|---|",
     ]
     for n, r in m.items():

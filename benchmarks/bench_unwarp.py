@@ -49,16 +49,16 @@ OUT_SIZE = (5376, 2688)
 LENS_GAIN = 1.03  # front lens x1.03, back lens /1.03
 SOLIDKIT = [str(Path(sys.executable).with_name("solidkit"))]
 
-IN_PROCESS = r"""
+IN_PROCESS = rf"""
 import json, sys, time
 from solidkit.capture.unwarp import unwarp_file
 src, dst = sys.argv[1:3]
-kw = dict(profile="theta-v", out_height=%d, cache_dir=None)
+kw = dict(profile="theta-v", out_height={OUT_SIZE[1]:d}, cache_dir=None)
 unwarp_file(src, dst, **kw)  # the first image builds the tables (in memory only)
 t0 = time.perf_counter()
 s = unwarp_file(src, dst, **kw)
-print(json.dumps({"wall_s": time.perf_counter() - t0, "cache": s["cache"]}))
-""" % OUT_SIZE[1]
+print(json.dumps({{"wall_s": time.perf_counter() - t0, "cache": s["cache"]}}))
+"""
 
 
 def make_input(folder: Path) -> tuple[Path, np.ndarray]:
@@ -255,13 +255,16 @@ def main() -> int:
     lines = [
         "# Unwarp benchmark: the CLI as users run it, against ffmpeg's v360",
         "",
-        f"Machine: {results['machine']}; load average (1, 5, 15 min) before {tuple(round(x, 1) for x in results['load_before'])}, "
-        f"after {tuple(round(x, 1) for x in results['load_after'])} (shared machine: medians of {args.runs} alternating rounds).",
+        f"Machine: {results['machine']}; load average (1, 5, 15 min) before "
+        f"{tuple(round(x, 1) for x in results['load_before'])}, after "
+        f"{tuple(round(x, 1) for x in results['load_after'])} (shared machine: medians of {args.runs} alternating "
+        "rounds).",
         "",
         f"Input {results['input']}; output {results['output']}; each row a whole process, decode to encode; "
         "solidkit's bytecode compiled once beforehand, as an installed package has it.",
         "",
-        "| command | wall (s): median (min-max) | wall vs ffmpeg (ratio of medians / median of round ratios) | CPU (s) | peak RSS (MiB) | RSS vs ffmpeg |",
+        "| command | wall (s): median (min-max) | wall vs ffmpeg (ratio of medians / median of round ratios) | CPU (s) "
+        "| peak RSS (MiB) | RSS vs ffmpeg |",
         "|---|---|---|---|---|---|",
     ]
     for k, v in results["rows"].items():
@@ -279,7 +282,8 @@ def main() -> int:
         )
     lines += [
         "",
-        f"solidkit in-process, 2nd image (tables in memory; the call only): {results['in_process_second_image_s']:.2f} s.",
+        f"solidkit in-process, 2nd image (tables in memory; the call only): {results['in_process_second_image_s']:.2f} "
+        "s.",
         f"CLI start-up (`build_app('capture')` in a fresh interpreter, the imports of `solidkit capture unwarp`): "
         f"median {results['cli_start_s']['median']:.2f} s.",
         "",
@@ -290,7 +294,8 @@ def main() -> int:
     if "ffmpeg_quality" in results:
         q = results["ffmpeg_quality"]
         lines.append(
-            f"| ffmpeg v360 (FOV {q['fov_deg']:.0f}°, best of 200/207/214) | {q['psnr_db']:.2f} | {q['seam_step']:.2f} |"
+            f"| ffmpeg v360 (FOV {q['fov_deg']:.0f}°, best of 200/207/214) | {q['psnr_db']:.2f} | {q['seam_step']:.2f} "
+            "|"
         )
     else:
         lines.append("| ffmpeg v360 | not installed: skipped | |")

@@ -167,8 +167,8 @@ def main() -> None:
         f"Checkpoint `{Path(a.checkpoint).name}`; calibrated on validation crops ({n}): visibility threshold "
         f"{cal['threshold']:.2f} (balanced accuracy {cal['balanced_accuracy']:.3f}, mean over the two), in-image sun "
         f"{'on, gate ' + str(cal['gate_deg']) + '°' if cal['sun_in_image'] else 'off'}, cone scales "
-        f"{_fmt(list(cal['cone_scale']), 2)} ({cal['n']['found_suns']} found suns). Crops: pitch +5°, 60° hfov, the sun at relative azimuths "
-        "0, ±30, ±90, 150° (panoramas without a sun at the same yaws), metered exposure.",
+        f"{_fmt(list(cal['cone_scale']), 2)} ({cal['n']['found_suns']} found suns). Crops: pitch +5°, 60° hfov, the "
+        "sun at relative azimuths 0, ±30, ±90, 150° (panoramas without a sun at the same yaws), metered exposure.",
         "",
     ]
     for name, crops in tests.items():

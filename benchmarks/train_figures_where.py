@@ -1,4 +1,4 @@
-"""Where the sun-direction error of a SOLID-Net checkpoint comes from: crops split by where the true sun is.
+r"""Where the sun-direction error of a SOLID-Net checkpoint comes from: crops split by where the true sun is.
 
 For crops (:mod:`solidkit.synth.panocrops`, exposed as the checkpoint's inputs were, as in
 ``train_figures.py``) of rendered sources with a visible sun, the sun head's azimuth / elevation errors
@@ -12,7 +12,8 @@ are split by
 It also reports how often the predicted sun is on the correct side left / right and front / back (chance: 50 %),
 and the coarse global logit map's own azimuth error (the pathway that can place a sun behind the camera).
 
-    .venv/bin/python benchmarks/train_figures_where.py --checkpoint PT --sources DIR [--crops 96] [--seed 99] [--out JSON]
+    .venv/bin/python benchmarks/train_figures_where.py --checkpoint PT --sources DIR \
+        [--crops 96] [--seed 99] [--out JSON]
 """
 
 from __future__ import annotations

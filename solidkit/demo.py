@@ -144,7 +144,9 @@ def _label_sun(campaign: Path, cfg: DemoConfig, log: Callable[[str], Any]) -> di
         "captures": len(caps),
         "found": found,
         "flagged": flagged,
-        "note": f"sun in {found}/{len(caps)} sun frames, {scenes}/{len(al.scenes)} scenes; {flagged} flagged for review",
+        "note": (
+            f"sun in {found}/{len(caps)} sun frames, {scenes}/{len(al.scenes)} scenes; {flagged} flagged for review"
+        ),
     }
 
 
@@ -250,12 +252,15 @@ def truth_check(testset: Path, truth_dir: Path) -> dict[str, Any]:
             rot_err.append(re)
         row["probes"] = probes
         rows.append(row)
-    stat = lambda v: {
-        "n": len(v),
-        "median": float(np.median(v)) if v else None,  # noqa: E731
-        "p95": float(np.percentile(v, 95)) if v else None,
-        "max": float(max(v)) if v else None,
-    }
+
+    def stat(v: list[float]) -> dict[str, Any]:
+        return {
+            "n": len(v),
+            "median": float(np.median(v)) if v else None,
+            "p95": float(np.percentile(v, 95)) if v else None,
+            "max": float(max(v)) if v else None,
+        }
+
     missed = sum(1 for r in rows if r["truth_sun"] and r["sun_visible"] and not r["label_sun"])
     hidden = sum(1 for r in rows if r["truth_sun"] and not r["sun_visible"])
     false = sum(1 for r in rows if not r["truth_sun"] and r["label_sun"])
@@ -288,9 +293,9 @@ def _truth_section(tc: dict[str, Any]) -> str:
         "test set) is from it.\n\n"
         + markdown_table(["quantity", "n", "median", "95th percentile", "max"], rows)
         + f"\nSuns missed (visible from a position, label says none): {tc['sun_missed']}; false suns (label where the "
-        f"truth has none): {tc['sun_false']}; suns hidden from every position (correctly 'no sun'): {tc['sun_hidden']}. "
-        f"Probes rotated more than 5° off: {tc['probes_over_5deg']}, of which not flagged for review: "
-        f"{tc['probes_over_5deg_unflagged']}.\n"
+        f"truth has none): {tc['sun_false']}; suns hidden from every position (correctly 'no sun'): "
+        f"{tc['sun_hidden']}. Probes rotated more than 5° off: {tc['probes_over_5deg']}, of which not flagged for "
+        f"review: {tc['probes_over_5deg_unflagged']}.\n"
     )
     per = [
         [
@@ -453,8 +458,8 @@ def run_demo(out: str | Path, cfg: DemoConfig | None = None, log: Callable[[str]
     rows = [[s.name, s.status, f"{s.seconds:.1f}", s.note.replace("|", "/")] for s in steps]
     head = (
         f"Card: `{card}`. Total {total:.0f} s. Outputs: `campaign/` (ingested campaign, labels, alignment; its report "
-        "[campaign/align/report.html](campaign/align/report.html)), "
-        "`testset/` (the versioned test set), `contact_sheets/` (one per scene), `eval/results.json`, `finetune/` (per-fold checkpoints and results), "
+        "[campaign/align/report.html](campaign/align/report.html)), `testset/` (the versioned test set), "
+        "`contact_sheets/` (one per scene), `eval/results.json`, `finetune/` (per-fold checkpoints and results), "
         "`figures/`.\n\n" + markdown_table(["step", "status", "s", "result"], rows)
     )
     report_sections = [("Pipeline", head)]

@@ -385,7 +385,10 @@ def estimate_level_pose(
     rms = float(np.sqrt(np.mean(err**2)))
     # yaw uncertainty: parabola through the cost curve around its minimum (Gauss-Newton curvature)
     h = math.radians(0.05)
-    cost = lambda y: float(np.sum(_epipolar_error(a[inl] @ np.asarray(rotation_y(y)).T, b[inl], fit_t(y, inl)[0]) ** 2))
+
+    def cost(y: float) -> float:
+        return float(np.sum(_epipolar_error(a[inl] @ np.asarray(rotation_y(y)).T, b[inl], fit_t(y, inl)[0]) ** 2))
+
     curv = (cost(yaw + h) - 2 * cost(yaw) + cost(yaw - h)) / h**2
     dof = max(int(inl.sum()) - 3, 1)
     sigma2 = (cost(yaw) / dof) * 2.0 / curv if curv > 0 else math.inf

@@ -191,7 +191,8 @@ def write_report(campaign: Path, manifest: Manifest, al: CampaignAlignment) -> P
         f"{len(al.scenes)} scenes, {sum(len(sa.probes) for sa in al.scenes)} captures, {n_flagged} flagged items.\n"
     )
     parts.append(
-        f"<p>{len(al.scenes)} scenes, {sum(len(sa.probes) for sa in al.scenes)} captures, {n_flagged} flagged items.</p>"
+        f"<p>{len(al.scenes)} scenes, {sum(len(sa.probes) for sa in al.scenes)} captures, {n_flagged} flagged "
+        "items.</p>"
     )
     for sa in al.scenes:
         png = Path("report") / f"{sa.id}.png"
@@ -207,7 +208,10 @@ def write_report(campaign: Path, manifest: Manifest, al: CampaignAlignment) -> P
         eph = (
             ""
             if s.ephemeris is None
-            else f"; ephemeris {s.ephemeris.azimuth_deg:.2f}/{s.ephemeris.elevation_deg:.2f} deg at {s.ephemeris.time_utc}"
+            else (
+                f"; ephemeris {s.ephemeris.azimuth_deg:.2f}/{s.ephemeris.elevation_deg:.2f} deg at "
+                f"{s.ephemeris.time_utc}"
+            )
         )
         flags = sa.flags + s.flags
         md += [f"\n## {sa.id}\n", f"Sun: {sun}{eph}. {s.motion}\n"]

@@ -145,9 +145,9 @@ def relative_sky_yaw(
 
     ``correlation_px``: the sky's correlation length in working pixels (``n_eff`` = overlap in
     pixels / ``correlation_px``^2; 18 at 256 rows makes the sigmas match the errors of 37 capture
-    pairs of a virtual campaign, seed 11: |error / sigma| median 0.66); ``min_delta_chi2``: how much worse (in chi-square units) the
-    best shift outside the peak must fit; ``max_sigma_deg``: a larger sigma is refused (the sky
-    is too uniform in azimuth to tell).
+    pairs of a virtual campaign, seed 11: |error / sigma| median 0.66); ``min_delta_chi2``: how much worse (in
+    chi-square units) the best shift outside the peak must fit; ``max_sigma_deg``: a larger sigma is refused (the
+    sky is too uniform in azimuth to tell).
     """
     if a.log_lum.shape != b.log_lum.shape:
         raise ValueError("relative_sky_yaw: the two sky layers differ in size")

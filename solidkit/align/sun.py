@@ -303,7 +303,8 @@ class SunScene:
         return PhotoDirection(az, eph.elevation_deg)
 
     def at_photo_time(self, ci: int, bi: int) -> tuple[float, float]:
-        """(azimuth, elevation) of candidate ``bi`` of capture ``ci`` in that capture's level frame, at the photo's time."""
+        """(azimuth, elevation) of candidate ``bi`` of capture ``ci`` in that capture's level frame, at the photo's
+        time."""
         cap = self.captures[ci]
         b = cap.blobs[bi]
         return at_photo_time(

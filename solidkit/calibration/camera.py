@@ -77,7 +77,9 @@ class CameraProfile(Profile):
 
     KIND = "camera"
     source: str = Field(
-        description="checkerboard | charuco | exif-focal-plane | exif-sensor-width | exif-sensor-table | exif-35mm | fov"
+        description=(
+            "checkerboard | charuco | exif-focal-plane | exif-sensor-width | exif-sensor-table | exif-35mm | fov"
+        )
     )
     image_size: tuple[int, int] = Field(description="width, height of the native image (px)")
     K: list[list[float]] = Field(description="3x3 intrinsics at image_size (OpenCV pixel centres)")
@@ -277,7 +279,8 @@ def calibrate_camera_from_photo(
         info = _size_only(photo)  # e.g. a PNG perspective crop: no EXIF, K from the given FOV
     if fov_deg is None and info.width == 2 * info.height and "THETA" in (info.model or "").upper():
         raise IntrinsicsError(
-            f"{photo}: a {info.model} equirectangular panorama has no pinhole K; for a perspective crop of it give --hfov-deg"
+            f"{photo}: a {info.model} equirectangular panorama has no pinhole K; for a perspective crop of it give "
+            "--hfov-deg"
         )
     if fov_deg is not None:
         K, source = intrinsics_from_fov(math.radians(fov_deg), info.width, info.height), "fov"

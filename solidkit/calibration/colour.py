@@ -172,8 +172,8 @@ def _orient(H: np.ndarray, samples: np.ndarray) -> tuple[np.ndarray, np.ndarray]
 def sample_patches(image: np.ndarray, H: np.ndarray, radius: float = 0.25, n: int = 9) -> tuple[np.ndarray, np.ndarray]:
     """Mean linear RGB of each patch: an ``n``×``n`` grid within ±``radius`` pitch of its centre.
 
-    Returns ``(means (24, 3), stds (24, 3))``. Bilinear sampling (:func:`solidkit.envmap.resample.sample_image`), pixel centres
-    at integer coordinates (conventions §1).
+    Returns ``(means (24, 3), stds (24, 3))``. Bilinear sampling (:func:`solidkit.envmap.resample.sample_image`),
+    pixel centres at integer coordinates (conventions §1).
     """
     off = np.linspace(-radius, radius, n)
     ox, oy = np.meshgrid(off, off)

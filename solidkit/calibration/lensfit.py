@@ -26,8 +26,8 @@ Steps (each recorded in the result):
    the panorama upright goes into both lenses' rotations.
 5. **Per-unit refinement** (:func:`solidkit.calibration.overlap.refine_overlap`), made robust:
    bounded (centres ±:data:`MAX_CENTER_FRAC` of the radius, scales ±3 %, back-lens rotation
-   ±:data:`MAX_BACK_OFFSET_DEG` per axis: one frame pins the aim poorly), multi-start (the back lens turned ±1° about x and y, on the coarsest level, the
-   best continued coarse to fine), and **refused** when the seam error
+   ±:data:`MAX_BACK_OFFSET_DEG` per axis: one frame pins the aim poorly), multi-start (the back lens turned ±1°
+   about x and y, on the coarsest level, the best continued coarse to fine), and **refused** when the seam error
    (:func:`solidkit.calibration.seam.seam_error`) after is not below the start's: the start is
    kept and the result says so.
 

@@ -83,7 +83,7 @@ def read_brackets(
         raise ResponseError(f"a response curve needs at least 2 bracketed images, got {len(paths)}")
     images: list[np.ndarray] = []
     ts: list[float] = []
-    for i, p in enumerate(paths):
+    for _, p in enumerate(paths):
         p = Path(p)
         img = imread(p, cv2.IMREAD_COLOR)
         images.append(np.ascontiguousarray(img[..., ::-1]))

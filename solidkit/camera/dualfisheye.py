@@ -144,8 +144,9 @@ def _grid_step(prof: LensProfile, out_height: int) -> int:
 
     Bilinear interpolation between nodes ``s`` px apart is off by about ``0.4 s² f''`` px, with
     ``f'' ≈ (π/H)² r'`` the tables' curvature (``r'`` the lenses' px per radian); measured on the
-    Theta V at 5792 -> 5376x2688: 0.007 px at ``s = 4``, 0.011 px at ``s = 5`` (the step chosen there). The step is the largest, up to
-    :data:`MAX_GRID_STEP`, that keeps it below :data:`MAP_TOLERANCE_PX`; small outputs are exact (1).
+    Theta V at 5792 -> 5376x2688: 0.007 px at ``s = 4``, 0.011 px at ``s = 5`` (the step chosen there). The step is
+    the largest, up to :data:`MAX_GRID_STEP`, that keeps it below :data:`MAP_TOLERANCE_PX`; small outputs are exact
+    (1).
     """
     px_per_rad = max(lens.max_radius() / math.radians(lens.max_angle_deg) for lens in prof.lenses)
     curvature = (math.pi / out_height) ** 2 * px_per_rad
@@ -248,7 +249,8 @@ class _NodeGrid:
 def build_maps(
     profile: LensProfile, in_size: tuple[int, int], out_height: int, R_level: Any = None, feather_deg: float = 10.0
 ) -> UnwarpMaps:
-    """Remap tables for unwarping a ``in_size = (W, H)`` dual-fisheye image to a ``(out_height, 2 out_height)`` panorama."""
+    """Remap tables for unwarping a ``in_size = (W, H)`` dual-fisheye image to a ``(out_height, 2 out_height)``
+    panorama."""
     H, W, L = out_height, 2 * out_height, len(profile.lenses)
     w_in, h_in = in_size
     map1 = np.empty((L, H, W, 2), np.int16)
@@ -477,7 +479,8 @@ def _clip_is_exact(m0: np.ndarray, m1: np.ndarray, f: float) -> bool:
 def build_cut_maps(
     profile: LensProfile, in_size: tuple[int, int], out_height: int, R_level: Any = None, feather_deg: float = 10.0
 ) -> CutMaps:
-    """:class:`CutMaps` of a two-lens profile (the weights of :func:`feather_weights` for two lenses, block by block)."""
+    """:class:`CutMaps` of a two-lens profile (the weights of :func:`feather_weights` for two lenses, block by
+    block)."""
     if len(profile.lenses) != 2:
         raise InputError(f"profile {profile.model!r} has {len(profile.lenses)} lenses; cut tables need 2")
     H, W = out_height, 2 * out_height
@@ -681,7 +684,8 @@ def seam_disagreement(warped: list[np.ndarray], maps: UnwarpMaps, gains: np.ndar
 
 
 def read_input(path: Path) -> tuple[np.ndarray, float | None]:
-    """A capture file as the input of :func:`solidkit.capture.unwarp.unwarp`, and its linear clipping level (None for HDR/raw).
+    """A capture file as the input of :func:`solidkit.capture.unwarp.unwarp`, and its linear clipping level (None
+    for HDR/raw).
 
     EXR: linear float; raw/DNG: linear float (:func:`solidkit.camera.raw.read_raw`); 8-bit LDR:
     uint8 RGB as stored (sRGB-encoded; :func:`solidkit.capture.unwarp.unwarp` decodes per code value). 16-bit LDR is

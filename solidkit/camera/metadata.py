@@ -319,7 +319,8 @@ def read_metadata(path: str | os.PathLike[str]) -> CaptureMetadata:
 
 
 def _container(data: bytes, name: str, warnings: list[str]) -> tuple[str, Tiff | None, bytes | None, tuple[int, int]]:
-    """``(file format, TIFF structure of the EXIF block or file, XMP packet, (width, height))`` of a JPEG or TIFF/DNG."""
+    """``(file format, TIFF structure of the EXIF block or file, XMP packet, (width, height))`` of a JPEG or
+    TIFF/DNG."""
     if len(data) == 0:
         raise InputError(f"{name}: empty file (0 bytes)")
     tiff: Tiff | None = None

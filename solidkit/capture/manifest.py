@@ -227,7 +227,9 @@ class Manifest(VersionedDocument):
     )
     lens_profile: dict[str, Any] | None = Field(
         None,
-        description="per-unit lens profile overriding the model default: {kind: file, path, sha256} or {kind: shipped, name}",
+        description=(
+            "per-unit lens profile overriding the model default: {kind: file, path, sha256} or {kind: shipped, name}"
+        ),
     )
     vignetting: dict[str, Any] | None = Field(None, description="vignetting profile {kind: file, path, sha256}")
     cards: list[str] = Field(default_factory=list)

@@ -86,7 +86,8 @@ def planned_products(manifest: Manifest) -> list[Product]:
         for pr in sc.probes:
             for b in pr.brackets:
                 first = manifest.shot(b.shots[0]).metadata
-                # "tool" is the name manifests record (not a module path to follow): a changed recipe remakes every product
+                # "tool" is the name manifests record (not a module path to follow): a changed recipe remakes every
+                # product
                 recipe = {
                     "tool": "solidkit.capture.bracket_hdr.merge_bracket",
                     "response": manifest.response,

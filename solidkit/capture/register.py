@@ -38,7 +38,8 @@ __all__ = ["Registration", "register_frames", "shift_image"]
 
 
 class Registration:
-    """Per frame: ``shifts[i] = (dx, dy)`` px, ``responses[i]`` (ECC correlation; 1 for the reference), ``applied[i]``."""
+    """Per frame: ``shifts[i] = (dx, dy)`` px, ``responses[i]`` (ECC correlation; 1 for the reference),
+    ``applied[i]``."""
 
     def __init__(
         self,

@@ -111,7 +111,8 @@ def default_out_height(in_width: int) -> int:
 
 
 def load_vignetting(path: str | os.PathLike) -> Any:
-    """A :class:`~solidkit.calibration.vignetting.VignettingProfile` from its JSON file (``solidkit calibrate vignetting``)."""
+    """A :class:`~solidkit.calibration.vignetting.VignettingProfile` from its JSON file (``solidkit calibrate
+    vignetting``)."""
     from solidkit.calibration.vignetting import VignettingProfile  # SciPy: loaded only with a vignetting profile
 
     return VignettingProfile.load(path)
@@ -474,8 +475,8 @@ def report_tilt(summary: dict, pano: Any) -> None:
     summary["residual_tilt"] = est.to_json()
     if est.reliable and est.tilt_deg > TILT_FLAG_DEG:
         summary["warnings"].append(
-            f"residual_tilt: the panorama is {est.tilt_deg:.2f}° ± {est.uncertainty_deg:.2f}° off level by its vertical "
-            f"edges (correction pitch {est.pitch_deg:.2f}°, roll {est.roll_deg:.2f}°)"
+            f"residual_tilt: the panorama is {est.tilt_deg:.2f}° ± {est.uncertainty_deg:.2f}° off level by its "
+            f"vertical edges (correction pitch {est.pitch_deg:.2f}°, roll {est.roll_deg:.2f}°)"
         )
 
 

@@ -1,4 +1,5 @@
-"""``solidkit align CAMPAIGN`` and ``solidkit label sun CAMPAIGN``: the commands around :mod:`solidkit.align.pipeline`."""
+"""``solidkit align CAMPAIGN`` and ``solidkit label sun CAMPAIGN``: the commands around
+:mod:`solidkit.align.pipeline`."""
 
 from __future__ import annotations
 

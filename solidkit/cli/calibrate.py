@@ -299,7 +299,7 @@ def lens(
         table.add_column(f"{m} held-out px")
     for v in dviews:
         row = [escape(v.name)]
-        for m, info in cal.models.items():
+        for _, info in cal.models.items():
             if "error" in info:
                 row += ["-", "-"]
                 continue
@@ -308,7 +308,7 @@ def lens(
             row[0] += f" [yellow]({escape(cal.views[v.name])})[/]"
         table.add_row(*row)
     summary = ["total"]
-    for m, info in cal.models.items():
+    for _, info in cal.models.items():
         summary += ["-", "-"] if "error" in info else [_fmt(info["rms_px"]), _fmt(info["held_out"]["rms_px"])]
     table.add_row(*summary, style="bold")
     console.print(table)
@@ -317,8 +317,8 @@ def lens(
             console.print(f"[yellow]{m} failed:[/] {escape(info['error'])}")
     lm = cal.lens_model()
     console.print(
-        f"centre ({lm.center[0]:.2f}, {lm.center[1]:.2f}) px, f {lm.poly[0]:.2f} px/rad, max angle {lm.max_angle_deg:.1f}° "
-        f"(board seen up to {cal.observed_max_angle_deg:.1f}°); wrote {out} and {record}"
+        f"centre ({lm.center[0]:.2f}, {lm.center[1]:.2f}) px, f {lm.poly[0]:.2f} px/rad, max angle "
+        f"{lm.max_angle_deg:.1f}° (board seen up to {cal.observed_max_angle_deg:.1f}°); wrote {out} and {record}"
     )
 
 
@@ -398,7 +398,10 @@ def vignetting(
 def fisheye(
     frame: Path = typer.Argument(
         ...,
-        help="One dual-fisheye frame (JPEG, PNG, DNG, EXR) of the camera: outdoors, with texture around the horizon, works best.",
+        help=(
+            "One dual-fisheye frame (JPEG, PNG, DNG, EXR) of the camera: outdoors, with texture around the horizon, "
+            "works best."
+        ),
     ),
     out: Path = typer.Option(
         ..., "-o", "--out", help="Lens profile JSON to write (use with `capture unwarp --profile`)."
@@ -416,7 +419,7 @@ def fisheye(
     name: str | None = typer.Option(None, "--name", help="Profile 'model' name (default: the frame's file name)."),
     as_json: bool = typer.Option(False, "--json", help="Print the summary as JSON."),
 ) -> None:
-    """A starting lens profile for any dual-fisheye camera from one frame: image circles, layout, projection and field of view, then a robust overlap refinement."""
+    """A starting lens profile for any dual-fisheye camera from one frame: image circles, layout, projection and field of view, then a robust overlap refinement."""  # noqa: E501
     if family != "auto" and family not in FAMILIES:
         raise InputError(f"--family: auto, {', '.join(FAMILIES)}; got {family!r}")
     families = FAMILIES if family == "auto" else (family,)
@@ -457,7 +460,10 @@ def fisheye(
 def overlap(
     images: list[Path] = typer.Argument(
         ...,
-        help="Dual-fisheye captures of one camera unit (same size; outdoor scenes with texture at the horizon work best).",
+        help=(
+            "Dual-fisheye captures of one camera unit (same size; outdoor scenes with texture at the horizon work "
+            "best)."
+        ),
     ),
     base: str = typer.Option(
         ...,

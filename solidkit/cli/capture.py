@@ -45,10 +45,8 @@ def info(
         table.add_row("camera", " ".join(x for x in (meta.make, meta.model, meta.serial) if x) or "-")
         table.add_row("image type", meta.image_type)
         expo = meta.exposure_time
-        table.add_row(
-            "exposure",
-            f"{'1/%g' % round(1 / expo, 1) if expo and expo < 1 else expo} s, f/{meta.f_number}, ISO {meta.iso}",
-        )
+        shutter = f"1/{round(1 / expo, 1):g}" if expo and expo < 1 else expo
+        table.add_row("exposure", f"{shutter} s, f/{meta.f_number}, ISO {meta.iso}")
         table.add_row("taken (camera clock)", f"{meta.datetime_original} {meta.utc_offset or ''}")
         table.add_row("zenith corrected", str(meta.zenith_corrected))
         if meta.pitch_deg is not None:
@@ -85,7 +83,10 @@ def merge(
     response: Path | None = typer.Option(
         None,
         "--response",
-        help="Inverse response curve (.json profile, .npy, .csv); default: estimated from the bracket (3+ frames), else sRGB assumed (warned).",
+        help=(
+            "Inverse response curve (.json profile, .npy, .csv); default: estimated from the bracket (3+ frames), else "
+            "sRGB assumed (warned)."
+        ),
     ),
     align: bool = typer.Option(
         True, "--align/--no-align", help="Register the frames (sub-pixel shifts) before merging."
@@ -163,7 +164,10 @@ def unwarp(
     profile: str | None = typer.Option(
         None,
         "--profile",
-        help="Lens profile: a shipped name (theta-v, theta-z1, theta-s, theta-s-video) or a unit.json; default from the EXIF model.",
+        help=(
+            "Lens profile: a shipped name (theta-v, theta-z1, theta-s, theta-s-video) or a unit.json; default from the "
+            "EXIF model."
+        ),
     ),
     size: str | None = typer.Option(
         None, "--size", help="Output WxH (W = 2H); default: as wide as the input (the size ingest products get too)."
@@ -176,17 +180,25 @@ def unwarp(
     cache_dir: Path | None = typer.Option(
         None,
         "--cache-dir",
-        help="On-disk cache of remap tables (default: per user, ~/.cache/solidkit/<version>/unwarp; $SOLIDKIT_CACHE_DIR overrides).",
+        help=(
+            "On-disk cache of remap tables (default: per user, ~/.cache/solidkit/<version>/unwarp; $SOLIDKIT_CACHE_DIR "
+            "overrides)."
+        ),
     ),
     disk_cache: bool = typer.Option(
         True,
         "--disk-cache/--no-disk-cache",
-        help="Keep remap tables on disk between runs (a second file of the same camera and size skips the table build).",
+        help=(
+            "Keep remap tables on disk between runs (a second file of the same camera and size skips the table build)."
+        ),
     ),
     vignetting: Path | None = typer.Option(
         None,
         "--vignetting",
-        help="Vignetting profile (solidkit calibrate vignetting): each lens divided by its falloff before gain matching and blending.",
+        help=(
+            "Vignetting profile (solidkit calibrate vignetting): each lens divided by its falloff before gain matching "
+            "and blending."
+        ),
     ),
     as_json: bool = typer.Option(False, "--json", help="Print the summary as JSON."),
 ) -> None:
@@ -220,7 +232,8 @@ def unwarp(
         table.add_row("lens gains (R,G,B)", "; ".join(", ".join(f"{g:.3f}" for g in lg) for lg in s["gains"]))
         table.add_row(
             "seam disagreement",
-            f"median |diff| {s['seam_mad']:.4g} (before gain match {s['seam_mad_before_gain']:.4g}), rmse {s['seam_rmse']:.4g}",
+            f"median |diff| {s['seam_mad']:.4g} (before gain match {s['seam_mad_before_gain']:.4g}), rmse "
+            f"{s['seam_rmse']:.4g}",
         )
         fit = s.get("profile_fit") or {}
         if fit:

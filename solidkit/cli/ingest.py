@@ -152,12 +152,18 @@ def ingest_cli(
     profile: str | None = typer.Option(
         None,
         "--profile",
-        help="Per-unit lens profile (unit.json from 'solidkit calibrate overlap', or a shipped name) overriding the camera model's default; recorded in the campaign.",
+        help=(
+            "Per-unit lens profile (unit.json from 'solidkit calibrate overlap', or a shipped name) overriding the "
+            "camera model's default; recorded in the campaign."
+        ),
     ),
     vignetting: Path | None = typer.Option(
         None,
         "--vignetting",
-        help="Vignetting profile ('solidkit calibrate vignetting'): each lens divided by its falloff before the lenses are blended; recorded in the campaign.",
+        help=(
+            "Vignetting profile ('solidkit calibrate vignetting'): each lens divided by its falloff before the lenses "
+            "are blended; recorded in the campaign."
+        ),
     ),
     as_json: bool = json_option("what this run did"),
 ) -> None:

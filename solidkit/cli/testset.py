@@ -118,7 +118,7 @@ def export_command(
     fmt: str = typer.Option(..., "--format", help="Target layout: sold-net (SOLD-Net's real-set folder)."),
     json_out: bool = json_option("the exported items"),
 ) -> None:
-    """Export a test set in another project's layout (sold-net: <XXX>_persp.JPG, _local.npy, _local_<i>.hdr, _sun_pos.txt)."""
+    """Export a test set in another project's layout (sold-net: <XXX>_persp.JPG, _local.npy, _local_<i>.hdr, _sun_pos.txt)."""  # noqa: E501
     from solidkit.errors import InputError
 
     if fmt != "sold-net":
@@ -129,7 +129,8 @@ def export_command(
     typer.echo(f"wrote {len(doc['items'])} items to {out}", err=True)
     if doc["skipped_by_sold_net_loader"]:
         typer.echo(
-            f"note: SOLD-Net's loader skips items with fewer than 2 probes: {', '.join(doc['skipped_by_sold_net_loader'])}",
+            "note: SOLD-Net's loader skips items with fewer than 2 probes: "
+            f"{', '.join(doc['skipped_by_sold_net_loader'])}",
             err=True,
         )
     if json_out:

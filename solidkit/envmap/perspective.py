@@ -82,7 +82,8 @@ def intrinsics_from_fov(fov: float, width: int, height: int) -> np.ndarray:
 
 
 def scale_pixel_coordinates(x: Any, s: float) -> Any:
-    """A pixel coordinate (centres at integers, conventions §1) after resizing the image by ``s``: ``(x + 0.5) s - 0.5``.
+    """A pixel coordinate (centres at integers, conventions §1) after resizing the image by ``s``:
+    ``(x + 0.5) s - 0.5``.
 
     The image edge at ``-0.5`` stays at ``-0.5``; works on scalars and arrays alike.
 

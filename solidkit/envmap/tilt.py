@@ -88,7 +88,8 @@ def correction_from_gravity(g: np.ndarray) -> tuple[float, float]:
 
 
 def _gray8(pano: np.ndarray) -> np.ndarray:
-    """8-bit gray image for line detection: uint8 as stored (channel mean), float tonemapped (99th percentile -> white, sRGB-like)."""
+    """8-bit gray image for line detection: uint8 as stored (channel mean), float tonemapped (99th percentile ->
+    white, sRGB-like)."""
     img = np.asarray(pano)
     if img.dtype == np.uint8:
         if img.ndim == 3 and img.shape[-1] >= 3:

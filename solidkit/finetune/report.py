@@ -527,11 +527,14 @@ def sun_crop_section(results: dict[str, Any], config: Any) -> str:
         "68 / 90 % cone coverage",
         "cone median °",
     ]
+    cones = (
+        "calibrated (scales " + _num(list(config.sun_cone_scale), 2) + ")" if config.sun_cone_scale else "uncalibrated"
+    )
     parts = [
         "Crops at pitch +5°, 60° hfov, the sun at relative azimuths 0, ±30, ±90, 150° (panoramas without a sun "
         "at the same yaws), metered exposure (`solidkit.model.suneval`). The model: visibility threshold "
         f"{config.sun_visibility_threshold:.2f}, in-image sun {'on' if config.sun_in_image else 'off'}, cones "
-        f"{'calibrated (scales ' + _num(list(config.sun_cone_scale), 2) + ')' if config.sun_cone_scale else 'uncalibrated'}."
+        f"{cones}."
     ]
     for name, r in results.items():
         rows = []
@@ -592,10 +595,10 @@ def finetune_sections(result: dict[str, Any], folder: Path, prefix: str = "finet
     proto = (
         f"Scene-level {len(result['folds'])}-fold cross-validation (seed {cfg['seed']}): each fold tests on its scenes "
         "and trains on the others; one training scene per fold (20 % of them for larger sets) is held out for early "
-        f"stopping (patience {cfg['patience']}, at most {cfg['epochs']} epochs), so test scenes never choose the epoch. "
-        f"Trainable: `{cfg['trainable']}` ({n_par / 1e3:.0f} k parameters), Adam lr {cfg['lr']:g}. Loss: LDR local probes "
-        "(exposure-invariant log-L1 + 1-SSIM on unsaturated pixels) + the labelled sun direction "
-        f"(weight {cfg['sun_weight']:g}). Synthetic mixing: {mix}.\n\n"
+        f"stopping (patience {cfg['patience']}, at most {cfg['epochs']} epochs), so test scenes never choose the "
+        f"epoch. Trainable: `{cfg['trainable']}` ({n_par / 1e3:.0f} k parameters), Adam lr {cfg['lr']:g}. Loss: LDR "
+        "local probes (exposure-invariant log-L1 + 1-SSIM on unsaturated pixels) + the labelled sun direction (weight "
+        f"{cfg['sun_weight']:g}). Synthetic mixing: {mix}.\n\n"
     )
     rows = []
     for f in result["folds"]:

@@ -36,6 +36,10 @@ TOY_SUN_ENERGY = (2.2, 2.0, 1.7)
 """RGB energy of the toy sun (radiance x sr), about the horizontal irradiance of its sky."""
 
 
+BATCH_KEYS = ("image", "K", "pitch", "roll", "pixels", "albedo", "normal", "distance", "shadow", "geometry_mask",
+              "sky", "local", "sun_dir", "sun_visible")
+"""The entries of a training batch (:mod:`solidkit.model.solidnet`), in the order they are collated."""
+
 def _toy_sky(height: int, sun: torch.Tensor, ground: float = 0.3) -> torch.Tensor:
     """Radiance ``(height, 2 height, 3)`` of the toy sky: a blue gradient above the horizon, grey
     ground, and a sun of :data:`TOY_SUN_ENERGY` as a spherical Gaussian of 0.3° (one to two pixels
@@ -65,25 +69,7 @@ def toy_batch(
     K = torch.tensor(intrinsics_from_fov(math.radians(config.hfov_deg), W, H), dtype=torch.float32)
     rays = pixel_rays(K, W, H, torch, dtype=K.dtype)  # (H, W, 3), z = 1
     pano_dirs = direction_grid(hp, torch)
-    out: dict[str, list[torch.Tensor]] = {
-        k: []
-        for k in (
-            "image",
-            "K",
-            "pitch",
-            "roll",
-            "pixels",
-            "albedo",
-            "normal",
-            "distance",
-            "shadow",
-            "geometry_mask",
-            "sky",
-            "local",
-            "sun_dir",
-            "sun_visible",
-        )
-    }
+    out: dict[str, list[torch.Tensor]] = {k: [] for k in BATCH_KEYS}
     for _ in range(batch):
         r = torch.rand(6, generator=g)
         pitch, roll = math.radians(-8 + 10 * r[0].item()), math.radians(-4 + 8 * r[1].item())
@@ -145,28 +131,10 @@ def batch_from_synth(items: list[dict[str, Any]]) -> dict[str, torch.Tensor]:
     Maps ``plane_distance -> distance``, ``global -> sky``, ``probes -> local``,
     ``probe_pixels -> pixels``; ``geometry_mask`` marks pixels with a normal (the generator writes
     0 on sky); ``sun_dir``/``sun_visible`` are what :func:`solidkit.envmap.detect_sun` finds in the
-    global map (the truth of the sun terms). Probes the generator could not place (``probe_valid == 0``) are replaced by the
-    sample's first valid one, so every sample keeps the same number of probes.
+    global map (the truth of the sun terms). Probes the generator could not place (``probe_valid == 0``) are
+    replaced by the sample's first valid one, so every sample keeps the same number of probes.
     """
-    out: dict[str, list[torch.Tensor]] = {
-        k: []
-        for k in (
-            "image",
-            "K",
-            "pitch",
-            "roll",
-            "pixels",
-            "albedo",
-            "normal",
-            "distance",
-            "shadow",
-            "geometry_mask",
-            "sky",
-            "local",
-            "sun_dir",
-            "sun_visible",
-        )
-    }
+    out: dict[str, list[torch.Tensor]] = {k: [] for k in BATCH_KEYS}
     for it in items:
         valid = it["probe_valid"] > 0
         if not valid.any():
@@ -313,7 +281,10 @@ def train_on_synth(
         "optimizer": f"Adam lr={lr}",
         "teacher_geometry": True,
         "seconds": round(seconds, 1),
-        "hardware": f"{platform.processor() or platform.machine()}, {os.cpu_count()} CPU cores (shared), {threads} torch thread(s)",
+        "hardware": (
+            f"{platform.processor() or platform.machine()}, {os.cpu_count()} CPU cores (shared), "
+            f"{threads} torch thread(s)"
+        ),
         "torch": str(torch.__version__),
         "seed": seed,
         "loss_first": {k: round(v, 4) for k, v in history[0].items()},

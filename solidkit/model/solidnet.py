@@ -294,7 +294,8 @@ class SolidNet(nn.Module):
 
 @dataclass
 class Prediction:
-    """Result of :meth:`SolidNet.predict` (radiance in the photo's units: ``tonemap(H)`` is the photo; panorama frame)."""
+    """Result of :meth:`SolidNet.predict` (radiance in the photo's units: ``tonemap(H)`` is the photo; panorama
+    frame)."""
 
     sky: np.ndarray
     sun: Any

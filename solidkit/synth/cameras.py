@@ -5,8 +5,8 @@ frame (:mod:`solidkit.synth.scene`), oriented by ``R = rotation_from_ypr(yaw, pi
 (camera -> scene frame, conventions §4). Its *panorama frame* is ``R_y(yaw)``: the scene frame
 turned to the camera's heading, with pitch and roll removed (conventions §2).
 
-View selection (paper §3.1 and supplementary §2; :func:`solidkit.synth.views.best_views`): for each of the six 60° heading sectors,
-candidate cameras are drawn at random walkable positions (sidewalks and road, away from
+View selection (paper §3.1 and supplementary §2; :func:`solidkit.synth.views.best_views`): for each of the six 60°
+heading sectors, candidate cameras are drawn at random walkable positions (sidewalks and road, away from
 obstacles), heading uniform in the sector, height ``1.55 ± 0.05`` m above the floor, pitch
 uniform within ±10° (roll within ±``max_roll``), an item buffer is rendered at low resolution
 and the candidate with the highest pixel coverage (non-sky fraction) among those showing at
@@ -139,7 +139,8 @@ def pinhole_sensor(cam: Camera, *, jitter: bool = True, seed: int = 0, spp: int 
 def equirect_sensor(
     position: np.ndarray, rotation: np.ndarray, height: int, *, jitter: bool = True, seed: int = 0, spp: int = 1
 ) -> Any:
-    """A Mitsuba ``sk_equirect`` sensor: a ``(height, 2 height)`` panorama at ``position`` whose frame is ``rotation``."""
+    """A Mitsuba ``sk_equirect`` sensor: a ``(height, 2 height)`` panorama at ``position`` whose frame is
+    ``rotation``."""
     mi = mitsuba()
     to_world = _to_world(mi, np.asarray(rotation), np.asarray(position))
     return mi.load_dict(

@@ -50,8 +50,8 @@ f/2, ISO 100 gives 0.35), plus shot and read noise (``var = 1e-3 x + 2e-3^2``), 
 (the sun saturates even at 1/25000 s, as on a real Theta), through the sRGB response,
 quantised to 8 bits and JPEG-compressed. Renders go through
 :func:`solidkit.synth.sample.suppress_fireflies` first (the sun's own pixels protected): an
-isolated caustic would otherwise saturate even the 1/25000 s frame and pass for the sun. The photo uses f/2.8, ISO 100 and an automatic
-exposure putting the mean at 0.18.
+isolated caustic would otherwise saturate even the 1/25000 s frame and pass for the sun. The photo uses f/2.8, ISO
+100 and an automatic exposure putting the mean at 0.18.
 
 Truth probes (:mod:`solidkit.synth.truth_probes`): the HDR probe each capture position's aligned
 probe is held against, rendered from the same scene, lighting and position as its Theta shots, with
@@ -199,7 +199,8 @@ def expose(
 
 
 def write_truth_exr(path: Path, image: np.ndarray, meta: dict[str, Any]) -> None:
-    """Truth radiance ``(H, W, 3)`` to ``path`` as half floats when it fits (0.05 % steps, half the bytes), else float32."""
+    """Truth radiance ``(H, W, 3)`` to ``path`` as half floats when it fits (0.05 % steps, half the bytes), else
+    float32."""
     half = bool(np.nanmax(np.abs(image)) < 0.5 * np.finfo(np.float16).max)
     write_exr(path, image, meta, half=half)
 
@@ -277,6 +278,19 @@ def _last_shot_no(scene: SceneTruth) -> int:
     return max(nos, default=0)
 
 
+def sample_config(cfg: CampaignConfig) -> SampleConfig:
+    """The scene generator's settings of a campaign's photos (:class:`~solidkit.synth.sample.SampleConfig`)."""
+    return SampleConfig(
+        width=cfg.photo_width,
+        height=cfg.photo_height,
+        hfov_deg=cfg.hfov_deg,
+        candidates=cfg.candidates,
+        p_sunsky=cfg.p_sunsky,
+        probe_height=cfg.probe_height,
+        block_length=cfg.block_length,
+    )
+
+
 def generate_campaign(
     out: str | os.PathLike,
     scenes: int,
@@ -302,15 +316,7 @@ def generate_campaign(
     profile = load_profile(cfg.lens_profile)
     rw, rh = profile.reference_size
     profile = profile.scaled(cfg.fisheye_width, int(round(cfg.fisheye_width * rh / rw)))
-    scfg = SampleConfig(
-        width=cfg.photo_width,
-        height=cfg.photo_height,
-        hfov_deg=cfg.hfov_deg,
-        candidates=cfg.candidates,
-        p_sunsky=cfg.p_sunsky,
-        probe_height=cfg.probe_height,
-        block_length=cfg.block_length,
-    )
+    scfg = sample_config(cfg)
     gen = Generator(seed, scfg)
     per_scene = _split(probes, scenes)
     shot_no = 1
@@ -428,7 +434,8 @@ def _render_scene(
     mi: Any,
     progress: Any,
 ) -> SceneTruth:
-    """Render scene ``s`` (photo, probes, Theta captures, field notes) into ``out``; returns its truth (not yet written)."""
+    """Render scene ``s`` (photo, probes, Theta captures, field notes) into ``out``; returns its truth (not yet
+    written)."""
     truth_dir = out / "truth"
     model = profile.camera_models[0] if profile.camera_models else "RICOH THETA V"
     rng = np.random.default_rng(derive_seed(seed, s, 77))

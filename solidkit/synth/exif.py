@@ -1,4 +1,5 @@
-"""A minimal EXIF writer for the virtual campaign: camera, exposure, time (+ UTC offset), GPS (+ heading), Ricoh maker note.
+"""A minimal EXIF writer for the virtual campaign: camera, exposure, time (+ UTC offset), GPS (+ heading), Ricoh
+maker note.
 
 Writes a little-endian TIFF structure (IFD0 -> Exif IFD -> MakerNote, GPS IFD) into a JPEG's
 APP1 segment. The Ricoh maker note follows Ricoh's *THETA Metadata Spec*

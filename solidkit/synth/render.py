@@ -1,4 +1,5 @@
-"""One Mitsuba render of a sensor: path-traced RGB (:func:`render_rgb`) and the intrinsic buffers (:func:`render_buffers`).
+"""One Mitsuba render of a sensor: path-traced RGB (:func:`render_rgb`) and the intrinsic buffers
+(:func:`render_buffers`).
 
 The buffers' definitions (frames, units, the shadow ratio) are in :mod:`solidkit.synth.sample`;
 the ``sk_buffers`` integrator that writes them is in :mod:`solidkit.synth.plugins`.
@@ -38,7 +39,8 @@ def render_rgb(scene: Any, sensor: Any, spp: int, *, max_depth: int = 6, seed: i
 def render_buffers(
     scene: Any, cam: Camera, *, spp: int = 16, shadows: bool = True, seed: int = 0
 ) -> dict[str, np.ndarray]:
-    """Intrinsic buffers of ``cam`` (definitions: :mod:`solidkit.synth.sample`): raw AOVs plus derived camera-frame quantities.
+    """Intrinsic buffers of ``cam`` (definitions: :mod:`solidkit.synth.sample`): raw AOVs plus derived camera-frame
+    quantities.
 
     Returns ``t`` (ray distance), ``normal_world``, ``normal`` (camera frame), ``albedo``,
     ``label`` (object id, -1 = sky), ``depth``, ``plane_distance``, ``shadow`` and ``hit`` (bool).

@@ -57,8 +57,8 @@ PASS_SAMPLES = 1 << 23
 
 TRUTH_RENDER_VERSION = 4
 """Version of the truth-probe recipe: 1 = one pass of ``probe_spp``, firefly treatment with only the sun
-protected (the truth of the campaigns written before 2026-11-29); 2 = passes, glints protected, recorded per probe; 3 = 2 plus the
-noise target (:func:`clean_truth_probe`); 4 = 3 with the firefly treatment per pass of the captures'
+protected (the truth of the campaigns written before 2026-11-29); 2 = passes, glints protected, recorded per probe;
+3 = 2 plus the noise target (:func:`clean_truth_probe`); 4 = 3 with the firefly treatment per pass of the captures'
 sample density (``firefly_spp``)."""
 
 

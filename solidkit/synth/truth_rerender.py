@@ -188,15 +188,7 @@ def rerender_truth(
     known = {st.id for st in truth.scenes}
     if wanted and not wanted <= known:
         raise InputError(f"{root}: no scene {', '.join(sorted(wanted - known))} (scenes: {', '.join(sorted(known))})")
-    scfg = SampleConfig(
-        width=cfg.photo_width,
-        height=cfg.photo_height,
-        hfov_deg=cfg.hfov_deg,
-        candidates=cfg.candidates,
-        p_sunsky=cfg.p_sunsky,
-        probe_height=cfg.probe_height,
-        block_length=cfg.block_length,
-    )
+    scfg = sample_config(cfg)
     gen = Generator(truth.seed, scfg)
     target = noise_db or None
     mi = None

@@ -56,7 +56,8 @@ class TestsetDiff:
         out += [f"+ probe {p}" for p in self.probes_added] + [f"- probe {p}" for p in self.probes_removed]
         out += [f"~ {c['what']} {c['where']}: {c['detail']}" for c in self.changes]
         out.append(
-            f"files: {len(self.files_changed)} changed, {len(self.files_added)} added, {len(self.files_removed)} removed"
+            f"files: {len(self.files_changed)} changed, {len(self.files_added)} added, {len(self.files_removed)} "
+            "removed"
         )
         return out
 

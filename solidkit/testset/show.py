@@ -194,9 +194,11 @@ def _html(ts: TestSet, sheets: dict[str, str]) -> str:
             else "no sun"
         )
         probes = "".join(
-            f"<tr><td>{k + 1}</td><td>{e(p.id)}</td><td>{p.pixel[0]:.1f}, {p.pixel[1]:.1f}</td><td>{e(p.pixel_source)}</td>"
-            f"<td>{p.alignment.yaw_deg:.2f}</td><td>{'' if p.alignment.residual_deg is None else f'{p.alignment.residual_deg:.2f}'}</td>"
-            f"<td>{e(p.alignment.source)}</td><td>{'yes' if p.hdr else 'no'}</td><td>{100 * p.images.saturated_fraction:.2f} %</td>"
+            f"<tr><td>{k + 1}</td><td>{e(p.id)}</td><td>{p.pixel[0]:.1f}, {p.pixel[1]:.1f}</td>"
+            f"<td>{e(p.pixel_source)}</td><td>{p.alignment.yaw_deg:.2f}</td>"
+            f"<td>{'' if p.alignment.residual_deg is None else f'{p.alignment.residual_deg:.2f}'}</td>"
+            f"<td>{e(p.alignment.source)}</td><td>{'yes' if p.hdr else 'no'}</td>"
+            f"<td>{100 * p.images.saturated_fraction:.2f} %</td>"
             f"<td class=flag>{e(', '.join(p.flags))}</td></tr>"
             for k, p in enumerate(s.probes)
         )

@@ -6,8 +6,8 @@ The mask marks pixels that are (1) above the horizon, from K and the camera's pi
 in a 5x5 window below ``max_std``, measured at the photo's full resolution, where facades show
 their bricks and joints); (3) not darker than ``min_brightness`` of the bright end of the
 above-horizon pixels and not more red than blue by more than ``max_red_excess`` (clear sky is
-blue, overcast sky grey; sunlit stone and brick are warm); and (4) connected to the top edge of the image through such pixels (OpenCV
-connected components). It is conservative: facades that are smooth and bright but do not touch
+blue, overcast sky grey; sunlit stone and brick are warm); and (4) connected to the top edge of the image through
+such pixels (OpenCV connected components). It is conservative: facades that are smooth and bright but do not touch
 the top through smooth bright pixels are not sky; a probe pixel is reported only when most of its
 neighbourhood is sky (:func:`on_sky`).
 """

@@ -297,7 +297,8 @@ class _Checker:
                     "exposure",
                     sid,
                     MANIFEST_FILE,
-                    f"{pid}: sun frame exposure {sf.exposure_time_s:.3g} s is longer than the bracket's shortest {min(br):.3g} s",
+                    f"{pid}: sun frame exposure {sf.exposure_time_s:.3g} s is longer than the bracket's shortest "
+                    f"{min(br):.3g} s",
                 )
 
     def sun_panorama_exposure(self, s: Scene) -> None:

@@ -1,4 +1,5 @@
-"""align's outputs on a small analytic campaign (tests/support/testset_campaign.py): report files, labels in the store."""
+"""align's outputs on a small analytic campaign (tests/support/testset_campaign.py): report files, labels in the
+store."""
 
 from __future__ import annotations
 

@@ -122,7 +122,8 @@ def test_refinement_brings_back_a_perturbed_profile(city, tmp_path, cli):
     before = math.dist(start.lenses[0].center, truth.lenses[0].center)
     after = math.dist(unit.lenses[0].center, truth.lenses[0].center)
     print(
-        f"perturbed: seam error {s['seam_error_before']:.3f} -> {s['seam_error_after']:.3f}, front centre {before:.2f} -> {after:.2f} px"
+        f"perturbed: seam error {s['seam_error_before']:.3f} -> {s['seam_error_after']:.3f}, front centre {before:.2f} "
+        f"-> {after:.2f} px"
     )
     assert s["refused"] is None and s["seam_error_after"] < 0.5 * s["seam_error_before"] and after < 0.5 * before
 

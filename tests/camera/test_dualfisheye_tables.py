@@ -37,7 +37,7 @@ def test_interpolated_tables_within_tolerance_of_exact_projection():
     in_size, H = (1920, 960), 960
     assert D._grid_step(prof.scaled(*in_size), H) > 1  # the interpolated path is the one under test
     got = {i: [] for i in range(2)}
-    for r0, r1, lenses in D.lens_samples(prof, in_size, H, R):
+    for _r0, _r1, lenses in D.lens_samples(prof, in_size, H, R):
         for i, (x, y, m) in enumerate(lenses):
             got[i].append((x, y, m))
     for i, (x, y, seen) in enumerate(_exact(prof, in_size, H, R)):

@@ -339,7 +339,8 @@ CASES: list[tuple[str, list[str], str, tuple]] = [
     (
         "unwarp-no-model",
         ["capture", "unwarp", "{d}/dual.jpg", "-o", "{d}/u.exr"],
-        "no shipped lens profile for camera None at 128x64; pass --profile (theta-s, theta-s-video, theta-v, theta-z1 or a unit.json)",
+        "no shipped lens profile for camera None at 128x64; pass --profile (theta-s, theta-s-video, theta-v, theta-z1 "
+        "or a unit.json)",
         SLOW,
     ),
     (
@@ -621,7 +622,8 @@ CASES: list[tuple[str, list[str], str, tuple]] = [
     (
         "camera-pattern-no-board",
         ["calibrate", "camera", "{d}/photo.jpg", "{d}/photo2.jpg", "-o", "{d}/k.json", "--pattern", "6x9"],
-        "checkerboard calibration needs >= 3 usable views, got 0; rejected: photo.jpg: no 6x9 board found; photo2.jpg: no 6x9 board found",
+        "checkerboard calibration needs >= 3 usable views, got 0; rejected: photo.jpg: no 6x9 board found; photo2.jpg: "
+        "no 6x9 board found",
         SLOW,
     ),
     (
@@ -668,7 +670,8 @@ CASES: list[tuple[str, list[str], str, tuple]] = [
     (
         "lens-no-board",
         ["calibrate", "lens", "{d}/photo.jpg", "{d}/photo2.jpg", "-o", "{d}/l.json", "--pattern", "6x9"],
-        "the Kannala-Brandt fit needs >= 3 usable board views, got 0 (rejected: photo.jpg: no 6x9 board found; photo2.jpg: no 6x9 board found)",
+        "the Kannala-Brandt fit needs >= 3 usable board views, got 0 (rejected: photo.jpg: no 6x9 board found; "
+        "photo2.jpg: no 6x9 board found)",
         SLOW,
     ),
     (
@@ -792,7 +795,8 @@ CASES: list[tuple[str, list[str], str, tuple]] = [
     (
         "fisheye-no-circles",
         ["calibrate", "fisheye", "{d}/dual.jpg", "-o", "{d}/f.json"],
-        "the left half of the 128x64 frame has no circular image edge (edge found on 0 % of the rays): not a dual-fisheye frame?",
+        "the left half of the 128x64 frame has no circular image edge (edge found on 0 % of the rays): not a "
+        "dual-fisheye frame?",
         (),
     ),
     (
@@ -895,7 +899,8 @@ CASES: list[tuple[str, list[str], str, tuple]] = [
     (
         "campaign-truth-not-a-campaign",
         ["synth", "campaign-truth", "{d}/sub"],
-        "{d}/sub: not a complete virtual campaign (needs truth/campaign.json and truth/truth.json from 'solidkit synth campaign')",
+        "{d}/sub: not a complete virtual campaign (needs truth/campaign.json and truth/truth.json from 'solidkit synth "
+        "campaign')",
         (),
     ),
     ("campaign-truth-missing", ["synth", "campaign-truth", "{d}/missing"], "{d}/missing: no such folder", SLOW),

@@ -261,8 +261,8 @@ def test_proposal_from_the_store_without_alignment(tmp_path):
             "reasons": ["below the ephemeris"],
         }
     ]
-    LabelStore(root).put("sun", "s1/p1", {"found": True, "azimuth_deg": 40.0, "elevation_deg": 25.0, "uncertainty_deg": 0.4,
-                                          "candidates": cand}, source="auto", annotator="align", flags=["glint"])  # fmt: skip
+    value = {"found": True, "azimuth_deg": 40.0, "elevation_deg": 25.0, "uncertainty_deg": 0.4, "candidates": cand}
+    LabelStore(root).put("sun", "s1/p1", value, source="auto", annotator="align", flags=["glint"])
     c = TestClient(create_app(root, allowed_hosts=["testserver"]))
     it = item(c, "sun", "s1/p1")
     assert it["proposal"] == {"found": True, "azimuth_deg": 40.0, "elevation_deg": 25.0, "uncertainty_deg": 0.4}
@@ -278,8 +278,8 @@ def test_serve_beyond_loopback_prints_a_token_and_requires_it(campaign):
         s.bind(("127.0.0.1", 0))
         port = s.getsockname()[1]
     code = "import sys; from solidkit.cli import main; sys.argv = ['solidkit'] + sys.argv[1:]; main()"
-    proc = subprocess.Popen([sys.executable, "-c", code, "label", "serve", str(campaign[0]), "--host", "0.0.0.0", "--port", str(port)],
-                            stderr=subprocess.PIPE, stdout=subprocess.DEVNULL, text=True)  # fmt: skip
+    argv = [sys.executable, "-c", code, "label", "serve", str(campaign[0]), "--host", "0.0.0.0", "--port", str(port)]
+    proc = subprocess.Popen(argv, stderr=subprocess.PIPE, stdout=subprocess.DEVNULL, text=True)
     try:
         token = proc.stderr.readline().strip().rsplit(" ", 1)[-1]
         assert "labeling" in proc.stderr.readline() and len(token) >= 16

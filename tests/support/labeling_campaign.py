@@ -59,7 +59,8 @@ def make_campaign(root: Path, *, with_alignment: bool = True, with_city: bool = 
     cv2.circle(photo, (int(PHOTO_DOT[0]), int(PHOTO_DOT[1])), 4, (0, 0, 255), -1)
     cv2.imwrite(str(root / "originals" / "photo.jpg"), photo, [cv2.IMWRITE_JPEG_QUALITY, 95])
     shots = [Shot(sha256="a" * 64, original="originals/photo.jpg", size=1, file_format="jpeg", sources=[],
-                  metadata={"path": "photo.jpg", "width": PHOTO_SIZE[0], "height": PHOTO_SIZE[1]}, kind="photo", scene="s1")]  # fmt: skip
+                  metadata={"path": "photo.jpg", "width": PHOTO_SIZE[0], "height": PHOTO_SIZE[1]}, kind="photo",
+                  scene="s1")]  # fmt: skip
     products, probes = [], []
     for pid, (az, el, colour) in SUN_DOTS.items():
         pano = np.full((PANO_H, 2 * PANO_H, 3), 12, np.uint8)
@@ -110,7 +111,8 @@ def make_campaign(root: Path, *, with_alignment: bool = True, with_city: bool = 
             ]},
             "probes": [
                 {"id": "p1", "role": "probe", "pixel_full": [402.0, 297.0], "pixel_source": "field_notes",
-                 "yaw_deg": -HEADING_DOT_AZ, "residual_deg": 0.3, "cues": {"sun": {"yaw_deg": -HEADING_DOT_AZ, "weight": 1.0, "ok": True}}, "flags": []},
+                 "yaw_deg": -HEADING_DOT_AZ, "residual_deg": 0.3,
+                 "cues": {"sun": {"yaw_deg": -HEADING_DOT_AZ, "weight": 1.0, "ok": True}}, "flags": []},
                 {"id": "p2", "role": "probe", "pixel_full": None, "yaw_deg": None,
                  "flags": ["low_confidence", "pixel_disagrees: the marked pixel is 40 px from the geometry's"]},
             ],
@@ -131,25 +133,32 @@ def _city(root: Path, shots: list, products: list) -> tuple[Scene, dict]:
                              K=np.array([[FX, 0, 319.5], [0, FX, 239.5], [0, 0, 1.0]]))  # fmt: skip
     cv2.imwrite(str(root / "originals" / "city.jpg"), _ldr8(photo * 1.2), [cv2.IMWRITE_JPEG_QUALITY, 92])
     shots.append(Shot(sha256="b" * 64, original="originals/city.jpg", size=1, file_format="jpeg", sources=[],
-                      metadata={"path": "city.jpg", "width": PHOTO_SIZE[0], "height": PHOTO_SIZE[1]}, kind="photo", scene="city"))  # fmt: skip
+                      metadata={"path": "city.jpg", "width": PHOTO_SIZE[0], "height": PHOTO_SIZE[1]}, kind="photo",
+                      scene="city"))  # fmt: skip
     probes, captures, aprobes = [], [], []
     for pid, yaw in CITY_YAWS.items():
         level = rotate(pano, rotation_from_ypr(math.radians(-yaw), 0.0, 0.0))  # d_P = R_y(yaw) d_L
         (root / f"products/city/{pid}").mkdir(parents=True, exist_ok=True)
         cv2.imwrite(str(root / f"products/city/{pid}/sun.png"), _ldr8(level / 3000.0))  # low exposure: only the sun
         write_exr(root / f"products/city/{pid}/hdr-b01.exr", level.astype(np.float32))
-        products.append(Product(id=f"city/{pid}/sun", kind="sun_frame", scene="city", probe=pid, inputs=[], path=f"products/city/{pid}/sun.png", layout="equirect"))  # fmt: skip
-        products.append(Product(id=f"city/{pid}/hdr-b01", kind="hdr", scene="city", probe=pid, inputs=[], path=f"products/city/{pid}/hdr-b01.exr", layout="equirect"))  # fmt: skip
+        products.append(Product(id=f"city/{pid}/sun", kind="sun_frame", scene="city", probe=pid, inputs=[],
+                                path=f"products/city/{pid}/sun.png", layout="equirect"))  # fmt: skip
+        products.append(Product(id=f"city/{pid}/hdr-b01", kind="hdr", scene="city", probe=pid, inputs=[],
+                                path=f"products/city/{pid}/hdr-b01.exr", layout="equirect"))  # fmt: skip
         probes.append(Probe(id=pid, shots=[], role="camera" if pid == "cam" else "probe"))
         sun = detect_sun(level)
-        captures.append({"probe": pid, "found": True, "azimuth_deg": sun.azimuth_deg, "elevation_deg": sun.elevation_deg,
-                         "uncertainty_deg": 0.3, "flags": [], "candidates": [
-                             {"azimuth_deg": sun.azimuth_deg, "elevation_deg": sun.elevation_deg, "size_deg": 1.2, "chosen": True, "reasons": []},
-                             {"azimuth_deg": sun.azimuth_deg + 95.0, "elevation_deg": 4.0, "size_deg": 0.5, "chosen": False,
+        captures.append({"probe": pid, "found": True, "azimuth_deg": sun.azimuth_deg,
+                         "elevation_deg": sun.elevation_deg, "uncertainty_deg": 0.3, "flags": [], "candidates": [
+                             {"azimuth_deg": sun.azimuth_deg, "elevation_deg": sun.elevation_deg, "size_deg": 1.2,
+                              "chosen": True, "reasons": []},
+                             {"azimuth_deg": sun.azimuth_deg + 95.0, "elevation_deg": 4.0, "size_deg": 0.5,
+                              "chosen": False,
                               "reasons": ["glint on a facade: 30 deg below the ephemeris"]}]})  # fmt: skip
         aprobes.append({"id": pid, "role": "camera" if pid == "cam" else "probe", "yaw_deg": yaw, "residual_deg": 0.4,
-                        "pixel_full": CITY_PIXEL if pid == "p1" else None, "pixel_source": "field_notes" if pid == "p1" else None,
-                        "cues": {"sun": {"yaw_deg": yaw + 0.2, "weight": 0.6, "ok": True}, "features": {"yaw_deg": yaw - 0.3, "weight": 0.4, "ok": True}},
+                        "pixel_full": CITY_PIXEL if pid == "p1" else None,
+                        "pixel_source": "field_notes" if pid == "p1" else None,
+                        "cues": {"sun": {"yaw_deg": yaw + 0.2, "weight": 0.6, "ok": True},
+                                 "features": {"yaw_deg": yaw - 0.3, "weight": 0.4, "ok": True}},
                         "flags": []})  # fmt: skip
     scene = Scene(id="city", grouping="folder", photos=["b" * 64], photo="b" * 64, camera_probe="cam", probes=probes)
     K = [[FX, 0.0, 319.5], [0.0, FX, 239.5], [0.0, 0.0, 1.0]]

@@ -1,4 +1,5 @@
-"""The chain on a virtual campaign held against its truth: synth campaign -> ingest -> label sun -> align -> testset build.
+"""The chain on a virtual campaign held against its truth: synth campaign -> ingest -> label sun -> align -> testset
+build.
 
 Truth is read only here, after the test set is built. Measured: probe pixels equal the field
 notes' (the team's marks, read from the card's ``fieldnotes.toml``) exactly, and their distance to
