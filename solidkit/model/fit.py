@@ -29,16 +29,31 @@ from solidkit.model.solidnet import SolidNet, save_checkpoint
 from solidkit.model.sunhead import render_sun
 from solidkit.synth.dataset import SynthDataset
 
-__all__ = ["toy_batch", "fit", "batch_to", "batch_from_synth"]
+__all__ = ["BATCH_KEYS", "toy_batch", "fit", "batch_to", "batch_from_synth"]
 
 
 TOY_SUN_ENERGY = (2.2, 2.0, 1.7)
 """RGB energy of the toy sun (radiance x sr), about the horizontal irradiance of its sky."""
 
 
-BATCH_KEYS = ("image", "K", "pitch", "roll", "pixels", "albedo", "normal", "distance", "shadow", "geometry_mask",
-              "sky", "local", "sun_dir", "sun_visible")
+BATCH_KEYS = (
+    "image",
+    "K",
+    "pitch",
+    "roll",
+    "pixels",
+    "albedo",
+    "normal",
+    "distance",
+    "shadow",
+    "geometry_mask",
+    "sky",
+    "local",
+    "sun_dir",
+    "sun_visible",
+)
 """The entries of a training batch (:mod:`solidkit.model.solidnet`), in the order they are collated."""
+
 
 def _toy_sky(height: int, sun: torch.Tensor, ground: float = 0.3) -> torch.Tensor:
     """Radiance ``(height, 2 height, 3)`` of the toy sky: a blue gradient above the horizon, grey

@@ -152,6 +152,7 @@ from solidkit.synth.solar import place_sun, solar_angles_deg, solar_direction, s
 from solidkit.synth.truth_probes import clean_truth_probe
 
 __all__ = [
+    "sample_config",
     "K_SENSOR",
     "PRESETS",
     "CampaignConfig",

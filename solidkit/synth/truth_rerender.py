@@ -48,13 +48,14 @@ from solidkit.synth.campaign import (
     SCENE_FILE,
     SETTINGS_FILE,
     probe_exr_meta,
+    sample_config,
     scene_block,
     scene_lighting,
     write_truth_exr,
 )
 from solidkit.synth.campaign_truth import CampaignConfig, SceneTruth, TruthError, load_truth
 from solidkit.synth.mitsuba_variant import mitsuba, variant
-from solidkit.synth.sample import Generator, SampleConfig, derive_seed
+from solidkit.synth.sample import Generator, derive_seed
 from solidkit.synth.scene import to_mitsuba
 from solidkit.synth.truth_probes import PASS_SAMPLES, TRUTH_RENDER_VERSION, clean_truth_probe, psnr
 
