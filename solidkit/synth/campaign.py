@@ -152,7 +152,6 @@ from solidkit.synth.solar import place_sun, solar_angles_deg, solar_direction, s
 from solidkit.synth.truth_probes import clean_truth_probe
 
 __all__ = [
-    "sample_config",
     "K_SENSOR",
     "PRESETS",
     "CampaignConfig",
@@ -279,19 +278,6 @@ def _last_shot_no(scene: SceneTruth) -> int:
     return max(nos, default=0)
 
 
-def sample_config(cfg: CampaignConfig) -> SampleConfig:
-    """The scene generator's settings of a campaign's photos (:class:`~solidkit.synth.sample.SampleConfig`)."""
-    return SampleConfig(
-        width=cfg.photo_width,
-        height=cfg.photo_height,
-        hfov_deg=cfg.hfov_deg,
-        candidates=cfg.candidates,
-        p_sunsky=cfg.p_sunsky,
-        probe_height=cfg.probe_height,
-        block_length=cfg.block_length,
-    )
-
-
 def generate_campaign(
     out: str | os.PathLike,
     scenes: int,
@@ -317,7 +303,15 @@ def generate_campaign(
     profile = load_profile(cfg.lens_profile)
     rw, rh = profile.reference_size
     profile = profile.scaled(cfg.fisheye_width, int(round(cfg.fisheye_width * rh / rw)))
-    scfg = sample_config(cfg)
+    scfg = SampleConfig(
+        width=cfg.photo_width,
+        height=cfg.photo_height,
+        hfov_deg=cfg.hfov_deg,
+        candidates=cfg.candidates,
+        p_sunsky=cfg.p_sunsky,
+        probe_height=cfg.probe_height,
+        block_length=cfg.block_length,
+    )
     gen = Generator(seed, scfg)
     per_scene = _split(probes, scenes)
     shot_no = 1
