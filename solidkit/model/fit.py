@@ -29,11 +29,30 @@ from solidkit.model.solidnet import SolidNet, save_checkpoint
 from solidkit.model.sunhead import render_sun
 from solidkit.synth.dataset import SynthDataset
 
-__all__ = ["toy_batch", "fit", "batch_to", "batch_from_synth"]
+__all__ = ["BATCH_KEYS", "toy_batch", "fit", "batch_to", "batch_from_synth"]
 
 
 TOY_SUN_ENERGY = (2.2, 2.0, 1.7)
 """RGB energy of the toy sun (radiance x sr), about the horizontal irradiance of its sky."""
+
+
+BATCH_KEYS = (
+    "image",
+    "K",
+    "pitch",
+    "roll",
+    "pixels",
+    "albedo",
+    "normal",
+    "distance",
+    "shadow",
+    "geometry_mask",
+    "sky",
+    "local",
+    "sun_dir",
+    "sun_visible",
+)
+"""The entries of a training batch (:mod:`solidkit.model.solidnet`), in the order they are collated."""
 
 
 def _toy_sky(height: int, sun: torch.Tensor, ground: float = 0.3) -> torch.Tensor:
@@ -65,25 +84,7 @@ def toy_batch(
     K = torch.tensor(intrinsics_from_fov(math.radians(config.hfov_deg), W, H), dtype=torch.float32)
     rays = pixel_rays(K, W, H, torch, dtype=K.dtype)  # (H, W, 3), z = 1
     pano_dirs = direction_grid(hp, torch)
-    out: dict[str, list[torch.Tensor]] = {
-        k: []
-        for k in (
-            "image",
-            "K",
-            "pitch",
-            "roll",
-            "pixels",
-            "albedo",
-            "normal",
-            "distance",
-            "shadow",
-            "geometry_mask",
-            "sky",
-            "local",
-            "sun_dir",
-            "sun_visible",
-        )
-    }
+    out: dict[str, list[torch.Tensor]] = {k: [] for k in BATCH_KEYS}
     for _ in range(batch):
         r = torch.rand(6, generator=g)
         pitch, roll = math.radians(-8 + 10 * r[0].item()), math.radians(-4 + 8 * r[1].item())
@@ -148,25 +149,7 @@ def batch_from_synth(items: list[dict[str, Any]]) -> dict[str, torch.Tensor]:
     global map (the truth of the sun terms). Probes the generator could not place (``probe_valid == 0``) are
     replaced by the sample's first valid one, so every sample keeps the same number of probes.
     """
-    out: dict[str, list[torch.Tensor]] = {
-        k: []
-        for k in (
-            "image",
-            "K",
-            "pitch",
-            "roll",
-            "pixels",
-            "albedo",
-            "normal",
-            "distance",
-            "shadow",
-            "geometry_mask",
-            "sky",
-            "local",
-            "sun_dir",
-            "sun_visible",
-        )
-    }
+    out: dict[str, list[torch.Tensor]] = {k: [] for k in BATCH_KEYS}
     for it in items:
         valid = it["probe_valid"] > 0
         if not valid.any():

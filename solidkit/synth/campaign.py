@@ -152,6 +152,7 @@ from solidkit.synth.solar import place_sun, solar_angles_deg, solar_direction, s
 from solidkit.synth.truth_probes import clean_truth_probe
 
 __all__ = [
+    "sample_config",
     "K_SENSOR",
     "PRESETS",
     "CampaignConfig",
@@ -278,6 +279,19 @@ def _last_shot_no(scene: SceneTruth) -> int:
     return max(nos, default=0)
 
 
+def sample_config(cfg: CampaignConfig) -> SampleConfig:
+    """The scene generator's settings of a campaign's photos (:class:`~solidkit.synth.sample.SampleConfig`)."""
+    return SampleConfig(
+        width=cfg.photo_width,
+        height=cfg.photo_height,
+        hfov_deg=cfg.hfov_deg,
+        candidates=cfg.candidates,
+        p_sunsky=cfg.p_sunsky,
+        probe_height=cfg.probe_height,
+        block_length=cfg.block_length,
+    )
+
+
 def generate_campaign(
     out: str | os.PathLike,
     scenes: int,
@@ -303,15 +317,7 @@ def generate_campaign(
     profile = load_profile(cfg.lens_profile)
     rw, rh = profile.reference_size
     profile = profile.scaled(cfg.fisheye_width, int(round(cfg.fisheye_width * rh / rw)))
-    scfg = SampleConfig(
-        width=cfg.photo_width,
-        height=cfg.photo_height,
-        hfov_deg=cfg.hfov_deg,
-        candidates=cfg.candidates,
-        p_sunsky=cfg.p_sunsky,
-        probe_height=cfg.probe_height,
-        block_length=cfg.block_length,
-    )
+    scfg = sample_config(cfg)
     gen = Generator(seed, scfg)
     per_scene = _split(probes, scenes)
     shot_no = 1

@@ -48,13 +48,14 @@ from solidkit.synth.campaign import (
     SCENE_FILE,
     SETTINGS_FILE,
     probe_exr_meta,
+    sample_config,
     scene_block,
     scene_lighting,
     write_truth_exr,
 )
 from solidkit.synth.campaign_truth import CampaignConfig, SceneTruth, TruthError, load_truth
 from solidkit.synth.mitsuba_variant import mitsuba, variant
-from solidkit.synth.sample import Generator, SampleConfig, derive_seed
+from solidkit.synth.sample import Generator, derive_seed
 from solidkit.synth.scene import to_mitsuba
 from solidkit.synth.truth_probes import PASS_SAMPLES, TRUTH_RENDER_VERSION, clean_truth_probe, psnr
 
@@ -188,15 +189,7 @@ def rerender_truth(
     known = {st.id for st in truth.scenes}
     if wanted and not wanted <= known:
         raise InputError(f"{root}: no scene {', '.join(sorted(wanted - known))} (scenes: {', '.join(sorted(known))})")
-    scfg = SampleConfig(
-        width=cfg.photo_width,
-        height=cfg.photo_height,
-        hfov_deg=cfg.hfov_deg,
-        candidates=cfg.candidates,
-        p_sunsky=cfg.p_sunsky,
-        probe_height=cfg.probe_height,
-        block_length=cfg.block_length,
-    )
+    scfg = sample_config(cfg)
     gen = Generator(truth.seed, scfg)
     target = noise_db or None
     mi = None
