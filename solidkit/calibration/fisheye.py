@@ -178,6 +178,7 @@ def fit_kb(views: Sequence[BoardView], pattern: tuple[int, int], square: float =
             break
         except cv2.error as exc:
             first_error = exc
+            # OpenCV names the ill-conditioned view only in its message ("input array N"): no code to read
             m = re.search(r"input array (\d+)", str(exc))
         # A bad view elsewhere can make a good one look ill-conditioned: fit without the check and
         # let fit_model's outlier rounds prune by reprojection error; drop the flagged view only
