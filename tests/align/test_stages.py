@@ -254,3 +254,30 @@ def test_outranked_candidates_are_explained_once_the_yaw_is_known() -> None:
     )
     assert cands[1].scores["distance_to_scene_sun_deg"] == pytest.approx(d)
     assert cands[0].reasons == []
+
+
+def test_a_photo_without_exif_intrinsics_gets_the_assumed_60_degree_view_and_a_flag(tmp_path):
+    """No focal length in the photo's EXIF: K of a 60° horizontal field of view, flagged ``no_intrinsics``
+    (the scene is still aligned, not dropped)."""
+    import math
+
+    from solidkit.align.captures import photo_shot_of
+    from solidkit.align.pipeline import _photo_info
+    from solidkit.capture.manifest import load_manifest
+    from solidkit.envmap.perspective import intrinsics_from_fov
+    from solidkit.flags import Flag, FlagCode
+    from tests.support.testset_campaign import PHOTO, make_campaign
+
+    make_campaign(tmp_path / "camp")
+    manifest = load_manifest(tmp_path / "camp")
+    scene = manifest.scenes[0]
+    shot = photo_shot_of(manifest, scene)
+    assert shot is not None
+    w, h = PHOTO
+    shot.metadata.update(path=shot.original, width=w, height=h)  # a camera's EXIF without any focal length
+    for key in ("focal_length_mm", "focal_length_35mm", "focal_plane_px_per_mm", "exif_width"):
+        shot.metadata.pop(key, None)
+    info, flags = _photo_info(tmp_path / "camp", manifest, scene)
+    assert info is not None and info.K_source == "assumed-hfov-60"
+    assert info.K_full == intrinsics_from_fov(math.radians(60.0), w, h).tolist()
+    assert str(FlagCode.NO_INTRINSICS) in [Flag.parse(f).code for f in flags]
