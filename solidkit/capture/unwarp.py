@@ -39,6 +39,7 @@ import math
 import os
 import shutil
 import time
+from collections.abc import Sequence
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 from typing import Any, cast
@@ -74,10 +75,12 @@ from solidkit.envmap.perspective import scale_pixel_coordinates
 from solidkit.envmap.resample import resize, rotate, sample_panorama
 from solidkit.envmap.sun import LUMINANCE_WEIGHTS
 from solidkit.envmap.tilt import TILT_FLAG_DEG, TiltEstimate, residual_tilt
-from solidkit.errors import InputError
+from solidkit.errors import InputError, SolidkitError
 from solidkit.fsutil import atomic_path, sha256_file
 
 __all__ = [
+    "CAPTURE_SUFFIXES",
+    "unwarp_files",
     "CACHE_SIZE",
     "UnwarpMaps",
     "build_maps",
@@ -690,3 +693,53 @@ def seam_step(gray: np.ndarray, cols_per_row: list, max_elevation_deg: float = 6
     if not steps:
         return {"step": math.nan, "baseline": math.nan}
     return {"step": float(np.mean(steps)), "baseline": float(np.mean(base))}
+
+
+CAPTURE_SUFFIXES = (".jpg", ".jpeg", ".dng", ".exr", ".png", ".tif", ".tiff")
+"""Files :func:`unwarp_files` takes from a folder (by suffix, any case)."""
+
+
+def unwarp_files(
+    sources: Sequence[str | os.PathLike], out_dir: str | os.PathLike, *, fmt: str = "exr", **options: Any
+) -> list[dict[str, Any]]:
+    """Several captures (files, or folders whose :data:`CAPTURE_SUFFIXES` files are taken, sorted) unwarped
+    in one process, each into ``out_dir/<stem>.<fmt>`` (``fmt``: ``exr``, ``png`` or ``jpg``) by
+    :func:`unwarp_file` with ``options``; the remap tables of one camera and size are built once.
+
+    Returns one summary per capture, in order; a capture that cannot be unwarped gets
+    ``{"input", "output", "error"}`` and the others go on. Two captures that would write the same output,
+    or an output that is one of the inputs, are refused (:class:`InputError`) before any work.
+    """
+    if fmt not in ("exr", "png", "jpg"):
+        raise InputError(f"--format must be exr, png or jpg, got {fmt!r}")
+    files: list[Path] = []
+    for src in map(Path, sources):
+        if src.is_dir():
+            found = sorted(p for p in src.iterdir() if p.is_file() and p.suffix.lower() in CAPTURE_SUFFIXES)
+            if not found:
+                raise InputError(f"{src}: no capture files ({', '.join(CAPTURE_SUFFIXES)}) in this folder")
+            files += found
+        elif src.is_file():
+            files.append(src)
+        else:
+            raise InputError(f"{src}: no such file or folder")
+    out = Path(out_dir)
+    if out.exists() and not out.is_dir():
+        raise InputError(f"{out}: exists and is not a folder (several captures write one file each into a folder)")
+    targets = [out / f"{f.stem}.{fmt}" for f in files]
+    seen: dict[Path, Path] = {}
+    inputs = {f.resolve() for f in files}
+    for f, t in zip(files, targets):
+        if t.resolve() in inputs:
+            raise InputError(f"{t}: refusing to overwrite an input (originals are never modified)")
+        if t in seen:
+            raise InputError(f"{seen[t]} and {f} would both write {t}: unwarp them into separate folders")
+        seen[t] = f
+    out.mkdir(parents=True, exist_ok=True)
+    results = []
+    for f, t in zip(files, targets):
+        try:
+            results.append(unwarp_file(f, t, **options))
+        except SolidkitError as exc:
+            results.append({"input": str(f), "output": str(t), "error": str(exc)})
+    return results

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
+from typing import Any
 
 import typer
 from rich.console import Console
@@ -157,10 +158,49 @@ def merge(
             console.print(f"[yellow]warning[/] {escape(w)}")
 
 
+def _print_many(results: list[dict], out: Path, as_json: bool) -> None:
+    """One row per capture of a multi-capture unwarp (or the summaries as JSON)."""
+    if as_json:
+        echo_json(results, indent=1, default=str)
+        return
+    table = Table(title=escape(f"{len(results)} captures -> {out}"))
+    for col in ("capture", "mode", "seam error", "coverage", "time", "notes"):
+        table.add_column(col)
+    for r in results:
+        if "error" in r:
+            table.add_row(escape(Path(r["input"]).name), "[red]failed[/]", "", "", "", escape(r["error"]))
+            continue
+        fit = r.get("profile_fit") or {}
+        seam = fit.get("seam_error")
+        table.add_row(
+            escape(Path(r["input"]).name),
+            escape(r["mode"]),
+            "" if seam is None else f"{seam:.3f}",
+            f"{100 * r['coverage']:.2f} %" if "coverage" in r else "",
+            f"{r['seconds']:.2f} s",
+            escape("; ".join(r["warnings"])),
+        )
+    console.print(table)
+    failed = sum("error" in r for r in results)
+    total = sum(r.get("seconds", 0.0) for r in results)
+    console.print(f"{len(results) - failed} unwarped, {failed} failed; {total:.1f} s in all")
+
+
 @app.command()
 def unwarp(
-    src: Path = typer.Argument(..., help="Dual-fisheye (JPEG, DNG, EXR) or stitched equirect capture."),
-    out: Path = typer.Option(..., "-o", "--out", help="Output panorama: .exr (linear HDR) or .png/.jpg (sRGB)."),
+    sources: list[Path] = typer.Argument(
+        ..., help="Dual-fisheye (JPEG, DNG, EXR) or stitched equirect captures, or folders of them."
+    ),
+    out: Path = typer.Option(
+        ...,
+        "-o",
+        "--out",
+        help=(
+            "One capture: the output panorama, .exr (linear HDR) or .png/.jpg (sRGB). Several captures or a folder: "
+            "the output folder (one <stem>.<--format> each)."
+        ),
+    ),
+    fmt: str = typer.Option("exr", "--format", help="Output type of several captures: exr, png or jpg."),
     profile: str | None = typer.Option(
         None,
         "--profile",
@@ -205,12 +245,10 @@ def unwarp(
     """Dual-fisheye -> equirectangular panorama in the panorama frame (docs/conventions.md)."""
     out_height = parse_size(size, "--size", equirect=True)[1] if size is not None else None
     feather = parse_angle(feather, "--feather", 0.0, 180.0)
-    from solidkit.capture.unwarp import default_cache_dir
+    from solidkit.capture.unwarp import default_cache_dir, unwarp_files
 
     cache_dir = (cache_dir or default_cache_dir()) if disk_cache else None
-    s = unwarp_file(
-        src,
-        out,
+    options: dict[str, Any] = dict(
         profile=profile,
         out_height=out_height,
         feather_deg=feather,
@@ -219,6 +257,13 @@ def unwarp(
         cache_dir=cache_dir,
         vignetting=vignetting,
     )
+    if len(sources) > 1 or sources[0].is_dir():
+        results = unwarp_files(sources, out, fmt=fmt, **options)
+        _print_many(results, out, as_json)
+        if any("error" in r for r in results):
+            raise typer.Exit(2)
+        return
+    s = unwarp_file(sources[0], out, **options)
     if as_json:
         echo_json(s, indent=1, default=str)
         return

@@ -497,3 +497,50 @@ def test_a_profile_that_does_not_fit_the_frame_is_not_silent(tmp_path):
     )
     _, warns = check_image_circles(fish, smaller)
     assert len(warns) == 2
+
+
+def test_cli_unwarps_a_folder_and_several_files_in_one_call(tmp_path, cli):
+    """Several captures in one call: one panorama each in the output folder, as one-file calls make them; a
+    capture that fails is reported and the others are still made (exit 2); clashing outputs are refused first."""
+    import json
+    from pathlib import Path
+
+    card = Path(__file__).resolve().parents[2] / "solidkit" / "assets" / "campaign_mini" / "card" / "scene02"
+    folder = tmp_path / "in"
+    shutil.copytree(card / "cam", folder)
+    (folder / "R0010099.JPG").write_bytes(b"")  # an empty file: a clear error for it alone
+    code, out, err = cli(
+        "capture",
+        "unwarp",
+        str(folder),
+        "-o",
+        str(tmp_path / "out"),
+        "--format",
+        "png",
+        "--size",
+        "256x128",
+        "--no-disk-cache",
+        "--json",
+    )
+    assert code == 2, err
+    results = json.loads(out)
+    assert [Path(r["input"]).name for r in results] == ["R0010010.JPG", "R0010011.JPG", "R0010012.JPG", "R0010099.JPG"]
+    assert "error" in results[-1] and all("error" not in r for r in results[:3])
+    one = tmp_path / "one.png"
+    code, _, err = cli(
+        "capture", "unwarp", str(folder / "R0010011.JPG"), "-o", str(one), "--size", "256x128", "--no-disk-cache"
+    )
+    assert code == 0, err
+    assert (tmp_path / "out" / "R0010011.png").read_bytes() == one.read_bytes()
+    code, _, err = cli(
+        "capture",
+        "unwarp",
+        str(folder / "R0010010.JPG"),
+        str(card / "p01" / "R0010013.JPG"),
+        str(folder / "R0010010.JPG"),
+        "-o",
+        str(tmp_path / "clash"),
+        "--size",
+        "256x128",
+    )
+    assert code == 2 and "would both write" in err and not (tmp_path / "clash").exists()
