@@ -317,3 +317,17 @@ def test_traversal_404_and_token_401(server, browser, campaign):
     finally:
         srv.should_exit = True
         thread.join(5)
+
+
+def test_the_mark_readout_follows_the_visible_panel_after_switching_tasks(server, browser, campaign):
+    """After the Sun panel has been shown, a click on the probe photo updates the Probe pixels panel's own
+    "Your mark" readout (each panel writes into its own element, not the first one in the page)."""
+    page, errors = open_page(browser, f"{server}/#task=sun&key=s1/p1")
+    loaded(page, "sun", "s1/p1")
+    goto(page, "probe_pixel", "s1/p1")
+    x, y = blob(page, "#pixel-view", (255, 0, 0), tol=120)
+    page.mouse.click(x, y)
+    shown = page.locator("#draft-value:visible")
+    assert shown.count() == 1
+    assert numbers(shown.text_content()), shown.text_content()  # pixel coordinates, not "click the photo"
+    assert not errors

@@ -62,9 +62,9 @@ export class HeadingTask {
     this.yaw = +wrap180(y).toFixed(3);
     this.touched = true;
     this.renderMarkers();
-    const v = $('#draft-value');
+    const v = $('#draft-value', this.panel);
     if (v) v.textContent = formatValue('heading', { yaw_deg: this.yaw });
-    if (!dragging) { const i = $('#yaw-input'); if (i) i.value = +this.yaw.toFixed(2); }
+    if (!dragging) { const i = $('#yaw-input', this.panel); if (i) i.value = +this.yaw.toFixed(2); }
   }
 
   insideFrame(e) {
@@ -142,7 +142,7 @@ export class HeadingTask {
       case 's': case 'S': this.saveDraft(); return true;
       case 'f': this.lookThrough(); return true;
       case 'o': {
-        const s = $('#overlay');
+        const s = $('#overlay', this.panel);
         this.overlayOn = this.overlay > 0 ? this.overlay : (this.overlayOn || 0.5);
         if (s) { s.value = this.overlay > 0 ? 0 : this.overlayOn; s.dispatchEvent(new Event('input')); }
         return true;
@@ -151,7 +151,7 @@ export class HeadingTask {
       case 'ArrowRight': this.setYaw(this.yaw - step); return true;
       case '[': case ']': {
         this.exposure = Math.max(-4, Math.min(8, this.exposure + (k === ']' ? 0.5 : -0.5)));
-        const s = $('#exposure-h'); if (s) { s.value = this.exposure; s.dispatchEvent(new Event('input')); }
+        const s = $('#exposure-h', this.panel); if (s) { s.value = this.exposure; s.dispatchEvent(new Event('input')); }
         return true;
       }
       default: return false;

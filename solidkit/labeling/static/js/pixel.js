@@ -37,7 +37,7 @@ export class PixelTask {
     const info = this.item.view.photo.image;
     this.draft = { x: +Math.max(-0.5, Math.min(info.width - 0.5, p.x)).toFixed(2), y: +Math.max(-0.5, Math.min(info.height - 0.5, p.y)).toFixed(2) };
     this.renderMarkers();
-    $('#draft-value').textContent = formatValue('probe_pixel', this.draft);
+    $('#draft-value', this.panel).textContent = formatValue('probe_pixel', this.draft);
   }
 
   renderMarkers() {

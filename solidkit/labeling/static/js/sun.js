@@ -57,7 +57,7 @@ export class SunTask {
     this.draft = { found: true, azimuth_deg: +d.azimuth_deg.toFixed(4), elevation_deg: +d.elevation_deg.toFixed(4) };
     this.renderMarkers();
     if (!dragging) this.renderPanel();
-    else $('#draft-value').textContent = formatValue('sun', this.value());
+    else $('#draft-value', this.panel).textContent = formatValue('sun', this.value());
   }
 
   value() { return this.draft ? { ...this.draft, uncertainty_deg: this.unc } : null; }
@@ -166,7 +166,7 @@ export class SunTask {
       savedLine(app, it),
       el('div', { class: 'row' }, el('span', { class: 'swatch draft' }), 'Your mark: ', el('b', { id: 'draft-value' }, this.draft ? formatValue('sun', this.value()) : 'click the sun’s centre')),
       opinionsBlock(app, it),
-      slider('unc', 'Uncertainty', 0, UNC_STEPS.length - 1, 1, nearestStep(this.unc), i => `±${UNC_STEPS[i]}°`, i => { this.unc = UNC_STEPS[i]; this.renderMarkers(); $('#draft-value').textContent = this.draft ? formatValue('sun', this.value()) : 'click the sun’s centre'; }),
+      slider('unc', 'Uncertainty', 0, UNC_STEPS.length - 1, 1, nearestStep(this.unc), i => `±${UNC_STEPS[i]}°`, i => { this.unc = UNC_STEPS[i]; this.renderMarkers(); $('#draft-value', this.panel).textContent = this.draft ? formatValue('sun', this.value()) : 'click the sun’s centre'; }),
       slider('exposure', 'Exposure', -4, 8, 0.5, this.exposure, v => `${v > 0 ? '+' : ''}${v} EV`, v => { this.exposure = v; this.sphere.setExposure(v); }),
       el('div', { class: 'buttons' },
         button('Accept auto', 'A', () => this.accept(), 'btn-accept', 'primary'),
@@ -214,12 +214,12 @@ export class SunTask {
       case 'ArrowDown': nudge(0, -step); return true;
       case '[': case ']': {
         this.exposure = Math.max(-4, Math.min(8, this.exposure + (k === ']' ? 0.5 : -0.5)));
-        this.sphere.setExposure(this.exposure); const s = $('#exposure'); if (s) { s.value = this.exposure; s.dispatchEvent(new Event('input')); }
+        this.sphere.setExposure(this.exposure); const s = $('#exposure', this.panel); if (s) { s.value = this.exposure; s.dispatchEvent(new Event('input')); }
         return true;
       }
       case '-': case '=': case '+': {
         const i = Math.max(0, Math.min(UNC_STEPS.length - 1, nearestStep(this.unc) + (k === '-' ? -1 : 1)));
-        const s = $('#unc'); if (s) { s.value = i; s.dispatchEvent(new Event('input')); }
+        const s = $('#unc', this.panel); if (s) { s.value = i; s.dispatchEvent(new Event('input')); }
         return true;
       }
       default: return false;
