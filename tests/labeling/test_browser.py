@@ -331,3 +331,21 @@ def test_the_mark_readout_follows_the_visible_panel_after_switching_tasks(server
     assert shown.count() == 1
     assert numbers(shown.text_content()), shown.text_content()  # pixel coordinates, not "click the photo"
     assert not errors
+
+
+def test_blind_mode_hides_the_other_annotators_values_in_the_history(server, browser, campaign):
+    """Blind: the History block lists only the annotator's own changes, never another's value."""
+    store = LabelStore(campaign[0])
+    store.put("probe_pixel", "s1/p2", {"x": 123.0, "y": 45.0}, source="annotator", annotator="carol")
+    page, errors = open_page(browser, f"{server}/#task=probe_pixel&key=s1/p2", "dave")
+    loaded(page, "probe_pixel", "s1/p2")
+    page.evaluate("() => { localStorage.setItem('solidkit.blind', '1'); }")
+    page.reload()
+    loaded(page, "probe_pixel", "s1/p2")
+    panel = page.locator("#pixel-panel").text_content()
+    assert "carol" not in panel and "123" not in panel, panel
+    page.evaluate("() => { localStorage.setItem('solidkit.blind', '0'); }")
+    page.reload()
+    loaded(page, "probe_pixel", "s1/p2")
+    assert "carol" in page.locator("#pixel-panel").text_content()  # seen again once not blind
+    assert not errors

@@ -119,7 +119,7 @@ export class HeadingTask {
       v.photo.outline ? null : el('div', { class: 'row warn' }, `No photo intrinsics (${v.photo.K_source}); the frame cannot be drawn.`),
       cues.length && !this.hidden() ? el('details', { class: 'cands' }, el('summary', {}, `Align cues (${cues.length})`),
         el('ul', {}, cues.map(([n, c]) => el('li', {}, `${n}: ${c.yaw_deg == null ? '–' : f2(c.yaw_deg) + '°'} `, el('span', { class: 'muted' }, `${c.ok ? 'ok' : 'not used'} ${c.detail || ''}`))))) : null,
-      historyBlock(it),
+      historyBlock(app, it),
     );
   }
 

@@ -71,7 +71,7 @@ export class PixelTask {
         button('Zoom to mark', 'Z', () => this.zoomTo(), 'btn-zoom'),
         button('Fit photo', '0', () => this.flat.fit(), 'btn-fit')),
       el('div', { class: 'muted small' }, `Photo ${v.photo.image.width}×${v.photo.image.height} px; coordinates are full-resolution pixels (pixel centres at integers).`),
-      historyBlock(it),
+      historyBlock(app, it),
     );
   }
 

@@ -178,7 +178,7 @@ export class SunTask {
       rejected.length && !this.hidden() ? el('details', { class: 'cands', open: true }, el('summary', {}, `Rejected candidates (${rejected.length})`),
         el('ul', {}, rejected.map(c => el('li', { onclick: () => this.sphere.lookAt(c.azimuth_deg, c.elevation_deg, 15) },
           `az ${f2(wrap180(c.azimuth_deg), 1)}°, el ${f2(c.elevation_deg, 1)}°: `, el('span', { class: 'muted' }, (c.reasons || []).join('; ')))))) : null,
-      historyBlock(it),
+      historyBlock(app, it),
     );
   }
 

@@ -52,10 +52,14 @@ export function opinionsBlock(app, item) {
     el('ul', {}, names.map(n => el('li', {}, `${n}: ${formatValue(item.kind, ops[n].value)}`))));
 }
 
-export function historyBlock(item) {
-  if (!item.history.length) return null;
-  return el('details', { class: 'history' }, el('summary', {}, `History (${item.history.length})`),
-    el('ol', {}, item.history.slice().reverse().map(h => el('li', {},
+export function historyBlock(app, item) {
+  // blind: only the annotator's own changes (another's value, or align's, would tell them the answer)
+  const blind = app.blind && !app.reviewing;
+  const rows = blind ? item.history.filter(h => h.actor === app.annotator) : item.history;
+  if (!rows.length) return null;
+  const title = blind ? `Your history (${rows.length}; others hidden in blind mode)` : `History (${rows.length})`;
+  return el('details', { class: 'history' }, el('summary', {}, title),
+    el('ol', {}, rows.slice().reverse().map(h => el('li', {},
       `v${h.version} ${h.op}${h.applied ? '' : ' (not applied)'} by ${h.actor}: `,
       h.value ? formatValue(item.kind, h.value) : 'removed',
       el('span', { class: 'muted' }, ` ${h.source || ''} · ${h.time.slice(0, 19).replace('T', ' ')}`)))));
