@@ -349,3 +349,17 @@ def test_blind_mode_hides_the_other_annotators_values_in_the_history(server, bro
     loaded(page, "probe_pixel", "s1/p2")
     assert "carol" in page.locator("#pixel-panel").text_content()  # seen again once not blind
     assert not errors
+
+
+def test_wheel_zoom_stops_at_a_five_degree_view(server, browser, campaign):
+    """Zooming in with the wheel stops at a 5° field of view (the sun a tenth of it), not at 1°."""
+    page, errors = open_page(browser, f"{server}/#task=sun&key=s1/p1")
+    loaded(page, "sun", "s1/p1")
+    box = page.locator("#sun-sphere").bounding_box()
+    page.mouse.move(box["x"] + box["width"] / 2, box["y"] + box["height"] / 2)
+    for _ in range(40):
+        page.mouse.wheel(0, -400)
+    page.wait_for_timeout(300)
+    fov = page.evaluate("() => window.solidkitApp.controller('sun').sphere.view().fov")
+    assert fov == pytest.approx(5.0, abs=0.3)
+    assert not errors
