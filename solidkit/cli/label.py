@@ -38,6 +38,25 @@ def _alignment(campaign: Path) -> dict | None:
     return load_alignment(campaign).model_dump(mode="json")
 
 
+def app_url(host: str, port: int) -> str:
+    """The address annotators open: a wildcard bind is reached on loopback, an IPv6 host goes in brackets."""
+    if host in ("0.0.0.0", "::", "[::]"):
+        host = "127.0.0.1"
+    bare = host.strip("[]")
+    return f"http://[{bare}]:{port}/" if ":" in bare else f"http://{bare}:{port}/"
+
+
+def read_token(path: Path) -> str:
+    """The token on the first line of ``path`` (surrounding white space dropped); a clear error otherwise."""
+    try:
+        lines = path.read_text(encoding="utf-8").splitlines()
+    except (OSError, UnicodeDecodeError) as exc:
+        raise InputError(f"{path}: cannot read the token file ({exc})") from None
+    if not lines or not lines[0].strip():
+        raise InputError(f"{path}: the token file is empty")
+    return lines[0].strip()
+
+
 @app.command()
 def serve(
     campaign: Path = typer.Argument(..., help="Campaign folder (manifest.json; labels go to CAMPAIGN/labels/)."),
@@ -46,8 +65,14 @@ def serve(
     token: str | None = typer.Option(
         None,
         envvar="SOLIDKIT_LABEL_TOKEN",
-        help="Access token (also from $SOLIDKIT_LABEL_TOKEN). Generated and printed when binding beyond loopback.",
-    ),  # fmt: skip
+        help=(
+            "Access token; prefer $SOLIDKIT_LABEL_TOKEN or --token-file (a --token value is visible to every local "
+            "user in the process list). Generated and printed when binding beyond loopback."
+        ),
+    ),
+    token_file: Path | None = typer.Option(
+        None, "--token-file", help="Read the access token from the first line of this file (kept out of `ps`)."
+    ),
 ) -> None:
     """Start the browser labeling app: sun centroids, probe pixels, headings, review."""
     # fastapi/uvicorn load here, not at import: `solidkit --help` and every other command stay fast.
@@ -58,7 +83,11 @@ def serve(
     if not campaign.is_dir():
         raise InputError(f"{campaign}: campaign folder not found")
     if not (campaign / "manifest.json").is_file():
-        raise InputError(f"{campaign}: no manifest.json (run `solidkit ingest CARD {campaign}` first)")
+        raise InputError(f"{campaign}: no manifest.json (run `solidkit ingest CARD -o {campaign}` first)")
+    if token_file is not None:
+        if token is not None:
+            raise InputError("give the token once: --token (or $SOLIDKIT_LABEL_TOKEN) or --token-file")
+        token = read_token(token_file)
     if token is not None and len(token) < 16:
         raise InputError("--token: use at least 16 characters")
     local = _is_loopback(host)
@@ -68,8 +97,7 @@ def serve(
     wildcard = host in ("0.0.0.0", "::", "[::]")
     allowed = ["*"] if wildcard else [host.strip("[]"), host, *LOOPBACK_HOSTS]
     app_ = create_app(campaign, alignment=_alignment(campaign), token=token, allowed_hosts=allowed)
-    shown = "127.0.0.1" if wildcard else host
-    typer.echo(f"labeling {campaign} at http://{shown}:{port}/  (Ctrl+C to stop)", err=True)
+    typer.echo(f"labeling {campaign} at {app_url(host, port)}  (Ctrl+C to stop)", err=True)
     uvicorn.run(app_, host=host.strip("[]"), port=port, log_level="warning", server_header=False)
 
 
