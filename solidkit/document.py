@@ -69,17 +69,30 @@ def make_provenance(
     return Provenance(inputs=files, created=now, solidkit_version=__version__, tool=tool, parameters=parameters)
 
 
+def _no_constant(name: str) -> Any:
+    raise ValueError(f"{name} is not a JSON number")
+
+
 def read_json_object(
-    path: str | os.PathLike[str], error: type[InputError] = DocumentError, what: str = "document"
+    path: str | os.PathLike[str],
+    error: type[InputError] = DocumentError,
+    what: str = "document",
+    *,
+    finite: bool = False,
 ) -> dict[str, Any]:
-    """The JSON object in ``path``; ``error`` (one line) when the file is missing, unreadable or not an object."""
+    """The JSON object in ``path``; ``error`` (one line) when the file is missing, unreadable, nested too deep
+    to parse or not an object. ``finite``: ``NaN`` / ``Infinity`` (which Python's json accepts, JSON does not)
+    are an error too (documents written with ``allow_nan=False``)."""
     path = Path(path)
     if not path.is_file():
         raise error(f"{path}: no such {what} file")
     try:
-        data = json.loads(path.read_text(encoding="utf-8"))
+        text = path.read_text(encoding="utf-8")
+        data = json.loads(text, parse_constant=_no_constant) if finite else json.loads(text)
     except (OSError, UnicodeDecodeError, ValueError) as exc:
         raise error(f"{path}: not a JSON {what} ({exc})") from None
+    except RecursionError:
+        raise error(f"{path}: not a JSON {what} (nested too deep)") from None
     if not isinstance(data, dict):
         raise error(f"{path}: a {what} is a JSON object")
     return data

@@ -665,7 +665,7 @@ def load_testset(root: str | os.PathLike) -> TestSet:
     path = Path(root) / MANIFEST_FILE
     if not path.is_file():
         raise InputError(f"{root}: not a test set (no {MANIFEST_FILE})")
-    data = read_json_object(path, InputError, "test set manifest")
+    data = read_json_object(path, InputError, "test set manifest", finite=True)
     return validate_versioned(
         path,
         data,

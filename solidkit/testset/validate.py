@@ -26,7 +26,7 @@ from __future__ import annotations
 import math
 import os
 from dataclasses import asdict, dataclass
-from pathlib import Path
+from pathlib import Path, PurePosixPath
 from typing import Any
 
 import numpy as np
@@ -86,13 +86,18 @@ class _Checker:
             )
         for rel, entry in ts.files.items():
             p = root / rel
-            if not p.is_file():
+            why = _unsafe_path(root, rel)
+            if why:
+                self.add("files", _scene_of(rel), rel, why)
+                self.bad_files.add(rel)
+            elif not p.is_file():
                 self.add("files", _scene_of(rel), rel, "missing")
                 self.bad_files.add(rel)
             elif p.stat().st_size != entry.bytes or sha256_file(p) != entry.sha256:
                 self.add("files", _scene_of(rel), rel, "checksum mismatch (changed or corrupt)")
                 self.bad_files.add(rel)
-        on_disk = {p.relative_to(root).as_posix() for p in root.rglob("*") if p.is_file()} - {MANIFEST_FILE}
+        on_disk = {p.relative_to(root).as_posix() for p in root.rglob("*") if p.is_file() or p.is_symlink()}
+        on_disk -= {MANIFEST_FILE}
         for rel in sorted(on_disk - set(ts.files)):
             self.add("files", _scene_of(rel), rel, "not listed in testset.json")
         for scene in ts.scenes:
@@ -335,6 +340,21 @@ def _paths(scene: Scene) -> list[str]:
     return out
 
 
+def _unsafe_path(root: Path, rel: str) -> str | None:
+    """Why the file entry ``rel`` must not be opened (``None``: a plain file path inside the test set)."""
+    parts = PurePosixPath(rel).parts
+    if not rel or PurePosixPath(rel).is_absolute() or "\\" in rel or ":" in (parts[0] if parts else ""):
+        return "not a relative path inside the test set (absolute, or a drive or backslash)"
+    if ".." in parts:
+        return "a path that leaves the test set ('..')"
+    p = root
+    for part in parts:
+        p = p / part
+        if p.is_symlink():
+            return f"a link ({p.relative_to(root).as_posix()} -> {os.readlink(p)}): a test set holds plain files only"
+    return None
+
+
 def _scene_of(rel: str) -> str | None:
     parts = rel.split("/")
     return parts[1] if len(parts) > 2 and parts[0] == "scenes" else None
@@ -364,4 +384,8 @@ def validate_testset(root: str | os.PathLike, *, allow_flagged: bool = False) ->
     ids = [s.id for s in ts.scenes]
     if len(set(ids)) != len(ids):
         c.add("schema", None, MANIFEST_FILE, "scene ids are not unique")
+    for s in ts.scenes:
+        pids = [p.id for p in s.probes]
+        for pid in sorted({p for p in pids if pids.count(p) > 1}):
+            c.add("schema", s.id, MANIFEST_FILE, f"probe {pid} is listed {pids.count(pid)} times")
     return c.problems

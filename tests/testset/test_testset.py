@@ -188,7 +188,24 @@ def _skew(data):
     data["scenes"][0]["probes"][1]["rotation"][0][1] += 0.05
 
 
+def _outside_entry(data):
+    entry = next(iter(data["files"].values()))
+    data["files"]["scenes/sA/../../outside.txt"] = dict(entry)
+
+
+def _twice(data):
+    data["scenes"][0]["probes"].append(json.loads(json.dumps(data["scenes"][0]["probes"][0])))
+
+
+def _link(root: Path) -> None:
+    (root / "scenes/sA/photo.png").unlink()
+    (root / "scenes/sA/photo.png").symlink_to("/etc/hostname")
+
+
 FAULTS = {
+    "a path leaving the set": (lambda r: _edit(r, _outside_entry), "files", "scenes/sA/../../outside.txt", "'..'"),
+    "a link to a system file": (_link, "files", "scenes/sA/photo.png", "a link"),
+    "a probe listed twice": (lambda r: _edit(r, _twice), "schema", "testset.json", "listed 2 times"),
     "missing file": (
         lambda r: (r / "scenes/sA/probes/p01/hdr.exr").unlink(),
         "files",
@@ -219,6 +236,31 @@ def test_validate_catches_each_fault(fault, built, tmp_path, cli):
     assert hits and hits[0].scene == "sA", problems
     code, out, _ = cli("testset", "validate", root, "--json")
     assert code == 1 and not json.loads(out)["valid"]
+
+
+@pytest.mark.parametrize(
+    ("name", "text", "words"),
+    [
+        ("an absolute path", None, "not a relative path"),
+        ("NaN in a float field", "NaN", "not a JSON number"),
+        ("nesting 100,000 deep", "[" * 100_000 + "]" * 100_000, "nested too deep"),
+    ],
+)
+def test_validate_reports_manifests_that_cannot_be_trusted(name, text, words, built, tmp_path, cli):
+    """Each is a problem line (exit 1), never an internal error, and nothing outside the set is opened."""
+    root = tmp_path / "ts"
+    shutil.copytree(built, root)
+    manifest = root / "testset.json"
+    if text is None:
+        _edit(root, lambda d: d["files"].update({"/etc/hostname": dict(next(iter(d["files"].values())))}))
+    elif text == "NaN":
+        manifest.write_text(manifest.read_text().replace('"uncertainty_deg": ', '"uncertainty_deg": NaN, "x": ', 1))
+    else:
+        manifest.write_text(text)
+    problems = validate_testset(root)
+    assert any(words in p.message for p in problems), problems
+    code, out, err = cli("testset", "validate", root, "--json")
+    assert code == 1 and not json.loads(out)["valid"], err
 
 
 def test_validate_clean_cli_and_bad_input(built, tmp_path, cli):
