@@ -25,8 +25,9 @@ from pathlib import Path
 
 import numpy as np
 
+from solidkit.synth.campaign import sample_config
 from solidkit.synth.mitsuba_variant import mitsuba, variant
-from solidkit.synth.sample import Generator, SampleConfig, derive_seed
+from solidkit.synth.sample import Generator, derive_seed
 from solidkit.synth.truth_probes import render_truth_probe
 from solidkit.synth.truth_rerender import _rebuild, _scene_index, read_campaign
 
@@ -43,18 +44,7 @@ def main() -> None:
     spps = [int(s) for s in args.spp.split(",")]
     _, truth = read_campaign(args.campaign)
     cfg = truth.config
-    gen = Generator(
-        truth.seed,
-        SampleConfig(
-            width=cfg.photo_width,
-            height=cfg.photo_height,
-            hfov_deg=cfg.hfov_deg,
-            candidates=cfg.candidates,
-            p_sunsky=cfg.p_sunsky,
-            probe_height=cfg.probe_height,
-            block_length=cfg.block_length,
-        ),
-    )
+    gen = Generator(truth.seed, sample_config(cfg))
     mi = mitsuba()
     rows = []
     for st in truth.scenes:
