@@ -23,10 +23,21 @@ import numpy as np
 
 from solidkit.envmap.coords import angular_distance, direction_from_angles, wrap_angle
 from solidkit.flags import Flag, FlagCode, has_code
-from solidkit.labeling.store import HUMAN_SOURCES, Change, Label, LabelStore, opinions
+from solidkit.labeling.store import HUMAN_SOURCES, Change, Label, LabelStore, Note, Verdict, opinions
 from solidkit.labeling.tasks import CampaignIndex, Item
 
-__all__ = ["THRESHOLDS", "UNITS", "distance", "disagreement_flag", "Review", "review_item", "review_all"]
+__all__ = [
+    "THRESHOLDS",
+    "UNITS",
+    "distance",
+    "disagreement_flag",
+    "Review",
+    "review_item",
+    "review_all",
+    "own_values",
+    "user_status",
+    "agreement",
+]
 
 #: disagreement worth a reviewer's look (label units)
 THRESHOLDS = {"sun": 1.0, "sun_scene": 1.0, "probe_pixel": 12.0, "heading": 2.0}
@@ -142,4 +153,107 @@ def review_all(index: CampaignIndex, store: LabelStore, kinds: tuple[str, ...] |
         histories = store.histories(kind)
         for key, item in index.items[kind].items():
             out.append(review_item(item, labels.get(key), histories.get(key, [])))
+    return out
+
+
+def own_values(history: list[Change]) -> dict[str, Change]:
+    """Each annotator's latest value of one label over its whole history (reviews included),
+    ``source = "annotator"`` only: what each of them said. ``{annotator: Change}``."""
+    return {who: ch for who, ch in opinions(history, since_review=False).items() if ch.source == "annotator"}
+
+
+def user_status(
+    item: Item,
+    label: Label | None,
+    history: list[Change],
+    user: str,
+    verdicts: list[Verdict],
+    note: Note | None,
+) -> dict[str, Any]:
+    """An item as one annotator's queue shows it: ``{"status", "comment", "note"}``.
+
+    ``status``: ``returned`` (a reviewer rejected this annotator's current value: ``comment``
+    says why), ``done`` (their value, a skip, or a reviewed label settled it), ``flagged``
+    (align/ flagged it) or ``left``. Another annotator's label never makes it done.
+    """
+    mine = own_values(history).get(user)
+    settled = label is not None and label.source == "reviewed"
+    if mine is not None:
+        rejects = [v for v in verdicts if v.annotator == user and v.event == mine.id and v.verdict == "reject"]
+        if rejects and not (settled and cast(Label, label).time > rejects[-1].time):
+            return {"status": "returned", "comment": rejects[-1].comment, "reviewer": rejects[-1].reviewer}
+        return {"status": "done"}
+    if note is not None and note.skip:
+        return {"status": "done", "skipped": note.text}
+    if settled:
+        return {"status": "done"}
+    return {"status": "flagged" if item.flags else "left"}
+
+
+def _stats(values: list[float]) -> dict[str, Any]:
+    finite = [v for v in values if math.isfinite(v)]
+    out: dict[str, Any] = {"n": len(values), "mismatch": len(values) - len(finite)}
+    if finite:
+        out["median"] = round(float(np.median(finite)), 4)
+        out["p95"] = round(float(np.percentile(finite, 95)), 4)
+    else:
+        out["median"] = out["p95"] = None
+    return out
+
+
+def agreement(index: CampaignIndex, store: LabelStore, kinds: tuple[str, ...] | None = None) -> dict[str, Any]:
+    """Agreement summary per task and per annotator.
+
+    For each task: every annotator's latest value of every item (:func:`own_values`) against
+    the other annotators' values of the same item (``vs_others``: one distance per pair, in
+    :data:`UNITS`) and against the reviewed label where a reviewer settled it (``vs_reviewed``).
+    Each set of distances is summarised as ``{n, median, p95, mismatch}`` (``mismatch``:
+    "found" against "no sun visible", left out of median and p95). Per annotator also the
+    counts of items labelled, rejected and skipped.
+    """
+    kinds = kinds or tuple(index.items)
+    verdicts = store.verdicts()
+    notes = store.notes()
+    out: dict[str, Any] = {}
+    for kind in kinds:
+        labels = {lab.key: lab for lab in store.list(kind)}
+        histories = store.histories(kind)
+        pairs: list[float] = []
+        vs_rev: list[float] = []
+        per: dict[str, dict[str, list[float]]] = {}
+        counts: dict[str, dict[str, int]] = {}
+        for key in index.items.get(kind, {}):
+            vals = own_values(histories.get(key, []))
+            lab = labels.get(key)
+            reviewed = lab.value if lab is not None and lab.source == "reviewed" else None
+            names = sorted(vals)
+            for a in names:
+                mine = per.setdefault(a, {"vs_others": [], "vs_reviewed": []})
+                counts.setdefault(a, {"labelled": 0, "rejected": 0, "skipped": 0})["labelled"] += 1
+                for b in names:
+                    d = distance(kind, vals[a].value, vals[b].value) if b != a else None
+                    if d is not None:
+                        mine["vs_others"].append(d)
+                        if b > a:
+                            pairs.append(d)
+                d = distance(kind, vals[a].value, reviewed)
+                if d is not None:
+                    mine["vs_reviewed"].append(d)
+                    vs_rev.append(d)
+        for v in verdicts:
+            if v.kind == kind and v.verdict == "reject":
+                counts.setdefault(v.annotator, {"labelled": 0, "rejected": 0, "skipped": 0})["rejected"] += 1
+        for (k, _key, who), note in notes.items():
+            if k == kind and note.skip:
+                counts.setdefault(who, {"labelled": 0, "rejected": 0, "skipped": 0})["skipped"] += 1
+        out[kind] = {
+            "unit": UNITS[kind],
+            "threshold": THRESHOLDS[kind],
+            "task": {"vs_others": _stats(pairs), "vs_reviewed": _stats(vs_rev)},
+            "annotators": {
+                who: counts[who]
+                | {name: _stats(d) for name, d in per.get(who, {"vs_others": [], "vs_reviewed": []}).items()}
+                for who in sorted(counts)
+            },
+        }
     return out

@@ -21,6 +21,12 @@ Rules
   a no-op returning the current label (re-running align adds no history).
 - **Undo** restores the state before the last applied change (repeatable: it walks back
   through the changes), itself recorded as a change with its own version.
+- **Team** (schema 2): ``users`` (name, role ``annotator`` or ``reviewer``), ``assignments``
+  (which annotators label which item), ``verdicts`` (a reviewer's accept or reject of one
+  annotator's value, with a comment) and ``notes`` (an annotator's note on an item, or "skip:
+  can't tell" with the reason). Once users exist, only a reviewer may write ``reviewed``. A
+  schema-1 store is migrated (tables added) the first time it is opened for writing; read-only it
+  reads as having none of these.
 
 Label values (``docs/conventions.md`` for frames and angles; degrees at this edge):
 
@@ -70,9 +76,14 @@ __all__ = [
     "store_path",
     "validate_value",
     "opinions",
+    "ROLES",
+    "Verdict",
+    "Note",
 ]
 
-STORE_SCHEMA_VERSION = 1
+STORE_SCHEMA_VERSION = 2
+READABLE_SCHEMAS = (1, 2)
+ROLES = ("annotator", "reviewer")
 Source = Literal["auto", "annotator", "reviewed"]
 HUMAN_SOURCES = frozenset({"annotator", "reviewed"})
 MAX_VALUE_BYTES = 64 * 1024  # one label's JSON; candidates lists stay far below this
@@ -240,15 +251,41 @@ class LabelConflict(SolidkitError):
         self.current_version = current_version
 
 
-def opinions(history: list[Change]) -> dict[str, Change]:
+class Verdict(BaseModel):
+    """A reviewer's decision on one annotator's value (``event``: the id of that value's change)."""
+
+    id: int
+    kind: str
+    key: str
+    event: int
+    annotator: str
+    verdict: Literal["accept", "reject"]
+    comment: str
+    reviewer: str
+    time: datetime
+
+
+class Note(BaseModel):
+    """An annotator's latest note on an item; ``skip``: "can't tell", the note is the reason."""
+
+    kind: str
+    key: str
+    annotator: str
+    skip: bool
+    text: str
+    time: datetime
+
+
+def opinions(history: list[Change], *, since_review: bool = True) -> dict[str, Change]:
     """Each human annotator's latest applied value in a label's ``history`` since the last
-    ``reviewed`` change (a review settles what came before); values later undone by their own
-    author are left out. ``{annotator: Change}``."""
+    ``reviewed`` change (a review settles what came before; ``since_review=False``: over the
+    whole history, reviewers' own values included); values later undone by their own author are
+    left out. ``{annotator: Change}``."""
     latest: dict[str, Change] = {}
     for ch in history:
         if not ch.applied:
             continue
-        if ch.op == "put" and ch.source == "reviewed":
+        if ch.op == "put" and ch.source == "reviewed" and since_review:
             latest = {}
         elif ch.op == "put" and ch.source in HUMAN_SOURCES and ch.annotator:
             latest[ch.annotator] = ch
@@ -288,12 +325,50 @@ CREATE TABLE IF NOT EXISTS labels (
     PRIMARY KEY (kind, key)
 );
 """
+_SCHEMA_2 = """
+CREATE TABLE IF NOT EXISTS users (
+    name    TEXT PRIMARY KEY,
+    role    TEXT NOT NULL CHECK (role IN ('annotator', 'reviewer')),
+    created TEXT NOT NULL
+);
+CREATE TABLE IF NOT EXISTS assignments (
+    kind      TEXT NOT NULL,
+    key       TEXT NOT NULL,
+    annotator TEXT NOT NULL,
+    PRIMARY KEY (kind, key, annotator)
+);
+CREATE TABLE IF NOT EXISTS verdicts (
+    id        INTEGER PRIMARY KEY AUTOINCREMENT,
+    kind      TEXT NOT NULL,
+    key       TEXT NOT NULL,
+    event     INTEGER NOT NULL REFERENCES events(id),
+    annotator TEXT NOT NULL,
+    verdict   TEXT NOT NULL CHECK (verdict IN ('accept', 'reject')),
+    comment   TEXT NOT NULL,
+    reviewer  TEXT NOT NULL,
+    time      TEXT NOT NULL
+);
+CREATE TABLE IF NOT EXISTS notes (
+    id        INTEGER PRIMARY KEY AUTOINCREMENT,
+    kind      TEXT NOT NULL,
+    key       TEXT NOT NULL,
+    annotator TEXT NOT NULL,
+    skip      INTEGER NOT NULL,
+    text      TEXT NOT NULL,
+    time      TEXT NOT NULL
+);
+"""
+MAX_COMMENT = 500  # characters of a verdict's comment or a note
 # ``parent``: for an applied event, the event whose state it replaced in the undo sense (NULL:
 # the label was absent before); undo restores parent's state and inherits parent's parent.
 
 
 def _now() -> str:
     return datetime.now(timezone.utc).isoformat(timespec="microseconds")
+
+
+def _finite_text(text: str) -> bool:
+    return all(c in "\n\t" or c.isprintable() for c in text)
 
 
 def _check_name(name: str, what: str = "annotator") -> str:
@@ -333,17 +408,31 @@ class LabelStore:
         with self._connect() as con:
             if not readonly:
                 with self._write(con):
-                    for stmt in _SCHEMA.split(";"):
+                    old = con.execute("SELECT name FROM sqlite_master WHERE name = 'meta'").fetchone() and dict(
+                        con.execute("SELECT name, value FROM meta").fetchall()
+                    )
+                    if old and int(old.get("schema_version", 1)) not in READABLE_SCHEMAS:
+                        raise InputError(
+                            f"{self.path}: label store schema {old['schema_version']}, this solidkit reads "
+                            f"{', '.join(map(str, READABLE_SCHEMAS))}"
+                        )
+                    for stmt in (_SCHEMA + _SCHEMA_2).split(";"):
                         if stmt.strip():
                             con.execute(stmt)
                     con.execute(
                         "INSERT OR IGNORE INTO meta VALUES ('schema_version', ?), ('conventions_version', ?)",
                         (str(STORE_SCHEMA_VERSION), str(CONVENTIONS_VERSION)),
                     )
+                    con.execute(  # schema 1 -> 2: the team tables above were added
+                        "UPDATE meta SET value = ? WHERE name = 'schema_version'", (str(STORE_SCHEMA_VERSION),)
+                    )
             meta = dict(con.execute("SELECT name, value FROM meta").fetchall())
-        if int(meta.get("schema_version", STORE_SCHEMA_VERSION)) != STORE_SCHEMA_VERSION:
+            self._team = con.execute("SELECT name FROM sqlite_master WHERE name = 'users'").fetchone() is not None
+        self.schema_version = int(meta.get("schema_version", STORE_SCHEMA_VERSION))
+        if self.schema_version not in READABLE_SCHEMAS:
             raise InputError(
-                f"{self.path}: label store schema {meta['schema_version']}, this solidkit reads {STORE_SCHEMA_VERSION}"
+                f"{self.path}: label store schema {meta['schema_version']}, this solidkit reads "
+                f"{', '.join(map(str, READABLE_SCHEMAS))}"
             )
         if int(meta.get("conventions_version", CONVENTIONS_VERSION)) != CONVENTIONS_VERSION:
             raise InputError(f"{self.path}: labels written under conventions version {meta['conventions_version']}")
@@ -492,29 +581,32 @@ class LabelStore:
             raise InputError(f"label source {source!r}: not one of auto, annotator, reviewed")
         _check_name(annotator)
         flags = sorted({_check_name(f, "flag") for f in flags})
-        value_json, flags_json = json.dumps(value, sort_keys=True), json.dumps(flags)
         with self._connect() as con, self._write(con):
-            row = self._current(con, kind, key)
-            version = row[2] if row else 0
-            current = self._label(row) if row else None
-            if expected_version is not None and expected_version != version:
-                raise LabelConflict(kind, key, expected_version, current, version)
-            if current is not None and (value_json, source, annotator, flags_json) == (
-                json.dumps(current.value, sort_keys=True), current.source, current.annotator, json.dumps(current.flags)
-            ):  # fmt: skip
-                return current
-            if source == "auto" and current is not None and current.source in HUMAN_SOURCES:
-                con.execute(
-                    "INSERT INTO events (kind, key, op, applied, version, actor, time, value, source, annotator, flags)"
-                    " VALUES (?, ?, 'kept', 0, ?, ?, ?, ?, ?, ?, ?)",
-                    (kind, key, version, annotator, _now(), value_json, source, annotator, flags_json),
-                )
-                return current
-            self._apply(con, kind, key, version + 1, "put", annotator, value_json, source, annotator, flags_json,
-                        parent=row[8] if row else None)  # fmt: skip
-            return cast(
-                Label, self._label(cast(tuple, self._current(con, kind, key)))
-            )  # the row just written, with a value
+            if source == "reviewed":
+                self._require_reviewer(con, annotator)
+            return self._put_tx(con, kind, key, value, source, annotator, expected_version, flags)
+
+    def _put_tx(self, con, kind, key, value, source, annotator, expected_version, flags) -> Label:
+        value_json, flags_json = json.dumps(value, sort_keys=True), json.dumps(flags)
+        row = self._current(con, kind, key)
+        version = row[2] if row else 0
+        current = self._label(row) if row else None
+        if expected_version is not None and expected_version != version:
+            raise LabelConflict(kind, key, expected_version, current, version)
+        if current is not None and (value_json, source, annotator, flags_json) == (
+            json.dumps(current.value, sort_keys=True), current.source, current.annotator, json.dumps(current.flags)
+        ):  # fmt: skip
+            return current
+        if source == "auto" and current is not None and current.source in HUMAN_SOURCES:
+            con.execute(
+                "INSERT INTO events (kind, key, op, applied, version, actor, time, value, source, annotator, flags)"
+                " VALUES (?, ?, 'kept', 0, ?, ?, ?, ?, ?, ?, ?)",
+                (kind, key, version, annotator, _now(), value_json, source, annotator, flags_json),
+            )
+            return current
+        self._apply(con, kind, key, version + 1, "put", annotator, value_json, source, annotator, flags_json,
+                    parent=row[8] if row else None)  # fmt: skip
+        return cast(Label, self._label(cast(tuple, self._current(con, kind, key))))  # the row just written
 
     def undo(self, kind: str, key: str, annotator: str, *, expected_version: int | None = None) -> Label | None:
         """Restore the state before the label's last applied change; return it (None: absent).
@@ -562,6 +654,149 @@ class LabelStore:
             (kind, key, version, cur.lastrowid),
         )
 
+    # -- team: users, assignments, verdicts, notes --------------------------------------------
+    def _require_reviewer(self, con: sqlite3.Connection, name: str) -> None:
+        """Once users exist, only a registered reviewer may write ``reviewed`` or a verdict."""
+        if not self._team or con.execute("SELECT COUNT(*) FROM users").fetchone()[0] == 0:
+            return
+        row = con.execute("SELECT role FROM users WHERE name = ?", (name,)).fetchone()
+        if row is None or row[0] != "reviewer":
+            raise InputError(f"{name!r} is not a reviewer: only reviewers mark labels reviewed")
+
+    def _rows(self, sql: str, args: tuple = ()) -> builtins.list[tuple]:
+        if not self._team:  # a schema-1 store opened read-only: no team tables yet
+            return []
+        with self._connect() as con:
+            return con.execute(sql, args).fetchall()
+
+    def add_user(self, name: str, role: str) -> None:
+        """Register ``name`` with ``role`` (``annotator`` or ``reviewer``); an existing user gets the new role."""
+        _check_name(name, "user name")
+        if role not in ROLES:
+            raise InputError(f"role {role!r}: not one of {', '.join(ROLES)}")
+        with self._connect() as con, self._write(con):
+            con.execute(
+                "INSERT INTO users VALUES (?, ?, ?) ON CONFLICT (name) DO UPDATE SET role = excluded.role",
+                (name, role, _now()),
+            )
+
+    def users(self) -> dict[str, str]:
+        """``{name: role}`` of the registered users (empty: a campaign without a team)."""
+        return dict(self._rows("SELECT name, role FROM users ORDER BY name"))
+
+    def assign(self, kind: str, plan: dict[str, builtins.list[str]]) -> int:
+        """Replace the assignment of task ``kind``: ``plan`` maps each item key to its annotators
+        (registered users). Returns the number of (item, annotator) pairs stored."""
+        users = self.users()
+        for names in plan.values():
+            for n in names:
+                if n not in users:
+                    raise InputError(f"{n!r} is not a user (add it with `solidkit label users add {n}`)")
+        with self._connect() as con, self._write(con):
+            con.execute("DELETE FROM assignments WHERE kind = ?", (kind,))
+            con.executemany(
+                "INSERT OR IGNORE INTO assignments VALUES (?, ?, ?)",
+                [(kind, key, n) for key, names in plan.items() for n in names],
+            )
+        return sum(len(set(v)) for v in plan.values())
+
+    def assignments(self, kind: str | None = None) -> dict[tuple[str, str], builtins.list[str]]:
+        """``{(kind, key): [annotator, ...]}`` (empty: every annotator labels every item)."""
+        where, args = (" WHERE kind = ?", (kind,)) if kind else ("", ())
+        out: dict[tuple[str, str], builtins.list[str]] = {}
+        for k, key, n in self._rows(
+            "SELECT kind, key, annotator FROM assignments" + where + " ORDER BY annotator", args
+        ):
+            out.setdefault((k, key), []).append(n)
+        return out
+
+    def review(
+        self,
+        kind: str,
+        key: str,
+        annotator: str,
+        verdict: Literal["accept", "reject"],
+        comment: str,
+        *,
+        reviewer: str,
+        expected_version: int | None = None,
+    ) -> tuple[Verdict, Label | None]:
+        """Accept or reject ``annotator``'s current value of a label (one transaction).
+
+        Accept stores that value as ``reviewed`` by ``reviewer`` (the label is settled); reject
+        leaves the label as it is and sends the item back to the annotator with ``comment``.
+
+        Raises
+        ------
+        InputError
+            ``reviewer`` not a reviewer, ``annotator`` has no value, bad verdict or comment.
+        LabelConflict
+            Accept with ``expected_version`` not current.
+        """
+        _check_name(reviewer, "reviewer")
+        if verdict not in ("accept", "reject"):
+            raise InputError(f"verdict {verdict!r}: accept or reject")
+        if not isinstance(comment, str) or len(comment) > MAX_COMMENT:
+            raise InputError(f"comment: text of at most {MAX_COMMENT} characters")
+        with self._connect() as con, self._write(con):
+            self._require_reviewer(con, reviewer)
+            rows = con.execute(self._CHANGE_SQL + " WHERE kind = ? AND key = ? ORDER BY id", (kind, key)).fetchall()
+            mine = opinions([self._change(r) for r in rows], since_review=False).get(annotator)
+            if mine is None or mine.value is None:
+                raise InputError(f"{kind} {key}: {annotator!r} has no value to review")
+            label = None
+            if verdict == "accept":
+                label = self._put_tx(con, kind, key, mine.value, "reviewed", reviewer, expected_version, [])
+            cur = con.execute(
+                "INSERT INTO verdicts (kind, key, event, annotator, verdict, comment, reviewer, time)"
+                " VALUES (?, ?, ?, ?, ?, ?, ?, ?)",
+                (kind, key, mine.id, annotator, verdict, comment.strip(), reviewer, _now()),
+            )
+            row = con.execute("SELECT * FROM verdicts WHERE id = ?", (cur.lastrowid,)).fetchone()
+        return self._verdict(row), label
+
+    @staticmethod
+    def _verdict(r: tuple) -> Verdict:
+        return Verdict(id=r[0], kind=r[1], key=r[2], event=r[3], annotator=r[4], verdict=r[5], comment=r[6],
+                       reviewer=r[7], time=datetime.fromisoformat(r[8]))  # fmt: skip
+
+    def verdicts(self, kind: str | None = None) -> builtins.list[Verdict]:
+        """Every verdict (of one kind), oldest first."""
+        where, args = (" WHERE kind = ?", (kind,)) if kind else ("", ())
+        return [self._verdict(r) for r in self._rows("SELECT * FROM verdicts" + where + " ORDER BY id", args)]
+
+    def put_note(self, kind: str, key: str, annotator: str, text: str, *, skip: bool = False) -> Note:
+        """Set ``annotator``'s note on an item (``skip``: "can't tell", ``text`` the reason; an
+        empty text without skip clears the note)."""
+        _check_name(annotator)
+        if kind not in _KEYS or not isinstance(key, str) or not _KEYS[kind].match(key):
+            raise InputError(f"note on {kind} {key!r}: no such label address")
+        if not isinstance(text, str) or len(text) > MAX_COMMENT or not _finite_text(text):
+            raise InputError(f"note: text of at most {MAX_COMMENT} printable characters")
+        if skip and not text.strip():
+            raise InputError("skip: say why (what makes it impossible to tell)")
+        with self._connect() as con, self._write(con):
+            con.execute(
+                "INSERT INTO notes (kind, key, annotator, skip, text, time) VALUES (?, ?, ?, ?, ?, ?)",
+                (kind, key, annotator, int(bool(skip)), text.strip(), _now()),
+            )
+        return Note(kind=kind, key=key, annotator=annotator, skip=bool(skip), text=text.strip(),
+                    time=datetime.now(timezone.utc))  # fmt: skip
+
+    def notes(self, kind: str | None = None) -> dict[tuple[str, str, str], Note]:
+        """Each annotator's latest note per item: ``{(kind, key, annotator): Note}`` (cleared ones left out)."""
+        where, args = (" WHERE kind = ?", (kind,)) if kind else ("", ())
+        out: dict[tuple[str, str, str], Note] = {}
+        for k, key, who, skip, text, time in self._rows(
+            "SELECT kind, key, annotator, skip, text, time FROM notes" + where + " ORDER BY id", args
+        ):
+            if skip or text:
+                out[(k, key, who)] = Note(kind=k, key=key, annotator=who, skip=bool(skip), text=text,
+                                          time=datetime.fromisoformat(time))  # fmt: skip
+            else:
+                out.pop((k, key, who), None)
+        return out
+
     # -- export ------------------------------------------------------------------------------
     def export(self) -> dict[str, Any]:
         """All current labels as a JSON-able document (for the test-set builder).
@@ -590,12 +825,15 @@ class LabelStore:
             out.append({**lab.model_dump(mode="json"), "annotators": humans.get((lab.kind, lab.key), [])})
         return {
             "format": "solidkit.labels",
-            "schema_version": STORE_SCHEMA_VERSION,
+            "schema_version": self.schema_version,
             "conventions_version": CONVENTIONS_VERSION,
             "campaign": self.campaign_dir.resolve().name,
             "exported_at": _now(),
             "counts": counts,
             "labels": out,
+            "users": self.users(),
+            "verdicts": [v.model_dump(mode="json") for v in self.verdicts()],
+            "notes": [n.model_dump(mode="json") for n in self.notes().values()],
         }
 
     def check(self) -> builtins.list[str]:
