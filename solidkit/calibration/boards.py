@@ -16,6 +16,7 @@ ground truth for calibration tests.
 
 from __future__ import annotations
 
+import hashlib
 import os
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
@@ -202,10 +203,14 @@ def detect_views(
 ) -> list[BoardView]:
     """Detect the board in every view; rejected views carry their reason. Sizes must agree.
 
+    A view whose pixels are those of an earlier one (SHA-256 of the grey image, kept in
+    ``extra["sha256"]``) is rejected as a duplicate naming that view.
+
     ``pattern``: a checkerboard's inner corners ``(cols, rows)`` or a :class:`CharucoTarget`
     (partial views allowed; a blurred ChArUco view is rejected when its markers cannot be decoded).
     """
     views: list[BoardView] = []
+    seen: dict[str, str] = {}  # SHA-256 of the grey pixels -> the first view's name
     for k, img in enumerate(images):
         if isinstance(img, np.ndarray):
             gray = img if img.ndim == 2 else cv2.cvtColor(img, cv2.COLOR_BGR2GRAY)
@@ -214,18 +219,42 @@ def detect_views(
             gray = read_gray(img)
             name = names[k] if names else Path(img).name
         gray = np.ascontiguousarray(gray, dtype=np.uint8)
+        digest = hashlib.sha256(gray.tobytes()).hexdigest()
+        if digest in seen:  # the same picture again says nothing new, and would weigh its pose twice
+            views.append(
+                BoardView(
+                    name=name,
+                    size=(gray.shape[1], gray.shape[0]),
+                    reason=f"duplicate: the same image as {seen[digest]} (identical pixels)",
+                    extra={"sha256": digest},
+                )
+            )
+            if progress:
+                progress(k)
+            continue
+        seen[digest] = name
         if isinstance(pattern, CharucoTarget):
             corners, obj, reason = find_charuco(gray, pattern)
             views.append(
                 BoardView(
-                    name=name, size=(gray.shape[1], gray.shape[0]), corners=corners, reason=reason, object_points=obj
+                    name=name,
+                    size=(gray.shape[1], gray.shape[0]),
+                    corners=corners,
+                    reason=reason,
+                    object_points=obj,
+                    extra={"sha256": digest},
                 )
             )
         else:
             corners, reason, sharp = find_corners(gray, pattern, max_blur_px)
             views.append(
                 BoardView(
-                    name=name, size=(gray.shape[1], gray.shape[0]), corners=corners, reason=reason, sharpness_px=sharp
+                    name=name,
+                    size=(gray.shape[1], gray.shape[0]),
+                    corners=corners,
+                    reason=reason,
+                    sharpness_px=sharp,
+                    extra={"sha256": digest},
                 )
             )
         if progress:

@@ -25,7 +25,7 @@ from __future__ import annotations
 import math
 import re
 from collections.abc import Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any, Literal, cast
 
 import cv2
@@ -48,6 +48,7 @@ __all__ = [
     "fit_model",
     "held_out_error",
     "calibrate_fisheye",
+    "reject_near_duplicates",
     "lens_model_from_fit",
     "lens_profile_from_calibrations",
 ]
@@ -245,6 +246,46 @@ def fit_mei(views: Sequence[BoardView], pattern: tuple[int, int], square: float 
     )
     _per_view(fit, used, pattern, square)
     return fit
+
+
+#: Two views whose board corners lie within this mean distance (px, or this fraction of the board's extent in the
+#: image, whichever is larger) show the board in the same pose: the later one is a near-duplicate.
+NEAR_DUPLICATE_PX = 1.0
+NEAR_DUPLICATE_FRAC = 0.01
+
+
+def reject_near_duplicates(views: Sequence[BoardView]) -> list[BoardView]:
+    """``views`` with every usable view that repeats an earlier one's board pose marked rejected.
+
+    The same pose is the same corners in the image (one lens, fixed intrinsics): a mean corner
+    distance below ``max(NEAR_DUPLICATE_PX, NEAR_DUPLICATE_FRAC x the board's extent)`` (a
+    second shot from a tripod, a re-saved file). Such a view adds no constraint on the lens,
+    but would count twice in the fit and in the held-out folds.
+    """
+    out: list[BoardView] = []
+    kept: list[BoardView] = []
+    for v in views:
+        if v.ok:
+            c = np.asarray(v.corners, np.float64)
+            extent = float(np.hypot(*np.ptp(c, axis=0)))
+            limit = max(NEAR_DUPLICATE_PX, NEAR_DUPLICATE_FRAC * extent)
+            for u in kept:
+                cu = np.asarray(u.corners, np.float64)
+                if cu.shape == c.shape and (
+                    v.object_points is None or np.array_equal(np.asarray(u.object_points), np.asarray(v.object_points))
+                ):
+                    dist = float(np.mean(np.hypot(*(cu - c).T)))
+                    if dist < limit:
+                        v = replace(
+                            v,
+                            reason=f"duplicate: the board pose of {u.name} (corners {dist:.2f} px apart on average, "
+                            f"< {limit:.2f} px)",
+                        )
+                        break
+            if v.ok:
+                kept.append(v)
+        out.append(v)
+    return out
 
 
 def _fit_once(model: ModelName, views: Sequence[BoardView], pattern: tuple[int, int], square: float) -> FisheyeFit:
@@ -464,9 +505,53 @@ class FisheyeProfile(Profile):
     lens: dict = Field(description="the chosen model as a camera.lens LensModel (lens-profile format)")
     observed_max_angle_deg: float
     views: dict[str, str] = Field(default_factory=dict, description="view -> 'used' or the rejection reason")
+    warnings: list[str] = Field(
+        default_factory=list, description="what the calibration cannot vouch for: a field beyond the boards, a choice"
+    )
 
     def lens_model(self):
         return LensModel.model_validate(self.lens)
+
+
+#: The model choice needs held-out errors of at least this many views in both models ...
+MIN_CHOICE_VIEWS = 6
+#: ... and a mean paired difference of at least this many standard errors.
+CHOICE_SIGMAS = 2.0
+
+
+def _choose(fits: dict[str, FisheyeFit], info: dict[str, dict]) -> tuple[str, str, bool]:
+    """The model with the lower held-out RMS, why, and whether the views can tell the models apart.
+
+    Reliable: one model only (nothing to choose), or each view's held-out error under both models
+    for at least :data:`MIN_CHOICE_VIEWS` views with a mean difference beyond
+    :data:`CHOICE_SIGMAS` standard errors (a paired comparison: the views' own difficulty cancels).
+    """
+
+    def score(m: str) -> float:
+        v = info[m]["held_out"]["rms_px"]
+        return v if v is not None else fits[m].rms_px
+
+    chosen = min(fits, key=score)
+    if len(fits) == 1:
+        return chosen, f"the only model fitted ({chosen})", True
+    if not all(info[m]["held_out"]["rms_px"] is not None for m in fits):
+        return chosen, "lowest fit RMS (too few views to hold out: the choice is not tested on unseen views)", False
+    reason = "lowest held-out RMS: " + ", ".join(f"{m} {score(m):.4g} px" for m in fits)
+    other = min((m for m in fits if m != chosen), key=score)
+    a, b = info[chosen]["held_out"]["per_view_rms_px"], info[other]["held_out"]["per_view_rms_px"]
+    common = sorted(set(a) & set(b))
+    d = np.array([b[k] - a[k] for k in common])
+    if len(d) < MIN_CHOICE_VIEWS:
+        return chosen, f"{reason}; too few views ({len(d)} held out in both, < {MIN_CHOICE_VIEWS}) to tell", False
+    se = float(np.std(d, ddof=1) / math.sqrt(len(d)))
+    if float(d.mean()) < CHOICE_SIGMAS * se:
+        return (
+            chosen,
+            f"{reason}; the views do not tell the models apart ({other} worse by {d.mean():.3g} ± {se:.2g} px over "
+            f"{len(d)} views): either fits as well",
+            False,
+        )
+    return chosen, f"{reason} ({other} worse by {d.mean():.3g} ± {se:.2g} px over {len(d)} views)", True
 
 
 def calibrate_fisheye(
@@ -486,7 +571,15 @@ def calibrate_fisheye(
     Residuals: per model the RMS and per-view reprojection error (px) on the fitted views, and
     the leave-k-out held-out RMS and per-view errors (px). A model whose fit fails is reported
     with its error and skipped; if all fail the first error is raised.
+
+    What the views cannot vouch for is refused or said (``warnings``): a view repeating an earlier
+    one (same pixels, :func:`~solidkit.calibration.boards.detect_views`; same board pose,
+    :func:`reject_near_duplicates`) is rejected; the lens is exported up to the largest incidence
+    angle a board corner reached (``observed_max_angle_deg``) unless ``max_angle_deg`` asks for
+    more (then ``extrapolated``); a choice of model the held-out errors do not support
+    (:func:`_choose`) is ``model_choice_unreliable``.
     """
+    views = reject_near_duplicates(views)
     fits: dict[str, FisheyeFit] = {}
     info: dict[str, dict] = {}
     errors: list[FisheyeCalibrationError] = []
@@ -503,22 +596,29 @@ def calibrate_fisheye(
     if not fits:
         raise errors[0]
 
-    def score(m: str) -> float:
-        v = info[m]["held_out"]["rms_px"]
-        return v if v is not None else fits[m].rms_px
-
-    chosen = min(fits, key=score)
-    reason = (
-        "lowest held-out RMS: " + ", ".join(f"{m} {score(m):.4g} px" for m in fits)
-        if all(info[m]["held_out"]["rms_px"] is not None for m in fits)
-        else "lowest fit RMS (too few views to hold out)"
-    )
+    chosen, reason, reliable = _choose(fits, info)
     fit = fits[chosen]
-    lens = lens_model_from_fit(fit, lens_name, offset, ypr_deg, max_angle_deg)
     used_views = {v.name: (v.reason or "no corners") if not v.ok else "used" for v in views}
     for name, why in fit.rejected.items():
         used_views[name] = why
     obs = _observed_max_angle(fit, views, pattern, square)
+    warnings: list[str] = []
+    if not reliable:
+        warnings.append(f"model_choice_unreliable: {reason}")
+    # the model is known where the boards were: by default it is exported up to there, and no farther
+    reach = _max_angle_deg(fit, None)
+    lens = lens_model_from_fit(fit, lens_name, offset, ypr_deg, obs if max_angle_deg is None else max_angle_deg)
+    if max_angle_deg is None and reach > obs + 0.5:
+        warnings.append(
+            f"field_limited_to_boards: the lens is exported up to {lens.max_angle_deg:.1f}° of incidence, the largest "
+            f"angle a board corner reached (the {chosen} model would reach {reach:.1f}° at the image's edge, "
+            "unmeasured); add views with the board near the image's edge, or give --max-angle-deg to extrapolate"
+        )
+    elif lens.max_angle_deg > obs + 0.5:
+        warnings.append(
+            f"extrapolated: the lens is exported up to {lens.max_angle_deg:.1f}° of incidence, but the boards covered "
+            f"only {obs:.1f}°: r(theta) beyond is the {chosen} model's extrapolation, unmeasured"
+        )
     # how faithfully the exported polynomial reproduces the fitted model over the observed angles
     th = np.radians(np.linspace(0, min(obs, lens.max_angle_deg), 200))
     export_err = float(np.abs(lens.radius(th) - fit.radius(th)).max())
@@ -533,6 +633,9 @@ def calibrate_fisheye(
         "export_max_radius_error_px": export_err,
         "views_used": len(fit.per_view_rms_px),
         "views_rejected": {k: v for k, v in used_views.items() if v != "used"},
+        "model_choice_reliable": reliable,
+        "model_max_angle_deg": reach,
+        "exported_max_angle_deg": lens.max_angle_deg,
     }
     prov = make_provenance(
         list(inputs),
@@ -556,6 +659,7 @@ def calibrate_fisheye(
         lens=lens.model_dump(mode="json"),
         observed_max_angle_deg=obs,
         views=used_views,
+        warnings=warnings,
     )
 
 
@@ -579,6 +683,8 @@ def lens_profile_from_calibrations(
             for k in ("model", "rms_px", "held_out_rms_px", "views_used", "export_max_radius_error_px")
         }
         res[c.lens_name]["observed_max_angle_deg"] = c.observed_max_angle_deg
+        if c.warnings:
+            res[c.lens_name]["warnings"] = list(c.warnings)
     src = (
         "solidkit calibrate lens (checkerboard views; "
         + ", ".join(

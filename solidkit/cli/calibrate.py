@@ -320,6 +320,8 @@ def lens(
         f"centre ({lm.center[0]:.2f}, {lm.center[1]:.2f}) px, f {lm.poly[0]:.2f} px/rad, max angle "
         f"{lm.max_angle_deg:.1f}° (board seen up to {cal.observed_max_angle_deg:.1f}°); wrote {out} and {record}"
     )
+    for w in cal.warnings:
+        console.print(f"[yellow]warning:[/] {escape(w)}")
 
 
 # ----------------------------------------------------------------------------------- vignetting

@@ -170,6 +170,9 @@ def test_real_fisheye_chessboard(real_data):
     assert r["rms_px"] < 0.4 and r["held_out_rms_px"] < 0.45
     assert max(r["held_out_per_view_rms_px"].values()) < 1.0
     assert 300 < prof.models["kb"]["fx"] < 320
+    # measured: the boards reach 60.4°, the model 82.8° at the image corners; exported up to 60.25°, with a warning
+    assert prof.lens_model().max_angle_deg <= prof.observed_max_angle_deg
+    assert any(w.startswith("field_limited_to_boards") for w in prof.warnings)
 
 
 def test_charuco_partial_views_recover_the_lens():
@@ -195,3 +198,48 @@ def test_charuco_partial_views_recover_the_lens():
     # measured: f +0.13 %, centre off by (0.05, -0.24) px, RMS 0.14 px
     assert abs(kb["fx"] / F - 1) < 0.005 and abs(kb["cx"] - CENTRE[0]) < 0.5 and abs(kb["cy"] - CENTRE[1]) < 0.5
     assert prof.residuals["views_used"] == 9
+
+
+@pytest.fixture(scope="module")
+def board_images():
+    rays = subpixel_rays(lambda x, y: unproject(TRUTH, x, y)[0], SIZE, supersample=2)
+    return [render_board(rays, SIZE, R, t, PATTERN, supersample=2) for R, t in _poses(9)]
+
+
+def test_the_same_image_three_times_is_one_view(board_images):
+    img = board_images[0]
+    views = detect_views([img, img, img, board_images[1]], PATTERN, names=["a.png", "b.png", "c.png", "d.png"])
+    assert views[1].reason == "duplicate: the same image as a.png (identical pixels)" and views[2].reason
+    with pytest.raises(FisheyeCalibrationError, match=r"got 2 .*b.png: duplicate: the same image as a.png"):
+        calibrate_fisheye(views, PATTERN)
+
+
+def test_a_near_duplicate_board_pose_is_rejected(board_images):
+    noisy = np.clip(board_images[0] + np.random.default_rng(0).normal(0, 2, SIZE[::-1]), 0, 255).astype(np.uint8)
+    views = detect_views([*board_images[:6], noisy], PATTERN, names=[f"v{i}.png" for i in range(7)])
+    assert views[-1].ok  # other pixels: detection alone does not see the repeat
+    prof = calibrate_fisheye(views, PATTERN, models=("kb",))
+    assert prof.views["v6.png"].startswith("duplicate: the board pose of v0.png")
+    assert prof.residuals["views_used"] == 6
+
+
+def test_export_stops_where_the_boards_stopped(calibrated, rendered):
+    # the boards reach ~66° of this 100° lens: the exported field must not claim more without saying so
+    obs = calibrated.observed_max_angle_deg
+    assert calibrated.lens_model().max_angle_deg <= obs + 1e-9
+    assert calibrated.residuals["model_max_angle_deg"] > obs + 10
+    assert any(w.startswith("field_limited_to_boards") for w in calibrated.warnings)
+    views, _ = rendered
+    wide = calibrate_fisheye(views, PATTERN, models=("kb",), max_angle_deg=95.0)
+    assert wide.lens_model().max_angle_deg > obs + 10
+    assert any(w.startswith("extrapolated") for w in wide.warnings)
+
+
+def test_a_model_choice_from_few_views_says_it_is_unreliable(rendered):
+    views, _ = rendered
+    few = calibrate_fisheye([v for v in views if v.ok][:5], PATTERN)
+    assert few.residuals["model_choice_reliable"] is False
+    assert "too few views" in few.choice_reason
+    assert any(w.startswith("model_choice_unreliable") for w in few.warnings)
+    best = min(few.models, key=lambda m: few.models[m]["held_out"]["rms_px"])
+    assert few.chosen_model == best
