@@ -63,11 +63,9 @@ def main() -> None:
     t_ft_total = time.perf_counter() - t0
     per_fold = res_ft["seconds_per_fold"]
     passes = [
-        sum(len(f["split"][k]) for k in ("train",)) * f["epochs_run"]
-        + len(f["split"]["val"]) * (f["epochs_run"] + 1)
-        + len(f["split"]["train"])
+        sum(len(f["split"][k]) for k in ("train",)) * f["epochs_run"] + len(f["split"]["val"]) * (f["epochs_run"] + 1)
         for f in res_ft["folds"]
-    ]  # training steps + validation and initial passes
+    ]  # training steps + validation passes (before fine-tuning and after each epoch)
     t_fold = sum(per_fold) / len(per_fold)
     t_fold_peer = t_predict * sum(passes) / len(passes)
     res = {

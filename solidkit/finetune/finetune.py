@@ -274,9 +274,9 @@ def finetune_fold(
     n_train = set_trainable(net, cfg.trainable)
     opt = torch.optim.Adam([p for p in net.parameters() if p.requires_grad], lr=cfg.lr)
     t0 = time.perf_counter()
-    history = [
-        {"epoch": 0, "train": _mean_loss(net, train, cfg.sun_weight), "val": _mean_loss(net, val, cfg.sun_weight)}
-    ]
+    # epoch 0 is the starting point for early stopping; its training loss would cost a pass over the training
+    # photos that no decision uses, so it is not computed (``None``)
+    history: list[dict[str, Any]] = [{"epoch": 0, "train": None, "val": _mean_loss(net, val, cfg.sun_weight)}]
     best, best_epoch, bad = copy.deepcopy(net.state_dict()), 0, 0
     best_val = history[0]["val"]
     order = list(range(len(train)))

@@ -566,7 +566,15 @@ def loss_curves(result: dict[str, Any], path: Path) -> Path:
     for f in result["folds"]:
         h = f["history"]
         e = [r["epoch"] for r in h]
-        ax.plot(e, [r["train"] for r in h], "-o", ms=3, color=cm(f["fold"]), label=f"fold {f['fold'] + 1} train")
+        tr = [r for r in h if r["train"] is not None]
+        ax.plot(
+            [r["epoch"] for r in tr],
+            [r["train"] for r in tr],
+            "-o",
+            ms=3,
+            color=cm(f["fold"]),
+            label=f"fold {f['fold'] + 1} train",
+        )
         if f["early_stopping"]:
             ax.plot(
                 e, [r["val"] for r in h], "--s", ms=3, color=cm(f["fold"]), label=f"fold {f['fold'] + 1} validation"

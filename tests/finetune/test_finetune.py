@@ -114,14 +114,15 @@ def test_kfold_finetuning_runs_records_the_split_and_lowers_the_training_loss(to
     torch.manual_seed(0)
     net = SolidNet(preset("tiny")).eval()
     items = [_item(s, az, 35, seed=i) for i, (s, az) in enumerate([("a", 20), ("b", -60), ("c", 100), ("d", 170)])]
-    cfg = FineTuneConfig(folds=2, epochs=2, patience=5, lr=3e-3, seed=0)
+    cfg = FineTuneConfig(folds=2, epochs=3, patience=5, lr=3e-3, seed=0)
     res = run_finetune(net, items, cfg)
     assert len(res["folds"]) == 2 and len(res["models"]) == 2
     for f in res["folds"]:
         split = f["split"]
         assert not set(split["test"]) & (set(split["train"]) | set(split["val"]))
         h = f["history"]
-        assert min(r["train"] for r in h[1:]) < h[0]["train"]  # it learns on the training scenes
+        assert h[0]["train"] is None  # no pass over the training photos before the first step
+        assert h[-1]["train"] < h[1]["train"]  # it learns on the training scenes
         assert f["trainable_parameters"] < sum(p.numel() for p in net.parameters())
     # the fold's model never saw its test scenes: before/after records cover exactly them
     tested = sorted({r["scene"] for r in res["pooled"]["records"]})
@@ -129,6 +130,27 @@ def test_kfold_finetuning_runs_records_the_split_and_lowers_the_training_loss(to
     assert set(res["effect"]) == {"local_ssim", "local_mae", "sun_angle/paper", "sun_angle/core"}
     # the original model is untouched (fine-tuning works on copies)
     assert all(p.requires_grad for p in net.parameters())
+
+
+def test_a_fold_runs_one_loss_pass_per_training_step_and_validation_epoch(torch_one_thread, monkeypatch):
+    from solidkit.finetune import finetune as ft
+
+    calls = {"grad": 0, "no_grad": 0}
+    real = ft.real_losses
+
+    def counted(model, item, sun_weight=1.0):
+        calls["grad" if torch.is_grad_enabled() else "no_grad"] += 1
+        return real(model, item, sun_weight)
+
+    monkeypatch.setattr(ft, "real_losses", counted)
+    torch.manual_seed(0)
+    net = SolidNet(preset("tiny")).eval()
+    train = [_item(s, az, 35, seed=i) for i, (s, az) in enumerate([("a", 20), ("b", -60), ("c", 100)])]
+    val = [_item("v", 50, 30, seed=9)]
+    _, rec = ft.finetune_fold(net, train, val, FineTuneConfig(epochs=2, patience=5, seed=0))
+    epochs = rec["epochs_run"]
+    assert calls["grad"] == len(train) * epochs  # one training step per photo and epoch
+    assert calls["no_grad"] == len(val) * (epochs + 1)  # validation before fine-tuning and after each epoch
 
 
 def test_panorama_crops_carry_the_sun_into_each_photo_frame():
