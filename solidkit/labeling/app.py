@@ -24,63 +24,122 @@ from __future__ import annotations
 import base64
 import hashlib
 import hmac
+import math
 import re
 import secrets
+import time
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Literal, cast
 
 from fastapi import Depends, FastAPI, HTTPException, Query, Request
 from fastapi.responses import FileResponse, JSONResponse, Response
 from fastapi.staticfiles import StaticFiles
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import BaseModel, ConfigDict, Field, ValidationError
 from starlette.middleware.trustedhost import TrustedHostMiddleware
 
-from solidkit.errors import InputError
+from solidkit.errors import InputError, validation_message
 from solidkit.labeling.images import PREVIEW_WIDTH, ImageService, tile_grid
-from solidkit.labeling.review import THRESHOLDS, UNITS, disagreement_flag, review_all, review_item
-from solidkit.labeling.store import LabelConflict, LabelStore, validate_value
+from solidkit.labeling.review import (
+    THRESHOLDS,
+    UNITS,
+    agreement,
+    disagreement_flag,
+    own_values,
+    review_all,
+    review_item,
+    user_status,
+)
+from solidkit.labeling.store import LabelConflict, LabelStore, check_name, validate_value
 from solidkit.labeling.tasks import TASKS, CampaignIndex
 
-__all__ = ["create_app", "MAX_BODY_BYTES", "LOOPBACK_HOSTS", "PutBody", "UndoBody"]
+__all__ = ["create_app", "MAX_BODY_BYTES", "LOOPBACK_HOSTS", "PutBody", "UndoBody", "LOGIN_LIMIT"]
 
 STATIC = Path(__file__).parent / "static"
 MAX_BODY_BYTES = 16 * 1024
 LOOPBACK_HOSTS = ("127.0.0.1", "localhost", "::1", "[::1]")
 SESSION_COOKIE = "solidkit_session"
+LOGIN_LIMIT = (5, 60.0)  # wrong tokens per client address, window in seconds: then 429 until it passes
 _IMG_ID = r"^img-[0-9a-f]{16}$"
-_WEB_FIELDS = {
-    "sun": {"found", "azimuth_deg", "elevation_deg", "uncertainty_deg"},
-    "probe_pixel": {"x", "y"},
-    "heading": {"yaw_deg"},
-}
 _UNSAFE = {"POST", "PUT", "PATCH", "DELETE"}
+_KIND = Literal["sun", "probe_pixel", "heading"]
+# flag codes a blind annotator may see (align's own); disagreement flags tell the other's answer
+_BLIND_HIDDEN_FLAGS = ("annotators_disagree", "differs_from_auto")
 
 
 class _Body(BaseModel):
-    model_config = ConfigDict(extra="forbid")
+    model_config = ConfigDict(extra="forbid", strict=True)
+
+
+class SunEdit(_Body):
+    """A sun mark as the page sends it (degrees, conventions §3)."""
+
+    found: bool
+    azimuth_deg: float | None = Field(None, ge=-180.0, le=180.0, allow_inf_nan=False)
+    elevation_deg: float | None = Field(None, ge=-90.0, le=90.0, allow_inf_nan=False)
+    uncertainty_deg: float | None = Field(None, ge=0.0, le=45.0, allow_inf_nan=False)
+
+
+class PixelEdit(_Body):
+    """A probe pixel (full-resolution photo pixels; the bounds come from the photo's size)."""
+
+    x: float = Field(allow_inf_nan=False)
+    y: float = Field(allow_inf_nan=False)
+
+
+class HeadingEdit(_Body):
+    yaw_deg: float = Field(ge=-180.0, le=180.0, allow_inf_nan=False)
+
+
+_EDITS: dict[str, type[_Body]] = {"sun": SunEdit, "probe_pixel": PixelEdit, "heading": HeadingEdit}
 
 
 class PutBody(_Body):
-    """A label edit from the page."""
+    """A label edit from the page; who makes it comes from the session, never from the body."""
 
-    kind: Literal["sun", "probe_pixel", "heading"]
+    kind: _KIND
     key: str = Field(max_length=200)
-    value: dict[str, bool | float | int | None]
+    value: dict[str, Any]
     expected_version: int = Field(ge=0, description="the version the edit was based on (0: no label seen)")
-    annotator: str = Field(min_length=1, max_length=64)
     source: Literal["annotator", "reviewed"] = "annotator"
-    flags: list[str] = Field(default_factory=list, max_length=8)
+    blind: bool = False
 
 
 class UndoBody(_Body):
-    kind: Literal["sun", "probe_pixel", "heading"]
+    kind: _KIND
     key: str = Field(max_length=200)
     expected_version: int = Field(ge=0)
+
+
+class VerdictBody(_Body):
+    kind: _KIND
+    key: str = Field(max_length=200)
     annotator: str = Field(min_length=1, max_length=64)
+    verdict: Literal["accept", "reject"]
+    comment: str = Field("", max_length=500)
+    expected_version: int | None = Field(None, ge=0)
+
+
+class NoteBody(_Body):
+    kind: _KIND
+    key: str = Field(max_length=200)
+    text: str = Field("", max_length=500)
+    skip: bool = False
 
 
 class SessionBody(_Body):
-    token: str = Field(max_length=256)
+    token: str = Field("", max_length=256)
+    name: str = Field(min_length=1, max_length=64)
+
+
+class LogoutBody(_Body):
+    pass
+
+
+@dataclass(frozen=True)
+class User:
+    name: str
+    role: str
 
 
 def _csp(index_html: str) -> str:
@@ -102,6 +161,7 @@ def create_app(
     alignment: dict[str, Any] | None = None,
     token: str | None = None,
     allowed_hosts: list[str] | None = None,
+    image_cache: str | Path | None = None,
 ) -> FastAPI:
     """Build the app for one campaign.
 
@@ -112,15 +172,19 @@ def create_app(
     alignment : dict, optional
         ``align/alignment.json`` as a dict (automatic proposals), or None.
     token : str, optional
-        Require this token (token mode). None: no authentication (loopback only; the CLI
-        enforces that).
+        Require this token (token mode). None: no token (loopback only; the CLI enforces that).
+        Either way every annotator logs in with a name: a registered user once the store has
+        users (``solidkit label users add``), any name (role annotator) before.
     allowed_hosts : list of str, optional
         Host names the ``Host`` header may carry (default: the loopback names).
+    image_cache : path, optional
+        Folder for the encoded previews and tiles (default ``CAMPAIGN/labels/image-cache``).
     """
     index = CampaignIndex(campaign_dir, alignment)
     store = LabelStore(index.root)
-    images = ImageService()
-    sessions: set[str] = set()
+    images = ImageService(cache_dir=Path(image_cache) if image_cache else index.root / "labels" / "image-cache")
+    sessions: dict[str, str] = {}  # session id -> user name (in memory: a restart logs everyone out)
+    failures: dict[str, list[float]] = {}
     index_html = (STATIC / "index.html").read_text(encoding="utf-8")
     csp = _csp(index_html)
 
@@ -155,16 +219,39 @@ def create_app(
 
     app.add_middleware(TrustedHostMiddleware, allowed_hosts=list(allowed_hosts or LOOPBACK_HOSTS))
 
-    def auth(request: Request) -> None:
+    def _role(name: str) -> str | None:
+        users = store.users()
+        if not users:  # no team registered: everyone is an annotator
+            return "annotator"
+        return users.get(name)
+
+    def _token_ok(request: Request) -> bool:
         if token is None:
-            return
-        sid = request.cookies.get(SESSION_COOKIE)
-        if sid and any(hmac.compare_digest(sid, s) for s in sessions):
-            return
+            return True
         bearer = request.headers.get("authorization", "")
-        if bearer.startswith("Bearer ") and hmac.compare_digest(bearer[7:].encode(), token.encode()):
-            return
-        raise HTTPException(401, "token required: open the page and enter the token printed by `solidkit label serve`")
+        return bearer.startswith("Bearer ") and hmac.compare_digest(bearer[7:].encode(), token.encode())
+
+    def _session_user(request: Request) -> User | None:
+        sid = request.cookies.get(SESSION_COOKIE)
+        name = next((n for s, n in sessions.items() if sid and hmac.compare_digest(sid, s)), None)
+        if name is None and _token_ok(request) and request.headers.get("x-solidkit-user"):
+            name = request.headers["x-solidkit-user"]  # scripts: Bearer token (if any) + a user name
+        role = _role(name) if name else None
+        return User(name, role) if name and role else None
+
+    def auth(request: Request) -> User:
+        user = _session_user(request)
+        if user is None:
+            raise HTTPException(401, "log in: open the page and enter your name (and the token, if one is required)")
+        return user
+
+    def reviewer(user: User = Depends(auth)) -> User:
+        if user.role != "reviewer":
+            raise HTTPException(403, f"{user.name} is an annotator: only reviewers review labels")
+        return user
+
+    def is_blind(user: User, asked: bool) -> bool:
+        return user.role != "reviewer" and (asked or store.setting("blind") == "1")
 
     # -- page --------------------------------------------------------------------------------
     @app.get("/", include_in_schema=False)
@@ -176,50 +263,119 @@ def create_app(
     # -- session -----------------------------------------------------------------------------
     @app.get("/api/session")
     def session_state(request: Request) -> dict:
-        try:
-            auth(request)
-            ok = True
-        except HTTPException:
-            ok = False
-        return {"token_required": token is not None, "authenticated": ok}
+        user = _session_user(request)
+        team = store.users()
+        return {
+            "token_required": token is not None,
+            "authenticated": user is not None,
+            "user": {"name": user.name, "role": user.role} if user else None,
+            "team": bool(team),
+            "users": sorted(team) if (token is None or user is not None) else [],
+        }
+
+    def _limited(client: str) -> float:
+        now = time.monotonic()
+        recent = [t for t in failures.get(client, []) if now - t < LOGIN_LIMIT[1]]
+        failures[client] = recent
+        return LOGIN_LIMIT[1] - (now - recent[0]) if len(recent) >= LOGIN_LIMIT[0] else 0.0
 
     @app.post("/api/session")
-    def login(body: SessionBody) -> Response:
-        if token is None:
-            return JSONResponse({"authenticated": True})
-        if not hmac.compare_digest(body.token.encode(), token.encode()):
+    def login(body: SessionBody, request: Request) -> Response:
+        client = request.client.host if request.client else "?"
+        wait = _limited(client)
+        if wait > 0:
+            raise HTTPException(
+                429, f"too many wrong tokens: wait {math.ceil(wait)} s", {"Retry-After": str(math.ceil(wait))}
+            )
+        if token is not None and not hmac.compare_digest(body.token.encode(), token.encode()):
+            failures.setdefault(client, []).append(time.monotonic())
             raise HTTPException(401, "wrong token")
+        name = body.name.strip()
+        role = _role(name)
+        if role is None:
+            raise HTTPException(403, f"{name!r} is not a user of this campaign (`solidkit label users add {name}`)")
+        try:
+            check_name(name)
+        except InputError as exc:
+            raise HTTPException(422, str(exc)) from None
         sid = secrets.token_urlsafe(32)
-        sessions.add(sid)
-        resp = JSONResponse({"authenticated": True})
+        sessions[sid] = name
+        resp = JSONResponse({"authenticated": True, "user": {"name": name, "role": role}})
         resp.set_cookie(SESSION_COOKIE, sid, httponly=True, samesite="strict", path="/")
         return resp
 
+    @app.post("/api/logout")
+    def logout(body: LogoutBody, request: Request) -> Response:
+        sessions.pop(request.cookies.get(SESSION_COOKIE, ""), None)
+        resp = JSONResponse({"authenticated": False})
+        resp.delete_cookie(SESSION_COOKIE, path="/")
+        return resp
+
     # -- campaign and queues -----------------------------------------------------------------
-    def progress() -> dict:
-        out = {}
-        reviews = review_all(index, store)
-        for kind in TASKS:
-            rs = [r for r in reviews if r.kind == kind]
-            out[kind] = {s: sum(r.status == s for r in rs) for s in ("done", "flagged", "left")} | {"total": len(rs)}
-        out["review"] = {"open": sum(bool(r.flags) and r.status != "done" or r.open_disagreement for r in reviews)}
+    def _allowed(user: User, kind: str) -> set[str] | None:
+        """Keys ``user`` labels in task ``kind`` (None: all; reviewers and unassigned tasks)."""
+        if user.role == "reviewer":
+            return None
+        plan = store.assignments(kind)
+        if not plan:
+            return None
+        return {key for (_, key), names in plan.items() if user.name in names}
+
+    def _rows(user: User, kind: str) -> list[dict]:
+        reviews = review_all(index, store, (kind,))
+        if user.role == "reviewer":
+            return [{"kind": kind, "key": r.key, "status": r.status, "flags": r.flags} for r in reviews]
+        allowed = _allowed(user, kind)
+        labels = {lab.key: lab for lab in store.list(kind)}
+        histories = store.histories(kind)
+        verdicts = [v for v in store.verdicts(kind) if v.annotator == user.name]
+        notes = store.notes(kind)
+        out = []
+        for r in reviews:
+            if allowed is not None and r.key not in allowed:
+                continue
+            it = index.items[kind][r.key]
+            st = user_status(it, labels.get(r.key), histories.get(r.key, []), user.name,
+                             [v for v in verdicts if v.key == r.key], notes.get((kind, r.key, user.name)))  # fmt: skip
+            out.append({"kind": kind, "key": r.key, "flags": list(it.flags)} | st)
         return out
 
-    @app.get("/api/campaign", dependencies=[Depends(auth)])
-    def campaign() -> dict:
+    def progress(user: User) -> dict:
+        out = {}
+        for kind in TASKS:
+            rows = _rows(user, kind)
+            out[kind] = {s: sum(r["status"] == s for r in rows) for s in ("done", "flagged", "left", "returned")}
+            out[kind]["total"] = len(rows)
+        if user.role == "reviewer":
+            reviews = review_all(index, store)
+            out["review"] = {"open": sum(bool(r.flags) and r.status != "done" or r.open_disagreement for r in reviews)}
+        return out
+
+    @app.get("/api/campaign")
+    def campaign(user: User = Depends(auth)) -> dict:
         return {
             "name": index.root.name,
             "scenes": [s.id for s in index.manifest.scenes],
-            "progress": progress(),
+            "progress": progress(user),
             "problems": index.problems,
             "thresholds": {k: {"value": v, "unit": UNITS[k]} for k, v in THRESHOLDS.items()},
             "has_alignment": bool(index.alignment),
+            "user": {"name": user.name, "role": user.role},
+            "blind_forced": store.setting("blind") == "1" and user.role != "reviewer",
+            "team": bool(store.users()),
         }
 
-    @app.get("/api/queue/{kind}", dependencies=[Depends(auth)])
-    def queue(kind: Literal["sun", "probe_pixel", "heading", "review"]) -> dict:
+    @app.get("/api/queue/{kind}")
+    def queue(kind: Literal["sun", "probe_pixel", "heading", "review"], user: User = Depends(auth)) -> dict:
         if kind == "review":
-            rows = [r for r in review_all(index, store) if r.flags or r.open_disagreement or r.opinions]
+            if user.role != "reviewer":
+                raise HTTPException(403, "the review queue is for reviewers")
+            notes = store.notes()
+            verdicts = store.verdicts()
+            rows = [
+                r for r in review_all(index, store)
+                if r.flags or r.open_disagreement or r.opinions or any(k[:2] == (r.kind, r.key) for k in notes)
+            ]  # fmt: skip
             order = {"flagged": 0, "left": 1, "done": 2}
             # biggest first, in units of each kind's threshold (degrees and pixels do not compare)
             rows.sort(
@@ -229,19 +385,18 @@ def create_app(
                     -(r.disagreement or r.vs_auto or 0.0) / THRESHOLDS[r.kind],
                 )
             )
-            items = [r.as_dict() | {"title": index.items[r.kind][r.key].title} for r in rows]
-        else:
             items = [
-                {
-                    "kind": kind,
-                    "key": r.key,
-                    "title": index.items[kind][r.key].title,
-                    "status": r.status,
-                    "flags": r.flags,
+                r.as_dict()
+                | {
+                    "title": index.items[r.kind][r.key].title,
+                    "notes": {k[2]: n.model_dump(mode="json") for k, n in notes.items() if k[:2] == (r.kind, r.key)},
+                    "verdicts": [v.model_dump(mode="json") for v in verdicts if (v.kind, v.key) == (r.kind, r.key)],
                 }
-                for r in review_all(index, store, (kind,))
+                for r in rows
             ]
-        return {"kind": kind, "items": items, "progress": progress()}
+        else:
+            items = [row | {"title": index.items[kind][row["key"]].title} for row in _rows(user, kind)]
+        return {"kind": kind, "items": items, "progress": progress(user)}
 
     def _item(kind: str, key: str):
         try:
@@ -259,9 +414,23 @@ def create_app(
             info["tiles"] = {"cols": cols, "rows": rows}
         return info
 
-    @app.get("/api/item", dependencies=[Depends(auth)])
-    def item(kind: Literal["sun", "probe_pixel", "heading"], key: str = Query(max_length=200)) -> dict:
+    def _mine(kind: str, key: str, user: User, history: list, label) -> dict | None:
+        ch = own_values(history).get(user.name)
+        if ch is None:
+            return None
+        rejects = [v for v in store.verdicts(kind) if v.key == key and v.event == ch.id and v.annotator == user.name]
+        return {
+            "value": ch.value, "time": ch.time.isoformat(),
+            "verdict": rejects[-1].model_dump(mode="json") if rejects else None,
+        }  # fmt: skip
+
+    @app.get("/api/item")
+    def item(kind: _KIND, key: str = Query(max_length=200), blind: bool = False, user: User = Depends(auth)) -> dict:
         it = _item(kind, key)
+        allowed = _allowed(user, kind)
+        if allowed is not None and key not in allowed:
+            raise HTTPException(403, f"{kind} {key} is assigned to other annotators")
+        hide = is_blind(user, blind)
         label = store.get(kind, key)
         history = store.history(kind, key)
         view, proposal = dict(it.view), it.proposal
@@ -269,7 +438,7 @@ def create_app(
             auto = next((c for c in reversed(history) if c.source == "auto" and c.value), None)
             if auto is not None:
                 auto_value = cast("dict[str, Any]", auto.value)  # the search kept a change with a value
-                proposal = {k: v for k, v in auto_value.items() if k in _WEB_FIELDS[kind]}
+                proposal = {k: v for k, v in auto_value.items() if k in _EDITS[kind].model_fields}
                 if kind == "sun":
                     view["candidates"] = view.get("candidates") or auto_value.get("candidates") or []
                 if kind == "probe_pixel":
@@ -283,58 +452,146 @@ def create_app(
         if kind == "probe_pixel":  # the scene's other probes, to show them all on the photo
             for other in index.items["probe_pixel"].values():
                 if other.scene == it.scene:
-                    lab = store.get(kind, other.key)
-                    siblings[other.probe] = (lab.value if lab else None) or other.proposal
+                    if hide:
+                        mine = own_values(store.history(kind, other.key)).get(user.name)
+                        siblings[other.probe] = mine.value if mine else None
+                    else:
+                        lab = store.get(kind, other.key)
+                        siblings[other.probe] = (lab.value if lab else None) or other.proposal
+        review = review_item(it, label, history).as_dict()
+        if hide:  # others' values hidden everywhere: label, proposal, history, opinions, flags
+            proposal, label = None, None
+            history = [c for c in history if c.actor == user.name]
+            view = view | {"candidates": [], "cues": {}, "residual_deg": None, "geometry": None,
+                           "geometry_error_px": None}  # fmt: skip
+            review = review | {
+                "opinions": {n: o for n, o in review["opinions"].items() if n == user.name},
+                "flags": [f for f in review["flags"] if not f.startswith(_BLIND_HIDDEN_FLAGS)],
+                "disagreement": None, "vs_auto": None, "open_disagreement": False, "label": None,
+            }  # fmt: skip
+        note = store.notes(kind).get((kind, key, user.name))
         return {
             "kind": kind, "key": key, "title": it.title, "scene": it.scene, "probe": it.probe, "view": view,
-            "proposal": proposal, "flags": it.flags, "siblings": siblings,
+            "proposal": proposal, "flags": it.flags, "siblings": siblings, "blind": hide,
             "label": label.model_dump(mode="json") if label else None, "version": store.version(kind, key),
-            "review": review_item(it, label, history).as_dict(),
-            "history": [c.model_dump(mode="json") for c in history[-30:]],
+            "review": review, "history": [c.model_dump(mode="json") for c in history[-30:]],
+            "mine": _mine(kind, key, user, store.history(kind, key), label),
+            "note": note.model_dump(mode="json") if note else None,
+            "own": {n: o for n, o in _own_for_review(kind, key, user).items()},
         }  # fmt: skip
+
+    def _own_for_review(kind: str, key: str, user: User) -> dict:
+        """For reviewers: each annotator's own value with its verdicts (what accept/reject act on)."""
+        if user.role != "reviewer":
+            return {}
+        verdicts = [v for v in store.verdicts(kind) if v.key == key]
+        out = {}
+        for who, ch in own_values(store.history(kind, key)).items():
+            vs = [v for v in verdicts if v.annotator == who and v.event == ch.id]
+            out[who] = {"value": ch.value, "time": ch.time.isoformat(),
+                        "verdict": vs[-1].model_dump(mode="json") if vs else None}  # fmt: skip
+        return out
 
     # -- writes ------------------------------------------------------------------------------
     def _conflict(exc: LabelConflict) -> JSONResponse:
         cur = exc.current.model_dump(mode="json") if exc.current else None
         return JSONResponse({"detail": str(exc), "current": cur, "version": exc.current_version}, status_code=409)
 
-    @app.put("/api/label", dependencies=[Depends(auth)])
-    def put_label(body: PutBody) -> Any:
-        _item(body.kind, body.key)
-        extra = set(body.value) - _WEB_FIELDS[body.kind]
-        if extra:
-            raise HTTPException(422, f"{body.kind}: unknown value fields {sorted(extra)}")
-        flags = list(body.flags)
+    def _checked_value(kind: str, key: str, value: dict[str, Any]) -> dict[str, Any]:
+        try:
+            edit = _EDITS[kind].model_validate(value, strict=True)
+        except ValidationError as exc:
+            raise HTTPException(422, f"{kind} {key}: {validation_message(exc)}") from None
+        out = edit.model_dump(exclude_none=kind != "sun")
+        if kind == "probe_pixel":  # inside the photo: [-0.5, W - 0.5] x [-0.5, H - 0.5] (pixel edges)
+            w, h = images.size(index.images[index.items[kind][key].view["photo"]["image"]])
+            if not (-0.5 <= out["x"] <= w - 0.5 and -0.5 <= out["y"] <= h - 0.5):
+                raise HTTPException(422, f"{kind} {key}: ({out['x']}, {out['y']}) lies outside the {w}x{h} photo")
+        try:
+            return validate_value(kind, key, out)
+        except InputError as exc:
+            raise HTTPException(422, str(exc)) from None
+
+    def _writable(user: User, kind: str, key: str) -> None:
+        _item(kind, key)
+        allowed = _allowed(user, kind)
+        if allowed is not None and key not in allowed:
+            raise HTTPException(403, f"{kind} {key} is assigned to other annotators")
+
+    @app.put("/api/label")
+    def put_label(body: PutBody, user: User = Depends(auth)) -> Any:
+        _writable(user, body.kind, body.key)
+        if body.source == "reviewed" and user.role != "reviewer":
+            raise HTTPException(403, f"{user.name} is an annotator: only reviewers store reviewed labels")
+        value = _checked_value(body.kind, body.key, body.value)
+        flags: list[str] = []
+        hide = is_blind(user, body.blind)
         if body.source == "annotator":  # a second opinion far from the first is flagged for review
-            try:
-                value = validate_value(body.kind, body.key, body.value)
-            except InputError as exc:
-                raise HTTPException(422, str(exc)) from None
-            flag = disagreement_flag(body.kind, body.annotator, value, store.history(body.kind, body.key))
+            flag = disagreement_flag(body.kind, user.name, value, store.history(body.kind, body.key))
             flags += [flag] if flag else []
         try:
-            lab = store.put(body.kind, body.key, body.value, source=body.source, annotator=body.annotator,
-                            expected_version=body.expected_version, flags=flags)  # fmt: skip
+            # blind: an independent opinion goes on top of whatever is there (a conflict dialog
+            # would show the other's value); both stay in the history for the reviewer
+            lab = store.put(body.kind, body.key, value, source=body.source, annotator=user.name,
+                            expected_version=None if hide else body.expected_version, flags=flags)  # fmt: skip
         except LabelConflict as exc:
             return _conflict(exc)
         except InputError as exc:
             raise HTTPException(422, str(exc)) from None
+        if hide:
+            return {"label": None, "version": lab.version, "mine": {"value": value}}
         return {"label": lab.model_dump(mode="json"), "version": lab.version}
 
-    @app.post("/api/undo", dependencies=[Depends(auth)])
-    def undo(body: UndoBody) -> Any:
-        _item(body.kind, body.key)
+    @app.post("/api/undo")
+    def undo(body: UndoBody, user: User = Depends(auth)) -> Any:
+        _writable(user, body.kind, body.key)
+        hist = store.history(body.kind, body.key)
+        last = next((c for c in reversed(hist) if c.applied), None)
+        if last is not None and last.actor != user.name and user.role != "reviewer":
+            raise HTTPException(403, f"the last change is {last.actor}'s: only they (or a reviewer) can undo it")
         try:
-            lab = store.undo(body.kind, body.key, body.annotator, expected_version=body.expected_version)
+            lab = store.undo(body.kind, body.key, user.name, expected_version=body.expected_version)
         except LabelConflict as exc:
             return _conflict(exc)
         except InputError as exc:
             raise HTTPException(422, str(exc)) from None
+        if is_blind(user, False):
+            return {"label": None, "version": store.version(body.kind, body.key)}
         return {"label": lab.model_dump(mode="json") if lab else None, "version": store.version(body.kind, body.key)}
 
-    @app.get("/api/export", dependencies=[Depends(auth)])
-    def export() -> dict:
-        return store.export()
+    @app.post("/api/verdict")
+    def verdict(body: VerdictBody, user: User = Depends(reviewer)) -> Any:
+        _item(body.kind, body.key)
+        if body.verdict == "reject" and not body.comment.strip():
+            raise HTTPException(422, "reject: say what is wrong (the annotator sees the comment)")
+        try:
+            v, lab = store.review(body.kind, body.key, body.annotator, body.verdict, body.comment,
+                                  reviewer=user.name, expected_version=body.expected_version)  # fmt: skip
+        except LabelConflict as exc:
+            return _conflict(exc)
+        except InputError as exc:
+            raise HTTPException(422, str(exc)) from None
+        return {"verdict": v.model_dump(mode="json"), "label": lab.model_dump(mode="json") if lab else None,
+                "version": store.version(body.kind, body.key)}  # fmt: skip
+
+    @app.post("/api/note")
+    def note(body: NoteBody, user: User = Depends(auth)) -> Any:
+        _writable(user, body.kind, body.key)
+        try:
+            n = store.put_note(body.kind, body.key, user.name, body.text, skip=body.skip)
+        except InputError as exc:
+            raise HTTPException(422, str(exc)) from None
+        return {"note": n.model_dump(mode="json")}
+
+    @app.get("/api/agreement")
+    def agreement_summary(user: User = Depends(reviewer)) -> dict:
+        return agreement(index, store, TASKS)
+
+    @app.get("/api/export")
+    def export(user: User = Depends(auth)) -> dict:
+        if user.role != "reviewer" and (store.users() or is_blind(user, False)):
+            raise HTTPException(403, "the export shows every label: reviewers only")
+        return store.export() | {"agreement": agreement(index, store, TASKS)}
 
     # -- pixels ------------------------------------------------------------------------------
     def _ref(img_id: str):

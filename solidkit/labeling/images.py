@@ -2,17 +2,25 @@
 
 A 7296x3648 panorama is never sent whole: the browser gets a preview (at most
 :data:`PREVIEW_WIDTH` wide) and then only the tiles (equirect panoramas) or crops (photos) it
-looks at closely, each encoded once and kept in a small in-memory cache. Nothing is written to
-disk. Decoded full-resolution images are kept in a least-recently-used cache bounded in bytes.
+looks at closely. Previews and tiles are encoded once and kept on disk (``cache_dir``, by
+default ``CAMPAIGN/labels/image-cache/<image id>/``; the id changes with the file, so a stale
+copy is never served), so a restarted server sends them without decoding anything; crops are
+kept in a small in-memory cache. Decoded full-resolution images are kept in a least-recently-used
+cache bounded in bytes. An image's size is read from its header (EXR: OpenEXR's header; others:
+Pillow), never by decoding it; an EXR is decoded in strips of scanlines straight to 8-bit, so a
+7296x3648 HDR never exists as a float image in memory (about 200 MB at peak instead of 2 GB).
 
 Display encoding: LDR files are shown as stored (sRGB); HDR (EXR) products are exposed so that
-their median luminance maps to 18 % grey, then sRGB-encoded (conventions §5); the browser's
-exposure slider works on top of that.
+their median luminance (estimated from one block of scanlines in eight) maps to 18 % grey, then
+encoded with the sRGB power curve (the linear toe near black is left out: at most 4 of 255 grey
+levels in the deepest shadows); the browser's exposure slider works on top of that.
 """
 
 from __future__ import annotations
 
 import math
+import os
+import tempfile
 import threading
 from collections import OrderedDict
 from dataclasses import dataclass
@@ -21,7 +29,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from solidkit.envmap.io import imread, read_exr, srgb_encode
+from solidkit.envmap.io import imread
 from solidkit.envmap.sun import LUMINANCE_WEIGHTS
 from solidkit.errors import InputError
 
@@ -74,15 +82,67 @@ def tile_box(width: int, height: int, cols: int, rows: int, col: int, row: int) 
     )
 
 
+_STRIP = 128  # EXR scanlines decoded at once: 7296 x 128 x 3 float32 = 11 MB
+
+
+def exr_size(path: Path) -> tuple[int, int]:
+    """``(width, height)`` of an EXR from its header (no pixels read)."""
+    import OpenEXR
+
+    try:
+        with OpenEXR.File(str(path), header_only=True) as f:
+            lo, hi = f.header()["dataWindow"]
+    except Exception as exc:  # OpenEXR raises plain RuntimeError on a corrupt file
+        raise InputError(f"{path}: not a readable EXR file ({exc})") from None
+    return int(hi[0] - lo[0] + 1), int(hi[1] - lo[1] + 1)
+
+
+def _exr_display8(path: Path) -> np.ndarray:
+    """An EXR exposed for display as uint8 BGR ``(H, W, 3)``, decoded strip by strip."""
+    import Imath
+    import OpenEXR
+
+    try:
+        f = OpenEXR.InputFile(str(path))
+        header = f.header()
+        dw = header["dataWindow"]
+        w, h, y_min = dw.max.x - dw.min.x + 1, dw.max.y - dw.min.y + 1, dw.min.y
+        names = sorted(header["channels"])
+        bgr = "BGR" if all(c in names for c in "RGB") else (names[0],) * 3 if len(names) == 1 else None
+        if bgr is None:
+            raise InputError(f"{path}: EXR has channels {names}; expected RGB, RGBA or one channel")
+        FLOAT = Imath.PixelType(Imath.PixelType.FLOAT)
+
+        def strip(y0: int, y1: int) -> list[np.ndarray]:
+            return [np.frombuffer(c, np.float32).reshape(y1 - y0, w) for c in f.channels(list(bgr), FLOAT,
+                    y_min + y0, y_min + y1 - 1)]  # fmt: skip
+
+        lum = []  # the median from one block of 16 scanlines in eight (ZIP's block: one decode each)
+        for y0 in range(0, h, 8 * 16):
+            b, g, r = strip(y0, min(h, y0 + 16))
+            lum.append((LUMINANCE_WEIGHTS[0] * r + LUMINANCE_WEIGHTS[1] * g + LUMINANCE_WEIGHTS[2] * b)[:, ::3])
+        vals = np.concatenate([v.ravel() for v in lum])
+        vals = vals[np.isfinite(vals) & (vals > 0)]
+        med = float(np.median(vals)) if vals.size else 1.0
+        gain = (0.18 / max(med, 1e-12)) ** (1 / 2.4)
+        out = np.empty((h, w, 3), np.uint8)
+        for y0 in range(0, h, _STRIP):
+            y1 = min(h, y0 + _STRIP)
+            x = cv2.merge(strip(y0, y1))
+            x = cv2.pow(cv2.max(np.nan_to_num(x, nan=0.0, posinf=1e30), 0.0), 1 / 2.4)
+            out[y0:y1] = cv2.addWeighted(x, 255 * 1.055 * gain, x, 0.0, -0.055 * 255, dtype=cv2.CV_8U)
+        f.close()
+    except InputError:
+        raise
+    except Exception as exc:  # OpenEXR raises plain errors on corrupt data
+        raise InputError(f"{path}: not a readable EXR file ({exc})") from None
+    return out
+
+
 def _to_display8(path: Path, hdr: bool) -> np.ndarray:
     """Decode to uint8 BGR for display (EXIF orientation ignored: pixels as stored, like K)."""
     if hdr:
-        rgb, _ = read_exr(path)
-        rgb = np.repeat(rgb, 3, axis=2) if rgb.shape[2] == 1 else rgb[..., :3]
-        lum = rgb @ LUMINANCE_WEIGHTS
-        med = float(np.median(lum[np.isfinite(lum) & (lum > 0)])) if np.any(lum > 0) else 1.0
-        out = srgb_encode(np.nan_to_num(rgb * (0.18 / max(med, 1e-12)), posinf=1.0))
-        return cv2.cvtColor(np.round(out * 255.0).astype(np.uint8), cv2.COLOR_RGB2BGR)
+        return _exr_display8(path)
     img = imread(path, cv2.IMREAD_COLOR | cv2.IMREAD_IGNORE_ORIENTATION)  # 16-bit PNGs come out 8-bit
     return img
 
@@ -133,12 +193,17 @@ class ImageService:
     max_decoded_bytes : int
         Budget for decoded full-resolution images (a 7296x3648 RGB image is 80 MB).
     max_encoded_bytes : int
-        Budget for encoded JPEG responses (previews, tiles, crops).
+        Budget for encoded JPEG responses kept in memory (previews, tiles, crops).
+    cache_dir : Path, optional
+        Folder for encoded previews and tiles (one subfolder per image id); None: memory only.
     """
 
-    def __init__(self, max_decoded_bytes: int = 320 << 20, max_encoded_bytes: int = 96 << 20):
+    def __init__(
+        self, max_decoded_bytes: int = 160 << 20, max_encoded_bytes: int = 64 << 20, cache_dir: Path | None = None
+    ):
         self._decoded = _LRU(max_decoded_bytes)
         self._encoded = _LRU(max_encoded_bytes)
+        self.cache_dir = cache_dir
         self._sizes: dict[str, tuple[int, int]] = {}
         self._locks: dict[str, threading.Lock] = {}
         self._guard = threading.Lock()
@@ -171,14 +236,21 @@ class ImageService:
                 except OSError as exc:
                     raise InputError(f"{ref.path}: not a readable image ({exc})") from None
             else:
-                self.full(ref)
+                self._sizes[ref.id] = exr_size(ref.path)
         return self._sizes[ref.id]
 
-    def _cached(self, key: tuple, make) -> bytes:
+    def _cached(self, key: tuple, make, disk: str | None = None) -> bytes:
         data = self._encoded.value(key)
-        if data is None:
+        if data is not None:
+            return data
+        path = self.cache_dir / key[0] / disk if self.cache_dir is not None and disk else None
+        if path is not None and path.is_file():
+            data = path.read_bytes()
+        else:
             data = make()
-            self._encoded.put(key, data, len(data))
+            if path is not None:
+                _write_atomic(path, data)
+        self._encoded.put(key, data, len(data))
         return data
 
     def preview(self, ref: ImageRef, max_width: int = PREVIEW_WIDTH) -> bytes:
@@ -191,7 +263,7 @@ class ImageService:
                 img = cv2.resize(img, (max_width, max(1, round(h * max_width / w))), interpolation=cv2.INTER_AREA)
             return _jpeg(img)
 
-        return self._cached((ref.id, "preview", max_width), make)
+        return self._cached((ref.id, "preview", max_width), make, f"preview-{max_width}.jpg")
 
     def tile(self, ref: ImageRef, col: int, row: int) -> bytes:
         """JPEG of tile ``(col, row)`` of :func:`tile_grid` at full resolution."""
@@ -204,7 +276,7 @@ class ImageService:
             x0, y0, x1, y1 = tile_box(w, h, cols, rows, col, row)
             return _jpeg(self.full(ref)[y0:y1, x0:x1])
 
-        return self._cached((ref.id, "tile", col, row), make)
+        return self._cached((ref.id, "tile", col, row), make, f"tile-{cols}x{rows}-{col}-{row}.jpg")
 
     def crop(
         self, ref: ImageRef, x: float, y: float, cw: float, ch: float, out_width: int
@@ -228,3 +300,15 @@ class ImageService:
             return _jpeg(img)
 
         return self._cached((ref.id, "crop", box, out_width), make), box
+
+
+def _write_atomic(path: Path, data: bytes) -> None:
+    """Write a cache file so that a reader never sees half of it (a failure only loses the cache)."""
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        fd, tmp = tempfile.mkstemp(dir=path.parent, suffix=".part")
+        with os.fdopen(fd, "wb") as fh:
+            fh.write(data)
+        os.replace(tmp, path)
+    except OSError:
+        pass

@@ -76,6 +76,7 @@ __all__ = [
     "store_path",
     "validate_value",
     "opinions",
+    "check_name",
     "ROLES",
     "Verdict",
     "Note",
@@ -371,7 +372,7 @@ def _finite_text(text: str) -> bool:
     return all(c in "\n\t" or c.isprintable() for c in text)
 
 
-def _check_name(name: str, what: str = "annotator") -> str:
+def check_name(name: str, what: str = "annotator") -> str:
     if not isinstance(name, str) or not _NAME.match(name) or name != name.strip():
         raise InputError(f"{what} {name!r}: 1-64 printable characters, no surrounding spaces")
     return name
@@ -579,8 +580,8 @@ class LabelStore:
         value = validate_value(kind, key, value)
         if source not in ("auto", "annotator", "reviewed"):
             raise InputError(f"label source {source!r}: not one of auto, annotator, reviewed")
-        _check_name(annotator)
-        flags = sorted({_check_name(f, "flag") for f in flags})
+        check_name(annotator)
+        flags = sorted({check_name(f, "flag") for f in flags})
         with self._connect() as con, self._write(con):
             if source == "reviewed":
                 self._require_reviewer(con, annotator)
@@ -620,7 +621,7 @@ class LabelStore:
         LabelConflict
             ``expected_version`` given and not current.
         """
-        _check_name(annotator)
+        check_name(annotator)
         with self._connect() as con, self._write(con):
             row = self._current(con, kind, key)
             version = row[2] if row else 0
@@ -671,13 +672,26 @@ class LabelStore:
 
     def add_user(self, name: str, role: str) -> None:
         """Register ``name`` with ``role`` (``annotator`` or ``reviewer``); an existing user gets the new role."""
-        _check_name(name, "user name")
+        check_name(name, "user name")
         if role not in ROLES:
             raise InputError(f"role {role!r}: not one of {', '.join(ROLES)}")
         with self._connect() as con, self._write(con):
             con.execute(
                 "INSERT INTO users VALUES (?, ?, ?) ON CONFLICT (name) DO UPDATE SET role = excluded.role",
                 (name, role, _now()),
+            )
+
+    def setting(self, name: str) -> str | None:
+        """A campaign setting kept in the store (``blind``: ``"1"`` hides other labels from annotators)."""
+        with self._connect() as con:
+            row = con.execute("SELECT value FROM meta WHERE name = ?", (f"setting.{name}",)).fetchone()
+        return row[0] if row else None
+
+    def set_setting(self, name: str, value: str) -> None:
+        with self._connect() as con, self._write(con):
+            con.execute(
+                "INSERT INTO meta VALUES (?, ?) ON CONFLICT (name) DO UPDATE SET value = excluded.value",
+                (f"setting.{name}", value),
             )
 
     def users(self) -> dict[str, str]:
@@ -733,7 +747,7 @@ class LabelStore:
         LabelConflict
             Accept with ``expected_version`` not current.
         """
-        _check_name(reviewer, "reviewer")
+        check_name(reviewer, "reviewer")
         if verdict not in ("accept", "reject"):
             raise InputError(f"verdict {verdict!r}: accept or reject")
         if not isinstance(comment, str) or len(comment) > MAX_COMMENT:
@@ -768,7 +782,7 @@ class LabelStore:
     def put_note(self, kind: str, key: str, annotator: str, text: str, *, skip: bool = False) -> Note:
         """Set ``annotator``'s note on an item (``skip``: "can't tell", ``text`` the reason; an
         empty text without skip clears the note)."""
-        _check_name(annotator)
+        check_name(annotator)
         if kind not in _KEYS or not isinstance(key, str) or not _KEYS[kind].match(key):
             raise InputError(f"note on {kind} {key!r}: no such label address")
         if not isinstance(text, str) or len(text) > MAX_COMMENT or not _finite_text(text):

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import math
 import os
+import shutil
 import socket
 import subprocess
 import sys
@@ -34,10 +35,20 @@ def campaign(tmp_path_factory):
 def client(campaign, tmp_path):
     root, alignment = campaign
     # a fresh label store per test: copy nothing, point the app at the shared images but its own labels dir
-    (root / "labels").mkdir(exist_ok=True)
-    for f in (root / "labels").iterdir():
-        f.unlink()
-    return TestClient(create_app(root, alignment=alignment, allowed_hosts=["testserver"]))
+    shutil.rmtree(root / "labels", ignore_errors=True)
+    return login(TestClient(create_app(root, alignment=alignment, allowed_hosts=["testserver"])), "ann")
+
+
+def login(client, name, token=""):
+    """Log ``client`` in as ``name`` (the session cookie stays in the client); returns it."""
+    r = client.post("/api/session", json={"name": name, "token": token}, headers=W)
+    assert r.status_code == 200, r.text
+    return client
+
+
+def as_user(client, name):
+    """Another browser on the same app, logged in as ``name``."""
+    return login(TestClient(client.app), name)
 
 
 def item(client, kind, key):
@@ -46,14 +57,14 @@ def item(client, kind, key):
     return r.json()
 
 
-def put(client, kind, key, value, version, annotator="ann", **kw):
-    body = {"kind": kind, "key": key, "value": value, "expected_version": version, "annotator": annotator, **kw}
+def put(client, kind, key, value, version, **kw):
+    body = {"kind": kind, "key": key, "value": value, "expected_version": version, **kw}
     return client.put("/api/label", json=body, headers=W)
 
 
 def test_queues_follow_the_manifest_and_alignment(client):
     c = client.get("/api/campaign").json()
-    assert c["progress"]["sun"] == {"done": 0, "flagged": 1, "left": 4, "total": 5}  # p2: align found no sun
+    assert c["progress"]["sun"] == {"done": 0, "flagged": 1, "left": 4, "returned": 0, "total": 5}  # p2: no sun
     assert [i["key"] for i in client.get("/api/queue/sun").json()["items"]] == [
         "city/cam",
         "city/p1",
@@ -87,32 +98,36 @@ def test_queues_follow_the_manifest_and_alignment(client):
 
 
 def test_save_conflict_loses_nothing_and_review_compares(client, campaign):
+    store = LabelStore(campaign[0])
+    for name, role in (("ann", "annotator"), ("bob", "annotator"), ("rev", "reviewer")):
+        store.add_user(name, role)
+    bob, rv = as_user(client, "bob"), as_user(client, "rev")
     v = {"found": True, "azimuth_deg": 40.1, "elevation_deg": 25.2, "uncertainty_deg": 0.3}
     r = put(client, "sun", "s1/p1", v, 0)
     assert r.status_code == 200 and r.json()["version"] == 1
     mine = {"found": True, "azimuth_deg": 43.0, "elevation_deg": 25.0, "uncertainty_deg": 0.5}
-    r = put(client, "sun", "s1/p1", mine, 0, annotator="bob")  # bob opened it before ann saved
+    r = put(bob, "sun", "s1/p1", mine, 0)  # bob opened it before ann saved
     assert r.status_code == 409
     assert r.json()["current"]["annotator"] == "ann" and r.json()["version"] == 1
     assert item(client, "sun", "s1/p1")["label"]["value"]["azimuth_deg"] == 40.1
-    r = put(client, "sun", "s1/p1", mine, r.json()["version"], annotator="bob")  # "save mine on top"
+    r = put(bob, "sun", "s1/p1", mine, r.json()["version"])  # "save mine on top"
     assert r.status_code == 200 and r.json()["version"] == 2
     assert r.json()["label"]["flags"] == ["annotators_disagree: 2.6 deg (ann)"]  # travels to the test set
     rev = item(client, "sun", "s1/p1")["review"]
     assert set(rev["opinions"]) == {"ann", "bob"} and rev["open_disagreement"] and rev["status"] == "flagged"
     assert rev["disagreement"] == pytest.approx(2.6, abs=0.1)  # degrees of arc, not of azimuth
-    queue = client.get("/api/queue/review").json()["items"]
+    assert client.get("/api/queue/review").status_code == 403  # the review queue is the reviewers'
+    queue = rv.get("/api/queue/review").json()["items"]
     assert queue[0]["key"] == "s1/p1" and queue[0]["flags"] == [
         "annotators_disagree: 2.6 deg (ann)",
         "differs_from_auto",
     ]
-    r = put(client, "sun", "s1/p1", v, 2, annotator="rev", source="reviewed")
+    assert put(client, "sun", "s1/p1", v, 2, source="reviewed").status_code == 403  # ann is no reviewer
+    r = put(rv, "sun", "s1/p1", v, 2, source="reviewed")
     assert item(client, "sun", "s1/p1")["review"]["status"] == "done" and r.json()["label"]["flags"] == []
-    r = client.post(
-        "/api/undo", json={"kind": "sun", "key": "s1/p1", "annotator": "rev", "expected_version": 3}, headers=W
-    )
+    r = rv.post("/api/undo", json={"kind": "sun", "key": "s1/p1", "expected_version": 3}, headers=W)
     assert r.status_code == 200 and r.json()["label"]["annotator"] == "bob" and r.json()["version"] == 4
-    exported = client.get("/api/export").json()
+    exported = rv.get("/api/export").json()
     assert exported["labels"][0]["value"]["azimuth_deg"] == 43.0
     assert LabelStore(campaign[0]).get("sun", "s1/p1").version == 4
 
@@ -124,24 +139,12 @@ def test_bad_bodies(client):
     )
     assert put(client, "sun", "nope/p9", {"found": False}, 0).status_code == 404
     assert put(client, "heading", "s1/p1", {"yaw_deg": "east"}, 0).status_code == 422
-    body = {
-        "kind": "sun",
-        "key": "s1/p1",
-        "value": {"found": False},
-        "expected_version": 0,
-        "annotator": "ann",
-        "admin": True,
-    }
+    body = {"kind": "sun", "key": "s1/p1", "value": {"found": False}, "expected_version": 0, "admin": True}
     assert client.put("/api/label", json=body, headers=W).status_code == 422
-    big = {
-        "kind": "sun",
-        "key": "s1/p1",
-        "value": {"found": False},
-        "expected_version": 0,
-        "annotator": "a" * MAX_BODY_BYTES,
-    }
+    big = {"kind": "sun", "key": "s1/p1", "value": {"found": False, "x": "a" * MAX_BODY_BYTES}, "expected_version": 0}
     assert client.put("/api/label", json=big, headers=W).status_code == 413
-    assert put(client, "sun", "s1/p1", {"found": False}, 0, annotator="").status_code == 422
+    # who saves comes from the session, never from the body
+    assert put(client, "sun", "s1/p1", {"found": False}, 0, annotator="mallory").status_code == 422
     assert client.get("/api/item", params={"kind": "sun", "key": "s1/zz"}).status_code == 404
 
 
@@ -193,14 +196,14 @@ def test_symlink_escape_is_not_served(tmp_path):
     target.unlink()
     os.symlink(secret, target)
     app = create_app(root, alignment=alignment, allowed_hosts=["testserver"])
-    c = TestClient(app)
+    c = login(TestClient(app), "ann")
     assert "s1/p2" not in [i["key"] for i in c.get("/api/queue/sun").json()["items"]]
     assert any("outside the campaign" in p for p in c.get("/api/campaign").json()["problems"])
     assert all(ref.path.is_relative_to(root.resolve()) for ref in app.state.index.images.values())
 
 
 def test_cross_site_writes_refused(client):
-    v = {"kind": "sun", "key": "s1/p1", "value": {"found": False}, "expected_version": 0, "annotator": "ann"}
+    v = {"kind": "sun", "key": "s1/p1", "value": {"found": False}, "expected_version": 0}
     assert client.put("/api/label", json=v).status_code == 403  # no X-Solidkit header (a form post cannot add it)
     assert client.put("/api/label", json=v, headers={**W, "Origin": "http://evil.example"}).status_code == 403
     assert client.put("/api/label", json=v, headers={**W, "Sec-Fetch-Site": "cross-site"}).status_code == 403
@@ -220,11 +223,14 @@ def test_token_mode(campaign):
     c = TestClient(create_app(root, alignment=alignment, token=token, allowed_hosts=["testserver"]))
     assert c.get("/").status_code == 200  # the page itself holds no data
     assert c.get("/api/campaign").status_code == 401
-    assert c.get("/api/session").json() == {"token_required": True, "authenticated": False}
+    state = c.get("/api/session").json()
+    assert (state["token_required"], state["authenticated"], state["users"]) == (True, False, [])
     assert c.get("/api/campaign", params={"token": token}).status_code == 401  # never from a URL
-    assert c.post("/api/session", json={"token": "wrong"}, headers=W).status_code == 401
-    assert c.get("/api/campaign", headers={"Authorization": f"Bearer {token}"}).status_code == 200
-    r = c.post("/api/session", json={"token": token}, headers=W)
+    assert c.post("/api/session", json={"token": "wrong", "name": "ann"}, headers=W).status_code == 401
+    bearer = {"Authorization": f"Bearer {token}", "X-Solidkit-User": "ann"}  # scripts: token + a user
+    assert c.get("/api/campaign", headers=bearer).status_code == 200
+    assert c.get("/api/campaign", headers={"X-Solidkit-User": "ann"}).status_code == 401  # a name is no token
+    r = c.post("/api/session", json={"token": token, "name": "ann"}, headers=W)
     cookie = r.headers["set-cookie"].lower()
     assert r.status_code == 200 and "httponly" in cookie and "samesite=strict" in cookie and token not in cookie
     assert c.get("/api/campaign").status_code == 200  # the session cookie
@@ -263,7 +269,7 @@ def test_proposal_from_the_store_without_alignment(tmp_path):
     ]
     value = {"found": True, "azimuth_deg": 40.0, "elevation_deg": 25.0, "uncertainty_deg": 0.4, "candidates": cand}
     LabelStore(root).put("sun", "s1/p1", value, source="auto", annotator="align", flags=["glint"])
-    c = TestClient(create_app(root, allowed_hosts=["testserver"]))
+    c = login(TestClient(create_app(root, allowed_hosts=["testserver"])), "ann")
     it = item(c, "sun", "s1/p1")
     assert it["proposal"] == {"found": True, "azimuth_deg": 40.0, "elevation_deg": 25.0, "uncertainty_deg": 0.4}
     assert it["view"]["candidates"] == cand and "glint" in it["review"]["flags"]
@@ -294,7 +300,7 @@ def test_serve_beyond_loopback_prints_a_token_and_requires_it(campaign):
                 time.sleep(0.05)
         else:
             pytest.fail("server did not answer")
-        req = urllib.request.Request(url, headers={"Authorization": f"Bearer {token}"})
+        req = urllib.request.Request(url, headers={"Authorization": f"Bearer {token}", "X-Solidkit-User": "ann"})
         assert urllib.request.urlopen(req, timeout=5).status == 200
     finally:
         proc.terminate()
@@ -306,7 +312,7 @@ def test_hdr_shown_exposed_and_nothing_written_but_the_store(tmp_path):
     where conventions §3 puts it); a whole session writes nothing in the campaign but labels/."""
     root, alignment = make_campaign(tmp_path / "camp", with_city=False)
     before = {p: p.stat().st_mtime_ns for p in root.rglob("*")}
-    c = TestClient(create_app(root, alignment=alignment, allowed_hosts=["testserver"]))
+    c = login(TestClient(create_app(root, alignment=alignment, allowed_hosts=["testserver"])), "ann")
     img = item(c, "heading", "s1/p1")["view"]["image"]
     assert img["hdr"] is True
     prev = cv2.imdecode(np.frombuffer(c.get(f"/api/img/{img['id']}/preview.jpg").content, np.uint8), cv2.IMREAD_COLOR)
@@ -335,7 +341,7 @@ def test_the_app_on_the_mini_campaign_chain(cli, tmp_path):
     assert cli("ingest", MINI / "card", "-o", camp)[0] == 0
     assert cli("align", camp, "--no-report")[0] == 0
     alignment = load_alignment(camp).model_dump(mode="json")
-    c = TestClient(create_app(camp, alignment=alignment, allowed_hosts=["testserver"]))
+    c = login(TestClient(create_app(camp, alignment=alignment, allowed_hosts=["testserver"])), "ann")
     assert c.get("/api/campaign").json()["problems"] == []
     captures = {f"{s['id']}/{x['probe']}": x for s in alignment["scenes"] for x in s["sun"]["captures"]}
     for kind in ("sun", "probe_pixel", "heading"):
