@@ -67,6 +67,8 @@ class FlagCode(str, Enum):
     NO_SUN_FOUND = "no_sun_found"
     EPHEMERIS_DISAGREES = "ephemeris_disagrees"
     EPHEMERIS_AZIMUTH_DISAGREES = "ephemeris_azimuth_disagrees"
+    SUN_OFF_EPHEMERIS = "sun_off_ephemeris"
+    SUN_FRAME_CONFLICT = "sun_frame_conflict"
     NO_EPHEMERIS = "no_ephemeris"
     SINGLE_POSITION = "single_position"
     # the test set (solidkit.testset.build)

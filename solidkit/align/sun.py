@@ -27,9 +27,17 @@ as bright and as small as the sun, so brightness and confidence cannot tell them
    must match within the compass's error.
 
 Hypotheses are the candidates' directions in the photo's panorama frame; each is scored by the
-captures that have a candidate agreeing with it and by the ephemeris; the best wins, and every
-other candidate is rejected with the reasons it failed. A scene whose images agree with each
-other but not with the ephemeris is flagged (clock or GPS wrong), never averaged with it.
+captures that have a candidate agreeing with it, each weighed by how sun-like that candidate is
+(:meth:`SunScene.sun_likeness`: its width against the scene's narrowest whole core, the 0.53° disk
+widened by the optics, and its shape), and by the ephemeris through the photo's compass (up to
+3.5 captures' worth: a plane mirror's image of the sun is one world direction from every position
+that sees it, so agreeing positions alone cannot tell it from the sun). Where the elevation matches
+the ephemeris (clock and GPS right) and the captures' compasses agree with their feature yaws (the
+photo's heading right), a candidate more than three compass sigmas from the ephemeris' azimuth is
+rejected. The best wins, and every other candidate is rejected with the reasons it failed. A scene
+whose images agree with each other but not with the ephemeris is flagged, never averaged with it,
+and so is every capture whose chosen sun is off the ephemeris (``sun_off_ephemeris``), each flag
+naming the likelier cause (:func:`likelier_cause`).
 """
 
 from __future__ import annotations
@@ -77,6 +85,7 @@ __all__ = [
     "Agreement",
     "Hypothesis",
     "Rejections",
+    "likelier_cause",
     "hard_rejections",
     "best_hypothesis",
     "choose_candidates",
@@ -88,7 +97,13 @@ __all__ = [
 
 @dataclass(frozen=True)
 class Blob:
-    """A saturated blob of a sun frame; angles in degrees in the capture's level frame."""
+    """A saturated blob of a sun frame; angles in degrees in the capture's level frame.
+
+    ``size_deg``: the diameter of a disk of the saturated core's solid angle; ``elongation``: the ratio of
+    the core's long to short axis (>= 1; a disk: 1); ``core_fraction``: the saturated core's share of the
+    blob's solid angle above the rim level (a sun's hard edge: most of it; a glint's soft falloff: less);
+    ``pixel_deg``: the sun frame's pixel (180 / H).
+    """
 
     direction: np.ndarray
     azimuth_deg: float
@@ -97,6 +112,9 @@ class Blob:
     n_pixels: int
     contrast: float
     sky_fraction: float | None = None
+    elongation: float = 1.0
+    core_fraction: float = 1.0
+    pixel_deg: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -114,6 +132,12 @@ class SunSettings:
     sun_moves: bool = True
     ephemeris_tolerance_deg: float = 1.5
     max_candidates: int = 12
+    size_slack: float = 1.25
+    size_log_sigma: float = 0.25
+    max_elongation: float = 2.0
+    min_shape_pixels: int = 20
+    ephemeris_azimuth_weight: float = 3.5
+    compass_azimuth_weight: float = 1.0
 
 
 @dataclass
@@ -171,8 +195,41 @@ def find_candidates(
         size = math.degrees(2.0 * math.sqrt(float(areas[k]) / math.pi))
         ring = _ring(h, d, max(2.0, 3 * px), 6.0)
         bg = float(np.median(lo[ring])) if ring.any() else 0.0
-        blobs.append(Blob(d, wrap_deg(az), el, size, int(core.sum()), float(saturation / max(bg, 1e-3))))
+        lit = comp & (lo > rim_level)
+        core_fraction = float(areas[k]) / max(float(omega[lit].sum()), 1e-12)
+        blobs.append(
+            Blob(
+                d,
+                wrap_deg(az),
+                el,
+                size,
+                int(core.sum()),
+                float(saturation / max(bg, 1e-3)),
+                elongation=_elongation(core, omega, d, h),
+                core_fraction=min(core_fraction, 1.0),
+                pixel_deg=px,
+            )
+        )
     return blobs
+
+
+def _elongation(core: np.ndarray, omega: np.ndarray, d: np.ndarray, h: int) -> float:
+    """Long over short axis of a blob's core ``(H, 2H)`` bool about its direction ``d``: the square root of its
+    second moments' eigenvalue ratio in the plane tangent to the sphere at ``d`` (a pixel's own extent included)."""
+    ys, xs = np.nonzero(core)
+    rays = direction_grid(h)[ys, xs]
+    e1 = np.cross(d, [0.0, -1.0, 0.0])
+    if np.linalg.norm(e1) < 1e-6:
+        e1 = np.array([1.0, 0.0, 0.0])
+    e1 /= np.linalg.norm(e1)
+    e2 = np.cross(d, e1)
+    uv = np.stack([rays @ e1, rays @ e2], axis=1)
+    w = omega[ys, xs]
+    mean = (w[:, None] * uv).sum(axis=0) / w.sum()
+    c = ((uv - mean) * w[:, None]).T @ (uv - mean) / w.sum()
+    pix = (math.pi / h) ** 2 / 12.0  # a pixel's own second moment
+    lo, hi = np.linalg.eigvalsh(c)
+    return float(math.sqrt((hi + pix) / (max(lo, 0.0) + pix)))
 
 
 def _ring(h: int, d: np.ndarray, inner_deg: float, outer_deg: float) -> np.ndarray:
@@ -258,8 +315,9 @@ class Agreement:
 class Hypothesis:
     """The sun where candidate ``bi`` of capture ``ci`` is (:func:`best_hypothesis`), in the photo's
     panorama frame at the photo's time; ``members``: the candidate of every capture that agrees with it
-    (``{capture index: candidate index}``); ``score``: supporting captures (half for an agreement on
-    elevation only), plus the ephemeris' elevation (1.5) and azimuth (0.5) tests, plus a contrast tie-break."""
+    (``{capture index: candidate index}``); ``score``: supporting captures, each by its candidate's
+    sun-likeness (half for an agreement on elevation only), plus the ephemeris' elevation test (1.5) and its
+    azimuth vote (:meth:`SunScene.ephemeris_azimuth_score`), plus a contrast tie-break."""
 
     score: float
     ci: int
@@ -291,6 +349,70 @@ class SunScene:
         """Elevation tolerance (degrees): three sigmas of levelling and centroid, plus 0.1."""
         s = self.settings
         return 3.0 * math.hypot(s.level_sigma_deg, s.centroid_sigma_deg) + 0.1
+
+    @cached_property
+    def reference_size_deg(self) -> float:
+        """The width a whole sun's core has in this scene (degrees): the narrowest candidate at least the disk's
+        0.53 deg wide (one exposure, minutes apart: one size; a narrower core is a partly hidden sun), and no less
+        than the disk widened by the optics (two sun-frame pixels)."""
+        s = self.settings
+        disk = math.degrees(SUN_ANGULAR_DIAMETER)
+        whole = [
+            b.size_deg
+            for c in self.captures
+            for b in c.blobs
+            if disk <= b.size_deg <= s.max_size_deg and (b.sky_fraction is None or b.sky_fraction >= s.min_sky_fraction)
+        ]
+        optics = max((math.hypot(disk, 2.0 * b.pixel_deg) for c in self.captures for b in c.blobs), default=disk)
+        return max(min(whole, default=optics), optics)
+
+    def sun_likeness(self, ci: int, bi: int) -> tuple[float, str]:
+        """How sun-like candidate ``bi`` of capture ``ci`` is on its own, in ``(0, 1]``, and why it is less: its
+        width against :attr:`reference_size_deg` (up to ``size_slack`` wider is the same sun; beyond, a Gaussian
+        in the log of the ratio with ``size_log_sigma``) and its shape (a core of ``min_shape_pixels`` or more
+        with a long axis ``max_elongation`` times its short one or more is a streak, not a disk)."""
+        s, b = self.settings, self.captures[ci].blobs[bi]
+        ref = self.reference_size_deg
+        chi2, why = 0.0, []
+        excess = math.log(max(b.size_deg, 1e-6) / (s.size_slack * ref))
+        if excess > 0:
+            chi2 += (excess / s.size_log_sigma) ** 2
+            why.append(f"{b.size_deg:.2f} deg wide vs {ref:.2f} deg for the sun here")
+        if b.n_pixels >= s.min_shape_pixels and b.elongation > s.max_elongation:
+            chi2 += ((b.elongation - s.max_elongation) / 0.4) ** 2
+            why.append(f"elongated {b.elongation:.1f}:1")
+        return math.exp(-0.5 * chi2), "; ".join(why)
+
+    def ephemeris_azimuth_score(self, ci: int, bi: int, h_az: float | None) -> float:
+        """The ephemeris' vote for candidate ``bi`` of capture ``ci`` at photo-frame azimuth ``h_az``: up to
+        ``ephemeris_azimuth_weight`` where the ephemeris through the photo's compass puts the sun (a Gaussian in
+        azimuth with ``compass_sigma_deg``); without a yaw, up to ``compass_azimuth_weight`` through the
+        capture's own compass (wider: a compass can be 90 deg off)."""
+        s, eph_p, cap = self.settings, self.ephemeris_in_photo, self.captures[ci]
+        if eph_p is None or eph_p.azimuth_deg is None:
+            return 0.0
+        if h_az is not None:
+            d = wrap_deg(h_az - eph_p.azimuth_deg)
+            return s.ephemeris_azimuth_weight * math.exp(-0.5 * (d / s.compass_sigma_deg) ** 2)
+        if cap.compass_yaw_deg is not None:
+            d = wrap_deg(self.compass_azimuth(ci, bi) - eph_p.azimuth_deg)
+            return s.compass_azimuth_weight * math.exp(-0.5 * (d / (1.5 * s.compass_sigma_deg)) ** 2)
+        return 0.0
+
+    @cached_property
+    def compasses_agree(self) -> bool | None:
+        """Whether the captures' compasses agree with their yaws from other cues (features): most within three
+        compass sigmas (None: no capture has both). Then the photo's compass heading is right, the ephemeris'
+        azimuth in the photo frame too unless the clock or GPS is wrong (the elevation tells)."""
+        s = self.settings
+        pairs = [
+            abs(wrap_deg(c.yaw_deg - c.compass_yaw_deg))
+            for c in self.captures
+            if c.yaw_deg is not None and c.compass_yaw_deg is not None
+        ]
+        if not pairs:
+            return None
+        return sum(d <= 3.0 * s.compass_sigma_deg for d in pairs) * 2 > len(pairs)
 
     @cached_property
     def ephemeris_in_photo(self) -> PhotoDirection | None:
@@ -377,7 +499,7 @@ def best_hypothesis(scene: SunScene, hard: Rejections) -> tuple[Hypothesis | Non
                 continue
             h_az, h_el = scene.in_photo_frame(ci, bi)
             h_sig = cap.yaw_sigma_deg or 0.0
-            support, members = 1.0, {ci: bi}
+            support, members = scene.sun_likeness(ci, bi)[0], {ci: bi}
             for cj, other in enumerate(captures):
                 if cj == ci:
                     continue
@@ -386,9 +508,12 @@ def best_hypothesis(scene: SunScene, hard: Rejections) -> tuple[Hypothesis | Non
                 ]
                 fits = [(bj, a) for bj, a in fits if a.ok]
                 if fits:
-                    full = any(not a.elevation_only for _, a in fits)
-                    support += 1.0 if full else 0.5
-                    members[cj] = fits[0][0]
+                    # each supporting capture by how sun-like its candidate is (a mirror image in glass agrees
+                    # with the others like the sun, but is wider)
+                    votes = [((0.5 if a.elevation_only else 1.0) * scene.sun_likeness(cj, bj)[0], bj) for bj, a in fits]
+                    vote, bj = max(votes)
+                    support += vote
+                    members[cj] = bj
             eph_el_ok = eph_p is not None and abs(h_el - eph_p.elevation_deg) <= s.ephemeris_tolerance_deg
             eph_az_ok = (
                 eph_p is not None
@@ -402,7 +527,16 @@ def best_hypothesis(scene: SunScene, hard: Rejections) -> tuple[Hypothesis | Non
                     abs(wrap_deg(scene.compass_azimuth(ci, bi) - eph_p.azimuth_deg)) <= 3.0 * s.compass_sigma_deg
                 )
             eph_az_bad = eph_p is not None and eph_p.azimuth_deg is not None and h_az is not None and not eph_az_ok
-            if support == 1.0 and eph_az_bad:
+            if eph_az_bad and eph_el_ok and scene.compasses_agree:
+                # the clock and GPS are right (the elevation) and the photo's compass too (the captures'
+                # compasses agree with their feature yaws): the ephemeris' azimuth stands, whatever agrees here
+                assert h_az is not None and eph_p is not None and eph_p.azimuth_deg is not None  # eph_az_bad
+                hard[ci, bi] = [
+                    f"{abs(wrap_deg(h_az - eph_p.azimuth_deg)):.1f} deg in azimuth from the ephemeris, whose elevation "
+                    "it has, while the compasses agree with the feature yaws: a mirror image of the sun in glass?"
+                ]
+                continue
+            if len(members) == 1 and eph_az_bad:
                 # seen from one position only and not where the ephemeris and the compass put the sun:
                 # nothing confirms it (a glint in a vertical glass wall has the sun's elevation too)
                 assert h_az is not None and eph_p is not None and eph_p.azimuth_deg is not None  # eph_az_bad
@@ -412,7 +546,12 @@ def best_hypothesis(scene: SunScene, hard: Rejections) -> tuple[Hypothesis | Non
                     "from the ephemeris (through the photo's compass): a glint? (occluded sun elsewhere)"
                 ]
                 continue
-            score = support + 1.5 * eph_el_ok + 0.5 * eph_az_ok + 0.01 * min(cap.blobs[bi].contrast, 50) / 50
+            score = (
+                support
+                + 1.5 * eph_el_ok
+                + scene.ephemeris_azimuth_score(ci, bi, h_az)
+                + 0.01 * min(cap.blobs[bi].contrast, 50) / 50
+            )
             if best is None or score > best.score:
                 best = Hypothesis(score, ci, bi, h_az, h_el, members, eph_el_ok, eph_az_ok)
     return best, hard
@@ -597,6 +736,7 @@ def consensus(scene: SunScene, results: list[CaptureSun]) -> SceneSun:
     el_tol, eph_p = scene.el_tol, scene.ephemeris_in_photo
     scene_flags: list[str] = []
     pts = []
+    level_az: dict[int, float] = {}
     for ci, (cap, res) in enumerate(zip(captures, results)):
         if not res.found:
             continue
@@ -604,6 +744,7 @@ def consensus(scene: SunScene, results: list[CaptureSun]) -> SceneSun:
         c_az, c_el = at_photo_time(
             res.azimuth_deg, res.elevation_deg, cap.ephemeris, photo_ephemeris, sun_moves=s.sun_moves
         )
+        level_az[ci] = c_az
         sig_dir = math.hypot(res.uncertainty_deg or s.centroid_sigma_deg, s.level_sigma_deg)
         pts.append(
             (ci, None if cap.yaw_deg is None else wrap_deg(c_az + cap.yaw_deg), c_el, cap.yaw_sigma_deg, sig_dir)
@@ -635,6 +776,11 @@ def consensus(scene: SunScene, results: list[CaptureSun]) -> SceneSun:
             detail = f"d_el {dev_el:+.2f} deg" + ("" if dev_az is None else f", d_az {dev_az:+.2f} deg")
             r.flags = [*r.flags, str(Flag(FlagCode.DISAGREES_WITH_SCENE, detail))]
             scene_flags.append(str(Flag(FlagCode.POSITION_DISAGREES, r.probe)))
+    scene_el_bad = photo_ephemeris is not None and abs(el - photo_ephemeris.elevation_deg) > s.ephemeris_tolerance_deg
+    for ci, p_az, p_el, _, _ in pts:
+        off = _off_ephemeris(scene, ci, p_az, p_el, level_az.get(ci), scene_el_bad)
+        if off is not None:
+            results[ci].flags = [*results[ci].flags, off]
     sun.found, sun.azimuth_deg, sun.elevation_deg, sun.uncertainty_deg = True, az, el, unc
     sun.n_captures = len(pts)
     if az is not None and photo_heading_deg is not None:
@@ -662,7 +808,7 @@ def consensus(scene: SunScene, results: list[CaptureSun]) -> SceneSun:
                     str(
                         Flag(
                             FlagCode.EPHEMERIS_AZIMUTH_DISAGREES,
-                            f"{d_az:+.1f} deg (clock, GPS or the photo's compass heading)",
+                            f"{d_az:+.1f} deg ({likelier_cause(scene, abs(d_el) > s.ephemeris_tolerance_deg)})",
                         )
                     )
                 )
@@ -672,6 +818,62 @@ def consensus(scene: SunScene, results: list[CaptureSun]) -> SceneSun:
         scene_flags.append(str(Flag(FlagCode.SINGLE_POSITION, "the sun was confirmed at one position only")))
     sun.flags = scene_flags
     return sun
+
+
+def likelier_cause(scene: SunScene, elevation_off: bool) -> str:
+    """The likelier cause of images that disagree with the ephemeris, in words: a clock, UTC offset or GPS
+    where the elevation is off too (``elevation_off``: the scene's; the sun's elevation needs no compass);
+    else, where the captures' compasses agree with their feature yaws (:attr:`SunScene.compasses_agree`:
+    ephemeris and compasses agree with each other), the images (a mirror image of the sun in glass); where
+    they disagree, the photo's compass heading."""
+    if elevation_off:
+        return "camera clock, UTC offset or GPS wrong?"
+    agree = scene.compasses_agree
+    if agree is None:
+        return "clock, GPS or the photo's compass heading"
+    if agree:
+        return (
+            "the ephemeris and the compasses agree with each other: the images are the likelier culprit, "
+            "a mirror image of the sun in glass or a wrong yaw"
+        )
+    return "the Theta compasses disagree with the feature yaws: the photo's compass heading is the likelier culprit"
+
+
+def _off_ephemeris(
+    scene: SunScene, ci: int, p_az: float | None, p_el: float, level_az: float | None, scene_el_bad: bool
+) -> str | None:
+    """The ``sun_off_ephemeris`` flag of capture ``ci`` whose chosen sun is at ``(p_az, p_el)`` in the photo's
+    frame at the photo's time (``p_az`` None: no yaw; then ``level_az``, its azimuth in the capture's level
+    frame at the photo's time, through its compass, with twice the tolerance), or
+    None where it agrees with the ephemeris: elevation within ``ephemeris_tolerance_deg``, azimuth within three
+    compass sigmas. The flag names the likelier cause (:func:`likelier_cause`; an elevation off at this capture
+    alone is the image's or its levelling's)."""
+    s, eph, eph_p, cap = scene.settings, scene.photo_ephemeris, scene.ephemeris_in_photo, scene.captures[ci]
+    if eph is None or eph_p is None:
+        return None
+    d_el = p_el - eph.elevation_deg
+    d_az, route, tol = None, "", 3.0 * s.compass_sigma_deg
+    if eph_p.azimuth_deg is not None:
+        if p_az is not None:
+            d_az, route = wrap_deg(p_az - eph_p.azimuth_deg), "through its yaw"
+        elif cap.compass_yaw_deg is not None and level_az is not None:
+            d_az = wrap_deg(level_az + cap.compass_yaw_deg - eph_p.azimuth_deg)
+            route, tol = "through its compass", 2.0 * tol
+    el_bad = abs(d_el) > s.ephemeris_tolerance_deg
+    az_bad = d_az is not None and abs(d_az) > tol
+    if not (el_bad or az_bad):
+        return None
+    parts = []
+    if el_bad:
+        parts.append(f"elevation {d_el:+.2f} deg")
+    if d_az is not None:
+        parts.append(f"azimuth {d_az:+.1f} deg")
+    if el_bad and not scene_el_bad:
+        cause = "this capture alone: not the sun (a glint or a reflection) or its levelling"
+    else:
+        cause = likelier_cause(scene, el_bad)
+    how = f"{route}; " if d_az is not None else ""
+    return str(Flag(FlagCode.SUN_OFF_EPHEMERIS, f"{', '.join(parts)} from the ephemeris ({how}{cause})"))
 
 
 @dataclass(frozen=True)

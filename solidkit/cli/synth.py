@@ -195,8 +195,9 @@ def campaign(
     preset: str = typer.Option(
         "default",
         "--preset",
-        help="Settings preset: 'default' or 'mini' (the small campaign "
-        "shipped in solidkit/assets/campaign_mini); options given override it.",
+        help="Settings preset: 'default', 'mini' (the small campaign "
+        "shipped in solidkit/assets/campaign_mini) or 'glass-mini' (mini, every scene with glass facades); "
+        "options given override it.",
     ),
     glass_every: int | None = typer.Option(
         None,

@@ -103,6 +103,14 @@ PRESETS: dict[str, dict[str, Any]] = {
     # the campaign shipped in solidkit/assets/campaign_mini (a few MB): a small photo, one bracket exposure, JPEG
     # quality 85; panoramas, fisheyes and truth probes at the defaults (what its card and truth.json record)
     "mini": {"photo_width": 320, "photo_height": 240, "brackets_s": [1 / 250], "jpeg_quality": 85},
+    # the mini preset with glass facades in every scene (sun glints; benchmarks/results/align-glass-*)
+    "glass-mini": {
+        "photo_width": 320,
+        "photo_height": 240,
+        "brackets_s": [1 / 250],
+        "jpeg_quality": 85,
+        "glass_every": 1,
+    },
 }
 
 

@@ -111,7 +111,7 @@ def test_an_agreement_on_elevation_alone_counts_half() -> None:
     best, hard = best_hypothesis(scene, hard_rejections(caps, STATIC))
     assert (best.ci, best.bi) == (0, 0) and best.members == {0: 0, 1: 0}
     assert best.ephemeris_elevation_ok and best.ephemeris_azimuth_ok
-    assert best.score == pytest.approx(1.5 + 1.5 + 0.5 + 0.01 * 20 / 50)
+    assert best.score == pytest.approx(1.5 + 1.5 + STATIC.ephemeris_azimuth_weight + 0.01 * 20 / 50)
     assert hard == hard_rejections(caps, STATIC)  # nothing rejected on the way
 
 

@@ -234,3 +234,115 @@ def test_a_partly_hidden_sun_is_no_size_reference() -> None:
     sun = scene_sun([cam, p01], photo_ephemeris=PHOTO_EPH, photo_heading_deg=180.0, settings=STATIC)
     assert sun.captures[0].found and sun.captures[1].found
     assert not any("larger than the sun" in r for c in sun.captures[0].candidates for r in c.reasons)
+
+
+def _mirror_scene(
+    n_glints: int, *, glint_scale: float, compass_err: float | None = 2.0, sun: bool = True
+) -> list[CaptureSunInput]:
+    """The camera position sees the sun (unless ``sun`` is False); ``n_glints`` probes see only its mirror
+    image in a vertical glass wall: the sun's elevation, 37 deg off in azimuth, one world direction from every
+    position (a plane mirror), ``glint_scale`` times the sun's width. Every capture has a feature yaw; its compass
+    yaw is ``compass_err`` off it (None: no compass)."""
+    from dataclasses import replace
+
+    cam = _capture("cam", 0.0, sun=sun, glint=None if sun else (SUN_P[0] + 37.0, SUN_P[1]))
+    width = 0.73 if sun else 0.73 * glint_scale
+    cam.blobs = [replace(b, size_deg=width, pixel_deg=0.1875) for b in cam.blobs]
+    caps = [cam]
+    for k in range(n_glints):
+        yaw = -120.0 + 70.0 * k
+        p = _capture(f"p{k + 1:02d}", yaw, sun=False, glint=(wrap_deg(SUN_P[0] + 37.0 - yaw), SUN_P[1]))
+        p.blobs = [replace(b, size_deg=0.73 * glint_scale, pixel_deg=0.1875) for b in p.blobs]
+        caps.append(p)
+    for c in caps:
+        c.compass_yaw_deg = None if compass_err is None else c.yaw_deg + compass_err
+    return caps
+
+
+@pytest.mark.parametrize(("n_glints", "scale"), [(2, 2.76 / 0.73), (3, 1.0), (4, 1.0)])
+def test_one_sun_outweighs_mirror_images(n_glints: int, scale: float) -> None:
+    """The camera position sees the sun (0.73 deg wide), the probes only its mirror image in a facade, agreeing
+    with each other (a virtual campaign: two 2.76 deg glints won, the scene's sun 37 deg off). However many
+    mirror images and however sun-like, the one sun where the ephemeris and the compass put it wins, and the
+    glints are rejected, with or without the compasses."""
+    for compass_err in (2.0, None):
+        caps = _mirror_scene(n_glints, glint_scale=scale, compass_err=compass_err)
+        sun = scene_sun(caps, photo_ephemeris=PHOTO_EPH, photo_heading_deg=180.0, settings=STATIC)
+        assert sun.found and abs(wrap_deg(sun.azimuth_deg - SUN_P[0])) < 1.0, (compass_err, sun.azimuth_deg)
+        assert sun.captures[0].found and not any(c.found for c in sun.captures[1:])
+        assert all(c.reasons for cs in sun.captures[1:] for c in cs.candidates)
+        assert not any(f.startswith("ephemeris_azimuth_disagrees") for f in sun.flags)
+
+
+def test_mirror_images_alone_are_no_sun_when_the_compasses_agree() -> None:
+    """The sun is hidden at every position; two see its mirror image. The elevation matches the ephemeris (clock
+    and GPS right) and the compasses agree with the feature yaws (the photo's heading right): no sun, each glint
+    rejected as a mirror image."""
+    caps = _mirror_scene(2, glint_scale=1.0, sun=False)
+    sun = scene_sun(caps, photo_ephemeris=PHOTO_EPH, photo_heading_deg=180.0, settings=STATIC)
+    assert not sun.found and not any(c.found for c in sun.captures)
+    assert all(any("mirror image" in r for r in c.reasons) for cs in sun.captures for c in cs.candidates)
+
+
+@pytest.mark.parametrize(
+    ("compass_err", "cause"),
+    [(None, "clock, GPS or the photo's compass heading"), (60.0, "the photo's compass heading is the likelier")],
+)
+def test_a_sun_off_the_ephemeris_is_flagged_at_the_capture_with_the_likelier_cause(
+    compass_err: float | None, cause: str
+) -> None:
+    """Mirror images alone, where nothing rules them out (no compass, or compasses that disagree with the feature
+    yaws): chosen, but every capture whose sun is off the ephemeris is flagged there, naming the cause."""
+    caps = _mirror_scene(2, glint_scale=1.0, sun=False, compass_err=compass_err)
+    sun = scene_sun(caps, photo_ephemeris=PHOTO_EPH, photo_heading_deg=180.0, settings=STATIC)
+    assert sun.found
+    for cs in sun.captures:
+        assert cs.found
+        off = [f for f in cs.flags if f.startswith("sun_off_ephemeris")]
+        assert (
+            len(off) == 1
+            and "from the ephemeris (through its yaw" in off[0]
+            and "azimuth +37." in off[0]
+            and cause in off[0]
+        ), cs.flags
+    scene_flag = next(f for f in sun.flags if f.startswith("ephemeris_azimuth_disagrees"))
+    assert cause in scene_flag
+
+
+def test_the_ephemeris_and_agreeing_compasses_blame_the_images() -> None:
+    """The camera position's chosen sun disagrees with the ephemeris by 37 deg while its elevation matches and the
+    compasses agree with the feature yaws: the flag blames the images, not the clock, GPS or compass."""
+    from solidkit.align.sun import SunScene, likelier_cause
+
+    scene = SunScene(_mirror_scene(2, glint_scale=1.0, sun=False), PHOTO_EPH, 180.0, STATIC)
+    assert scene.compasses_agree
+    assert "images are the likelier culprit" in likelier_cause(scene, False)
+    assert "clock" in likelier_cause(scene, True)
+
+
+def test_glints_are_less_sun_like_than_the_sun() -> None:
+    """Sun-likeness: the scene's narrowest whole core is the sun's width; 3.8x wider is nearly nothing, up to
+    1.25x is the same sun; a core narrower than the disk (partly hidden) is not the reference."""
+    from dataclasses import replace
+
+    from solidkit.align.sun import SunScene
+
+    caps = _mirror_scene(2, glint_scale=2.76 / 0.73)
+    caps[1].blobs = [*caps[1].blobs, replace(caps[1].blobs[0], size_deg=0.2)]
+    scene = SunScene(caps, PHOTO_EPH, 180.0, STATIC)
+    assert scene.reference_size_deg == pytest.approx(0.73)
+    assert scene.sun_likeness(0, 0)[0] == 1.0
+    w, why = scene.sun_likeness(1, 0)
+    assert w < 0.01 and "2.76 deg wide vs 0.73 deg" in why
+    assert scene.sun_likeness(1, 1)[0] == 1.0
+
+
+def test_blob_shape_of_a_disk_and_a_streak() -> None:
+    """find_candidates measures a disk as round and a streak along the horizon as elongated."""
+    disk = find_candidates(_sun_frame([(12.3, 20.0)]))[0]
+    img = np.full((H, 2 * H), 0.03, np.float32)
+    for az in np.linspace(0.0, 8.0, 17):
+        _disk(img, float(az), 20.0, 0.9, 1.0)
+    streak = find_candidates(np.repeat(img[..., None], 3, axis=2))[0]
+    assert disk.elongation < 1.2 < 3.0 < streak.elongation
+    assert disk.pixel_deg == pytest.approx(180.0 / H)
