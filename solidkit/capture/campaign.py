@@ -30,20 +30,30 @@ Per-file problems (empty, truncated or undecodable files, a DNG named ``.jpg``) 
 reported at the end while the other files are processed; they are kept in the manifest's
 ``errors`` (keyed by path, size and mtime) so that an unchanged bad file is not retried. Field
 notes are re-read on every run (a refused file is reported again until fixed). A second run
-over the same card does nothing and says so. An exclusive lock (``CAMPAIGN_DIR/.lock``)
-prevents two ingests into one campaign at once.
+over the same card does nothing and says so. The campaign's lock (:mod:`solidkit.capture.lock`)
+refuses a second ingest, an align or a test set build while one runs (or waits: ``wait``).
+
+Environmental errors (disk full, quota, I/O, permissions: :func:`solidkit.fsutil.is_environmental`)
+are never remembered: a card file is tried again and a product built again on the next run, and
+the message names the final file and the space it needs. ``retry_failed`` retries the products
+recorded with an error of their own too. A manifest that cannot be saved is reported
+(``IngestReport.manifest_error``); what was written before is kept and found by the next run.
+
+Every run starts with the cheap check of :mod:`solidkit.capture.verify` on the stored captures:
+a writable one is made read-only again, a missing or corrupted one whose card file is on the card
+being ingested (unchanged) is copied again, and any other is reported (``IngestReport.damaged``;
+its products are not rebuilt from it).
 """
 
 from __future__ import annotations
 
 import contextlib
-import fcntl
 import json
 import math
 import os
 import stat
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Callable
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from pathlib import Path
 from typing import Any
@@ -55,6 +65,7 @@ from solidkit.camera.lens import load_profile
 from solidkit.capture.card import IMAGE_SUFFIXES, CardScan, folder_layout, ingest_file, ingest_notes, scan_card
 from solidkit.capture.frame_merge import load_response
 from solidkit.capture.grouping import group_shots
+from solidkit.capture.lock import campaign_lock
 from solidkit.capture.manifest import (
     MANIFEST_NAME,
     FieldNotesRecord,
@@ -64,11 +75,13 @@ from solidkit.capture.manifest import (
     Product,
     Shot,
     SkippedFile,
+    SourceRef,
     load_manifest,
     save_manifest,
 )
 from solidkit.capture.products import make_product, planned_products, record_profile, tilt_warning
 from solidkit.capture.unwarp import load_vignetting
+from solidkit.capture.verify import REINGEST, Damage, check_original
 from solidkit.envmap.coords import CONVENTIONS_VERSION
 from solidkit.errors import InputError
 from solidkit.fsutil import sha256_file
@@ -106,14 +119,29 @@ class IngestReport(BaseModel):
     products_up_to_date: int = 0
     products_removed: int = 0
     product_errors: list[str] = Field(default_factory=list)
+    product_errors_transient: int = Field(
+        0, description="of product_errors, those of the environment or of a damaged input: built again next run"
+    )
     notes_read: int = 0
     notes_errors: list[str] = Field(default_factory=list, description="field notes files refused, one line each")
     regrouped: bool = False
+    originals_restored: list[str] = Field(
+        default_factory=list, description="stored captures found missing or corrupted and copied again from this card"
+    )
+    originals_repaired: int = Field(0, description="intact stored captures made read-only again")
+    damaged: list[Damage] = Field(
+        default_factory=list, description="stored captures missing or corrupted and not on this card (verify)"
+    )
+    manifest_error: str | None = Field(None, description="why manifest.json could not be saved (disk full, I/O)")
 
     @property
     def nothing_done(self) -> bool:
         return not (
-            self.copied
+            self.originals_restored
+            or self.originals_repaired
+            or self.damaged
+            or self.manifest_error
+            or self.copied
             or self.new_sources
             or self.errors
             or self.transient_errors
@@ -125,18 +153,65 @@ class IngestReport(BaseModel):
         )
 
 
-@contextlib.contextmanager
-def _lock(campaign: Path) -> Iterator[None]:
-    campaign.mkdir(parents=True, exist_ok=True)
-    fh = open(campaign / ".lock", "a+")
+def _save(campaign: Path, manifest: Manifest, report: IngestReport) -> None:
+    """Save the manifest; a failure of the environment is kept in the report (the next save tries again)."""
     try:
-        try:
-            fcntl.flock(fh, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except BlockingIOError:
-            raise InputError(f"{campaign}: another ingest is running on this campaign") from None
-        yield
-    finally:
-        fh.close()
+        save_manifest(campaign, manifest)
+    except OSError as exc:
+        report.manifest_error = f"{exc.filename or campaign / MANIFEST_NAME}: {exc.strerror or exc}"
+    else:
+        report.manifest_error = None
+
+
+def _unchanged(path: Path, ref: SourceRef) -> bool:
+    try:
+        st = path.stat()
+    except OSError:
+        return False
+    return (st.st_size, st.st_mtime_ns) == (ref.size, ref.mtime_ns)
+
+
+def _check_originals(
+    manifest: Manifest, campaign: Path, card: Path, report: IngestReport
+) -> tuple[set[str], set[tuple[str, str, int, int]]]:
+    """The cheap check of every stored capture (module doc). Returns the sha256 of the damaged ones
+    not on this card and the source keys of this card's files to copy again."""
+    unusable: set[str] = set()
+    again: set[tuple[str, str, int, int]] = set()
+    cstr = str(card)
+    for shot in manifest.shots:
+        problem, hashed = check_original(campaign, shot)
+        path = campaign / shot.original
+        if problem is None or problem.startswith("writable"):
+            with contextlib.suppress(OSError):
+                if problem is not None:
+                    path.chmod(stat.S_IRUSR | stat.S_IRGRP | stat.S_IROTH)
+                    report.originals_repaired += 1
+                if hashed:  # intact, under another time (an older campaign): the card file's time from now on
+                    os.utime(path, ns=(shot.sources[0].mtime_ns, shot.sources[0].mtime_ns))
+            continue
+        here = [r for r in shot.sources if r.card == cstr and _unchanged(card / r.path, r)]
+        if here:
+            with contextlib.suppress(FileNotFoundError):
+                if not path.is_symlink():
+                    path.chmod(stat.S_IRUSR | stat.S_IWUSR)
+                path.unlink()
+            report.originals_restored.append(shot.original)
+            again.update((r.card, r.path, r.size, r.mtime_ns) for r in here)
+            continue
+        unusable.add(shot.sha256)
+        src = f"{shot.sources[0].card}/{shot.sources[0].path}" if shot.sources else None
+        report.damaged.append(
+            Damage(
+                path=shot.original,
+                what="original",
+                problem=problem,
+                rebuildable=False,
+                remedy=f"{REINGEST}{f' ({src})' if src else ''}",
+                source=src,
+            )
+        )
+    return unusable, again
 
 
 def _clean_temporaries(campaign: Path) -> int:
@@ -218,6 +293,9 @@ def ingest(
     progress: Any = None,
     lens_profile: str | os.PathLike | None = None,
     vignetting_path: str | os.PathLike | None = None,
+    retry_failed: bool = False,
+    wait: bool = False,
+    log: Callable[[str], Any] | None = None,
 ) -> IngestReport:
     """Ingest one card into a campaign (see the module docstring). Returns what was done.
 
@@ -227,8 +305,12 @@ def ingest(
     by this and later runs until replaced.
 
     ``progress(phase, done, total)`` (optional) is called as files and products complete.
-    Raises :class:`InputError` for a missing card or an unreadable manifest; per-file problems
-    are collected in the report and the manifest instead.
+    ``retry_failed``: build again the products recorded with an error (environmental errors are
+    retried anyway). ``wait``: wait for another step holding the campaign (``log`` says which)
+    instead of refusing.
+    Raises :class:`InputError` for a missing card, an unreadable manifest or a campaign another
+    step holds; per-file problems, damaged originals and a manifest that could not be saved are
+    collected in the report (and the manifest) instead.
     """
     card = Path(card_dir).resolve()
     campaign = Path(campaign_dir).resolve()
@@ -258,7 +340,7 @@ def ingest(
         raise InputError(f"{card_dir}: no captures (.jpg/.jpeg/.dng) on this card")
     throttle = float(os.environ.get("SOLIDKIT_INGEST_THROTTLE_S", "0") or 0)  # testing aid: slow each file down
     report = IngestReport()
-    with _lock(campaign), contextlib.ExitStack() as stack:
+    with campaign_lock(campaign, "ingest", wait=wait, log=log), contextlib.ExitStack() as stack:
         pool = _pool(jobs)
         if pool is not None:
             stack.enter_context(pool)
@@ -280,6 +362,7 @@ def ingest(
         if vignetting_path is not None:
             manifest.vignetting = record_profile(campaign, vignetting_path, "vignetting")
         cstr = str(card)
+        unusable, again = _check_originals(manifest, campaign, card, report)
         if cstr not in manifest.cards:
             manifest.cards = sorted([*manifest.cards, cstr])
 
@@ -308,9 +391,9 @@ def ingest(
         for rel in captures:
             st = (card / rel).stat()
             source_key = (cstr, rel.as_posix(), st.st_size, st.st_mtime_ns)
-            if source_key in by_source:
+            if source_key in by_source and source_key not in again:
                 report.unchanged += 1
-            elif source_key in bad:
+            elif source_key in bad and not retry_failed:
                 report.known_errors += 1
             else:
                 todo.append((cstr, rel.as_posix(), str(campaign), throttle))
@@ -349,7 +432,7 @@ def ingest(
                 progress("files", done[0], len(todo))
             if time.monotonic() - last_save[0] > 1.0:
                 manifest.shots[:] = [s for s in manifest.shots if s.sources]
-                save_manifest(campaign, manifest)
+                _save(campaign, manifest, report)
                 last_save[0] = time.monotonic()
 
         if progress is not None:
@@ -374,18 +457,24 @@ def ingest(
             [s.model_dump(mode="json") for s in manifest.scenes], sort_keys=True
         )
         if manifest.model_dump_json() != before:
-            save_manifest(campaign, manifest)
+            _save(campaign, manifest, report)
 
         if products:
-            _build_products(manifest, campaign, pool, report, progress)
+            _build_products(manifest, campaign, pool, report, progress, unusable, retry_failed)
         manifest.products.sort(key=lambda p: p.id)
-        if manifest.model_dump_json() != before:
-            save_manifest(campaign, manifest)
+        if manifest.model_dump_json() != before or report.manifest_error:
+            _save(campaign, manifest, report)
     return report
 
 
 def _build_products(
-    manifest: Manifest, campaign: Path, pool: ProcessPoolExecutor | None, report: IngestReport, progress: Any
+    manifest: Manifest,
+    campaign: Path,
+    pool: ProcessPoolExecutor | None,
+    report: IngestReport,
+    progress: Any,
+    unusable: set[str] | frozenset[str] = frozenset(),
+    retry_failed: bool = False,
 ) -> None:
     wanted = planned_products(manifest)
     existing = {p.id: p for p in manifest.products}
@@ -397,11 +486,14 @@ def _build_products(
             old is not None
             and old.recipe_hash == p.recipe_hash
             and (
-                (old.error is not None and not old.error_transient)
+                (old.error is not None and not old.error_transient and not retry_failed)
                 or (
                     old.path
                     and (campaign / old.path).is_file()
-                    and (old.path.startswith("originals/") or sha256_file(campaign / old.path) == old.sha256)
+                    and (
+                        (old.path.startswith("originals/") and not unusable.intersection(old.inputs))
+                        or sha256_file(campaign / old.path) == old.sha256
+                    )
                 )
             )
         ):
@@ -409,6 +501,13 @@ def _build_products(
             report.products_up_to_date += 1
             if old.error:
                 report.product_errors.append(f"{old.id}: {old.error}")
+            continue
+        lost = [manifest.shot(sha).original for sha in p.inputs if sha in unusable]
+        if lost:  # never built from a damaged original
+            p.error, p.error_transient = f"not built: its input {lost[0]} is damaged ({REINGEST})", True
+            keep.append(p)
+            report.product_errors.append(f"{p.id}: {p.error}")
+            report.product_errors_transient += 1
             continue
         shots = [manifest.shot(sha).model_dump(mode="json") for sha in p.inputs]
         tasks.append((p.model_dump(mode="json"), shots, str(campaign), manifest.response))
@@ -427,11 +526,12 @@ def _build_products(
         report.products_built += 1
         if prod.error:
             report.product_errors.append(f"{prod.id}: {prod.error}")
+            report.product_errors_transient += prod.error_transient
         done[0] += 1
         if progress is not None:
             progress("products", done[0], len(tasks))
         manifest.products = sorted(results, key=lambda p: p.id)
-        save_manifest(campaign, manifest)
+        _save(campaign, manifest, report)
 
     if tasks:
         if progress is not None:

@@ -10,6 +10,7 @@ macOS ``._*``) and files not ending in ``.jpg``/``.jpeg``/``.dng`` (any case; e.
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import os
 import re
@@ -141,23 +142,38 @@ def _check_decodable(path: Path, fmt: str) -> None:
 
 
 def copy_original(src: Path, dest: Path, sha: str) -> bool:
-    """Copy ``src`` to ``dest`` atomically, verify its sha256, make it read-only. False if present."""
+    """Copy ``src`` to ``dest`` atomically, verify its sha256, make it read-only and give it the
+    card file's modification time (so that a size and time check finds it intact later:
+    :mod:`solidkit.capture.verify`). False if present: a file of the same size and time, or one
+    whose content hashes to ``sha`` (it gets the card file's time)."""
+    src_st = src.stat()
     if dest.exists():
-        if dest.stat().st_size == src.stat().st_size:
-            return False
-        dest.chmod(stat.S_IWUSR | stat.S_IRUSR)  # a wrong-size file under a content name: replace it
+        st = dest.stat()
+        if st.st_size == src_st.st_size:
+            if st.st_mtime_ns == src_st.st_mtime_ns:
+                return False
+            if sha256_file(dest) == sha:
+                with contextlib.suppress(OSError):
+                    os.utime(dest, ns=(src_st.st_atime_ns, src_st.st_mtime_ns))
+                return False
+        dest.chmod(stat.S_IWUSR | stat.S_IRUSR)  # a wrong file under a content name: replace it
         dest.unlink()
     with atomic_path(dest) as tmp:
         h = hashlib.sha256()
-        with open(src, "rb") as fi, open(tmp, "wb") as fo:
-            while block := fi.read(1 << 20):  # hash exactly the bytes written
-                h.update(block)
-                fo.write(block)
-            fo.flush()
-            os.fsync(fo.fileno())
+        try:
+            with open(src, "rb") as fi, open(tmp, "wb") as fo:
+                while block := fi.read(1 << 20):  # hash exactly the bytes written
+                    h.update(block)
+                    fo.write(block)
+                fo.flush()
+                os.fsync(fo.fileno())
+        except OSError as exc:
+            exc.needed_bytes = src_st.st_size  # type: ignore[attr-defined]
+            raise
         if h.hexdigest() != sha:
             raise InputError("copy verification failed: the file changed while it was being ingested")
         tmp.chmod(stat.S_IRUSR | stat.S_IRGRP | stat.S_IROTH)
+        os.utime(tmp, ns=(src_st.st_atime_ns, src_st.st_mtime_ns))
     return True
 
 

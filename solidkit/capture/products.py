@@ -351,7 +351,7 @@ def _build_product(
         # disk full, permissions, I/O: a per-product error naming the final file (not a temporary),
         # retried on the next run when environmental
         final = _product_path(p, ".exr" if p.kind == "hdr" else ".png").as_posix()
-        p.error = f"{final}: could not be built ({exc.strerror or exc})"
+        p.error = f"{final}: could not be built: {exc.strerror or exc}"
         p.error_transient = is_environmental(exc)
         p.path = p.sha256 = None
     return p.model_dump(mode="json")

@@ -44,6 +44,11 @@ _COMMANDS = {  # name -> (module, attribute, the one-line help the command list 
         "align_cli",
         "Sun labels, every capture's yaw in the photo's view frame, probe pixels and aligned probes.",
     ),
+    "verify": (
+        "solidkit.cli.verify",
+        "verify_cli",
+        "Check a campaign's stored originals, profiles and products against its manifest; exit 1 on damage.",
+    ),
     "predict": (
         "solidkit.cli.predict",
         "predict_command",

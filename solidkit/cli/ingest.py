@@ -31,6 +31,8 @@ def ingest_command(
     lens_profile: str | None = None,
     vignetting: Path | None = None,
     quiet: bool = False,
+    retry_failed: bool = False,
+    wait: bool = False,
 ) -> IngestReport:
     """Run :func:`ingest` with a rich progress bar (stderr) and print the summary (stdout; not when ``quiet``)."""
     console = Console(stderr=True)
@@ -66,6 +68,9 @@ def ingest_command(
             progress=progress,
             lens_profile=lens_profile,
             vignetting_path=vignetting,
+            retry_failed=retry_failed,
+            wait=wait,
+            log=lambda s: console.print(escape(s)),
         )
     manifest = load_manifest(campaign_dir)
     if quiet:
@@ -111,6 +116,19 @@ def ingest_command(
                 out.print(f"[yellow]warning[/] {escape(prod.id)}: {escape(w)}")
     for msg in report.product_errors:
         out.print(f"[yellow]product not built[/] {escape(msg)}")
+    if report.product_errors_transient:
+        out.print(
+            f"  {report.product_errors_transient} of them failed for the environment (disk full, I/O, permissions) "
+            "or a damaged input, not their data: fix it and run ingest again, they will be built"
+        )
+    for name in report.originals_restored:
+        out.print(f"[yellow]restored[/] {escape(name)}: was missing or corrupted, copied again from the card")
+    if report.originals_repaired:
+        out.print(f"[yellow]repaired[/] {report.originals_repaired} stored original(s) were writable: read-only again")
+    for d in report.damaged:
+        out.print(f"[red]damaged original[/] {escape(d.path)}: {escape(d.problem)}; {escape(d.remedy)}")
+    if report.manifest_error:
+        out.print(f"[red]manifest not saved[/] {escape(report.manifest_error)}")
     if report.transient_errors:
         out.print(
             f"[red]{len(report.transient_errors)} file(s) could not be copied[/] (the environment, not the file: "
@@ -165,6 +183,12 @@ def ingest_cli(
             "are blended; recorded in the campaign."
         ),
     ),
+    retry_failed: bool = typer.Option(
+        False, "--retry-failed", help="Build again the products recorded with an error (after a fix or an upgrade)."
+    ),
+    wait: bool = typer.Option(
+        False, "--wait", help="Wait for another step running on the campaign (align, ...) instead of refusing."
+    ),
     as_json: bool = json_option("what this run did"),
 ) -> None:
     """Copy a card's captures into a checksummed campaign, group scenes/probes/brackets, build products.
@@ -186,9 +210,20 @@ def ingest_cli(
         lens_profile=profile,
         vignetting=vignetting,
         quiet=as_json,
+        retry_failed=retry_failed,
+        wait=wait,
     )
     if as_json:
         echo_json({"card": str(card_dir), "campaign": str(out), **report.model_dump(mode="json")})
+    if report.manifest_error:
+        raise InputError(
+            f"{report.manifest_error}; free space and run ingest again (everything written so far is kept)"
+        )
+    if report.damaged:
+        raise InputError(
+            f"{len(report.damaged)} stored original(s) damaged and not on {card_dir} (listed above): "
+            "re-ingest them from their card"
+        )
     if report.errors or report.known_errors or report.transient_errors:
         n = len(report.errors) + report.known_errors + len(report.transient_errors)
         raise InputError(f"{n} file(s) on {card_dir} could not be ingested (listed above); everything else was")

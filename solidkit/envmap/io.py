@@ -6,6 +6,7 @@ All EXR I/O goes through OpenEXR: opencv-contrib 5.x has no EXR codec.
 
 from __future__ import annotations
 
+import errno
 import json
 import os
 from pathlib import Path
@@ -16,7 +17,7 @@ import numpy as np
 
 from solidkit.envmap.coords import CONVENTIONS_VERSION, namespace
 from solidkit.errors import InputError, PanoramaError
-from solidkit.fsutil import atomic_path, jpeg_truncated
+from solidkit.fsutil import atomic_path, errno_from_message, free_bytes, jpeg_truncated
 
 __all__ = [
     "PAPER_EXPOSURE",
@@ -189,9 +190,21 @@ def write_exr(
     }
     path = Path(path)
     with atomic_path(path, suffix=".exr") as tmp:
-        with OpenEXR.File(header, channels) as f:
-            f.write(str(tmp))
+        try:
+            with OpenEXR.File(header, channels) as f:
+                f.write(str(tmp))
+        except RuntimeError as exc:  # OpenEXR's write errors (disk full, I/O) name the temporary file
+            raise _write_failed(errno_from_message(str(exc)), data.nbytes, bound=True) from exc
     return path
+
+
+def _write_failed(code: int | None, needed: int | None, *, bound: bool = False) -> OSError:
+    """The ``OSError`` of a library writer that failed (``code`` None: an I/O error), for
+    :func:`~solidkit.fsutil.atomic_path` to name the final file and the space it needs."""
+    code = errno.EIO if code is None else code
+    err = OSError(code, os.strerror(code))
+    err.needed_bytes, err.needed_is_bound = needed, bound  # type: ignore[attr-defined]
+    return err
 
 
 def srgb_encode(linear: Any) -> Any:
@@ -312,7 +325,14 @@ def write_ldr(path: str | os.PathLike[str], image: np.ndarray, *, encode_srgb: b
     params = [cv2.IMWRITE_JPEG_QUALITY, quality] if path.suffix.lower() in (".jpg", ".jpeg") else []
     with atomic_path(path) as tmp:
         if not cv2.imwrite(str(tmp), bgr, params):
-            raise InputError(f"{path}: OpenCV could not write this format")
+            if not cv2.haveImageWriter(str(path)):
+                raise InputError(f"{path}: OpenCV could not write this format")
+            # a codec that writes this format failed (libpng's "Write Error"): the disk, not the image
+            ok, encoded = cv2.imencode(path.suffix, bgr, params)
+            needed = int(encoded.nbytes) if ok else None
+            free = free_bytes(tmp.parent)
+            full = needed is not None and free is not None and free < needed + 65536
+            raise _write_failed(errno.ENOSPC if full else None, needed)
     return path
 
 

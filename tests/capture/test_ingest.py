@@ -677,7 +677,7 @@ def test_disk_full_is_retried_not_remembered(tmp_path, monkeypatch, cli):
     assert code == 2, err
     flat = " ".join(out.split())
     assert "could not be copied" in flat and "No space left on device" in flat
-    assert "hdr-b01.exr: could not be built (No space left on device)" in flat and ".hidden.exr" not in flat
+    assert "hdr-b01.exr: could not be built: No space left on device" in flat and ".hidden.exr" not in flat
     m = load_manifest(camp)
     assert not m.errors  # nothing remembered as a bad file
     assert any(p.kind == "sun_frame" and p.path for p in m.products)  # the other products were still built

@@ -1,0 +1,93 @@
+"""Fault injection: the disk fills at each write site of ingest, then space is freed (tests/support/disk_full.py).
+
+Each run that meets the full disk exits 2 (never 1), names final files (never a temporary) and the
+space missing, remembers nothing as a permanent error; the next run, with space again, ends with a
+campaign byte-identical to a clean run's: every file, the manifest included.
+"""
+
+from __future__ import annotations
+
+import pytest
+
+from solidkit.capture.campaign import ingest
+from solidkit.capture.manifest import MANIFEST_NAME, load_manifest
+from tests.support.disk_full import SITES, FullDisk, campaign_files, make_fault_card
+
+
+@pytest.fixture(scope="module")
+def fault_card(tmp_path_factory):
+    """The card, its response curve and the files of a clean campaign ingested from them."""
+    root = tmp_path_factory.mktemp("faults")
+    card, response = make_fault_card(root / "card")
+    ingest(card, root / "clean", response_path=response)
+    files = campaign_files(root / "clean")
+    assert {"products/s1/p1/hdr-b01.exr", "products/s1/p1/sun.png"} <= set(files)
+    assert any(k.endswith(".toml") for k in files) and any(k.startswith("profiles/") for k in files)
+    return card, response, files
+
+
+def _differ(a: dict[str, bytes], b: dict[str, bytes]) -> list[str]:
+    return sorted(k for k in a.keys() | b.keys() if a.get(k) != b.get(k))
+
+
+@pytest.mark.parametrize(("site", "after"), [(s, 0) for s in SITES] + [("original", 2), ("manifest", 1)])
+def test_disk_full_at_each_write_site_then_freed(fault_card, tmp_path, cli, site, after):
+    card, response, clean = fault_card
+    camp = tmp_path / "camp"
+    args = ("ingest", card, "-o", camp, "--response", response)
+    with FullDisk(site, after) as disk:
+        code, out, err = cli(*args)
+    assert disk.failed[site] >= 1, f"the disk never filled at {site}: {dict(disk.seen)}"
+    text = " ".join((out + err).split())
+    assert code == 2, text
+    assert "No space left on device" in text and "0 B free" in text, text
+    assert "/." not in text and "Traceback" not in text, text  # final names only, one-line errors
+    if (camp / MANIFEST_NAME).exists():
+        m = load_manifest(camp)
+        assert not m.errors, m.errors  # no card file remembered as bad
+        assert all(p.error_transient for p in m.products if p.error), [p.error for p in m.products]
+    code, out, err = cli(*args)  # space freed
+    assert code == 0, out + err
+    assert "nothing to do" not in out or site == "none"
+    files = campaign_files(camp)
+    assert not _differ(files, clean), _differ(files, clean)
+    assert not [k for k in files if k.rsplit("/", 1)[-1].startswith(".") and k != ".lock"]
+
+
+def test_full_disk_messages_name_the_final_file_and_the_space(fault_card, tmp_path, cli):
+    """The sun frame's PNG (libpng's Write Error) and the HDR EXR (OpenEXR's exception): each product
+    reported with its final path, the errno's text and the space it needs; retried, never remembered."""
+    card, response, _ = fault_card
+    camp = tmp_path / "camp"
+    ingest(card, camp, response_path=response, products=False)
+    with FullDisk("hdr"):
+        code, out, err = cli("ingest", card, "-o", camp)
+    text = " ".join(out.split())
+    assert code == 2
+    assert "products/s1/p1/hdr-b01.exr: could not be built: No space left on device (needs up to" in text, text
+    assert "products/s1/p1/sun.png: could not be built: No space left on device (needs about" in text, text
+    assert "manifest.json: No space left on device (needs about" in text + err, text + err
+    assert "failed for the environment" in text
+    code, out, err = cli("ingest", card, "-o", camp)
+    assert code == 0 and "2 / 0 / 0" in " ".join(out.split()), out  # products built / up to date / removed
+
+
+def test_a_permanent_product_error_is_retried_with_retry_failed(fault_card, tmp_path, cli):
+    """A product error recorded before environmental errors were told apart (a campaign of an older
+    solidkit: libpng's Write Error as "OpenCV could not write this format") stays until --retry-failed."""
+    from solidkit.capture.manifest import save_manifest
+
+    card, response, clean = fault_card
+    camp = tmp_path / "camp"
+    ingest(card, camp, response_path=response)
+    m = load_manifest(camp)
+    sun = next(p for p in m.products if p.kind == "sun_frame")
+    (camp / sun.path).unlink()
+    sun.path = sun.sha256 = None
+    sun.error, sun.error_transient = f"{camp}/products/s1/p1/sun.png: OpenCV could not write this format", False
+    save_manifest(camp, m)
+    code, out, _ = cli("ingest", card, "-o", camp)
+    assert code == 2 and "OpenCV could not write this format" in out
+    code, out, _ = cli("ingest", card, "-o", camp, "--retry-failed")
+    assert code == 0, out
+    assert not _differ(campaign_files(camp), clean)
