@@ -69,7 +69,7 @@ from solidkit.camera.dualfisheye import (  # noqa: F401  (re-exported: the remap
 from solidkit.camera.lens import LensProfile, load_profile, profile_for_metadata, unproject
 from solidkit.camera.metadata import level_rotation, read_metadata
 from solidkit.camera.raw import is_raw_file
-from solidkit.envmap.coords import angles_from_coords
+from solidkit.envmap.coords import angles_from_coords, rotation_from_ypr
 from solidkit.envmap.io import LDR_SUFFIXES, imread, read_exr, write_exr
 from solidkit.envmap.perspective import scale_pixel_coordinates
 from solidkit.envmap.resample import resize, rotate, sample_panorama
@@ -101,6 +101,8 @@ __all__ = [
     "vignetting_gains",
     "load_vignetting",
     "default_out_height",
+    "LEVEL_MODES",
+    "level_by_content",
 ]
 
 
@@ -490,7 +492,7 @@ def unwarp_file(
     profile: str | os.PathLike | None = None,
     out_height: int | None = None,
     feather_deg: float = 10.0,
-    level: bool = True,
+    level: bool | str = "auto",
     gain_match: bool = True,
     cache_dir: str | os.PathLike | None = None,
     vignetting: str | os.PathLike | None = None,
@@ -503,6 +505,14 @@ def unwarp_file(
     or, by default, as wide as the input (:func:`default_out_height`). Stitched equirect input is levelled
     from its metadata, or copied byte for byte when no rotation (and no resize) is needed
     (a vignetting profile does not apply to it: a warning says so).
+
+    ``level`` (:data:`LEVEL_MODES`; ``True`` is ``"auto"``, ``False`` ``"off"``): ``"metadata"`` applies
+    the recorded gravity (:func:`~solidkit.camera.metadata.level_rotation`); ``"content"`` then levels
+    the output by its own vertical edges (:func:`level_by_content`: the measured correction is kept only
+    when it lowers the residual tilt); ``"auto"`` is ``"metadata"`` when the metadata gives a pose that
+    is applied (a dual-fisheye frame's gravity), else ``"content"`` (stitched stills, whose recorded pose
+    is not the remaining tilt, frames without gravity); ``"off"`` neither. ``summary["levelling"]`` says
+    what was done, with the residual tilt before and after.
     Returns a summary dict (what was done, gains, seam disagreement, timings).
     """
     src, dst = Path(src), Path(dst)
@@ -520,10 +530,12 @@ def unwarp_file(
         raise InputError(f"output height must be at least 2 pixels, got {out_height}")
     out_h = None if out_height is None else int(out_height)
     vprof = load_vignetting(vignetting) if vignetting is not None else None
-    R = level_rotation(meta) if (meta is not None and level) else np.eye(3)
-    summary["level_pitch_roll_deg"] = (
-        [meta.pitch_deg, meta.roll_deg] if meta is not None and level and not np.allclose(R, np.eye(3)) else None
-    )
+    mode = _level_mode(level)
+    R = level_rotation(meta) if (meta is not None and mode != "off") else np.eye(3)
+    upright = meta is not None and meta.image_type == "dual_fisheye_upright"
+    pose_applied = not upright and not np.allclose(R, np.eye(3), atol=1e-12)
+    by_content = mode == "content" or (mode == "auto" and not pose_applied)
+    summary["level_pitch_roll_deg"] = [meta.pitch_deg, meta.roll_deg] if meta is not None and pose_applied else None
     stitched = meta is not None and meta.image_type == "equirect" and profile is None
     if stitched:
         assert meta is not None
@@ -534,25 +546,19 @@ def unwarp_file(
         w, h = meta.width, meta.height
         if w != 2 * h:
             raise InputError(f"{src}: marked equirectangular but {w}x{h} is not 2:1")
-        identity = np.allclose(R, np.eye(3), atol=1e-12)
-        if identity and (out_h is None or out_h == h) and src.suffix.lower() == dst.suffix.lower():
-            with atomic_path(dst) as tmp:
-                shutil.copyfile(src, tmp)
-            summary.update(mode="stitched: copied unchanged (no rotation needed)", resampled=False)
-        else:
-            img, _ = read_linear(src)
-            if out_h is not None and out_h < img.shape[0]:
-                img = resize(img, out_h)  # energy-preserving downsampling first, then one rotation
-            if not identity:
-                img = rotate(img, R, "linear", height=out_h)  # out(d) = in(R^T d): camera -> level frame
-            elif out_h is not None and out_h != img.shape[0]:
-                img = resize(img, out_h)
-            _write(dst, img, {"source": str(src), "source_sha256": sha256_file(src), "rotation": R.tolist()})
-            summary.update(
-                mode="stitched: levelled from metadata" if not identity else "stitched: re-encoded",
-                resampled=not identity or out_h is not None,
-            )
-        report_tilt(summary, dst)
+
+        def write_still(R: np.ndarray) -> tuple[dict[str, Any], TiltEstimate | None]:
+            done = _write_stitched(src, dst, R, h, out_h, "metadata" if np.array_equal(R, R_meta) else "content")
+            return done, _read_tilt(dst, out_h or h)
+
+        R_meta = R
+        done, est = write_still(R)
+        summary.update(done)
+        if by_content:
+            done, est, R = level_by_content(est, R, write_still, summary)
+            summary.update(done)
+        if est is not None:
+            report_tilt(summary, est)
         summary["seconds"] = time.perf_counter() - t0
         return summary
     if profile is not None:
@@ -565,7 +571,7 @@ def unwarp_file(
         prof = profile_for_metadata(meta.model if meta else None, w, h)
         if bgr and len(prof.lenses) != 2:  # the 8-bit path needs two lenses: RGB for the general one
             img, bgr = cv2.cvtColor(img, cv2.COLOR_BGR2RGB), False
-    if meta is not None and meta.image_type == "dual_fisheye_upright":
+    if upright:
         summary["warnings"].append(
             "upright_dual_fisheye: the camera already rotated the circles upright; no gravity applied"
         )
@@ -574,8 +580,8 @@ def unwarp_file(
     stats: dict[str, Any] = {}
     t1 = time.perf_counter()
     fast = img.dtype == np.uint8 and dst.suffix.lower() != ".exr" and len(prof.lenses) == 2
-    with ThreadPoolExecutor(1) as pool:  # the frame's checks run on the other core while the tables are applied
-        checks = pool.submit(_frame_checks, img, prof, saturation, bgr)
+
+    def run(R: np.ndarray, stats: dict[str, Any]) -> np.ndarray:
         if fast:  # 8-bit in and out: blend in linear light only where two lenses overlap
             pano = unwarp_srgb8(
                 img,
@@ -590,44 +596,64 @@ def unwarp_file(
             )
             if bgr:
                 stats["gains"] = [g[::-1] for g in stats["gains"]]
-        else:
-            pano = unwarp(
-                img,
-                prof,
-                out_h,
-                R,
-                feather_deg=feather_deg,
-                gain_match=gain_match,
-                saturation=saturation,
-                cache_dir=cache_dir,
-                stats=stats,
-                vignetting=vprof,
-            )
+            return pano
+        return unwarp(
+            img,
+            prof,
+            out_h,
+            R,
+            feather_deg=feather_deg,
+            gain_match=gain_match,
+            saturation=saturation,
+            cache_dir=cache_dir,
+            stats=stats,
+            vignetting=vprof,
+        )
+
+    def write(pano: np.ndarray, R: np.ndarray, stats: dict[str, Any]) -> TiltEstimate:
+        with ThreadPoolExecutor(1) as pool:  # the tilt estimate (LSD) runs on the other core while the file is encoded
+            tilt = pool.submit(_tilt_of, pano)
+            if fast:
+                _write_srgb8(dst, pano, bgr=bgr)
+            else:
+                meta_out = {
+                    "source": str(src),
+                    "source_sha256": sha256_file(src),
+                    "profile": prof.model,
+                    "profile_key": prof.key(),
+                    "rotation": R.tolist(),
+                    "gains": stats["gains"],
+                    "vignetting": None
+                    if vignetting is None
+                    else {"path": str(vignetting), "sha256": sha256_file(vignetting)},
+                }
+                _write(dst, pano, meta_out)
+            return cast(TiltEstimate, tilt.result())
+
+    with ThreadPoolExecutor(1) as pool:  # the frame's checks run on the other core while the tables are applied
+        checks = pool.submit(_frame_checks, img, prof, saturation, bgr)
+        pano = run(R, stats)
         circles, circle_warnings, fit, fit_warnings = checks.result()
-    del img
     summary["image_circles"] = circles
     summary["warnings"] += circle_warnings
     summary["seam_error"], summary["profile_fit"] = fit.get("seam_error"), fit
     summary["warnings"] += fit_warnings
     t2 = time.perf_counter()
-    with ThreadPoolExecutor(1) as pool:  # the tilt estimate (LSD) runs on the other core while the file is encoded
-        tilt = pool.submit(_tilt_of, pano)
-        if fast:
-            _write_srgb8(dst, pano, bgr=bgr)
-        else:
-            meta_out = {
-                "source": str(src),
-                "source_sha256": sha256_file(src),
-                "profile": prof.model,
-                "profile_key": prof.key(),
-                "rotation": R.tolist(),
-                "gains": stats["gains"],
-                "vignetting": None
-                if vignetting is None
-                else {"path": str(vignetting), "sha256": sha256_file(vignetting)},
-            }
-            _write(dst, pano, meta_out)
-        est = tilt.result()
+    est = write(pano, R, stats)
+    if by_content:
+        first = (R, pano, stats)
+
+        def redo(R_new: np.ndarray) -> tuple[dict[str, Any], TiltEstimate]:
+            nonlocal pano, stats
+            if R_new is first[0]:
+                _, pano, stats = first
+            else:
+                stats = {}
+                pano = run(R_new, stats)
+            return {}, write(pano, R_new, stats)
+
+        _, est, R = level_by_content(est, R, redo, summary)
+        del first
     summary.update(
         mode="dual-fisheye unwarped",
         profile=prof.model,
@@ -640,6 +666,99 @@ def unwarp_file(
     report_tilt(summary, est)
     summary["seconds"] = time.perf_counter() - t0
     return summary
+
+
+#: ``level`` of :func:`unwarp_file` (``solidkit capture unwarp --level``).
+LEVEL_MODES = ("auto", "metadata", "content", "off")
+#: Content levelling corrects a reliable tilt above this (degrees) only: below it a resampling costs more than it
+#: gains (the estimator's own error on rendered streets is ~0.05-0.2°: benchmarks/results/tilt.md).
+LEVEL_MIN_DEG = 0.2
+
+
+def _level_mode(level: bool | str) -> str:
+    if level is True:
+        return "auto"
+    if level is False:
+        return "off"
+    if level not in LEVEL_MODES:
+        raise InputError(f"--level must be one of {', '.join(LEVEL_MODES)}, got {level!r}")
+    return str(level)
+
+
+def level_by_content(
+    before: TiltEstimate | None,
+    R: np.ndarray,
+    redo: Any,
+    summary: dict[str, Any],
+) -> tuple[dict[str, Any], TiltEstimate | None, np.ndarray]:
+    """Level an output by its own vertical edges, when that lowers its residual tilt.
+
+    ``before``: the residual tilt (:func:`~solidkit.envmap.tilt.residual_tilt`) of the output made
+    with the rotation ``R`` (camera -> output frame); ``redo(R_new) -> (summary fields, tilt)``
+    makes (and writes) the output again with ``R_new``. A reliable tilt above :data:`LEVEL_MIN_DEG`
+    (and 3 times its uncertainty) gives the correction ``C = R(0, pitch, roll)`` of the estimate; the
+    output is redone with ``C R`` and kept when its measured tilt is lower, else redone with ``R``
+    (never worse than leaving the image alone). Returns ``(summary fields, tilt, rotation)`` of the
+    output kept and records ``summary["levelling"]``: ``source`` (``"content"`` or ``"none"``),
+    ``applied``, ``tilt_before_deg`` / ``tilt_after_deg`` and the correction's pitch and roll (degrees).
+    """
+    info: dict[str, Any] = {
+        "source": "none",
+        "applied": False,
+        "tilt_before_deg": None if before is None else round(before.tilt_deg, 4),
+        "tilt_after_deg": None if before is None else round(before.tilt_deg, 4),
+    }
+    summary["levelling"] = info
+    if before is None or not before.reliable:
+        info["note"] = "too few vertical edges to measure the tilt: left as it is"
+        return {}, before, R
+    if before.tilt_deg <= max(LEVEL_MIN_DEG, 3 * before.uncertainty_deg):
+        info["note"] = f"level within {max(LEVEL_MIN_DEG, 3 * before.uncertainty_deg):.2f}°: left as it is"
+        return {}, before, R
+    C = np.asarray(rotation_from_ypr(0.0, math.radians(before.pitch_deg), math.radians(before.roll_deg)))
+    R_new = C @ R
+    done, after = redo(R_new)
+    info["correction_pitch_roll_deg"] = [round(before.pitch_deg, 4), round(before.roll_deg, 4)]
+    if after is not None and after.reliable and after.tilt_deg < before.tilt_deg:
+        info.update(source="content", applied=True, tilt_after_deg=round(after.tilt_deg, 4))
+        return done, after, R_new
+    got = "unmeasured" if after is None or not after.reliable else f"{after.tilt_deg:.2f}°"
+    info["note"] = f"the correction did not lower the measured tilt ({before.tilt_deg:.2f}° -> {got}): left as it is"
+    done, again = redo(R)
+    return done, again, R
+
+
+def _read_tilt(path: Path, height: int) -> TiltEstimate | None:
+    """:func:`~solidkit.envmap.tilt.residual_tilt` of a written panorama ``height`` px high (8-bit read at half
+    size when that keeps 1024 rows, what the estimate measures at: edges survive)."""
+    pano: Any
+    if path.suffix.lower() == ".exr":
+        pano = read_exr(path)[0]
+    else:
+        pano = cv2.imread(str(path), cv2.IMREAD_REDUCED_COLOR_2 if height >= 2048 else cv2.IMREAD_COLOR)
+    return None if pano is None else residual_tilt(np.asarray(pano))
+
+
+def _write_stitched(src: Path, dst: Path, R: np.ndarray, h: int, out_h: int | None, source: str) -> dict[str, Any]:
+    """A stitched equirect ``src`` (``h`` px high) turned by ``R`` (camera -> level frame) into ``dst``: copied
+    byte for byte when no rotation and no resize is needed."""
+    identity = np.allclose(R, np.eye(3), atol=1e-12)
+    if identity and (out_h is None or out_h == h) and src.suffix.lower() == dst.suffix.lower():
+        with atomic_path(dst) as tmp:
+            shutil.copyfile(src, tmp)
+        return {"mode": "stitched: copied unchanged (no rotation needed)", "resampled": False}
+    img, _ = read_linear(src)
+    if out_h is not None and out_h < img.shape[0]:
+        img = resize(img, out_h)  # energy-preserving downsampling first, then one rotation
+    if not identity:
+        img = rotate(img, R, "linear", height=out_h)  # out(d) = in(R^T d): camera -> level frame
+    elif out_h is not None and out_h != img.shape[0]:
+        img = resize(img, out_h)
+    _write(dst, img, {"source": str(src), "source_sha256": sha256_file(src), "rotation": R.tolist()})
+    return {
+        "mode": f"stitched: levelled from {source}" if not identity else "stitched: re-encoded",
+        "resampled": not identity or out_h is not None,
+    }
 
 
 def _frame_checks(img: np.ndarray, prof: LensProfile, saturation: float | None, bgr: bool) -> tuple:

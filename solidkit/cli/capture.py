@@ -213,9 +213,16 @@ def unwarp(
         None, "--size", help="Output WxH (W = 2H); default: as wide as the input (the size ingest products get too)."
     ),
     feather: float = typer.Option(10.0, "--feather", help="Seam cross-fade band, degrees of incidence angle."),
-    level: bool = typer.Option(
-        True, "--level/--no-level", help="Apply the metadata's gravity (pitch/roll) so the horizon is level."
+    level: str = typer.Option(
+        "auto",
+        "--level",
+        help=(
+            "Levelling: auto (the metadata's gravity when it gives one that applies, else the image's own vertical "
+            "edges), metadata, content (the gravity, then the edges), off. A content correction is kept only when it "
+            "lowers the measured tilt."
+        ),
     ),
+    no_level: bool = typer.Option(False, "--no-level", help="The same as --level off."),
     gain: bool = typer.Option(True, "--gain/--no-gain", help="Match the lenses' gains on the overlap (linear light)."),
     cache_dir: Path | None = typer.Option(
         None,
@@ -252,7 +259,7 @@ def unwarp(
         profile=profile,
         out_height=out_height,
         feather_deg=feather,
-        level=level,
+        level="off" if no_level else level,
         gain_match=gain,
         cache_dir=cache_dir,
         vignetting=vignetting,
@@ -292,6 +299,19 @@ def unwarp(
         table.add_row("remap tables", s["cache"])
     if s.get("level_pitch_roll_deg"):
         table.add_row("levelled (pitch, roll)", ", ".join(f"{a:.2f}°" for a in s["level_pitch_roll_deg"]))
+    lv = s.get("levelling")
+    if lv:
+        before, after = lv["tilt_before_deg"], lv["tilt_after_deg"]
+        table.add_row(
+            "levelled by content",
+            (
+                f"tilt {before:.2f}° -> {after:.2f}° (correction pitch, roll "
+                + ", ".join(f"{a:.2f}°" for a in lv["correction_pitch_roll_deg"])
+                + ")"
+            )
+            if lv["applied"]
+            else f"no: {escape(lv.get('note', ''))}",
+        )
     if s.get("residual_tilt"):
         t = s["residual_tilt"]
         table.add_row(

@@ -266,10 +266,11 @@ def test_real_stitched_equirect(real_data, tmp_path):
     src = real_data / "theta_s_equirect" / "Jobsite1.JPG"
     s = unwarp_file(src, tmp_path / "copy.JPG", level=False)
     assert s["resampled"] is False and (tmp_path / "copy.JPG").read_bytes() == src.read_bytes()
-    s = unwarp_file(src, tmp_path / "level.png", out_height=256)
+    s = unwarp_file(src, tmp_path / "level.png", out_height=256, level="metadata")
     assert s["resampled"] is True and s["level_pitch_roll_deg"] is None
     assert cv2.imread(str(tmp_path / "level.png")).shape == (256, 512, 3)
-    s = unwarp_file(src, tmp_path / "same.JPG")  # level and same size: copied, and measured
+    # levelled by the metadata alone and the same size: copied, and measured (by its edges: test_unwarp_level.py)
+    s = unwarp_file(src, tmp_path / "same.JPG", level="metadata")
     assert s["resampled"] is False and s["residual_tilt"]["reliable"] and s["residual_tilt"]["tilt_deg"] > 1.0
     assert any(w.startswith("residual_tilt") for w in s["warnings"])
 
