@@ -52,6 +52,7 @@ class FlagCode(str, Enum):
     YAW_FROM_COMPASSES = "yaw_from_compasses"
     YAW_FROM_SKY = "yaw_from_sky"
     NO_YAW = "no_yaw"
+    YAW_DOUBTFUL = "yaw_doubtful"
     SINGLE_CUE = "single_cue"
     NO_AGREEMENT = "no_agreement"
     # a probe's pixel in the photo (solidkit.align.pipeline); codes starting "pixel" concern the pixel

@@ -80,12 +80,14 @@ from solidkit.align.schema import (
     load_alignment,
     photo_azimuth_from_solar,
     save_alignment,
+    solar_azimuth_from_photo,
     wrap_deg,
 )
 from solidkit.align.sky import relative_sky_yaw, sky_layer, without_sun_drift
 from solidkit.align.sun import Blob, CaptureSunInput, SunSettings, choose_sun, find_candidates, sky_fraction
 from solidkit.calibration.camera import IntrinsicsError, intrinsics_from_exif, intrinsics_from_fov
 from solidkit.camera.metadata import CaptureMetadata
+from solidkit.capture.lock import campaign_lock
 from solidkit.capture.manifest import Manifest, Scene, load_manifest
 from solidkit.envmap.coords import (
     angles_from_direction,
@@ -718,6 +720,157 @@ def explain_rejections(sun: SceneSun, outranked: frozenset[tuple[str, int]], pro
                 c.scores["distance_to_scene_sun_deg"] = d
 
 
+def sun_through_final_yaws(
+    sun: SceneSun,
+    views: list[CaptureView],
+    final: dict[str, tuple[float, float | None]],
+    cues: dict[str, dict[str, Cue]],
+    photo_eph: Ephemeris | None,
+    heading_p: float | None,
+    s: AlignSettings,
+) -> None:
+    """The scene's sun into the photo's panorama frame through the captures' final yaws (in place): the
+    rotations the probes' products are made with, so that the sun and the probes cannot disagree silently.
+
+    ``final``: each capture's final yaw (its refined level frame -> the photo's panorama frame) and sigma,
+    degrees. The consensus of :func:`~solidkit.align.sun.consensus` took the yaws known before the sun; where
+    the final yaws put the sun elsewhere (beyond three sigmas, at least 2 deg), the final yaws win and the
+    scene is flagged ``sun_frame_conflict``, naming each capture whose yaw moved and the cues that lost there.
+    A sun seen only from captures without a yaw before the sun gets its azimuth here.
+    """
+    if not sun.found or sun.elevation_deg is None:
+        return
+    by_id = {v.id: v for v in views}
+    pts = []
+    for cs in sun.captures:
+        v, f = by_id.get(cs.probe), final.get(cs.probe)
+        if not cs.found or v is None or f is None or "disagrees_with_scene" in flag_codes(cs.flags):
+            continue
+        assert cs.azimuth_deg is not None and cs.elevation_deg is not None  # a found sun has both
+        az, el = at_photo_time(cs.azimuth_deg, cs.elevation_deg, v.ephemeris, photo_eph, sun_moves=s.sun.sun_moves)
+        sig_dir = math.hypot(cs.uncertainty_deg or s.sun.centroid_sigma_deg, s.sun.level_sigma_deg)
+        sig = math.hypot(f[1] or 0.0, sig_dir / max(math.cos(math.radians(el)), 0.2))
+        pts.append((cs, wrap_deg(az + f[0]), sig))
+    if not pts:
+        return
+    w = np.array([1.0 / max(p[2], 0.05) ** 2 for p in pts])
+    ang = np.radians([p[1] for p in pts])
+    az_f = math.degrees(math.atan2(float(np.sum(w * np.sin(ang))), float(np.sum(w * np.cos(ang)))))
+    sig_f = 1.0 / math.sqrt(float(w.sum()))
+    before = sun.azimuth_deg
+    if before is not None:
+        d = wrap_deg(az_f - before)
+        if abs(d) * math.cos(math.radians(sun.elevation_deg)) <= max(
+            2.0, 3.0 * math.hypot(sig_f, sun.uncertainty_deg or 0.0)
+        ):
+            return
+        moved = []
+        for cs, _, _ in pts:
+            lost = [
+                f"{k} ({c.residual_deg:+.1f} deg)" if c.residual_deg is not None else k
+                for k, c in cues.get(cs.probe, {}).items()
+                if c.yaw_deg is not None and not c.ok
+            ]
+            used = [k for k, c in cues.get(cs.probe, {}).items() if c.ok]
+            moved.append(
+                f"{cs.probe}: yaw from {', '.join(used) or 'nothing'}" + (f"; lost: {', '.join(lost)}" if lost else "")
+            )
+        sun.flags = [
+            *sun.flags,
+            str(
+                Flag(
+                    FlagCode.SUN_FRAME_CONFLICT,
+                    f"the sun's azimuth through the yaws before the sun was {before:.1f} deg, through the final "
+                    f"yaws (the probes' rotations) {az_f:.1f} deg ({d:+.1f}); the final yaws kept ({'; '.join(moved)})",
+                )
+            ),
+        ]
+    sun.azimuth_deg = az_f
+    if before is None:
+        sun.uncertainty_deg = math.hypot(sun.uncertainty_deg or 0.0, sig_f * math.cos(math.radians(sun.elevation_deg)))
+    if heading_p is not None:
+        sun.world_azimuth_deg = solar_azimuth_from_photo(az_f, heading_p)
+        sun.world_elevation_deg = sun.elevation_deg
+        for cs, az, _ in pts:
+            cs.world_azimuth_deg = solar_azimuth_from_photo(az, heading_p)
+
+
+#: Flag codes of a capture's yaw that make every yaw derived from it doubtful (beside ``yaw_doubtful`` itself).
+_YAW_DOUBT_CODES = (
+    FlagCode.NO_YAW.value,
+    FlagCode.SINGLE_CUE.value,
+    FlagCode.NO_AGREEMENT.value,
+    FlagCode.FEATURES_FAILED.value,
+    FlagCode.YAW_FROM_STREET_LINES.value,
+    FlagCode.YAW_FROM_COMPASSES.value,
+    FlagCode.YAW_FROM_SKY.value,
+    FlagCode.LABEL_DIFFERS.value,
+    FlagCode.YAW_DOUBTFUL.value,
+)
+#: Flag codes of the scene's sun (or a capture's sun) that make a yaw taken from the sun doubtful.
+_SUN_DOUBT_CODES = (
+    FlagCode.EPHEMERIS_DISAGREES.value,
+    FlagCode.EPHEMERIS_AZIMUTH_DISAGREES.value,
+    FlagCode.POSITION_DISAGREES.value,
+    FlagCode.SUN_FRAME_CONFLICT.value,
+    FlagCode.SUN_OFF_EPHEMERIS.value,
+    FlagCode.DISAGREES_WITH_SCENE.value,
+)
+
+
+def flag_doubtful_yaws(
+    sun: SceneSun, probes: list[ProbeAlignment], camera_probe: str | None, limit_deg: float = 2.0
+) -> None:
+    """``yaw_doubtful`` on every capture whose yaw may be more than ``limit_deg`` off without another flag saying
+    so (in place): three sigmas of its yaw above the limit; a yaw that used the scene's sun where the sun is
+    flagged (:data:`_SUN_DOUBT_CODES`, the scene's or any capture's); a yaw relative to another capture (the
+    camera position's ``features``, ``features_via_<id>``) whose own yaw is doubtful. Captures the doubt of
+    another reaches are flagged after it (the camera position first)."""
+    sun_doubts = sorted(
+        {c for c in flag_codes(sun.flags) if c in _SUN_DOUBT_CODES}
+        | {c for cs in sun.captures for c in flag_codes(cs.flags) if c in _SUN_DOUBT_CODES}
+    )
+    by_id = {p.id: p for p in probes}
+    order = sorted(probes, key=lambda p: p.id != camera_probe)
+    for _ in range(2):  # a chain through a capture flagged in the first pass
+        for pa in order:
+            if pa.yaw_deg is None or pa.yaw_source != "auto" or FlagCode.YAW_DOUBTFUL.value in flag_codes(pa.flags):
+                continue
+            why = []
+            sig = pa.yaw_sigma_deg
+            if (
+                sig is not None
+                and 3.0 * sig > limit_deg
+                and not any(c in _YAW_DOUBT_CODES for c in flag_codes(pa.flags))
+            ):
+                why.append(f"three sigmas of its yaw are {3.0 * sig:.1f} deg")
+            sun_cue = pa.cues.get("sun")
+            if sun_doubts and sun_cue is not None and sun_cue.ok and sun_cue.yaw_deg is not None:
+                why.append(f"its yaw uses the scene's sun, which is flagged {', '.join(sun_doubts)}")
+            for k, c in pa.cues.items():
+                if not c.ok or c.yaw_deg is None:
+                    continue
+                ref = (
+                    camera_probe
+                    if k == "features"
+                    else k[len("features_via_") :]
+                    if k.startswith("features_via_")
+                    else None
+                )
+                other = by_id.get(ref) if ref else None
+                if other is not None and other is not pa:
+                    bad = [c2 for c2 in flag_codes(other.flags) if c2 in _YAW_DOUBT_CODES]
+                    if bad:
+                        why.append(
+                            f"its yaw is relative to {other.id}'s, which is flagged {', '.join(dict.fromkeys(bad))}"
+                        )
+            if why:
+                pa.flags = [
+                    *pa.flags,
+                    str(Flag(FlagCode.YAW_DOUBTFUL, f"may be more than {limit_deg:g} deg off: {'; '.join(why)}")),
+                ]
+
+
 def _capture_sun_to_product_frame(cs: CaptureSun, C: np.ndarray) -> None:
     """Directions of a capture's sun result from the refined level frame back to its sun-frame product's."""
     if np.allclose(C, np.eye(3)):
@@ -1276,6 +1429,7 @@ def align_scene(
     # final yaws, probe pixels
     probes: list[ProbeAlignment] = []
     yaw_sigma: dict[str, float | None] = {}
+    final: dict[str, tuple[float, float | None]] = {}  # final yaw (refined level frame) and sigma, per capture
     for v in views:
         cy = capture_yaw(v, cues[v.id], lst.flags.get(v.id, []), _human(store, "heading", f"{scene.id}/{v.id}"))
         yaw_sigma[v.id] = cy.sigma_deg
@@ -1284,6 +1438,8 @@ def align_scene(
         yaw = cy.yaw_deg
         if yaw is not None and cy.source == "auto":
             yaw = wrap_deg(yaw + y0)  # R_y(yaw) C R_meta = R_y(yaw + y0) R(0, p, r)
+        if yaw is not None:
+            final[v.id] = (wrap_deg(yaw - y0), cy.sigma_deg)
         px = ProbePixel()
         if role == "probe" and photo is not None:
             px = probe_pixel(
@@ -1311,6 +1467,8 @@ def align_scene(
                 **px.fields(),
             )
         )
+    sun_through_final_yaws(sst.sun, views, final, cues, ph.ephemeris, heading_p, s)
+    flag_doubtful_yaws(sst.sun, probes, ph.camera_probe)
     explain_rejections(sst.sun, sst.outranked, probes)
     for v, cs in zip(views, sst.sun.captures):  # per-capture sun directions back into the sun-frame product's frame
         _capture_sun_to_product_frame(cs, v.C)
@@ -1331,15 +1489,19 @@ def align_campaign(
     label_kinds: tuple[str, ...] | None = None,
     write: bool = True,
     log: Callable[[str], None] = lambda s: None,
+    wait: bool = False,
 ) -> CampaignAlignment:
     """Align every scene of an ingested campaign (module doc); returns and writes ``align/alignment.json``.
 
     ``label_kinds``: which automatic labels to put into the store (default all: sun, sun_scene,
     heading, probe_pixel); ``write=False`` writes no alignment file (``solidkit label sun``). Computed
     with the BLAS libraries on one thread (:func:`solidkit.threads.deterministic`): the same bytes
-    whatever the machine's thread count.
+    whatever the machine's thread count. Runs as the campaign's only writer
+    (:func:`solidkit.capture.lock.campaign_lock`: another step running refuses it, or ``wait``).
     """
-    with deterministic():
+    if not Path(campaign_dir, "manifest.json").is_file():
+        raise InputError(f"{campaign_dir}: not an ingested campaign (no manifest.json)")
+    with campaign_lock(campaign_dir, "align" if write else "label sun", wait=wait, log=log), deterministic():
         return _align_campaign(
             campaign_dir,
             settings=settings,

@@ -281,3 +281,96 @@ def test_a_photo_without_exif_intrinsics_gets_the_assumed_60_degree_view_and_a_f
     assert info is not None and info.K_source == "assumed-hfov-60"
     assert info.K_full == intrinsics_from_fov(math.radians(60.0), w, h).tolist()
     assert str(FlagCode.NO_INTRINSICS) in [Flag.parse(f).code for f in flags]
+
+
+# --------------------------------------------------------------------------- one frame chain, doubts at the probes
+def _bare_view(pid: str) -> CaptureView:
+    return CaptureView(Capture("scene01", Probe(id=pid, shots=[]), None, None, None, []))
+
+
+def _probe(pid: str, yaw: float, cues: dict[str, Cue], sigma: float = 0.2, flags: list[str] | None = None):
+    lev = Levelling(pitch_deg=0.0, roll_deg=0.0, source="none")
+    return ProbeAlignment(
+        id=pid,
+        role="camera" if pid == "cam" else "probe",
+        levelling=lev,
+        rotation=np.eye(3).tolist(),
+        yaw_deg=yaw,
+        yaw_sigma_deg=sigma,
+        cues=cues,
+        flags=flags or [],
+    )
+
+
+def test_the_sun_reaches_the_photo_frame_through_the_final_yaws() -> None:
+    """The consensus took p1's yaw before the sun (features, 75 deg off); the final yaws (the probes' rotations) put
+    the sun elsewhere: the final yaws win, and the flag says which cue lost. A sun seen only from captures without a
+    yaw before the sun gets its azimuth from their final yaws (it is not 'no sun')."""
+    from solidkit.align.pipeline import sun_through_final_yaws
+
+    caps = [
+        CaptureSun(probe="cam", found=True, azimuth_deg=30.0, elevation_deg=35.0, uncertainty_deg=0.1),
+        CaptureSun(probe="p1", found=True, azimuth_deg=-50.0, elevation_deg=35.0, uncertainty_deg=0.1),
+    ]
+    sun = SceneSun(found=True, azimuth_deg=-5.0, elevation_deg=35.0, uncertainty_deg=0.2, captures=caps)
+    cues = {
+        "cam": {"photo_features": Cue(yaw_deg=-10.0, sigma_deg=0.1, ok=True)},
+        "p1": {
+            "features": Cue(yaw_deg=145.0, sigma_deg=0.2, ok=False, residual_deg=75.0),
+            "sun": Cue(yaw_deg=70.0, sigma_deg=0.3, ok=True),
+            "compass": Cue(yaw_deg=72.0, sigma_deg=8.0, ok=True),
+        },
+    }
+    final = {"cam": (-10.0, 0.1), "p1": (70.0, 0.3)}
+    views = [_bare_view("cam"), _bare_view("p1")]
+    sun_through_final_yaws(sun, views, final, cues, None, 180.0, AlignSettings(sun=STATIC))
+    assert sun.azimuth_deg == pytest.approx(20.0, abs=0.01)
+    assert sun.world_azimuth_deg == pytest.approx(200.0, abs=0.01)
+    conflict = next(f for f in sun.flags if f.startswith("sun_frame_conflict"))
+    assert (
+        "-5.0 deg" in conflict
+        and "20.0 deg" in conflict
+        and "p1: yaw from sun, compass; lost: features (+75.0" in (conflict)
+    )
+    # the same sun without any yaw before it: elevation only in the consensus, azimuth from the final yaws
+    sun = SceneSun(found=True, azimuth_deg=None, elevation_deg=35.0, uncertainty_deg=0.2, captures=caps)
+    sun_through_final_yaws(sun, views, final, cues, None, 180.0, AlignSettings(sun=STATIC))
+    assert sun.azimuth_deg == pytest.approx(20.0, abs=0.01) and not sun.flags
+    # agreeing paths: nothing changes
+    sun = SceneSun(found=True, azimuth_deg=20.3, elevation_deg=35.0, uncertainty_deg=0.2, captures=caps)
+    sun_through_final_yaws(sun, views, final, cues, None, 180.0, AlignSettings(sun=STATIC))
+    assert sun.azimuth_deg == 20.3 and not sun.flags
+
+
+def test_doubts_reach_every_probe_they_touch() -> None:
+    """A yaw that may be more than 2 deg off is flagged at its probe: a wide sigma; a yaw from a flagged sun; a yaw
+    relative to a camera position whose own yaw is doubtful (a scene-level doubt reaches every capture it touched);
+    a good yaw stays unflagged."""
+    from solidkit.align.pipeline import flag_doubtful_yaws
+
+    def cues(**kw: float) -> dict[str, Cue]:
+        return {k: Cue(yaw_deg=v, sigma_deg=0.2, ok=True) for k, v in kw.items()}
+
+    good = SceneSun(found=True, azimuth_deg=20.0, elevation_deg=35.0)
+    probes = [
+        _probe("cam", 0.0, cues(photo_features=0.0)),
+        _probe("p1", 10.0, cues(features=10.0)),
+        _probe("p2", 20.0, cues(compass=20.0, sun=20.0), sigma=1.5),
+    ]
+    flag_doubtful_yaws(good, probes, "cam")
+    assert [FlagCode.YAW_DOUBTFUL.value in flag_codes(p.flags) for p in probes] == [False, False, True]
+    assert "three sigmas of its yaw are 4.5 deg" in probes[2].flags[-1]
+
+    bad = SceneSun(found=True, azimuth_deg=20.0, elevation_deg=35.0, flags=["ephemeris_azimuth_disagrees: +37.0 deg"])
+    probes = [
+        _probe("cam", 0.0, cues(photo_features=0.0, sun=0.1)),
+        _probe("p1", 10.0, cues(features=10.0)),
+        _probe("p2", 20.0, cues(features_via_p1=20.0)),
+        _probe("p3", 30.0, cues(compass=30.0), sigma=0.2, flags=["single_cue: yaw from compass only"]),
+    ]
+    flag_doubtful_yaws(bad, probes, "cam")
+    doubts = {p.id: [f for f in p.flags if f.startswith("yaw_doubtful")] for p in probes}
+    assert "uses the scene's sun, which is flagged ephemeris_azimuth_disagrees" in doubts["cam"][0]
+    assert "relative to cam's, which is flagged yaw_doubtful" in doubts["p1"][0]
+    assert "relative to p1's" in doubts["p2"][0]
+    assert doubts["p3"] == []  # already flagged single_cue
