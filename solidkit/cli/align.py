@@ -11,7 +11,15 @@ from solidkit.cli.output import echo_json, json_option
 from solidkit.errors import InputError
 
 
-def _run(campaign: Path, scenes: list[str] | None, products: bool, report: bool, only_sun: bool, as_json: bool) -> None:
+def _run(
+    campaign: Path,
+    scenes: list[str] | None,
+    products: bool,
+    report: bool,
+    only_sun: bool,
+    as_json: bool,
+    wait: bool = False,
+) -> None:
     from rich.console import Console
     from rich.markup import escape
     from rich.table import Table
@@ -32,6 +40,7 @@ def _run(campaign: Path, scenes: list[str] | None, products: bool, report: bool,
         label_kinds=("sun", "sun_scene") if only_sun else None,
         write=not only_sun,
         log=lambda s: err.print(f"[dim]{escape(s)}[/]"),
+        wait=wait,
     )
     if as_json:
         echo_json(alignment_summary(al), indent=1)
@@ -85,6 +94,9 @@ def align_cli(
     report: bool = typer.Option(
         True, "--report/--no-report", help="Write align/report.md, report.html and a PNG per scene."
     ),
+    wait: bool = typer.Option(
+        False, "--wait", help="Wait for another step running on the campaign (ingest, ...) instead of refusing."
+    ),
     as_json: bool = json_option(),
 ) -> None:
     """Sun labels, every capture's yaw in the photo's view frame, probe pixels and aligned probes.
@@ -93,12 +105,15 @@ def align_cli(
     automatic labels (source "auto") into the campaign's label store, and a report. Idempotent:
     human labels in the store win and are recorded as such.
     """
-    _run(campaign, scene, products, report, False, as_json)
+    _run(campaign, scene, products, report, False, as_json, wait)
 
 
 def label_sun(
     campaign: Path = typer.Argument(..., help="An ingested campaign directory (solidkit ingest)."),
     scene: list[str] = typer.Option(None, "--scene", "-s", help="Only these scenes (repeatable)."),
+    wait: bool = typer.Option(
+        False, "--wait", help="Wait for another step running on the campaign (ingest, align) instead of refusing."
+    ),
     as_json: bool = json_option(),
 ) -> None:
     """Automatic sun labels: every saturated blob of each sun frame is a candidate; physics chooses.
@@ -108,4 +123,4 @@ def label_sun(
     human labels are never replaced. Uses the features between the captures for the
     cross-position test; writes no products and no alignment.json.
     """
-    _run(campaign, scene, False, False, True, as_json)
+    _run(campaign, scene, False, False, True, as_json, wait)

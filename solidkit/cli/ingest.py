@@ -122,13 +122,15 @@ def ingest_command(
             "or a damaged input, not their data: fix it and run ingest again, they will be built"
         )
     for name in report.originals_restored:
-        out.print(f"[yellow]restored[/] {escape(name)}: was missing or corrupted, copied again from the card")
+        out.print(
+            f"[yellow]restored[/] {escape(name)}: was missing or corrupted, copied again from the card", soft_wrap=True
+        )
     if report.originals_repaired:
         out.print(f"[yellow]repaired[/] {report.originals_repaired} stored original(s) were writable: read-only again")
     for d in report.damaged:
-        out.print(f"[red]damaged original[/] {escape(d.path)}: {escape(d.problem)}; {escape(d.remedy)}")
+        out.print(f"[red]damaged original[/] {escape(d.path)}: {escape(d.problem)}; {escape(d.remedy)}", soft_wrap=True)
     if report.manifest_error:
-        out.print(f"[red]manifest not saved[/] {escape(report.manifest_error)}")
+        out.print(f"[red]manifest not saved[/] {escape(report.manifest_error)}", soft_wrap=True)
     if report.transient_errors:
         out.print(
             f"[red]{len(report.transient_errors)} file(s) could not be copied[/] (the environment, not the file: "

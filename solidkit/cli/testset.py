@@ -19,6 +19,9 @@ def build_command(
     out: Path = typer.Option(
         ..., "-o", "--out", help="Test set folder to create (absent, empty, or an earlier test set)."
     ),
+    wait: bool = typer.Option(
+        False, "--wait", help="Wait for a step running on the campaign (ingest, align, label sun) instead of refusing."
+    ),
     json_out: bool = json_option("the build report"),
 ) -> None:
     """Assemble a versioned test set (photos, probes, sun, metadata) from an aligned campaign."""
@@ -32,7 +35,7 @@ def build_command(
 
     console = Console(stderr=True)
     t0 = time.perf_counter()
-    report = build_testset(campaign, out, log=lambda m: console.print(f"[dim]{escape(m)}[/dim]"))
+    report = build_testset(campaign, out, log=lambda m: console.print(f"[dim]{escape(m)}[/dim]"), wait=wait)
     seconds = time.perf_counter() - t0
     if json_out:
         echo_json({**report.to_json(), "seconds": round(seconds, 2)}, indent=1)

@@ -61,6 +61,7 @@ from solidkit.align.schema import (
     wrap_deg,
 )
 from solidkit.calibration.camera import resize_crop
+from solidkit.capture.lock import campaign_lock
 from solidkit.capture.manifest import Manifest, load_manifest
 from solidkit.document import read_json_object, validate_versioned
 from solidkit.envmap.coords import CONVENTIONS_VERSION, direction_from_angles, solid_angle
@@ -679,22 +680,54 @@ def load_testset(root: str | os.PathLike) -> TestSet:
 
 
 def build_testset(
-    campaign: str | os.PathLike, out: str | os.PathLike, *, log: Callable[[str], None] | None = None
+    campaign: str | os.PathLike,
+    out: str | os.PathLike,
+    *,
+    log: Callable[[str], None] | None = None,
+    wait: bool = False,
 ) -> BuildReport:
-    """Build the test set of ``campaign`` into ``out`` (see the module docstring); returns a :class:`BuildReport`."""
+    """Build the test set of ``campaign`` into ``out`` (see the module docstring); returns a :class:`BuildReport`.
+
+    Reads the campaign under its lock (:func:`solidkit.capture.lock.campaign_lock`: refused while an
+    ingest, align or label sun runs, unless ``wait``) and refuses an alignment older than the
+    campaign's manifest (an ingest ran since) or one that lacks some of its scenes.
+    """
     campaign, out = Path(campaign), Path(out)
     if not (campaign / "manifest.json").is_file():
         raise InputError(f"{campaign}: not a campaign (no manifest.json; run solidkit ingest first)")
     _check_out(out, campaign)
-    manifest = load_manifest(campaign)
-    alignment = load_alignment(campaign)
-    manifest_sha = sha256_file(campaign / "manifest.json")
-    if alignment.manifest_sha256 and alignment.manifest_sha256 != manifest_sha:
-        raise InputError(f"{campaign}: the alignment was computed from another manifest (re-run solidkit align)")
-    report = BuildReport(out=out)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    with _exclusive(out):
-        return _build(campaign, out, manifest, alignment, manifest_sha, report, log)
+    with campaign_lock(campaign, "testset build", wait=wait, log=log):
+        manifest = load_manifest(campaign)
+        alignment = load_alignment(campaign)
+        manifest_sha = sha256_file(campaign / "manifest.json")
+        _check_alignment(campaign, manifest, alignment, manifest_sha)
+        report = BuildReport(out=out)
+        out.parent.mkdir(parents=True, exist_ok=True)
+        with _exclusive(out):
+            return _build(campaign, out, manifest, alignment, manifest_sha, report, log)
+
+
+def _check_alignment(campaign: Path, manifest: Manifest, alignment: CampaignAlignment, manifest_sha: str) -> None:
+    """Refuse an alignment older than the manifest (its products) or missing some of its scenes."""
+    stale = (
+        alignment.manifest_sha256 != manifest_sha
+        if alignment.manifest_sha256
+        else (campaign / "align" / "alignment.json").stat().st_mtime_ns
+        < (campaign / "manifest.json").stat().st_mtime_ns
+    )
+    if stale:
+        raise InputError(
+            f"{campaign}: the alignment is older than the campaign's manifest (it was computed from another one: "
+            "an ingest changed products or scenes since); re-run solidkit align"
+        )
+    aligned = {sa.id for sa in alignment.scenes}
+    missing = [sc.id for sc in manifest.scenes if sc.id not in aligned]
+    if missing:
+        raise InputError(
+            f"{campaign}: the alignment lacks {len(missing)} of the campaign's {len(manifest.scenes)} scenes "
+            f"({', '.join(missing[:5])}{' ...' if len(missing) > 5 else ''}: an align was interrupted or ran with "
+            "--scene); re-run solidkit align"
+        )
 
 
 @contextlib.contextmanager
