@@ -23,7 +23,7 @@ from typing import Literal, cast
 
 import numpy as np
 
-from solidkit.errors import InputError
+from solidkit.errors import InputError, LibraryOutput, library_output
 
 __all__ = ["RawImage", "read_raw", "is_raw_file", "RAW_SUFFIXES"]
 
@@ -106,11 +106,13 @@ def read_raw(
     if not path.is_file():
         raise InputError(f"{path}: no such file")
     warnings: list[str] = []
+    said = LibraryOutput()
     try:
-        raw = rawpy.imread(str(path))
+        with library_output() as said:
+            raw = rawpy.imread(str(path))
     except Exception as exc:  # rawpy raises LibRawFileUnsupportedError, LibRawIOError, ...
-        raise InputError(f"{path}: not a readable raw file ({type(exc).__name__}: {exc})") from None
-    with raw:
+        raise InputError(f"{path}: not a readable raw file ({_reason(exc, said, path)})") from None
+    with raw, library_output() as said:
         try:
             mosaic = raw.raw_image_visible.astype(np.float32)
             colors = raw.raw_colors_visible
@@ -158,7 +160,7 @@ def read_raw(
         except InputError:
             raise
         except Exception as exc:
-            raise InputError(f"{path}: raw decoding failed ({type(exc).__name__}: {exc})") from None
+            raise InputError(f"{path}: raw decoding failed ({_reason(exc, said, path)})") from None
     linear = rgb16.astype(np.float32) / 65535.0
     if scale_mul < 1.0:  # LibRaw renormalised the multipliers so that their minimum is 1
         linear *= scale_mul
@@ -186,6 +188,12 @@ def read_raw(
         pattern=pattern,
         warnings=warnings,
     )
+
+
+def _reason(exc: Exception, said: LibraryOutput, path: Path) -> str:
+    """LibRaw's exception and what it printed (e.g. ``Unexpected end of file``), in one line."""
+    printed = said.summary().replace(f"{path}: ", "")
+    return f"{type(exc).__name__}: {exc}" + (f"; LibRaw: {printed}" if printed else "")
 
 
 def _apply_flip(img: np.ndarray, flip: int) -> np.ndarray:

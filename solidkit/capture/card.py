@@ -16,6 +16,7 @@ import os
 import re
 import stat
 import time
+import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -23,7 +24,8 @@ from typing import Any
 from solidkit.camera.metadata import read_metadata
 from solidkit.capture.fieldnotes import is_notes_file, read_notes
 from solidkit.capture.frame_merge import sniff_format
-from solidkit.errors import InputError, SolidkitError
+from solidkit.envmap.io import check_image_size
+from solidkit.errors import InputError, LibraryOutput, SolidkitError, library_output
 from solidkit.fsutil import atomic_path, is_environmental, sha256_file
 
 __all__ = ["IMAGE_SUFFIXES", "CardScan", "scan_card", "folder_layout", "ingest_file", "copy_original"]
@@ -118,27 +120,46 @@ def folder_layout(rel: Path) -> tuple[str | None, str | None]:
     return scene, ("photo" if parts[1].lower() == "photo" else parts[1])
 
 
-def _check_decodable(path: Path, fmt: str) -> None:
-    """Decode the whole image (a truncated JPEG is an error, not a grey tail)."""
+def _check_decodable(path: Path, fmt: str, size: tuple[int, int]) -> None:
+    """Decode the whole image (a truncated JPEG is an error, not a grey tail; so is data libjpeg calls corrupt).
+
+    ``size``: ``(width, height)`` from the header, refused before decoding when empty or past
+    :data:`~solidkit.envmap.io.MAX_IMAGE_PIXELS`.
+    """
+    try:
+        check_image_size(path, size)
+    except InputError as exc:
+        raise InputError(str(exc).replace(f"{path}: ", "")) from None
+    said = LibraryOutput()
     if fmt == "jpeg":
+        import cv2
         from PIL import Image
 
         try:
-            with Image.open(path) as im:
+            with warnings.catch_warnings(), Image.open(path) as im:
+                warnings.simplefilter("ignore", Image.DecompressionBombWarning)  # the size is checked above
                 # DCT-domain 1/8 scaling: every entropy-coded byte is still decoded (truncation
                 # and corrupt data are caught), at a fraction of the full decode's cost
                 im.draft("RGB", (max(1, im.width // 8), max(1, im.height // 8)))
                 im.load()
+            with library_output() as said:  # Pillow decodes past what libjpeg reports as corrupt; OpenCV lets it say
+                ok = cv2.imread(str(path), cv2.IMREAD_REDUCED_GRAYSCALE_8) is not None
         except Exception as exc:
             raise InputError(f"cannot decode JPEG: truncated or corrupt ({type(exc).__name__}: {exc})") from None
+        damaged = [s for s in said.lines() if s.startswith(("Corrupt JPEG data", "Premature end of JPEG"))]
+        if damaged or not ok:
+            detail = "; ".join(dict.fromkeys(damaged)) or said.summary() or "OpenCV cannot read it"
+            raise InputError(f"cannot decode JPEG: corrupt data (libjpeg: {detail})")
     else:
         import rawpy
 
         try:
-            with rawpy.imread(str(path)) as raw:
+            with library_output() as said, rawpy.imread(str(path)) as raw:
                 raw.raw_image_visible.sum()
         except Exception as exc:
-            raise InputError(f"cannot decode raw data ({type(exc).__name__}: {exc})") from None
+            printed = said.summary().replace(f"{path}: ", "")
+            detail = f"{type(exc).__name__}: {exc}" + (f"; LibRaw: {printed}" if printed else "")
+            raise InputError(f"cannot decode raw data ({detail})") from None
 
 
 def copy_original(src: Path, dest: Path, sha: str) -> bool:
@@ -212,7 +233,7 @@ def ingest_file(card: str, rel: str, campaign: str, throttle_s: float = 0.0) -> 
             raise InputError("not a DNG file (no TIFF signature)")
         sha = sha256_file(src)
         meta = read_metadata(src)
-        _check_decodable(src, "jpeg" if suffix == ".jpg" else "raw")
+        _check_decodable(src, "jpeg" if suffix == ".jpg" else "raw", (meta.width, meta.height))
         original = Path("originals") / sha[:2] / f"{sha}{suffix}"
         copied = copy_original(src, Path(campaign) / original, sha)
         md = meta.model_dump(mode="json")

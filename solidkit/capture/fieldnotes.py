@@ -155,6 +155,8 @@ def read_notes(path: str | Path, *, card_level: bool = False) -> FieldNotes | Ca
         raise InputError(f"{p.name}: not UTF-8 text") from None
     except (tomllib.TOMLDecodeError, json.JSONDecodeError) as exc:
         raise InputError(f"{p.name}: not valid {p.suffix.lower().lstrip('.').upper()} ({exc})") from None
+    except RecursionError:  # arrays or tables nested past the parser's stack
+        raise InputError(f"{p.name}: not valid {p.suffix.lower().lstrip('.').upper()} (nested too deep)") from None
     if not isinstance(data, dict):
         raise InputError(f"{p.name}: expected a table of fields at the top level")
     model = CardNotes if card_level else FieldNotes
@@ -162,3 +164,5 @@ def read_notes(path: str | Path, *, card_level: bool = False) -> FieldNotes | Ca
         return model.model_validate(data)
     except ValidationError as exc:
         raise InputError(f"{p.name}: {validation_message(exc)}") from None
+    except RecursionError:
+        raise InputError(f"{p.name}: nested too deep") from None

@@ -7,12 +7,13 @@ import importlib
 import os
 import sys
 import traceback
+import warnings
 from pathlib import Path
 from typing import Any, cast
 
 import typer
 
-from solidkit.errors import InputError, SolidkitError
+from solidkit.errors import InputError, InputWarning, SolidkitError
 from solidkit.threads import MAX_DEFAULT_THREADS, THREADS_ENV, apply_threads
 
 # Sub-commands are imported only when invoked (``solidkit capture unwarp`` must not pay for torch,
@@ -177,9 +178,22 @@ def _fail(message: str, code: int) -> None:
     sys.exit(code)
 
 
+def _one_line(text: str) -> str:
+    return " ".join(line.strip() for line in str(text).splitlines() if line.strip())
+
+
+def _show_warning(message, category, filename, lineno, file=None, line=None, _default=warnings.showwarning) -> None:
+    """An :class:`InputWarning` as one ``warning:`` line on stderr; other warnings as Python shows them."""
+    if issubclass(category, InputWarning):
+        typer.secho(f"warning: {_one_line(str(message))}", err=True, fg="yellow")
+    else:
+        _default(message, category, filename, lineno, file, line)
+
+
 def main() -> None:
     """Entry point: user errors become one line on stderr and exit code 2 (unforeseen ones exit 1), never a
-    traceback unless ``SOLIDKIT_DEBUG=1`` asks for it."""
+    traceback unless ``SOLIDKIT_DEBUG=1`` asks for it; input warnings are one ``warning:`` line each."""
+    warnings.showwarning = _show_warning
     args = sys.argv[1:]
     first = next(
         (a for i, a in enumerate(args) if not a.startswith("-") and (i == 0 or args[i - 1] != "--threads")), None
@@ -213,7 +227,10 @@ def main() -> None:
         _fail(f"{where}{reason}", 2)
     except Exception as exc:  # anything unforeseen: still one line
         hint = "" if os.environ.get(DEBUG_ENV, "") not in ("", "0") else f" (run with {DEBUG_ENV}=1 for the traceback)"
-        _fail(f"{type(exc).__name__}: {exc}{hint}", 1)
+        name = type(exc).__name__
+        if name.islower():  # e.g. cv2.error, whose text starts "OpenCV(...) ... error: ...": "error: error: ..."
+            name = f"{type(exc).__module__.split('.')[0]}.{name}"
+        _fail(f"{name}: {_one_line(str(exc))}{hint}", 1)
     if isinstance(code, int) and not isinstance(code, bool) and code != 0:
         sys.exit(code)
 

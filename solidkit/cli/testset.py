@@ -64,9 +64,9 @@ def validate_command(
     json_out: bool = json_option("the problems"),
 ) -> None:
     """Check schema, files, checksums, geometry, exposures and flags; exit 1 when any problem is found."""
-    from rich.console import Console
     from rich.markup import escape
 
+    from solidkit.cli.output import line_console
     from solidkit.testset.validate import validate_testset
 
     if not root.is_dir():
@@ -77,7 +77,7 @@ def validate_command(
     if json_out:
         echo_json({"valid": not problems, "problems": [p.to_json() for p in problems]}, indent=1)
     else:
-        console = Console(stderr=True)
+        console = line_console(stderr=True)
         for p in problems:
             console.print(f"[red]problem[/red] {escape(str(p))}")
         console.print(

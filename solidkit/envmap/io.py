@@ -6,17 +6,21 @@ All EXR I/O goes through OpenEXR: opencv-contrib 5.x has no EXR codec.
 
 from __future__ import annotations
 
+import contextlib
 import errno
+import io
 import json
 import os
+import struct
+import warnings
 from pathlib import Path
-from typing import Any, cast
+from typing import Any, BinaryIO, cast
 
 import cv2
 import numpy as np
 
 from solidkit.envmap.coords import CONVENTIONS_VERSION, namespace
-from solidkit.errors import InputError, PanoramaError
+from solidkit.errors import InputError, InputWarning, LibraryOutput, PanoramaError, library_output
 from solidkit.fsutil import atomic_path, errno_from_message, free_bytes, jpeg_truncated
 
 __all__ = [
@@ -29,6 +33,9 @@ __all__ = [
     "read_ldr",
     "write_ldr",
     "read_image",
+    "image_size",
+    "check_image_size",
+    "MAX_IMAGE_PIXELS",
     "validate_panorama",
     "tonemap",
     "inverse_tonemap",
@@ -67,12 +74,20 @@ def read_exr(path: str | os.PathLike[str]) -> tuple[np.ndarray, dict[str, Any]]:
         raise InputError(f"{path}: no such file")
     import OpenEXR  # imported on use: commands that never touch EXR start faster
 
+    check_image_size(path)
+    printed = io.StringIO()  # the bindings print their warnings on sys.stdout, the C++ core on fd 2
     try:
-        with OpenEXR.File(str(path)) as f:
-            header = dict(f.header())
-            channels = {name: np.array(ch.pixels) for name, ch in f.channels().items()}
+        with library_output() as said, contextlib.redirect_stdout(printed):
+            with OpenEXR.File(str(path)) as f:
+                header = dict(f.header())
+                channels = {name: np.array(ch.pixels) for name, ch in f.channels().items()}
     except Exception as exc:  # OpenEXR raises plain RuntimeError/TypeError on corrupt data
-        raise InputError(f"{path}: not a readable EXR file ({exc})") from None
+        why = str(exc)
+        # a part whose pixels failed to read is dropped, and the bindings then report "file has 0 parts"
+        if "has 0 parts" in why:
+            warned = " ".join(printed.getvalue().split()).removeprefix("Warning: ")[:200]
+            why = said.summary().replace(f"{path}: ", "") or warned or "corrupt pixel data"
+        raise InputError(f"{path}: not a readable EXR file ({why})") from None
     if "RGBA" in channels:
         img = channels["RGBA"]
     elif "RGB" in channels:
@@ -113,9 +128,15 @@ def read_hdr(path: str | os.PathLike[str]) -> np.ndarray:
         magic = f.read(10)
     if not (magic.startswith(b"#?RADIANCE") or magic.startswith(b"#?RGBE")):
         raise InputError(f"{path}: not a Radiance HDR file (no '#?RADIANCE' signature)")
-    img = cv2.imread(str(path), cv2.IMREAD_ANYDEPTH | cv2.IMREAD_COLOR)
+    check_image_size(path)
+    with library_output() as said:
+        try:
+            img = cv2.imread(str(path), cv2.IMREAD_ANYDEPTH | cv2.IMREAD_COLOR)
+        except cv2.error as exc:
+            img, said.text = None, str(exc).strip().splitlines()[-1]
     if img is None or img.ndim != 3:
-        raise InputError(f"{path}: not a readable Radiance HDR file")
+        why = said.summary()
+        raise InputError(f"{path}: not a readable Radiance HDR file" + (f" ({why})" if why else ""))
     return np.ascontiguousarray(img[..., ::-1], dtype=np.float32)
 
 
@@ -263,20 +284,191 @@ def inverse_tonemap(ldr: Any, exposure: float = PAPER_EXPOSURE, gamma: float = P
     return xp.clip(ldr, 0.0, 1.0) ** gamma / (2.0**exposure)
 
 
+#: The most pixels an image may have to be decoded: Pillow's decompression-bomb limit (twice its
+#: ``MAX_IMAGE_PIXELS``), which ingest's decode check has always applied; 13400 x 13400, seven times a Theta X
+#: frame. Checked from the file's header before any decoder allocates (:func:`check_image_size`).
+MAX_IMAGE_PIXELS = 178_956_970
+
+
+def _jpeg_size(f: BinaryIO) -> tuple[int, int] | None:
+    f.seek(2)
+    while True:
+        head = f.read(2)
+        if len(head) < 2 or head[0] != 0xFF:
+            return None
+        marker = head[1]
+        if marker == 0xFF:  # fill byte
+            f.seek(-1, os.SEEK_CUR)
+            continue
+        if marker in (0x01, *range(0xD0, 0xD9)):  # markers without a length
+            continue
+        if marker in (0xD9, 0xDA):  # end of image, start of scan: no frame header before it
+            return None
+        length = f.read(2)
+        if len(length) < 2:
+            return None
+        n = struct.unpack(">H", length)[0]
+        if 0xC0 <= marker <= 0xCF and marker not in (0xC4, 0xC8, 0xCC):  # SOFn
+            sof = f.read(5)
+            if len(sof) < 5:
+                return None
+            h, w = struct.unpack(">HH", sof[1:5])
+            return w, h
+        f.seek(n - 2, os.SEEK_CUR)
+
+
+def _exr_size(f: BinaryIO) -> tuple[int, int] | None:
+    f.seek(8)  # magic and version
+    while True:
+        name = _cstring(f)
+        if not name:
+            return None
+        kind = _cstring(f)
+        size_bytes = f.read(4)
+        if kind is None or len(size_bytes) < 4:
+            return None
+        size = struct.unpack("<i", size_bytes)[0]
+        if size < 0:
+            return None
+        if name == b"dataWindow" and kind == b"box2i" and size == 16:
+            box = f.read(16)
+            if len(box) < 16:
+                return None
+            x0, y0, x1, y1 = struct.unpack("<4i", box)
+            return x1 - x0 + 1, y1 - y0 + 1
+        f.seek(size, os.SEEK_CUR)
+
+
+def _cstring(f: BinaryIO, limit: int = 256) -> bytes | None:
+    out = bytearray()
+    while len(out) <= limit:
+        c = f.read(1)
+        if not c:
+            return None
+        if c == b"\0":
+            return bytes(out)
+        out += c
+    return None
+
+
+def _tiff_size(f: BinaryIO, order: str) -> tuple[int, int] | None:
+    f.seek(4)
+    offset = struct.unpack(order + "I", f.read(4))[0]
+    f.seek(offset)
+    count = f.read(2)
+    if len(count) < 2:
+        return None
+    sizes: dict[int, int] = {}
+    for _ in range(min(struct.unpack(order + "H", count)[0], 512)):
+        entry = f.read(12)
+        if len(entry) < 12:
+            break
+        tag, typ = struct.unpack(order + "HH", entry[:4])
+        if tag in (256, 257) and typ in (3, 4):
+            sizes[tag] = struct.unpack(order + ("H" if typ == 3 else "I"), entry[8 : 10 if typ == 3 else 12])[0]
+    return (sizes[256], sizes[257]) if len(sizes) == 2 else None
+
+
+def _radiance_size(f: BinaryIO) -> tuple[int, int] | None:
+    f.seek(0)
+    for line in f.read(65536).split(b"\n")[1:]:
+        parts = line.split()
+        if len(parts) == 4 and parts[0] in (b"-Y", b"+Y") and parts[2] in (b"+X", b"-X"):
+            try:
+                return int(parts[3]), int(parts[1])
+            except ValueError:
+                return None
+    return None
+
+
+def image_size(path: str | os.PathLike[str]) -> tuple[int, int] | None:
+    """``(width, height)`` in pixels as the header of a JPEG, PNG, EXR, TIFF, BMP or Radiance HDR file states it,
+    read without decoding; ``None`` for other formats or a header that cannot be read.
+
+    Examples
+    --------
+    >>> import tempfile
+    >>> path = write_exr(Path(tempfile.mkdtemp()) / 'sky.exr', np.zeros((2, 4, 3), np.float32))
+    >>> image_size(path)
+    (4, 2)
+    """
+    try:
+        with open(path, "rb") as f:
+            magic = f.read(8)
+            if magic[:3] == b"\xff\xd8\xff":
+                return _jpeg_size(f)
+            if magic == b"\x89PNG\r\n\x1a\n":
+                ihdr = f.read(16)
+                return struct.unpack(">II", ihdr[8:16]) if len(ihdr) == 16 and ihdr[4:8] == b"IHDR" else None
+            if magic[:4] == b"\x76\x2f\x31\x01":
+                return _exr_size(f)
+            if magic[:4] in (b"II*\x00", b"MM\x00*"):
+                return _tiff_size(f, "<" if magic[:2] == b"II" else ">")
+            if magic[:2] == b"BM":
+                f.seek(18)
+                w, h = struct.unpack("<ii", f.read(8))
+                return abs(w), abs(h)
+            if magic.startswith((b"#?RADIAN", b"#?RGBE")):
+                return _radiance_size(f)
+    except (OSError, struct.error, ValueError):
+        return None
+    return None
+
+
+def check_image_size(path: str | os.PathLike[str], size: tuple[int, int] | None = None) -> None:
+    """Refuse (:class:`InputError`) an image whose header states no pixels or more than :data:`MAX_IMAGE_PIXELS`,
+    before a decoder allocates for it; ``size``: the ``(width, height)`` already read (default :func:`image_size`).
+
+    Examples
+    --------
+    >>> check_image_size('frame.jpg', (5376, 2688))  # a Theta V frame: fine
+    >>> check_image_size('huge.jpg', (65500, 65500))
+    Traceback (most recent call last):
+        ...
+    solidkit.errors.InputError: huge.jpg: the header states 65500 x 65500 pixels, more than solidkit decodes (...)
+    """
+    size = image_size(path) if size is None else size
+    if size is None:
+        return
+    w, h = size
+    if w <= 0 or h <= 0:
+        raise InputError(f"{path}: the header states an empty image ({w} x {h} pixels)")
+    if w * h > MAX_IMAGE_PIXELS:
+        raise InputError(
+            f"{path}: the header states {w} x {h} pixels, more than solidkit decodes ({MAX_IMAGE_PIXELS} at most)"
+        )
+
+
+def _corrupt_data(path: Path, output: LibraryOutput) -> None:
+    """Warn (:class:`InputWarning`) when libjpeg reported corrupt data in an image it decoded anyway."""
+    damaged = [s for s in output.lines() if s.startswith(("Corrupt JPEG data", "Premature end of JPEG"))]
+    if damaged:
+        detail = "; ".join(dict.fromkeys(damaged))
+        warnings.warn(f"{path}: corrupt image data, decoded with damaged blocks (libjpeg: {detail})", InputWarning, 2)
+
+
 def imread(path: str | os.PathLike[str], flags: int = cv2.IMREAD_UNCHANGED) -> np.ndarray:
     """``cv2.imread`` that refuses missing, undecodable and truncated files with an :class:`InputError`.
 
     OpenCV decodes a truncated JPEG without complaint (the missing rows come out grey), hence
-    :func:`solidkit.fsutil.jpeg_truncated` first.
+    :func:`solidkit.fsutil.jpeg_truncated` first, and :func:`check_image_size` before any allocation. What the
+    codec libraries print goes into the error's line; corrupt JPEG data decoded anyway is an :class:`InputWarning`.
     """
     path = Path(path)
     if not path.is_file():
         raise InputError(f"{path}: no such file")
     if jpeg_truncated(path):
         raise InputError(f"{path}: truncated JPEG (no end-of-image marker)")
-    img = cv2.imread(str(path), flags)
+    check_image_size(path)
+    with library_output() as said:
+        try:
+            img = cv2.imread(str(path), flags)
+        except cv2.error as exc:  # e.g. a size past OpenCV's own limits in a header image_size cannot read
+            img, said.text = None, str(exc).strip().splitlines()[-1]
     if img is None:
-        raise InputError(f"{path}: not a readable image")
+        why = said.summary()
+        raise InputError(f"{path}: not a readable image" + (f" ({why})" if why else ""))
+    _corrupt_data(path, said)
     return img
 
 
