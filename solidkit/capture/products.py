@@ -41,7 +41,7 @@ from solidkit.capture.bracket_merge import merge_bracket
 from solidkit.capture.frame_merge import effective_exposure, load_frame, load_response
 from solidkit.capture.manifest import Manifest, Product
 from solidkit.capture.unwarp import check_image_circles, default_out_height, load_vignetting, unwarp
-from solidkit.envmap.io import write_exr, write_ldr
+from solidkit.envmap.io import imread, write_exr, write_ldr
 from solidkit.envmap.resample import rotate
 from solidkit.envmap.tilt import TILT_FLAG_DEG, TiltEstimate, residual_tilt
 from solidkit.errors import InputError, SolidkitError
@@ -70,8 +70,11 @@ def stored_tilt(path: str | os.PathLike, meta: CaptureMetadata) -> TiltEstimate 
         return None
     import cv2
 
-    img = cv2.imread(str(path), cv2.IMREAD_REDUCED_COLOR_2)
-    return None if img is None else residual_tilt(img)
+    try:
+        img = imread(path, cv2.IMREAD_REDUCED_COLOR_2)  # what libjpeg prints: in the error or a warning
+    except InputError:
+        return None
+    return residual_tilt(img)
 
 
 def _recipe_hash(recipe: dict[str, Any], inputs: list[str]) -> str:

@@ -13,7 +13,7 @@ from rich.table import Table
 
 from solidkit.capture.campaign import IngestReport, ingest, load_manifest, summary_rows
 from solidkit.capture.products import tilt_warning
-from solidkit.cli.output import echo_json, json_option
+from solidkit.cli.output import echo_json, json_option, line_console
 from solidkit.cli.parsing import parse_exposure
 from solidkit.errors import InputError
 
@@ -75,7 +75,7 @@ def ingest_command(
     manifest = load_manifest(campaign_dir)
     if quiet:
         return report
-    out = Console()
+    out = line_console()  # one line per bad file or warning, unbroken into a pipe or log
     if report.nothing_done:
         out.print(
             f"[green]nothing to do:[/] {escape(str(campaign_dir))} is up to date with {escape(str(card_dir))} "

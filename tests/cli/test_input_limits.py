@@ -107,7 +107,7 @@ def test_ingest_lists_corrupt_jpegs_and_deep_notes_and_goes_on(solidkit_fd, tmp_
     (card / "cam" / "R0010003.JPG").write_bytes(huge_jpeg())
     (card / "fieldnotes.toml").write_text("x = " + "[" * 1200 + "]" * 1200 + "\n")
     camp = tmp_path / "campaign"
-    code, _, err = solidkit_fd("ingest", tmp_path / "card", "-o", camp, "--no-products")
+    code, out, err = solidkit_fd("ingest", tmp_path / "card", "-o", camp, "--no-products")
     assert code == 2, err  # the deep notes raised RecursionError: exit 1, no manifest
     manifest = json.loads((camp / "manifest.json").read_text())
     assert [s["sources"][0]["path"] for s in manifest["shots"]] == ["scene01/cam/R0010001.JPG"]
@@ -115,6 +115,8 @@ def test_ingest_lists_corrupt_jpegs_and_deep_notes_and_goes_on(solidkit_fd, tmp_
     assert errors["scene01/cam/R0010002.JPG"].startswith("cannot decode JPEG: corrupt data (libjpeg: Corrupt JPEG")
     assert "65500 x 65500 pixels" in errors["scene01/cam/R0010003.JPG"]
     assert "Corrupt JPEG data" not in err.replace(errors["scene01/cam/R0010002.JPG"], "")
+    listed = [line.strip() for line in out.splitlines() if "R0010002.JPG" in line]
+    assert listed == [f"error scene01/cam/R0010002.JPG: {errors['scene01/cam/R0010002.JPG']}"]  # one line, unbroken
     notes = json.dumps(manifest["fieldnotes"])
     assert "fieldnotes.toml: not valid TOML (nested too deep)" in notes
 
@@ -128,3 +130,25 @@ def test_validate_problem_lines_do_not_wrap_into_a_pipe(solidkit_fd, tmp_path: P
     lines = err.splitlines()
     assert lines[0].startswith("problem [schema] testset.json: ") and lines[0].endswith("(char 10))"), lines
     assert lines[1] == f"{root}: 1 problem(s)"
+
+
+def test_capture_info_of_a_corrupt_panorama_warns_once(solidkit_fd, tmp_path: Path) -> None:
+    import datetime as dt
+
+    from solidkit.synth.exif import exif_app1, insert_app1
+
+    app1 = exif_app1(
+        make="RICOH",
+        model="RICOH THETA V",
+        when=dt.datetime(2026, 6, 1, 12),
+        exposure_time=0.001,
+        f_number=2.0,
+        iso=64,
+        theta={"image_type": 1, "roll_deg": 0.0, "pitch_deg": 0.0},  # stitched: its stored tilt is measured
+    )
+    f = tmp_path / "R0010001.JPG"
+    f.write_bytes(insert_app1(corrupt_jpeg(), app1))
+    code, out, err = solidkit_fd("capture", "info", f, "--json")
+    assert code == 0 and json.loads(out)["image_type"] == "equirect"
+    lines = [line for line in err.splitlines() if line.strip()]
+    assert len(lines) == 1 and lines[0].startswith(f"warning: {f}: corrupt image data"), err  # was libjpeg's line
