@@ -83,21 +83,19 @@ def errno_from_message(message: str) -> int | None:
     return None
 
 
-def write_error(exc: OSError, final: str | os.PathLike, needed: int | None = None, *, bound: bool = False) -> OSError:
+def write_error(exc: OSError, final: str | os.PathLike, needed: int | None = None) -> OSError:
     """``exc`` (raised while writing a temporary beside ``final``) as an error about ``final`` itself.
 
     The same errno (and so the same ``OSError`` subclass), ``filename`` the final path; a space error
-    (:data:`SPACE_ERRNOS`) says how much is free and, when ``needed`` (bytes; ``bound``: at most) is
-    known, how much the file needs: ``No space left on device (needs about 6.3 MB, 120.0 kB free)``.
-    A writer passes these through :func:`atomic_path` as the attributes ``needed_bytes`` and
-    ``needed_is_bound`` of the error it raises.
+    (:data:`SPACE_ERRNOS`) says how much is free and, when ``needed`` (bytes, an estimate) is known,
+    how much the file needs: ``No space left on device (needs about 6.3 MB, 120.0 kB free)``. A
+    writer passes it through :func:`atomic_path` as the attribute ``needed_bytes`` of the error it raises.
     """
     code = exc.errno if exc.errno is not None else errno.EIO
     reason = exc.strerror or os.strerror(code)
     if code in SPACE_ERRNOS and "free)" not in reason:
         free = free_bytes(Path(final).parent)
-        size = f"needs {'up to' if bound else 'about'} {format_bytes(needed)}" if needed is not None else None
-        parts = [size]
+        parts = [f"needs about {format_bytes(needed)}" if needed is not None else None]
         parts.append(f"{format_bytes(free)} free" if free is not None else None)
         if any(parts):
             reason += f" ({', '.join(p for p in parts if p)})"
@@ -148,9 +146,7 @@ def atomic_path(path: str | os.PathLike, suffix: str | None = None) -> Iterator[
         _remove(tmp_path)
         if exc.filename is not None and Path(exc.filename) not in (tmp_path, path):
             raise  # about another file (e.g. a source being read)
-        raise write_error(
-            exc, path, getattr(exc, "needed_bytes", None), bound=getattr(exc, "needed_is_bound", False)
-        ) from exc
+        raise write_error(exc, path, getattr(exc, "needed_bytes", None)) from exc
     except BaseException:
         _remove(tmp_path)
         raise
@@ -252,9 +248,9 @@ def file_lock(
     ``holder`` (JSON) is written into the file while it is held, for the message of a process
     refused (:class:`LockBusy`) or, with ``wait``, queued behind it (``on_wait(holder)`` is called
     once before waiting). The file is left as found (empty, its time unchanged) on release; the
-    kernel releases the lock of a killed process. A process that holds the lock already enters again (a step run inside another).
-    A lock file that cannot be created or written (a read-only campaign: nobody can write it) is
-    taken read-only, or not at all.
+    kernel releases the lock of a killed process. A process that holds the lock already enters
+    again (a step run inside another). A lock file that cannot be created or written (a read-only
+    campaign: nobody can write it) is taken read-only, or not at all.
     """
     path = Path(path)
     try:

@@ -215,16 +215,16 @@ def write_exr(
             with OpenEXR.File(header, channels) as f:
                 f.write(str(tmp))
         except RuntimeError as exc:  # OpenEXR's write errors (disk full, I/O) name the temporary file
-            raise _write_failed(errno_from_message(str(exc)), data.nbytes, bound=True) from exc
+            raise _write_failed(errno_from_message(str(exc)), data.nbytes) from exc  # uncompressed size
     return path
 
 
-def _write_failed(code: int | None, needed: int | None, *, bound: bool = False) -> OSError:
+def _write_failed(code: int | None, needed: int | None) -> OSError:
     """The ``OSError`` of a library writer that failed (``code`` None: an I/O error), for
     :func:`~solidkit.fsutil.atomic_path` to name the final file and the space it needs."""
     code = errno.EIO if code is None else code
     err = OSError(code, os.strerror(code))
-    err.needed_bytes, err.needed_is_bound = needed, bound  # type: ignore[attr-defined]
+    err.needed_bytes = needed  # type: ignore[attr-defined]
     return err
 
 

@@ -64,7 +64,7 @@ def test_full_disk_messages_name_the_final_file_and_the_space(fault_card, tmp_pa
         code, out, err = cli("ingest", card, "-o", camp)
     text = " ".join(out.split())
     assert code == 2
-    assert "products/s1/p1/hdr-b01.exr: could not be built: No space left on device (needs up to" in text, text
+    assert "products/s1/p1/hdr-b01.exr: could not be built: No space left on device (needs about" in text, text
     assert "products/s1/p1/sun.png: could not be built: No space left on device (needs about" in text, text
     assert "manifest.json: No space left on device (needs about" in text + err, text + err
     assert "failed for the environment" in text
@@ -91,3 +91,40 @@ def test_a_permanent_product_error_is_retried_with_retry_failed(fault_card, tmp_
     code, out, _ = cli("ingest", card, "-o", camp, "--retry-failed")
     assert code == 0, out
     assert not _differ(campaign_files(camp), clean)
+
+
+@pytest.fixture
+def small_disk(tmp_path):
+    """A tmpfs mounted at a temporary folder (root only; skipped elsewhere): ``resize(kib)``."""
+    import os
+    import subprocess
+
+    mnt = tmp_path / "disk"
+    mnt.mkdir()
+    if os.geteuid() != 0 or subprocess.run(["mount", "-t", "tmpfs", "-o", "size=4k", "tmpfs", str(mnt)]).returncode:
+        pytest.skip("needs root to mount a small tmpfs")
+
+    def resize(kib: int) -> None:
+        subprocess.run(["mount", "-o", f"remount,size={kib}k", str(mnt)], check=True)
+
+    yield mnt, resize
+    subprocess.run(["umount", "-l", str(mnt)], check=False)
+
+
+@pytest.mark.parametrize("kib", [8, 24, 48, 96, 148])  # the clean campaign takes about 145 kB
+def test_a_real_full_disk_then_freed(fault_card, small_disk, cli, kib):
+    """The same on a real file system that fills up (a tmpfs of ``kib`` KiB, then 8 MiB)."""
+    card, response, clean = fault_card
+    mnt, resize = small_disk
+    resize(kib)
+    camp = mnt / "camp"
+    args = ("ingest", card, "-o", camp, "--response", response)
+    code, out, err = cli(*args)
+    text = " ".join((out + err).split())
+    assert code == 2, text
+    assert "No space left on device" in text and "/." not in text and "Traceback" not in text, text
+    resize(8192)
+    code, out, err = cli(*args)
+    assert code == 0, out + err
+    files = campaign_files(camp)
+    assert not _differ(files, clean), _differ(files, clean)
