@@ -35,6 +35,7 @@ class FlagCode(str, Enum):
 
     # the scene and its photo (solidkit.align.pipeline)
     NO_PHOTO = "no_photo"
+    ALIGN_FAILED = "align_failed"
     NO_INTRINSICS = "no_intrinsics"
     NO_PHOTO_HEADING = "no_photo_heading"
     NO_CAMERA_POSITION = "no_camera_position"

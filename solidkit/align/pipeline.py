@@ -30,7 +30,8 @@ label store):
    label store (C2, ``source="auto"``, annotator ``align``), the report (:mod:`solidkit.align.report`).
 
 Re-runs are idempotent: unchanged inputs reuse cached features and existing products (recipe
-hash), and the label store ignores identical puts.
+hash), and the label store ignores identical puts. A scene whose alignment raises is recorded
+flagged ``align_failed`` with the error (:func:`failed_scene`), and the other scenes are kept.
 """
 
 from __future__ import annotations
@@ -40,6 +41,7 @@ import json
 import math
 import os
 import re
+import traceback
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
@@ -1558,9 +1560,15 @@ def _align_campaign(
                     pass
             continue
         log(f"{sc.id}: aligning")
-        sa, extra = align_scene(campaign, manifest, sc, s, store, log)
-        if s.products:
-            write_products(campaign, manifest, sc, sa, s, previous, log)
+        try:
+            sa, extra = align_scene(campaign, manifest, sc, s, store, log)
+            if s.products:
+                write_products(campaign, manifest, sc, sa, s, previous, log)
+        except Exception as exc:  # one scene's failure never discards the others
+            sa, extra = failed_scene(sc, exc), {}
+            log(f"{sc.id}: alignment failed, the other scenes are kept: {sa.flags[0]}")
+            if os.environ.get("SOLIDKIT_DEBUG"):
+                log(traceback.format_exc())
         out.scenes.append(sa)
         extras[sc.id] = extra
         if store is not None:
@@ -1570,6 +1578,21 @@ def _align_campaign(
     if report and write:
         write_report(campaign, manifest, out)
     return out
+
+
+def failed_scene(scene: Scene, exc: BaseException) -> SceneAlignment:
+    """The record of a scene whose alignment raised ``exc``: no photo, probes or sun, flagged ``align_failed`` with
+    the error (the test set leaves it out, saying why)."""
+    what = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+    if not isinstance(exc, SolidkitError):
+        what = f"{type(exc).__name__}: {what}"
+    return SceneAlignment(
+        id=scene.id,
+        photo=None,
+        camera_probe=camera_probe_of(scene),
+        sun=SceneSun(found=False),
+        flags=[str(Flag(FlagCode.ALIGN_FAILED, what))],
+    )
 
 
 def _write_labels(store: Any, sa: SceneAlignment, kinds: tuple[str, ...] | None = None) -> None:
