@@ -196,6 +196,8 @@ def load_train_config(path: str | os.PathLike, **overrides: Any) -> TrainConfig:
         data = tomllib.loads(path.read_text())
     except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
         raise InputError(f"{path}: not valid TOML ({exc})") from None
+    except RecursionError:  # arrays or tables nested past the parser's stack
+        raise InputError(f"{path}: not valid TOML (nested too deep)") from None
     data.update({k: v for k, v in overrides.items() if v is not None})
     known = {f.name for f in fields(TrainConfig)}
     unknown = sorted(set(data) - known)

@@ -187,3 +187,11 @@ def test_notes_text_round_trips(tmp_path):
     with pytest.raises(InputError, match="fieldnotes.toml: expected|not valid"):
         p.write_text("[[x]]\n= 1")
         read_notes(p)
+
+
+@pytest.mark.parametrize("name, text", [("fieldnotes.toml", "x = {}\n"), ("fieldnotes.json", '{"x": {}}')])
+def test_notes_nested_too_deep_are_one_line(tmp_path: Path, name: str, text: str) -> None:
+    deep = ("[" * 100_000 + "]" * 100_000) if name.endswith(".json") else ("[" * 1200 + "]" * 1200)
+    (tmp_path / name).write_text(text.replace("{}", deep))
+    with pytest.raises(InputError, match=rf"^{name}: not valid {name[-4:].upper()} \(nested too deep\)$"):
+        read_notes(tmp_path / name)  # RecursionError before: it aborted the whole ingest

@@ -152,3 +152,10 @@ def test_capture_info_of_a_corrupt_panorama_warns_once(solidkit_fd, tmp_path: Pa
     assert code == 0 and json.loads(out)["image_type"] == "equirect"
     lines = [line for line in err.splitlines() if line.strip()]
     assert len(lines) == 1 and lines[0].startswith(f"warning: {f}: corrupt image data"), err  # was libjpeg's line
+
+
+def test_a_training_configuration_nested_too_deep(solidkit_fd, tmp_path: Path) -> None:
+    conf = tmp_path / "deep.toml"
+    conf.write_text("steps = " + "[" * 2000 + "]" * 2000 + "\n")
+    code, _, err = solidkit_fd("train", conf)
+    assert code == 2 and one_error_line(err) == f"error: {conf}: not valid TOML (nested too deep)"  # was exit 1
