@@ -7,8 +7,9 @@ Write sites (:data:`SITES`): a stored capture (``original``: ``open(...).write``
 to write pixel data to image file "<temporary>". No space left on device.')``), a sun-frame PNG
 (``sun_frame``: ``cv2.imwrite`` returns ``False`` after libpng's "Write Error") and the manifest
 (``manifest``: ``open(...).write`` in ``fsutil``). From the first write at the chosen site (after
-``after`` successful ones there) every write of every site fails, and the free space reads 0 B,
-until :meth:`FullDisk.free` is called.
+``after`` successful ones there) every write of every site fails (``sticky``: the disk stays full),
+or only those of that site (a big file that does not fit while the small ones after it do, as when
+the failed temporary is removed), and the free space reads 0 B, until :meth:`FullDisk.free`.
 """
 
 from __future__ import annotations
@@ -62,9 +63,9 @@ class FullDisk:
     """Ingest's writers patched so that the disk fills at ``site`` (module doc); a context manager
     (space freed on leaving it)."""
 
-    def __init__(self, site: str, after: int = 0):
+    def __init__(self, site: str, after: int = 0, sticky: bool = True):
         assert site in SITES, site
-        self.site, self.after, self.full = site, after, False
+        self.site, self.after, self.sticky, self.full = site, after, sticky, False
         self.seen: Counter[str] = Counter()
         self.failed: Counter[str] = Counter()
         self._mp = pytest.MonkeyPatch()
@@ -78,12 +79,13 @@ class FullDisk:
 
     def hit(self, site: str) -> bool:
         """A write at ``site``: does it fail?"""
-        if not self.full and site == self.site:
-            self.full = self.seen[site] >= self.after
+        n = self.seen[site]
         self.seen[site] += 1
-        if self.full:
-            self.failed[site] += 1
-        return self.full
+        fail = site == self.site and n >= self.after
+        self.full |= fail
+        fail = fail or (self.full and self.sticky)
+        self.failed[site] += fail
+        return fail
 
     def free(self) -> None:
         """Space freed: every writer works again."""
