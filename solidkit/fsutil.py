@@ -133,8 +133,9 @@ def atomic_path(path: str | os.PathLike, suffix: str | None = None) -> Iterator[
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
         fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=suffix or path.suffix, dir=path.parent)
-    except OSError as exc:
-        raise write_error(exc, path) from exc
+    except OSError as exc:  # about the folder (a file where it should be, permissions) or the temporary
+        temporary = exc.filename is not None and Path(exc.filename).name.startswith(f".{path.name}.")
+        raise write_error(exc, path if exc.filename is None or temporary else exc.filename) from exc
     os.close(fd)
     tmp_path = Path(tmp)
     try:
