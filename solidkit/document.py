@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import datetime as _dt
 import json
+import math
 import os
 from pathlib import Path
 from typing import Any, ClassVar, TypeVar
@@ -73,6 +74,13 @@ def _no_constant(name: str) -> Any:
     raise ValueError(f"{name} is not a JSON number")
 
 
+def _finite_float(text: str) -> float:
+    value = float(text)
+    if not math.isfinite(value):  # e.g. 1e400: Python's json makes it inf
+        raise ValueError(f"{text} is out of the float range")
+    return value
+
+
 def read_json_object(
     path: str | os.PathLike[str],
     error: type[InputError] = DocumentError,
@@ -82,13 +90,13 @@ def read_json_object(
 ) -> dict[str, Any]:
     """The JSON object in ``path``; ``error`` (one line) when the file is missing, unreadable, nested too deep
     to parse or not an object. ``finite``: ``NaN`` / ``Infinity`` (which Python's json accepts, JSON does not)
-    are an error too (documents written with ``allow_nan=False``)."""
+    and numbers past the float range (``1e400``) are an error too (documents written with ``allow_nan=False``)."""
     path = Path(path)
     if not path.is_file():
         raise error(f"{path}: no such {what} file")
     try:
         text = path.read_text(encoding="utf-8")
-        data = json.loads(text, parse_constant=_no_constant) if finite else json.loads(text)
+        data = json.loads(text, parse_constant=_no_constant, parse_float=_finite_float) if finite else json.loads(text)
     except (OSError, UnicodeDecodeError, ValueError) as exc:
         raise error(f"{path}: not a JSON {what} ({exc})") from None
     except RecursionError:

@@ -48,3 +48,13 @@ def test_each_check_is_one_line(change, error, message):
     with pytest.raises(error) as info:
         check({**GOOD, **change})
     assert str(info.value).startswith(message) and "\n" not in str(info.value)
+
+
+def test_finite_documents_refuse_numbers_past_the_float_range(tmp_path) -> None:
+    from solidkit.document import DocumentError, read_json_object
+
+    path = tmp_path / "doc.json"
+    path.write_text('{"weights": {"sun": 1e400}}')
+    assert read_json_object(path)["weights"]["sun"] == float("inf")  # what Python's json makes of it
+    with pytest.raises(DocumentError, match=r"doc.json: not a JSON document \(1e400 is out of the float range\)"):
+        read_json_object(path, finite=True)  # was inf: testset validate then failed to hash it (exit 1)

@@ -89,6 +89,7 @@ class LensProfileError(DocumentError):
 class LensTable(BaseModel):
     """Image height vs incidence angle, as published or measured (kept for provenance)."""
 
+    model_config = ConfigDict(allow_inf_nan=False)
     theta_deg: list[float]
     r_px: list[float]
 
@@ -110,6 +111,7 @@ def fit_odd_poly(theta_rad: Any, r_px: Any, degree: int = 9) -> list[float]:
 class LensModel(BaseModel):
     """One fisheye lens of a dual-fisheye camera (see the module docstring for the frames)."""
 
+    model_config = ConfigDict(allow_inf_nan=False)  # a NaN centre or angle would unwarp to a blank panorama
     name: str
     center: tuple[float, float] = Field(description="optical centre (px) at the profile's reference size")
     poly: list[float] = Field(description="odd polynomial r(theta) coefficients k1, k3, ... (px, theta in rad)")

@@ -144,3 +144,14 @@ def test_from_table_fits_equisolid():
     tt = np.radians(np.linspace(0, 100, 777))
     assert np.abs(lens.radius(tt) - 2 * 600 * np.sin(tt / 2)).max() < 1e-3
     assert isinstance(LensProfile(model="x", source="analytic", reference_size=(10, 5), lenses=[lens]), LensProfile)
+
+
+@pytest.mark.parametrize("literal", ["NaN", "Infinity", "-Infinity"])
+def test_a_profile_with_a_non_finite_number_is_refused(tmp_path, literal: str) -> None:
+    from solidkit.camera.lens import LensProfileError, _builtin_dir, load_profile
+
+    doc = json.loads(_builtin_dir().joinpath("theta-v.json").read_text())
+    text = json.dumps(doc).replace(json.dumps(doc["lenses"][0]["center"][0]), literal, 1)
+    (tmp_path / "unit.json").write_text(text)
+    with pytest.raises(LensProfileError, match=r"lenses\.0\.center\.0: Input should be a finite number"):
+        load_profile(tmp_path / "unit.json")  # was accepted: a NaN centre unwarped to a blank panorama
