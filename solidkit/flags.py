@@ -46,6 +46,7 @@ class FlagCode(str, Enum):
     PHOTO_POSE_UNKNOWN = "photo_pose_unknown"
     # a capture's yaw (solidkit.align.pipeline, solidkit.align.heading)
     NO_NORMAL_SHOT = "no_normal_shot"
+    NORMAL_EXPOSURE_SUBSTITUTED = "normal_exposure_substituted"
     NO_PANORAMA = "no_panorama"
     LABEL_DIFFERS = "label_differs"
     FEATURES_FAILED = "features_failed"

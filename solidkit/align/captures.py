@@ -30,6 +30,8 @@ __all__ = [
     "photo_shot_of",
     "levelling_of",
     "load_normal_panorama",
+    "normal_shot_of",
+    "exposure_stops",
     "NORMAL_EXPOSURE_S",
 ]
 
@@ -74,12 +76,7 @@ def captures_of(manifest: Manifest, scene: Scene) -> list[Capture]:
     cam = camera_probe_of(scene)
     out = []
     for p in sorted(scene.probes, key=lambda p: (p.id != cam, p.id)):
-        shots = [manifest.shot(s) for s in p.shots]
-        singles = [s for s in shots if s.kind == "probe" and s.metadata.get("exposure_time")]
-        pool = singles or [s for s in shots if s.kind == "bracket_member" and s.metadata.get("exposure_time")]
-        normal = min(
-            pool, key=lambda s: abs(math.log2(float(s.metadata["exposure_time"]) / NORMAL_EXPOSURE_S)), default=None
-        )
+        normal = normal_shot_of(manifest, p)
         sun = hdr = None
         hdr_inputs: list[str] = []
         for prod in manifest.products:
@@ -91,6 +88,20 @@ def captures_of(manifest: Manifest, scene: Scene) -> list[Capture]:
                 hdr, hdr_inputs = prod.path, list(prod.inputs)
         out.append(Capture(scene.id, p, normal, sun, hdr, hdr_inputs))
     return out
+
+
+def normal_shot_of(manifest: Manifest, probe: Probe) -> Shot | None:
+    """The shot a capture's LDR probe is made from: its single exposure (else bracket member) nearest to the
+    protocol's :data:`NORMAL_EXPOSURE_S` in stops (None: no shot with an exposure time)."""
+    shots = [manifest.shot(s) for s in probe.shots]
+    singles = [s for s in shots if s.kind == "probe" and s.metadata.get("exposure_time")]
+    pool = singles or [s for s in shots if s.kind == "bracket_member" and s.metadata.get("exposure_time")]
+    return min(pool, key=lambda s: abs(exposure_stops(s)), default=None)
+
+
+def exposure_stops(shot: Shot) -> float:
+    """How many stops longer than the protocol's :data:`NORMAL_EXPOSURE_S` the shot's exposure time is."""
+    return math.log2(float(shot.metadata["exposure_time"]) / NORMAL_EXPOSURE_S)
 
 
 def levelling_of(shot: Shot) -> tuple[float, float, np.ndarray]:

@@ -54,6 +54,7 @@ from solidkit.align.captures import (
     Capture,
     camera_probe_of,
     captures_of,
+    exposure_stops,
     levelling_of,
     load_normal_panorama,
     photo_shot_of,
@@ -317,6 +318,9 @@ def capture_view(
         pitch, roll, _ = levelling_of(ref)
         heading = ref.metadata.get("heading_deg")
         eph = ephemeris_for(ref.metadata, photo_place)
+        substituted = exposure_substitute(ref)
+        if substituted:
+            flags.append(substituted)
     else:
         flags.append(str(Flag(FlagCode.NO_NORMAL_SHOT, "no single exposure to make the LDR probe from")))
     pano, linear, src, inputs = _feature_panorama(campaign, manifest, cap)
@@ -340,6 +344,27 @@ def capture_view(
         + ("" if tilt is None else f", residual tilt {tilt.tilt_deg:.2f} deg ({how})")
     )
     return CaptureView(cap, pitch, roll, heading, eph, features, normal_lin, linear, C, tilt, tuple(flags))
+
+
+def exposure_substitute(shot: Any, max_stops: float = 0.25) -> str | None:
+    """The ``normal_exposure_substituted`` flag of a capture whose LDR probe comes from ``shot`` when its exposure
+    is more than ``max_stops`` from the protocol's 1/2500 s (a bracket missing that shot), else None."""
+    stops = exposure_stops(shot)
+    if abs(stops) <= max_stops:
+        return None
+    t = float(shot.metadata["exposure_time"])
+    return str(
+        Flag(
+            FlagCode.NORMAL_EXPOSURE_SUBSTITUTED,
+            f"the LDR probe is made from the {_exposure_text(t)} shot: the protocol's 1/2500 s is missing "
+            f"({2.0**stops:.1f}x {'brighter' if stops > 0 else 'darker'})",
+        )
+    )
+
+
+def _exposure_text(t: float) -> str:
+    """An exposure time as a camera shows it: ``1/640 s``, ``2 s``."""
+    return f"1/{1.0 / t:.0f} s" if t < 1.0 else f"{t:g} s"
 
 
 def clock_mismatch(photo_ephemeris: Ephemeris | None, views: list[CaptureView]) -> list[str]:

@@ -51,6 +51,7 @@ import cv2
 import numpy as np
 
 from solidkit import __version__
+from solidkit.align.captures import normal_shot_of
 from solidkit.align.schema import (
     CampaignAlignment,
     ProbeAlignment,
@@ -505,6 +506,7 @@ class _Builder:
         bracket = probe.brackets[0] if probe.brackets else None
         hdr = self._product(sid, pid, "hdr")
         sun = self._product(sid, pid, "sun_frame")
+        normal = normal_shot_of(self.manifest, probe)
         return ProbeCapture(
             time_local=first.get("datetime_original"),
             camera_model=first.get("model"),
@@ -515,6 +517,13 @@ class _Builder:
             sun_frame_exposure=Exposure(exposure_time_s=sun.exposure_time, f_number=sun.f_number, iso=sun.iso)
             if sun
             else None,
+            ldr_exposure=None
+            if normal is None
+            else Exposure(
+                exposure_time_s=normal.metadata.get("exposure_time"),
+                f_number=normal.metadata.get("f_number"),
+                iso=normal.metadata.get("iso"),
+            ),
             recorded_pitch_deg=first.get("pitch_deg"),
             recorded_roll_deg=first.get("roll_deg"),
         )

@@ -133,6 +133,9 @@ class ProbeCapture(_Model):
     bracket_f_number: float | None = None
     bracket_iso: float | None = None
     sun_frame_exposure: Exposure | None = Field(None, description="the low-exposure sun frame's exposure")
+    ldr_exposure: Exposure | None = Field(
+        None, description="the exposure of the shot the LDR probe is made from (the protocol's: 1/2500 s)"
+    )
     recorded_pitch_deg: float | None = Field(None, description="gravity sensor pitch of the Theta (conventions §7)")
     recorded_roll_deg: float | None = None
 

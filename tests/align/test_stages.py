@@ -374,3 +374,29 @@ def test_doubts_reach_every_probe_they_touch() -> None:
     assert "relative to cam's, which is flagged yaw_doubtful" in doubts["p1"][0]
     assert "relative to p1's" in doubts["p2"][0]
     assert doubts["p3"] == []  # already flagged single_cue
+
+
+def test_a_bracket_missing_its_probe_exposure_is_flagged() -> None:
+    """The LDR probe from the 1/640 s shot of a bracket without its 1/2500 s one: flagged with the substitute and how
+    much brighter it is; the protocol's exposure (or a quarter stop from it) is not."""
+    from solidkit.align.pipeline import exposure_substitute
+    from solidkit.capture.manifest import Shot
+
+    def shot(t: float) -> Shot:
+        meta = {"exposure_time": t}
+        return Shot(
+            sha256="0" * 64,
+            original="x.jpg",
+            size=1,
+            file_format="jpeg",
+            sources=[],
+            kind="bracket_member",
+            metadata=meta,
+        )
+
+    flag = exposure_substitute(shot(1 / 640))
+    assert flag == (
+        "normal_exposure_substituted: the LDR probe is made from the 1/640 s shot: the protocol's 1/2500 s is "
+        "missing (3.9x brighter)"
+    )
+    assert exposure_substitute(shot(1 / 2500)) is None and exposure_substitute(shot(1 / 2200)) is None

@@ -412,3 +412,22 @@ def test_concurrent_build_refused_and_killed_build_leaves_old_set(campaign, buil
     assert _tree(out) == _tree(built)
     build_testset(campaign[0], out)
     assert not (tmp_path / ".ts.build-x").exists() and _tree(out) == _tree(built)
+
+
+def test_each_products_exposure_is_recorded(campaign, built):
+    """The LDR probe's shot (the protocol's 1/2500 s or the substitute nearest to it) and the sun frame's exposure
+    are in the test set for every capture, so that the protocol can be checked."""
+    from solidkit.align.captures import normal_shot_of
+    from solidkit.capture.manifest import load_manifest
+
+    manifest = load_manifest(campaign[0])
+    ts = load_testset(built)
+    for s in ts.scenes:
+        mscene = next(sc for sc in manifest.scenes if sc.id == s.id)
+        caps = [(p.id, p.capture) for p in s.probes] + ([(s.camera.id, s.camera.capture)] if s.camera else [])
+        for pid, cap in caps:
+            shot = normal_shot_of(manifest, next(p for p in mscene.probes if p.id == pid))
+            assert shot is not None and cap.ldr_exposure is not None
+            assert cap.ldr_exposure.exposure_time_s == shot.metadata["exposure_time"]
+            assert cap.ldr_exposure.f_number == shot.metadata["f_number"]
+            assert cap.sun_frame_exposure is not None and cap.sun_frame_exposure.exposure_time_s is not None
