@@ -190,6 +190,7 @@ def create_app(
 
     app = FastAPI(title="solidkit labeling", docs_url=None, redoc_url=None, openapi_url=None)
     app.state.index, app.state.store, app.state.images = index, store, images
+    app.state.sessions = sessions
 
     # -- middleware (outermost last) ---------------------------------------------------------
     @app.middleware("http")
@@ -469,7 +470,8 @@ def create_app(
                 "flags": [f for f in review["flags"] if not f.startswith(_BLIND_HIDDEN_FLAGS)],
                 "disagreement": None, "vs_auto": None, "open_disagreement": False, "label": None,
             }  # fmt: skip
-        note = store.notes(kind).get((kind, key, user.name))
+        notes = store.notes(kind)
+        note = notes.get((kind, key, user.name))
         return {
             "kind": kind, "key": key, "title": it.title, "scene": it.scene, "probe": it.probe, "view": view,
             "proposal": proposal, "flags": it.flags, "siblings": siblings, "blind": hide,
@@ -477,7 +479,9 @@ def create_app(
             "review": review, "history": [c.model_dump(mode="json") for c in history[-30:]],
             "mine": _mine(kind, key, user, store.history(kind, key), label),
             "note": note.model_dump(mode="json") if note else None,
-            "own": {n: o for n, o in _own_for_review(kind, key, user).items()},
+            "own": _own_for_review(kind, key, user),
+            "notes": {k[2]: n.model_dump(mode="json") for k, n in notes.items() if k[1] == key}
+            if user.role == "reviewer" else {},
         }  # fmt: skip
 
     def _own_for_review(kind: str, key: str, user: User) -> dict:

@@ -64,7 +64,13 @@ def server(campaign):
     from solidkit.labeling.app import create_app
 
     root, alignment = campaign
-    srv, thread, url = _serve(create_app(root, alignment=alignment))
+    store = LabelStore(root)
+    for name in ANNOTATORS:
+        store.add_user(name, "annotator")
+    store.add_user("rev", "reviewer")
+    app = create_app(root, alignment=alignment)
+    srv, thread, url = _serve(app)
+    url_app[url] = app
     yield url
     srv.should_exit = True
     thread.join(5)
@@ -78,12 +84,24 @@ def browser():
         b.close()
 
 
-def open_page(browser, url, annotator="ann"):
-    ctx = browser.new_context(viewport=VIEWPORT)
-    ctx.add_init_script(f"localStorage.setItem('solidkit.annotator', {annotator!r})")
+ANNOTATORS = ("ann", "bob", "carol", "dave")
+url_app: dict = {}  # server address -> its app (to end sessions as a restart would)
+_SEEN_GUIDES = "for (const t of ['sun', 'probe_pixel', 'heading']) localStorage.setItem('solidkit.guide.' + t, '1')"
+
+
+def open_page(browser, url, annotator="ann", viewport=VIEWPORT, guides_seen=True, console=None):
+    """A new browser (its own cookies) logged in as ``annotator``, opened at ``url``."""
+    ctx = browser.new_context(viewport=viewport)
+    if guides_seen:
+        ctx.add_init_script(_SEEN_GUIDES)
+    base = re.match(r"https?://[^/]+", url).group(0)
+    r = ctx.request.post(f"{base}/api/session", data={"name": annotator}, headers={"X-Solidkit": "1"})
+    assert r.ok, r.text()
     page = ctx.new_page()
     errors: list[str] = []
     page.on("pageerror", lambda e: errors.append(str(e)))
+    if console is not None:
+        page.on("console", lambda m: console.append(f"{m.type}: {m.text}"))
     page.goto(url)
     return page, errors
 
@@ -273,7 +291,7 @@ def test_review_lists_the_disagreement(server, browser, campaign):
     store.put(
         "heading", "city/cam", {"yaw_deg": 9.0}, source="annotator", annotator="bob"
     )  # 8 deg apart: 4x the threshold
-    page, errors = open_page(browser, f"{server}/#task=review")
+    page, errors = open_page(browser, f"{server}/#task=review", "rev")
     loaded(page, "review")
     row = page.locator("#review-table tr[data-key='heading:city/cam']")
     assert "8.00°" in row.text_content() and "open" in row.get_attribute("class")
@@ -306,9 +324,13 @@ def test_traversal_404_and_token_401(server, browser, campaign):
     token = "token-for-the-browser-test"
     srv, thread, url = _serve(create_app(root, alignment=alignment, token=token))
     try:
-        page, errors = open_page(browser, f"{url}/")
+        ctx = browser.new_context(viewport=VIEWPORT)
+        ctx.add_init_script(_SEEN_GUIDES)
+        page = ctx.new_page()
+        page.goto(f"{url}/")
         assert page.request.get(f"{url}/api/campaign").status == 401
         page.wait_for_selector("#login:not([hidden])")
+        page.fill("#login-name", "ann")
         page.fill("#login-token", token)
         page.keyboard.press("Enter")
         page.wait_for_selector("body[data-item^='sun:']", timeout=60000)  # generous: CI machines may be loaded
@@ -362,4 +384,115 @@ def test_wheel_zoom_stops_at_a_five_degree_view(server, browser, campaign):
     page.wait_for_timeout(300)
     fov = page.evaluate("() => window.solidkitApp.controller('sun').sphere.view().fov")
     assert fov == pytest.approx(5.0, abs=0.3)
+    assert not errors
+
+
+def test_layout_for_annotators_at_1024_px(server, browser, campaign):
+    """At 1024 px the header keeps the user and help buttons; the overview strip is 2:1 (was about
+    6:1); queue titles are whole and the dots have a legend; an automatic label is not shown as a
+    stored (green) one and leaves the item to do; no internal words or raw flags."""
+    LabelStore(campaign[0]).put(
+        "sun", "city/cam", {"found": True, "azimuth_deg": -120.0, "elevation_deg": 35.0, "uncertainty_deg": 0.4},
+        source="auto", annotator="align",
+    )  # fmt: skip
+    page, errors = open_page(
+        browser, f"{server}/#task=sun&key=city/cam", "dave", viewport={"width": 1024, "height": 700}
+    )
+    loaded(page, "sun", "city/cam")
+    for sel in ("#annotator-btn", "#help-btn"):
+        box = page.locator(sel).bounding_box()
+        assert box and box["x"] + box["width"] <= 1024, sel
+    ov = page.locator("#sun-overview img").bounding_box()
+    assert ov["width"] / ov["height"] == pytest.approx(2.0, abs=0.05)
+    titles = page.locator("#queue-list .qt")
+    assert titles.count() == 5
+    assert not any(titles.nth(i).evaluate("e => e.scrollWidth > e.clientWidth + 1") for i in range(titles.count()))
+    assert "camera position" in page.locator("#queue-list li[data-key='s1/cam']").text_content()
+    legend = page.locator("#queue-legend").text_content()
+    assert all(w in legend for w in ("to do", "done", "returned to you", "flagged"))
+    assert page.locator("#saved-value").count() == 0 and page.locator("#stored-auto").is_visible()
+    assert "done" not in page.locator("#queue-list li[data-key='city/cam']").get_attribute("class")
+    text = ""
+    for task, key in (("sun", "s1/p1"), ("sun", "s1/p2"), ("probe_pixel", "s1/p1"), ("heading", "s1/p2")):
+        goto(page, task, key)
+        text += page.locator("#panel").inner_text() + page.locator("#queue").inner_text()
+    for word in ("align/", "pvlib", "field_notes", "low_confidence", "no_sun", "solidkit align"):
+        assert word not in text, word
+    assert "the automatic value is uncertain" in text  # low_confidence, said plainly
+    assert not errors
+
+
+def test_review_reject_returns_the_item_with_the_comment_and_no_nan(server, browser, campaign):
+    """A reviewer rejects an annotator's pixel with a comment: the annotator's queue shows the item
+    returned, with the comment in the panel. Switching to the Review tab logs no SVG NaN errors."""
+    store = LabelStore(campaign[0])
+    store.put("probe_pixel", "city/p1", {"x": 330.0, "y": 400.0}, source="annotator", annotator="carol")
+    console: list[str] = []
+    rev, errors = open_page(browser, f"{server}/#task=sun&key=s1/p1", "rev", console=console)
+    loaded(rev, "sun", "s1/p1")
+    rev.keyboard.press("4")
+    loaded(rev, "review")
+    rev.wait_for_timeout(400)
+    assert not [c for c in console if "NaN" in c], console
+    rev.locator("#review-table tr[data-key='probe_pixel:city/p1']").click()
+    loaded(rev, "probe_pixel", "city/p1")
+    rev.fill("#verdict-comment", "that is the lamp post; the tripod stood left of it")
+    rev.locator("#review-box li[data-annotator='carol'] button.reject").click()
+    rev.wait_for_selector("body[data-verdict^='probe_pixel:city/p1:carol:reject']")
+    ann, errors_a = open_page(browser, f"{server}/#task=probe_pixel&key=city/p1", "carol")
+    loaded(ann, "probe_pixel", "city/p1")
+    assert "returned" in ann.locator("#queue-list li[data-key='city/p1']").get_attribute("class")
+    assert "lamp post" in ann.locator("#returned").text_content()
+    assert not errors and not errors_a
+
+
+def test_redo_and_a_restart_keeps_the_unsaved_mark(server, browser, campaign):
+    """Undo then redo puts the value back. A 401 (the server forgot the session, as after a restart)
+    shows the login form, and the mark the annotator had not saved yet is saved after logging in."""
+    root = campaign[0]
+    page, errors = open_page(browser, f"{server}/#task=probe_pixel&key=s1/p1", "bob")
+    loaded(page, "probe_pixel", "s1/p1")
+    box = page.locator("#pixel-view").bounding_box()
+    page.mouse.click(box["x"] + box["width"] * 0.3, box["y"] + box["height"] * 0.4)
+    mine = page.locator("#draft-value:visible").text_content()
+    page.keyboard.press("s")
+    page.wait_for_selector("body[data-saved^='probe_pixel:s1/p1:']")
+    saved = LabelStore(root).get("probe_pixel", "s1/p1")
+    goto(page, "probe_pixel", "s1/p1")
+    page.keyboard.press("u")
+    page.wait_for_function("() => !document.querySelector('#btn-redo').disabled")
+    assert LabelStore(root).get("probe_pixel", "s1/p1") != saved
+    page.keyboard.press("r")
+    page.wait_for_function(
+        f"() => document.body.dataset.saved && !document.body.dataset.saved.endsWith(':{saved.version}')"
+    )
+    assert LabelStore(root).get("probe_pixel", "s1/p1").value == saved.value
+    page.mouse.click(box["x"] + box["width"] * 0.6, box["y"] + box["height"] * 0.5)
+    mine = page.locator("#draft-value:visible").text_content()
+    url_app[server].state.sessions.clear()  # what a restart does to the sessions
+    page.keyboard.press("s")
+    page.wait_for_selector("#login:not([hidden])")
+    assert page.locator("#draft-value:visible").text_content() == mine  # still on screen
+    page.fill("#login-name", "bob")
+    page.keyboard.press("Enter")
+    page.wait_for_function("() => !document.body.dataset.login")
+    page.wait_for_function(
+        "() => (document.body.dataset.saved || '').startsWith('probe_pixel:s1/p1:')"
+        f" && !document.body.dataset.saved.endsWith(':{saved.version + 2}')"
+    )
+    lab = LabelStore(root).get("probe_pixel", "s1/p1")
+    assert lab.annotator == "bob" and f"x {lab.value['x']:.1f}, y {lab.value['y']:.1f} px" == mine
+    assert not errors
+
+
+def test_the_task_guide_opens_on_first_use(server, browser):
+    page, errors = open_page(browser, f"{server}/#task=heading&key=s1/p1", "dave", guides_seen=False)
+    loaded(page, "heading", "s1/p1")
+    page.wait_for_selector("#guide:not([hidden])")
+    assert "distant" in page.locator("#guide-body").text_content()
+    page.keyboard.press("Escape")
+    page.wait_for_selector("#guide", state="hidden")
+    page.reload()
+    loaded(page, "heading", "s1/p1")
+    assert page.locator("#guide").is_hidden()  # once seen, not again
     assert not errors

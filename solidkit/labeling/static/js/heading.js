@@ -3,7 +3,7 @@
 import { imageUrl } from './api.js';
 import { SphereView } from './sphere.js';
 import { wrap180 } from './frames.js';
-import { $, el, fill, panelHeader, f2, formatValue, savedLine, opinionsBlock, historyBlock, button, slider } from './ui.js';
+import { $, el, fill, panelHeader, f2, formatValue, savedLine, opinionsBlock, historyBlock, button, noteBlock, reviewBlock, undoButtons, sourceText, slider } from './ui.js';
 
 export class HeadingTask {
   constructor(app) {
@@ -32,7 +32,7 @@ export class HeadingTask {
 
   empty() { fill(this.panel, el('p', {}, 'No captures with a photo in this campaign.')); }
 
-  hidden() { return this.app.blind && !this.app.reviewing; }
+  hidden() { return !!(this.item && this.item.blind); }
 
   async load(item) {
     this.item = item;
@@ -85,7 +85,7 @@ export class HeadingTask {
     const pitch = it.view.photo.pitch_deg || 0;
     if (!this.hidden()) {
       if (it.proposal && it.proposal.yaw_deg != null) ms.push({ id: 'auto', polygon: this.outline(it.proposal.yaw_deg), style: { fill: 'none', stroke: '#fb923c', strokeWidth: '2px', strokeDasharray: '8 5' } });
-      if (it.label) ms.push({ id: 'saved', polygon: this.outline(it.label.value.yaw_deg), style: { fill: 'none', stroke: '#4ade80', strokeWidth: '2px' } });
+      if (it.label && it.label.source !== 'auto') ms.push({ id: 'saved', polygon: this.outline(it.label.value.yaw_deg), style: { fill: 'none', stroke: '#4ade80', strokeWidth: '2px' } });
     }
     const ol = this.outline(this.yaw), n = ol.length / 4;
     if (this.overlay > 0) ms.push({ id: 'photo', imageLayer: imageUrl.preview(it.view.photo.image.id), corners: [ol[0], ol[n], ol[2 * n], ol[3 * n]], opacity: this.overlay, z: 5 });
@@ -99,7 +99,7 @@ export class HeadingTask {
     const cues = Object.entries(v.cues || {});
     fill(this.panel,
       ...panelHeader(app, it),
-      el('p', { class: 'hint' }, 'Turn the photo’s frame (cyan, with the photo drawn inside it) until the photo lines up with the panorama: drag inside the frame, Shift+drag anywhere, or ←/→. O toggles the photo.'),
+      el('p', { class: 'hint' }, 'Turn the photo’s frame (cyan, with the photo drawn inside it) until the photo lines up with the panorama: drag inside the frame, Shift+drag anywhere, or ←/→. O toggles the photo. Line up distant things (building tops, skyline): near objects shift with the position.'),
       el('div', { class: 'row' }, el('span', { class: 'swatch auto' }), 'Auto: ',
         this.hidden() ? el('i', {}, 'hidden') : el('b', { id: 'auto-value' }, it.proposal ? formatValue('heading', it.proposal) : 'none'),
         v.residual_deg != null && !this.hidden() ? el('span', { class: 'muted' }, ` (cue residual ${f2(v.residual_deg)}°)`) : null),
@@ -114,11 +114,13 @@ export class HeadingTask {
         button('Accept auto', 'A', () => this.accept(), 'btn-accept', 'primary'),
         button('Save my yaw', 'S', () => this.saveDraft(), 'btn-save', 'primary'),
         button('Look through photo', 'F', () => this.lookThrough(), 'btn-look'),
-        button('Undo last change', 'U', () => this.app.undo(), 'btn-undo')),
+        ...undoButtons(this.app)),
       v.photo.pose_assumed ? el('div', { class: 'row warn' }, 'Photo pitch/roll unknown: assumed level.') : null,
-      v.photo.outline ? null : el('div', { class: 'row warn' }, `No photo intrinsics (${v.photo.K_source}); the frame cannot be drawn.`),
-      cues.length && !this.hidden() ? el('details', { class: 'cands' }, el('summary', {}, `Align cues (${cues.length})`),
-        el('ul', {}, cues.map(([n, c]) => el('li', {}, `${n}: ${c.yaw_deg == null ? '–' : f2(c.yaw_deg) + '°'} `, el('span', { class: 'muted' }, `${c.ok ? 'ok' : 'not used'} ${c.detail || ''}`))))) : null,
+      v.photo.outline ? null : el('div', { class: 'row warn' }, 'No lens data for this photo: its frame cannot be drawn.'),
+      cues.length && !this.hidden() ? el('details', { class: 'cands' }, el('summary', {}, `Automatic clues (${cues.length})`),
+        el('ul', {}, cues.map(([n, c]) => el('li', {}, `${n}: ${c.yaw_deg == null ? '–' : f2(c.yaw_deg) + '°'} `, el('span', { class: 'muted' }, `${c.ok ? 'used' : 'not used'}`))))) : null,
+      reviewBlock(app, it),
+      noteBlock(app, it),
       historyBlock(app, it),
     );
   }

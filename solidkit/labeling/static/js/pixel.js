@@ -1,7 +1,7 @@
 // The probe-pixel task: where each probe stood in the scene's photo.
 
 import { FlatView } from './flat.js';
-import { $, el, fill, panelHeader, f2, formatValue, savedLine, opinionsBlock, historyBlock, button } from './ui.js';
+import { $, el, fill, panelHeader, f2, formatValue, savedLine, opinionsBlock, historyBlock, button, noteBlock, reviewBlock, undoButtons, sourceText } from './ui.js';
 
 export class PixelTask {
   constructor(app) {
@@ -23,7 +23,7 @@ export class PixelTask {
 
   empty() { fill(this.panel, el('p', {}, 'No probe positions with a photo in this campaign.')); }
 
-  hidden() { return this.app.blind && !this.app.reviewing; }
+  hidden() { return !!(this.item && this.item.blind); }
 
   async load(item) {
     this.item = item;
@@ -44,10 +44,11 @@ export class PixelTask {
     const it = this.item, ms = [];
     if (!this.hidden()) {
       for (const [probe, v] of Object.entries(it.siblings)) if (probe !== it.probe && v) ms.push({ x: v.x, y: v.y, cls: 'dim', label: probe });
-      if (it.proposal) ms.push({ ...it.proposal, cls: 'auto', label: it.view.proposal_source || 'auto' });
+      if (it.proposal) ms.push({ ...it.proposal, cls: 'auto', label: sourceText(it.view.proposal_source) });
       if (it.view.geometry) ms.push({ x: it.view.geometry[0], y: it.view.geometry[1], cls: 'geometry', label: 'geometry' });
-      if (it.label) ms.push({ ...it.label.value, cls: 'saved', label: it.probe });
+      if (it.label && it.label.source !== 'auto') ms.push({ ...it.label.value, cls: 'saved', label: it.probe });
     }
+    if (this.hidden() && it.mine && it.mine.value) ms.push({ ...it.mine.value, cls: 'saved', label: `${it.probe} (saved)` });
     if (this.draft) ms.push({ ...this.draft, cls: 'draft', label: `${it.probe} (yours)` });
     this.flat.setMarkers(ms);
   }
@@ -56,21 +57,23 @@ export class PixelTask {
     const app = this.app, it = this.item, v = it.view;
     fill(this.panel,
       ...panelHeader(app, it),
-      el('p', { class: 'hint' }, `Click where probe ${it.probe} stood in the photo (the point on the ground under the Theta). Wheel to zoom, drag to pan.`),
+      el('p', { class: 'hint' }, `Click where position ${it.probe} is in the photo (the point on the ground under the camera tripod). Wheel to zoom, drag to pan.`),
       v.note ? el('div', { class: 'row' }, 'Field note: ', el('i', {}, v.note)) : null,
-      el('div', { class: 'row' }, el('span', { class: 'swatch auto' }), `Auto (${v.proposal_source || 'none'}): `,
+      el('div', { class: 'row' }, el('span', { class: 'swatch auto' }), `Auto (${sourceText(v.proposal_source)}): `,
         this.hidden() ? el('i', {}, 'hidden') : el('b', { id: 'auto-value' }, it.proposal ? formatValue('probe_pixel', it.proposal) : 'none')),
-      v.geometry && !this.hidden() ? el('div', { class: 'row muted' }, el('span', { class: 'swatch geometry' }), `Geometry check: ${formatValue('probe_pixel', { x: v.geometry[0], y: v.geometry[1] })}, ${f2(v.geometry_error_px, 1)} px away`) : null,
+      v.geometry && !this.hidden() ? el('div', { class: 'row muted' }, el('span', { class: 'swatch geometry' }), `Camera geometry puts it at ${formatValue('probe_pixel', { x: v.geometry[0], y: v.geometry[1] })}, ${f2(v.geometry_error_px, 1)} px away`) : null,
       savedLine(app, it),
       el('div', { class: 'row' }, el('span', { class: 'swatch draft' }), 'Your mark: ', el('b', { id: 'draft-value' }, this.draft ? formatValue('probe_pixel', this.draft) : 'click the photo')),
       opinionsBlock(app, it),
       el('div', { class: 'buttons' },
         button('Accept auto', 'A', () => this.accept(), 'btn-accept', 'primary'),
         button('Save my mark', 'S', () => this.saveDraft(), 'btn-save', 'primary'),
-        button('Undo last change', 'U', () => this.app.undo(), 'btn-undo'),
+        ...undoButtons(this.app),
         button('Zoom to mark', 'Z', () => this.zoomTo(), 'btn-zoom'),
         button('Fit photo', '0', () => this.flat.fit(), 'btn-fit')),
       el('div', { class: 'muted small' }, `Photo ${v.photo.image.width}×${v.photo.image.height} px; coordinates are full-resolution pixels (pixel centres at integers).`),
+      reviewBlock(app, it),
+      noteBlock(app, it),
       historyBlock(app, it),
     );
   }

@@ -3,7 +3,7 @@
 import { imageUrl } from './api.js';
 import { SphereView } from './sphere.js';
 import { circle, wrap180 } from './frames.js';
-import { $, el, fill, panelHeader, f2, formatValue, savedLine, opinionsBlock, historyBlock, button, slider } from './ui.js';
+import { $, el, fill, panelHeader, f2, formatValue, savedLine, opinionsBlock, historyBlock, button, noteBlock, reviewBlock, undoButtons, sourceText, slider } from './ui.js';
 
 const UNC_STEPS = [0.05, 0.1, 0.15, 0.2, 0.3, 0.5, 0.75, 1, 1.5, 2, 3, 5];
 
@@ -35,7 +35,7 @@ export class SunTask {
 
   empty() { fill(this.panel, el('p', {}, 'No sun frames in this campaign.')); }
 
-  hidden() { return this.app.blind && !this.app.reviewing; }
+  hidden() { return !!(this.item && this.item.blind); }
 
   async load(item) {
     this.item = item;
@@ -84,7 +84,7 @@ export class SunTask {
       for (const [who, op] of Object.entries(it.review.opinions || {})) {
         if (op.value && op.value.found && (!it.label || who !== it.label.annotator)) ms.push({ id: `op-${who}`, azimuth_deg: op.value.azimuth_deg, elevation_deg: op.value.elevation_deg, cls: 'other', size: 14 });
       }
-      const lab = it.label && it.label.value;
+      const lab = it.label && it.label.source !== 'auto' && it.label.value;
       if (lab && lab.found) {
         ms.push({ id: 'saved', azimuth_deg: lab.azimuth_deg, elevation_deg: lab.elevation_deg, cls: 'saved', size: 26 });
         if (lab.uncertainty_deg) ms.push({ id: 'saved-unc', polygonRad: circle(lab.azimuth_deg, lab.elevation_deg, lab.uncertainty_deg), style: { fill: 'none', stroke: '#4ade80', strokeWidth: '1.5px' } });
@@ -137,7 +137,7 @@ export class SunTask {
       for (const cnd of this.item.view.candidates) if (!cnd.chosen) dot(cnd.azimuth_deg, cnd.elevation_deg, '#9ca3af', 4);
       const p = this.item.proposal;
       if (p && p.found) dot(p.azimuth_deg, p.elevation_deg, '#fb923c', 6);
-      const lab = this.item.label && this.item.label.value;
+      const lab = this.item.label && this.item.label.source !== 'auto' && this.item.label.value;
       if (lab && lab.found) dot(lab.azimuth_deg, lab.elevation_deg, '#4ade80', 5);
     }
     if (this.draft) dot(this.draft.azimuth_deg, this.draft.elevation_deg, '#22d3ee', 7);
@@ -153,16 +153,16 @@ export class SunTask {
     const app = this.app, it = this.item, p = it.proposal;
     let auto;
     if (this.hidden()) auto = el('i', {}, 'hidden (blind mode)');
-    else if (!p) auto = el('i', {}, app.campaign.has_alignment ? 'none for this capture' : 'none (run solidkit align)');
-    else if (p.found === false) auto = el('span', {}, 'align found no sun', it.view.reason ? el('span', { class: 'muted' }, ` (${it.view.reason})`) : null);
+    else if (!p) auto = el('i', {}, app.campaign.has_alignment ? 'none for this capture' : 'none yet (the automatic alignment has not run)');
+    else if (p.found === false) auto = el('span', {}, 'the automatic search found no sun', it.view.reason ? el('span', { class: 'muted' }, ` (${it.view.reason})`) : null);
     else auto = el('b', { id: 'auto-value' }, formatValue('sun', p));
     const rejected = it.view.candidates.filter(c => !c.chosen);
     fill(this.panel,
       ...panelHeader(app, it),
-      el('p', { class: 'hint' }, 'Click the centre of the sun’s bright disk (drag your mark to adjust), A to accept the orange proposal, N if no sun is visible. Grey × marks are candidates align/ rejected. Hover the strip below to look around.'),
+      el('p', { class: 'hint' }, 'Click the centre of the sun’s bright disk (drag your mark to adjust), A to accept the orange proposal, N if no sun is visible. Grey × marks are bright spots the automatic search ruled out. Hover the strip below to look around.'),
       el('div', { class: 'row' }, el('span', { class: 'swatch auto' }), 'Auto: ', auto),
       it.view.ephemeris && it.view.ephemeris.elevation_deg != null
-        ? el('div', { class: 'row muted' }, el('span', { class: 'swatch ephem' }), `pvlib sun elevation ${f2(it.view.ephemeris.elevation_deg)}° (dashed line)`) : null,
+        ? el('div', { class: 'row muted' }, el('span', { class: 'swatch ephem' }), `Expected sun height from the time and place: ${f2(it.view.ephemeris.elevation_deg)}° (dashed line)`) : null,
       savedLine(app, it),
       el('div', { class: 'row' }, el('span', { class: 'swatch draft' }), 'Your mark: ', el('b', { id: 'draft-value' }, this.draft ? formatValue('sun', this.value()) : 'click the sun’s centre')),
       opinionsBlock(app, it),
@@ -172,12 +172,14 @@ export class SunTask {
         button('Accept auto', 'A', () => this.accept(), 'btn-accept', 'primary'),
         button('Save my mark', 'S', () => this.saveDraft(), 'btn-save', 'primary'),
         button('No sun visible', 'N', () => this.app.save({ found: false }), 'btn-nosun'),
-        button('Undo last change', 'U', () => this.app.undo(), 'btn-undo'),
+        ...undoButtons(this.app),
         button('Go to mark', 'G', () => this.goTo(), 'btn-goto'),
         button('Clear my mark', 'Esc', () => { this.draft = null; this.renderMarkers(); this.renderPanel(); }, 'btn-clear')),
-      rejected.length && !this.hidden() ? el('details', { class: 'cands', open: true }, el('summary', {}, `Rejected candidates (${rejected.length})`),
+      rejected.length && !this.hidden() ? el('details', { class: 'cands', open: true }, el('summary', {}, `Bright spots ruled out (${rejected.length})`),
         el('ul', {}, rejected.map(c => el('li', { onclick: () => this.sphere.lookAt(c.azimuth_deg, c.elevation_deg, 15) },
           `az ${f2(wrap180(c.azimuth_deg), 1)}°, el ${f2(c.elevation_deg, 1)}°: `, el('span', { class: 'muted' }, (c.reasons || []).join('; ')))))) : null,
+      reviewBlock(app, it),
+      noteBlock(app, it),
       historyBlock(app, it),
     );
   }
