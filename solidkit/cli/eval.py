@@ -60,6 +60,9 @@ def eval_command(
         min=0,
         help="Qualitative grids per dataset (default: every scene of a real test set, 6 of the other datasets).",
     ),
+    allow_invalid: bool = typer.Option(
+        False, "--allow-invalid", help="Use a test set that fails 'solidkit testset validate' (with a warning)."
+    ),
     as_json: bool = typer.Option(False, "--json", help="Print the summaries as JSON on stdout."),
 ) -> None:
     """Sun azimuth/elevation error, global MAE and local SSIM/MAE for the model and baselines; a report."""
@@ -112,6 +115,7 @@ def eval_command(
         panoramas=panos,
         sun_crops=sun_crops,
         sun_split=sun_split,
+        allow_invalid=allow_invalid,
     )
     if as_json:
         echo_json({ds: r["summary"] for ds, r in res["results"].items()}, indent=1, default=float)

@@ -35,6 +35,9 @@ def finetune_command(
         None, "--synthetic", help="Synthetic split for the forgetting check (8 samples)."
     ),
     seed: int = typer.Option(0, help="Seed of the split, the order and torch."),
+    allow_invalid: bool = typer.Option(
+        False, "--allow-invalid", help="Use a test set that fails 'solidkit testset validate' (with a warning)."
+    ),
     as_json: bool = typer.Option(False, "--json", help="Print the per-fold and pooled summary as JSON on stdout."),
 ) -> None:
     """Fine-tune per fold on the other scenes' LDR probes and sun labels; before/after per fold and pooled."""
@@ -60,7 +63,16 @@ def finetune_command(
     cfg = FineTuneConfig(
         folds=folds, epochs=epochs, patience=patience, lr=lr, trainable=trainable, sun_weight=sun_weight, seed=seed
     )
-    res = finetune_report(out, model, testset, cfg, mix_synthetic, synthetic, log=lambda s: typer.echo(s, err=True))
+    res = finetune_report(
+        out,
+        model,
+        testset,
+        cfg,
+        mix_synthetic,
+        synthetic,
+        log=lambda s: typer.echo(s, err=True),
+        allow_invalid=allow_invalid,
+    )
     if as_json:
         echo_json(
             {

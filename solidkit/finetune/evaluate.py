@@ -55,6 +55,7 @@ __all__ = [
     "MeanBaseline",
     "items_from_synth",
     "items_from_testset",
+    "checked_testset",
     "items_from_panoramas",
     "SHIPPED_PANORAMAS",
     "default_methods",
@@ -68,6 +69,39 @@ __all__ = [
     "Evaluation",
     "evaluate_testset",
 ]
+
+
+def checked_testset(
+    root: str | os.PathLike, *, allow_invalid: bool = False, log: Callable[[str], Any] | None = None
+) -> dict[str, Any]:
+    """The record of a test set that results are computed on: its path, ``dataset_version``, whether it passed
+    :func:`solidkit.testset.validate.validate_testset` (flags still open for review are counted, not problems)
+    and its problems. A test set that fails is refused (:class:`InputError` naming the first problems) unless
+    ``allow_invalid``, then used with a warning through ``log``."""
+    from solidkit.testset.validate import validate_testset
+
+    found = validate_testset(root)
+    problems = [p for p in found if p.check != "flags"]
+    flagged = len(found) - len(problems)
+    ts = load_testset(root) if not any(p.check == "schema" for p in problems) else None
+    record = {
+        "path": str(root),
+        "dataset_version": None if ts is None else ts.dataset_version,
+        "valid": not problems,
+        "problems": [str(p) for p in problems[:20]],
+        "flagged": flagged,
+    }
+    if problems:
+        more = f" (and {len(problems) - 3} more)" if len(problems) > 3 else ""
+        head = "; ".join(str(p) for p in problems[:3]) + more
+        if not allow_invalid:
+            raise InputError(
+                f"{root}: the test set fails validation ({len(problems)} problem(s): {head}); "
+                "fix it (solidkit testset validate) or pass --allow-invalid"
+            )
+        if log:
+            log(f"warning: {root} fails validation ({len(problems)} problem(s): {head}); used anyway (--allow-invalid)")
+    return record
 
 
 @dataclass

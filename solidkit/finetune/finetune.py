@@ -57,13 +57,14 @@ from solidkit.errors import InputError
 from solidkit.finetune.evaluate import (
     EvalItem,
     ModelMethod,
+    checked_testset,
     evaluate,
     items_from_synth,
     items_from_testset,
     load_model,
     summarise_records,
 )
-from solidkit.finetune.report import finetune_sections, write_report
+from solidkit.finetune.report import finetune_sections, testset_line, write_report
 from solidkit.fsutil import atomic_write_text
 from solidkit.model.config import SolidNetConfig
 from solidkit.model.fit import batch_from_synth
@@ -485,20 +486,25 @@ def finetune_report(
     real_items: Sequence[EvalItem] | None = None,
     save_models: bool = True,
     log: Callable[[str], Any] | None = None,
+    allow_invalid: bool = False,
 ) -> dict[str, Any]:
     """``solidkit finetune``: k-fold fine-tuning on a real test set, or several pooled (``testset`` a
     list; scene ids are then prefixed by each folder's name); writes ``finetune.json``,
-    ``report.md``/``report.html``, ``figures/`` and ``fold_<i>.pt`` into ``out``."""
+    ``report.md``/``report.html``, ``figures/`` and ``fold_<i>.pt`` into ``out``. A test set that fails
+    validation is refused unless ``allow_invalid``; each one's path and ``dataset_version`` go into
+    ``finetune.json`` (``testsets``) and the report."""
     import json
     from pathlib import Path
 
     log = log or (lambda s: None)
     cfg = cfg or FineTuneConfig()
     ensure_threads()
+    records: list[dict[str, Any]] = []
     if real_items is not None:
         items = list(real_items)
     else:
         sets = [testset] if isinstance(testset, (str, Path)) else list(testset)
+        records = [checked_testset(ts, allow_invalid=allow_invalid, log=log) for ts in sets]
         items = []
         for ts in sets:  # several test sets pool their scenes (ids prefixed by the folder name)
             for it in items_from_testset(ts):
@@ -514,6 +520,8 @@ def finetune_report(
     syn_eval = items_from_synth(synthetic, limit=8) if synthetic is not None else None
     log(f"fine-tuning on {len({i.scene for i in items})} scenes, {sum(len(i.probe_ids) for i in items)} probes")
     res = run_finetune(net, items, cfg, mix, syn_eval, log)
+    if records:
+        res = {"testsets": records, **res}
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     models = res.pop("models")
@@ -528,5 +536,8 @@ def finetune_report(
                 },
             )
     atomic_write_text(out / "finetune.json", json.dumps(res, indent=1, default=float))
-    md, page = write_report(out, "SOLID-Net fine-tuning on real scenes (k-fold)", finetune_sections(res, out))
+    sections = finetune_sections(res, out)
+    if records:
+        sections = [("Test sets", "\n\n".join(testset_line(r) for r in records)), *sections]
+    md, page = write_report(out, "SOLID-Net fine-tuning on real scenes (k-fold)", sections)
     return {**res, "report": str(page), "markdown": str(md)}

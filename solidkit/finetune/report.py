@@ -36,6 +36,7 @@ from solidkit.finetune.evaluate import (
     METRICS,
     EvalItem,
     Method,
+    checked_testset,
     default_methods,
     evaluate,
     items_from_panoramas,
@@ -51,6 +52,7 @@ from solidkit.threads import ensure_threads
 
 __all__ = [
     "fmt",
+    "testset_line",
     "headline_table",
     "metric_tables",
     "sun_figures",
@@ -415,6 +417,7 @@ def evaluation_report(
     panoramas: Sequence[str | os.PathLike] | None = None,
     sun_crops: Sequence[str | os.PathLike] | None = None,
     sun_split: str = "test",
+    allow_invalid: bool = False,
 ) -> dict[str, Any]:
     """``solidkit eval``: evaluate ``model`` (default: the shipped checkpoint) and the baselines on a
     real test set and/or a synthetic split and/or photos cropped from real HDR ``panoramas`` (with ``ablations``,
@@ -422,6 +425,8 @@ def evaluation_report(
     and ``figures/`` into ``out``. ``sun_crops``: folders of HDR panoramas (real ones with a ``catalog.json``, or
     rendered sources) whose ``sun_split`` is seen by the sun protocol (:mod:`solidkit.model.suneval`: the model,
     its network alone, the constant and brightest-column baselines, with the cones' coverage).
+    A test set that fails validation is refused unless ``allow_invalid`` (:func:`checked_testset`); its path
+    and ``dataset_version`` go into ``results.json`` and the report.
     Returns ``{"results": {dataset: result}, "report": path}``."""
     log = log or (lambda s: None)
     if testset is None and synthetic is None and not panoramas and not sun_crops:
@@ -431,7 +436,9 @@ def evaluation_report(
         )
     ensure_threads()
     datasets: dict[str, Any] = {}
+    record = None
     if testset is not None:
+        record = checked_testset(testset, allow_invalid=allow_invalid, log=log)
         datasets["real"] = items_from_testset(testset)
     if synthetic is not None:
         datasets["synthetic"] = items_from_synth(synthetic, limit=limit)
@@ -469,6 +476,7 @@ def evaluation_report(
         + (f": {card['what']}" if card.get("what") else "")
         + ".",
         "",
+        *([testset_line(record), ""] if record is not None else []),
         markdown_table(
             ["dataset", "photos", "probes", "photos with a true sun", "with a true global HDR map"],
             [
@@ -491,7 +499,7 @@ def evaluation_report(
         else "",
     ]
     if not results:
-        intro = intro[:1]
+        intro = intro[:1] + ([testset_line(record)] if record is not None else [])
     sections = [("What was evaluated", "\n".join(intro))]
     sections += evaluation_sections(results, out, qual, max_grids=max_grids) if results else []
     if sun_results:
@@ -499,10 +507,26 @@ def evaluation_report(
     out.mkdir(parents=True, exist_ok=True)
     save_json(
         out / "results.json",
-        {"model": str(model) if model else "shipped", "results": results, "sun_crops": sun_results},
+        {
+            "model": str(model) if model else "shipped",
+            **({"testset": record} if record is not None else {}),
+            "results": results,
+            "sun_crops": sun_results,
+        },
     )
     md, page = write_report(out, "SOLID-Net evaluation", sections)
     return {"results": results, "report": str(page), "markdown": str(md)}
+
+
+def testset_line(record: dict[str, Any]) -> str:
+    """One Markdown line naming the test set results were computed on (:func:`checked_testset`'s record)."""
+    state = (
+        "valid"
+        if record["valid"]
+        else f"**fails validation** ({len(record['problems'])} problem(s), used with --allow-invalid)"
+    )
+    flagged = f"; {record['flagged']} item(s) still flagged for review" if record.get("flagged") else ""
+    return f"Test set: `{record['path']}`, dataset version `{record['dataset_version']}`, {state}{flagged}."
 
 
 def _num(v: Any, nd: int = 1) -> str:

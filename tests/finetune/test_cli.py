@@ -10,7 +10,7 @@ import torch
 
 from solidkit.model.config import preset
 from solidkit.model.solidnet import SolidNet
-from solidkit.testset.build import build_testset
+from solidkit.testset.build import build_testset, load_testset
 from tests.support.testset_campaign import make_campaign
 
 SCENES = {
@@ -58,6 +58,44 @@ def test_eval_writes_report_figures_and_json(testset, cli, torch_one_thread):
     assert not (out / "figures" / "real_sB.png").exists()  # --grids 1
     res = json.loads((out / "results.json").read_text())
     assert {r["scene"] for r in res["results"]["real"]["records"]} == set(SCENES)
+    version = load_testset(testset / "testset").dataset_version
+    assert res["testset"]["path"] == str(testset / "testset") and res["testset"]["dataset_version"] == version
+    assert res["testset"]["valid"] and f"dataset version `{version}`, valid" in (out / "report.md").read_text()
+
+
+def test_eval_and_finetune_refuse_an_invalid_test_set_unless_allowed(testset, cli, torch_one_thread, tmp_path):
+    """A test set whose probe file was changed after the build fails validation: eval and finetune refuse it,
+    naming the problem and --allow-invalid; eval --allow-invalid runs with a warning and records it."""
+    import shutil
+
+    bad = tmp_path / "bad"
+    shutil.copytree(testset / "testset", bad)
+    ts = load_testset(bad)
+    probe = bad / ts.scenes[0].probes[0].ldr
+    probe.chmod(0o644)
+    probe.write_bytes(probe.read_bytes()[:-1] + b"\0")
+    for cmd in (["eval", "-o", tmp_path / "r"], ["finetune", "-o", tmp_path / "f", "--folds", "2", "--epochs", "1"]):
+        code, _, err = cli(*cmd, "--testset", bad, "--model", testset / "tiny.pt")
+        assert code == 2 and "fails validation" in err and "--allow-invalid" in err, (cmd, err)
+        assert not (tmp_path / cmd[2] / "results.json").exists() and not (tmp_path / cmd[2] / "finetune.json").exists()
+    code, _, err = cli(
+        "eval",
+        "--testset",
+        bad,
+        "--model",
+        testset / "tiny.pt",
+        "-o",
+        tmp_path / "r",
+        "--limit",
+        "1",
+        "--grids",
+        "0",
+        "--allow-invalid",
+    )
+    assert code == 0 and "used anyway (--allow-invalid)" in err, err
+    rec = json.loads((tmp_path / "r" / "results.json").read_text())["testset"]
+    assert not rec["valid"] and rec["problems"] and rec["dataset_version"] == ts.dataset_version
+    assert "**fails validation**" in (tmp_path / "r" / "report.md").read_text()
 
 
 @pytest.mark.slow  # the k-fold loop itself is in the default suite (test_finetune.py); this adds the CLI and its files
