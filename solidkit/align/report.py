@@ -17,7 +17,7 @@ import cv2
 import numpy as np
 
 from solidkit.align.features import rays_from_pixels
-from solidkit.align.schema import CampaignAlignment, SceneAlignment, wrap_deg
+from solidkit.align.schema import CampaignAlignment, CaptureSun, ProbeAlignment, SceneAlignment, wrap_deg
 from solidkit.capture.manifest import Manifest
 from solidkit.envmap.coords import coords_from_direction, direction_from_angles, rotation_from_ypr
 from solidkit.envmap.io import imread, write_ldr
@@ -25,10 +25,39 @@ from solidkit.envmap.perspective import scale_pixel_coordinates
 from solidkit.flags import flag_codes
 from solidkit.fsutil import atomic_write_text
 
-__all__ = ["write_report", "scene_picture"]
+__all__ = ["write_report", "scene_picture", "capture_flag_codes"]
 
 PANEL_H = 256
 _YELLOW, _GREEN, _RED, _CYAN, _WHITE = (255, 220, 0), (0, 230, 0), (255, 40, 40), (0, 220, 255), (255, 255, 255)
+_FLAGGED = (255, 180, 80)
+
+
+def capture_flag_codes(pa: ProbeAlignment, cs: CaptureSun | None) -> list[str]:
+    """The flag codes of a capture as its panel's title lists them: its alignment's, then its sun's (a glint
+    chosen as the sun is flagged there), each once."""
+    return list(dict.fromkeys(flag_codes(pa.flags) + (flag_codes(cs.flags) if cs is not None else [])))
+
+
+def _in_photo(pixel: list[float], s: float, shape: tuple[int, ...]) -> tuple[tuple[int, int], bool]:
+    """A full-resolution photo pixel drawn at scale ``s`` in an image of ``shape``: its drawing point, clamped to
+    4 px inside the border where it lies outside, and whether it lies inside."""
+    x, y = (float(scale_pixel_coordinates(v, s)) for v in pixel)
+    h, w = shape[:2]
+    cx, cy = min(max(x, 4.0), w - 5.0), min(max(y, 4.0), h - 5.0)
+    return (int(round(cx)), int(round(cy))), (cx, cy) == (x, y)
+
+
+def _outside_arrow(
+    img: np.ndarray, pixel: list[float], s: float, at: tuple[int, int], inside: bool, colour: tuple[int, int, int]
+) -> None:
+    """For a pixel outside the photo: an arrow from inside the border to where it is drawn, pointing toward it."""
+    if inside:
+        return
+    x, y = (float(scale_pixel_coordinates(v, s)) for v in pixel)
+    d = np.array([x - at[0], y - at[1]])
+    d = d / max(float(np.linalg.norm(d)), 1e-9)
+    tail = (int(round(at[0] - 22 * d[0])), int(round(at[1] - 22 * d[1])))
+    cv2.arrowedLine(img, tail, at, colour, 2, cv2.LINE_AA, tipLength=0.4)
 
 
 def _fov_outline(sa: SceneAlignment, height: int, n: int = 60) -> list[np.ndarray]:
@@ -76,13 +105,15 @@ def scene_picture(campaign: Path, sa: SceneAlignment) -> np.ndarray:
         ph = cv2.resize(ph, (width, int(round(ph.shape[0] * s))), interpolation=cv2.INTER_AREA)
         for pa in sa.probes:
             if pa.pixel_full is not None:
-                c = tuple(int(round(float(scale_pixel_coordinates(v, s)))) for v in pa.pixel_full)
+                c, inside = _in_photo(pa.pixel_full, s, ph.shape)
                 cv2.circle(ph, c, 6, _CYAN, 2, cv2.LINE_AA)
+                _outside_arrow(ph, pa.pixel_full, s, c, inside, _CYAN)
                 cv2.putText(ph, pa.id, (c[0] + 8, c[1] - 6), cv2.FONT_HERSHEY_SIMPLEX, 0.45, _CYAN, 1, cv2.LINE_AA)
             if pa.pixel_geometry is not None:
-                g = tuple(int(round(float(scale_pixel_coordinates(v, s)))) for v in pa.pixel_geometry)
+                g, inside = _in_photo(pa.pixel_geometry, s, ph.shape)
                 cv2.drawMarker(ph, g, _YELLOW, cv2.MARKER_DIAMOND, 10, 1, cv2.LINE_AA)
-        _label(ph, f"{sa.id}: photo (cyan: probe pixels, yellow: geometry)")
+                _outside_arrow(ph, pa.pixel_geometry, s, g, inside, _YELLOW)
+        _label(ph, f"{sa.id}: photo (cyan: probe pixels, yellow: geometry; on the border, arrow out: outside)")
         panels.append(ph)
     suns = {c.probe: c for c in sa.sun.captures}
     for pa in sa.probes:
@@ -105,11 +136,12 @@ def scene_picture(campaign: Path, sa: SceneAlignment) -> np.ndarray:
             if cs.found:
                 assert cs.azimuth_deg is not None and cs.elevation_deg is not None  # a found sun has both
                 _mark(img, wrap_deg(cs.azimuth_deg + pa.yaw_deg), cs.elevation_deg, "cross", _GREEN)
-        flags = ", ".join(flag_codes(pa.flags))
+        codes = capture_flag_codes(pa, cs)
+        flags = ", ".join(codes)
         _label(
             img,
             f"{pa.id} ({pa.role}) yaw {pa.yaw_deg:+.2f} deg" + (f"  [{flags}]" if flags else ""),
-            _WHITE if not pa.flags else (255, 180, 80),
+            _WHITE if not codes else _FLAGGED,
         )
         panels.append(img)
     if not panels:
@@ -140,6 +172,7 @@ def _scene_rows(sa: SceneAlignment) -> list[list[str]]:
             + (f" ({sum(1 for k in cs.candidates if not k.chosen)} rejected)" if cs and cs.candidates else "")
         )
         px = "-" if pa.pixel_full is None else f"({pa.pixel_full[0]:.0f}, {pa.pixel_full[1]:.0f}) {pa.pixel_source}"
+        flags = pa.flags + [f for f in (cs.flags if cs is not None else []) if f not in pa.flags]
         rows.append(
             [
                 pa.id,
@@ -149,7 +182,7 @@ def _scene_rows(sa: SceneAlignment) -> list[list[str]]:
                 cues,
                 sun,
                 px,
-                "; ".join(pa.flags) or "-",
+                "; ".join(flags) or "-",
             ]
         )
     return rows
@@ -162,8 +195,8 @@ _HEAD = [
     "residual",
     "cues (yaw, residual)",
     "sun az/el (level frame)",
-    "pixel",
-    "flags",
+    "pixel (full-resolution photo)",
+    "flags (alignment; sun)",
 ]
 
 
