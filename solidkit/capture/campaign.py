@@ -84,7 +84,7 @@ from solidkit.capture.unwarp import load_vignetting
 from solidkit.capture.verify import REINGEST, Damage, check_original
 from solidkit.envmap.coords import CONVENTIONS_VERSION
 from solidkit.errors import InputError
-from solidkit.fsutil import sha256_file
+from solidkit.fsutil import SPACE_ERRNOS, sha256_file
 
 __all__ = [
     "IMAGE_SUFFIXES",
@@ -270,16 +270,35 @@ def _pool(jobs: int):
 
 
 def _run_tasks(
-    fn: Callable, tasks: list[tuple], pool: ProcessPoolExecutor | None, on_result: Callable[[tuple, dict], None]
+    fn: Callable,
+    tasks: list[tuple],
+    pool: ProcessPoolExecutor | None,
+    on_result: Callable[[tuple, dict], None],
+    full: Callable[[], bool] = lambda: False,
+    on_skip: Callable[[tuple], None] = lambda task: None,
 ) -> None:
-    """Run ``fn(*task)`` for every task, inline (no pool) or in the process pool."""
+    """Run ``fn(*task)`` for every task, inline (no pool) or in the process pool. Once ``full()`` (the
+    disk is full) the tasks not started yet are handed to ``on_skip`` instead: they would fail alike."""
     if pool is None:
         for t in tasks:
-            on_result(t, fn(*t))
+            if full():
+                on_skip(t)
+            else:
+                on_result(t, fn(*t))
         return
     futures = {pool.submit(fn, *t): t for t in tasks}
     for fut in as_completed(futures):
+        if fut.cancelled():
+            on_skip(futures[fut])
+            continue
         on_result(futures[fut], fut.result())
+        if full():
+            for other in futures:
+                other.cancel()
+
+
+def _space_error(message: str | None) -> bool:
+    return bool(message) and any(os.strerror(code) in str(message) for code in SPACE_ERRNOS)
 
 
 def ingest(
@@ -415,6 +434,7 @@ def ingest(
                 report.errors.append(fe)
             elif "transient" in res:  # not remembered: the next run tries the file again
                 report.transient_errors.append(FileError.model_validate(res["transient"]))
+                disk_full[0] |= _space_error(res["transient"]["message"])
             else:
                 shot = Shot.model_validate(res["shot"])
                 if shot.sha256 in shots_by_sha:
@@ -435,9 +455,16 @@ def ingest(
                 _save(campaign, manifest, report)
                 last_save[0] = time.monotonic()
 
+        disk_full = [False]
+
+        def not_copied(task: tuple) -> None:
+            report.transient_errors.append(
+                FileError(card=cstr, path=task[1], size=0, mtime_ns=0, message="not tried: the disk is full")
+            )
+
         if progress is not None:
             progress("files", 0, len(todo))
-        _run_tasks(ingest_file, todo, pool, on_file)
+        _run_tasks(ingest_file, todo, pool, on_file, lambda: disk_full[0], not_copied)
         manifest.shots[:] = [s for s in manifest.shots if s.sources]
         manifest.errors.sort(key=lambda e: (e.card, e.path))
         # field notes: re-read every run (cheap; an edited or fixed file takes effect at once)
@@ -519,6 +546,7 @@ def _build_products(
                 (campaign / old.path).unlink(missing_ok=True)
     results: list[Product] = list(keep)
     done = [0]
+    disk_full = [False]
 
     def on_product(task: tuple, res: dict) -> None:
         prod = Product.model_validate(res)
@@ -527,16 +555,23 @@ def _build_products(
         if prod.error:
             report.product_errors.append(f"{prod.id}: {prod.error}")
             report.product_errors_transient += prod.error_transient
+            disk_full[0] |= prod.error_transient and _space_error(prod.error)
         done[0] += 1
         if progress is not None:
             progress("products", done[0], len(tasks))
         manifest.products = sorted(results, key=lambda p: p.id)
         _save(campaign, manifest, report)
 
+    def not_built(task: tuple) -> None:
+        prod = Product.model_validate(task[0])
+        prod.error, prod.error_transient = "not built: the disk is full", True
+        on_product(task, prod.model_dump(mode="json"))
+        report.products_built -= 1
+
     if tasks:
         if progress is not None:
             progress("products", 0, len(tasks))
-        _run_tasks(make_product, tasks, pool, on_product)
+        _run_tasks(make_product, tasks, pool, on_product, lambda: disk_full[0], not_built)
     manifest.products = sorted(results, key=lambda p: p.id)
 
 

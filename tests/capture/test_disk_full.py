@@ -62,21 +62,28 @@ def test_disk_full_at_each_write_site_then_freed(fault_card, tmp_path, cli, site
 
 
 def test_full_disk_messages_name_the_final_file_and_the_space(fault_card, tmp_path, cli):
-    """The sun frame's PNG (libpng's Write Error) and the HDR EXR (OpenEXR's exception): each product
-    reported with its final path, the errno's text and the space it needs; retried, never remembered."""
-    card, response, _ = fault_card
+    """The HDR EXR (OpenEXR's exception) and the sun frame's PNG (libpng's Write Error): each product
+    reported with its final path, the errno's text and the space it needs; once the disk is full the
+    products not started yet are not tried; retried by the next run, never remembered."""
+    card, response, clean = fault_card
     camp = tmp_path / "camp"
     ingest(card, camp, response_path=response, products=False)
-    with FullDisk("hdr"):
+    with FullDisk("hdr") as disk:
         code, out, err = cli("ingest", card, "-o", camp)
     text = " ".join(out.split())
-    assert code == 2
+    assert code == 2 and disk.failed == {"hdr": 1, "manifest": 3}, dict(disk.failed)
     assert "products/s1/p1/hdr-b01.exr: could not be built: No space left on device (needs about" in text, text
-    assert "products/s1/p1/sun.png: could not be built: No space left on device (needs about" in text, text
+    assert "s1/p1/sun: not built: the disk is full" in text, text
     assert "manifest.json: No space left on device (needs about" in text + err, text + err
     assert "failed for the environment" in text
+    with FullDisk("sun_frame", sticky=False):  # the EXR fits, the PNG does not
+        code, out, err = cli("ingest", card, "-o", camp)
+    text = " ".join(out.split())
+    assert code == 2, text
+    assert "products/s1/p1/sun.png: could not be built: No space left on device (needs about" in text, text
     code, out, err = cli("ingest", card, "-o", camp)
-    assert code == 0 and "2 / 0 / 0" in " ".join(out.split()), out  # products built / up to date / removed
+    assert code == 0 and "1 / 1 / 0" in " ".join(out.split()), out  # products built / up to date / removed
+    assert not _differ(campaign_files(camp), clean)
 
 
 def test_a_permanent_product_error_is_retried_with_retry_failed(fault_card, tmp_path, cli):

@@ -671,17 +671,22 @@ def test_disk_full_is_retried_not_remembered(tmp_path, monkeypatch, cli):
         raise OSError(errno.ENOSPC, "No space left on device", str(Path(path).parent / ".hidden.exr.tmp"))
 
     monkeypatch.setattr(card_mod, "copy_original", full_copy)
+    code, out, err = cli("ingest", card, "-o", camp)
+    assert code == 2, err
+    flat = " ".join(out.split())
+    assert "could not be copied" in flat and "No space left on device" in flat and ".tmp123" not in flat
+    assert "not tried: the disk is full" in flat  # once the disk is full, the other files are not read in vain
+    assert not load_manifest(camp).errors  # nothing remembered as a bad file
+    monkeypatch.setattr(card_mod, "copy_original", real_copy)
     for mod in exr_users:
         monkeypatch.setattr(mod, "write_exr", full_exr)
     code, out, err = cli("ingest", card, "-o", camp)
     assert code == 2, err
     flat = " ".join(out.split())
-    assert "could not be copied" in flat and "No space left on device" in flat
     assert "hdr-b01.exr: could not be built: No space left on device" in flat and ".hidden.exr" not in flat
+    assert "not built: the disk is full" in flat  # the products after it are not tried
     m = load_manifest(camp)
-    assert not m.errors  # nothing remembered as a bad file
-    assert any(p.kind == "sun_frame" and p.path for p in m.products)  # the other products were still built
-    monkeypatch.setattr(card_mod, "copy_original", real_copy)
+    assert not m.errors and all(p.error_transient for p in m.products if p.error)
     for mod in exr_users:
         monkeypatch.setattr(mod, "write_exr", real_exr)
     report = ingest(card, camp)  # space freed
