@@ -125,14 +125,15 @@ def small_disk(tmp_path):
     subprocess.run(["umount", "-l", str(mnt)], check=False)
 
 
-@pytest.mark.parametrize("kib", [8, 24, 48, 96, 148])  # the clean campaign takes about 145 kB
-def test_a_real_full_disk_then_freed(fault_card, small_disk, cli, kib):
-    """The same on a real file system that fills up (a tmpfs of ``kib`` KiB, then 8 MiB)."""
+@pytest.mark.parametrize(("kib", "jobs"), [(8, 1), (24, 1), (48, 1), (96, 1), (148, 1), (96, 2)])  # clean: ~145 kB
+def test_a_real_full_disk_then_freed(fault_card, small_disk, cli, kib, jobs):
+    """The same on a real file system that fills up (a tmpfs of ``kib`` KiB, then 8 MiB), also with
+    worker processes."""
     card, response, clean = fault_card
     mnt, resize = small_disk
     resize(kib)
     camp = mnt / "camp"
-    args = ("ingest", card, "-o", camp, "--response", response)
+    args = ("ingest", card, "-o", camp, "--response", response, "-j", jobs)
     code, out, err = cli(*args)
     text = " ".join((out + err).split())
     assert code == 2, text
