@@ -4,7 +4,9 @@ Each sheet shows the photo with its numbered probe pixels, the low-exposure sun 
 camera-position capture and every aligned probe (256x128 LDR, shown at 2x) with the photo's
 field of view outlined (its border rays ``R_cam K⁻¹ (x, y, 1)`` in the panorama frame,
 conventions §1-4) and the sun marked (cross and circle of its uncertainty). Flags are printed
-in red. The HTML page lists every scene's numbers next to its sheet.
+in red (a colour no probe is drawn in), each line saying what it belongs to: the scene, its sun,
+the camera position, or probe ``n`` (:func:`flag_owners`). Probe pixels are the model-size photo's
+(320x240), named as such. The HTML page lists every scene's numbers next to its sheet.
 """
 
 from __future__ import annotations
@@ -27,19 +29,20 @@ from solidkit.fsutil import atomic_path, atomic_write_text
 from solidkit.testset.build import load_testset
 from solidkit.testset.schema import Scene, TestSet
 
-__all__ = ["fov_outline", "scene_sheet", "show_testset"]
+__all__ = ["fov_outline", "flag_owners", "probe_title", "scene_sheet", "show_testset"]
 
 PANO_SCALE = 2  # 256x128 probes drawn at 512x256
 PHOTO_W = 640
 SUN_COLOUR = (0, 215, 255)  # BGR: amber
 FOV_COLOUR = (255, 255, 0)  # cyan
-PROBE_COLOURS = [
-    (60, 76, 231),
-    (113, 204, 46),
+FLAG_COLOUR = (80, 80, 255)  # BGR: red, for flags only
+PROBE_COLOURS = [  # BGR; none of them red (the flags' colour)
     (219, 152, 52),
+    (113, 204, 46),
     (15, 196, 241),
     (182, 89, 155),
-    (34, 126, 230),
+    (250, 206, 135),
+    (156, 188, 26),
     (160, 160, 160),
     (94, 73, 52),
 ]
@@ -109,6 +112,30 @@ def _pano_panel(img: np.ndarray, scene: Scene, title: str, colour=(255, 255, 255
     return np.vstack([bar, pano])
 
 
+def flag_owners(scene: Scene) -> list[tuple[str, list[str]]]:
+    """Every flag of a scene with what it belongs to, in the sheet's order: ``("scene", ...)``, ``("sun", ...)``,
+    ``("camera <id>", ...)`` (the camera position's alignment), then ``("<n> <probe id>", ...)`` numbered as on
+    the photo; owners without a flag are left out."""
+    owners = [("scene", scene.flags), ("sun", scene.sun.flags)]
+    if scene.camera is not None:
+        owners.append((f"camera {scene.camera.id}", scene.camera.alignment.flags))
+    owners += [(f"{k + 1} {p.id}", p.flags) for k, p in enumerate(scene.probes)]
+    return [(owner, sorted(set(flags))) for owner, flags in owners if flags]
+
+
+def probe_title(scene: Scene, k: int) -> str:
+    """The title of probe ``k``'s panel: its number and id, its pixel in the model-size photo (named as such: the
+    align report's pixels are full-resolution), where the pixel came from, its yaw and residual (degrees)."""
+    p = scene.probes[k]
+    res = p.alignment.residual_deg
+    return (
+        f"{k + 1}: {p.id} at ({p.pixel[0]:.0f},{p.pixel[1]:.0f}) of {scene.photo_size[0]}x{scene.photo_size[1]}"
+        f" ({p.pixel_source}), yaw {p.alignment.yaw_deg:.1f}"
+        + (f" res {res:.2f}" if res is not None else "")
+        + (" HDR" if p.hdr else "")
+    )
+
+
 def scene_sheet(root: Path, scene: Scene) -> np.ndarray:
     """The contact sheet of one scene, BGR uint8."""
     photo = imread(root / scene.photo_full)
@@ -140,12 +167,11 @@ def scene_sheet(root: Path, scene: Scene) -> np.ndarray:
     )
     _label(head, sun_txt, (4, 37), SUN_COLOUR)
     left = [head, ph]
-    flags = sorted(set(scene.flags) | set(sun.flags) | {f for p in scene.probes for f in p.flags})
-    if flags:
-        lines = textwrap.wrap("flags: " + "; ".join(flags), 100)
+    lines = [ln for owner, flags in flag_owners(scene) for ln in textwrap.wrap(f"{owner}: " + "; ".join(flags), 100)]
+    if lines:
         bar = np.zeros((20 * len(lines) + 6, PHOTO_W, 3), np.uint8)
         for k, line in enumerate(lines):
-            _label(bar, line, (4, 16 + 20 * k), (80, 80, 255), 0.45)
+            _label(bar, line, (4, 16 + 20 * k), FLAG_COLOUR, 0.45)
         left.append(bar)
     panels = []
     if sun.panorama:
@@ -159,14 +185,9 @@ def scene_sheet(root: Path, scene: Scene) -> np.ndarray:
             _pano_panel(imread(root / scene.camera.images.ldr), scene, f"camera position ({scene.camera.id})")
         )
     for k, p in enumerate(scene.probes):
-        res = p.alignment.residual_deg
-        title = (
-            f"{k + 1}: {p.id} px ({p.pixel[0]:.0f},{p.pixel[1]:.0f}) {p.pixel_source}, yaw {p.alignment.yaw_deg:.1f}"
-            + (f" res {res:.2f}" if res is not None else "")
-            + f" {p.alignment.source}"
-            + (" HDR" if p.hdr else "")
+        panels.append(
+            _pano_panel(imread(root / p.ldr), scene, probe_title(scene, k), PROBE_COLOURS[k % len(PROBE_COLOURS)])
         )
-        panels.append(_pano_panel(imread(root / p.ldr), scene, title, PROBE_COLOURS[k % len(PROBE_COLOURS)]))
     left_img = np.vstack(left)
     cols = 2
     rows = (
@@ -207,10 +228,10 @@ def _html(ts: TestSet, sheets: dict[str, str]) -> str:
             f"<p>sun (photo panorama frame): <b>{e(sun_txt)}</b> — {e(sun.source)}"
             f"{' by ' + e(sun.annotator) if sun.annotator else ''}; pitch {s.pitch_deg:.2f}°, roll {s.roll_deg:.2f}°; "
             f"K from {e(s.K_source)}; photo {s.photo_full_size[0]}×{s.photo_full_size[1]}</p>"
-            + (
-                f"<p class=flag>flags: {e(', '.join(sorted(set(s.flags) | set(sun.flags))))}</p>"
-                if s.flags or sun.flags
-                else ""
+            + "".join(
+                f"<p class=flag>{e(owner)} flags: {e(', '.join(flags))}</p>"
+                for owner, flags in flag_owners(s)
+                if owner in ("scene", "sun") or owner.startswith("camera ")
             )
             + "<table><tr><th>#</th><th>probe</th><th>pixel (320×240)</th><th>pixel from</th><th>yaw °</th>"
             "<th>residual °</th><th>rotation from</th><th>HDR</th><th>clipped (solid angle)</th><th>flags</th></tr>"
