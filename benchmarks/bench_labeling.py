@@ -30,6 +30,7 @@ import sys
 import tempfile
 import threading
 import time
+import urllib.error
 import urllib.request
 from pathlib import Path
 
@@ -82,9 +83,12 @@ def rss_mb(pid: int) -> dict[str, float]:
     return out
 
 
+HEADERS: dict[str, str] = {}  # the session cookie of the server under test
+
+
 def get(url: str) -> tuple[float, bytes]:
     t0 = time.perf_counter()
-    with urllib.request.urlopen(url, timeout=120) as r:
+    with urllib.request.urlopen(urllib.request.Request(url, headers=HEADERS), timeout=300) as r:
         data = r.read()
     return time.perf_counter() - t0, data
 
@@ -99,6 +103,29 @@ def wait_up(url: str, proc: subprocess.Popen) -> None:
         except OSError:
             time.sleep(0.1)
     raise RuntimeError("server did not start")
+
+
+def login(ctx, port: int, name: str) -> None:
+    """Log a Playwright browser context in as ``name`` (guides marked seen: they would take the keys)."""
+    ctx.add_init_script(
+        "for (const t of ['sun', 'probe_pixel', 'heading']) localStorage.setItem('solidkit.guide.' + t, '1')"
+    )
+    r = ctx.request.post(f"http://127.0.0.1:{port}/api/session", data={"name": name}, headers={"X-Solidkit": "1"})
+    assert r.ok, r.text()
+
+
+def session_cookie(base: str, name: str) -> dict[str, str]:
+    """Headers of a logged-in session (``{}`` for a server without logins, as before users existed)."""
+    req = urllib.request.Request(
+        base + "/api/session", data=json.dumps({"name": name}).encode(), method="POST",
+        headers={"Content-Type": "application/json", "X-Solidkit": "1"},
+    )  # fmt: skip
+    try:
+        with urllib.request.urlopen(req, timeout=60) as r:
+            cookie = r.headers.get("set-cookie", "").split(";")[0]
+    except urllib.error.HTTPError:
+        return {}
+    return {"Cookie": cookie} if cookie else {}
 
 
 def big_campaign(root: Path) -> Path:
@@ -135,6 +162,7 @@ def bench_serving(tmp: Path) -> dict:
     res: dict = {"file_mb": jpeg.stat().st_size / 1e6, "size": [7296, 3648]}
     try:
         wait_up(base + "/api/session", proc)
+        HEADERS.update(session_cookie(base, "bench"))
         res["rss_idle_mb"] = rss_mb(proc.pid)["VmRSS"]
         item = json.loads(get(base + "/api/item?kind=sun&key=s1/p1")[1])
         img = item["view"]["image"]
@@ -184,6 +212,89 @@ def bench_serving(tmp: Path) -> dict:
     res["first_view_ratio_whole_over_preview_plus_4_tiles"] = (
         res["file_mb"] * 1e3 / (res["preview_kb"] + 4 * res["tile_kb_median"])
     )
+    return res
+
+
+def hdr_campaign(root: Path) -> None:
+    """One scene: a 640x480 photo and one position whose HDR product is a 7296x3648 EXR (float32, ZIP; a
+    sky gradient with noise, a ground, a sun of 1e5), so the heading task shows it."""
+    from solidkit.capture.manifest import Shot
+    from solidkit.envmap.io import write_exr
+
+    h, w = 3648, 7296
+    rng = np.random.default_rng(0)
+    img = np.empty((h, w, 3), np.float32)
+    for y0 in range(0, h, 456):  # in strips: the benchmark's own memory stays small
+        y = np.linspace(y0 / h, (y0 + 456) / h, 456, endpoint=False, dtype=np.float32)[:, None, None]
+        sky = np.where(y < 0.5, 2.0 - 2.0 * y, 0.3) * np.array([0.6, 0.8, 1.0], np.float32)
+        img[y0 : y0 + 456] = sky * (1 + 0.05 * rng.standard_normal((456, w, 3), dtype=np.float32))
+    img[1000:1030, 2000:2030] = 1e5  # the sun
+    write_exr(root / "products/s1/p1/hdr-b01.exr", img)
+    del img
+    (root / "originals").mkdir(parents=True)
+    cv2.imwrite(str(root / "originals/photo.jpg"), np.full((480, 640, 3), 120, np.uint8))
+    shot = Shot(sha256="a" * 64, original="originals/photo.jpg", size=1, file_format="jpeg", sources=[],
+                metadata={"path": "photo.jpg", "width": 640, "height": 480, "focal_length_35mm": 28.0},
+                kind="photo", scene="s1")  # fmt: skip
+    products = [Product(id="s1/p1/hdr-b01", kind="hdr", scene="s1", probe="p1", inputs=[],
+                        path="products/s1/p1/hdr-b01.exr", layout="equirect")]  # fmt: skip
+    scene = Scene(id="s1", grouping="folder", photos=["a" * 64], photo="a" * 64, camera_probe="p1",
+                  probes=[Probe(id="p1", shots=[], role="camera")])  # fmt: skip
+    save_manifest(root, Manifest(shots=[shot], scenes=[scene], products=products))
+
+
+def first_heading_view(camp: Path, src: Path, label: str) -> dict:
+    """``solidkit label serve`` from source tree ``src`` on ``camp``: the time of the first heading
+    item's view (item, panorama preview, photo preview, the 8 tiles of the middle row, in turn), the
+    server's peak memory (VmHWM) after it, and the same after a restart (the disk cache warm)."""
+    out: dict = {"source": label}
+    for run in ("cold", "restart"):
+        port = free_port()
+        env = {**os.environ, "OMP_NUM_THREADS": "1", "PYTHONPATH": str(src)}
+        code = "import sys; from solidkit.cli import main; sys.argv = ['solidkit'] + sys.argv[1:]; main()"
+        proc = subprocess.Popen([sys.executable, "-c", code, "label", "serve", str(camp), "--port", str(port)],
+                                stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, env=env, cwd=src)  # fmt: skip
+        base = f"http://127.0.0.1:{port}"
+        try:
+            wait_up(base + "/", proc)
+            HEADERS.clear()
+            HEADERS.update(session_cookie(base, "bench"))
+            idle = rss_mb(proc.pid)["VmRSS"]
+            t0 = time.perf_counter()
+            item = json.loads(get(base + "/api/item?kind=heading&key=s1/p1")[1])
+            t_item = time.perf_counter() - t0
+            img, photo = item["view"]["image"], item["view"]["photo"]["image"]
+            get(f"{base}/api/img/{img['id']}/preview.jpg")
+            get(f"{base}/api/img/{photo['id']}/preview.jpg")
+            t_view = time.perf_counter() - t0
+            cols, rows = img["tiles"]["cols"], img["tiles"]["rows"]
+            for c in range(cols // 2 - 4, cols // 2 + 4):
+                get(f"{base}/api/img/{img['id']}/tile/{c}/{rows // 2}.jpg")
+            t_tiles = time.perf_counter() - t0
+            mem = rss_mb(proc.pid)
+            out[run] = {"item_s": round(t_item, 3), "first_view_s": round(t_view, 3),
+                        "first_view_plus_8_tiles_s": round(t_tiles, 3), "rss_idle_mb": round(idle),
+                        "peak_mb": round(mem["VmHWM"])}  # fmt: skip
+        finally:
+            proc.terminate()
+            proc.wait(10)
+    return out
+
+
+def bench_hdr(tmp: Path) -> dict:
+    """First heading view of a 7296x3648 HDR: this tree, and the tree at $SOLIDKIT_BENCH_PEER_SRC (e.g. a
+    `git worktree` of the commit before the header read and disk cache) as the peer."""
+    camp = tmp / "hdr"
+    hdr_campaign(camp)
+    res = {"size": [7296, 3648], "exr_mb": round((camp / "products/s1/p1/hdr-b01.exr").stat().st_size / 1e6, 1)}
+    LabelStore(camp).add_user("bench", "annotator")
+    res["app"] = first_heading_view(camp, HERE.parent, "this tree")
+    peer = os.environ.get("SOLIDKIT_BENCH_PEER_SRC")
+    if peer:
+        old = tmp / "hdr-peer"
+        shutil.copytree(camp, old, ignore=shutil.ignore_patterns("labels"))
+        res["peer"] = first_heading_view(old, Path(peer), f"peer tree {peer}")
+    shutil.rmtree(camp, ignore_errors=True)
     return res
 
 
@@ -238,7 +349,7 @@ def bench_annotator(tmp: Path) -> dict:
         with sync_playwright() as pw:
             browser = pw.chromium.launch(executable_path=CHROMIUM, args=["--no-sandbox"])
             ctx = browser.new_context(viewport={"width": 1366, "height": 768})
-            ctx.add_init_script("localStorage.setItem('solidkit.annotator', 'bench')")
+            login(ctx, port, "bench")
             page = ctx.new_page()
             keys = list(truth)
             page.goto(f"http://127.0.0.1:{port}/#task=sun&key={keys[0]}")
@@ -334,9 +445,8 @@ def bench_virtual_campaign(campaign: Path, truth_json: Path, tmp: Path) -> dict:
     with sync_playwright() as pw:
         browser = pw.chromium.launch(executable_path=CHROMIUM, args=["--no-sandbox"])
         ctx = browser.new_context(viewport={"width": 1366, "height": 768})
-        ctx.add_init_script(
-            "localStorage.setItem('solidkit.annotator', 'bench'); localStorage.setItem('solidkit.blind', '1')"
-        )
+        login(ctx, port, "bench")
+        ctx.add_init_script("localStorage.setItem('solidkit.blind', '1')")
         page = ctx.new_page()  # blind: the scripted annotator does not see align's proposal
         t0 = time.perf_counter()
         for key in keys:
@@ -421,6 +531,10 @@ def main() -> None:
     OUT.mkdir(exist_ok=True)
     with tempfile.TemporaryDirectory() as t:
         tmp = Path(t)
+        hdr = bench_hdr(tmp)
+        if os.environ.get("SOLIDKIT_BENCH_ONLY") == "hdr":
+            print(json.dumps(hdr, indent=1))
+            return
         serving = bench_serving(tmp)
         annot = bench_annotator(tmp) if Path(CHROMIUM).is_file() else {"skipped": "no chromium"}
         # an ingested + aligned virtual campaign and its truth: $SOLIDKIT_BENCH_CAMPAIGN/_TRUTH, else the
@@ -438,6 +552,7 @@ def main() -> None:
         "machine": platform.platform(),
         "load_average_1min": load,
         "serving_7296x3648": serving,
+        "hdr_first_heading_view_7296x3648": hdr,
         "scripted_annotator": annot,
         "virtual_campaign": virtual,
     }
@@ -465,6 +580,21 @@ def main() -> None:
         f"Server memory: {s['rss_idle_mb']:.0f} MB idle, {s['rss_after_preview_mb']:.0f} MB after the preview (decoded "
         f"image cached), {s['rss_after_all_tiles_mb']:.0f} MB after all {s['tiles']['cols'] * s['tiles']['rows']} "
         f"tiles ({s['tiles_all_mb']:.1f} MB encoded, cached), peak {s['rss_peak_mb']:.0f} MB.",
+        "",
+        f"## First heading view of a 7296x3648 HDR ({hdr['exr_mb']:.0f} MB EXR)",
+        "",
+        "Item, panorama preview and photo preview in turn (then 8 full-resolution tiles); cold: a fresh campaign, "
+        "restart: the server started again on it.",
+        "",
+        "| tree | run | first view | + 8 tiles | server peak (VmHWM) |",
+        "|---|---|---|---|---|",
+        *(
+            f"| {r['source']} | {run} | {r[run]['first_view_s']:.2f} s | {r[run]['first_view_plus_8_tiles_s']:.2f} s | "
+            f"{r[run]['peak_mb']} MB |"
+            for r in (hdr["app"], hdr.get("peer"))
+            if r
+            for run in ("cold", "restart")
+        ),
         "",
         "## Scripted annotator in chromium (20 sun frames, 1024x512)",
         "",

@@ -132,7 +132,7 @@ def serve(
         token = secrets.token_urlsafe(24)
         typer.echo(f"token (give it to the annotators; it is not shown again): {token}", err=True)
     allowed = allowed_hosts(host, allow_host)
-    app_ = create_app(campaign, alignment=_alignment(campaign), token=token, allowed_hosts=allowed)
+    app_ = create_app(campaign, alignment=_alignment(campaign), token=token, allowed_hosts=allowed, warm_cache=True)
     typer.echo(f"labeling {campaign} at {app_url(host, port)}  (Ctrl+C to stop)", err=True)
     uvicorn.run(app_, host=host.strip("[]"), port=port, log_level="warning", server_header=False)
 

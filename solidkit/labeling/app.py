@@ -27,6 +27,7 @@ import hmac
 import math
 import re
 import secrets
+import threading
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -162,6 +163,7 @@ def create_app(
     token: str | None = None,
     allowed_hosts: list[str] | None = None,
     image_cache: str | Path | None = None,
+    warm_cache: bool = False,
 ) -> FastAPI:
     """Build the app for one campaign.
 
@@ -179,6 +181,9 @@ def create_app(
         Host names the ``Host`` header may carry (default: the loopback names).
     image_cache : path, optional
         Folder for the encoded previews and tiles (default ``CAMPAIGN/labels/image-cache``).
+    warm_cache : bool
+        Make every image's preview and tiles in a background thread from the start (heading
+        panoramas first), so that first views come from the disk cache.
     """
     index = CampaignIndex(campaign_dir, alignment)
     store = LabelStore(index.root)
@@ -191,6 +196,16 @@ def create_app(
     app = FastAPI(title="solidkit labeling", docs_url=None, redoc_url=None, openapi_url=None)
     app.state.index, app.state.store, app.state.images = index, store, images
     app.state.sessions = sessions
+    app.state.warm_done = threading.Event()
+    if warm_cache:
+        heading = [index.images[i.view["image"]] for i in index.items["heading"].values() if i.view.get("image")]
+        order = list(dict.fromkeys([*heading, *index.images.values()]))
+
+        def _warm() -> None:
+            images.warm(order)
+            app.state.warm_done.set()
+
+        threading.Thread(target=_warm, name="image-cache", daemon=True).start()
 
     # -- middleware (outermost last) ---------------------------------------------------------
     @app.middleware("http")

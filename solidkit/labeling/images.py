@@ -278,6 +278,39 @@ class ImageService:
 
         return self._cached((ref.id, "tile", col, row), make, f"tile-{cols}x{rows}-{col}-{row}.jpg")
 
+    def cached_on_disk(self, ref: ImageRef) -> bool:
+        """The preview and (equirect) every tile of ``ref`` are in the disk cache."""
+        if self.cache_dir is None:
+            return False
+        folder = self.cache_dir / ref.id
+        if not (folder / f"preview-{PREVIEW_WIDTH}.jpg").is_file():
+            return False
+        if ref.layout != "equirect":
+            return True
+        cols, rows = tile_grid(self.size(ref)[0])
+        return all((folder / f"tile-{cols}x{rows}-{c}-{r}.jpg").is_file() for r in range(rows) for c in range(cols))
+
+    def warm(self, refs: list[ImageRef], stop: threading.Event | None = None) -> int:
+        """Make the previews and tiles of ``refs`` in turn (those not on disk yet), so that first views
+        come from the disk cache; returns how many images were made. Meant for a background thread."""
+        made = 0
+        for ref in refs:
+            if self.cache_dir is None or (stop is not None and stop.is_set()):
+                break
+            try:
+                if self.cached_on_disk(ref):
+                    continue
+                self.preview(ref)
+                if ref.layout == "equirect":
+                    cols, rows = tile_grid(self.size(ref)[0])
+                    for r in range(rows):
+                        for c in range(cols):
+                            self.tile(ref, c, r)
+                made += 1
+            except InputError:
+                continue
+        return made
+
     def crop(
         self, ref: ImageRef, x: float, y: float, cw: float, ch: float, out_width: int
     ) -> tuple[bytes, tuple[int, int, int, int]]:

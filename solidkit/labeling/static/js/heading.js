@@ -108,6 +108,7 @@ export class HeadingTask {
       el('label', { class: 'slider' }, el('span', {}, 'Yaw (°)'),
         el('input', { type: 'number', id: 'yaw-input', step: 0.1, value: +this.yaw.toFixed(2), onchange: e => this.setYaw(+e.target.value) })),
       opinionsBlock(app, it),
+      reviewBlock(app, it),
       slider('overlay', 'Photo overlay', 0, 1, 0.05, this.overlay, x => `${Math.round(x * 100)} %`, x => { this.overlay = x; this.renderMarkers(); }),
       slider('exposure-h', 'Exposure', -4, 8, 0.5, this.exposure, x => `${x > 0 ? '+' : ''}${x} EV`, x => { this.exposure = x; this.sphere.setExposure(x); }),
       el('div', { class: 'buttons' },
@@ -119,7 +120,6 @@ export class HeadingTask {
       v.photo.outline ? null : el('div', { class: 'row warn' }, 'No lens data for this photo: its frame cannot be drawn.'),
       cues.length && !this.hidden() ? el('details', { class: 'cands' }, el('summary', {}, `Automatic clues (${cues.length})`),
         el('ul', {}, cues.map(([n, c]) => el('li', {}, `${n}: ${c.yaw_deg == null ? '–' : f2(c.yaw_deg) + '°'} `, el('span', { class: 'muted' }, `${c.ok ? 'used' : 'not used'}`))))) : null,
-      reviewBlock(app, it),
       noteBlock(app, it),
       historyBlock(app, it),
     );

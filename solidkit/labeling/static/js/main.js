@@ -2,7 +2,7 @@
 // loses the annotator's value), shortcuts; each task lives in its own module.
 
 import { api, ApiError } from './api.js';
-import { $, el, TASK_NAMES, STATUS_TEXT, formatValue, flagText } from './ui.js';
+import { $, el, fill, TASK_NAMES, STATUS_TEXT, formatValue, flagText } from './ui.js';
 import { SunTask } from './sun.js';
 import { PixelTask } from './pixel.js';
 import { HeadingTask } from './heading.js';
@@ -160,7 +160,7 @@ class App {
     const box = $('#progress');
     if (this.task === 'review') { box.textContent = `${this.progress.review ? this.progress.review.open : 0} to review`; return; }
     const mine = this.user.role === 'reviewer' ? '' : ' (yours)';
-    box.replaceChildren(
+    fill(box,
       el('span', { class: 'st done' }, `${p.done} done`), ' · ',
       p.returned ? el('span', { class: 'st returned' }, `${p.returned} returned · `) : null,
       el('span', { class: 'st flagged' }, `${p.flagged} flagged`), ' · ',

@@ -65,6 +65,7 @@ export class PixelTask {
       savedLine(app, it),
       el('div', { class: 'row' }, el('span', { class: 'swatch draft' }), 'Your mark: ', el('b', { id: 'draft-value' }, this.draft ? formatValue('probe_pixel', this.draft) : 'click the photo')),
       opinionsBlock(app, it),
+      reviewBlock(app, it),
       el('div', { class: 'buttons' },
         button('Accept auto', 'A', () => this.accept(), 'btn-accept', 'primary'),
         button('Save my mark', 'S', () => this.saveDraft(), 'btn-save', 'primary'),
@@ -72,7 +73,6 @@ export class PixelTask {
         button('Zoom to mark', 'Z', () => this.zoomTo(), 'btn-zoom'),
         button('Fit photo', '0', () => this.flat.fit(), 'btn-fit')),
       el('div', { class: 'muted small' }, `Photo ${v.photo.image.width}×${v.photo.image.height} px; coordinates are full-resolution pixels (pixel centres at integers).`),
-      reviewBlock(app, it),
       noteBlock(app, it),
       historyBlock(app, it),
     );

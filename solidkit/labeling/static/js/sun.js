@@ -166,6 +166,7 @@ export class SunTask {
       savedLine(app, it),
       el('div', { class: 'row' }, el('span', { class: 'swatch draft' }), 'Your mark: ', el('b', { id: 'draft-value' }, this.draft ? formatValue('sun', this.value()) : 'click the sun’s centre')),
       opinionsBlock(app, it),
+      reviewBlock(app, it),
       slider('unc', 'Uncertainty', 0, UNC_STEPS.length - 1, 1, nearestStep(this.unc), i => `±${UNC_STEPS[i]}°`, i => { this.unc = UNC_STEPS[i]; this.renderMarkers(); $('#draft-value', this.panel).textContent = this.draft ? formatValue('sun', this.value()) : 'click the sun’s centre'; }),
       slider('exposure', 'Exposure', -4, 8, 0.5, this.exposure, v => `${v > 0 ? '+' : ''}${v} EV`, v => { this.exposure = v; this.sphere.setExposure(v); }),
       el('div', { class: 'buttons' },
@@ -178,7 +179,6 @@ export class SunTask {
       rejected.length && !this.hidden() ? el('details', { class: 'cands', open: true }, el('summary', {}, `Bright spots ruled out (${rejected.length})`),
         el('ul', {}, rejected.map(c => el('li', { onclick: () => this.sphere.lookAt(c.azimuth_deg, c.elevation_deg, 15) },
           `az ${f2(wrap180(c.azimuth_deg), 1)}°, el ${f2(c.elevation_deg, 1)}°: `, el('span', { class: 'muted' }, (c.reasons || []).join('; ')))))) : null,
-      reviewBlock(app, it),
       noteBlock(app, it),
       historyBlock(app, it),
     );
