@@ -162,19 +162,24 @@ def record_profile(campaign: Path, path: str | os.PathLike, prefix: str) -> dict
     src = Path(path)
     sha = sha256_file(src)
     rel = Path("profiles") / f"{prefix}-{sha[:16]}{src.suffix.lower()}"
-    if not (campaign / rel).exists():
+    if not (campaign / rel).is_file() or sha256_file(campaign / rel) != sha:  # absent, or damaged: copied again
         with atomic_path(campaign / rel) as tmp:
             shutil.copyfile(src, tmp)
     return {"kind": "file", "path": rel.as_posix(), "sha256": sha}
+
+
+class _DamagedProfile(InputError):
+    """The campaign's copy of a profile is missing or modified: the product is built again once it is
+    given again (``ingest --response/--profile/--vignetting``), not failed for good."""
 
 
 def _recorded_file(campaign: Path, record: dict[str, Any], what: str) -> Path:
     """The campaign's copy of a recorded profile, checked against its recorded sha256."""
     path = campaign / record["path"]
     if not path.is_file():
-        raise InputError(f"{what} {record['path']} is missing from the campaign")
+        raise _DamagedProfile(f"{what} {record['path']} is missing from the campaign")
     if sha256_file(path) != record["sha256"]:
-        raise InputError(f"{what} {record['path']} was modified (sha256 differs from the manifest)")
+        raise _DamagedProfile(f"{what} {record['path']} was modified (sha256 differs from the manifest)")
     return path
 
 
@@ -349,6 +354,7 @@ def _build_product(
                 p.path, p.sha256, p.stats, p.layout = rel.as_posix(), sha256_file(camp / rel), info, "equirect"
     except SolidkitError as exc:
         p.error = str(exc)
+        p.error_transient = isinstance(exc, _DamagedProfile)
         p.path = p.sha256 = None
     except OSError as exc:
         # disk full, permissions, I/O: a per-product error naming the final file (not a temporary),

@@ -141,3 +141,21 @@ def test_ingest_of_another_card_reports_what_it_cannot_restore(camp, tmp_path, c
     m = load_manifest(camp)
     (prod,) = [p for p in m.products if p.kind == "hdr"]
     assert prod.error_transient and "is damaged" in prod.error
+
+
+def test_a_damaged_profile_is_reported_then_given_again(camp, fault_card, cli):
+    """A modified profile copy: verify says to give it again; until then its products are retried each
+    run (not failed for good); given again, the campaign is the clean one's bytes."""
+    card, response, clean = fault_card
+    (profile,) = (camp / "profiles").iterdir()
+    profile.write_text(profile.read_text().replace("0.0", "0.5", 1))
+    code, out, _ = cli("verify", camp, "--json")
+    (d,) = json.loads(out)["damage"]
+    assert code == 1 and d["what"] == "profile" and "--response FILE" in d["remedy"] and not d["rebuildable"]
+    (camp / "products/s1/p1/hdr-b01.exr").unlink()
+    code, out, _ = cli("ingest", card, "-o", camp)
+    assert code == 2 and "was modified" in out, out
+    assert all(p.error_transient for p in load_manifest(camp).products if p.error)
+    code, out, _ = cli("ingest", card, "-o", camp, "--response", response)
+    assert code == 0, out
+    assert campaign_files(camp) == clean
