@@ -4,12 +4,17 @@ The steps, each recorded in the provenance:
 
 1. **Read by content**, not by file name (:func:`solidkit.capture.frame_merge.sniff_format`): a JPEG
    named ``.png`` is read as the JPEG it is (and said so); raw files (DNG, ...) linearly.
-2. **Register** the frames (:mod:`solidkit.capture.register`: MTB + phase correlation),
-   undo measured shifts of ``min_shift_px`` or more, warn about frames that do not register.
-3. **Response curve** (:mod:`solidkit.capture.selfcal`): the given one; else, with 3+ 8-bit
-   frames, one estimated from the (registered) bracket itself; else the sRGB inverse,
+2. **Check the exposure times** against the frames: a frame darker than a shorter exposure
+   (:func:`solidkit.calibration.response.exposure_order_conflicts`, e.g. times given in the wrong
+   order) is an :class:`~solidkit.errors.InputError` naming both frames.
+3. **Register** the frames (:mod:`solidkit.capture.register`: phase correlation as the cheap test,
+   ECC where it may pay), undo a measured shift only where it improves the frames' agreement,
+   warn about frames that do not register; each frame's decision is recorded.
+4. **Response curve** (:mod:`solidkit.capture.selfcal`): the given one (checked on the frames: a
+   warning when it explains them clearly worse than a curve estimated from them); else, with 3+
+   8-bit frames, one estimated from the (registered) bracket itself; else the sRGB inverse,
    *assumed* and warned about. Raw frames are linear and need none.
-4. **Merge** (:func:`solidkit.capture.frame_merge.merge_frames`): weights, saturation/black, ghosts.
+5. **Merge** (:func:`solidkit.capture.frame_merge.merge_frames`): weights, saturation/black, ghosts.
 
 :func:`merge_bracket` returns the :class:`~solidkit.capture.frame_merge.MergeResult` and a
 provenance dict (``inputs``, ``response``, ``registration``, ``warnings``, ``stats``) that
@@ -20,6 +25,7 @@ header and the manifest.
 from __future__ import annotations
 
 import dataclasses
+import errno
 import os
 from collections.abc import Sequence
 from pathlib import Path
@@ -29,6 +35,7 @@ import numpy as np
 from PIL import Image
 
 from solidkit import __version__
+from solidkit.calibration.response import exposure_order_conflicts
 from solidkit.camera.metadata import CaptureMetadata, read_metadata
 from solidkit.camera.raw import is_raw_file, read_raw
 from solidkit.capture.bracket_groups import ShotInfo, gain_from, group_brackets, sequence_from_name
@@ -47,7 +54,7 @@ from solidkit.capture.frame_merge import (
     validate_response,
 )
 from solidkit.capture.register import register_frames, shift_image
-from solidkit.capture.selfcal import response_for_bracket
+from solidkit.capture.selfcal import check_given_response, response_for_bracket
 from solidkit.envmap.io import write_exr, write_ldr
 from solidkit.errors import InputError
 from solidkit.fsutil import sha256_file
@@ -130,6 +137,8 @@ def _merge_bracket(
                 f"frame {p.name} is {shp[1]}x{shp[0]}, expected {shapes[0][1]}x{shapes[0][0]} like {paths[0].name}"
             )
 
+    _check_exposure_order(paths, exposures, [c if c is not None else np.asarray(r.linear) for c, r in decoded])
+
     def frames_with(curve: np.ndarray | None) -> list[Frame]:
         if ldr:
             return [
@@ -165,10 +174,11 @@ def _merge_bracket(
                         ),
                     )
     if ldr and all(cast(np.ndarray, c).dtype == np.uint8 for c, _ in decoded):
-        curve, record, w = response_for_bracket(
-            [cast(np.ndarray, c) for c, _ in decoded], list(exposures), response, response_record
-        )
+        eight_bit = [cast(np.ndarray, c) for c, _ in decoded]
+        curve, record, w = response_for_bracket(eight_bit, list(exposures), response, response_record)
         warnings += w
+        if response is not None:
+            warnings += check_given_response(response, eight_bit, list(exposures))
     elif ldr:  # 16-bit frames: the given curve, else sRGB (looked up at fractional codes)
         curve, record, w = response_for_bracket(None, list(exposures), response, response_record)
         warnings += w
@@ -190,6 +200,22 @@ def _merge_bracket(
         "stats": result.stats(),
     }
     return result, provenance
+
+
+def _check_exposure_order(paths: Sequence[Path], exposures: Sequence[float], images: Sequence[np.ndarray]) -> None:
+    """:class:`InputError` naming the frames whose brightness contradicts their exposure times."""
+    conflicts = exposure_order_conflicts(images, list(exposures))
+    if not conflicts:
+        return
+    pairs = "; ".join(
+        f"{paths[b].name} ({exposures[b]:.6g} s) is darker than {paths[a].name} ({exposures[a]:.6g} s) "
+        f"on {100 * frac:.0f} % of the pixels that differ"
+        for a, b, frac in conflicts
+    )
+    raise InputError(
+        f"the exposure times contradict the frames: {pairs}; give the times in the order of the frames "
+        "(--times t1,t2,...) or check the frames' metadata"
+    )
 
 
 def _bracket_infos(paths: Sequence[Path], times: Sequence[float] | None) -> list[tuple[Path, Any, float]]:
@@ -253,6 +279,11 @@ def merge_files(
     out = Path(out)
     if out.suffix.lower() != ".exr":
         raise InputError(f"{out}: the output must be an .exr file")
+    for folder in (out.parent, *out.parent.parents):  # before the merge, which would be lost
+        if folder.exists():
+            if not folder.is_dir():
+                raise FileExistsError(errno.EEXIST, os.strerror(errno.EEXIST), str(folder))
+            break
     if response is not None and response_path is not None:
         raise InputError("give a response array or a response file, not both")
     given = (

@@ -495,8 +495,16 @@ def _blocks(h: int, rows: int = BLOCK_ROWS) -> list[slice]:
 
 
 def _rows(f: Frame, sl: slice) -> Frame:
-    """A view of frame ``f`` restricted to the rows ``sl`` (no copies)."""
-    return Frame(f.linear[sl], f.codes[sl], f.exposure, f.saturated[sl], f.response, f.name, f.black, f.saturation)
+    """A view of frame ``f`` restricted to the rows ``sl`` (no copies; ``f``'s cached validity mask carried)."""
+    sub = Frame(f.linear[sl], f.codes[sl], f.exposure, f.saturated[sl], f.response, f.name, f.black, f.saturation)
+    valid = f.__dict__.get("_valid")
+    if valid is not None:
+        sub.__dict__["_valid"] = valid[sl]
+    return sub
+
+
+#: Residual blocks of one frame kept between the ghost detector's two passes (bytes); beyond it they are recomputed.
+_GHOST_CACHE_BYTES = 192 * 2**20
 
 
 def merge_frames(
@@ -603,19 +611,22 @@ def detect_ghosts(
     step = max(1, len(blocks) // 8)  # the noise level from every step-th block (at least 8 blocks)
     stride = max(1, (h * w * 3) // (step * max_samples))
     sigmas: list[float] = []
-    for f in frames:  # pass 1: the frame's noise level
-        samples = []
-        for sl in blocks[::step]:
-            res, valid = _rows(f, sl).residual(hdr[sl])
+    for f in frames:
+        f.valid()  # once for the whole frame: its blocks share it
+        samples, kept, kept_bytes = [], {}, 0
+        for b in range(0, len(blocks), step):  # pass 1: the frame's noise level
+            res, valid = _rows(f, blocks[b]).residual(hdr[blocks[b]])
             samples.append(res[valid][::stride])
+            if kept_bytes + res.nbytes + valid.nbytes <= _GHOST_CACHE_BYTES:  # reused by pass 2
+                kept[b], kept_bytes = (res, valid), kept_bytes + res.nbytes + valid.nbytes
         vals = np.concatenate(samples)
         floor = min_sigma if not f.is_raw else 1e-4
-        sigmas.append(max(1.4826 * float(np.median(vals)), floor) if vals.size else 0.0)
-    for f, sigma in zip(frames, sigmas):  # pass 2: outliers
+        sigma = max(1.4826 * float(np.median(vals)), floor) if vals.size else 0.0
+        sigmas.append(sigma)
         if sigma <= 0:
             continue
-        for sl in blocks:
-            res, valid = _rows(f, sl).residual(hdr[sl])
+        for b, sl in enumerate(blocks):  # pass 2: outliers
+            res, valid = kept.pop(b) if b in kept else _rows(f, sl).residual(hdr[sl])
             cand[sl] |= _any3((res > np.float32(k * sigma)) & valid)
     kernel = np.ones((3, 3), np.uint8)
     mask = cv2.morphologyEx(cand.astype(np.uint8), cv2.MORPH_OPEN, kernel)

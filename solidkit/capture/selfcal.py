@@ -30,10 +30,17 @@ from typing import Any
 
 import numpy as np
 
-from solidkit.calibration.response import ResponseError, calibrate_response, make_monotonic, response_sanity
+from solidkit.calibration.response import (
+    ResponseError,
+    calibrate_response,
+    default_smoothness,
+    make_monotonic,
+    radiance_consistency,
+    response_sanity,
+)
 from solidkit.capture.frame_merge import srgb_response
 
-__all__ = ["MIN_FRAMES", "MIN_DISTINCT_CODES", "estimate_response", "response_for_bracket"]
+__all__ = ["MIN_FRAMES", "MIN_DISTINCT_CODES", "estimate_response", "response_for_bracket", "check_given_response"]
 
 MIN_FRAMES = 3
 #: Fewer distinct 8-bit values than this (per channel, middle exposure) leave the curve between
@@ -59,7 +66,7 @@ def estimate_response(
     imgs = [np.ascontiguousarray(im) for im in images]
     t = np.asarray(times, np.float64)
     if smoothness is None:  # OpenCV's lambda = 10 is tuned for its 70 samples: keep the balance
-        smoothness = 10.0 * samples / 70.0
+        smoothness = default_smoothness(samples)
     raw = calibrate_response(imgs, t, method="debevec", samples=samples, smoothness=smoothness)
     curve = make_monotonic(raw)
     sanity = response_sanity(curve, [im[::4, ::4] for im in imgs])
@@ -67,7 +74,7 @@ def estimate_response(
         raise ResponseError(f"degenerate curve (dynamic range {sanity['dynamic_range_stops']} stops)")
     record = {
         "kind": "estimated",
-        "method": "debevec (OpenCV CalibrateDebevec), made monotonic",
+        "method": "debevec (OpenCV CalibrateDebevec's system, solved exactly), made monotonic",
         "frames": len(imgs),
         "samples": samples,
         "smoothness": smoothness,
@@ -115,3 +122,35 @@ def response_for_bracket(
             "assumed (calibrate one with 'solidkit calibrate response' and pass --response)"
         ],
     )
+
+
+def check_given_response(
+    given: np.ndarray, images: Sequence[np.ndarray], times: Sequence[float], *, step: int = 4, margin: float = 1.25
+) -> list[str]:
+    """``["response_check: ..."]`` when a given curve explains these 8-bit frames clearly worse than one estimated
+    from them, else ``[]``.
+
+    Both curves' radiance disagreement (:func:`solidkit.calibration.response.radiance_consistency`, RMS
+    stops, every ``step``-th pixel) is compared; the given one is flagged above ``margin`` times the
+    estimate's plus 0.01 stops (the estimate is fitted to these very frames: it has an edge). Nothing
+    is said when no estimate can be made (fewer than :data:`MIN_FRAMES` frames, too few codes, a failed fit).
+    """
+    if (
+        len(images) < MIN_FRAMES
+        or _distinct_codes(images[int(np.argsort(times)[len(times) // 2])]) < MIN_DISTINCT_CODES
+    ):
+        return []
+    try:
+        own, _ = estimate_response(images, times)
+    except ResponseError:
+        return []
+    small = [np.ascontiguousarray(im[::step, ::step]) for im in images]
+    rms_given = float(np.nanmean(radiance_consistency(given, small, times)["rms_stops_per_channel"]))
+    rms_own = float(np.nanmean(radiance_consistency(own, small, times)["rms_stops_per_channel"]))
+    if not rms_given > margin * rms_own + 0.01:
+        return []
+    return [
+        f"response_check: the given response curve explains these frames worse than one estimated from them "
+        f"(radiance disagreement {rms_given:.3f} against {rms_own:.3f} stops RMS); is it this camera's curve at "
+        "these settings? (without --response the merge estimates its own)"
+    ]

@@ -146,16 +146,31 @@ def merge(
             }.get(rk, "[yellow]sRGB assumed[/]"),
         )
         if s.get("registration"):
-            table.add_row(
-                "frame shifts (px)",
-                ", ".join(
-                    f"({dx:+.2f}, {dy:+.2f})" + ("" if a else " not applied")
-                    for (dx, dy), a in zip(s["registration"]["shifts_px"], s["registration"]["applied"])
-                ),
-            )
+            reg = s["registration"]
+            table.add_row("frame shifts (px)", "; ".join(_frame_shift(reg, i) for i in range(len(reg["shifts_px"]))))
         console.print(table)
         for w in s["warnings"]:
             console.print(f"[yellow]warning[/] {escape(w)}")
+
+
+_DECISIONS = {
+    "reference": "reference",
+    "no_overlap": "too little in common with the reference: unshifted",
+    "static": "static (phase correlation): unshifted",
+    "below_min_shift": "below 0.25 px: unshifted",
+    "no_improvement": "not applied: does not improve the agreement",
+    "not_registered": "does not register: unshifted",
+}
+
+
+def _frame_shift(reg: dict, i: int) -> str:
+    """One frame's registration in words: its shift and what was decided (with the agreement when measured)."""
+    (dx, dy), decision = reg["shifts_px"][i], (reg.get("decision") or [""] * (i + 1))[i]
+    agr = (reg.get("agreement_unshifted_shifted") or [None] * (i + 1))[i]
+    said = _DECISIONS.get(decision, "applied" if reg["applied"][i] else "not applied")
+    if agr is not None and decision in ("applied", "no_improvement"):
+        said += f" (disagreement {agr[0]:.4f} -> {agr[1]:.4f})"
+    return f"({dx:+.2f}, {dy:+.2f}) {said}"
 
 
 def _print_many(results: list[dict], out: Path, as_json: bool) -> None:
