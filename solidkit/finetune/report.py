@@ -180,14 +180,27 @@ def _n_truth_sun(result: dict[str, Any], method: str, recipe: str) -> int:
     return sum(1 for r in result["records"] if r["method"] == method and r["truth_sun"] and f"sun_{recipe}" in r)
 
 
+#: The sun recipes as the figures name them (their legends and captions say the same).
+RECIPE_NAMES = {"paper": "paper recipe", "core": "default detector"}
+#: Fewest values a violin is drawn from; fewer are shown as points.
+MIN_VIOLIN_POINTS = 10
+
+
 def sun_figures(result: dict[str, Any], folder: Path, prefix: str = "", title: str = "") -> list[Path]:
     """The cumulative sun angular error curve and the azimuth / elevation violins (paper Fig. 5)."""
-    plt = _plt()
     methods = [m["name"] for m in result["methods"] if any(_n_truth_sun(result, m["name"], r) for r in M.SUN_METHODS)]
     if not methods:
         return []
+    return [
+        _save(cumulative_figure(result, methods, title), folder / f"{prefix}sun_cumulative.png"),
+        _save(violin_figure(result, methods, title), folder / f"{prefix}sun_violins.png"),
+    ]
+
+
+def cumulative_figure(result: dict[str, Any], methods: list[str], title: str = "") -> Any:
+    """The cumulative sun angular error curve of ``methods``, both recipes (a matplotlib figure)."""
+    plt = _plt()
     colours = plt.get_cmap("tab10")
-    paths = []
     fig, ax = plt.subplots(figsize=(6.4, 4.2))
     x = np.linspace(0, 180, 361)
     for i, m in enumerate(methods):
@@ -196,7 +209,9 @@ def sun_figures(result: dict[str, Any], folder: Path, prefix: str = "", title: s
             if not n:
                 continue
             v = np.sort(_sun_values(result, m, recipe, "angle_deg"))
-            ax.plot(x, np.searchsorted(v, x, side="right") / n, ls, color=colours(i), label=f"{m} ({recipe})")
+            ax.plot(
+                x, np.searchsorted(v, x, side="right") / n, ls, color=colours(i), label=f"{m} ({RECIPE_NAMES[recipe]})"
+            )
     ax.set(
         xlabel="sun angular error [°]",
         ylabel="fraction of photos with a true sun",
@@ -209,24 +224,34 @@ def sun_figures(result: dict[str, Any], folder: Path, prefix: str = "", title: s
     ax.text(
         0.01,
         0.98,
-        "solid: paper recipe; dashed: default detector\n(no sun found = never reaches the curve)",
+        f"solid: {RECIPE_NAMES['paper']}; dashed: {RECIPE_NAMES['core']}\n(no sun found = never reaches the curve)",
         transform=ax.transAxes,
         fontsize=7,
         va="top",
     )
-    paths.append(_save(fig, folder / f"{prefix}sun_cumulative.png"))
+    return fig
 
+
+def violin_figure(result: dict[str, Any], methods: list[str], title: str = "") -> Any:
+    """Azimuth and elevation sun errors of ``methods``, both recipes: a violin from :data:`MIN_VIOLIN_POINTS` values
+    on, the values themselves below that; quartile bar and median on each (a matplotlib figure)."""
+    plt = _plt()
+    colours = plt.get_cmap("tab10")
     fig, axes = plt.subplots(1, 2, figsize=(max(6.4, 1.6 * len(methods) + 3), 4.0))
     for ax, err, label in ((axes[0], "azimuth_deg", "azimuth"), (axes[1], "elevation_deg", "elevation")):
         for i, m in enumerate(methods):
             for j, recipe in enumerate(("paper", "core")):
                 v = np.asarray(_sun_values(result, m, recipe, err))
                 pos = i + (j - 0.5) * 0.4
-                if v.size >= 2 and np.ptp(v) > 0:
+                alpha = 0.45 if recipe == "paper" else 0.2
+                if v.size >= MIN_VIOLIN_POINTS and np.ptp(v) > 0:
                     parts = ax.violinplot(v, [pos], widths=0.38, showextrema=False)
                     for b in parts["bodies"]:
                         b.set_facecolor(colours(i))
-                        b.set_alpha(0.45 if recipe == "paper" else 0.2)
+                        b.set_alpha(alpha)
+                elif v.size:
+                    jitter = (np.arange(v.size) % 5 - 2) * 0.03  # deterministic: equal values stay apart
+                    ax.scatter(pos + jitter, v, s=12, color=colours(i), alpha=min(1.0, 2 * alpha), zorder=2)
                 if v.size:
                     q1, med, q3 = np.percentile(v, [25, 50, 75])
                     ax.vlines(pos, q1, q3, color="0.4", lw=4)
@@ -235,13 +260,13 @@ def sun_figures(result: dict[str, Any], folder: Path, prefix: str = "", title: s
         ax.set(ylabel=f"sun {label} error [°]", title=f"{label} error")
         ax.grid(alpha=0.3, axis="y")
     fig.suptitle(
-        (title + ": " if title else "") + "per method, left = paper recipe, right (lighter) = default detector;"
-        " white dot = median, bar = 25-75 %",
+        (title + ": " if title else "")
+        + f"per method, left = {RECIPE_NAMES['paper']}, right (lighter) = {RECIPE_NAMES['core']};\n"
+        f"white dot = median, bar = 25-75 %; the values themselves where fewer than {MIN_VIOLIN_POINTS}",
         fontsize=9,
     )
-    fig.tight_layout()
-    paths.append(_save(fig, folder / f"{prefix}sun_violins.png"))
-    return paths
+    fig.tight_layout(rect=(0.0, 0.0, 1.0, 0.9))
+    return fig
 
 
 def _display(hdr: np.ndarray) -> np.ndarray:
