@@ -296,7 +296,6 @@ def test_review_lists_the_disagreement(server, browser, campaign):
     row = page.locator("#review-table tr[data-key='heading:city/cam']")
     assert "8.00°" in row.text_content() and "open" in row.get_attribute("class")
     assert page.locator("#review-table tbody tr").first.get_attribute("class").endswith("open")  # disagreements first
-    shot(page, "review")
     row.click()
     loaded(page, "heading", "city/cam")
     assert page.locator("#review-badge").is_visible()
@@ -332,6 +331,7 @@ def test_traversal_404_and_token_401(server, browser, campaign):
         page.wait_for_selector("#login:not([hidden])")
         page.fill("#login-name", "ann")
         page.fill("#login-token", token)
+        shot(page, "login")
         page.keyboard.press("Enter")
         page.wait_for_selector("body[data-item^='sun:']", timeout=60000)  # generous: CI machines may be loaded
         assert page.request.get(f"{url}/api/campaign").status == 200  # the session cookie, not the URL
@@ -434,15 +434,18 @@ def test_review_reject_returns_the_item_with_the_comment_and_no_nan(server, brow
     loaded(rev, "review")
     rev.wait_for_timeout(400)
     assert not [c for c in console if "NaN" in c], console
+    shot(rev, "review")
     rev.locator("#review-table tr[data-key='probe_pixel:city/p1']").click()
     loaded(rev, "probe_pixel", "city/p1")
     rev.fill("#verdict-comment", "that is the lamp post; the tripod stood left of it")
+    shot(rev, "review_item")
     rev.locator("#review-box li[data-annotator='carol'] button.reject").click()
     rev.wait_for_selector("body[data-verdict^='probe_pixel:city/p1:carol:reject']")
     ann, errors_a = open_page(browser, f"{server}/#task=probe_pixel&key=city/p1", "carol")
     loaded(ann, "probe_pixel", "city/p1")
     assert "returned" in ann.locator("#queue-list li[data-key='city/p1']").get_attribute("class")
     assert "lamp post" in ann.locator("#returned").text_content()
+    shot(ann, "returned")
     assert not errors and not errors_a
 
 

@@ -66,7 +66,7 @@ class App {
       $('#login-title').textContent = this.user ? 'Log in again' : 'Who is labeling?';
       $('#login-why').textContent = this.user
         ? 'The server was restarted or your session ended. Your unsaved mark is kept: log in and it is saved.'
-        : (state.team ? 'Pick your name (your reviewer gave you one).' : 'Your name is stored with every label you save.');
+        : (state.team ? 'Log in with the name you were registered under (solidkit label users list shows them).' : 'Your name is stored with every label you save.');
       const list = $('#login-names');
       list.replaceChildren(...(state.users || []).map(n => el('option', { value: n })));
       const name = $('#login-name');
