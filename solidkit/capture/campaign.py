@@ -187,7 +187,7 @@ def _check_originals(
                 if problem is not None:
                     path.chmod(stat.S_IRUSR | stat.S_IRGRP | stat.S_IROTH)
                     report.originals_repaired += 1
-                if hashed:  # intact, under another time (an older campaign): the card file's time from now on
+                if hashed and shot.sources:  # intact, under another time (an older campaign): the card file's time
                     os.utime(path, ns=(shot.sources[0].mtime_ns, shot.sources[0].mtime_ns))
             continue
         here = [r for r in shot.sources if r.card == cstr and _unchanged(card / r.path, r)]

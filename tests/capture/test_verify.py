@@ -159,3 +159,16 @@ def test_a_damaged_profile_is_reported_then_given_again(camp, fault_card, cli):
     code, out, _ = cli("ingest", card, "-o", camp, "--response", response)
     assert code == 0, out
     assert campaign_files(camp) == clean
+
+
+def test_originals_of_an_older_campaign_are_hashed_once(camp, fault_card, cli):
+    """Originals copied before they got their card file's time (an older campaign): verify hashes them
+    (intact); the next ingest adopts the card files' times, after which sizes and times suffice."""
+    for p in (camp / "originals").rglob("*.jpg"):
+        os.utime(p, ns=(1_000_000_000, 1_000_000_000))
+    code, out, _ = cli("verify", camp)
+    assert code == 0 and "intact" in out and "6 hashed" in out, out  # 4 originals + field notes + profile
+    code, out, _ = cli("ingest", fault_card[0], "-o", camp)
+    assert code == 0 and "nothing to do" in out, out
+    code, out, _ = cli("verify", camp)
+    assert code == 0 and "2 hashed" in out, out
