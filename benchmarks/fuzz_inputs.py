@@ -683,6 +683,17 @@ def write_report(res: dict, out: Path) -> None:
         lines.append(f"| `{c}` | " + " | ".join(str(row[k]) for k in cols) + " |")
         totals.update({k: row[k] for k in cols})
     lines.append("| **all** | " + " | ".join(str(round(totals[k], 1)) for k in cols) + " |")
+    before = res.get("before")
+    if before:
+        lines += [
+            "",
+            f"The same inputs (seed {before['seed']}) before the fixes ({before['label']}):",
+            "",
+            "| command | " + " | ".join(cols) + " |",
+            "|---|" + "---|" * len(cols),
+        ]
+        for c, row in before["per_command"].items():
+            lines.append(f"| `{c}` | " + " | ".join(str(row.get(k, "")) for k in cols) + " |")
     lines += ["", f"Failing inputs: {len(res['failures'])}."]
     for f in res["failures"][:40]:
         lines.append(
@@ -702,9 +713,15 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--only", default="", help="comma-separated commands, e.g. 'predict,capture info'")
     ap.add_argument("--keep", type=Path, default=None, help="copy each failing input's folder here")
     ap.add_argument("--out", type=Path, default=OUT, help="where fuzz_inputs.{md,json} go")
+    ap.add_argument("--before", type=Path, default=None, help="a fuzz_inputs.json of an older tree, shown beside")
+    ap.add_argument("--before-label", default="an older tree", help="what --before ran on")
     args = ap.parse_args(argv)
     only = [c.strip() for c in args.only.split(",") if c.strip()]
     res = run(args.count, args.seed, args.timeout, only, args.keep)
+    if args.before is not None:
+        old = json.loads(args.before.read_text())
+        rows = {c: {k: v for k, v in row.items() if k != "top_messages"} for c, row in old["per_command"].items()}
+        res["before"] = {"label": args.before_label, "seed": old["seed"], "per_command": rows}
     write_report(res, args.out)
     print(
         f"\n{res['count']} inputs in {res['wall_s']} s; {len(res['failures'])} failing; {args.out / 'fuzz_inputs.md'}"
