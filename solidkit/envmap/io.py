@@ -308,6 +308,8 @@ def _jpeg_size(f: BinaryIO) -> tuple[int, int] | None:
         if len(length) < 2:
             return None
         n = struct.unpack(">H", length)[0]
+        if n < 2:  # a length that counts less than itself: no forward progress
+            return None
         if 0xC0 <= marker <= 0xCF and marker not in (0xC4, 0xC8, 0xCC):  # SOFn
             sof = f.read(5)
             if len(sof) < 5:

@@ -73,6 +73,9 @@ def test_image_size_from_headers(tmp_path: Path) -> None:
     assert image_size(tmp_path / "huge.jpg") == (65500, 65500)
     (tmp_path / "text.jpg").write_text("hello")
     assert image_size(tmp_path / "text.jpg") is None
+    for length in (0, 1):  # a segment length that does not move the reader on
+        (tmp_path / "stuck.jpg").write_bytes(b"\xff\xd8\xff\xe1" + length.to_bytes(2, "big") + jpeg_bytes()[2:])
+        assert image_size(tmp_path / "stuck.jpg") is None
 
 
 def test_a_header_past_the_limit_is_refused_before_decoding(tmp_path: Path, capfd) -> None:
