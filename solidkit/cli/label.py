@@ -61,7 +61,7 @@ def allowed_hosts(host: str, extra: list[str] | None = None) -> list[str]:
     if host in ("0.0.0.0", "::", "[::]"):
         names += [socket.gethostname(), socket.getfqdn()]
         try:
-            names += [a[4][0] for a in socket.getaddrinfo(socket.gethostname(), None)]
+            names += [str(a[4][0]) for a in socket.getaddrinfo(socket.gethostname(), None)]
         except OSError:
             pass
         for family, probe in ((socket.AF_INET, "192.0.2.1"), (socket.AF_INET6, "2001:db8::1")):

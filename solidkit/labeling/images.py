@@ -129,7 +129,7 @@ def _exr_display8(path: Path) -> np.ndarray:
         for y0 in range(0, h, _STRIP):
             y1 = min(h, y0 + _STRIP)
             x = cv2.merge(strip(y0, y1))
-            x = cv2.pow(cv2.max(np.nan_to_num(x, nan=0.0, posinf=1e30), 0.0), 1 / 2.4)
+            x = cv2.pow(np.maximum(np.nan_to_num(x, nan=0.0, posinf=1e30, copy=False), 0.0, out=x), 1 / 2.4)
             out[y0:y1] = cv2.addWeighted(x, 255 * 1.055 * gain, x, 0.0, -0.055 * 255, dtype=cv2.CV_8U)
         f.close()
     except InputError:
