@@ -566,15 +566,20 @@ def create_app(
         _writable(user, body.kind, body.key)
         hist = store.history(body.kind, body.key)
         last = next((c for c in reversed(hist) if c.applied), None)
+        hide = is_blind(user, False)
         if last is not None and last.actor != user.name and user.role != "reviewer":
-            raise HTTPException(403, f"the last change is {last.actor}'s: only they (or a reviewer) can undo it")
+            who = "someone else's" if hide else f"{last.actor}'s"
+            raise HTTPException(403, f"the last change is {who}: only its author (or a reviewer) can undo it")
         try:
             lab = store.undo(body.kind, body.key, user.name, expected_version=body.expected_version)
         except LabelConflict as exc:
+            if hide:  # the conflict would carry the other annotator's value
+                return JSONResponse({"detail": "changed since you opened it", "current": None,
+                                     "version": exc.current_version}, status_code=409)  # fmt: skip
             return _conflict(exc)
         except InputError as exc:
             raise HTTPException(422, str(exc)) from None
-        if is_blind(user, False):
+        if hide:
             return {"label": None, "version": store.version(body.kind, body.key)}
         return {"label": lab.model_dump(mode="json") if lab else None, "version": store.version(body.kind, body.key)}
 

@@ -119,6 +119,11 @@ def test_blind_queues_are_each_annotators_own(app, campaign):
     r = put(bob, "probe_pixel", "s1/p1", {"x": 160.0, "y": 45.0}, 0)
     assert r.status_code == 200 and "123" not in r.text and "ann" not in r.text
     assert queue(bob, "probe_pixel")["s1/p1"]["status"] == "done"
+    v = LabelStore(campaign[0]).version("probe_pixel", "s1/p1")
+    r = ann.post("/api/undo", json={"kind": "probe_pixel", "key": "s1/p1", "expected_version": v}, headers=W)
+    assert r.status_code == 403 and "bob" not in r.text and "160" not in r.text  # bob's change is not hers to undo
+    r = ann.post("/api/undo", json={"kind": "probe_pixel", "key": "s1/p1", "expected_version": 0}, headers=W)
+    assert "160" not in r.text
     assert rev.get("/api/item", params={"kind": "probe_pixel", "key": "s1/p1"}).json()["review"]["open_disagreement"]
 
 
