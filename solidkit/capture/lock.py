@@ -1,7 +1,7 @@
 """One writer at a time per campaign: ``CAMPAIGN_DIR/.lock``.
 
-The steps that write a campaign (``ingest``, ``align``, ``label sun``) and ``testset build``, which
-reads it whole, run under :func:`campaign_lock`; a second one is refused with a message naming the
+The steps that write a campaign (``ingest``, ``align``, ``label sun``) and those that read it whole
+(``testset build``, ``verify``) run under :func:`campaign_lock`; a second one is refused with a message naming the
 running step, its process id and start time, or waits for it (``--wait``).
 """
 
@@ -22,9 +22,22 @@ __all__ = ["LOCK_NAME", "campaign_lock", "holder_text"]
 LOCK_NAME = ".lock"
 
 
+def _alive(pid: Any) -> bool:
+    if not isinstance(pid, int) or pid <= 0:
+        return False
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except OSError:  # alive, another user's
+        return True
+    return True
+
+
 def holder_text(holder: dict[str, Any]) -> str:
-    """``align (pid 4242, started 2026-12-02 03:20:05 UTC)`` from a lock file's holder record."""
-    if not holder.get("step"):
+    """``align (pid 4242, started 2026-12-02 03:20:05 UTC)`` from a lock file's holder record (a record
+    left by a killed process, read before the new holder wrote its own, names no one)."""
+    if not holder.get("step") or not _alive(holder.get("pid")):
         return "another step (ingest, align, label sun or testset build)"
     when = f", started {holder['started']}" if holder.get("started") else ""
     return f"{holder['step']} (pid {holder.get('pid', '?')}{when})"

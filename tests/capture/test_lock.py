@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import os
 import subprocess
 import sys
 import time
@@ -72,6 +73,7 @@ def test_build_and_a_second_align_refused_during_align(campaign, tmp_path, cli):
             ("testset", "build", campaign, "-o", tmp_path / "ts"),
             ("align", campaign),
             ("label", "sun", campaign),
+            ("verify", campaign),
         ):
             code, out, err = cli(*args)
             line = " ".join(err.split())
@@ -101,6 +103,16 @@ def test_wait_queues_behind_the_holder(campaign, tmp_path):
     assert report.scenes > 0 and proc.returncode == 0
     assert any(f"waiting for ingest (pid {proc.pid}" in h for h in heard), heard
     assert waited > 0.3  # it did wait for the holder (which held the lock for 1 s)
+
+
+def test_a_killed_holders_record_names_no_one():
+    """The record a killed process left is not taken for the holder (read before the new one wrote)."""
+    from solidkit.capture.lock import holder_text
+
+    dead = subprocess.Popen([sys.executable, "-c", "pass"])
+    dead.wait()
+    assert holder_text({"step": "align", "pid": dead.pid, "started": "x"}).startswith("another step")
+    assert holder_text({"step": "align", "pid": os.getpid(), "started": "x"}).startswith(f"align (pid {os.getpid()}")
 
 
 def test_the_lock_is_reentrant_and_left_as_found(tmp_path):
