@@ -405,22 +405,43 @@ def calibrate_response_files(
     times: Sequence[float] | None = None,
     method: Method = "debevec",
     samples: int = 400,
-    smoothness: float = 10.0,
+    smoothness: float | None = None,
     enforce_monotonic: bool = True,
 ) -> ResponseProfile:
     """Read a bracket, fit the inverse response and return the profile with sanity and residuals.
 
+    ``smoothness`` (Debevec's lambda) defaults to :func:`default_smoothness` of ``samples``: the same
+    fit as the one ``capture merge`` estimates from a bracket when no curve is given, so a calibrated
+    curve merges those frames as well as the merge's own estimate. Frames whose brightness contradicts
+    their exposure times (:func:`exposure_order_conflicts`) are a :class:`ResponseError` naming them.
+
     ``sanity`` describes the raw fit; with ``enforce_monotonic`` the saved curve is its nearest
-    strictly increasing version (:func:`make_monotonic`) and ``sanity["monotonic_fix_max_stops"]``
-    says how far that moved it.
+    strictly increasing version (:func:`make_monotonic`), ``sanity["monotonic_fix_max_stops"]``
+    says how far that moved it and ``sanity["radiance_rms_stops_raw_fit"]`` how well the raw fit explained
+    the frames (against ``residuals`` for the saved curve).
     """
     images, ts = read_brackets(paths, times)
+    conflicts = exposure_order_conflicts(images, list(ts))
+    if conflicts:
+        names = [Path(p).name for p in paths]
+        raise ResponseError(
+            "the exposure times contradict the frames: "
+            + "; ".join(
+                f"{names[b]} ({ts[b]:.6g} s) is darker than {names[a]} ({ts[a]:.6g} s) on {100 * f:.0f} % of the "
+                "pixels that differ"
+                for a, b, f in conflicts
+            )
+            + "; give the times in the order of the frames"
+        )
+    if smoothness is None:
+        smoothness = default_smoothness(samples)
     raw = calibrate_response(images, ts, method=method, samples=samples, smoothness=smoothness)
     sanity = response_sanity(raw, images)
     curve = raw
     if enforce_monotonic:
         curve = make_monotonic(raw)
         sanity["monotonic_fix_max_stops"] = float(np.abs(np.log2(curve / raw)).max())
+        sanity["radiance_rms_stops_raw_fit"] = radiance_consistency(raw, images, ts)["rms_stops_per_channel"]
     prov = make_provenance(
         list(paths),
         tool="solidkit.calibration.response.calibrate_response",

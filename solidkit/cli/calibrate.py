@@ -66,7 +66,9 @@ def response(
     ),
     method: str = typer.Option("debevec", "--method", help="debevec (default) or robertson."),
     samples: int = typer.Option(400, min=1, help="Debevec: pixel samples."),
-    smoothness: float = typer.Option(10.0, help="Debevec: smoothness weight lambda."),
+    smoothness: float | None = typer.Option(
+        None, help="Debevec: smoothness weight lambda (default 10 x samples / 70, as capture merge estimates)."
+    ),
     plot: bool = typer.Option(True, "--plot/--no-plot", help="Save the curve plot beside the profile."),
     as_json: bool = JSON,
 ) -> None:

@@ -147,3 +147,66 @@ def test_real_frobisher_brackets(real_data):
     assert rob.sanity["monotonic_fix_max_stops"] < 0.5
     # measured: 0.074 / 0.061 / 0.089 stops RMS radiance disagreement between exposures (R, G, B)
     assert max(prof.residuals["rms_stops_per_channel"]) < 0.15
+
+
+def test_debevec_solve_is_opencvs_system_solved_exactly():
+    """The same least-squares system as OpenCV's CalibrateDebevec (grid samples, hat weights, smoothness), solved in
+    float64: the curves agree to OpenCV's float32 solve error (measured: at most 0.0007 stops on codes 10..245)."""
+    from solidkit.calibration.response import debevec_curve
+
+    imgs = _bracket(CURVES["reinhard"][0], noise=1.0)
+    t = np.asarray(TIMES, np.float32)
+    for samples, lam in ((70, 10.0), (400, 400 * 10 / 70)):
+        ours = debevec_curve(imgs, t, samples=samples, smoothness=lam)
+        ref = cv2.createCalibrateDebevec(samples=samples, lambda_=lam).process(imgs, t)[:, 0, :].astype(np.float64)
+        d = np.abs(np.log2(ours / ours[128]) - np.log2(ref / ref[128]))[10:246]
+        assert d.max() < 0.005, (samples, d.max())
+
+
+def _write_bracket(tmp_path, forward, noise=1.0):
+    paths = []
+    for i, im in enumerate(_bracket(forward, seed=3, noise=noise)):
+        p = tmp_path / f"b{i}.png"
+        cv2.imwrite(str(p), im[..., ::-1])
+        paths.append(p)
+    return paths
+
+
+def test_a_calibrated_curve_merges_as_well_as_the_merges_own_estimate(tmp_path):
+    """`calibrate response` fits what `capture merge` estimates from the frames (same samples, same smoothness
+    balance): merging with the calibrated curve gives the merge's own result, and the curve is monotonic. With
+    the old default (lambda 10 at 400 samples) it bent back and differed from the merge's own curve."""
+    from solidkit.capture.bracket_merge import merge_bracket
+    from solidkit.capture.selfcal import estimate_response
+
+    forward, inverse = CURVES["reinhard"]
+    paths = _write_bracket(tmp_path, forward)
+    prof = calibrate_response_files(paths, list(TIMES))
+    assert prof.provenance.parameters["smoothness"] == pytest.approx(400 * 10 / 70)
+    assert response_sanity(prof.array(), None)["monotonic"]
+    own, _ = estimate_response([cv2.imread(str(p))[..., ::-1] for p in paths], list(TIMES))
+    np.testing.assert_allclose(prof.array(), own, rtol=1e-6)
+    calibrated, prov = merge_bracket(paths, list(TIMES), response=prof.array().astype(np.float64))
+    estimated, _ = merge_bracket(paths, list(TIMES))
+    np.testing.assert_allclose(calibrated.hdr, estimated.hdr, rtol=1e-5)
+    assert not prov["warnings"]
+
+
+def test_a_given_curve_that_does_not_fit_the_frames_is_warned_about(tmp_path):
+    """A curve given for the merge is checked on the frames: sRGB for a Reinhard camera explains them far worse
+    than a curve estimated from them, and the merge says so (it still uses the given curve)."""
+    from solidkit.capture.bracket_merge import merge_bracket
+    from solidkit.capture.frame_merge import srgb_response
+
+    paths = _write_bracket(tmp_path, CURVES["reinhard"][0])
+    _, prov = merge_bracket(paths, list(TIMES), response=srgb_response())
+    assert any(
+        w.startswith("response_check: the given response curve explains these frames worse") for w in prov["warnings"]
+    )
+    assert prov["response"]["kind"] == "array"
+
+
+def test_times_that_contradict_the_frames_are_refused_naming_them(tmp_path):
+    paths = _write_bracket(tmp_path, CURVES["gamma2.2"][0])
+    with pytest.raises(ResponseError, match=r"b2\.png \(0\.25 s\) is darker than b3\.png \(0\.0625 s\)"):
+        calibrate_response_files(paths, list(TIMES[::-1]))
