@@ -189,7 +189,8 @@ def create_app(
     store = LabelStore(index.root)
     images = ImageService(cache_dir=Path(image_cache) if image_cache else index.root / "labels" / "image-cache")
     sessions: dict[str, str] = {}  # session id -> user name (in memory: a restart logs everyone out)
-    failures: dict[str, list[float]] = {}
+    failures: dict[str, list[float]] = {}  # client address -> times of wrong tokens
+    failures_lock = threading.Lock()
     index_html = (STATIC / "index.html").read_text(encoding="utf-8")
     csp = _csp(index_html)
 
@@ -249,7 +250,7 @@ def create_app(
 
     def _session_user(request: Request) -> User | None:
         sid = request.cookies.get(SESSION_COOKIE)
-        name = next((n for s, n in sessions.items() if sid and hmac.compare_digest(sid, s)), None)
+        name = sessions.get(sid) if sid else None  # a 256-bit random id: a plain lookup leaks nothing useful
         if name is None and _token_ok(request) and request.headers.get("x-solidkit-user"):
             name = request.headers["x-solidkit-user"]  # scripts: Bearer token (if any) + a user name
         role = _role(name) if name else None
@@ -291,8 +292,9 @@ def create_app(
 
     def _limited(client: str) -> float:
         now = time.monotonic()
-        recent = [t for t in failures.get(client, []) if now - t < LOGIN_LIMIT[1]]
-        failures[client] = recent
+        with failures_lock:
+            recent = [t for t in failures.get(client, []) if now - t < LOGIN_LIMIT[1]]
+            failures[client] = recent
         return LOGIN_LIMIT[1] - (now - recent[0]) if len(recent) >= LOGIN_LIMIT[0] else 0.0
 
     @app.post("/api/session")
@@ -304,7 +306,8 @@ def create_app(
                 429, f"too many wrong tokens: wait {math.ceil(wait)} s", {"Retry-After": str(math.ceil(wait))}
             )
         if token is not None and not hmac.compare_digest(body.token.encode(), token.encode()):
-            failures.setdefault(client, []).append(time.monotonic())
+            with failures_lock:
+                failures.setdefault(client, []).append(time.monotonic())
             raise HTTPException(401, "wrong token")
         name = body.name.strip()
         role = _role(name)
