@@ -6,17 +6,26 @@ Security model
   resolved (symlinks followed) and checked to lie inside the campaign. The page's own files come
   from the package's ``static/`` folder (Starlette's ``StaticFiles``: no traversal, no symlinks
   out). Anything else is 404.
-- **Writes** go to the label store only, through :class:`PutBody` / :class:`UndoBody`
-  (pydantic, extra fields refused, values checked per kind), bodies over
+- **Writes** go to the label store only (and the image cache under ``labels/``), through
+  :class:`PutBody`, :class:`UndoBody`, :class:`VerdictBody`, :class:`NoteBody` (pydantic, strict,
+  extra fields refused, values checked per kind), bodies over
   :data:`MAX_BODY_BYTES` refused with 413.
 - **Cross-site requests.** Every state-changing request must carry the header
   ``X-Solidkit: 1`` (a cross-site form or image cannot; a cross-site script would need a CORS
   preflight, which this server never grants), must not come from another origin (``Origin``,
   ``Sec-Fetch-Site``), and the ``Host`` header must name this server (DNS rebinding).
-- **Token mode** (any bind address other than loopback): the token is typed into the page once
-  and exchanged (``POST /api/session``, in the body, never in a URL) for an ``HttpOnly``,
-  ``SameSite=Strict`` session cookie; scripts may send ``Authorization: Bearer TOKEN``. Every
-  ``/api`` route except the session exchange answers 401 without it.
+- **Identity.** Everyone logs in with a name (``POST /api/session``): a registered user of the
+  label store once it has users, any valid name (an annotator) before. The session (an
+  ``HttpOnly``, ``SameSite=Strict`` cookie, kept in memory: a restart logs everyone out) says who
+  saves; a body never names its author. Only reviewers write ``reviewed`` labels and verdicts and
+  read the review queue, the agreement and the export. An annotator sees only their assigned
+  items; blind, the server leaves every other person's value out of what it sends them.
+- **Token mode** (any bind address other than loopback): the token goes with the name in the
+  login body, never in a URL; five wrong tokens per address and minute, then 429 for the rest of
+  it. Scripts may send ``Authorization: Bearer TOKEN`` with ``X-Solidkit-User: NAME``. Every
+  ``/api`` route except the session exchange answers 401 without a session.
+- **Values** are checked strictly (:class:`SunEdit`, :class:`PixelEdit`, :class:`HeadingEdit`):
+  JSON numbers only (no ``"5"``, no ``true``), finite, in range, a probe pixel inside its photo.
 """
 
 from __future__ import annotations
