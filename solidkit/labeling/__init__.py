@@ -2,11 +2,12 @@
 
 Quick use::
 
-    from solidkit.labeling import CampaignIndex, LabelStore, review_all
+    from solidkit.labeling import CampaignIndex, LabelStore, agreement, review_all
     store = LabelStore("campaign/")               # campaign/labels/labels.sqlite
     [(label.key, label.value, label.source) for label in store.list("sun")]
     reviews = review_all(CampaignIndex("campaign/"), store)
     [r.key for r in reviews if r.open_disagreement]  # what needs a second look
+    agreement(CampaignIndex("campaign/"), store)["heading"]["annotators"]  # median / p95 apart, per annotator
 
 The names below are imported lazily (on first access): the app pulls in FastAPI.
 """
@@ -26,6 +27,9 @@ _EXPORTS = {
     "Review": "review",
     "review_item": "review",
     "review_all": "review",
+    "agreement": "review",
+    "Verdict": "store",
+    "Note": "store",
     "create_app": "app",
 }
 
