@@ -29,8 +29,7 @@ from pathlib import Path
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE.parent))
 
-import align_faults  # noqa: E402
-
+import tests.support.align_faults as align_faults  # noqa: E402
 from solidkit.align.evaluate import evaluate, summary  # noqa: E402
 from solidkit.align.pipeline import align_campaign  # noqa: E402
 from solidkit.align.schema import load_alignment  # noqa: E402
@@ -179,6 +178,23 @@ def main() -> None:
             f"| {r['scene']}/{r['probe']} | {_fmt(r.get('yaw_error_deg'))} | {cues or '-'} | "
             f"{_fmt(r.get('psnr_db'), 1)} | {_fmt(r.get('truth_noise_floor_db'), 1)} | "
             f"{_fmt(r.get('pixel_geometry_error_deg'), 1)} | {flags} |\n"
+        )
+    lines.append("\n| scene | sun (truth) | sun found | sun error (deg) | flags |\n|---|---|---|---|---|\n")
+    for sc in res["scenes"]:
+        flags = "; ".join(f.replace("|", "/") for f in sc["flags"]) or "-"
+        lines.append(
+            f"| {sc['scene']} | {sc['sun_truth']} | {sc['sun_found']} | {_fmt(sc.get('sun_error_deg'))} | {flags} |\n"
+        )
+    lines.append(
+        "\n| scene/capture | sun visible (truth) | glint seen (truth) | sun error (deg) | glint chosen "
+        "| yaw error (deg) | flags at the capture |\n|---|---|---|---|---|---|---|\n"
+    )
+    for r in res["captures"]:
+        glint = "glint_candidate" in r
+        lines.append(
+            f"| {r['scene']}/{r['probe']} | {r['sun_visible']} | {glint} | {_fmt(r.get('sun_error_deg'))} | "
+            f"{r.get('glint_accepted', '-')} | {_fmt(r.get('yaw_error_deg'))} | "
+            f"{', '.join(sorted({f.split(':')[0] for f in r['flags']})) or '-'} |\n"
         )
     if args.faults:
         lines.append("\n| fault | injected | flagged | detail |\n|---|---|---|---|\n")

@@ -259,5 +259,11 @@ def summary(result: dict[str, Any]) -> dict[str, Any]:
             [r["psnr_true_rotation_db"] for r in rows if "psnr_true_rotation_db" in r], 50
         ),
         "psnr_compass_median_db": _q([r["psnr_compass_db"] for r in rows if "psnr_compass_db" in r], 50),
+        # review: what a reviewer is told (flags at the probe) against what is wrong
+        "scene_sun_found": sum(1 for s in result["scenes"] if s.get("sun_found")),
+        "scene_sun_truth": sum(1 for s in result["scenes"] if s.get("sun_truth")),
+        "probes_flagged": sum(1 for r in rows if r["role"] == "probe" and r["flags"]),
+        "yaw_over_2deg": sum(1 for r in rows if (r.get("yaw_error_deg") or 0.0) > 2.0),
+        "yaw_over_2deg_unflagged": sum(1 for r in rows if (r.get("yaw_error_deg") or 0.0) > 2.0 and not r["flags"]),
     }
     return out
