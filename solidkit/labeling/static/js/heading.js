@@ -102,7 +102,7 @@ export class HeadingTask {
       el('p', { class: 'hint' }, 'Turn the photo’s frame (cyan, with the photo drawn inside it) until the photo lines up with the panorama: drag inside the frame, Shift+drag anywhere, or ←/→. O toggles the photo. Line up distant things (building tops, skyline): near objects shift with the position.'),
       el('div', { class: 'row' }, el('span', { class: 'swatch auto' }), 'Auto: ',
         this.hidden() ? el('i', {}, 'hidden') : el('b', { id: 'auto-value' }, it.proposal ? formatValue('heading', it.proposal) : 'none'),
-        v.residual_deg != null && !this.hidden() ? el('span', { class: 'muted' }, ` (cue residual ${f2(v.residual_deg)}°)`) : null),
+        v.residual_deg != null && !this.hidden() ? el('span', { class: 'muted' }, ` (the automatic clues agree within ${f2(v.residual_deg)}°)`) : null),
       savedLine(app, it),
       el('div', { class: 'row' }, el('span', { class: 'swatch draft' }), 'Yours: ', el('b', { id: 'draft-value' }, formatValue('heading', { yaw_deg: this.yaw }))),
       el('label', { class: 'slider' }, el('span', {}, 'Yaw (°)'),
