@@ -45,8 +45,20 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from scipy.optimize import least_squares
 
 from solidkit.calibration.circles import Circle, find_image_circles
+from solidkit.calibration.disparity import (
+    DISPARITY_WARN_DEG,
+    MIN_MATCHES,
+    SeamDisparity,
+    SeamMatches,
+    match_disparity,
+    seam_disparity,
+    seam_matches,
+    summarize,
+)
+from solidkit.calibration.fitcheck import SEAM_ERROR_WARN
 from solidkit.calibration.overlap import refine_overlap
 from solidkit.calibration.seam import WORK_RADIUS_PX, SeamImage, prepare_seam_image, seam_error
 from solidkit.calibration.upright import UprightEstimate, estimate_upright
@@ -77,13 +89,18 @@ __all__ = [
     "upright_of",
     "fit_dual_fisheye",
     "fit_file",
+    "back_tilt_deg",
+    "disparity_warnings",
+    "MAX_BACK_TILT_DEG",
 ]
 
 FAMILIES = ("equidistant", "equisolid", "theta")
 MIN_HALF_FOV_DEG = 94.0
 MAX_HALF_FOV_DEG = 115.0
 MAX_CENTER_FRAC = 0.03
-MAX_BACK_OFFSET_DEG = 10.0
+#: The back lens' axis is within this angle (degrees) of exactly opposite the front's: a rigid twin-lens body
+#: (one Theta SC measured in Hugin: 1.2° yaw, 1.1° pitch off); ``--max-back-tilt-deg`` widens it.
+MAX_BACK_TILT_DEG = 3.0
 
 
 def _finite(v: dict) -> float:
@@ -127,6 +144,13 @@ def _unit_poly(family: str, half_fov_deg: float) -> tuple[float, ...]:
         return (1.0,)
     grid = np.linspace(0.0, math.radians(half_fov_deg), 200)
     return tuple(fit_odd_poly(grid, _shape(family, grid), 11))
+
+
+@lru_cache(maxsize=8)
+def _shape_inverse(family: str) -> tuple[np.ndarray, np.ndarray]:
+    """``(theta, g(theta))`` on a dense grid to 125°: ``np.interp(g, table[1], table[0])`` inverts ``g``."""
+    grid = np.linspace(0.0, math.radians(125.0), 8193)
+    return grid, np.asarray(_shape(family, grid), np.float64)
 
 
 def family_lens(name: str, family: str, circle: Circle, half_fov_deg: float, R: np.ndarray) -> LensModel:
@@ -209,6 +233,7 @@ class LensFit:
     seam_final: dict[str, float]
     refined: bool
     refusal: str | None
+    disparity: SeamDisparity | None = None
     scans: dict[str, Any] = field(default_factory=dict)
     refinement: dict[str, Any] = field(default_factory=dict)
 
@@ -245,13 +270,18 @@ def _scan_fov(
 
 
 def _refine(
-    images: list[np.ndarray], start: LensProfile, saturation: float | None, seam: SeamImage, log: Callable[[str], None]
+    images: list[np.ndarray],
+    start: LensProfile,
+    saturation: float | None,
+    seam: SeamImage,
+    log: Callable[[str], None],
+    max_rotation_deg: float = MAX_BACK_TILT_DEG,
 ) -> tuple[LensProfile, dict]:
     """Bounded multi-start refinement (module docstring, step 5)."""
     r = float(np.mean([l.max_radius() for l in start.lenses]))
     levels = tuple(f for f in (8, 4, 2, 1) if r / f >= 48 and r / f <= 700) or (1,)
     bounds: dict[str, Any] = dict(
-        max_center_px=MAX_CENTER_FRAC * r, max_log_scale=0.03, max_rotation_deg=MAX_BACK_OFFSET_DEG
+        max_center_px=MAX_CENTER_FRAC * r, max_log_scale=0.03, max_rotation_deg=max(max_rotation_deg, 0.1)
     )
     starts = [np.zeros(9)]
     for axis in (0, 1):
@@ -291,6 +321,128 @@ def _refine(
     return res.profile, info
 
 
+def back_tilt_deg(profile: LensProfile) -> float:
+    """Angle (degrees) between the back lens' axis and the direction exactly opposite the front lens' axis."""
+    a = profile.lenses[0].rotation[:, 2]
+    b = profile.lenses[1].rotation[:, 2]
+    return math.degrees(math.atan2(float(np.linalg.norm(np.cross(-a, b))), float(-a @ b)))
+
+
+#: The match fit's noise model: a match's disparity (degrees) and an image circle's centre as the lens' optical
+#: centre (a fraction of the radius: 0.6 px at 150 px, where rendered circles are found to 0.5 px; real rims are
+#: less exact).
+MATCH_SIGMA_DEG = 0.1
+CENTRE_SIGMA_FRAC = 0.002
+
+
+@dataclass
+class _Geometry:
+    """A profile's free geometry for the match fit: both half fields, the back lens' aim off opposite (yaw, pitch)
+    and its extra turn about its axis (degrees)."""
+
+    family: str
+    half_fov_deg: tuple[float, float]
+    offset_deg: tuple[float, float]
+    turn_deg: float
+    shift_px: tuple[float, float, float, float] = (0.0, 0.0, 0.0, 0.0)  # the lens centres off the circles' (x, y)
+    median_deg: float = math.nan
+    matches: int = 0
+
+    def profile(self, circles: list[Circle], size: tuple[int, int], back_turn: float, roll: float = 0.0):
+        sx = self.shift_px
+        moved = [Circle(c.cx + sx[2 * i], c.cy + sx[2 * i + 1], c.r, c.inliers) for i, c in enumerate(circles[:2])]
+        return start_profile(
+            moved,
+            size,
+            self.family,
+            self.half_fov_deg,
+            back_turn + self.turn_deg,
+            roll,
+            back_offset_deg=self.offset_deg,
+        )
+
+
+def _fit_matches(
+    matches: SeamMatches,
+    circles: list[Circle],
+    size: tuple[int, int],
+    start: _Geometry,
+    back_turn: float,
+    max_tilt_deg: float,
+) -> _Geometry:
+    """Half fields, back-lens aim and lens centres minimising the matches' disparity (robust: soft L1 at 0.5°, then
+    the matches beyond 4x the median, at least 1°, left out and fitted again), the aim within ``max_tilt_deg`` of
+    opposite, the centres within :data:`MAX_CENTER_FRAC` of the radius of the image circles' centres."""
+    hi = _max_half_fov(start.family)
+    b = max(max_tilt_deg, 1e-3)
+    c = MAX_CENTER_FRAC * float(np.mean([ci.r for ci in circles[:2]]))
+    centre_sigma = CENTRE_SIGMA_FRAC * float(np.mean([ci.r for ci in circles[:2]]))
+    lower = [MIN_HALF_FOV_DEG, MIN_HALF_FOV_DEG, -b, -b, -b, -c, -c, -c, -c]
+    upper = [hi, hi, b, b, b, c, c, c, c]
+    x0 = np.clip([*start.half_fov_deg, *start.offset_deg, start.turn_deg, *start.shift_px], lower, upper)
+
+    def geometry(x: np.ndarray) -> _Geometry:
+        return _Geometry(
+            start.family,
+            (float(x[0]), float(x[1])),
+            (float(x[2]), float(x[3])),
+            float(x[4]),
+            (float(x[5]), float(x[6]), float(x[7]), float(x[8])),
+        )
+
+    keep = np.ones(len(matches.p0), bool)
+    W, H = matches.size
+    sx, sy = size[0] / W, size[1] / H  # the matches' pixels -> the circles' (the frame's) pixels
+    pts = [np.asarray(m, np.float64) * [sx, sy] for m in (matches.p0, matches.p1)]
+    inv = _shape_inverse(start.family)
+
+    def disparity(x: np.ndarray, sel: np.ndarray) -> np.ndarray:
+        """:func:`match_disparity` of ``geometry(x)`` (what :func:`start_profile` builds, without building it)."""
+        Rs = _rotations(float(back_turn + x[4]), 0.0, (float(x[2]), float(x[3])))
+        dirs = []
+        for i in range(2):
+            c = circles[i]
+            d = pts[i][sel] - [c.cx + x[5 + 2 * i], c.cy + x[6 + 2 * i]]
+            r = np.hypot(d[:, 0], d[:, 1])
+            g_edge = float(_shape(start.family, np.array(math.radians(x[i]))))
+            th = np.interp(r * (g_edge / c.r), inv[1], inv[0])
+            u = d / np.maximum(r, 1e-12)[:, None]
+            st = np.sin(th)
+            dirs.append(np.stack([st * u[:, 0], st * u[:, 1], np.cos(th)], axis=-1) @ Rs[i].T)
+        e = dirs[0] - dirs[1]
+        return np.degrees(2.0 * np.arcsin(np.minimum(0.5 * np.sqrt(np.einsum("ij,ij->i", e, e)), 1.0)))
+
+    def resid(x: np.ndarray) -> np.ndarray:
+        disp = disparity(x, keep)
+        over = max(0.0, math.hypot(x[2], x[3]) - max_tilt_deg)  # the aim's bound is a cone, the box a square
+        # the circles' centres are measured too: a shift by their uncertainty costs as much as one match 0.1° off
+        return np.concatenate([disp, [100.0 * over], np.asarray(x[5:9]) * (MATCH_SIGMA_DEG / centre_sigma)])
+
+    x = x0
+    for _ in range(2):
+        sol = least_squares(
+            resid,
+            x,
+            bounds=(lower, upper),
+            loss="soft_l1",
+            f_scale=0.5,
+            diff_step=1e-4,
+            max_nfev=30,
+            ftol=1e-5,
+            xtol=1e-6,
+        )
+        x = sol.x
+        disp = disparity(x, np.ones(len(keep), bool))
+        new = disp <= max(1.0, 4.0 * float(np.median(disp)))
+        if new.sum() < MIN_MATCHES or np.array_equal(new, keep):
+            break
+        keep = new
+    g = geometry(x)
+    disp = match_disparity(g.profile(circles, size, back_turn), matches)[0]
+    g.median_deg, g.matches = float(np.median(disp)), len(disp)
+    return g
+
+
 def _with_edge(profile: LensProfile, circles: list[Circle]) -> LensProfile:
     """Usable field = where r(theta) reaches 1 % inside each fitted circle, after refinement scaled r."""
     lenses = []
@@ -306,11 +458,13 @@ def fit_dual_fisheye(
     *,
     families: tuple[str, ...] = FAMILIES,
     refine: bool = True,
+    max_back_tilt_deg: float = MAX_BACK_TILT_DEG,
     log: Callable[[str], None] = lambda s: None,
 ) -> LensFit:
     """A starting lens profile (and its refinement) from one linear dual-fisheye frame ``(H, W, 3)``.
 
-    ``saturation``: linear clipping level of the frame (``None``: HDR). Steps: module docstring.
+    ``saturation``: linear clipping level of the frame (``None``: HDR); ``max_back_tilt_deg``: how far the
+    back lens' axis may be from exactly opposite the front's (degrees). Steps: module docstring.
     Raises :class:`~solidkit.calibration.circles.CircleError` (an InputError) when the frame shows
     no two image circles.
     """
@@ -351,11 +505,15 @@ def fit_dual_fisheye(
 
     # the back lens' aim: yaw/pitch offsets from exactly opposite (real units and video layouts are off by
     # degrees); the aim and the field of view trade off, so they alternate (equidistant), twice
+    if not (math.isfinite(max_back_tilt_deg) and 0.0 <= max_back_tilt_deg <= 30.0):
+        raise InputError(f"--max-back-tilt-deg must be within 0..30 degrees, got {max_back_tilt_deg}")
+    step = 1.0 if max_back_tilt_deg <= 5.0 else 2.0
+    reach = math.floor(max_back_tilt_deg / step) * step
     grid = [(0.0, 0.0)] + [
         (float(y), float(p))
-        for y in np.arange(-MAX_BACK_OFFSET_DEG, MAX_BACK_OFFSET_DEG + 1e-9, 2.0)
-        for p in np.arange(-MAX_BACK_OFFSET_DEG, MAX_BACK_OFFSET_DEG + 1e-9, 2.0)
-        if (y, p) != (0.0, 0.0)
+        for y in np.arange(-reach, reach + 1e-9, step)
+        for p in np.arange(-reach, reach + 1e-9, step)
+        if (y, p) != (0.0, 0.0) and math.hypot(y, p) <= max_back_tilt_deg + 1e-9
     ]
     offset, aims, scanned = (0.0, 0.0), {}, {}
     for _ in range(2):
@@ -399,40 +557,86 @@ def fit_dual_fisheye(
             f"{2 * MAX_HALF_FOV_DEG:.0f}°: not a dual-fisheye frame of one camera?"
         )
 
-    up = upright_of(seam, start_profile(circles, size, family, half_fov, back_turn, back_offset_deg=offset))
+    # the geometry from scene points both lenses show (module docstring, step 3b): matched once under the best
+    # start, every family's fields and back-lens aim fitted to them, the best family matched again and refitted
+    geo = {fam: _Geometry(fam, (v["half_fov_deg"],) * 2, offset, 0.0) for fam, v in fam_scores.items()}
+    matches = seam_matches(img, geo[family].profile(circles, size, back_turn), circles)
+    by_matches = len(matches.p0) >= MIN_MATCHES
+    if by_matches:
+        for fam in families:
+            geo[fam] = _fit_matches(matches, circles, size, geo[fam], back_turn, max_back_tilt_deg)
+            fam_scores[fam]["disparity_median_deg"] = geo[fam].median_deg
+            log(
+                f"family {fam} fitted to {len(matches.p0)} matched scene points: field of view "
+                f"{sum(geo[fam].half_fov_deg):.2f}°, back lens aim ({geo[fam].offset_deg[0]:+.2f}°, "
+                f"{geo[fam].offset_deg[1]:+.2f}°), median disparity {geo[fam].median_deg:.3f}°"
+            )
+        family = min(families, key=lambda f: geo[f].median_deg)
+        for _ in range(3):  # matched again under the better profile: more of the overlap's points match
+            again = seam_matches(img, geo[family].profile(circles, size, back_turn), circles)
+            if len(again.p0) < MIN_MATCHES:
+                break
+            refit = _fit_matches(again, circles, size, geo[family], back_turn, max_back_tilt_deg)
+            done = refit.median_deg >= 0.95 * summarize(geo[family].profile(circles, size, back_turn), again).median_deg
+            matches, geo[family] = again, refit
+            fam_scores[family]["disparity_median_deg"] = refit.median_deg
+            if done:
+                break
+        half_fov = float(np.mean(geo[family].half_fov_deg))
+        log(f"kept {family} by the matches: median disparity {geo[family].median_deg:.3f}° over {len(matches.p0)}")
+    else:
+        log(f"only {len(matches.p0)} scene points matched across the overlap: the seam error decides alone")
+
+    up = upright_of(seam, geo[family].profile(circles, size, back_turn))
     log(f"upright: roll {up.roll_deg:+.0f}° ({up.cue}{'' if up.confident else ', not confident'})")
-    # refine every family whose start is within 15 % of the best: the overlap ring is narrow, so the
-    # families' shapes differ little there and the refined seam decides
+    # without matches, refine every family whose start is within 15 % of the best: the overlap ring is narrow, so
+    # the families' shapes differ little there and the refined seam decides
     best_start = fam_scores[family]["seam_error"]
     tried = [family] + [
-        f for f in fam_scores if f != family and refine and fam_scores[f]["seam_error"] <= 1.15 * best_start
+        f
+        for f in fam_scores
+        if f != family and refine and not by_matches and fam_scores[f]["seam_error"] <= 1.15 * best_start
     ]
     outcomes = []
     for fam in tried:
-        hf = fam_scores[fam]["half_fov_deg"]
-        start = start_profile(circles, size, fam, hf, back_turn, up.roll_deg, back_offset_deg=offset)
+        g = geo[fam]
+        hf = float(np.mean(g.half_fov_deg))
+        start = g.profile(circles, size, back_turn, up.roll_deg)
         e0 = seam_error(seam, start)
+        d0 = summarize(start, matches).median_deg if by_matches else math.nan
         log(f"start profile: {fam}, field of view {2 * hf:.1f}°, seam error {e0['seam_error']:.3f}")
         info: dict[str, Any]
         final, refused, info, e1 = start, None, {}, e0
         if refine:
             log("refining on the overlap (bounded, 5 starts, coarse to fine)")
-            refined, info = _refine([img], start, saturation, seam, log)
+            refined, info = _refine(
+                [img], start, saturation, seam, log, max(0.0, max_back_tilt_deg - back_tilt_deg(start))
+            )
             refined = _with_edge(refined, circles)
             e1 = seam_error(seam, refined)
-            if math.isfinite(e1["seam_error"]) and e1["seam_error"] < e0["seam_error"]:
-                final = refined
-            else:
-                refused = (
-                    f"refinement refused: seam error {e1['seam_error']:.3f} after vs {e0['seam_error']:.3f} at "
-                    "the start; the start profile is kept"
-                )
+            d1 = summarize(refined, matches).median_deg if by_matches else math.nan
+            why = []
+            if not (math.isfinite(e1["seam_error"]) and e1["seam_error"] < e0["seam_error"]):
+                why.append(f"seam error {e1['seam_error']:.3f} after vs {e0['seam_error']:.3f} at the start")
+            if by_matches and not d1 <= d0 + 0.02:
+                why.append(f"median disparity {d1:.3f}° after vs {d0:.3f}° at the start")
+            if back_tilt_deg(refined) > max_back_tilt_deg + 1e-6:
+                why.append(f"back lens {back_tilt_deg(refined):.2f}° off opposite > {max_back_tilt_deg:g}°")
+            if why:
+                refused = "refinement refused: " + "; ".join(why) + "; the start profile is kept"
                 log(refused)
+            else:
+                final = refined
         kept = e1 if refused is None else e0
         outcomes.append((_finite({**kept, "coverage": 1.0}), fam, hf, start, e0, final, refused, info, e1))
     _, family, half_fov, start, e0, final, refused, info, e1 = min(outcomes, key=lambda o: o[0])
     if len(outcomes) > 1:
         log(f"kept {family}: seam error " + ", ".join(f"{o[1]} {o[0]:.3f}" for o in outcomes))
+    disparity = seam_disparity(img, final, circles)  # matched afresh under the profile kept
+    log(
+        f"seam disparity: median {disparity.median_deg:.3f}°, p95 {disparity.p95_deg:.3f}°, "
+        f"{100 * disparity.doubled_fraction:.0f} % of {disparity.matches} matches more than 1° apart"
+    )
     return LensFit(
         profile=final,
         start=start,
@@ -446,14 +650,44 @@ def fit_dual_fisheye(
         seam_final=e1 if refused is None else e0,
         refined=refine and refused is None,
         refusal=refused,
+        disparity=disparity,
         scans={
             "back_turn_seam_error": {str(k): v for k, v in turns.items()},
             "back_offset_deg": list(offset),
+            "fitted_to_matches": by_matches,
+            "matches": len(matches.p0),
             "families": fam_scores,
             "refined_seam": e1,
         },
         refinement={**info, "families_refined": {o[1]: o[0] for o in outcomes}},
     )
+
+
+def disparity_warnings(disparity: SeamDisparity | None, seam_error_value: float) -> list[str]:
+    """What ``calibrate fisheye`` says of a profile's fit: ``seam_disparity`` when the lenses put the same scene
+    points more than :data:`~solidkit.calibration.disparity.DISPARITY_WARN_DEG` apart (median) or half the matches
+    more than 1° apart, or when that cannot be measured; ``seam_mismatch`` above the seam error ``capture unwarp``
+    warns at."""
+    out = []
+    if disparity is None or not disparity.measured:
+        n = 0 if disparity is None else disparity.matches
+        out.append(
+            f"seam_disparity: unmeasured ({n} scene points matched across the overlap: too little texture there); "
+            "check the panorama's seams by eye"
+        )
+    elif disparity.median_deg > DISPARITY_WARN_DEG or disparity.doubled_fraction > 0.5:
+        out.append(
+            f"seam_disparity: the two lenses put the same scene points {disparity.median_deg:.2f}° apart (median; "
+            f"95 % within {disparity.p95_deg:.1f}°, {100 * disparity.doubled_fraction:.0f} % more than 1°): the "
+            f"panorama will show content twice at the seams (warns above {DISPARITY_WARN_DEG:g}°); the profile does "
+            "not fit this frame"
+        )
+    if math.isfinite(seam_error_value) and seam_error_value > SEAM_ERROR_WARN:
+        out.append(
+            f"seam_mismatch: seam error {seam_error_value:.2f} > {SEAM_ERROR_WARN}: 'capture unwarp' will warn (its "
+            "photometric check; parallax and moving things raise it too: the seam disparity is the measure here)"
+        )
+    return out
 
 
 def fit_file(
@@ -463,14 +697,23 @@ def fit_file(
     families: tuple[str, ...] = FAMILIES,
     refine: bool = True,
     name: str | None = None,
+    max_back_tilt_deg: float = MAX_BACK_TILT_DEG,
     log: Callable[[str], None] = lambda s: None,
 ) -> tuple[LensFit, dict]:
-    """``solidkit calibrate fisheye``: fit a frame, write the lens profile to ``out``, return (fit, summary)."""
+    """``solidkit calibrate fisheye``: fit a frame, write the lens profile to ``out``, return (fit, summary).
+
+    The summary's ``seam_disparity`` (:func:`~solidkit.calibration.disparity.seam_disparity`, degrees) judges the
+    profile: a median above :data:`~solidkit.calibration.disparity.DISPARITY_WARN_DEG` or more than half the matches
+    over 1° apart is a ``seam_disparity`` warning (``ok`` false), as is an unmeasured one; a seam error above
+    :data:`~solidkit.calibration.fitcheck.SEAM_ERROR_WARN` (what ``capture unwarp`` warns at) a ``seam_mismatch`` one.
+    """
     path, out = Path(path), Path(out)
     img, sat = read_linear(path)
     if img.ndim == 2:
         img = np.repeat(img[..., None], 3, axis=2)
-    fit = fit_dual_fisheye(img[..., :3], sat, families=families, refine=refine, log=log)
+    fit = fit_dual_fisheye(
+        img[..., :3], sat, families=families, refine=refine, max_back_tilt_deg=max_back_tilt_deg, log=log
+    )
     W, H = fit.profile.reference_size
     summary = {
         "output": str(out),
@@ -491,6 +734,9 @@ def fit_file(
         "centers": [[round(l.center[0], 2), round(l.center[1], 2)] for l in fit.profile.lenses],
         "max_angle_deg": [round(l.max_angle_deg, 3) for l in fit.profile.lenses],
         "back_ypr_deg": [round(a, 3) for a in fit.profile.lenses[1].ypr_deg],
+        "back_tilt_deg": round(back_tilt_deg(fit.profile), 3),
+        "max_back_tilt_deg": max_back_tilt_deg,
+        "seam_disparity": fit.disparity.to_json() if fit.disparity is not None else None,
         "seam_error_start": fit.seam_start["seam_error"],
         "seam_error_refined": fit.scans["refined_seam"]["seam_error"],
         "seam_error": fit.seam_final["seam_error"],
@@ -501,20 +747,31 @@ def fit_file(
     }
     # the shipped profiles of this frame's aspect, judged on the same frame: a user may hold a camera solidkit knows
     seam = prepare_seam_image(img[..., :3], float(np.mean([c.r for c in fit.circles])), sat)
-    shipped = {}
+    shipped, shipped_disp = {}, {}
     for pname in list_profiles():
         sp = load_profile(pname)
         if len(sp.lenses) == 2 and abs(sp.reference_size[0] / sp.reference_size[1] - W / H) < 0.01:
             shipped[pname] = seam_error(seam, sp.scaled(W, H))["seam_error"]
+            shipped_disp[pname] = seam_disparity(img[..., :3], sp.scaled(W, H), fit.circles)
     summary["shipped_profiles_seam_error"] = shipped
-    better = {k: v for k, v in shipped.items() if math.isfinite(v) and v < 0.9 * fit.seam_final["seam_error"]}
+    summary["shipped_profiles_disparity_deg"] = {k: v.to_json()["median_deg"] for k, v in shipped_disp.items()}
+    ours = fit.disparity
+    if ours is not None and ours.measured:
+        better_d = {k: v.median_deg for k, v in shipped_disp.items() if v.measured and v.median_deg < ours.median_deg}
+        better = {k: shipped[k] for k, v in better_d.items() if v < 0.8 * ours.median_deg and ours.median_deg > 0.1}
+    else:
+        better = {k: v for k, v in shipped.items() if math.isfinite(v) and v < 0.9 * fit.seam_final["seam_error"]}
     if better:
-        best = min(better, key=better.__getitem__)
+        by_disp = ours is not None and ours.measured
+        best = min(better, key=lambda k: shipped_disp[k].median_deg if by_disp else better[k])
         summary["warnings"].append(
-            f"shipped_profile_fits_better: the shipped profile {best!r} has a seam error of "
-            f"{better[best]:.3f} on this frame (this fit: {fit.seam_final['seam_error']:.3f}); "
+            f"shipped_profile_fits_better: the shipped profile {best!r} fits this frame better (median seam disparity "
+            f"{shipped_disp[best].median_deg:.2f}°, seam error {shipped[best]:.3f}; this fit: "
+            f"{ours.median_deg if ours is not None else math.nan:.2f}°, {fit.seam_final['seam_error']:.3f}); "
             f"use --profile {best} or refine it with 'solidkit calibrate overlap --base {best}'"
         )
+    summary["warnings"] += disparity_warnings(ours, fit.seam_final["seam_error"])
+    summary["ok"] = not any(w.startswith("seam_disparity") for w in summary["warnings"])
     if not fit.upright.confident:
         summary["warnings"].append(
             f"upright_uncertain: which way is up was decided by {fit.upright.cue} without a clear "
@@ -531,6 +788,8 @@ def fit_file(
                 + ("refined on the overlap" if fit.refined else "not refined" + (" (refused)" if fit.refusal else ""))
             ),
             "residuals": {
+                "seam_disparity": fit.disparity.to_json() if fit.disparity is not None else None,
+                "back_tilt_deg": back_tilt_deg(fit.profile),
                 "seam_error_start": fit.seam_start["seam_error"],
                 "seam_error": fit.seam_final["seam_error"],
                 "seam_error_refined": fit.scans["refined_seam"]["seam_error"],
@@ -542,7 +801,11 @@ def fit_file(
                 "family_seam_error": {k: v["seam_error"] for k, v in fit.scans["families"].items()},
             },
             "provenance": make_provenance(
-                [path], tool="solidkit calibrate fisheye", families=list(families), refine=refine
+                [path],
+                tool="solidkit calibrate fisheye",
+                families=list(families),
+                refine=refine,
+                max_back_tilt_deg=max_back_tilt_deg,
             ),
             "notes": "A starting profile from one frame: check the panorama; refine further with 'solidkit calibrate "
             "overlap' on several outdoor frames of the same unit.",

@@ -421,6 +421,11 @@ def fisheye(
         help="Refine centres, scales and the back lens on the overlap (refused when it does not lower the seam error).",
     ),
     name: str | None = typer.Option(None, "--name", help="Profile 'model' name (default: the frame's file name)."),
+    max_back_tilt_deg: float = typer.Option(
+        3.0,
+        "--max-back-tilt-deg",
+        help="How far (degrees) the back lens' axis may be from exactly opposite the front's (a rigid body: a few).",
+    ),
     as_json: bool = typer.Option(False, "--json", help="Print the summary as JSON."),
 ) -> None:
     """A starting lens profile for any dual-fisheye camera from one frame: image circles, layout, projection and field of view, then a robust overlap refinement."""  # noqa: E501
@@ -429,7 +434,16 @@ def fisheye(
     families = FAMILIES if family == "auto" else (family,)
     if out.exists() and out.is_dir():
         raise InputError(f"{out}: is a folder; give the profile's file name (e.g. {out / 'unit.json'})")
-    _, s = fit_file(frame, out, families=families, refine=refine, name=name, log=lambda m: status.print(escape(m)))
+    max_back_tilt_deg = parse_angle(max_back_tilt_deg, "--max-back-tilt-deg", 0.0, 30.0)
+    _, s = fit_file(
+        frame,
+        out,
+        families=families,
+        refine=refine,
+        name=name,
+        max_back_tilt_deg=max_back_tilt_deg,
+        log=lambda m: status.print(escape(m)),
+    )
     if as_json:
         echo_json(s, default=str)
         return
@@ -449,7 +463,20 @@ def fisheye(
         + ")",
     )
     table.add_row("lens centres", "; ".join(f"({x:.2f}, {y:.2f})" for x, y in s["centers"]) + " px")
-    table.add_row("back lens ypr", ", ".join(f"{a:.2f}°" for a in s["back_ypr_deg"]))
+    table.add_row(
+        "back lens ypr",
+        ", ".join(f"{a:.2f}°" for a in s["back_ypr_deg"])
+        + f" ({s['back_tilt_deg']:.2f}° off opposite; at most {s['max_back_tilt_deg']:g}°)",
+    )
+    d = s["seam_disparity"] or {}
+    table.add_row(
+        "seam disparity (the same scene point in both lenses)",
+        "unmeasured (too few matches)"
+        if d.get("median_deg") is None
+        else f"median {d['median_deg']:.2f}°, 95 % within {d['p95_deg']:.2f}°, "
+        f"{100 * d['doubled_fraction']:.0f} % over 1° ({d['matches']} matches, {100 * d['coverage']:.0f} % of "
+        "the ring)",
+    )
     refined = f"{s['seam_error_refined']:.3f}" if s["refinement"] else "-"
     table.add_row(
         "seam error (0 = perfect, ~0.6 = 4° off, 1 = unrelated)",
