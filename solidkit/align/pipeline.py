@@ -1320,12 +1320,19 @@ class ProbePixel:
 
 
 def probe_pixel(
-    view: CaptureView, fit: Any, label: Any, photo: PhotoInfo, yaw_cam: float | None, s: AlignSettings
+    view: CaptureView,
+    fit: Any,
+    label: Any,
+    photo: PhotoInfo,
+    yaw_cam: float | None,
+    s: AlignSettings,
+    yaw_cam_sigma: float = 0.0,
 ) -> ProbePixel:
     """Pixel of the probe in the photo (field notes > human ``probe_pixel`` label > geometry) and its
     geometric check: the direction from the camera position to the probe capture (the level relative
-    pose ``fit`` against the camera position, turned by the camera capture's yaw ``yaw_cam``),
-    projected into the photo."""
+    pose ``fit`` against the camera position, turned by the camera capture's yaw ``yaw_cam``, its final
+    one: the rotation its products have), projected into the photo; the check's tolerance takes the
+    camera yaw's sigma ``yaw_cam_sigma`` (degrees) in."""
     geom, geom_sigma = None, None
     if fit is not None and yaw_cam is not None and fit.t_support >= s.min_translation_support:
         d_lcam = fit.centre2_in_1
@@ -1362,7 +1369,7 @@ def probe_pixel(
         # tolerance: n_sigma of the baseline direction's own uncertainty (plus the lens's height above the marked
         # surface, ~1 deg at a few metres), never below pixel_tolerance_deg
         sig = geom_sigma if geom_sigma is not None else math.inf
-        tol = max(s.pixel_tolerance_deg, s.pixel_n_sigma * math.hypot(sig, 1.0))
+        tol = max(s.pixel_tolerance_deg, s.pixel_n_sigma * math.hypot(sig, 1.0, yaw_cam_sigma))
         # a pose from few matches can be wrong beyond its sigma (measured: 13 inliers in a glass scene, 11 deg off)
         if ang > tol and fit.n_inliers >= s.min_pixel_check_inliers:
             flags.append(
@@ -1469,13 +1476,16 @@ def align_scene(
             final[v.id] = (wrap_deg(yaw - y0), cy.sigma_deg)
         px = ProbePixel()
         if role == "probe" and photo is not None:
+            # the camera position's final yaw (it comes first): the probes' pixels and rotations share it
+            cam_yaw, cam_sigma = final.get(cam.id, (cf.yaw_cam_deg, None)) if cam is not None else (None, None)
             px = probe_pixel(
                 v,
                 cf.fits.get(v.id),
                 _human(store, "probe_pixel", f"{scene.id}/{v.id}"),
                 photo,
-                cf.yaw_cam_deg if cam is not None else None,
+                cam_yaw,
                 s,
+                cam_sigma or 0.0,
             )
         probes.append(
             ProbeAlignment(

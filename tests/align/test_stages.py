@@ -208,6 +208,9 @@ def test_probe_pixel_from_field_notes_checked_against_the_geometry() -> None:
     assert px.pixel_error_px == pytest.approx(0.0) and px.flags == ()
     px = probe_pixel(_view("p1", pixel=[620.0, 240.0]), fit, None, photo, 0.0, s)
     assert flag_codes(px.flags) == [FlagCode.PIXEL_DISAGREES] and px.pixel_error_deg > s.pixel_tolerance_deg
+    # 31 deg off, but the camera position's yaw is known to 8 deg only (its compass): no telling
+    px = probe_pixel(_view("p1", pixel=[620.0, 240.0]), fit, None, photo, 0.0, s, yaw_cam_sigma=8.0)
+    assert px.flags == () and px.pixel_error_deg > s.pixel_tolerance_deg
     px = probe_pixel(_view("p1"), fit, None, photo, 0.0, s)
     assert px.pixel_source == "geometry" and flag_codes(px.flags) == [FlagCode.PIXEL_FROM_GEOMETRY]
     px = probe_pixel(_view("p1", pixel=[700.0, 240.0]), None, None, photo, None, s)
