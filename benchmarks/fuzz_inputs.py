@@ -113,8 +113,9 @@ for line in sys.stdin:
 class Worker:
     """A Python process running :data:`WORKER`: one request (argv, cwd) at a time, answered with the exit code."""
 
-    def __init__(self, log: Path):
+    def __init__(self, log: Path, cache: Path):
         env = {**os.environ, "SOLIDKIT_THREADS": "1", "COLUMNS": "100", "PYTHONWARNINGS": "default"}
+        env["SOLIDKIT_CACHE_DIR"] = str(cache)  # remap tables of this run only
         env.pop("SOLIDKIT_DEBUG", None)
         self.log = open(log, "ab")
         self.proc = subprocess.Popen(
@@ -557,8 +558,7 @@ def run(count: int, seed: int, timeout: float, only: list[str], keep: Path | Non
     try:
         seeds = make_seeds(tmp / "seeds")
         cache = tmp / "cache"
-        os.environ["SOLIDKIT_CACHE_DIR"] = str(cache)
-        worker = Worker(tmp / "worker.log")
+        worker = Worker(tmp / "worker.log", cache)
         stats = {c: Counter() for c in commands}
         messages: dict[str, Counter] = {c: Counter() for c in commands}
         failures: list[dict] = []
@@ -585,7 +585,7 @@ def run(count: int, seed: int, timeout: float, only: list[str], keep: Path | Non
             err = se.read_text(errors="replace") if se.exists() else ""
             if "outcome" in case.result:  # crash or hang: a fresh worker for the next input
                 outcome = case.result["outcome"]
-                worker = Worker(tmp / "worker.log")
+                worker = Worker(tmp / "worker.log", cache)
             else:
                 outcome = judge(case, out, err)
             stats[command][outcome] += 1
