@@ -499,3 +499,26 @@ def test_the_task_guide_opens_on_first_use(server, browser):
     loaded(page, "heading", "s1/p1")
     assert page.locator("#guide").is_hidden()  # once seen, not again
     assert not errors
+
+
+def test_own_queue_in_blind_mode_and_skip_with_a_reason(server, browser, campaign):
+    """Blind: another annotator's label does not make the item done in this annotator's queue (it
+    did, so "next unfinished" skipped it). "Skip: can't tell" needs a reason, then counts as done."""
+    store = LabelStore(campaign[0])
+    store.put("heading", "s1/cam", {"yaw_deg": 12.0}, source="annotator", annotator="carol")
+    page, errors = open_page(browser, f"{server}/#task=heading&key=s1/cam", "dave")
+    page.add_init_script("localStorage.setItem('solidkit.blind', '1')")
+    page.reload()
+    loaded(page, "heading", "s1/cam")
+    row = page.locator("#queue-list li[data-key='s1/cam']")
+    assert "done" not in row.get_attribute("class") and "12.00" not in page.locator("#panel").inner_text()
+    page.locator("details.note summary").click()
+    page.locator("#btn-skip").click()  # no reason yet: refused
+    page.wait_for_timeout(300)
+    assert ("heading", "s1/cam", "dave") not in store.notes()
+    page.fill("#note-text", "the photo shows only sky and cranes")
+    page.locator("#btn-skip").click()
+    page.wait_for_selector("body[data-noted='heading:s1/cam']")
+    assert store.notes()[("heading", "s1/cam", "dave")].skip
+    assert "done" in page.locator("#queue-list li[data-key='s1/cam']").get_attribute("class")
+    assert not errors

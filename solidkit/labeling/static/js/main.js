@@ -312,9 +312,9 @@ class App {
     try {
       await api.note({ kind: it.kind, key: it.key, text, skip });
       this.toast(skip ? `skipped ${it.title}` : 'note saved', 'ok');
-      document.body.dataset.noted = `${it.kind}:${it.key}`;
       await this.refreshQueue();
       if (skip) await this.next(1, true); else await this.reload();
+      document.body.dataset.noted = `${it.kind}:${it.key}`; // stored, and the page moved on
       return true;
     } catch (err) { this.toast(err.message, 'error', 6000); return false; }
   }
@@ -326,9 +326,9 @@ class App {
     try {
       const res = await api.verdict({ kind: it.kind, key: it.key, annotator, verdict, comment, expected_version: it.version });
       this.toast(`${verdict === 'accept' ? 'accepted' : 'rejected'} ${annotator}’s ${TASK_NAMES[it.kind].toLowerCase()} label`, 'ok');
-      document.body.dataset.verdict = `${it.kind}:${it.key}:${annotator}:${verdict}:${res.version}`;
       await this.refreshQueue();
       await this.reload();
+      document.body.dataset.verdict = `${it.kind}:${it.key}:${annotator}:${verdict}:${res.version}`;
       return true;
     } catch (err) {
       if (err instanceof ApiError && err.status === 409) { this.toast('changed meanwhile; reloaded', 'warn'); await this.reload(); }
