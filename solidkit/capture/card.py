@@ -24,7 +24,7 @@ from typing import Any
 from solidkit.camera.metadata import read_metadata
 from solidkit.capture.fieldnotes import is_notes_file, read_notes
 from solidkit.capture.frame_merge import sniff_format
-from solidkit.envmap.io import check_image_size
+from solidkit.envmap.io import check_image_size, jpeg_damage
 from solidkit.errors import InputError, LibraryOutput, SolidkitError, library_output
 from solidkit.fsutil import atomic_path, is_environmental, sha256_file
 
@@ -132,7 +132,6 @@ def _check_decodable(path: Path, fmt: str, size: tuple[int, int]) -> None:
         raise InputError(str(exc).replace(f"{path}: ", "")) from None
     said = LibraryOutput()
     if fmt == "jpeg":
-        import cv2
         from PIL import Image
 
         try:
@@ -142,14 +141,11 @@ def _check_decodable(path: Path, fmt: str, size: tuple[int, int]) -> None:
                 # and corrupt data are caught), at a fraction of the full decode's cost
                 im.draft("RGB", (max(1, im.width // 8), max(1, im.height // 8)))
                 im.load()
-            with library_output() as said:  # Pillow decodes past what libjpeg reports as corrupt; OpenCV lets it say
-                ok = cv2.imread(str(path), cv2.IMREAD_REDUCED_GRAYSCALE_8) is not None
         except Exception as exc:
             raise InputError(f"cannot decode JPEG: truncated or corrupt ({type(exc).__name__}: {exc})") from None
-        damaged = [s for s in said.lines() if s.startswith(("Corrupt JPEG data", "Premature end of JPEG"))]
-        if damaged or not ok:
-            detail = "; ".join(dict.fromkeys(damaged)) or said.summary() or "OpenCV cannot read it"
-            raise InputError(f"cannot decode JPEG: corrupt data (libjpeg: {detail})")
+        damage = jpeg_damage(path)  # Pillow decodes past what libjpeg reports as corrupt
+        if damage:
+            raise InputError(f"cannot decode JPEG: corrupt data (libjpeg: {damage})")
     else:
         import rawpy
 

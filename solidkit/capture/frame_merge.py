@@ -33,6 +33,7 @@ from __future__ import annotations
 
 import json
 import os
+import warnings
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -44,7 +45,7 @@ from PIL import Image, ImageOps
 
 from solidkit.calibration.response import ResponseProfile
 from solidkit.camera.raw import is_raw_file, read_raw
-from solidkit.envmap.io import srgb_decode
+from solidkit.envmap.io import check_image_size, jpeg_damage, srgb_decode
 from solidkit.envmap.sun import LUMINANCE_WEIGHTS
 from solidkit.errors import InputError, SolidkitError
 
@@ -361,8 +362,10 @@ def read_ldr_codes(path: str | os.PathLike) -> np.ndarray:
     EXIF orientation is applied so that all frames of a bracket share one geometry.
     """
     path = Path(path)
+    check_image_size(path)
     try:
-        with Image.open(path) as src:
+        with warnings.catch_warnings(), Image.open(path) as src:
+            warnings.simplefilter("ignore", Image.DecompressionBombWarning)  # the size is checked above
             src.load()
             im = ImageOps.exif_transpose(src)
             if im.mode in ("I;16", "I;16B", "I"):
@@ -372,6 +375,8 @@ def read_ldr_codes(path: str | os.PathLike) -> np.ndarray:
                 arr = np.asarray(im.convert("RGB"))
     except Exception as exc:  # PIL: UnidentifiedImageError, OSError('image file is truncated'), ...
         raise InputError(f"{path}: cannot decode image ({type(exc).__name__}: {exc})") from None
+    if sniff_format(path) == "jpeg":
+        jpeg_damage(path, warn=True)  # Pillow decodes past corrupt data without a word
     return arr
 
 

@@ -35,6 +35,7 @@ __all__ = [
     "read_image",
     "image_size",
     "check_image_size",
+    "jpeg_damage",
     "MAX_IMAGE_PIXELS",
     "validate_panorama",
     "tonemap",
@@ -441,12 +442,39 @@ def check_image_size(path: str | os.PathLike[str], size: tuple[int, int] | None 
         )
 
 
-def _corrupt_data(path: Path, output: LibraryOutput) -> None:
+def _damage(output: LibraryOutput) -> str:
+    said = (s for s in output.lines() if s.startswith(("Corrupt JPEG data", "Premature end of JPEG")))
+    return "; ".join(dict.fromkeys(said))
+
+
+def _corrupt_data(path: str | os.PathLike[str], damage: str) -> None:
     """Warn (:class:`InputWarning`) when libjpeg reported corrupt data in an image it decoded anyway."""
-    damaged = [s for s in output.lines() if s.startswith(("Corrupt JPEG data", "Premature end of JPEG"))]
-    if damaged:
-        detail = "; ".join(dict.fromkeys(damaged))
-        warnings.warn(f"{path}: corrupt image data, decoded with damaged blocks (libjpeg: {detail})", InputWarning, 2)
+    if damage:
+        warnings.warn(f"{path}: corrupt image data, decoded with damaged blocks (libjpeg: {damage})", InputWarning, 3)
+
+
+def jpeg_damage(path: str | os.PathLike[str], *, warn: bool = False) -> str:
+    """What libjpeg reports as corrupt in the JPEG ``path`` (``"Corrupt JPEG data: ..."``; ``""`` for none, or for a
+    file OpenCV cannot read), from a decode at 1/8 scale that still reads every entropy-coded byte: for readers
+    that decode past damage without a word (Pillow). ``warn``: also an :class:`InputWarning` naming the file.
+
+    Examples
+    --------
+    >>> import tempfile
+    >>> path = Path(tempfile.mkdtemp()) / 'ok.jpg'
+    >>> _ = write_ldr(path, np.full((16, 16, 3), 0.5))
+    >>> jpeg_damage(path)
+    ''
+    """
+    with library_output() as said:
+        try:
+            cv2.imread(str(path), cv2.IMREAD_REDUCED_GRAYSCALE_8)
+        except cv2.error:
+            pass
+    damage = _damage(said)
+    if warn:
+        _corrupt_data(path, damage)
+    return damage
 
 
 def imread(path: str | os.PathLike[str], flags: int = cv2.IMREAD_UNCHANGED) -> np.ndarray:
@@ -470,7 +498,7 @@ def imread(path: str | os.PathLike[str], flags: int = cv2.IMREAD_UNCHANGED) -> n
     if img is None:
         why = said.summary()
         raise InputError(f"{path}: not a readable image" + (f" ({why})" if why else ""))
-    _corrupt_data(path, said)
+    _corrupt_data(path, _damage(said))
     return img
 
 

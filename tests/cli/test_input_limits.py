@@ -159,3 +159,22 @@ def test_a_training_configuration_nested_too_deep(solidkit_fd, tmp_path: Path) -
     conf.write_text("steps = " + "[" * 2000 + "]" * 2000 + "\n")
     code, _, err = solidkit_fd("train", conf)
     assert code == 2 and one_error_line(err) == f"error: {conf}: not valid TOML (nested too deep)"  # was exit 1
+
+
+def test_merge_warns_about_a_corrupt_frame(solidkit_fd, tmp_path: Path) -> None:
+    import cv2
+    import numpy as np
+
+    img = (np.random.default_rng(0).random((64, 128, 3)) * 255).astype(np.uint8)
+    frames = []
+    for k, gain in enumerate((0.25, 0.5)):
+        frames.append(tmp_path / f"f{k}.jpg")
+        cv2.imwrite(str(frames[-1]), (img * gain).astype(np.uint8))
+    frames.append(tmp_path / "f2.jpg")
+    frames[-1].write_bytes(corrupt_jpeg())
+    times = "0.001,0.002,0.004"
+    args = ["capture", "merge", *frames, "-o", tmp_path / "hdr.exr", "--times", times, "--no-group", "--no-align"]
+    code, out, err = solidkit_fd(*args, "--json")
+    assert code == 0 and json.loads(out)
+    lines = [line for line in err.splitlines() if line.strip()]
+    assert [line.split(": corrupt")[0] for line in lines] == [f"warning: {frames[-1]}"], err  # Pillow said nothing
