@@ -488,6 +488,7 @@ def test_redo_and_a_restart_keeps_the_unsaved_mark(server, browser, campaign):
     assert not errors
 
 
+@pytest.mark.slow
 def test_the_task_guide_opens_on_first_use(server, browser):
     page, errors = open_page(browser, f"{server}/#task=heading&key=s1/p1", "dave", guides_seen=False)
     loaded(page, "heading", "s1/p1")
