@@ -482,6 +482,7 @@ class CameraFeatures:
     yaw_cam_deg: float | None
     cues: dict[str, Cue]
     fits: dict[str, Any]
+    yaw_cam_sigma_deg: float = 0.0
 
 
 def camera_features(
@@ -508,7 +509,7 @@ def camera_features(
             max_baseline_elevation_deg=s.max_baseline_elevation_deg,
             ratio=s.match_ratio,
         )
-    return CameraFeatures(yaw_cam, cues, fits)
+    return CameraFeatures(yaw_cam, cues, fits, yaw_cam_sigma)
 
 
 # --------------------------------------------------------------------------- the sun
@@ -745,6 +746,41 @@ def explain_rejections(sun: SceneSun, outranked: frozenset[tuple[str, int]], pro
                     else f"not where the scene's sun is: {d:.1f} deg away once this capture's yaw is known"
                 ]
                 c.scores["distance_to_scene_sun_deg"] = d
+
+
+def rebase_on_camera(
+    views: list[CaptureView],
+    cues: dict[str, dict[str, Cue]],
+    cam: CaptureView,
+    cf: CameraFeatures,
+    final_cam: tuple[float, float | None],
+    min_shift_deg: float = 0.2,
+) -> None:
+    """The ``features`` cues of the other captures (relative poses to the camera position, turned by its yaw before
+    the sun) turned by the camera position's final yaw instead, where the two differ by more than ``min_shift_deg``
+    (in place; and the ``features_via_<id>`` cues through a capture so rebased): the probes then reach the photo's
+    frame through the same rotation as the camera position (a camera yaw from its compass alone, corrected by the
+    sun, left its probes with the compass' error)."""
+    if cf.yaw_cam_deg is None:
+        return
+    yaw_f, sig_f = final_cam
+    delta = wrap_deg(yaw_f - cf.yaw_cam_deg)
+    if abs(delta) <= min_shift_deg:
+        return
+    moved = set()
+    for v in views:
+        c = cues[v.id].get("features")
+        if v is cam or c is None or c.yaw_deg is None:
+            continue
+        rel = math.sqrt(max((c.sigma_deg or 0.0) ** 2 - cf.yaw_cam_sigma_deg**2, 0.0))
+        c.yaw_deg, c.sigma_deg = wrap_deg(c.yaw_deg + delta), math.hypot(rel, sig_f or 0.0)
+        c.detail += f"; turned by {cam.id}'s final yaw ({delta:+.2f} deg from its yaw before the sun)"
+        moved.add(v.id)
+    for v in views:
+        for k, c in cues[v.id].items():
+            if k.startswith("features_via_") and k[len("features_via_") :] in moved and c.yaw_deg is not None:
+                c.yaw_deg = wrap_deg(c.yaw_deg + delta)
+                c.detail += f"; turned by {cam.id}'s final yaw ({delta:+.2f} deg)"
 
 
 def sun_through_final_yaws(
@@ -1474,6 +1510,8 @@ def align_scene(
             yaw = wrap_deg(yaw + y0)  # R_y(yaw) C R_meta = R_y(yaw + y0) R(0, p, r)
         if yaw is not None:
             final[v.id] = (wrap_deg(yaw - y0), cy.sigma_deg)
+            if v is cam:
+                rebase_on_camera(views, cues, cam, cf, final[v.id])
         px = ProbePixel()
         if role == "probe" and photo is not None:
             # the camera position's final yaw (it comes first): the probes' pixels and rotations share it

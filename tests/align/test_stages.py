@@ -403,3 +403,33 @@ def test_a_bracket_missing_its_probe_exposure_is_flagged() -> None:
         "missing (3.9x brighter)"
     )
     assert exposure_substitute(shot(1 / 2500)) is None and exposure_substitute(shot(1 / 2200)) is None
+
+
+def test_probes_follow_the_camera_positions_final_yaw() -> None:
+    """The camera position's yaw before the sun came from its compass (8 deg); the sun corrected it by 3 deg: the
+    probes' features cues (relative poses turned by it) are turned by the final yaw, with its sigma, and so are the
+    cues chained through them; a correction under 0.2 deg changes nothing."""
+    from solidkit.align.pipeline import CameraFeatures, rebase_on_camera
+
+    views = [_bare_view("cam"), _bare_view("p1"), _bare_view("p2")]
+    pre_sigma = 8.0
+
+    def cues() -> dict[str, dict[str, Cue]]:
+        return {
+            "cam": {"compass": Cue(yaw_deg=10.0, sigma_deg=8.0, ok=True)},
+            "p1": {"features": Cue(yaw_deg=50.0, sigma_deg=math.hypot(0.2, pre_sigma), ok=True)},
+            "p2": {
+                "features_via_p1": Cue(yaw_deg=-70.0, sigma_deg=8.1, ok=True),
+                "compass": Cue(yaw_deg=-66.0, ok=True),
+            },
+        }
+
+    cf = CameraFeatures(10.0, {}, {}, pre_sigma)
+    c = cues()
+    rebase_on_camera(views, c, views[0], cf, (13.0, 3.0))
+    assert c["p1"]["features"].yaw_deg == pytest.approx(53.0)
+    assert c["p1"]["features"].sigma_deg == pytest.approx(math.hypot(0.2, 3.0))
+    assert c["p2"]["features_via_p1"].yaw_deg == pytest.approx(-67.0) and c["p2"]["compass"].yaw_deg == -66.0
+    c = cues()
+    rebase_on_camera(views, c, views[0], cf, (10.1, 3.0))
+    assert c == cues()
