@@ -155,6 +155,7 @@ def _merge_bracket(
             [f.linear for f in provisional],
             list(exposures),
             [cast(np.ndarray, f.valid().all(axis=-1)) for f in provisional],
+            rank_codes=ldr and all(f.codes.dtype == np.uint8 for f in provisional),
         )
         warnings += reg.warnings
         registration = reg.to_json()

@@ -88,15 +88,6 @@ class Registration:
         }
 
 
-def _green(linear: np.ndarray) -> np.ndarray:
-    """The green channel, ``(H, W)`` float32: ranked per channel, a frame's values do not depend on the curve.
-
-    (A mean of the channels through a provisional curve is not a monotone function of the radiance the same
-    way in every frame: a static sunrise sky, its hue changing across the frame, "moved" by 0.9 px.)
-    """
-    return np.ascontiguousarray(np.asarray(linear, np.float32)[..., 1])
-
-
 def _ranks(img: np.ndarray, mask: np.ndarray) -> np.ndarray:
     """``img`` replaced by its values' ranks (0..1) among the ``mask`` pixels (0.5 elsewhere); tied values share
     their mean rank.
@@ -104,21 +95,40 @@ def _ranks(img: np.ndarray, mask: np.ndarray) -> np.ndarray:
     Two frames seen through the same monotone response then agree on their common pixels,
     whatever that response is: registration does not depend on the curve being known yet. Ties
     matter: a dark frame has few distinct values, and ranks handed out in raster order within a tie
-    made a static frame look shifted (by up to 0.9 px on a rendered bracket).
+    made a static frame look shifted (by up to 0.9 px on a rendered bracket). 8-bit input is ranked
+    through its histogram (linear time), other input by sorting.
     """
     out = np.full(img.shape, 0.5, np.float32)
     sel = mask.astype(bool)
-    if sel.sum() > 1:
-        v = img[sel]
-        ordered = np.sort(v)
-        lo = np.searchsorted(ordered, v, side="left")
-        hi = np.searchsorted(ordered, v, side="right")
-        out[sel] = ((lo + hi - 1) * (0.5 / (v.size - 1))).astype(np.float32)
+    n = int(sel.sum())
+    if n < 2:
+        return out
+    v = img[sel]
+    if v.dtype == np.uint8:
+        count = np.bincount(v, minlength=256).astype(np.float64)
+        table = (np.cumsum(count) - 0.5 * (count + 1.0)) / (n - 1)  # the mean rank of each code
+        out[sel] = table.astype(np.float32)[v]
+        return out
+    order = np.argsort(v, kind="stable")
+    ordered = v[order]
+    new_value = np.empty(n, bool)
+    new_value[0], new_value[1:] = True, ordered[1:] != ordered[:-1]
+    starts = np.flatnonzero(new_value)
+    ends = np.append(starts[1:], n)
+    mean_rank = ((starts + ends - 1) * (0.5 / (n - 1))).astype(np.float32)
+    ranked = np.empty(n, np.float32)
+    ranked[order] = mean_rank[np.cumsum(new_value) - 1]
+    out[sel] = ranked
     return out
 
 
 def _channel_ranks(img: np.ndarray, mask: np.ndarray) -> np.ndarray:
-    """The mean of ``img``'s per-channel ranks (:func:`_ranks`), ``(H, W)``: as curve-free as each channel's."""
+    """The mean of ``img``'s per-channel ranks (:func:`_ranks`), ``(H, W)`` float32.
+
+    Ranked per channel, a frame's values do not depend on the camera's curve (a mean of the channels through
+    a provisional curve is not a monotone function of the radiance the same way in every frame: a static
+    sunrise sky, its hue changing across the frame, "moved" by 0.9 px).
+    """
     out = _ranks(img[..., 0], mask)
     for c in range(1, img.shape[-1]):
         out += _ranks(img[..., c], mask)
@@ -180,6 +190,7 @@ def register_frames(
     exposures: Sequence[float],
     valid: Sequence[np.ndarray],
     *,
+    rank_codes: bool = True,
     max_width: int = 2048,
     probe_width: int = 1024,
     min_correlation: float = 0.8,
@@ -189,8 +200,10 @@ def register_frames(
 ) -> Registration:
     """Measure each frame's shift against the middle exposure and decide whether to apply it (module docstring).
 
-    ``codes``: 8-bit ``(H, W, 3)`` frames; ``linear``: their linear values (provisional curve), divided
-    here by ``exposures``; ``valid``: ``(H, W)`` bool, well-exposed pixels of each frame.
+    ``codes``: 8-bit ``(H, W, 3)`` frames; ``linear``: their linear values (provisional curve; any monotone
+    one); ``valid``: ``(H, W)`` bool, well-exposed pixels of each frame. ``rank_codes``: rank the 8-bit codes
+    (at full size, then reduced; LDR frames) rather than ``linear`` (raw frames, whose codes are only a
+    coarse 8-bit copy).
     """
     n = len(codes)
     ref = int(np.argsort(exposures)[n // 2])
@@ -205,7 +218,14 @@ def register_frames(
     def grey(c: np.ndarray) -> np.ndarray:
         return cv2.cvtColor(np.ascontiguousarray(c), cv2.COLOR_RGB2GRAY)
 
-    lum_ref = small(np.asarray(linear[ref], np.float32))
+    def rank_images(i: int, mask: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The reference's and frame ``i``'s rank images at the working size over their overlap ``mask``."""
+        if not rank_codes:
+            lin = [small(np.asarray(linear[k], np.float32)) for k in (ref, i)]
+            return _channel_ranks(lin[0], mask), _channel_ranks(lin[1], mask)
+        full = cv2.erode((np.asarray(valid[ref], bool) & np.asarray(valid[i], bool)).astype(np.uint8), kernel)
+        return small(_channel_ranks(codes[ref], full)), small(_channel_ranks(codes[i], full))
+
     ok_ref = small(np.asarray(valid[ref], np.uint8), cv2.INTER_NEAREST)
     grey_ref = grey(codes[ref])
     kernel = np.ones((5, 5), np.uint8)
@@ -241,7 +261,7 @@ def register_frames(
         if pc_size < 0.5 * min_shift_px:
             record(pc, float("nan"), False, "static", pc)
             continue
-        a, b = _channel_ranks(lum_ref, mask), _channel_ranks(small(np.asarray(linear[i], np.float32)), mask)
+        a, b = rank_images(i, mask)
 
         def agree(dx: float, dy: float) -> tuple[float, float]:
             return shift_agreement(b, a, mask, dx * scale, dy * scale)

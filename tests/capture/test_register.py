@@ -137,9 +137,11 @@ def test_shift_agreement_prefers_the_true_shift_and_no_shift_for_a_static_pair(s
 
 def test_ranks_share_ties():
     """Tied values get their mean rank (handed out in raster order, a dark frame's plateaus looked shifted)."""
-    img = np.array([[1.0, 1.0, 2.0, 5.0]], np.float32)
-    r = _ranks(img, np.ones_like(img, np.uint8))
-    np.testing.assert_allclose(r, [[1 / 6, 1 / 6, 2 / 3, 1.0]], atol=1e-6)
+    img = np.array([[1.0, 1.0, 2.0, 5.0, 0.5]], np.float32)
+    mask = np.array([[1, 1, 1, 1, 0]], np.uint8)
+    expected = [[1 / 6, 1 / 6, 2 / 3, 1.0, 0.5]]
+    np.testing.assert_allclose(_ranks(img, mask), expected, atol=1e-6)
+    np.testing.assert_allclose(_ranks((img * 10).astype(np.uint8), mask), expected, atol=1e-6)  # by histogram
 
 
 def test_exposure_times_in_the_wrong_order_are_an_input_error(tmp_path, sunrise):
