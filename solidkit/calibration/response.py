@@ -14,12 +14,6 @@ References
   Measured here: OpenCV's Robertson is biased by up to ~0.35 stops on noise-free synthetic
   gamma-2.2 brackets (Debevec: 0.04 stops), so Debevec is the default.
 
-Debevec's least-squares system is OpenCV's ``CalibrateDebevec`` (its grid of sample pixels, hat
-weights, smoothness rows and the ``g(128) = 0`` row), solved exactly here (:func:`debevec_curve`):
-the per-pixel log radiances are eliminated, leaving a 256 x 256 symmetric system per channel solved
-in float64, where OpenCV runs a float32 SVD of the whole ``(samples x frames + 255) x (256 +
-samples)`` matrix (0.7 s for 400 samples of 3 frames, 6 ms here; the two curves differ by the
-float32 solve's error, up to about 0.02 stops at the rarely observed end codes).
 """
 
 from __future__ import annotations
@@ -44,7 +38,6 @@ __all__ = [
     "ResponseProfile",
     "read_brackets",
     "calibrate_response",
-    "debevec_curve",
     "default_smoothness",
     "exposure_order_conflicts",
     "response_sanity",
@@ -149,7 +142,8 @@ def calibrate_response(
         n_px = imgs[0].shape[0] * imgs[0].shape[1]
         if not 1 <= samples <= n_px:
             raise ResponseError(f"Debevec samples must be in 1..{n_px} (the pixels of one image), got {samples}")
-        raw = debevec_curve(imgs, t, samples=int(samples), smoothness=float(smoothness))
+        raw = cv2.createCalibrateDebevec(samples=int(samples), lambda_=float(smoothness)).process(imgs, t)
+        raw = raw[:, 0, :].astype(np.float64)
     elif method == "robertson":
         raw = cv2.createCalibrateRobertson().process(imgs, t)[:, 0, :].astype(np.float64)
     else:
@@ -167,61 +161,6 @@ def default_smoothness(samples: int) -> float:
     lambda 10 gave curves that bent back, moved by up to 0.65 stops when made monotonic).
     """
     return 10.0 * samples / 70.0
-
-
-def _debevec_grid(rows: int, cols: int, samples: int) -> tuple[np.ndarray, np.ndarray]:
-    """OpenCV's ``CalibrateDebevec`` sample pixels (``random=false``): a grid, ``(ys, xs)``."""
-    x_points = max(1, min(cols, int(np.sqrt(samples * cols / rows))))
-    y_points = max(1, min(rows, samples // x_points))
-    step_x, step_y = cols // x_points, rows // y_points
-    xs = step_x // 2 + step_x * np.arange(x_points)
-    ys = step_y // 2 + step_y * np.arange(y_points)
-    yy, xx = np.meshgrid(ys[ys < rows], xs[xs < cols], indexing="ij")
-    return yy.ravel(), xx.ravel()
-
-
-def debevec_curve(
-    images: Sequence[np.ndarray], times: Sequence[float] | np.ndarray, *, samples: int = 70, smoothness: float = 10.0
-) -> np.ndarray:
-    """Debevec & Malik's inverse response per channel, ``(256, C)`` float64 (``curve[128] = 1``; not filled).
-
-    The least-squares system of OpenCV's ``CalibrateDebevec`` (module docstring): for sample pixel ``i``
-    of frame ``j`` with code ``z``, ``w(z) (g(z) - ln E_i) = w(z) ln t_j`` with the hat ``w(z) = min(z,
-    255 - z)``; ``g(128) = 0``; ``smoothness * w(z) (g(z-1) - 2 g(z) + g(z+1)) = 0``. The ``ln E_i`` are
-    eliminated (each appears in its own rows only), leaving the 256 x 256 normal equations of ``g``.
-    Raises :class:`ResponseError` when they are singular.
-    """
-    imgs = [np.asarray(im) for im in images]
-    ln_t = np.log(np.asarray(times, np.float32)).astype(np.float64)
-    rows, cols = imgs[0].shape[:2]
-    ys, xs = _debevec_grid(rows, cols, samples)
-    codes = np.arange(256)
-    w = np.minimum(codes, 255 - codes).astype(np.float64)
-    lap = np.zeros((254, 256))
-    k = np.arange(254)
-    lap[k, k], lap[k, k + 1], lap[k, k + 2] = 1.0, -2.0, 1.0
-    lap *= (smoothness * w[1:255])[:, None]
-    smooth = lap.T @ lap
-    smooth[128, 128] += 1.0
-    out = np.empty((256, imgs[0].shape[2]))
-    for c in range(imgs[0].shape[2]):
-        z = np.stack([im[ys, xs, c] for im in imgs], axis=1).astype(np.intp)  # (samples, frames)
-        w2 = w[z] ** 2
-        d = w2.sum(axis=1)  # the ln E_i block of the normal matrix (diagonal)
-        keep = d > 0  # a pixel seen only at codes 0 and 255 constrains nothing
-        z, w2, d = z[keep], w2[keep], d[keep]
-        n = z.shape[0]
-        cross = np.zeros((256, n))  # g-by-ln E block
-        np.add.at(cross, (z.ravel(), np.repeat(np.arange(n), z.shape[1])), -w2.ravel())
-        normal = smooth + np.diag(np.bincount(z.ravel(), w2.ravel(), 256))
-        rhs_g = np.bincount(z.ravel(), (w2 * ln_t).ravel(), 256)
-        rhs_e = -(w2 * ln_t).sum(axis=1)
-        schur = normal - (cross / d) @ cross.T
-        try:
-            out[:, c] = np.linalg.solve(schur, rhs_g - cross @ (rhs_e / d))
-        except np.linalg.LinAlgError:
-            raise ResponseError("the bracket does not determine a response curve (singular system)") from None
-    return np.exp(out)
 
 
 def exposure_order_conflicts(

@@ -74,7 +74,7 @@ def estimate_response(
         raise ResponseError(f"degenerate curve (dynamic range {sanity['dynamic_range_stops']} stops)")
     record = {
         "kind": "estimated",
-        "method": "debevec (OpenCV CalibrateDebevec's system, solved exactly), made monotonic",
+        "method": "debevec (OpenCV CalibrateDebevec), made monotonic",
         "frames": len(imgs),
         "samples": samples,
         "smoothness": smoothness,

