@@ -4,11 +4,11 @@ a hang or an internal error (exit 1 with the ``SOLIDKIT_DEBUG`` hint).
 
 Seeds (real-ish files from the repository): the shipped mini card (Theta dual-fisheye JPEGs with their EXIF and
 XMP, the photo, ``fieldnotes.toml``), the tilt fixtures' street panorama, panoramas and brackets made from them
-(EXR, Radiance HDR, PNG, JPEG at small sizes), the real DNG of ``../shared/data/real/raw_dng`` when present, and a
-test set built from ``tests/support/testset_campaign.py``. Mutations (one per input, drawn from a seeded
-``random.Random``): bit flips, byte overwrites, truncations, a slice deleted or repeated, and edits of what the
-format's header says (JPEG/PNG/EXR/TIFF sizes, TIFF entries; TOML/JSON: nesting 1000 to 100 000 deep, NaN,
-Infinity, 1e400, wrong types, invalid UTF-8).
+(EXR, Radiance HDR, PNG, JPEG at small sizes), the real DNG of ``../shared/data/real/raw_dng`` when present
+(``$FUZZ_REAL_DNG`` names another), and a test set built from ``tests/support/testset_campaign.py``. Mutations (one
+per input, drawn from a seeded ``random.Random``): bit flips, byte overwrites, truncations, a slice deleted or
+repeated, and edits of what the format's header says (JPEG/PNG/EXR/TIFF sizes, TIFF entries; TOML/JSON: nesting
+1000 to 100 000 deep, NaN, Infinity, 1e400, wrong types, invalid UTF-8).
 
 Commands: ``capture info``, ``capture unwarp``, ``capture merge``, ``envmap sun``, ``predict``, ``ingest`` (a small
 card holding the mutated file; ``--no-products`` except every fourth run) and ``testset validate`` (the test set
@@ -27,6 +27,7 @@ their mutation, exit code and stderr). Run: ``.venv/bin/python benchmarks/fuzz_i
 from __future__ import annotations
 
 import argparse
+import datetime
 import json
 import os
 import platform
@@ -51,7 +52,9 @@ ROOT = HERE.parent
 sys.path.insert(0, str(ROOT))
 
 MINI = ROOT / "solidkit" / "assets" / "campaign_mini" / "card"
-REAL_DNG = ROOT.parent / "shared" / "data" / "real" / "raw_dng" / "colorchart.dng"
+REAL_DNG = Path(
+    os.environ.get("FUZZ_REAL_DNG") or ROOT.parent / "shared" / "data" / "real" / "raw_dng" / "colorchart.dng"
+)
 OUT = HERE / "results"
 
 #: inputs per command for ``--count 1000`` (scaled to other counts)
@@ -189,6 +192,7 @@ def make_seeds(root: Path) -> dict[str, Path]:
     import numpy as np
 
     from solidkit.envmap.io import write_exr, write_ldr
+    from solidkit.synth.exif import exif_app1, insert_app1
     from solidkit.testset.build import build_testset
     from tests.support.testset_campaign import make_campaign, world
 
@@ -215,6 +219,18 @@ def make_seeds(root: Path) -> dict[str, Path]:
     street = cv2.resize(cv2.imread(str(ROOT / "tests" / "data" / "level_street_3_1024.jpg")), (256, 128))
     (root / "street.jpg").write_bytes(_jpeg(street))
     s["street.jpg"] = root / "street.jpg"
+    app1 = exif_app1(  # a stitched Theta capture: capture info measures its stored tilt
+        make="RICOH",
+        model="RICOH THETA V",
+        when=datetime.datetime(2026, 6, 1, 12),
+        exposure_time=0.001,
+        f_number=2.0,
+        iso=64,
+        gps=(52.0, 13.0, 40.0),
+        theta={"image_type": 1, "roll_deg": 1.5, "pitch_deg": -2.0, "heading_deg": 90.0},
+    )
+    (root / "theta_pano.jpg").write_bytes(insert_app1(_jpeg(street), app1))
+    s["theta_pano.jpg"] = root / "theta_pano.jpg"
     photo = cv2.imread(str(s["photo.jpg"]))
     cv2.imwrite(str(root / "photo.png"), photo)
     s["photo.png"] = root / "photo.png"
@@ -428,7 +444,8 @@ def build_case(
         return how
 
     if command == "capture info":
-        name = rng.choice(["theta.jpg", "photo.jpg", "street.jpg"] + (["real.dng"] * 2 if "real.dng" in seeds else []))
+        names = ["theta.jpg", "theta_pano.jpg", "photo.jpg", "street.jpg"]
+        name = rng.choice(names + (["real.dng"] * 2 if "real.dng" in seeds else []))
         f = job / f"in{seeds[name].suffix.lower()}"
         return Case(command, ["capture", "info", str(f), "--json"], mutated(name, f), name)
     if command == "capture unwarp":
@@ -452,7 +469,7 @@ def build_case(
         argv = ["capture", "merge", *files, "-o", str(job / "hdr.exr"), "--times", "0.001,0.004,0.016"]
         return Case(command, argv + ["--no-group", "--no-align", "--json"], how, f"bracket{k}.jpg")
     if command == "envmap sun":
-        name = rng.choice(["pano.exr", "pano.exr", "pano.hdr", "pano.png", "street.jpg"])
+        name = rng.choice(["pano.exr", "pano.exr", "pano.hdr", "pano.png", "street.jpg", "theta_pano.jpg"])
         f = job / f"in{seeds[name].suffix.lower()}"
         return Case(command, ["envmap", "sun", str(f), "--json"], mutated(name, f), name)
     if command == "predict":
@@ -494,10 +511,10 @@ def build_case(
 
 
 _SEEDS_OF = {
-    "capture info": ["theta.jpg", "photo.jpg", "street.jpg", "real.dng"],
+    "capture info": ["theta.jpg", "theta_pano.jpg", "photo.jpg", "street.jpg", "real.dng"],
     "capture unwarp": ["theta.jpg", "small_theta.jpg", "small_theta.png", "small_theta.exr"],
     "capture merge": ["bracket0.jpg"],
-    "envmap sun": ["pano.exr", "pano.hdr", "pano.png", "street.jpg"],
+    "envmap sun": ["pano.exr", "pano.hdr", "pano.png", "street.jpg", "theta_pano.jpg"],
     "predict": ["photo.jpg", "photo.png"],
     "ingest": ["theta.jpg", "real.dng"],
     "testset validate": ["testset.json"],
@@ -561,6 +578,7 @@ def run(count: int, seed: int, timeout: float, only: list[str], keep: Path | Non
         worker = Worker(tmp / "worker.log", cache)
         stats = {c: Counter() for c in commands}
         messages: dict[str, Counter] = {c: Counter() for c in commands}
+        cases: list[list] = []  # [index, command, seed file, mutation, exit code, first error/warning line]
         failures: list[dict] = []
         seconds: dict[str, float] = Counter()
         baseline = {}
@@ -590,11 +608,14 @@ def run(count: int, seed: int, timeout: float, only: list[str], keep: Path | Non
                 outcome = judge(case, out, err)
             stats[command][outcome] += 1
             first = next((line for line in err.splitlines() if line.startswith(("error: ", "warning: "))), "")
+            cases.append([i, command, case.target, case.mutation, case.result.get("code"), first[:160]])
             if first:
                 messages[command][re.sub(r"/\S*/", "", first)[:90]] += 1
             stats[command]["inputs"] += 1
             if case.result.get("chatter"):
                 stats[command]["chatter"] += 1
+            if outcome == "ok" and any(line.startswith("warning: ") for line in err.splitlines()):
+                stats[command]["warned"] += 1
             bad = outcome in ("internal", "crash", "hang", "other_exit") or case.result.get("chatter")
             if bad:
                 failures.append(
@@ -633,6 +654,7 @@ def run(count: int, seed: int, timeout: float, only: list[str], keep: Path | Non
             "hangs": st["hang"],
             "other_exit": st["other_exit"],
             "with_chatter": st["chatter"],
+            "exit_0_warned": st["warned"],
             "seconds": round(seconds[c], 1),
             "top_messages": dict(messages[c].most_common(8)),
         }
@@ -646,6 +668,7 @@ def run(count: int, seed: int, timeout: float, only: list[str], keep: Path | Non
         "baseline": baseline,
         "per_command": rows,
         "failures": failures,
+        "cases": cases,
     }
 
 
@@ -662,6 +685,7 @@ def write_report(res: dict, out: Path) -> None:
         "hangs",
         "other_exit",
         "with_chatter",
+        "exit_0_warned",
         "seconds",
     ]
     lines = [
@@ -673,7 +697,8 @@ def write_report(res: dict, out: Path) -> None:
         "sizes, TIFF entries, TOML/JSON nesting, NaN/Infinity, wrong types, invalid UTF-8) of the seeds: "
         + ", ".join(f"`{s}`" for s in res["seeds"])
         + ". `exit_1_problems`: `testset validate` found problems (its job); `exit_1_internal`: an unforeseen "
-        "error; `with_chatter`: a library's own line on stderr or stdout that is not one JSON document.",
+        "error; `with_chatter`: a library's own line on stderr or stdout that is not one JSON document; "
+        "`exit_0_warned`: exit 0 with a `warning:` line (corrupt JPEG data decoded anyway, naming the file).",
         "",
         "| command | " + " | ".join(cols) + " |",
         "|---|" + "---|" * len(cols),
