@@ -149,14 +149,19 @@ def _merge_bracket(
 
     registration = None
     if align and len(paths) >= 2:
-        provisional = frames_with(response)  # sRGB (or the given curve) is enough to find shifts
-        reg = register_frames(
-            [f.codes if ldr else np.clip(f.linear * 255, 0, 255).astype(np.uint8) for f in provisional],
-            [f.linear for f in provisional],
-            list(exposures),
-            [cast(np.ndarray, f.valid().all(axis=-1)) for f in provisional],
-            rank_codes=ldr and all(f.codes.dtype == np.uint8 for f in provisional),
-        )
+        if ldr and all(cast(np.ndarray, c).dtype == np.uint8 for c, _ in decoded):
+            # 8-bit frames are ranked by their codes: no curve, no linear copies needed to find shifts
+            eight = [cast(np.ndarray, c) for c, _ in decoded]
+            reg = register_frames(eight, eight, list(exposures), [_valid_codes(c) for c in eight])
+        else:
+            provisional = frames_with(response)  # sRGB (or the given curve) is enough to find shifts
+            reg = register_frames(
+                [f.codes if ldr else np.clip(f.linear * 255, 0, 255).astype(np.uint8) for f in provisional],
+                [f.linear for f in provisional],
+                list(exposures),
+                [cast(np.ndarray, f.valid().all(axis=-1)) for f in provisional],
+                rank_codes=False,
+            )
         warnings += reg.warnings
         registration = reg.to_json()
         for i, (dx, dy) in enumerate(reg.shifts):
@@ -201,6 +206,15 @@ def _merge_bracket(
         "stats": result.stats(),
     }
     return result, provenance
+
+
+def _valid_codes(codes: np.ndarray) -> np.ndarray:
+    """``(H, W)`` bool: the 8-bit pixels a :class:`Frame` counts as well exposed in every channel (above black,
+    none saturated), from the codes alone."""
+    grid = np.arange(256) / 255.0
+    lowest = np.uint8(np.argmax(grid > DEFAULT_BLACK))  # the first code above black
+    saturated = np.uint8(np.ceil(DEFAULT_SATURATION * 255.0))
+    return cast(np.ndarray, (codes.min(axis=-1) >= lowest) & (codes.max(axis=-1) < saturated))
 
 
 def _check_exposure_order(paths: Sequence[Path], exposures: Sequence[float], images: Sequence[np.ndarray]) -> None:

@@ -160,3 +160,12 @@ def test_exposure_times_in_the_wrong_order_are_an_input_error(tmp_path, sunrise)
     assert r.exit_code != 0 and "exposure times contradict the frames" in str(r.exception)
     assert not (tmp_path / "m.exr").exists()
     merge_bracket(paths, times)  # the right order merges
+
+
+def test_valid_codes_match_the_frames_mask():
+    """Registration of 8-bit frames reads the well-exposed mask from the codes alone: the same pixels a Frame keeps."""
+    from solidkit.capture.bracket_merge import _valid_codes
+    from solidkit.capture.frame_merge import frame_from_ldr
+
+    codes = np.random.default_rng(0).integers(0, 256, (64, 96, 3)).astype(np.uint8)
+    np.testing.assert_array_equal(_valid_codes(codes), frame_from_ldr(codes, 1.0).valid().all(axis=-1))
