@@ -202,6 +202,12 @@ def make_seeds(root: Path) -> dict[str, Path]:
     s["theta.jpg"] = frames[0]
     s["photo.jpg"] = MINI / "scene01" / "photo" / "IMG_0001.JPG"
     s["fieldnotes.toml"] = MINI / "scene01" / "fieldnotes.toml"
+    import tomllib
+
+    notes = tomllib.loads(s["fieldnotes.toml"].read_text())
+    (root / "fieldnotes.json").write_text(json.dumps(notes, indent=1))  # what a tablet app writes
+    s["fieldnotes.json"] = root / "fieldnotes.json"
+    s["lens.json"] = ROOT / "solidkit" / "camera" / "profiles" / "theta-v.json"
     small = [cv2.resize(cv2.imread(str(f)), (480, 240), interpolation=cv2.INTER_AREA) for f in frames]
     for k, img in enumerate(small):
         (root / f"bracket{k}.jpg").write_bytes(_jpeg(img))
@@ -449,12 +455,17 @@ def build_case(
         f = job / f"in{seeds[name].suffix.lower()}"
         return Case(command, ["capture", "info", str(f), "--json"], mutated(name, f), name)
     if command == "capture unwarp":
-        name = rng.choice(["theta.jpg", "small_theta.jpg", "small_theta.png", "small_theta.exr"])
-        f = job / f"in{seeds[name].suffix.lower()}"
-        how = mutated(name, f)
+        name = rng.choice(["theta.jpg", "small_theta.jpg", "small_theta.png", "small_theta.exr", "lens.json"])
+        if name == "lens.json":  # the lens profile mutated, the frame as it is
+            f, profile = job / "in.jpg", job / "unit.json"
+            shutil.copyfile(seeds["small_theta.jpg"], f)
+            how = mutated(name, profile)
+        else:
+            f, profile = job / f"in{seeds[name].suffix.lower()}", None
+            how = mutated(name, f)
         argv = ["capture", "unwarp", str(f), "-o", str(job / "out.exr"), "--size", "128x64", "--no-disk-cache"]
         if name != "theta.jpg":  # re-encoded without EXIF: the camera is not known
-            argv += ["--profile", "theta-v"]
+            argv += ["--profile", str(profile) if profile else "theta-v"]
         return Case(command, argv + ["--json"], how, name)
     if command == "capture merge":
         k = rng.randrange(3)
@@ -481,19 +492,21 @@ def build_case(
         card = job / "card" / "scene01"
         for sub in ("cam", "photo"):
             (card / sub).mkdir(parents=True)
-        picks = ["theta.jpg", "theta.jpg", "photo.jpg", "fieldnotes.toml", "fieldnotes.toml"]
+        picks = ["theta.jpg", "theta.jpg", "photo.jpg", "fieldnotes.toml", "fieldnotes.toml", "fieldnotes.json"]
         name = rng.choice(picks + (["real.dng"] if "real.dng" in seeds else []))
         places = {
             "theta.jpg": card / "cam" / "R0010001.JPG",
             "photo.jpg": card / "photo" / "IMG_0001.JPG",
             "fieldnotes.toml": card / "fieldnotes.toml",
+            "fieldnotes.json": card / "fieldnotes.json",
             "real.dng": card / "cam" / "R0010009.DNG",
         }
         how = ""
+        notes = "fieldnotes.json" if name == "fieldnotes.json" else "fieldnotes.toml"  # one notes file per scene
         for seed_name, dest in places.items():
             if seed_name == name:
                 how = mutated(seed_name, dest)
-            elif seed_name != "real.dng":
+            elif seed_name not in ("real.dng", "fieldnotes.toml", "fieldnotes.json") or seed_name == notes:
                 shutil.copyfile(seeds[seed_name], dest)
         argv = ["ingest", str(job / "card"), "-o", str(job / "campaign")]
         if index % 4:
@@ -512,11 +525,11 @@ def build_case(
 
 _SEEDS_OF = {
     "capture info": ["theta.jpg", "theta_pano.jpg", "photo.jpg", "street.jpg", "real.dng"],
-    "capture unwarp": ["theta.jpg", "small_theta.jpg", "small_theta.png", "small_theta.exr"],
+    "capture unwarp": ["theta.jpg", "small_theta.jpg", "small_theta.png", "small_theta.exr", "lens.json"],
     "capture merge": ["bracket0.jpg"],
     "envmap sun": ["pano.exr", "pano.hdr", "pano.png", "street.jpg", "theta_pano.jpg"],
     "predict": ["photo.jpg", "photo.png"],
-    "ingest": ["theta.jpg", "real.dng"],
+    "ingest": ["theta.jpg", "fieldnotes.json", "real.dng"],
     "testset validate": ["testset.json"],
 }
 
