@@ -21,7 +21,9 @@ counted too.
 
 Writes ``benchmarks/results/fuzz_inputs.{md,json}`` (per command: inputs and outcomes; the failing cases with
 their mutation, exit code and stderr). Run: ``.venv/bin/python benchmarks/fuzz_inputs.py [--count 1000]
-[--seed 0] [--timeout 120] [--only predict,ingest]``; ``--keep DIR`` keeps the failing inputs.
+[--seed 0] [--timeout 120] [--only predict,ingest]``; ``--keep DIR`` keeps the failing inputs, ``--cases FILE``
+writes every input's outcome (compare two trees with the same ``--seed``), ``--before OLD.json`` adds an older
+tree's table to the report.
 """
 
 from __future__ import annotations
@@ -621,7 +623,7 @@ def run(count: int, seed: int, timeout: float, only: list[str], keep: Path | Non
                 outcome = judge(case, out, err)
             stats[command][outcome] += 1
             first = next((line for line in err.splitlines() if line.startswith(("error: ", "warning: "))), "")
-            cases.append([i, command, case.target, case.mutation, case.result.get("code"), first[:160]])
+            cases.append([i, command, case.target, case.mutation, case.result.get("code"), first[:200]])
             if first:
                 messages[command][re.sub(r"/\S*/", "", first)[:90]] += 1
             stats[command]["inputs"] += 1
@@ -687,7 +689,8 @@ def run(count: int, seed: int, timeout: float, only: list[str], keep: Path | Non
 
 def write_report(res: dict, out: Path) -> None:
     out.mkdir(parents=True, exist_ok=True)
-    (out / "fuzz_inputs.json").write_text(json.dumps(res, indent=1) + "\n")
+    doc = {k: v for k, v in res.items() if k != "cases"}  # the per-input list only with --cases
+    (out / "fuzz_inputs.json").write_text(json.dumps(doc, indent=1) + "\n")
     cols = [
         "inputs",
         "exit_0",
@@ -753,6 +756,7 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--out", type=Path, default=OUT, help="where fuzz_inputs.{md,json} go")
     ap.add_argument("--before", type=Path, default=None, help="a fuzz_inputs.json of an older tree, shown beside")
     ap.add_argument("--before-label", default="an older tree", help="what --before ran on")
+    ap.add_argument("--cases", type=Path, default=None, help="write every input's outcome here (JSON lines)")
     args = ap.parse_args(argv)
     only = [c.strip() for c in args.only.split(",") if c.strip()]
     res = run(args.count, args.seed, args.timeout, only, args.keep)
@@ -761,6 +765,8 @@ def main(argv: list[str] | None = None) -> int:
         rows = {c: {k: v for k, v in row.items() if k != "top_messages"} for c, row in old["per_command"].items()}
         res["before"] = {"label": args.before_label, "seed": old["seed"], "per_command": rows}
     write_report(res, args.out)
+    if args.cases is not None:
+        args.cases.write_text("".join(json.dumps(c) + "\n" for c in res["cases"]))
     print(
         f"\n{res['count']} inputs in {res['wall_s']} s; {len(res['failures'])} failing; {args.out / 'fuzz_inputs.md'}"
     )
