@@ -620,10 +620,48 @@ def choose_candidates(scene: SunScene, best: Hypothesis | None, hard: Rejections
                         + " (a glint on glass?)"
                     ]
                     continue
+                twin = None
+                if off is not None and off > 3.0 * s.compass_sigma_deg:
+                    assert ref_az is not None  # off is measured from it
+                    twin = _mirror_twin(scene, ci, bi, ref_az, h_el, hard)
+                if twin is not None:
+                    # one compass 90 deg off is possible; two putting their candidates at one wrong place is not
+                    hard[ci, bi] = [
+                        f"{off:.0f} deg from where the compass puts the sun, at the sun's elevation, where {twin} "
+                        "sees a candidate through its own compass too: a mirror image of the sun in glass"
+                    ]
+                    continue
             if ok:
                 chosen[ci] = bi
                 break
     return chosen, hard
+
+
+def _mirror_twin(scene: SunScene, ci: int, bi: int, ref_az: float, h_el: float, hard: Rejections) -> str | None:
+    """Another capture that sees a candidate where candidate ``bi`` of capture ``ci`` is, through the compass,
+    at the sun's elevation ``h_el`` and more than three compass sigmas from where the sun is (``ref_az``, the
+    photo's frame): the same mirror image of the sun seen from two positions (a plane mirror's image is one
+    world direction). Its id, or None. The other capture's azimuth is through its yaw where known, else its
+    compass; they agree within twice the compass sigma, times sqrt 2."""
+    s, caps = scene.settings, scene.captures
+    az_i = scene.compass_azimuth(ci, bi)
+    tol = 2.0 * math.sqrt(2.0) * s.compass_sigma_deg
+    for cj, other in enumerate(caps):
+        if cj == ci:
+            continue
+        for bj in range(len(other.blobs)):
+            if any(r.startswith(("too large", "not in the sky", "below the horizon")) for r in hard.get((cj, bj), [])):
+                continue  # no image of the sun at all
+            az_j, el_j = scene.in_photo_frame(cj, bj)
+            if az_j is None:
+                if other.compass_yaw_deg is None:
+                    continue
+                az_j = scene.compass_azimuth(cj, bj)
+            if abs(el_j - h_el) > scene.el_tol or abs(wrap_deg(az_j - ref_az)) <= 3.0 * s.compass_sigma_deg:
+                continue
+            if abs(wrap_deg(az_j - az_i)) <= tol:
+                return other.probe
+    return None
 
 
 def capture_results(

@@ -346,3 +346,28 @@ def test_blob_shape_of_a_disk_and_a_streak() -> None:
     streak = find_candidates(np.repeat(img[..., None], 3, axis=2))[0]
     assert disk.elongation < 1.2 < 3.0 < streak.elongation
     assert disk.pixel_deg == pytest.approx(180.0 / H)
+
+
+def test_mirror_images_at_compass_only_captures_are_not_the_sun() -> None:
+    """No capture has a feature yaw (the photo's match and the probes' features failed: glass). The camera position
+    sees the sun and its mirror image at the sun's elevation; two probes see only the mirror image. Through their
+    compasses both put it where the camera position's compass puts the image, 90 deg from the ephemeris' sun: two
+    compasses cannot both be 90 deg off to the same place, so neither is taken for the sun (virtual glass campaign
+    seed 115: both were, and their yaws turned 88 deg)."""
+    mirror = wrap_deg(SUN_P[0] - 92.0)
+    caps = [_capture("cam", 0.0, glint=(mirror, SUN_P[1]))]
+    for k, yaw in enumerate((-40.0, 60.0)):
+        caps.append(_capture(f"p{k + 1:02d}", yaw, sun=False, glint=(wrap_deg(mirror - yaw), SUN_P[1])))
+    for c, err in zip(caps, (1.5, -3.0, 4.0)):
+        c.compass_yaw_deg, c.yaw_deg, c.yaw_sigma_deg = c.yaw_deg + err, None, None
+    sun = scene_sun(caps, photo_ephemeris=PHOTO_EPH, photo_heading_deg=180.0, settings=STATIC)
+    cam = sun.captures[0]
+    assert cam.found and abs(wrap_deg(cam.azimuth_deg - SUN_P[0])) < 0.5
+    for cs in sun.captures[1:]:
+        assert not cs.found and any("mirror image" in r for c in cs.candidates for r in c.reasons), cs
+    # one probe alone with its compass 90 deg off: its sun is still taken (nothing corroborates a mirror image)
+    lone = [_capture("cam", 0.0), _capture("p01", 60.0)]
+    lone[0].compass_yaw_deg, lone[0].yaw_deg, lone[0].yaw_sigma_deg = 1.5, None, None
+    lone[1].compass_yaw_deg, lone[1].yaw_deg, lone[1].yaw_sigma_deg = 60.0 + 90.0, None, None
+    sun = scene_sun(lone, photo_ephemeris=PHOTO_EPH, photo_heading_deg=180.0, settings=STATIC)
+    assert sun.captures[1].found
