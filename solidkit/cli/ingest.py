@@ -228,10 +228,12 @@ def ingest_cli(
         )
     if report.errors or report.known_errors or report.transient_errors:
         n = len(report.errors) + report.known_errors + len(report.transient_errors)
-        raise InputError(f"{n} file(s) on {card_dir} could not be ingested (listed above); everything else was")
+        raise InputError(
+            f"{n} file(s) on {card_dir} could not be ingested (listed above); everything else was ingested"
+        )
     if report.product_errors:
         raise InputError(
-            f"{len(report.product_errors)} product(s) could not be built (listed above); everything else was"
+            f"{len(report.product_errors)} product(s) could not be built (listed above); everything else was built"
         )
     if report.notes_errors:
         raise InputError(

@@ -178,3 +178,14 @@ def test_merge_warns_about_a_corrupt_frame(solidkit_fd, tmp_path: Path) -> None:
     assert code == 0 and json.loads(out)
     lines = [line for line in err.splitlines() if line.strip()]
     assert [line.split(": corrupt")[0] for line in lines] == [f"warning: {frames[-1]}"], err  # Pillow said nothing
+
+
+def test_ingest_says_what_else_was_done(solidkit_fd, tmp_path: Path) -> None:
+    card = tmp_path / "card" / "DCIM"
+    card.mkdir(parents=True)
+    shutil.copyfile(MINI / "scene01" / "cam" / "R0010001.JPG", card / "R0010001.JPG")
+    (card / "R0010002.JPG").write_bytes(huge_jpeg())
+    code, _, err = solidkit_fd("ingest", tmp_path / "card", "-o", tmp_path / "campaign", "--no-products")
+    assert code == 2 and one_error_line(err).endswith(
+        "1 file(s) on {} could not be ingested (listed above); everything else was ingested".format(tmp_path / "card")
+    )  # the sentence stopped at "everything else was"
