@@ -43,6 +43,8 @@ import cv2
 import numpy as np
 
 from solidkit.camera.lens import LensProfile, project, unproject
+from solidkit.envmap.coords import wrap_angle
+from solidkit.envmap.perspective import scale_pixel_coordinates
 from solidkit.envmap.sun import luminance
 
 __all__ = [
@@ -162,8 +164,8 @@ def ring_strips(
     for i, lens in enumerate(prof.lenses[:2]):
         x, y, th = project(lens, d)
         edge = math.radians(t0 if i == 0 else t1)
-        xs = ((x + 0.5) * s_x - 0.5).astype(np.float32)
-        ys = ((y + 0.5) * s_y - 0.5).astype(np.float32)
+        xs = scale_pixel_coordinates(x, s_x).astype(np.float32)
+        ys = scale_pixel_coordinates(y, s_y).astype(np.float32)
         v = cv2.remap(lum, xs, ys, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
         m = (th <= edge) & (xs >= 0) & (ys >= 0) & (xs <= lum.shape[1] - 1) & (ys <= lum.shape[0] - 1)
         g = np.clip(v / max(scale, 1e-12), 0, 1) * 255.0
@@ -329,9 +331,7 @@ def summarize(profile: LensProfile, matches: SeamMatches) -> SeamDisparity:
     al, bl = a @ R0, b @ R0  # front lens' frame: the ring's axis is +z
     ang_a = np.arccos(np.clip(al[:, 2], -1, 1))
     across = np.degrees(np.arccos(np.clip(bl[:, 2], -1, 1)) - ang_a)
-    along = np.degrees(
-        (np.arctan2(bl[:, 1], bl[:, 0]) - np.arctan2(al[:, 1], al[:, 0]) + math.pi) % (2 * math.pi) - math.pi
-    ) * np.sin(ang_a)
+    along = np.degrees(wrap_angle(np.arctan2(bl[:, 1], bl[:, 0]) - np.arctan2(al[:, 1], al[:, 0]))) * np.sin(ang_a)
     az = np.degrees(np.arctan2(al[:, 1], al[:, 0])) % 360.0
     ang = np.degrees(ang_a)
     sectors = np.unique((az[(ang >= band[0]) & (ang <= band[1])] // 10).astype(int))
