@@ -3,7 +3,8 @@ mirror image in the facades (slow: a render). Held against the truth: no glint i
 capture more than 2 deg off in yaw is flagged at the capture.
 
 Seeds of the ``glass-mini`` preset (1 scene, 3 probes), chosen for that layout (truth: sun visible / glint seen):
-100 (sun at cam only; glint at cam and p02), 109 (sun at cam only; glints at p02 and p03). An already rendered
+100 (sun at cam only; glint at cam and p02), 109 (sun at cam only; glints at p02 and p03), 115 (sun at cam only;
+glints at cam, p01 and p02; no capture has a feature yaw before the sun). An already rendered
 campaign can be given as ``SOLIDKIT_GLASS_SYNTH_<seed>=DIR`` (card/ + truth/) to save the render.
 """
 
@@ -37,7 +38,7 @@ def _run(args: list[str]) -> None:
         sys.argv = argv
 
 
-@pytest.mark.parametrize("seed", [100, 109])
+@pytest.mark.parametrize("seed", [100, 109, 115])
 def test_glints_seen_where_the_sun_is_hidden_are_never_the_sun(seed: int, tmp_path) -> None:
     synth = Path(os.environ.get(f"SOLIDKIT_GLASS_SYNTH_{seed}", tmp_path / "virtual"))
     if not (synth / "truth" / "truth.json").is_file():
