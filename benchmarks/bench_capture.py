@@ -11,12 +11,27 @@
   ``solidkit ingest --no-products`` with 1 and 2 jobs vs the peer ``cp`` + ``sha256sum`` of the
   same files (the least any checksummed copy must do). Reported: captures per minute.
 
-Writes benchmarks/results/capture.json and capture.md. Run: ``.venv/bin/python benchmarks/bench_capture.py``.
+* **ingest with products** (``--only products``): the shipped mini card (21 captures, 1920x960 dual-fisheye,
+  7 brackets) ingested with its products (merge, unwarp, tilt, EXR/PNG) with ``--jobs 1`` and ``--jobs 2``, and
+  a card of Theta V-size captures (the mini card's scene02, 6 captures, upscaled to 5792x2896, EXIF kept) with
+  ``--jobs 2``. Captures per minute, each run a fresh campaign, runs alternating between this tree and
+  ``--baseline`` (another checkout's ``solidkit`` package: the "before"), the load average beside each.
+* **merge against the OpenCV script** (``--only selfmerge``): ``solidkit capture merge`` of 3 JPEG frames with no
+  curve given (the command as users run it: whole process) against a script doing ``cv2.imread``,
+  ``cv2.createCalibrateDebevec`` + ``cv2.createMergeDebevec`` and the same EXR writer, on the same frames
+  (the city panorama at 1920x960 and 5792x2896 through a gamma-2.2 camera), in alternating runs; error =
+  median |log2| luminance error against the truth after the best global scale, pixels well exposed in a frame.
+
+Writes benchmarks/results/capture.json and capture.md (a section run again replaces its numbers; the others
+are kept). Run: ``.venv/bin/python benchmarks/bench_capture.py [--only merge,ingest,products,selfmerge]
+[--baseline DIR] [--repeats N]``.
 """
 
 from __future__ import annotations
 
+import argparse
 import json
+import os
 import platform
 import shutil
 import subprocess
@@ -161,51 +176,277 @@ def bench_ingest(folder: Path, n: int = 20) -> dict:
     return res
 
 
-def main() -> None:
-    OUT.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(prefix="bench_capture_"))
-    try:
-        result = {
-            "machine": platform.platform(),
-            "cpus": __import__("os").cpu_count(),
-            "load_average_at_start": list(__import__("os").getloadavg()),
-            "merge_5792x2896_3_frames": bench_merge(tmp),
-            "ingest_20_captures": bench_ingest(tmp),
+def _env(tree: Path | None) -> dict:
+    """The environment of a run of ``tree``'s solidkit (None: this checkout)."""
+    env = dict(os.environ)
+    if tree is not None:
+        env["PYTHONPATH"] = str(tree)
+    return env
+
+
+def _timed(cmd: list[str], tree: Path | None, cwd: Path) -> tuple[float, float]:
+    """(wall seconds, 1-minute load average before the run) of one subprocess run."""
+    load = os.getloadavg()[0]
+    t0 = time.perf_counter()
+    subprocess.run(cmd, check=True, capture_output=True, cwd=cwd, env=_env(tree))
+    return time.perf_counter() - t0, load
+
+
+def _theta_v_card(folder: Path) -> Path:
+    """The mini card's scene02 with every capture upscaled to 5792x2896 (Theta V dual-fisheye), EXIF kept."""
+    from PIL import Image
+
+    src = REPO / "solidkit" / "assets" / "campaign_mini" / "card" / "scene02"
+    card = folder / "card_theta_v"
+    for path in sorted(src.rglob("*")):
+        dst = card / "scene02" / path.relative_to(src)
+        if path.is_dir():
+            continue
+        dst.parent.mkdir(parents=True, exist_ok=True)
+        if path.suffix.upper() == ".JPG" and path.name.startswith("R"):
+            with Image.open(path) as im:
+                exif = im.info.get("exif", b"")
+                im.convert("RGB").resize((5792, 2896), Image.BICUBIC).save(dst, exif=exif, quality=92)
+        else:
+            shutil.copyfile(path, dst)
+    return card
+
+
+def _median(xs: list[float]) -> float:
+    return float(np.median(xs))
+
+
+def bench_ingest_products(folder: Path, baseline: Path | None, repeats: int) -> dict:
+    """Captures per minute of ``ingest`` with products, this tree and the baseline in turn (module docstring)."""
+    mini = REPO / "solidkit" / "assets" / "campaign_mini" / "card"
+    theta_v = _theta_v_card(folder)
+    cards = {"mini": (mini, 21, (1, 2)), "theta_v": (theta_v, sum(1 for _ in theta_v.rglob("R*.JPG")), (2,))}
+    trees = {"after": None, **({"before": baseline} if baseline is not None else {})}
+    runs: dict[str, list] = {}
+    k = 0
+    for rep in range(repeats):
+        for card_name, (card, n, jobs_list) in cards.items():
+            for jobs in jobs_list:
+                for label, tree in list(trees.items()) if rep % 2 == 0 else list(trees.items())[::-1]:
+                    k += 1
+                    camp = folder / f"camp{k}"
+                    cmd = [str(REPO / ".venv" / "bin" / "solidkit"), "ingest", str(card), "-o", str(camp)]
+                    wall, load = _timed([*cmd, "--jobs", str(jobs)], tree, folder)
+                    shutil.rmtree(camp, ignore_errors=True)
+                    runs.setdefault(f"{card_name}/jobs{jobs}/{label}", []).append(
+                        {"wall_s": wall, "captures_per_min": 60 * n / wall, "load_1min": load}
+                    )
+                    print(
+                        card_name,
+                        jobs,
+                        label,
+                        f"{wall:.1f} s",
+                        f"{60 * n / wall:.0f}/min",
+                        f"load {load:.1f}",
+                        flush=True,
+                    )
+    out: dict = {"captures": {name: c[1] for name, c in cards.items()}, "repeats": repeats, "runs": runs}
+    out["median_captures_per_min"] = {key: _median([r["captures_per_min"] for r in v]) for key, v in runs.items()}
+    return out
+
+
+SELF_MERGE_PEER = r"""
+import sys, time
+import cv2, numpy as np
+from solidkit.envmap.io import write_exr
+paths, times, out = sys.argv[1:4], [float(t) for t in sys.argv[4:7]], sys.argv[7]
+imgs = [cv2.imread(p) for p in paths]
+t = np.asarray(times, np.float32)
+curve = cv2.createCalibrateDebevec().process(imgs, t)
+hdr = cv2.createMergeDebevec().process(imgs, t, curve)[..., ::-1]
+write_exr(out, np.ascontiguousarray(hdr))
+"""
+
+
+def _log2_error(hdr: np.ndarray, truth: np.ndarray, well: np.ndarray) -> float:
+    ok = well & (hdr.mean(-1) > 0)
+    lr = np.log2(hdr[ok].mean(-1) / truth[ok].mean(-1))
+    return float(np.median(np.abs(lr - np.median(lr))))
+
+
+def bench_self_merge(folder: Path, baseline: Path | None, repeats: int) -> dict:
+    """``capture merge`` (no curve given) against the OpenCV Debevec script, alternating (module docstring)."""
+    import cv2
+
+    from solidkit.envmap.io import read_exr
+
+    out: dict = {}
+    base, _ = read_exr(REPO / "solidkit" / "assets" / "hdr_panoramas" / "city.exr")
+    for w, h in ((1920, 960), (5792, 2896)):
+        sub = folder / f"self{w}"
+        sub.mkdir()
+        hdr = cv2.resize(base, (w, h), interpolation=cv2.INTER_LINEAR).astype(np.float32)
+        hdr *= 2.0 / np.median(hdr)
+        rng = np.random.default_rng(0)
+        paths, well = [], np.zeros((h, w), bool)
+        for i, t in enumerate(TIMES):
+            x = hdr * t * (1 + 0.01 * rng.standard_normal(hdr.shape, dtype=np.float32))
+            z = np.round(255 * np.clip(x, 0, 1) ** (1 / 2.2)).astype(np.uint8)
+            well |= ((z >= 10) & (z <= 245)).all(-1)
+            p = sub / f"f{i}.jpg"
+            cv2.imwrite(str(p), cv2.cvtColor(z, cv2.COLOR_RGB2BGR), [cv2.IMWRITE_JPEG_QUALITY, 95])
+            paths.append(p)
+        times = [repr(t) for t in TIMES]
+        cmds = {
+            "solidkit": (
+                lambda o: [
+                    str(REPO / ".venv" / "bin" / "solidkit"),
+                    "capture",
+                    "merge",
+                    *map(str, paths),
+                    "-o",
+                    o,
+                    "--times",
+                    ",".join(times),
+                ],
+                None,
+            ),
+            "opencv_script": (lambda o: [sys.executable, "-c", SELF_MERGE_PEER, *map(str, paths), *times, o], None),
         }
-    finally:
-        shutil.rmtree(tmp, ignore_errors=True)
-    (OUT / "capture.json").write_text(json.dumps(result, indent=2) + "\n")
-    m, g = result["merge_5792x2896_3_frames"], result["ingest_20_captures"]
+        if baseline is not None:
+            cmds["solidkit_before"] = (cmds["solidkit"][0], baseline)
+        runs: dict[str, list] = {name: [] for name in cmds}
+        errors: dict[str, float] = {}
+        for rep in range(repeats):
+            for name in list(cmds)[:: 1 if rep % 2 == 0 else -1]:
+                make, tree = cmds[name]
+                target = sub / f"{name}.exr"
+                wall, load = _timed(make(str(target)), tree, REPO)
+                runs[name].append({"wall_s": wall, "load_1min": load})
+                errors[name] = _log2_error(read_exr(target)[0], hdr, well)
+                print(w, name, f"{wall:.2f} s", f"error {errors[name]:.4f}", f"load {load:.1f}", flush=True)
+        med = {name: _median([r["wall_s"] for r in v]) for name, v in runs.items()}
+        entry = {"runs": runs, "median_wall_s": med, "log2_error": errors}
+        entry["ratio_solidkit_over_opencv"] = med["solidkit"] / med["opencv_script"]
+        if baseline is not None:
+            entry["ratio_before_over_opencv"] = med["solidkit_before"] / med["opencv_script"]
+        out[f"{w}x{h}"] = entry
+        shutil.rmtree(sub, ignore_errors=True)
+    return out
+
+
+def _markdown(result: dict) -> list[str]:
     lines = [
         "# Capture benchmarks",
         "",
-        f"Machine: {result['machine']}, {result['cpus']} CPUs, load average at start "
-        f"{result['load_average_at_start'][0]:.1f} (shared machine: compare the ratios, not the seconds).",
+        "Machine: " + result.get("machine", "?") + f", {result.get('cpus')} CPUs (shared with other jobs: compare the "
+        "ratios of alternating runs, not the seconds; the load average is given beside each section).",
         "",
-        "## HDR merge, 3 JPEG frames at 5792x2896 (decode + merge + EXR write)",
-        "",
-        "| method | wall (s) | peak RSS (MiB) | median rel. error (well exposed) |",
-        "|---|---|---|---|",
-        *[
-            f"| {k} | {m[k]['wall_s']:.2f} | {m[k]['peak_rss_mib']:.0f} | "
-            f"{100 * m[k]['median_rel_error_well_exposed']:.2f} % |"
-            for k in ("solidkit", "opencv_debevec")
-        ],
-        "",
-        f"Time ratio solidkit / OpenCV: {m['time_ratio_solidkit_over_opencv']:.2f} "
-        "(solidkit also computes the ghost mask and saturation/black masks).",
-        "",
-        f"## Ingest, {g['captures']} captures of 5376x2688 ({g['card_mib']:.0f} MiB), no products",
-        "",
-        "| method | wall (s) | captures / min |",
-        "|---|---|---|",
-        f"| cp + sha256sum (peer) | {g['peer_cp_sha256sum_s']:.2f} | {g['peer_captures_per_min']:.0f} |",
-        f"| solidkit ingest --jobs 1 | {g['solidkit_jobs1_s']:.2f} | {g['solidkit_jobs1_captures_per_min']:.0f} |",
-        f"| solidkit ingest --jobs 2 | {g['solidkit_jobs2_s']:.2f} | {g['solidkit_jobs2_captures_per_min']:.0f} |",
-        "",
-        "solidkit also fully decodes every JPEG (truncation check), reads EXIF/XMP/maker notes, hashes the source "
-        "and the bytes it writes, and fsyncs each original.",
     ]
+    if "merge_5792x2896_3_frames" in result:
+        m = result["merge_5792x2896_3_frames"]
+        lines += [
+            "## HDR merge, 3 JPEG frames at 5792x2896 (decode + merge + EXR write), the curve given",
+            "",
+            "| method | wall (s) | peak RSS (MiB) | median rel. error (well exposed) |",
+            "|---|---|---|---|",
+            *[
+                f"| {k} | {m[k]['wall_s']:.2f} | {m[k]['peak_rss_mib']:.0f} | "
+                f"{100 * m[k]['median_rel_error_well_exposed']:.2f} % |"
+                for k in ("solidkit", "opencv_debevec")
+            ],
+            "",
+            f"Time ratio solidkit / OpenCV: {m['time_ratio_solidkit_over_opencv']:.2f} "
+            "(solidkit also computes the ghost mask and saturation/black masks).",
+            "",
+        ]
+    if "self_merge" in result:
+        sm = result["self_merge"]
+        lines += [
+            "## capture merge, 3 frames, no curve given, against the OpenCV Debevec script (alternating runs)",
+            "",
+            f"{sm.get('repeats', '?')} runs each; load average {sm.get('load', '?')}. Error: median |log2| against "
+            "the truth after a global scale.",
+            "",
+            "| size | solidkit (s) | OpenCV script (s) | ratio | before (s) | ratio before | error solidkit | "
+            "error OpenCV | error before |",
+            "|---|---|---|---|---|---|---|---|---|",
+        ]
+        for size, e in sm["sizes"].items():
+            med, err = e["median_wall_s"], e["log2_error"]
+            lines.append(
+                f"| {size} | {med['solidkit']:.2f} | {med['opencv_script']:.2f} | "
+                f"{e['ratio_solidkit_over_opencv']:.2f} | "
+                + (
+                    f"{med['solidkit_before']:.2f} | {e['ratio_before_over_opencv']:.2f} | "
+                    if "solidkit_before" in med
+                    else "- | - | "
+                )
+                + f"{err['solidkit']:.4f} | {err['opencv_script']:.4f} | "
+                f"{err.get('solidkit_before', float('nan')):.4f} |"
+            )
+        lines.append("")
+    if "ingest_products" in result:
+        ip = result["ingest_products"]
+        med = ip["median_captures_per_min"]
+        lines += [
+            "## Ingest with products (merge, unwarp, tilt, EXR/PNG), alternating runs",
+            "",
+            f"{ip['repeats']} runs each; 1-minute load average before each run in the JSON "
+            f"(median {ip.get('median_load', '?')}).",
+            "",
+            "| card | jobs | captures | after (captures/min) | before (captures/min) | ratio |",
+            "|---|---|---|---|---|---|",
+        ]
+        for key in sorted({k.rsplit("/", 1)[0] for k in med}):
+            card, jobs = key.split("/")
+            after, before = med.get(f"{key}/after"), med.get(f"{key}/before")
+            lines.append(
+                f"| {card} | {jobs.removeprefix('jobs')} | {ip['captures'][card]} | {after:.0f} | "
+                + (f"{before:.0f} | {after / before:.2f} |" if before else "- | - |")
+            )
+        lines.append("")
+    if "ingest_20_captures" in result:
+        g = result["ingest_20_captures"]
+        lines += [
+            f"## Ingest, {g['captures']} captures of 5376x2688 ({g['card_mib']:.0f} MiB), no products",
+            "",
+            "| method | wall (s) | captures / min |",
+            "|---|---|---|",
+            f"| cp + sha256sum (peer) | {g['peer_cp_sha256sum_s']:.2f} | {g['peer_captures_per_min']:.0f} |",
+            f"| solidkit ingest --jobs 1 | {g['solidkit_jobs1_s']:.2f} | {g['solidkit_jobs1_captures_per_min']:.0f} |",
+            f"| solidkit ingest --jobs 2 | {g['solidkit_jobs2_s']:.2f} | {g['solidkit_jobs2_captures_per_min']:.0f} |",
+            "",
+            "solidkit also fully decodes every JPEG (truncation check), reads EXIF/XMP/maker notes, hashes the source "
+            "and the bytes it writes, and fsyncs each original.",
+        ]
+    return lines
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--only", default="merge,ingest,products,selfmerge", help="comma-separated sections")
+    ap.add_argument("--baseline", type=Path, default=None, help="a source tree whose solidkit is the 'before'")
+    ap.add_argument("--repeats", type=int, default=3)
+    args = ap.parse_args()
+    only = set(args.only.split(","))
+    OUT.mkdir(parents=True, exist_ok=True)
+    path = OUT / "capture.json"
+    result = json.loads(path.read_text()) if path.is_file() else {}
+    result.update({"machine": platform.platform(), "cpus": os.cpu_count()})
+    tmp = Path(tempfile.mkdtemp(prefix="bench_capture_"))
+    try:
+        if "merge" in only:
+            result["merge_5792x2896_3_frames"] = bench_merge(tmp)
+        if "ingest" in only:
+            result["ingest_20_captures"] = bench_ingest(tmp)
+        if "products" in only:
+            result["ingest_products"] = bench_ingest_products(tmp, args.baseline, args.repeats)
+            loads = [r["load_1min"] for v in result["ingest_products"]["runs"].values() for r in v]
+            result["ingest_products"]["median_load"] = round(_median(loads), 1)
+        if "selfmerge" in only:
+            sizes = bench_self_merge(tmp, args.baseline, args.repeats)
+            loads = [r["load_1min"] for e in sizes.values() for v in e["runs"].values() for r in v]
+            result["self_merge"] = {"repeats": args.repeats, "load": round(_median(loads), 1), "sizes": sizes}
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)
+    path.write_text(json.dumps(result, indent=2) + "\n")
+    lines = _markdown(result)
     (OUT / "capture.md").write_text("\n".join(lines) + "\n")
     print("\n".join(lines))
 
