@@ -476,7 +476,7 @@ CASES: list[tuple[str, list[str], str, tuple]] = [
             "-o",
             "{d}/r.json",
             "--times",
-            "1,2",
+            "2,1",  # photo2.jpg is the darker frame
             "--samples",
             "100000",
         ],
