@@ -386,6 +386,7 @@ def check_image_circles(
     radius_range: tuple[float, float] = (0.85, 1.2),
     min_inliers: float = 0.4,
     max_width: int = 1536,
+    min_contrast: float = 12.0,
     bgr: bool = False,
 ) -> tuple[list[dict[str, float]], list[str]]:
     """Does the frame show its image circles where the lens profile puts them?
@@ -397,6 +398,12 @@ def check_image_circles(
     circle edge around the expected place (fewer than ``min_inliers`` of the rays) means another
     camera, another layout (stacked, rotated, cropped) or a unit far from the model's profile: a
     ``profile_mismatch`` warning, with what was found. Returns ``(per-lens fits, warnings)``.
+
+    A lens is judged only when the frame shows something lit near its circle's edge: the median
+    luminance on the profile's disc between 0.5 and 0.9 of its radius at least ``min_contrast`` x
+    the frame's 10th percentile (the black surround, its noise included). A bracket's 1/25000 s sun
+    frame (the sun on noise: 3-5 x on the virtual Theta V brackets, the other frames 30-650 x) has
+    no edge to find and gets no warning; the bracket's HDR product is checked instead.
 
     The tolerances are loose on purpose: on noisy JPEGs of the right camera (virtual Theta V
     brackets, 1920 px) bright content at the circle's edge pulls the fit up to 16 px / +5 % off;
@@ -417,10 +424,17 @@ def check_image_circles(
     lum = img[..., :3] @ (weights[::-1] if bgr else weights) if img.ndim == 3 else img
     fits, warnings = [], []
     full = profile.scaled(w, h) if tuple(profile.reference_size) != (w, h) else profile
+    # the dark surround (a third of a dual-fisheye frame): its level, noise included
+    floor = max(float(np.percentile(lum, 10)), 1e-9)
+    yy, xx = np.mgrid[0 : lum.shape[0], 0 : lum.shape[1]]
 
     for i, lens in enumerate(full.lenses):
         r0 = lens.max_radius()
         small = prof.lenses[i]
+        d = np.hypot(xx - small.center[0], yy - small.center[1]) / small.max_radius()
+        band = lum[(d >= 0.5) & (d <= 0.9)]
+        # a frame with nothing lit near the circle's edge (a 1/25000 s sun frame) shows no edge to check
+        judged = band.size > 0 and float(np.median(band)) >= min_contrast * floor
         # search +-12 %: wider, a ray from one lens reaches into the other's circle (Theta V side by side)
         cx, cy, r, frac = fit_image_circle(lum, small.center, small.max_radius(), search=0.12, rel_threshold=0.25)
         cx, cy, r = scale_pixel_coordinates(cx, k), scale_pixel_coordinates(cy, k), r * k  # full-size pixels
@@ -433,6 +447,8 @@ def check_image_circles(
                 "profile_radius": round(r0, 2),
             }
         )
+        if not judged:
+            continue
         if not (math.isfinite(r) and frac >= min_inliers):
             warnings.append(
                 f"profile_mismatch: lens {i}: no image circle edge near the profile's circle "

@@ -500,6 +500,30 @@ def test_a_profile_that_does_not_fit_the_frame_is_not_silent(tmp_path):
     assert len(warns) == 2
 
 
+def test_a_dark_sun_frame_of_the_right_camera_is_no_profile_mismatch():
+    """A bracket's 1/25000 s sun frame shows the sun on noise, no image circle edge: it is not judged
+    (it used to be flagged profile_mismatch); the bright frame of the same bracket still is, and still
+    fails a profile whose circle sits a tenth of its radius off."""
+    from solidkit.camera.lens import profile_for_metadata
+    from solidkit.capture.frame_merge import load_frame
+    from solidkit.capture.unwarp import check_image_circles
+
+    pos = ASSETS / "campaign_mini" / "card" / "scene01" / "p01"
+    sun, bright = (load_frame(pos / name, 1.0).linear for name in ("R0010004.JPG", "R0010006.JPG"))
+    prof = profile_for_metadata("RICOH THETA V", sun.shape[1], sun.shape[0])
+    assert check_image_circles(sun, prof)[1] == []
+    assert check_image_circles(bright, prof)[1] == []
+    lens0 = prof.lenses[0]
+    shift = 0.1 * lens0.max_radius()  # twice the tolerance
+    moved = prof.model_copy(
+        update={
+            "lenses": [lens0.model_copy(update={"center": (lens0.center[0] + shift, lens0.center[1])}), prof.lenses[1]]
+        }
+    )
+    warns = check_image_circles(bright, moved)[1]
+    assert len(warns) == 1 and warns[0].startswith("profile_mismatch: lens 0")
+
+
 def test_cli_unwarps_a_folder_and_several_files_in_one_call(tmp_path, cli):
     """Several captures in one call: one panorama each in the output folder, as one-file calls make them; a
     capture that fails is reported and the others are still made (exit 2); clashing outputs are refused first."""
