@@ -57,6 +57,7 @@ __all__ = [
     "is_notes_file",
     "read_notes",
     "notes_text",
+    "card_notes_template",
 ]
 
 NOTES_NAMES = ("fieldnotes.toml", "fieldnotes.json")
@@ -135,6 +136,29 @@ def notes_text(notes: FieldNotes) -> str:
         lines += ["", f"[probes.{json.dumps(pid)}]"] + [
             f"{k} = {val(v)}" for k, v in pn.model_dump().items() if v is not None
         ]
+    return "\n".join(lines) + "\n"
+
+
+def _key(k: str) -> str:
+    """``k`` as a TOML key: bare when it can be, else quoted."""
+    return k if k and all(c.isascii() and (c.isalnum() or c in "-_") for c in k) else json.dumps(k)
+
+
+def card_notes_template(scenes: dict[str, tuple[str | None, list[str]]]) -> str:
+    """A card-level ``fieldnotes.toml`` to fill in for scenes ingested without notes.
+
+    ``scenes`` maps a scene id to (its camera position if known, its position ids in shooting
+    order). What the team must decide is left commented out, so the file is valid as it stands
+    and applies nothing by guess: the camera position (suggested: the first position shot) and
+    each other position's ``[x, y]`` full-resolution photo pixel.
+    """
+    lines = ["fieldnotes = 1"]
+    for sid, (cam, positions) in scenes.items():
+        lines.append(f"[scenes.{json.dumps(sid)}]")
+        if cam is None and positions:
+            lines.append(f"# camera_position = {json.dumps(positions[0])}  # the position shot at the photo camera")
+        first = cam or (positions[0] if positions else None)
+        lines += [f"# probes.{_key(p)}.pixel = [x, y]  # photo pixel" for p in positions if p != first]
     return "\n".join(lines) + "\n"
 
 

@@ -12,6 +12,7 @@ from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, T
 from rich.table import Table
 
 from solidkit.capture.campaign import IngestReport, ingest, load_manifest, summary_rows
+from solidkit.capture.fieldnotes import card_notes_template
 from solidkit.capture.products import tilt_warning
 from solidkit.cli.output import echo_json, json_option, line_console
 from solidkit.cli.parsing import parse_exposure
@@ -102,6 +103,19 @@ def ingest_command(
         for pr in sc.probes:
             for w in pr.warnings:
                 out.print(f"[yellow]warning[/] {escape(sc.id)}/{escape(pr.id)}: {escape(w)}")
+    bare = {
+        sc.id: (sc.camera_probe, [p.id for p in sc.probes])
+        for sc in manifest.scenes
+        if sc.fieldnotes is None and (sc.camera_probe is None or any(p.role == "probe" for p in sc.probes))
+    }
+    if bare:
+        where = escape(str(Path(card_dir) / "fieldnotes.toml"))
+        out.print(
+            f"[yellow]field notes[/] {len(bare)} scene(s) have none: write {where} (docs/field-protocol.md), "
+            "fill in and uncomment, then run ingest again:"
+        )
+        for line in card_notes_template(bare).splitlines():
+            out.print(f"  {escape(line)}", soft_wrap=True)
     for i, name in enumerate(report.unrelated):
         if i == 20:
             out.print(

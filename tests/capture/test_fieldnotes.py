@@ -195,3 +195,24 @@ def test_notes_nested_too_deep_are_one_line(tmp_path: Path, name: str, text: str
     (tmp_path / name).write_text(text.replace("{}", deep))
     with pytest.raises(InputError, match=rf"^{name}: not valid {name[-4:].upper()} \(nested too deep\)$"):
         read_notes(tmp_path / name)  # RecursionError before: it aborted the whole ingest
+
+
+def test_ingest_without_notes_prints_the_card_file_to_write(tmp_path, cli):
+    """Once per ingest: the card-level file's path and a snippet with the scene ids; filled in, it applies."""
+    card = make_card(tmp_path / "card", bad=False)
+    code, out, _ = cli("ingest", card, "-o", tmp_path / "camp", "--no-products")
+    assert code == 0 and out.count("scene(s) have none: write") == 1
+    assert str(card / "fieldnotes.toml") in out.replace("\n", "")
+    snippet = out[out.index("  fieldnotes = 1") :].splitlines()
+    snippet = [ln.strip() for ln in snippet[: next(i for i, ln in enumerate(snippet) if not ln.startswith("  "))]]
+    m = load_manifest(tmp_path / "camp")
+    assert [ln for ln in snippet if ln.startswith("[scenes.")] == [f'[scenes."{sc.id}"]' for sc in m.scenes]
+    filled = [ln.lstrip("# ").replace("[x, y]", "[10, 20]") for ln in snippet]
+    (card / "fieldnotes.toml").write_text("\n".join(filled) + "\n")
+    code, out, _ = cli("ingest", card, "-o", tmp_path / "camp", "--no-products")
+    assert code == 0 and "scene(s) have none" not in out
+    m = load_manifest(tmp_path / "camp")
+    for sc in m.scenes:
+        assert sc.camera_probe == sc.probes[0].id and sc.fieldnotes is not None
+        assert all(p.photo_pixel == [10.0, 20.0] for p in sc.probes[1:])
+        assert not any(w.startswith(("no_camera_position", "no_fieldnotes")) for w in sc.warnings)
