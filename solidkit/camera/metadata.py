@@ -289,6 +289,59 @@ def _gps(tags: dict[str, Any], warnings: list[str]) -> dict[str, Any] | None:
     return out
 
 
+#: Seconds by which the clock (DateTimeOriginal, as UTC) may differ from GPSTimeStamp: the GPS
+#: fix a camera stamps may be some tens of seconds old.
+GPS_CLOCK_TOLERANCE_S = 90.0
+
+
+def _offset_minutes(text: str | None) -> int | None:
+    """``"+09:00"`` / ``"-05:30"`` -> minutes east of UTC (None: absent or unreadable)."""
+    m = re.fullmatch(r"([+-])(\d{2}):?(\d{2})", (text or "").strip())
+    if not m or int(m.group(2)) > 14 or int(m.group(3)) > 59:
+        return None
+    return (1 if m.group(1) == "+" else -1) * (60 * int(m.group(2)) + int(m.group(3)))
+
+
+def gps_clock_warning(
+    tags: dict[str, Any], local: _dt.datetime | None, utc_offset: str | None, warnings: list[str]
+) -> None:
+    """``clock_mismatch`` when the camera clock disagrees with the photo's own GPS time (UTC).
+
+    GPS time is ``GPSDateStamp`` + ``GPSTimeStamp``. With a UTC offset known, ``local - offset``
+    must be within :data:`GPS_CLOCK_TOLERANCE_S` of it (a clock an hour off is caught). Without
+    an offset the zone is unknown: the difference must be a whole number of quarter hours within
+    ±14 h (UTC offsets are; a clock off by whole hours is then indistinguishable from the zone).
+    """
+    date = _text(tags, "GPS GPSDate") or _text(tags, "GPS GPSDateStamp")  # exifread names tag 0x001D GPSDate
+    if local is None or "GPS GPSTimeStamp" not in tags or date is None:
+        return
+    try:
+        hms = _ratio(tags["GPS GPSTimeStamp"])
+        y, mo, d = (int(x) for x in re.split(r"[:-]", date)[:3])
+        if len(hms) != 3 or not all(math.isfinite(x) for x in hms):
+            raise ValueError("GPSTimeStamp")
+        gps = _dt.datetime(y, mo, d) + _dt.timedelta(hours=hms[0], minutes=hms[1], seconds=hms[2])
+    except (ValueError, TypeError, ZeroDivisionError, OverflowError):
+        warnings.append("bad_gps_time: GPSDateStamp/GPSTimeStamp unreadable; not compared with the clock")
+        return
+    off = _offset_minutes(utc_offset)
+    delta = (local - gps).total_seconds()  # local clock minus UTC, seconds
+    if off is not None:
+        err = delta - 60.0 * off
+        if abs(err) > GPS_CLOCK_TOLERANCE_S:
+            warnings.append(
+                f"clock_mismatch: DateTimeOriginal {local:%Y-%m-%d %H:%M:%S} {utc_offset} is {err:+.0f} s from "
+                f"the photo's GPS time {gps:%Y-%m-%d %H:%M:%S} UTC (camera clock or UTC offset wrong?)"
+            )
+        return
+    zone = 900.0 * round(delta / 900.0)
+    if abs(delta - zone) > GPS_CLOCK_TOLERANCE_S or abs(zone) > 14 * 3600:
+        warnings.append(
+            f"clock_mismatch: DateTimeOriginal {local:%Y-%m-%d %H:%M:%S} (no UTC offset) is {delta:+.0f} s from the "
+            f"photo's GPS time {gps:%Y-%m-%d %H:%M:%S} UTC, not a time zone's offset (camera clock wrong?)"
+        )
+
+
 def read_metadata(path: str | os.PathLike[str]) -> CaptureMetadata:
     """Read the capture metadata of a JPEG or DNG/TIFF file.
 
@@ -442,6 +495,7 @@ def _read_metadata_bytes(data: bytes, name: str) -> CaptureMetadata:
     # sanity
     if meta["datetime_original"] is not None and is_ricoh and meta["datetime_original"].date() == _dt.date(2015, 1, 1):
         warnings.append("clock_unset: 2015-01-01 is the Theta's factory date; the camera clock was probably never set")
+    gps_clock_warning(tags, meta["datetime_original"], meta["utc_offset"], warnings)
     fw, fh = gpano.get("FullPanoWidthPixels"), gpano.get("FullPanoHeightPixels")
     if isinstance(fw, int) and isinstance(fh, int) and (fw, fh) != size:
         warnings.append(f"gpano_size_mismatch: GPano {fw}x{fh}, image {size[0]}x{size[1]}")

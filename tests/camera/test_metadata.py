@@ -214,3 +214,40 @@ def test_cli_capture_info(real_data, tmp_path, cli):
     bad.write_bytes(b"")
     code, _, err = run("capture", "info", str(bad))
     assert code == 2 and "empty file" in err and "Traceback" not in err
+
+
+def _gps_jpeg(path, local: str, offset: str | None, gps_date: str, gps_time: tuple[float, float, float]) -> None:
+    """A Pillow JPEG with DateTimeOriginal (+ OffsetTimeOriginal) and a GPS IFD with its UTC time."""
+    from PIL import Image
+
+    exif = Image.Exif()
+    exif[0x0110] = "Phone"
+    sub = exif.get_ifd(0x8769)
+    sub[0x9003], sub[0x829A] = local, 0.01
+    if offset is not None:
+        sub[0x9011] = offset
+    gps = exif.get_ifd(0x8825)
+    gps.update({1: "N", 2: (48.0, 12.0, 0.0), 3: "E", 4: (16.0, 24.0, 0.0), 7: gps_time, 29: gps_date})
+    Image.new("RGB", (64, 48)).save(path, exif=exif)
+
+
+@pytest.mark.parametrize(
+    "local, offset, gps_time, flagged",
+    [
+        ("2024:06:01 12:00:00", "+02:00", (10.0, 0.0, 30.0), False),  # the fix 30 s later: within tolerance
+        ("2024:06:01 13:00:00", "+02:00", (10.0, 0.0, 0.0), True),  # the clock an hour fast
+        ("2024:06:01 12:03:00", "+02:00", (10.0, 0.0, 0.0), True),  # three minutes off
+        ("2024:06:01 12:00:00", None, (10.0, 0.0, 40.0), False),  # no offset: two whole hours is a zone
+        ("2024:06:01 12:20:00", None, (10.0, 0.0, 0.0), True),  # no offset: 2 h 20 min is no zone
+    ],
+)
+def test_gps_time_checks_the_photo_clock(tmp_path, local, offset, gps_time, flagged):
+    p = tmp_path / "photo.jpg"
+    _gps_jpeg(p, local, offset, "2024:06:01", gps_time)
+    m = read_metadata(p)
+    assert m.gps is not None and m.gps["lat_deg"] == pytest.approx(48.2)
+    clock = [w for w in m.warnings if w.startswith("clock_mismatch")]
+    assert bool(clock) == flagged, m.warnings
+    assert not [w for w in m.warnings if not w.startswith("clock_mismatch")]
+    if flagged:
+        assert "GPS time 2024-06-01 10:00:00 UTC" in clock[0]
