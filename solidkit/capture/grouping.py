@@ -320,6 +320,13 @@ def apply_notes(scene: Scene, manifest: Manifest) -> None:
             f"several_photos: {len(photos)} photos and no field notes naming one; "
             f"probe pixels and pose refer to {_source_name(photos[0])}"
         )
+    if scene.photo is not None:  # the photo's clock against its own GPS time (camera.metadata)
+        ref = manifest.shot(scene.photo)
+        scene.warnings += [
+            f"clock_mismatch: photo {_source_name(ref)}: {w.split(': ', 1)[1]}"
+            for w in ref.metadata.get("warnings", [])
+            if w.startswith("clock_mismatch: ")
+        ]
     # the camera position
     scene.camera_probe = None
     if notes is not None and notes.camera_position is not None:

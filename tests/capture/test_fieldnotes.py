@@ -216,3 +216,17 @@ def test_ingest_without_notes_prints_the_card_file_to_write(tmp_path, cli):
         assert sc.camera_probe == sc.probes[0].id and sc.fieldnotes is not None
         assert all(p.photo_pixel == [10.0, 20.0] for p in sc.probes[1:])
         assert not any(w.startswith(("no_camera_position", "no_fieldnotes")) for w in sc.warnings)
+
+
+def test_a_photo_clock_an_hour_off_its_gps_time_is_a_scene_warning(tmp_path):
+    card = make_scene_card(tmp_path / "card")
+    exif = Image.Exif()
+    exif[0x010F], exif[0x0110] = "Canon", "EOS R"
+    exif.get_ifd(0x8769).update({0x9003: "2024:06:01 13:00:00", 0x9011: "+02:00", 0x829A: 1 / 200})
+    gps = {1: "N", 2: (48.0, 12.0, 0.0), 3: "E", 4: (16.0, 24.0, 0.0), 7: (10.0, 0.0, 0.0), 29: "2024:06:01"}
+    exif.get_ifd(0x8825).update(gps)
+    Image.new("RGB", (64, 48)).save(card / "scene01" / "photo" / "IMG_0001.JPG", exif=exif)
+    camp = tmp_path / "camp"
+    ingest(card, camp, products=False)
+    (w,) = [w for w in load_manifest(camp).scene("scene01").warnings if w.startswith("clock_mismatch")]
+    assert "photo scene01/photo/IMG_0001.JPG" in w and "+3600 s from the photo's GPS time" in w
