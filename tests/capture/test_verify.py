@@ -99,7 +99,7 @@ def test_bit_rot_needs_full(camp, cli):
 
 
 def test_ingest_restores_what_its_card_holds(camp, fault_card, cli):
-    """The issue's case: one original corrupted, one deleted; the re-run does not say "nothing to do"
+    """One original corrupted, one deleted; the re-run does not say "nothing to do"
     but copies both again from the card and rebuilds their products: the clean campaign's bytes."""
     card, response, clean = fault_card
     member, sun, photo = _originals(camp)
