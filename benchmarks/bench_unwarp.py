@@ -258,9 +258,14 @@ def main() -> int:
         "",
         f"Machine: {results['machine']}; load average (1, 5, 15 min) before "
         f"{tuple(round(x, 1) for x in results['load_before'])}, after "
-        f"{tuple(round(x, 1) for x in results['load_after'])}: a shared machine, busy with other jobs while this "
-        f"ran (wall times are inflated and noisy; the ratios come from {args.runs} alternating rounds, each "
-        "command once per round, so each ratio compares runs under about the same load).",
+        f"{tuple(round(x, 1) for x in results['load_after'])}: "
+        + (
+            "a quiet machine (ffmpeg's threads get both cores)"
+            if max(results["load_before"][0], results["load_after"][0]) < 2.0
+            else "a shared machine, busy with other jobs while this ran (wall times are inflated and noisy)"
+        )
+        + f"; the ratios come from {args.runs} alternating rounds, each command once per round, so each ratio "
+        "compares runs under about the same load.",
         "",
         f"Input {results['input']}; output {results['output']}; each row a whole process, decode to encode; "
         "solidkit's bytecode compiled once beforehand, as an installed package has it.",
