@@ -6,9 +6,9 @@ looks at closely. Previews and tiles are encoded once and kept on disk (``cache_
 default ``CAMPAIGN/labels/image-cache/<image id>/``; the id changes with the file, so a stale
 copy is never served), so a restarted server sends them without decoding anything; crops are
 kept in a small in-memory cache. Decoded full-resolution images are kept in a least-recently-used
-cache bounded in bytes. An image's size is read from its header (EXR: OpenEXR's header; others:
-Pillow), never by decoding it; an EXR is decoded in strips of scanlines straight to 8-bit, so a
-7296x3648 HDR never exists as a float image in memory (about 200 MB at peak instead of 2 GB).
+cache bounded in bytes. An image's size is read from its header
+(:func:`solidkit.envmap.io.image_size`), never by decoding it; an EXR is decoded in strips of scanlines
+straight to 8-bit, so a 7296x3648 HDR never exists as a float image in memory (about 200 MB at peak instead of 2 GB).
 
 Display encoding: LDR files are shown as stored (sRGB); HDR (EXR) products are exposed so that
 their median luminance (estimated from one block of scanlines in eight) maps to 18 % grey, then
@@ -29,7 +29,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from solidkit.envmap.io import imread
+from solidkit.envmap.io import image_size, imread
 from solidkit.envmap.sun import LUMINANCE_WEIGHTS
 from solidkit.errors import InputError
 
@@ -83,18 +83,6 @@ def tile_box(width: int, height: int, cols: int, rows: int, col: int, row: int) 
 
 
 _STRIP = 128  # EXR scanlines decoded at once: 7296 x 128 x 3 float32 = 11 MB
-
-
-def exr_size(path: Path) -> tuple[int, int]:
-    """``(width, height)`` of an EXR from its header (no pixels read)."""
-    import OpenEXR
-
-    try:
-        with OpenEXR.File(str(path), header_only=True) as f:
-            lo, hi = f.header()["dataWindow"]
-    except Exception as exc:  # OpenEXR raises plain RuntimeError on a corrupt file
-        raise InputError(f"{path}: not a readable EXR file ({exc})") from None
-    return int(hi[0] - lo[0] + 1), int(hi[1] - lo[1] + 1)
 
 
 def _exr_display8(path: Path) -> np.ndarray:
@@ -229,16 +217,10 @@ class ImageService:
     def size(self, ref: ImageRef) -> tuple[int, int]:
         """``(width, height)`` in pixels (read from the header when possible)."""
         if ref.id not in self._sizes:
-            if not ref.hdr:
-                from PIL import Image  # header only; no decode
-
-                try:
-                    with Image.open(ref.path) as im:
-                        self._sizes[ref.id] = im.size
-                except OSError as exc:
-                    raise InputError(f"{ref.path}: not a readable image ({exc})") from None
-            else:
-                self._sizes[ref.id] = exr_size(ref.path)
+            size = image_size(ref.path)
+            if size is None:
+                raise InputError(f"{ref.path}: not a readable image (no width and height in its header)")
+            self._sizes[ref.id] = size
         return self._sizes[ref.id]
 
     def _cached(self, key: tuple, make, disk: str | None = None) -> bytes:

@@ -8,7 +8,7 @@ import pytest
 
 from solidkit.envmap.io import write_exr
 from solidkit.errors import InputError
-from solidkit.labeling.images import ImageRef, ImageService, exr_size, tile_grid
+from solidkit.labeling.images import ImageRef, ImageService, tile_grid
 
 
 def test_exr_display_encoding_and_size_from_the_header(tmp_path):
@@ -16,9 +16,9 @@ def test_exr_display_encoding_and_size_from_the_header(tmp_path):
     img[0, 0], img[0, 1], img[0, 2], img[0, 3] = np.nan, np.inf, -np.inf, -1.0
     img[299, 599] = (4.0, 0.0, 0.0)  # red, in the last strip
     write_exr(tmp_path / "a.exr", img)
-    assert exr_size(tmp_path / "a.exr") == (600, 300)
     svc = ImageService(cache_dir=tmp_path / "cache")
     ref = ImageRef(id="img-0000000000000001", path=tmp_path / "a.exr", layout="equirect", hdr=True)
+    assert svc.size(ref) == (600, 300)
     full = svc.full(ref)
     assert full.shape == (300, 600, 3) and full.dtype == np.uint8
     grey = round((1.055 * 0.18 ** (1 / 2.4) - 0.055) * 255)  # the median exposed to 18 % grey, sRGB-encoded
