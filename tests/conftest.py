@@ -51,10 +51,7 @@ def write_sources():
     return write
 
 
-@pytest.fixture
-def cli(monkeypatch, capsys):
-    """Run ``solidkit ARGS`` in-process through the real entry point (``solidkit.cli.main``, with
-    its error handling, without a subprocess's start-up cost): returns ``(exit code, stdout, stderr)``."""
+def _entry_point(monkeypatch, capture):
     import sys
 
     from solidkit.cli import main
@@ -66,7 +63,23 @@ def cli(monkeypatch, capsys):
             code = 0
         except SystemExit as exc:
             code = int(exc.code or 0)
-        out = capsys.readouterr()
+        out = capture.readouterr()
         return code, out.out, out.err
 
     return run
+
+
+@pytest.fixture
+def cli(monkeypatch, capsys):
+    """Run ``solidkit ARGS`` in-process through the real entry point (``solidkit.cli.main``, with
+    its error handling, without a subprocess's start-up cost): returns ``(exit code, stdout, stderr)``."""
+    return _entry_point(monkeypatch, capsys)
+
+
+@pytest.fixture
+def cli_fd(monkeypatch, capfd):
+    """:func:`cli` with stdout and stderr as file descriptors 1 and 2 saw them (C libraries write there
+    directly)."""
+    monkeypatch.delenv("SOLIDKIT_DEBUG", raising=False)
+    capfd.readouterr()
+    return _entry_point(monkeypatch, capfd)
