@@ -140,6 +140,42 @@ def export_command(
         echo_json({"output": str(out), **doc}, indent=1)
 
 
+@app.command("import")
+def import_command(
+    folder: Path = typer.Argument(..., help="Folder in another project's layout (sold-net: <XXX>_persp.jpg, ...)."),
+    out: Path = typer.Argument(..., help="Test set folder to create (absent, empty, or an earlier test set)."),
+    fmt: str = typer.Option(..., "--format", help="Source layout: sold-net (SOLD-Net's real-set folder)."),
+    hfov_deg: float | None = typer.Option(
+        None, "--hfov-deg", help="Horizontal FOV of the photos (degrees; their layout has none). Default: the model's."
+    ),
+    json_out: bool = json_option("the import report"),
+) -> None:
+    """Import a test set from another project's layout (sold-net: frames and units converted, assumptions flagged)."""
+    from solidkit.errors import InputError
+
+    if fmt != "sold-net":
+        raise InputError(f"--format {fmt!r}: supported formats: sold-net")
+    from solidkit.testset.sold_net_import import import_sold_net
+
+    report = import_sold_net(folder, out, hfov_deg=hfov_deg)
+    if json_out:
+        echo_json({"output": str(out), **report.to_json()}, indent=1)
+        return
+    typer.echo(
+        f"wrote {out}: {report.scenes} scenes, {report.probes} probes, {report.sun_found} with a sun "
+        f"({report.dataset_version}; ids from {report.ids_from})",
+        err=True,
+    )
+    for line in report.excluded:
+        typer.echo(f"excluded: {line}", err=True)
+    if report.skipped_by_sold_net_loader:
+        typer.echo(
+            "note: imported although SOLD-Net's loader skips them (fewer than 2 local maps): "
+            + ", ".join(report.skipped_by_sold_net_loader),
+            err=True,
+        )
+
+
 @app.command("diff")
 def diff_command(
     old: Path = typer.Argument(..., help="Earlier test set folder."),

@@ -24,10 +24,12 @@ photo's view direction projected on the horizon (our panorama frame, as in SOLID
 what their estimator's use of the photo implies but not something we could check against their
 data. An item with fewer than two probes is written but SOLD-Net's loader skips it (reported).
 
-Local maps are our HDR probes (photo panorama frame) resized to 128x64 with the radiance-preserving
-:func:`solidkit.envmap.resample.resize`; a probe without a bracket is exported from its LDR
-(sRGB-decoded, clipped, relative units) and marked ``ldr_derived`` in ``solidkit_items.json``, the
-only extra file (ignored by their glob).
+The photo is the 320x240 model input, as JPEG (quality 95); a photo that already is a 320x240 JPEG
+is copied byte for byte. Local maps are our HDR probes (photo panorama frame) resized to 128x64
+with the radiance-preserving :func:`solidkit.envmap.resample.resize`; a probe without a bracket is
+exported from its LDR (sRGB-decoded, clipped, relative units) and marked ``ldr_derived`` in
+``solidkit_items.json``, the only extra file (ignored by their glob). The way back is
+:mod:`solidkit.testset.sold_net_import`.
 """
 
 from __future__ import annotations
@@ -35,6 +37,7 @@ from __future__ import annotations
 import json
 import math
 import os
+import shutil
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -48,6 +51,7 @@ from solidkit.envmap.resample import resize
 from solidkit.errors import InputError
 from solidkit.fsutil import atomic_path, atomic_write_text
 from solidkit.testset.build import load_testset
+from solidkit.testset.schema import MODEL_INPUT_SIZE, Scene
 
 __all__ = [
     "LOCAL_HEIGHT",
@@ -85,6 +89,12 @@ def _write_image(path: Path, image: np.ndarray, params: list[int] | None = None)
             raise InputError(f"{path}: OpenCV could not write it")
 
 
+def _is_model_input_jpeg(scene: Scene) -> bool:
+    """The original photo is a JPEG that is the model input itself (320x240, nothing cropped)."""
+    w, h = MODEL_INPUT_SIZE
+    return Path(scene.photo_full).suffix.lower() in (".jpg", ".jpeg") and tuple(scene.crop_box) == (0, 0, w, h)
+
+
 def export_sold_net(root: str | os.PathLike, dest: str | os.PathLike) -> dict[str, Any]:
     """Write the test set at ``root`` into ``dest`` in SOLD-Net's real-set layout; returns the item map.
 
@@ -104,9 +114,13 @@ def export_sold_net(root: str | os.PathLike, dest: str | os.PathLike) -> dict[st
     items, skipped = {}, []
     for i, scene in enumerate(ts.scenes):
         xxx = f"{i + 1:03d}"
-        photo = cv2.imread(str(root / scene.photo), cv2.IMREAD_COLOR)
-        assert photo is not None, f"{root / scene.photo}: OpenCV could not read it"
-        _write_image(dest / f"{xxx}_persp.JPG", photo, [cv2.IMWRITE_JPEG_QUALITY, JPEG_QUALITY])
+        if _is_model_input_jpeg(scene):  # already their photo: its bytes, no second JPEG generation
+            with atomic_path(dest / f"{xxx}_persp.JPG") as tmp:
+                shutil.copyfile(root / scene.photo_full, tmp)
+        else:
+            photo = cv2.imread(str(root / scene.photo), cv2.IMREAD_COLOR)
+            assert photo is not None, f"{root / scene.photo}: OpenCV could not read it"
+            _write_image(dest / f"{xxx}_persp.JPG", photo, [cv2.IMWRITE_JPEG_QUALITY, JPEG_QUALITY])
         pos = np.array(
             [[int(round(p.pixel[1])), int(round(p.pixel[0]))] for p in scene.probes], dtype=np.int64
         ).reshape(-1, 2)
