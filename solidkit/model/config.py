@@ -134,6 +134,10 @@ class SolidNetConfig:
         radii holding 68 % / 90 % of the sun network's direction distribution; ``()``: uncalibrated.
     sun_blob_gate_deg : float
         With ``sun_in_image``: the largest angle between the network's sun and a blob it is moved onto.
+    sun_aureole : float
+        At evaluation, the fraction of the rendered sun's energy spread over its 68 % direction cone
+        (:func:`solidkit.model.sunhead.render_sun_with_aureole`; needs the cones of a ``sun_net``):
+        the global map's brightest region is then where its sun is. 0: a sharp sun only.
     loss_variant : str
         One of :data:`LOSS_VARIANTS`.
     loss_weights : dict
@@ -164,6 +168,7 @@ class SolidNetConfig:
     sun_in_image: bool = False
     sun_cone_scale: tuple[float, ...] = ()
     sun_blob_gate_deg: float = 60.0
+    sun_aureole: float = 0.0
     loss_variant: str = "paper"
     loss_weights: dict[str, float] = field(default_factory=_default_loss_weights)
 
@@ -181,6 +186,10 @@ class SolidNetConfig:
             raise ConfigError(f"sun_cone_scale must be () or two values 0 < s68 <= s90, got {v}")
         if not 0.0 < self.sun_blob_gate_deg <= 180.0:
             raise ConfigError(f"sun_blob_gate_deg must be in (0, 180], got {self.sun_blob_gate_deg}")
+        if not 0.0 <= self.sun_aureole < 1.0:
+            raise ConfigError(f"sun_aureole must be in [0, 1), got {self.sun_aureole}")
+        if self.sun_aureole and not self.sun_net:
+            raise ConfigError("sun_aureole needs the direction cones of a sun network (sun_net)")
         if self.sun_in_image and not self.sun_head:
             raise ConfigError("sun_in_image needs sun_head=True")
         if len(self.widths) < 2 or min(self.widths) < 1:

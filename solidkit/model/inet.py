@@ -38,7 +38,7 @@ from solidkit.envmap.sh import sh_basis
 from solidkit.model.blocks import ConvBlock, Encoder, UNetDecoder, radiance_from_log, resize_to
 from solidkit.model.config import SolidNetConfig
 from solidkit.model.imagesun import put_sun_on_blob
-from solidkit.model.sunhead import SunHead, render_sun
+from solidkit.model.sunhead import SunHead, render_sun, render_sun_with_aureole
 from solidkit.model.sunnet import SunNet
 from solidkit.model.sununcertainty import cone_radii, cones_deg
 from solidkit.model.warp import camera_rotation
@@ -244,7 +244,18 @@ class INet(nn.Module):
             self.finish_sun(out, image, view)
         # the size is learnt from its own loss only (losses.sun_size_loss): through the radiance terms it
         # would grow to hedge an uncertain direction
-        sun = render_sun(out["sun_dir"], out["sun_energy"], out["sun_sigma"].detach(), self.config.pano_height)
+        sigma = out["sun_sigma"].detach()
+        if not self.training and self.config.sun_aureole and "sun_cone_deg" in out:
+            sun = render_sun_with_aureole(
+                out["sun_dir"],
+                out["sun_energy"],
+                sigma,
+                out["sun_cone_deg"][:, 0],
+                self.config.sun_aureole,
+                self.config.pano_height,
+            )
+        else:
+            sun = render_sun(out["sun_dir"], out["sun_energy"], sigma, self.config.pano_height)
         if "sun_visible" in out:
             # a sun only in skies that have one: soft while training, a decision at evaluation
             gate = (

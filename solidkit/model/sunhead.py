@@ -39,12 +39,26 @@ from torch import nn
 
 from solidkit.envmap.coords import direction_grid, solid_angle
 
-__all__ = ["SIGMA_MIN", "SIGMA_MAX", "SunHead", "render_sun", "local_soft_argmax", "log_solid_angle"]
+__all__ = [
+    "CONE68_PER_SIGMA",
+    "SIGMA_MIN",
+    "SIGMA_MAX",
+    "SunHead",
+    "aureole_sigma",
+    "render_sun",
+    "render_sun_with_aureole",
+    "local_soft_argmax",
+    "log_solid_angle",
+]
 
 SIGMA_MIN = math.radians(0.3)
 """Smallest angular standard deviation of the rendered sun (radians; the disk's own is 0.11°)."""
 SIGMA_MAX = math.radians(4.0)
 """Largest angular standard deviation (a sun seen through haze or thin cloud)."""
+CONE68_PER_SIGMA = math.sqrt(-2.0 * math.log(1.0 - 0.68))
+"""Radius of the cone holding 68 % of an isotropic 2-D Gaussian, in standard deviations (≈1.51).
+
+The radial distance of a 2-D Gaussian is Rayleigh-distributed: ``P(r <= R) = 1 - exp(-R^2 / 2 sigma^2)``."""
 
 
 def log_solid_angle(height: int, like: torch.Tensor) -> torch.Tensor:
@@ -84,6 +98,38 @@ def render_sun(direction: torch.Tensor, energy: torch.Tensor, sigma: torch.Tenso
     g = torch.exp(logg)
     g = g / (g * omega).flatten(1).sum(dim=1)[:, None, None]
     return energy[:, :, None, None] * g[:, None]
+
+
+def aureole_sigma(cone68_deg: torch.Tensor, sigma: torch.Tensor) -> torch.Tensor:
+    """Angular standard deviation ``(B,)`` (radians) of a Gaussian whose 68 % cone is ``cone68_deg (B,)``.
+
+    Never below the sun's own ``sigma (B,)`` (radians): a sun known to better than its size stays sharp.
+    """
+    return torch.maximum(torch.deg2rad(cone68_deg) / CONE68_PER_SIGMA, sigma)
+
+
+def render_sun_with_aureole(
+    direction: torch.Tensor,
+    energy: torch.Tensor,
+    sigma: torch.Tensor,
+    cone68_deg: torch.Tensor,
+    fraction: float,
+    height: int,
+) -> torch.Tensor:
+    """:func:`render_sun` with ``fraction`` of ``energy`` spread over the direction's 68 % cone.
+
+    The spread part is the sun blurred by its own direction uncertainty (a Gaussian whose 68 % cone is
+    ``cone68_deg (B,)``, :func:`aureole_sigma`): the expected sun of a map whose sun is only known to
+    within that cone. The sharp rest keeps the compact core a sun detector looks for, and the spread
+    part makes the sun's surroundings the brightest region of the map, so the paper's recipe (largest
+    bright component) finds the same sun. ``sum L Omega = energy`` still holds exactly.
+    Returns ``(B, C, height, 2 height)``.
+    """
+    sharp = render_sun(direction, energy * (1.0 - fraction), sigma, height)
+    if fraction <= 0.0:
+        return sharp
+    wide = render_sun(direction, energy * fraction, aureole_sigma(cone68_deg, sigma), height)
+    return sharp + wide
 
 
 class SunHead(nn.Module):
