@@ -251,7 +251,21 @@ def scene_photo(campaign: Path, manifest: Manifest, scene: Scene) -> ScenePhoto:
     shot = photo_shot_of(manifest, scene)
     place = capture_place(shot.metadata) if shot is not None else None
     eph = ephemeris_for(shot.metadata) if shot is not None else None
+    if shot is not None:
+        flags += photo_clock_mismatch(shot)
     return ScenePhoto(info, eph, place, cam_id, flags)
+
+
+def photo_clock_mismatch(shot: Any) -> list[str]:
+    """The scene's ``clock_mismatch`` flag where the photo's clock disagrees with its own GPS time
+    (:func:`solidkit.camera.metadata.gps_clock_warning`, a metadata warning of the photo shot): the one ingest
+    lists among the scene's warnings, ``clock_mismatch: photo <card path>: <detail>``."""
+    name = min(shot.sources, key=lambda r: (r.card, r.path)).path if shot.sources else Path(shot.original).name
+    return [
+        str(Flag(FlagCode.CLOCK_MISMATCH, f"photo {name}: {Flag.parse(w).detail}"))
+        for w in shot.metadata.get("warnings", [])
+        if Flag.parse(w).code == FlagCode.CLOCK_MISMATCH.value
+    ]
 
 
 # --------------------------------------------------------------------------- captures
@@ -367,11 +381,16 @@ def _exposure_text(t: float) -> str:
     return f"1/{1.0 / t:.0f} s" if t < 1.0 else f"{t:g} s"
 
 
-def clock_mismatch(photo_ephemeris: Ephemeris | None, views: list[CaptureView]) -> list[str]:
-    """The scene's ``clock_mismatch`` flag: captures taken more than :data:`DRIFT_HOURS` from the photo."""
+def far_from_photo(photo_ephemeris: Ephemeris | None, views: list[CaptureView]) -> list[str]:
+    """The captures taken more than :data:`DRIFT_HOURS` from the photo (ids, in ``views`` order)."""
     if photo_ephemeris is None:
         return []
-    far = [v.id for v in views if v.ephemeris is not None and hours_apart(photo_ephemeris, v.ephemeris) > DRIFT_HOURS]
+    return [v.id for v in views if v.ephemeris is not None and hours_apart(photo_ephemeris, v.ephemeris) > DRIFT_HOURS]
+
+
+def clock_mismatch(photo_ephemeris: Ephemeris | None, views: list[CaptureView]) -> list[str]:
+    """The scene's ``clock_mismatch`` flag: captures taken more than :data:`DRIFT_HOURS` from the photo."""
+    far = far_from_photo(photo_ephemeris, views)
     if not far:
         return []
     return [
@@ -879,6 +898,44 @@ _SUN_DOUBT_CODES = (
     FlagCode.SUN_OFF_EPHEMERIS.value,
     FlagCode.DISAGREES_WITH_SCENE.value,
 )
+
+
+def clock_doubts(
+    scene_flags: list[str], photo: list[str], far: list[str], sun: SceneSun, probes: list[ProbeAlignment]
+) -> list[str]:
+    """The scene's clock doubts carried to what they touched (in place), and the scene's flags with its
+    ``clock_mismatch`` flags joined into one (a test set keeps one flag per code).
+
+    The photo's own clock off its GPS time (``photo``: the details of :func:`photo_clock_mismatch`) puts every
+    capture's time against the photo's in doubt (which captures are near the photo, the sun's drift to the
+    photo's time, the light the probe saw at the photo's moment): every capture is flagged ``clock_mismatch``,
+    and so is the scene's sun where it has a direction (seen, or the ephemeris'). A capture taken more than an hour from the photo
+    (``far``, :func:`clock_mismatch`) is flagged at itself (no sun drift correction there; its light may not be
+    the photo's). A capture both doubts touch gets one flag saying both.
+    """
+    clock = [f for f in scene_flags if Flag.parse(f).code == FlagCode.CLOCK_MISMATCH.value]
+    if len(clock) > 1:
+        joined = str(Flag(FlagCode.CLOCK_MISMATCH, "; ".join(Flag.parse(f).detail for f in clock)))
+        scene_flags = [f for f in scene_flags if f not in clock[1:]]
+        scene_flags[scene_flags.index(clock[0])] = joined
+    if not photo and not far:
+        return scene_flags
+    photo_why = f"the photo's clock is off its GPS time ({'; '.join(photo)})" if photo else ""
+    for pa in probes:
+        why = [f"{photo_why}: this capture's time against the photo's is unknown"] if photo else []
+        if pa.id in far:
+            why.append(
+                "taken more than an hour from the photo (camera clocks or UTC offsets disagree); no sun drift "
+                "correction here"
+            )
+        if why:
+            pa.flags = [*pa.flags, str(Flag(FlagCode.CLOCK_MISMATCH, "; ".join(why)))]
+    if photo and (sun.found or sun.azimuth_deg is not None or sun.world_azimuth_deg is not None):
+        sun.flags = [
+            *sun.flags,
+            str(Flag(FlagCode.CLOCK_MISMATCH, f"{photo_why}: the sun's direction at the photo's time rests on it")),
+        ]
+    return scene_flags
 
 
 def flag_doubtful_yaws(
@@ -1465,6 +1522,8 @@ def align_scene(
     scene_flags = list(ph.flags)
     views = [capture_view(campaign, manifest, scene.id, c, s, ph.place, log) for c in captures_of(manifest, scene)]
     scene_flags += clock_mismatch(ph.ephemeris, views)
+    far = far_from_photo(ph.ephemeris, views)
+    photo_clock = [f.detail for f in map(Flag.parse, ph.flags) if f.code == FlagCode.CLOCK_MISMATCH.value]
     by_id = {v.id: v for v in views}
     cam = by_id.get(ph.camera_probe) if ph.camera_probe else None
     heading_p = ph.heading_deg
@@ -1543,6 +1602,7 @@ def align_scene(
             )
         )
     sun_through_final_yaws(sst.sun, views, final, cues, ph.ephemeris, heading_p, s)
+    scene_flags = clock_doubts(scene_flags, photo_clock, far, sst.sun, probes)
     flag_doubtful_yaws(sst.sun, probes, ph.camera_probe)
     explain_rejections(sst.sun, sst.outranked, probes)
     for v, cs in zip(views, sst.sun.captures):  # per-capture sun directions back into the sun-frame product's frame
