@@ -106,6 +106,10 @@ class StageConfig:
         P-Net: probes per image per step.
     teacher_geometry : bool
         P-Net: warp with the ground-truth geometry instead of I-Net's prediction.
+    frozen : list of str
+        Children of the stage's network kept fixed (e.g. ``["encoder", "decoders"]`` for I-Net: the
+        lighting decoders alone learn, so crops without geometry cannot move the intrinsics). With a
+        ``sun`` stage, I-Net's ``sun`` is frozen in the ``inet`` stage anyway.
     """
 
     steps: int = 0
@@ -115,6 +119,7 @@ class StageConfig:
     crop_fraction: float = 1.0
     probes: int = 2
     teacher_geometry: bool = False
+    frozen: list[str] = field(default_factory=list)
 
 
 @dataclass
@@ -219,6 +224,14 @@ def load_train_config(path: str | os.PathLike, **overrides: Any) -> TrainConfig:
         st = getattr(cfg, name)
         if st.steps < 0 or st.batch_size < 1 or not st.lr > 0 or not 0.0 <= st.crop_fraction <= 1.0:
             raise InputError(f"{path}: [{name}] needs steps >= 0, batch_size >= 1, lr > 0, 0 <= crop_fraction <= 1")
+    net = SolidNet(cfg.model_config())
+    for name in ("inet", "pnet"):
+        children = {n for n, _ in getattr(net, name).named_children()}
+        bad = sorted(set(getattr(cfg, name).frozen) - children)
+        if bad:
+            raise InputError(f"{path}: [{name}] frozen names {bad} that are not parts of it ({sorted(children)})")
+    if cfg.sun.frozen:
+        raise InputError(f"{path}: [sun] has no frozen parts (it trains the sun network alone)")
     if not 1 <= len(cfg.sun_target_deg) <= 2 or not all(0.0 < float(v) <= 90.0 for v in cfg.sun_target_deg):
         raise InputError(
             f"{path}: sun_target_deg must be one or two widths in (0, 90] degrees, got {cfg.sun_target_deg}"
@@ -586,6 +599,10 @@ class Trainer:
         if stage == "inet" and self.cfg.sun.steps and self.model.config.sun_net:
             assert self.model.inet.sun is not None
             for p in self.model.inet.sun.parameters():  # trained in its own stage
+                p.requires_grad_(False)
+        children = dict(self._stage_modules(stage).named_children())
+        for name in st.frozen:
+            for p in children[name].parameters():
                 p.requires_grad_(False)
         opt = torch.optim.Adam([p for p in self._stage_modules(stage).parameters() if p.requires_grad], lr=st.lr)
         sched = torch.optim.lr_scheduler.StepLR(opt, st.lr_halve_every or 10**12, gamma=0.5)

@@ -205,3 +205,22 @@ def test_folder_weights_are_shared_evenly_within_a_folder():
     d.source_folders = [0, 1, 1, 1]
     np.testing.assert_allclose(d.source_weights(), [0.75, 0.25 / 3, 0.25 / 3, 0.25 / 3])
     assert _Data(["a"], [], [], 0).source_weights() is None
+
+
+def test_frozen_parts_of_a_stage_do_not_move_and_the_rest_does(tmp_path, sources):
+    path = _config(tmp_path, sources, tmp_path / "frozen", steps=2)
+    path.write_text(path.read_text() + 'frozen = ["encoder", "decoders"]\n')
+    tr = Trainer(load_train_config(path), progress=False)
+    before = {k: v.clone() for k, v in tr.model.state_dict().items()}
+    tr.run()
+    after = tr.model.state_dict()
+    moved = {k for k in before if not torch.equal(before[k], after[k])}
+    assert moved and all(k.startswith(("inet.sky", "inet.light", "inet.sun")) for k in moved), sorted(moved)
+    assert not any(k.startswith(("inet.encoder", "inet.decoders")) for k in moved)
+
+
+def test_frozen_names_must_be_parts_of_the_stage(tmp_path, sources):
+    path = _config(tmp_path, sources, tmp_path / "bad", steps=2)
+    path.write_text(path.read_text() + 'frozen = ["encoder", "skyy"]\n')
+    with pytest.raises(InputError, match=r"frozen names \['skyy'\]"):
+        load_train_config(path)
