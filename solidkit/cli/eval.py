@@ -63,9 +63,20 @@ def eval_command(
     allow_invalid: bool = typer.Option(
         False, "--allow-invalid", help="Use a test set that fails 'solidkit testset validate' (with a warning)."
     ),
+    relight: bool = typer.Option(
+        False,
+        "--relight",
+        help="Also relight virtual objects at every probe (Mitsuba, CPU): figures and the re-rendering error.",
+    ),
+    relight_spp: int = typer.Option(
+        64, "--relight-spp", min=1, help="Samples per pixel of the relit objects (rounded up to a square)."
+    ),
     as_json: bool = typer.Option(False, "--json", help="Print the summaries as JSON on stdout."),
 ) -> None:
-    """Sun azimuth/elevation error, global MAE and local SSIM/MAE for the model and baselines; a report."""
+    """Sun azimuth/elevation error, global MAE and local SSIM/MAE for the model and baselines; a report.
+
+    With --relight, also objects relit under each method's probes and the truth's (figures, si-RMSE, SSIM,
+    shading direction)."""
     extra = parse_named_paths(baseline, "--baseline")
     panos: list[Path] = []
     for p in panoramas or []:
@@ -101,6 +112,7 @@ def eval_command(
     if testset is not None and not (testset / "testset.json").is_file():
         raise InputError(f"--testset {testset}: not a test set (no testset.json; run 'solidkit testset build')")
     # torch is imported only once the arguments are known to be good (a bad call answers at once)
+    from solidkit.finetune.relight import RelightSettings
     from solidkit.finetune.report import evaluation_report
 
     res = evaluation_report(
@@ -116,6 +128,7 @@ def eval_command(
         sun_crops=sun_crops,
         sun_split=sun_split,
         allow_invalid=allow_invalid,
+        relight=RelightSettings(spp=relight_spp) if relight else None,
     )
     if as_json:
         echo_json({ds: r["summary"] for ds, r in res["results"].items()}, indent=1, default=float)

@@ -44,6 +44,7 @@ from solidkit.envmap.sun import detect_sun, luminance
 from solidkit.errors import InputError
 from solidkit.fsutil import atomic_write_text
 from solidkit.model import SolidNet
+from solidkit.synth.relight import OBJECTS as RELIGHT_OBJECTS
 from solidkit.testset.build import load_testset
 
 __all__ = [
@@ -53,6 +54,7 @@ __all__ = [
     "ModelMethod",
     "GlobalAsLocal",
     "MeanBaseline",
+    "local_truth_linear",
     "items_from_synth",
     "items_from_testset",
     "checked_testset",
@@ -216,7 +218,9 @@ class GlobalAsLocal(Method):
         return ItemPrediction(None, [p.sky] * len(item.pixels) if p.sky is not None else None, 0.0)
 
 
-def _local_truth_linear(item: EvalItem, k: int) -> np.ndarray:
+def local_truth_linear(item: EvalItem, k: int) -> np.ndarray:
+    """The true local probe ``k`` of ``item`` in linear units: its HDR probe where one exists, else the LDR
+    probe linearised by the sRGB decoding (clipped pixels stay at the clip level)."""
     hdr = item.probes_hdr[k]
     if hdr is not None:
         return hdr
@@ -246,7 +250,7 @@ class MeanBaseline(Method):
             maps = (
                 ([it.global_hdr] if it.global_hdr is not None else [])
                 if self.what == "sky"
-                else [_local_truth_linear(it, k) for k in range(len(it.probes_ldr))]
+                else [local_truth_linear(it, k) for k in range(len(it.probes_ldr))]
             )
             for m in maps:
                 y = float(luminance(m).mean())
@@ -489,6 +493,13 @@ METRICS: dict[str, tuple[str, str, bool]] = {
     "local_mae": ("local MAE (LDR probes)", "", False),
     "local_ssim_tonemap": ("local SSIM (HDR, paper tonemap)", "", True),
     "local_mae_log1p": ("local MAE (HDR, log1p)", "", False),
+    # with --relight (solidkit.finetune.relight): objects rendered under the method's probe and the truth's
+    "relight_angle_deg": ("relit objects: shading direction error", "°", False),
+    **{
+        f"relight_{what}/{obj}": (f"relit {obj.replace('_', ' ')}: {label}", "", higher)
+        for obj in RELIGHT_OBJECTS
+        for what, label, higher in (("si_rmse", "si-RMSE", False), ("ssim", "SSIM", True))
+    },
 }
 
 
@@ -542,6 +553,14 @@ def _metric_values(records: Sequence[dict[str, Any]], key: str) -> tuple[list[fl
             for p in r.get("probes", []):
                 if sub in p:
                     vals.append(p[sub])
+                    groups.append(r["scene"])
+    elif key.startswith("relight_"):
+        what, _, obj = key[len("relight_") :].partition("/")
+        for r in records:
+            for e in r.get("relight", []):
+                v = e.get("shading_angle_deg") if what == "angle_deg" else e["objects"].get(obj, {}).get(what)
+                if v is not None:
+                    vals.append(v)
                     groups.append(r["scene"])
     elif "/" in key:
         err, recipe = key.split("/")

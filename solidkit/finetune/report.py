@@ -21,7 +21,7 @@ from __future__ import annotations
 import html
 import math
 import os
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -46,6 +46,7 @@ from solidkit.finetune.evaluate import (
     save_json,
     shipped_ablations,
 )
+from solidkit.finetune.relight import TRUTH_KINDS, RelightSettings, RelitScene, relight_evaluation
 from solidkit.fsutil import atomic_path, atomic_write_text
 from solidkit.synth.panocrops import load_sources
 from solidkit.threads import ensure_threads
@@ -60,7 +61,12 @@ __all__ = [
     "write_report",
     "markdown_table",
     "evaluation_report",
+    "relight_table",
+    "relight_figure",
+    "relight_section",
 ]
+
+_RELIGHT = tuple(k for k in METRICS if k.startswith("relight_"))
 
 _CSS = """body{font-family:system-ui,sans-serif;max-width:1200px;margin:2em auto;padding:0 1em;color:#222}
 table{border-collapse:collapse;margin:.6em 0 1.4em}th,td{border:1px solid #bbb;padding:3px 8px;text-align:right}
@@ -106,15 +112,23 @@ def _cell(s: dict[str, Any] | None, stat: str) -> str:
     return f"{fmt(s[stat])} [{fmt(lo)}, {fmt(hi)}]"
 
 
-def metric_tables(runs: dict[str, dict[str, Any]], methods: Sequence[str] | None = None) -> str:
-    """Markdown: one table per metric; rows = methods, columns = (dataset x {median, mean}) + n."""
+def metric_tables(
+    runs: dict[str, dict[str, Any]], methods: Sequence[str] | None = None, keys: Sequence[str] | None = None
+) -> str:
+    """Markdown: one table per metric; rows = methods, columns = (dataset x {median, mean}) + n.
+
+    ``keys``: the metrics (of :data:`METRICS`) to show; default every one but the relighting's
+    (:func:`relight_section` shows those)."""
     names = list(methods or dict.fromkeys(m["name"] for r in runs.values() for m in r["methods"]))
     out = []
+    shown = (
+        {k: METRICS[k] for k in keys} if keys is not None else {k: v for k, v in METRICS.items() if k not in _RELIGHT}
+    )
 
     def has(summary: dict[str, Any], key: str) -> bool:  # a method without any sun still shows its no-sun rate
         return key in summary or ("/" in key and f"no_sun_rate/{key.split('/')[1]}" in summary)
 
-    for key, (label, unit, higher) in METRICS.items():
+    for key, (label, unit, higher) in shown.items():
         if not any(has(r["summary"].get(m, {}), key) for r in runs.values() for m in names):
             continue
         header = ["method"]
@@ -348,6 +362,152 @@ def qualitative_grid(item: EvalItem, method: Method, path: Path, title: str = ""
     return _save(fig, path, dpi=72)
 
 
+def relight_table(result: dict[str, Any]) -> str:
+    """Markdown: one row per method with relit objects; the shading-direction error and, per object, the
+    si-RMSE and SSIM of its renders: median [scene-bootstrap 95 % interval]; ``n`` probes."""
+    objects = result.get("relight", {}).get("objects", [])
+    header = ["method", "lit by", "shading direction ° (median [95% CI])"]
+    for obj in objects:
+        header += [f"{obj.replace('_', ' ')}: si-RMSE", f"{obj.replace('_', ' ')}: SSIM"]
+    header.append("n")
+    rows = []
+    for m in [x["name"] for x in result["methods"]]:
+        s = result["summary"].get(m, {})
+        if "relight_angle_deg" not in s and f"relight_si_rmse/{objects[0] if objects else ''}" not in s:
+            continue
+        lit = sorted({e["lit_by"] for r in result["records"] if r["method"] == m for e in r.get("relight", [])})
+        cells = [m, ", ".join(lit), _cell(s.get("relight_angle_deg"), "median")]
+        for obj in objects:
+            cells += [_cell(s.get(f"relight_si_rmse/{obj}"), "median"), _cell(s.get(f"relight_ssim/{obj}"), "median")]
+        n = (s.get(f"relight_si_rmse/{objects[0]}") or {}).get("n") if objects else None
+        cells.append(str(n) if n is not None else "—")
+        rows.append(cells)
+    floor = result.get("relight", {}).get("noise_floor")
+    if floor:
+        cells = ["*noise floor*", "the truth, another seed", "0"]
+        for obj in objects:
+            cells += [_cell(floor.get(f"si_rmse/{obj}"), "median"), _cell(floor.get(f"ssim/{obj}"), "median")]
+        cells.append(str((floor.get(f"si_rmse/{objects[0]}") or {}).get("n", "—")))
+        rows.append(cells)
+    return markdown_table(header, rows)
+
+
+def _render_strip(scene: RelitScene, k: int, columns: Sequence[str]) -> np.ndarray:
+    """The object renders of probe ``k`` side by side (per object: the columns), each exposed like the
+    truth's (its mean luminance over the object and plane to 0.18) after the least-squares scale."""
+    tiles = []
+    for j in range(len(scene.objects)):
+        t = scene.renders["truth"][k][j]
+        mask = t.hit_mask
+        y = float(luminance(t.with_object)[mask].mean()) if mask.any() else 0.0
+        e = 0.18 / y if y > 0 else 1.0
+        for c in columns:
+            r = scene.renders[c][k][j]
+            a = 1.0 if c == "truth" else M.si_scale(r.with_object, t.with_object, mask)
+            tiles.append(M.ldr_from_hdr(r.with_object, a * e))
+            tiles.append(np.ones((t.with_object.shape[0], 2, 3), np.float32))
+        tiles.append(np.ones((t.with_object.shape[0], 10, 3), np.float32))
+    return np.concatenate(tiles[:-2], axis=1)
+
+
+def relight_figure(scene: RelitScene, path: Path, title: str = "") -> Path:
+    """One photo relit: rows = objects; columns = the photo (probe pixels marked), relit with the model's
+    local probes, with the truth, with the model's global map as the probe; below, per probe, the object
+    renders themselves, magnified (per object: prediction, truth, global map)."""
+    plt = _plt()
+    item = scene.item
+    columns = [c for c in ("prediction", "truth", "global") if c in scene.panels]
+    names = list(scene.objects)
+    rows = len(names)
+    strips = [k for k in range(len(item.probe_ids)) if all(c in scene.renders for c in columns)]
+    h, w = item.image.shape[:2]
+    panel_h = 3.2 * h / w + 0.55
+    strip_h = 3.2 * (1 + len(columns)) * 64 / (len(names) * (64 * len(columns) + 2 * len(columns)) + 10) + 0.35
+    fig = plt.figure(figsize=(3.2 * (1 + len(columns)), panel_h * rows + strip_h * len(strips) + 0.5))
+    gs = fig.add_gridspec(
+        rows + len(strips), 1 + len(columns), height_ratios=[panel_h] * rows + [strip_h] * len(strips)
+    )
+    for j in range(rows):
+        ax = fig.add_subplot(gs[j, 0])
+        ax.imshow(np.clip(item.image, 0, 1))
+        for k, (x, y) in enumerate(item.pixels):
+            ax.plot(x, y, "o", ms=7, mfc="none", mec="yellow", mew=1.2)
+            ax.text(x + 5, y - 5, str(k + 1), color="yellow", fontsize=8, weight="bold")
+        ax.set_title(f"photo; {names[j].replace('_', ' ')}", fontsize=8)
+        ax.set(xticks=[], yticks=[])
+        for c, column in enumerate(columns, start=1):
+            ax = fig.add_subplot(gs[j, c])
+            ax.imshow(scene.panels[column][j])
+            if column == "truth":
+                sub = "si-RMSE 0, angle 0°"
+            else:
+                errs = scene.si_rmse.get(column, [])
+                sub = "si-RMSE, angle per probe: " + "; ".join(
+                    f"{k + 1}: {fmt(e.get(names[j]))}, {fmt(a)}°"
+                    for k, (e, a) in enumerate(zip(errs, scene.angles.get(column, [])))
+                )
+            ax.set_title(f"{scene.names.get(column, column)}\n{sub}", fontsize=7)
+            ax.set(xticks=[], yticks=[])
+    labels = {"prediction": "prediction", "truth": "truth", "global": "global map"}
+    for i, k in enumerate(strips):
+        ax = fig.add_subplot(gs[rows + i, :])
+        ax.imshow(_render_strip(scene, k, columns), interpolation="nearest")
+        ax.set_title(
+            f"probe {k + 1}: the renders, per object {' | '.join(labels[c] for c in columns)} "
+            "(each exposed like the truth after the least-squares scale)",
+            fontsize=8,
+        )
+        ax.set_axis_off()
+    if title:
+        fig.suptitle(title, fontsize=10)
+    fig.tight_layout()
+    return _save(fig, path, dpi=90)
+
+
+_RELIGHT_NOTES = """\
+At every probe, a diffuse sphere, a glossy sphere and a procedural bunny (`solidkit.synth.relight`) stand on a
+grey shadow-catching plane and are path-traced with Mitsuba 3 under each method's probe (its local probe, or
+its global map where it predicts none: column *lit by*) and under the truth, seen from the direction the
+photo's camera sees the probe's pixel from. The figures composite them into the photo at the probe's pixel by
+differential rendering (the object's pixels from the render, elsewhere the photo plus the render with the
+object minus the render of the plane alone: its shadow), each exposed so that its virtual ground matches the
+photo's ground there. The numbers (`solidkit.metrics.relight`) compare the method's render with the truth's
+over the pixels that see the object or the plane: **si-RMSE** `||aP - T|| / ||T||` with the least-squares
+scale `a` (0 = perfect, 1 = no better than black), **SSIM** of the two renders exposed alike; **shading
+direction**: the angle between the probes' luminance-weighted mean directions over the hemisphere above the
+plane (their first-order spherical harmonics: the side a diffuse object is lit from). Medians with
+scene-bootstrap 95 % intervals, one value per probe.
+"""
+
+
+def relight_section(
+    results: dict[str, dict[str, Any]], relit: Mapping[str, Sequence[RelitScene]], folder: Path, prefix: str = ""
+) -> str:
+    """Markdown of the relighting: settings, render time, one table per dataset, the figures."""
+    parts = [_RELIGHT_NOTES]
+    figs = folder / "figures"
+    for ds, res in results.items():
+        info = res.get("relight")
+        if not info:
+            continue
+        truth = info["truth"]
+        kinds = ", ".join(f"{n} with the {TRUTH_KINDS[k]}" for k, n in truth.items() if n)
+        parts.append(
+            f"**{ds}**: {sum(truth.values())} probes ({kinds}); {', '.join(info['objects'])}; "
+            f"{info['size'][0]}x{info['size'][1]} pixels, {info['spp']} samples per pixel, "
+            f"Mitsuba `{info['renderer']}`. "
+            f"Render time per object: median {fmt(info['seconds_per_object_median'])} s (max "
+            f"{fmt(info['seconds_per_object_max'])} s, the first renders compile their kernels) over "
+            f"{info['renders']} renders; {fmt(info['seconds_total'])} s in all.\n\n" + relight_table(res)
+        )
+        for sc in relit.get(ds, []):
+            p = relight_figure(
+                sc, figs / f"{prefix}{_slug(ds)}_{_slug(sc.item.scene)}_relit.png", f"{ds}: {sc.item.scene}"
+            )
+            parts.append(f"![{sc.item.scene} relit]({p.relative_to(folder).as_posix()})")
+    return "\n\n".join(parts)
+
+
 def write_report(folder: str | os.PathLike, title: str, sections: Sequence[tuple[str, str]]) -> tuple[Path, Path]:
     """Write ``report.md`` and ``report.html`` (same content) from ``(heading, markdown)`` sections."""
     from markdown_it import MarkdownIt
@@ -388,8 +548,10 @@ def evaluation_sections(
     qualitative: dict[str, tuple[Sequence[EvalItem], Method]] | None = None,
     max_grids: int | None = None,
     prefix: str = "",
+    relit: Mapping[str, Sequence[RelitScene]] | None = None,
 ) -> list[tuple[str, str]]:
-    """The report sections of one or more evaluation results (one per dataset name)."""
+    """The report sections of one or more evaluation results (one per dataset name); with ``relit``
+    (:func:`solidkit.finetune.relight.relight_evaluation`'s scenes per dataset) also the relighting."""
     figs = folder / "figures"
     sections = [("Headline", headline_table(results)), ("Metrics", _METRIC_NOTES + "\n" + metric_tables(results))]
     body = []
@@ -411,6 +573,8 @@ def evaluation_sections(
                 )
                 body.append(f"![{it.scene}]({p.relative_to(folder).as_posix()})")
         sections.append(("Qualitative results", "\n\n".join(body)))
+    if relit is not None and any(r.get("relight") for r in results.values()):
+        sections.append(("Relit objects", relight_section(results, relit, folder, prefix)))
     rows = [
         [
             ds,
@@ -443,6 +607,7 @@ def evaluation_report(
     sun_crops: Sequence[str | os.PathLike] | None = None,
     sun_split: str = "test",
     allow_invalid: bool = False,
+    relight: RelightSettings | None = None,
 ) -> dict[str, Any]:
     """``solidkit eval``: evaluate ``model`` (default: the shipped checkpoint) and the baselines on a
     real test set and/or a synthetic split and/or photos cropped from real HDR ``panoramas`` (with ``ablations``,
@@ -451,7 +616,8 @@ def evaluation_report(
     rendered sources) whose ``sun_split`` is seen by the sun protocol (:mod:`solidkit.model.suneval`: the model,
     its network alone, the constant and brightest-column baselines, with the cones' coverage).
     A test set that fails validation is refused unless ``allow_invalid`` (:func:`checked_testset`); its path
-    and ``dataset_version`` go into ``results.json`` and the report.
+    and ``dataset_version`` go into ``results.json`` and the report. ``relight``: also relight objects at
+    every probe (:mod:`solidkit.finetune.relight`), with its figures (as many as the qualitative grids).
     Returns ``{"results": {dataset: result}, "report": path}``."""
     log = log or (lambda s: None)
     if testset is None and synthetic is None and not panoramas and not sun_crops:
@@ -477,13 +643,17 @@ def evaluation_report(
         named = {**{f"ablation: {k}": v for k, v in shipped_ablations().items()}, **named}
     extra = {name: load_model(path) for name, path in named.items()}
     out = Path(out)
-    results, qual = {}, {}
+    results, qual, relit = {}, {}, {}
     for ds, items in datasets.items():
         n_probes = sum(len(i.probe_ids) for i in items)
         log(f"evaluating on {ds}: {len(items)} photos, {n_probes} probes")
         methods = default_methods(net, extra=extra)
         results[ds] = evaluate(items, methods, log=log)
         qual[ds] = (items, methods[0])
+        if relight is not None and n_probes:
+            log(f"relighting on {ds}: {n_probes} probes, {len(methods) + 1} lightings, {len(relight.objects)} objects")
+            cap = max_grids if max_grids is not None else (len(items) if items[0].source == "real" else 6)
+            relit[ds] = relight_evaluation(results[ds], items, methods, relight, figures=cap, log=log)
     sun_results = {}
     if sun_crops:
         from solidkit.model.suneval import evaluate_sun_crops, protocol_crops  # lazy: pulls in torch
@@ -526,7 +696,7 @@ def evaluation_report(
     if not results:
         intro = intro[:1] + ([testset_line(record)] if record is not None else [])
     sections = [("What was evaluated", "\n".join(intro))]
-    sections += evaluation_sections(results, out, qual, max_grids=max_grids) if results else []
+    sections += evaluation_sections(results, out, qual, max_grids=max_grids, relit=relit) if results else []
     if sun_results:
         sections.append(("The sun on crops with a known sun", sun_crop_section(sun_results, net.config)))
     out.mkdir(parents=True, exist_ok=True)

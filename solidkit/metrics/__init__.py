@@ -9,6 +9,8 @@ these functions, so their numbers cannot drift apart.
   :func:`find_sun` (the paper's recipe or the default detector), :func:`sun_error`, :func:`sun_statistics`;
 - :mod:`~solidkit.metrics.maps`: :func:`global_mae` (the paper's ``xi_HDR``), :func:`local_ldr_metrics`
   (SSIM / MAE against a real LDR probe), :func:`local_hdr_metrics`, :func:`simulate_ldr_probe`;
+- :mod:`~solidkit.metrics.relight`: the re-rendering error of relit objects, :func:`si_rmse`, :func:`render_ssim`,
+  :func:`shading_direction` and :func:`shading_angle_deg`;
 - :mod:`~solidkit.metrics.stats`: :func:`bootstrap_ci` (scene-level cluster bootstrap), :func:`summarise`.
 
 Quick use::
@@ -44,6 +46,11 @@ _EXPORTS = {
     "local_ldr_metrics": "maps",
     "local_hdr_metrics": "maps",
     "simulate_ldr_probe": "maps",
+    "si_scale": "relight",
+    "si_rmse": "relight",
+    "render_ssim": "relight",
+    "shading_direction": "relight",
+    "shading_angle_deg": "relight",
     "bootstrap_ci": "stats",
     "summarise": "stats",
 }

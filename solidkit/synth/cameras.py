@@ -117,8 +117,11 @@ def _film(width: int, height: int) -> dict[str, Any]:
     }
 
 
-def pinhole_sensor(cam: Camera, *, jitter: bool = True, seed: int = 0, spp: int = 1) -> Any:
-    """A Mitsuba ``sk_pinhole`` sensor for ``cam`` (box filter, independent sampler)."""
+def pinhole_sensor(
+    cam: Camera, *, jitter: bool = True, seed: int = 0, spp: int = 1, sampler: str = "independent"
+) -> Any:
+    """A Mitsuba ``sk_pinhole`` sensor for ``cam`` (box filter, ``sampler``: a Mitsuba sampler plugin, e.g.
+    ``multijitter`` for less noise at a few samples per pixel)."""
     mi = mitsuba()
     K = cam.K
     return mi.load_dict(
@@ -131,7 +134,7 @@ def pinhole_sensor(cam: Camera, *, jitter: bool = True, seed: int = 0, spp: int 
             "jitter": jitter,
             "to_world": _to_world(mi, cam.rotation, cam.position),
             "film": _film(cam.width, cam.height),
-            "sampler": {"type": "independent", "sample_count": int(spp), "seed": int(seed)},
+            "sampler": {"type": sampler, "sample_count": int(spp), "seed": int(seed)},
         }
     )
 
