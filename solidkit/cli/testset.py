@@ -118,14 +118,54 @@ def export_command(
     out: Path = typer.Option(
         ..., "-o", "--out", help="Folder to write, outside the test set (absent, empty, or an earlier export)."
     ),
-    fmt: str = typer.Option(..., "--format", help="Target layout: sold-net (SOLD-Net's real-set folder)."),
+    fmt: str = typer.Option(
+        ...,
+        "--format",
+        help="Target: sold-net (SOLD-Net's real-set folder) or croissant (a dataset folder: Croissant 1.1 "
+        "metadata, dataset card, datasheet, the test set under data/).",
+    ),
+    campaign: Path | None = typer.Option(
+        None,
+        "--campaign",
+        help="croissant: the campaign the test set was built from (field notes, HDR clipping, label agreement).",
+    ),
+    license_: str | None = typer.Option(None, "--license", help="croissant: the licence (SPDX id or URL)."),
+    creator: list[str] | None = typer.Option(None, "--creator", help="croissant: a creator to credit (repeatable)."),
+    url: str | None = typer.Option(None, "--url", help="croissant: where the dataset is published."),
+    version: str | None = typer.Option(None, "--version", help="croissant: release version (MAJOR.MINOR.PATCH)."),
+    cite_as: str | None = typer.Option(None, "--cite-as", help="croissant: citation (BibTeX)."),
+    date_published: str | None = typer.Option(None, "--date-published", help="croissant: ISO 8601 date."),
     json_out: bool = json_option("the exported items"),
 ) -> None:
-    """Export a test set in another project's layout (sold-net: <XXX>_persp.JPG, _local.npy, _local_<i>.hdr, _sun_pos.txt)."""  # noqa: E501
+    """Export a test set in another project's layout (sold-net: <XXX>_persp.JPG, ...; croissant: a dataset folder)."""
     from solidkit.errors import InputError
 
+    if fmt == "croissant":
+        from solidkit.testset.facts import ExportInfo
+        from solidkit.testset.publish import export_croissant
+
+        info = ExportInfo(
+            license=license_,
+            creators=tuple(creator or ()),
+            url=url,
+            version=version,
+            cite_as=cite_as,
+            date_published=date_published,
+        )
+        res = export_croissant(root, out, campaign=campaign, info=info)
+        typer.echo(f"wrote {out}: croissant.json, README.md, datasheet.md, records/, data/", err=True)
+        for q in res["open_questions"]:
+            typer.echo(f"open: {q}", err=True)
+        if json_out:
+            echo_json(res, indent=1)
+        return
     if fmt != "sold-net":
-        raise InputError(f"--format {fmt!r}: supported formats: sold-net")
+        raise InputError(f"--format {fmt!r}: supported formats: sold-net, croissant")
+    given = [name for name, v in (("--campaign", campaign), ("--license", license_), ("--url", url)) if v] + (
+        ["--creator"] if creator else []
+    )
+    if given or version or cite_as or date_published:
+        raise InputError(f"{', '.join(given) or 'the dataset options'}: only for --format croissant")
     from solidkit.testset.sold_net import export_sold_net
 
     doc = export_sold_net(root, out)

@@ -1,4 +1,4 @@
-"""The SOLID-Net-style real test set: build it from a campaign, load, validate, compare, review, export.
+"""The SOLID-Net-style real test set: build it from a campaign, load, validate, compare, review, export, import.
 
 A test set is a folder with ``testset.json`` (:class:`TestSet`; format: docs/testset.md): per scene
 the photo and its 320x240 model input with K, pitch and roll, the sun, and per probe its pixel and
@@ -35,6 +35,9 @@ _EXPORTS = {
     "SoldNetItem": "sold_net",
     "export_sold_net": "sold_net",
     "read_sold_net": "sold_net",
+    "import_sold_net": "sold_net_import",
+    "export_croissant": "publish",
+    "ExportInfo": "facts",
 }
 
 __all__ = sorted(_EXPORTS)
