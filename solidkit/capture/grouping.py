@@ -15,12 +15,13 @@ Two card layouts are understood, per file (:func:`solidkit.capture.card.folder_l
 2. **Automatic** (a camera's own ``DCIM/100RICOH/R0010001.JPG`` card): by capture time (EXIF
    ``DateTimeOriginal``, camera clock; keep the cameras' clocks set). Shots of the whole campaign
    are sorted by time; a gap above ``scene_gap_s`` (default 600 s) starts a new scene
-   (``scene-YYYYMMDD-HHMMSS`` of its first shot); within a scene a gap above ``probe_gap_s``
-   (default 45 s, from the end of one Theta shot to the next) starts a new position (``p01``,
-   ``p02``, ...). Shots without a timestamp go to scene ``undated``, probe ``p01``. A non-Theta
-   image (not a Ricoh equirect/dual-fisheye capture) is a **photo**; it joins the scene whose
-   time span (± ``scene_gap_s``) contains it, so a photo camera's card can be ingested after
-   the Theta's card into the same campaign.
+   (``scene-YYYYMMDD-HHMMSS`` of its first shot); within a scene positions (``p01``, ``p02``, ...)
+   are split by the scene's own shooting rhythm (:func:`position_starts`; gaps from the end of
+   one Theta shot to the next), or at every gap above ``probe_gap_s`` when it is set to another
+   value than its default 45 s (``ingest --probe-gap``). Shots without a timestamp go to scene
+   ``undated``, probe ``p01``. A non-Theta image (not a Ricoh equirect/dual-fisheye capture) is a
+   **photo**; it joins the scene whose time span (± ``scene_gap_s``) contains it, so a photo
+   camera's card can be ingested after the Theta's card into the same campaign.
 
 Within a position, Theta shots are grouped into brackets (:mod:`solidkit.capture.bracket_groups`:
 time gaps <= ``bracket_gap_s``, distinct exposures). Kinds: ``bracket_member`` (a group of two
@@ -48,7 +49,7 @@ from solidkit.capture.card import folder_layout
 from solidkit.capture.fieldnotes import CAMERA_FOLDERS, CardNotes, FieldNotes
 from solidkit.capture.manifest import Bracket, GroupingParams, Manifest, Probe, Scene, Shot
 
-__all__ = ["group_shots", "apply_notes", "shot_time"]
+__all__ = ["group_shots", "apply_notes", "shot_time", "position_starts", "RHYTHM_PROBE_GAP_S"]
 
 _THETA_TYPES = {"equirect", "dual_fisheye", "dual_fisheye_upright"}
 
@@ -86,6 +87,60 @@ def _order(shot: Shot) -> tuple:
     t = shot_time(shot)
     src = min((s.card, s.path) for s in shot.sources)
     return (t is None, t or datetime.min, src, shot.sha256)
+
+
+#: ``probe_gap_s`` at this value (the default) splits positions by the shooting rhythm; any other value is a fixed gap.
+RHYTHM_PROBE_GAP_S = GroupingParams().probe_gap_s
+
+
+def _same_exposure(a: float, b: float) -> bool:
+    return abs(a - b) <= 0.02 * max(a, b)
+
+
+def position_starts(shots: list[Shot], g: GroupingParams) -> set[int]:
+    """Indices of the shots (one scene's Theta shots without a position folder, in time order) that start a
+    new position after the previous timed one: splits that adapt to the scene's shooting rhythm.
+
+    The gaps (from the end of one shot to the next one's start) longer than ``bracket_gap_s`` are the
+    candidates (a shorter one keeps a bracket together). Where they fall into two groups (the largest ratio
+    between two of them in size order at least 2: pauses within a position, e.g. before a sun frame, and moves
+    between positions) the threshold is the geometric mean of that pair; where they form one group it is
+    ``probe_gap_s``. A candidate gap starts a new position when it exceeds the threshold or when the next shot's
+    exposure time repeats one already shot since the position began (a bracket starting over: a team faster than
+    the threshold). A team that moves every 25 s with 1 s shots and one that pauses a minute before each sun
+    frame and moves every 3 minutes are both split right (a fixed 45 s merges the first's positions and splits
+    the second's). A bracket shot again at the same spot after a pause reads as a new position (name the
+    positions by folder or in the field notes). ``probe_gap_s`` other than its default
+    (:data:`RHYTHM_PROBE_GAP_S`): every gap above it, and only those, starts a new position.
+    """
+    gaps: dict[int, float] = {}
+    prev_end: datetime | None = None
+    for i, s in enumerate(shots):
+        t = shot_time(s)
+        if t is not None and prev_end is not None:
+            gaps[i] = (t - prev_end).total_seconds()
+        e = _end(s)
+        prev_end = e if e is not None else prev_end
+    if g.probe_gap_s != RHYTHM_PROBE_GAP_S:
+        return {i for i, gap in gaps.items() if gap > g.probe_gap_s}
+    cand = sorted(gap for gap in gaps.values() if gap > g.bracket_gap_s)
+    threshold = g.probe_gap_s
+    if len(cand) >= 2:
+        ratio, k = max((cand[j + 1] / cand[j], j) for j in range(len(cand) - 1))
+        if ratio >= 2.0:
+            threshold = (cand[k] * cand[k + 1]) ** 0.5
+    starts: set[int] = set()
+    seen: list[float] = []
+    for i, s in enumerate(shots):
+        exp = _exposure(s)
+        gap = gaps.get(i)
+        if gap is not None and gap > g.bracket_gap_s:
+            if gap > threshold or (exp is not None and any(_same_exposure(exp, x) for x in seen)):
+                starts.add(i)
+                seen = []
+        if exp is not None:
+            seen.append(exp)
+    return starts
 
 
 def group_shots(manifest: Manifest) -> None:
@@ -129,8 +184,10 @@ def group_shots(manifest: Manifest) -> None:
         times = [t for t in (shot_time(s) for s in members) if t is not None]
         sc.start, sc.end = (min(times), max(times)) if times else (None, None)
         pid_auto = 0
-        prev_end: datetime | None = None
+        timed = False  # a timed auto-position shot came before
         auto_probe: str | None = None
+        auto = [s for s in members if _is_theta(s) and s.layout_probe is None]
+        starts = {auto[i].sha256 for i in position_starts(auto, g)}
         for s in members:
             if not _is_theta(s):
                 s.kind = "photo"
@@ -140,18 +197,11 @@ def group_shots(manifest: Manifest) -> None:
                 s.probe = s.layout_probe
             else:
                 t = shot_time(s)
-                if (
-                    auto_probe is None
-                    or t is None
-                    or prev_end is None
-                    or (t - prev_end).total_seconds() > g.probe_gap_s
-                ):
-                    if not (t is None and auto_probe is not None):
-                        pid_auto += 1
-                        auto_probe = f"p{pid_auto:02d}"
+                if auto_probe is None or (t is not None and (not timed or s.sha256 in starts)):
+                    pid_auto += 1
+                    auto_probe = f"p{pid_auto:02d}"
                 s.probe = auto_probe
-                e = _end(s)
-                prev_end = e if e is not None else prev_end
+                timed = timed or _end(s) is not None
             probe_members.setdefault((sc.id, s.probe), []).append(s)
 
     # 3. brackets, kinds and the sun frame within each probe

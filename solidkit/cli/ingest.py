@@ -177,7 +177,9 @@ def ingest_cli(
         help="Seconds between shots that start a new scene (automatic layout; default 600, then the campaign's value).",
     ),
     probe_gap: float | None = typer.Option(
-        None, help="Seconds between Theta shots that start a new probe position (default 45)."
+        None,
+        help="Seconds between Theta shots that start a new probe position (automatic layout). Default 45: split by "
+        "the scene's shooting rhythm, 45 s where it is unclear; any other value: a fixed split.",
     ),
     bracket_gap: float | None = typer.Option(None, help="Seconds between shots that end a bracket (default 10)."),
     low_exposure_max: str | None = typer.Option(
