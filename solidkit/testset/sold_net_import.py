@@ -274,6 +274,11 @@ def import_sold_net(
         from solidkit.model.config import SolidNetConfig
 
         hfov_deg = SolidNetConfig().hfov_deg
+    o, f = out.resolve(), folder.resolve()
+    if o == f or f in o.parents or o in f.parents:
+        raise InputError(
+            f"{out}: the test set folder must be outside the SOLD-Net folder {folder} (and not contain it)"
+        )
     _check_out(out, folder)
     items = read_sold_net(folder)
     if not items:

@@ -144,3 +144,5 @@ def test_their_conventions_cells_and_negative_positions(tmp_path, cli):
     code, _, err = cli("testset", "import", src, tmp_path / "photos", "--format", "sold-net")
     assert code == 2 and "not a solidkit test set" in err
     assert cli("testset", "import", tmp_path / "photos", tmp_path / "y", "--format", "sold-net")[0] == 2
+    code, _, err = cli("testset", "import", src, src / "ts", "--format", "sold-net")
+    assert code == 2 and "outside the SOLD-Net folder" in err and not (src / "ts").exists()
