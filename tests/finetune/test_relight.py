@@ -118,3 +118,41 @@ def test_the_report_shows_the_relighting_table_and_figure_and_keeps_the_other_ta
     )
     without = dict(evaluation_sections({"real": {k: v for k, v in result.items() if k != "relight"}}, tmp_path))
     assert "Relit objects" not in without
+
+
+@pytest.mark.slow  # ~15 s: builds a test set, renders 2 probes x 6 lightings x 3 objects
+def test_eval_relight_on_a_built_test_set(cli, torch_one_thread, tmp_path) -> None:
+    """`solidkit eval --relight` end to end on a built test set (two scenes, HDR probes): the table in the report,
+    the figure, the scores in results.json for the model and every baseline, the truth's kind and the timing."""
+    import json
+
+    import torch
+
+    from solidkit.model.config import preset
+    from solidkit.model.solidnet import SolidNet
+    from solidkit.testset.build import build_testset
+    from tests.support.testset_campaign import make_campaign
+
+    scenes = {
+        "sA": (35.0, 40.0, -6.0, 1.0, {"p01": (200.0, 420.0)}, {"cam": -20.0, "p01": 70.0}),
+        "sB": (-120.0, 25.0, -4.0, 0.0, {"p01": (150.0, 440.0)}, {"cam": 40.0, "p01": -70.0}),
+    }  # two scenes: the mean baselines leave one out
+    make_campaign(tmp_path / "campaign", scenes)
+    build_testset(tmp_path / "campaign", tmp_path / "testset")
+    torch.manual_seed(0)
+    SolidNet(preset("tiny")).save(tmp_path / "tiny.pt", {"what": "untrained tiny model (test)"})
+    out = tmp_path / "report"
+    code, stdout, err = cli(
+        "eval", "--testset", tmp_path / "testset", "--model", tmp_path / "tiny.pt", "-o", out, "--json",
+        "--relight", "--relight-spp", "4",
+    )  # fmt: skip
+    assert code == 0, err
+    summary = json.loads(stdout)["real"]
+    for method in ("solidnet", "global-as-local", "mean-sky", "mean-probe"):
+        assert summary[method]["relight_angle_deg"]["n"] == 2, method
+        assert summary[method]["relight_si_rmse/bunny"]["n"] == 2, method
+    res = json.loads((out / "results.json").read_text())["results"]["real"]
+    assert res["relight"]["truth"] == {"hdr": 2, "ldr": 0} and res["relight"]["renderer"]
+    md = (out / "report.md").read_text()
+    assert "## Relit objects" in md and "Render time per object" in md and "figures/real_sA_relit.png" in md
+    assert (out / "figures" / "real_sA_relit.png").stat().st_size > 10000
