@@ -909,9 +909,9 @@ def clock_doubts(
     The photo's own clock off its GPS time (``photo``: the details of :func:`photo_clock_mismatch`) puts every
     capture's time against the photo's in doubt (which captures are near the photo, the sun's drift to the
     photo's time, the light the probe saw at the photo's moment): every capture is flagged ``clock_mismatch``,
-    and so is the scene's sun where it has a direction (seen, or the ephemeris'). A capture taken more than an hour from the photo
-    (``far``, :func:`clock_mismatch`) is flagged at itself (no sun drift correction there; its light may not be
-    the photo's). A capture both doubts touch gets one flag saying both.
+    and so is the scene's sun where it has a direction (seen, or the ephemeris'). A capture taken more than an
+    hour from the photo (``far``, :func:`clock_mismatch`) is flagged at itself (no sun drift correction there; its
+    light may not be the photo's). A capture both doubts touch gets one flag saying both.
     """
     clock = [f for f in scene_flags if Flag.parse(f).code == FlagCode.CLOCK_MISMATCH.value]
     if len(clock) > 1:
