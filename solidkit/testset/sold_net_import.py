@@ -23,9 +23,10 @@ Conversion (frames: ``docs/conventions.md``)
   ``hdr.exr`` is the 256x128 probe, upsampled with the radiance-preserving
   :func:`solidkit.envmap.resample.resize` (pixel replication: downsampling it again gives the
   128x64 map back up to float rounding). ``rotation`` is the identity.
-- **LDR probes**: their layout has none; ``ldr.png`` is ``srgb(clip(2^-2 H))``, the exposure of
-  SOLD-Net's own real-set test (``tmo_log_exposure = -2``; they apply a 2.2 gamma, we sRGB, as
-  our LDR probes are camera sRGB), ``saturation.png`` marks its clipped pixels.
+- **LDR probes**: their layout has none; ``ldr.png`` is the map as an auto-exposed 8-bit sRGB
+  capture (:func:`solidkit.metrics.maps.simulate_ldr_probe`, as ``solidkit eval`` makes the LDR
+  truth of a synthetic probe: mean luminance to 0.18, clipped), ``saturation.png`` its clipped
+  pixels. (A fixed exposure such as SOLD-Net's test's ``2^-2`` clips most of a map in our units.)
 - **sun**: ``sun_pos.txt`` ``(col, row)`` on their 128x32 grid through
   :func:`~solidkit.testset.sold_net.sun_angles`; no file = no sun (their ``is_sunny``). Their
   labels are quantised to grid cells of ``180/64 = 2.8125`` degrees: ``uncertainty_deg`` is the
@@ -57,7 +58,7 @@ import numpy as np
 
 from solidkit import __version__
 from solidkit.envmap.coords import CONVENTIONS_VERSION, direction_from_angles, solid_angle
-from solidkit.envmap.io import read_ldr, srgb_encode, write_exr, write_ldr
+from solidkit.envmap.io import read_ldr, write_exr, write_ldr
 from solidkit.envmap.perspective import intrinsics_from_fov
 from solidkit.envmap.resample import resize
 from solidkit.errors import InputError
@@ -65,7 +66,6 @@ from solidkit.flags import FlagCode
 from solidkit.fsutil import sha256_file
 from solidkit.testset.build import (
     MANIFEST_FILE,
-    SATURATION_LEVEL,
     _check_out,
     _files,
     _swap,
@@ -88,10 +88,9 @@ from solidkit.testset.schema import (
 )
 from solidkit.testset.sold_net import ITEMS_FILE, SoldNetItem, read_sold_net
 
-__all__ = ["SUN_CELL_DEG", "LDR_LOG2_EXPOSURE", "ImportReport", "sun_cell_uncertainty_deg", "import_sold_net"]
+__all__ = ["SUN_CELL_DEG", "ImportReport", "sun_cell_uncertainty_deg", "import_sold_net"]
 
 SUN_CELL_DEG = 180.0 / 64.0  # one cell of SOLD-Net's 128x32 sun grid, degrees (both axes)
-LDR_LOG2_EXPOSURE = -2.0  # SOLD-Net's real-set test exposure (estimator_test_real.py: tmo_log_exposure)
 ANNOTATOR = "sold-net"
 
 
@@ -141,12 +140,6 @@ def _ids(folder: Path, items: list[SoldNetItem]) -> tuple[dict[str, tuple[str, l
     return known, ITEMS_FILE
 
 
-def _ldr_probe(hdr: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """8-bit sRGB LDR probe (as float 0-255, RGB) of an HDR map and its clipped-pixel mask (bool)."""
-    ldr = np.round(srgb_encode(np.clip(hdr * np.float32(2.0**LDR_LOG2_EXPOSURE), 0.0, 1.0)) * 255.0)
-    return ldr.astype(np.float32), ldr.max(axis=-1) >= SATURATION_LEVEL
-
-
 def _saturated_fraction(mask: np.ndarray) -> float:
     w = solid_angle(mask.shape[0])
     return float((w * mask).sum() / w.sum())
@@ -160,9 +153,11 @@ def _probe(
     meta = {"frame": "photo panorama frame (conventions §2, §8)", "units": "relative (as stored by SOLD-Net)"}
     write_exr(root / paths["hdr"], hdr, meta)
     write_exr(root / paths["hdr_full"], hdr_full, meta)
+    from solidkit.metrics.maps import simulate_ldr_probe  # lazy: pulls in torch
+
     for name, image in (("", hdr), ("_full", hdr_full)):
-        ldr, sat = _ldr_probe(image)
-        _write_u8(root / f"{d}/ldr{name}.png", ldr[..., ::-1])
+        ldr, sat = simulate_ldr_probe(image)
+        _write_u8(root / f"{d}/ldr{name}.png", ldr[..., ::-1] * 255.0)
         _write_u8(root / f"{d}/saturation{name}.png", sat.astype(np.float32) * 255.0)
         if name == "":
             fraction = _saturated_fraction(sat)
