@@ -94,7 +94,9 @@ def test_export_import_round_trip_and_eval(built, tmp_path, cli):
     assert model["angle_deg/paper"]["n"] == sum(g.sun.found for g in got.scenes)
 
 
-def _write_item(folder: Path, xxx: str, pos: list[list[int]], sun: str | None, seed: int = 0) -> list[np.ndarray]:
+def _write_item(
+    folder: Path, xxx: str, pos: list[list[int]], sun: str | None, seed: int = 0, scale: float = 1.0
+) -> list[np.ndarray]:
     rng = np.random.default_rng(seed)
     folder.mkdir(exist_ok=True)
     photo = rng.integers(0, 255, (240, 320, 3), dtype=np.uint8)
@@ -103,7 +105,7 @@ def _write_item(folder: Path, xxx: str, pos: list[list[int]], sun: str | None, s
     np.save(folder / f"{xxx}_local.npy", np.asarray(pos, dtype=np.int64))
     maps = []
     for k in range(len(pos)):
-        hdr = rng.uniform(0.01, 3.0, (64, 128, 3)).astype(np.float32)
+        hdr = (scale * rng.uniform(0.01, 3.0, (64, 128, 3))).astype(np.float32)
         cv2.imwrite(str(folder / f"{xxx}_local_{k}.hdr"), hdr[..., ::-1].copy())
         maps.append(read_hdr(folder / f"{xxx}_local_{k}.hdr"))
     if sun is not None:
@@ -115,7 +117,7 @@ def test_their_conventions_cells_and_negative_positions(tmp_path, cli):
     """A folder written by hand in their layout: an integer sun cell, a negative (encoded) position, no sun."""
     src = tmp_path / "real"
     maps = _write_item(src, "001", [[150, 100], [-1 - 170, -1 - 200]], "63\n31\n")
-    _write_item(src, "002", [[200, 40], [210, 300]], None, seed=1)
+    _write_item(src, "002", [[200, 40], [210, 300]], None, seed=1, scale=1000.0)  # our merges' units
     code, out, err = cli(
         "testset", "import", src, tmp_path / "ts", "--format", "sold-net", "--hfov-deg", "70", "--json"
     )
@@ -133,6 +135,8 @@ def test_their_conventions_cells_and_negative_positions(tmp_path, cli):
         2.8125 / math.sqrt(12) * math.sqrt(1 + math.cos(math.radians(1.40625)) ** 2)
     )
     assert not b.sun.found and b.sun.azimuth_deg is None
+    # the LDR truth is exposed for the map whatever its scale (a fixed exposure would clip all of item 002)
+    assert all(p.images.saturated_fraction < 0.01 for p in a.probes + b.probes)
     # K: an ideal pinhole of the given FOV; their maps kept as stored
     assert a.K[0][0] == pytest.approx(160 / math.tan(math.radians(35))) and a.K_source.startswith("assumed")
     for p, m in zip(a.probes, maps):
