@@ -12,8 +12,8 @@ Conversion (frames: ``docs/conventions.md``)
   centre crop/resize to 320x240 (a 320x240 photo is decoded and re-encoded losslessly).
 - **intrinsics**: their layout records none. ``K`` is that of an ideal pinhole with the horizontal
   field of view ``hfov_deg`` (default: SOLID-Net's training FOV), flagged ``no_intrinsics``.
-- **pitch, roll**: not recorded; 0, flagged ``photo_pitch_roll_assumed_zero`` (the local maps
-  and the sun grid are gravity-aligned panoramas: their horizon is row 32 of 64).
+- **pitch, roll**: the photo camera's tilt against the (gravity-aligned) maps and sun grid is not
+  recorded; 0, flagged ``photo_pitch_roll_assumed_zero``.
 - **probe pixels**: ``local_pos`` rows are integer ``(row, col)`` indices of the 320x240 photo;
   OpenCV pixel centres are at integers (conventions §1), so ``pixel = [col, row]`` with no
   offset. A negative entry is decoded as SOLD-Net's test script does (``-p - 1``) and flagged.
