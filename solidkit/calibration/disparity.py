@@ -52,7 +52,9 @@ __all__ = [
     "SEARCH_DEG",
     "DOUBLED_DEG",
     "DISPARITY_WARN_DEG",
+    "DOUBLED_WARN_FRACTION",
     "SeamDisparity",
+    "disparity_warning",
     "SeamMatches",
     "ring_strips",
     "seam_matches",
@@ -73,6 +75,8 @@ DOUBLED_DEG = 1.0
 #: Correct profiles measured 0.02-0.05° on rendered frames and 0.64° on the real indoor Theta S frame (parallax);
 #: a field of view 1.5° off 1.38°, a back lens 2° off 1.93° (benchmarks/results/seam_disparity.md).
 DISPARITY_WARN_DEG = 1.0
+#: A profile does not fit either when more than this fraction of the matches are over :data:`DOUBLED_DEG` apart.
+DOUBLED_WARN_FRACTION = 0.5
 #: Fewer matches leave the disparity unmeasured.
 MIN_MATCHES = 20
 #: A strip pixel is textured above this gradient (grey levels of the 8-bit strip per degree).
@@ -108,6 +112,22 @@ class SeamDisparity:
             else:
                 out[k] = v
         return out
+
+
+def disparity_warning(disparity: SeamDisparity) -> str | None:
+    """The ``seam_disparity`` warning of a measured disparity that says the profile does not fit the frame (a median
+    above :data:`DISPARITY_WARN_DEG` or more than :data:`DOUBLED_WARN_FRACTION` of the matches over
+    :data:`DOUBLED_DEG` apart), else None: one rule and one text for ``calibrate fisheye`` and ``capture unwarp``."""
+    if not disparity.measured:
+        return None
+    if disparity.median_deg <= DISPARITY_WARN_DEG and disparity.doubled_fraction <= DOUBLED_WARN_FRACTION:
+        return None
+    return (
+        f"seam_disparity: the two lenses put the same scene points {disparity.median_deg:.2f}° apart (median; "
+        f"95 % within {disparity.p95_deg:.1f}°, {100 * disparity.doubled_fraction:.0f} % more than 1°): the "
+        f"panorama will show content twice at the seams (warns above {DISPARITY_WARN_DEG:g}°); the profile does "
+        "not fit this frame"
+    )
 
 
 def _edge_angles(profile: LensProfile, circles: Any) -> list[float]:

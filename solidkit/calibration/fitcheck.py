@@ -2,24 +2,30 @@
 
 Three questions, each answered from the frame itself:
 
-- **seam**: the seam error (:func:`solidkit.calibration.seam.seam_error`) of the profile on the
-  frame; above :data:`SEAM_ERROR_WARN` a ``seam_mismatch`` warning (doubled content at the seams);
+- **seam**: the seam disparity (:func:`solidkit.calibration.disparity.seam_disparity`): how far apart, in degrees,
+  the two lenses put the scene points both show, over the whole overlap. A median above
+  :data:`~solidkit.calibration.disparity.DISPARITY_WARN_DEG` (1°, 15 px of doubling in a 5376-px panorama) or more
+  than half the matches over 1° apart is a ``seam_disparity`` warning: the rule and the text of ``calibrate
+  fisheye`` (:func:`~solidkit.calibration.disparity.disparity_warning`). The seam error
+  (:func:`solidkit.calibration.seam.seam_error`, photometric, without a unit) is reported beside it and decides only
+  where the disparity is unmeasured (fewer than 20 matches: a dark, clipped or textureless overlap): above
+  :data:`SEAM_ERROR_WARN` a ``seam_mismatch`` warning;
 - **arrangement**: the frame's image circles (:func:`~solidkit.calibration.circles.find_image_circles`)
   side by side or stacked as the profile's lens centres are; else ``layout_mismatch``;
 - **upright** (:func:`check_upright`, on the unwarped panorama): it is upright
   (:func:`~solidkit.calibration.upright.upright_of_panorama`); a confident turn of ±90° is a
   ``layout_mismatch`` (circles turned relative to the profile: a sideways panorama).
 
-:data:`SEAM_ERROR_WARN` = 0.7 was chosen from measured seam errors (benchmarks/results/selfcal.md):
-correct profiles stay at or below 0.11 on rendered Theta V frames of three real HDR panoramas, 0.48
-on the virtual campaign's Theta V JPEGs (1920x960, parallax of nearby geometry) and 0.60 on the real
-indoor Theta S frame with its own profile (objects within a metre: parallax): 0 false alarms in 28.
-Wrong profiles: another camera's 0.83 or its ring on black (warned), r(theta) 3 % off 0.91-1.08 or
-on black, the back lens 8° off 0.76-0.87, a lens centre 3 % of the radius off 0.44-0.83, the back
-lens 4° off 0.57-0.65: 11 of 23 warned. So the warning catches another camera, another layout and
-gross unit errors with a margin of 0.1 over the worst correct case; errors of a few degrees
-(doubling by a few pixels) pass: ``calibrate overlap`` is the tool for those. Dark frames (a
-1/25000 s sun frame: less than 20 % of the ring usable) get no seam error and no warning.
+Why the disparity decides: on the real indoor Theta S frame its shipped profile measures 0.64° (parallax of objects
+within a metre) and seam error 0.60; the same profile with the back lens yawed 1° or 2°, or pitched 4.8° off its aim,
+measures 1.55°, 2.15° and 2.34° (warned) while their seam errors, 0.68, 0.66 and 0.66, stayed under
+:data:`SEAM_ERROR_WARN` (no warning before). The seam error's scale is not comparable between cameras (a right
+hand-made profile of a real Gear 360 frame scored 1.04, a wrong fit 0.74: benchmarks/results/seam_disparity.md).
+
+:data:`SEAM_ERROR_WARN` = 0.7 was chosen from measured seam errors (benchmarks/results/selfcal.md): correct profiles
+stay at or below 0.11 on rendered Theta V frames of three real HDR panoramas, 0.48 on the virtual campaign's Theta V
+JPEGs and 0.60 on the real indoor Theta S frame; another camera's profile 0.83, or its ring on black (warned).
+Dark frames (a 1/25000 s sun frame: less than 20 % of the ring usable) get neither figure and no warning.
 """
 
 from __future__ import annotations
@@ -30,11 +36,13 @@ from typing import Any
 import cv2
 import numpy as np
 
-from solidkit.calibration.circles import CircleError, arrangement_of_centres, find_image_circles
+from solidkit.calibration.circles import Circle, CircleError, arrangement_of_centres, find_image_circles
+from solidkit.calibration.disparity import DISPARITY_WARN_DEG, STEP_DEG, disparity_warning, seam_disparity
 from solidkit.calibration.seam import LDR_FLOOR, WORK_RADIUS_PX, prepare_seam_image, seam_error
 from solidkit.calibration.upright import upright_of_panorama
 from solidkit.camera.lens import LensProfile
 from solidkit.envmap.io import srgb_decode
+from solidkit.envmap.perspective import scale_pixel_coordinates
 from solidkit.envmap.sun import luminance
 
 __all__ = ["SEAM_ERROR_WARN", "check_profile_fit", "check_upright"]
@@ -61,6 +69,20 @@ def _working_copy(image: np.ndarray, radius_px: float, bgr: bool = False) -> tup
     return small.astype(np.float32, copy=False), s
 
 
+def _disparity_copy(image: np.ndarray, profile: LensProfile, bgr: bool) -> np.ndarray:
+    """The frame reduced by a whole factor (area) to about the resolution the disparity's ring strips sample (1.5
+    lens px per strip px: :func:`~solidkit.calibration.disparity.ring_strips` reduces no further), RGB order."""
+    px_per_deg = max(float(lens.dradius(math.radians(90.0))) * math.pi / 180.0 for lens in profile.lenses[:2])
+    k = max(1, int(px_per_deg * STEP_DEG / 1.5))
+    h, w = image.shape[:2]
+    small = image
+    if k > 1:  # a whole factor: OpenCV's fast area path (a fifth of the time of a fractional one at Theta V size)
+        small = cv2.resize(image[: h - h % k, : w - w % k], (w // k, h // k), interpolation=cv2.INTER_AREA)
+    if bgr and small.ndim == 3:
+        small = small[..., 2::-1]
+    return np.ascontiguousarray(small)
+
+
 def check_profile_fit(
     image: np.ndarray, profile: LensProfile, saturation: float | None = None, *, bgr: bool = False
 ) -> tuple[dict[str, Any], list[str]]:
@@ -68,7 +90,9 @@ def check_profile_fit(
 
     ``image``: ``(H, W, C)`` uint8 sRGB or linear float; ``saturation``: the linear clipping level
     (``None`` for HDR); ``bgr``: the channels are in OpenCV's order. Returns ``(report, warnings)``;
-    the report has ``ok`` (no warning), ``seam_error``, ``seam_error_warn`` (the threshold) and
+    the report has ``ok`` (no warning), ``seam_disparity``
+    (:meth:`~solidkit.calibration.disparity.SeamDisparity.to_json`, degrees), ``seam_disparity_warn_deg`` (its
+    threshold), ``seam_error``, ``seam_error_warn`` (its threshold, applied when the disparity is unmeasured) and
     ``arrangement`` (frame / profile).
     """
     h, w = image.shape[:2]
@@ -85,30 +109,46 @@ def check_profile_fit(
     report.update(
         seam_error=None if not math.isfinite(e["seam_error"]) else round(e["seam_error"], 4), seam_samples=e["samples"]
     )
-    if report["seam_error"] is None:
-        lum = luminance(small) if small.ndim == 3 else small
-        if float(np.median(lum)) > 10 * LDR_FLOOR:  # a well-exposed frame, yet the ring sees black (or clipping)
+    want = arrangement_of_centres([lens.center for lens in prof.lenses])
+    circles: list[Circle] | None
+    try:
+        circles, have = find_image_circles(luminance(small) if small.ndim == 3 else small)
+    except CircleError:
+        circles, have = None, None
+    report["arrangement"] = {"frame": have, "profile": want}
+    frame = _disparity_copy(image, prof, bgr)
+    if circles is not None:  # the frame's circles bound the overlap band (a profile's narrower field does not)
+        k = frame.shape[1] / small.shape[1]
+        circles = [
+            Circle(scale_pixel_coordinates(c.cx, k), scale_pixel_coordinates(c.cy, k), c.r * k, c.inliers)
+            for c in circles
+        ]
+    disparity = seam_disparity(frame, prof, circles)
+    report.update(seam_disparity=disparity.to_json(), seam_disparity_warn_deg=DISPARITY_WARN_DEG)
+    doubled = disparity_warning(disparity)
+    if doubled is not None:
+        warnings.append(doubled)
+    if not disparity.measured:  # nothing to match across the overlap: the photometric seam error decides
+        if report["seam_error"] is None:
+            lum = luminance(small) if small.ndim == 3 else small
+            if float(np.median(lum)) > 10 * LDR_FLOOR:  # a well-exposed frame, yet the ring sees black (or clipping)
+                warnings.append(
+                    "seam_mismatch: the profile's overlap ring falls on black (or clipped) pixels, outside the "
+                    "frame's image circles: another camera or layout? 'solidkit calibrate fisheye FRAME' makes a "
+                    "profile from the frame"
+                )
+        elif e["seam_error"] > SEAM_ERROR_WARN:
             warnings.append(
-                "seam_mismatch: the profile's overlap ring falls on black (or clipped) pixels, outside the "
-                "frame's image circles: another camera or layout? 'solidkit calibrate fisheye FRAME' makes a "
-                "profile from the frame"
+                f"seam_mismatch: seam error {e['seam_error']:.2f} > {SEAM_ERROR_WARN} (0 = the lenses agree, "
+                "~0.6 = 4° off, 1 = unrelated; the seam disparity is unmeasured: too little texture in the overlap): "
+                "the profile does not fit this frame and the seams will show doubled content; 'solidkit calibrate "
+                "fisheye FRAME' makes a profile from the frame"
             )
+    if report["seam_error"] is None:
         report["seam_error_note"] = (
             "unmeasured: less than 20 % of the overlap ring is usable (a dark or clipped "
             "frame, e.g. a sun frame, or a profile whose ring falls outside the image circles)"
         )
-    if math.isfinite(e["seam_error"]) and e["seam_error"] > SEAM_ERROR_WARN:
-        warnings.append(
-            f"seam_mismatch: seam error {e['seam_error']:.2f} > {SEAM_ERROR_WARN} (0 = the lenses agree, "
-            "~0.6 = 4° off, 1 = unrelated): the profile does not fit this frame and the seams will show doubled "
-            "content; 'solidkit calibrate fisheye FRAME' makes a profile from the frame"
-        )
-    want = arrangement_of_centres([lens.center for lens in prof.lenses])
-    try:
-        _, have = find_image_circles(luminance(small) if small.ndim == 3 else small)
-    except CircleError:
-        have = None
-    report["arrangement"] = {"frame": have, "profile": want}
     if have is not None and have != want:
         warnings.append(
             f"layout_mismatch: the frame's image circles are {have.replace('_', ' ')}, the profile's "

@@ -49,10 +49,10 @@ from scipy.optimize import least_squares
 
 from solidkit.calibration.circles import Circle, find_image_circles
 from solidkit.calibration.disparity import (
-    DISPARITY_WARN_DEG,
     MIN_MATCHES,
     SeamDisparity,
     SeamMatches,
+    disparity_warning,
     match_disparity,
     seam_disparity,
     seam_matches,
@@ -664,10 +664,11 @@ def fit_dual_fisheye(
 
 
 def disparity_warnings(disparity: SeamDisparity | None, seam_error_value: float) -> list[str]:
-    """What ``calibrate fisheye`` says of a profile's fit: ``seam_disparity`` when the lenses put the same scene
-    points more than :data:`~solidkit.calibration.disparity.DISPARITY_WARN_DEG` apart (median) or half the matches
-    more than 1° apart, or when that cannot be measured; ``seam_mismatch`` above the seam error ``capture unwarp``
-    warns at."""
+    """What ``calibrate fisheye`` says of a profile's fit, by the rule ``capture unwarp`` applies
+    (:mod:`solidkit.calibration.fitcheck`): ``seam_disparity`` when the lenses put the same scene points more than
+    :data:`~solidkit.calibration.disparity.DISPARITY_WARN_DEG` apart (median) or half the matches more than 1° apart
+    (:func:`~solidkit.calibration.disparity.disparity_warning`), or when that cannot be measured; where it cannot,
+    ``seam_mismatch`` above the seam error ``capture unwarp`` then warns at."""
     out = []
     if disparity is None or not disparity.measured:
         n = 0 if disparity is None else disparity.matches
@@ -675,18 +676,15 @@ def disparity_warnings(disparity: SeamDisparity | None, seam_error_value: float)
             f"seam_disparity: unmeasured ({n} scene points matched across the overlap: too little texture there); "
             "check the panorama's seams by eye"
         )
-    elif disparity.median_deg > DISPARITY_WARN_DEG or disparity.doubled_fraction > 0.5:
-        out.append(
-            f"seam_disparity: the two lenses put the same scene points {disparity.median_deg:.2f}° apart (median; "
-            f"95 % within {disparity.p95_deg:.1f}°, {100 * disparity.doubled_fraction:.0f} % more than 1°): the "
-            f"panorama will show content twice at the seams (warns above {DISPARITY_WARN_DEG:g}°); the profile does "
-            "not fit this frame"
-        )
-    if math.isfinite(seam_error_value) and seam_error_value > SEAM_ERROR_WARN:
-        out.append(
-            f"seam_mismatch: seam error {seam_error_value:.2f} > {SEAM_ERROR_WARN}: 'capture unwarp' will warn (its "
-            "photometric check; parallax and moving things raise it too: the seam disparity is the measure here)"
-        )
+        if math.isfinite(seam_error_value) and seam_error_value > SEAM_ERROR_WARN:
+            out.append(
+                f"seam_mismatch: seam error {seam_error_value:.2f} > {SEAM_ERROR_WARN}: 'capture unwarp' will warn "
+                "(its photometric check where the disparity is unmeasured)"
+            )
+    else:
+        doubled = disparity_warning(disparity)
+        if doubled is not None:
+            out.append(doubled)
     return out
 
 
@@ -704,8 +702,8 @@ def fit_file(
 
     The summary's ``seam_disparity`` (:func:`~solidkit.calibration.disparity.seam_disparity`, degrees) judges the
     profile: a median above :data:`~solidkit.calibration.disparity.DISPARITY_WARN_DEG` or more than half the matches
-    over 1° apart is a ``seam_disparity`` warning (``ok`` false), as is an unmeasured one; a seam error above
-    :data:`~solidkit.calibration.fitcheck.SEAM_ERROR_WARN` (what ``capture unwarp`` warns at) a ``seam_mismatch`` one.
+    over 1° apart is a ``seam_disparity`` warning (``ok`` false), as is an unmeasured one, and then a seam error above
+    :data:`~solidkit.calibration.fitcheck.SEAM_ERROR_WARN` a ``seam_mismatch`` one (``capture unwarp``'s rule).
     """
     path, out = Path(path), Path(out)
     img, sat = read_linear(path)

@@ -304,11 +304,19 @@ def unwarp(
         )
         fit = s.get("profile_fit") or {}
         if fit:
+            d = fit.get("seam_disparity") or {}
+            disp = (
+                "unmeasured (too little texture in the overlap)"
+                if d.get("median_deg") is None
+                else f"{d['median_deg']:.2f}° median, {100 * d['doubled_fraction']:.0f} % of {d['matches']} "
+                f"matches over 1°"
+            )
             seam = "unmeasured (dark or clipped frame)" if fit.get("seam_error") is None else f"{fit['seam_error']:.3f}"
             table.add_row(
                 "profile fit",
-                f"seam error {seam} (warns above {fit['seam_error_warn']}; 0 = the lenses agree, "
-                f"1 = unrelated), layout {'ok' if fit.get('ok') else '[yellow]see warnings[/]'}",
+                f"seam disparity {disp} (warns above {fit['seam_disparity_warn_deg']:g}°); seam error {seam} "
+                f"(decides where the disparity is unmeasured, above {fit['seam_error_warn']}); "
+                f"layout {'ok' if fit.get('ok') else '[yellow]see warnings[/]'}",
             )
         table.add_row("coverage", f"{100 * s['coverage']:.2f} % of output pixels")
         table.add_row("remap tables", s["cache"])
