@@ -50,6 +50,7 @@ from solidkit.finetune.evaluate import (
     save_json,
     shipped_ablations,
 )
+from solidkit.finetune.relight import relight_evaluation
 from solidkit.finetune.report import evaluation_sections, finetune_sections, fmt, markdown_table, write_report
 from solidkit.fsutil import atomic_write_text
 from solidkit.synth.campaign import load_truth
@@ -77,6 +78,7 @@ class DemoConfig:
     crop_yaws: int = 8
     jobs: int = 1
     seed: int = 0
+    relight: bool = False  # also relight virtual objects at every probe (solidkit.finetune.relight)
 
 
 @dataclass
@@ -364,6 +366,9 @@ def run_demo(out: str | Path, cfg: DemoConfig | None = None, log: Callable[[str]
         ablations = {f"ablation: {k}": load_model(v) for k, v in shipped_ablations().items()}
         methods = default_methods(net, extra=ablations)
         res = evaluate(items, methods, log=log)
+        relit = None
+        if cfg.relight:
+            relit = {"virtual campaign": relight_evaluation(res, items, methods, figures=cfg.grids, log=log)}
         # the old demo's real lighting, kept as a dataset: photos cropped from the shipped real HDR panoramas
         crops = items_from_panoramas(sorted(SHIPPED_PANORAMAS.glob("*.exr")), yaws=cfg.crop_yaws)
         log(f"    real HDR panorama crops: {len(crops)} photos")
@@ -380,6 +385,7 @@ def run_demo(out: str | Path, cfg: DemoConfig | None = None, log: Callable[[str]
                     "real HDR crops": (crops[:: max(1, len(crops) // 2)], crop_methods[0]),
                 },
                 max_grids=cfg.grids,
+                relit=relit,
             )
         )
         s = res["summary"]["solidnet"]

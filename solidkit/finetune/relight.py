@@ -9,7 +9,8 @@ pixel from) under
   a global-only ablation; ``lit_by`` says which);
 - the truth: the test set's HDR probe where a bracket exists, otherwise its LDR probe linearised (sRGB
   decoding; clipped pixels, the sun among them, stay at their clip level, so the truth is too dim there:
-  ``truth`` says which).
+  ``truth`` says which). ``truth_saturated_fraction``: for an LDR truth, the share of its pixels clipped
+  (the test set's saturation mask); 0 for an HDR truth (whose own clipping the test set does not record).
 
 The renders of a method and of the truth are compared by :mod:`solidkit.metrics.relight` (scale-invariant
 RMSE and SSIM over the pixels that see the object or the plane, so the shadow counts; the angle between the
@@ -138,6 +139,7 @@ def relight_evaluation(
     seconds: list[float] = []
     floor: dict[str, tuple[list[float], list[str]]] = {}
     kinds = {"hdr": 0, "ldr": 0}
+    n_clipped = 0
     scenes: list[RelitScene] = []
     t_all = time.perf_counter()
     with_probes = [it for it in items if len(it.probe_ids)]
@@ -150,6 +152,8 @@ def relight_evaluation(
             view = relight_view(item.pixels[k], item.K, item.pitch, item.roll, size=cfg.size)
             kind = "hdr" if item.probes_hdr[k] is not None else "ldr"
             kinds[kind] += 1
+            clipped = float(np.mean(item.probes_saturated[k])) if kind == "ldr" else 0.0
+            n_clipped += clipped > 0
             relit.truth.append(kind)
             truth_probe = local_truth_linear(item, k)
             truth = render_objects(truth_probe, view, cfg.objects, spp=cfg.spp, seed=cfg.seed)
@@ -171,6 +175,7 @@ def relight_evaluation(
                     "probe": pid,
                     "lit_by": lit_by,
                     "truth": kind,
+                    "truth_saturated_fraction": clipped,
                     "shading_angle_deg": M.shading_angle_deg(probe, truth_probe),
                     "objects": _scores(renders, truth),
                 }
@@ -203,6 +208,7 @@ def relight_evaluation(
         "size": [cfg.size, cfg.size],
         "renderer": renderer_name(),
         "truth": kinds,
+        "truth_with_saturated_pixels": int(n_clipped),
         "renders": int(secs.size),
         "seconds_per_object_median": float(np.median(secs)) if secs.size else None,
         "seconds_per_object_max": float(secs.max()) if secs.size else None,

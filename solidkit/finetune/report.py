@@ -492,6 +492,12 @@ def relight_section(
             continue
         truth = info["truth"]
         kinds = ", ".join(f"{n} with the {TRUTH_KINDS[k]}" for k, n in truth.items() if n)
+        sat = info.get("truth_with_saturated_pixels")
+        if sat:
+            kinds += (
+                f"; {sat} of the LDR truths have clipped pixels (where the sun is among them, the truth "
+                "lights with too little sun and casts soft shadows)"
+            )
         parts.append(
             f"**{ds}**: {sum(truth.values())} probes ({kinds}); {', '.join(info['objects'])}; "
             f"{info['size'][0]}x{info['size'][1]} pixels, {info['spp']} samples per pixel, "

@@ -61,7 +61,7 @@ def _item(name: str, hdr: bool) -> EvalItem:
         sun=None,
         global_hdr=None,
         probes_ldr=[ldr],
-        probes_saturated=[np.zeros((H, 2 * H), bool)],
+        probes_saturated=[ldr.max(axis=-1) >= 250 / 255],
         probes_hdr=[probe if hdr else None],
         source="real",
     )
@@ -95,9 +95,11 @@ def test_the_truth_scores_zero_error_and_the_turned_sun_90_degrees(relit) -> Non
     assert turned["objects"]["diffuse_sphere"]["ssim"] < 0.99
     ldr = entries[("truth-oracle", "sB")]
     assert ldr["truth"] == "ldr" and ldr["shading_angle_deg"] > 1.0 and ldr["objects"]["diffuse_sphere"]["si_rmse"] > 0
+    assert ldr["truth_saturated_fraction"] > 0 and oracle["truth_saturated_fraction"] == 0.0  # the clipped sun
     s = result["summary"]["turned"]["relight_angle_deg"]  # summarised over both scenes, with an interval
     assert s["n"] == 2 and s["median_ci"][0] <= s["median"] <= s["median_ci"][1]
     info = result["relight"]
+    assert info["truth"] == {"hdr": 1, "ldr": 1} and info["truth_with_saturated_pixels"] == 1
     assert info["spp"] == 4 and info["renders"] == 2 * 5 and info["seconds_per_object_median"] > 0
     assert 0 < info["noise_floor"]["si_rmse/diffuse_sphere"]["median"] < 1
 
