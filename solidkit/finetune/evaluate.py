@@ -357,17 +357,20 @@ def items_from_panoramas(
     gives them the training photos' mean brightness, :data:`PHOTO_MEAN_LDR`). Truth: the panorama
     turned into each photo's panorama frame and resized to ``height`` (energy-preserving), and its
     sun from the default detector (``None`` when it finds none: an occluded or overcast sky). No
-    local probes. Each panorama is one scene.
+    local probes. Each panorama is one scene, named by its file's stem (``FOLDER/STEM`` where stems repeat, as
+    in the ``NNNNNN/scene.exr`` of rendered sources).
     """
     K = intrinsics_from_fov(math.radians(hfov_deg), *size)
     items = []
+    stems = [Path(p).stem for p in paths]
     for path in paths:
         pano, _ = read_image(path)
         validate_panorama(pano, str(path))
         pano = pano[..., :3]
         sun = detect_sun(pano, "core")
         small = resize(pano, height)
-        name = Path(path).stem
+        p = Path(path)
+        name = p.stem if stems.count(p.stem) == 1 else f"{p.parent.name}/{p.stem}"
         for k in range(yaws):
             yaw = 2 * math.pi * k / yaws
             R = np.asarray(rotation_from_ypr(yaw, math.radians(pitch_deg), 0.0))

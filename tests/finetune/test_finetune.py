@@ -164,3 +164,20 @@ def test_panorama_crops_carry_the_sun_into_each_photo_frame():
     for k, a in enumerate(az):
         assert (a - (35.93 - 90 * k) + 180) % 360 - 180 == pytest.approx(0.0, abs=0.3)
     assert items[0].global_hdr.shape == (32, 64, 3) and items[0].image.shape == (48, 64, 3)
+
+
+def test_panoramas_with_one_file_name_in_several_folders_are_separate_scenes(tmp_path):
+    """Rendered sources are ``NNNNNN/scene.exr``: named by the stem alone they were one scene, and the
+    leave-one-scene-out mean sky had nothing left to average."""
+    from solidkit.finetune.evaluate import SHIPPED_PANORAMAS, MeanBaseline, items_from_panoramas
+
+    paths = []
+    for name in ("000000", "000001"):
+        (tmp_path / name).mkdir()
+        (tmp_path / name / "scene.exr").symlink_to(SHIPPED_PANORAMAS / "city.exr")
+        paths.append(tmp_path / name / "scene.exr")
+    items = items_from_panoramas(paths, yaws=1, size=(64, 48), height=32)
+    assert [i.scene for i in items] == ["000000/scene", "000001/scene"]
+    mean = MeanBaseline("sky")
+    mean.prepare(items)
+    assert mean.predict(items[0]).sky is not None
