@@ -476,7 +476,10 @@ over the pixels that see the object or the plane: **si-RMSE** `||aP - T|| / ||T|
 scale `a` (0 = perfect, 1 = no better than black), **SSIM** of the two renders exposed alike; **shading
 direction**: the angle between the probes' luminance-weighted mean directions over the hemisphere above the
 plane (their first-order spherical harmonics: the side a diffuse object is lit from). Medians with
-scene-bootstrap 95 % intervals, one value per probe.
+scene-bootstrap 95 % intervals, one value per probe. The *noise floor* row scores the truth's renders
+against the truth re-rendered with another seed: the Monte Carlo noise alone (every method is rendered with
+the truth's seed, so part of its noise is shared with the truth's: the floor bounds the noise's share from
+above).
 """
 
 
@@ -492,6 +495,7 @@ def relight_section(
             continue
         truth = info["truth"]
         kinds = ", ".join(f"{n} with the {TRUTH_KINDS[k]}" for k, n in truth.items() if n)
+        objects = ", ".join(o.replace("_", " ") for o in info["objects"])
         sat = info.get("truth_with_saturated_pixels")
         if sat:
             kinds += (
@@ -499,7 +503,7 @@ def relight_section(
                 "lights with too little sun and casts soft shadows)"
             )
         parts.append(
-            f"**{ds}**: {sum(truth.values())} probes ({kinds}); {', '.join(info['objects'])}; "
+            f"**{ds}**: {sum(truth.values())} probes ({kinds}); {objects}; "
             f"{info['size'][0]}x{info['size'][1]} pixels, {info['spp']} samples per pixel, "
             f"Mitsuba `{info['renderer']}`. "
             f"Render time per object: median {fmt(info['seconds_per_object_median'])} s (max "
