@@ -143,6 +143,13 @@ def relight_evaluation(
     scenes: list[RelitScene] = []
     t_all = time.perf_counter()
     with_probes = [it for it in items if len(it.probe_ids)]
+    if log is not None and renderer_name().startswith("scalar"):
+        n = sum(len(it.probe_ids) for it in with_probes) * (len(methods) + 2) * (len(cfg.objects) + 1)
+        log(
+            f"  warning: Mitsuba's {renderer_name()} renders over 100x slower than llvm_ad_rgb (about 0.37 s per sample "
+            f"per pixel of a 64x64 object): {n} renders at {square_spp(cfg.spp)} spp; install libLLVM 19 "
+            "(make system-deps) or lower --relight-spp"
+        )
     for i, item in enumerate(with_probes):
         t0 = time.perf_counter()
         keep = figures is None or len(scenes) < figures
