@@ -146,7 +146,7 @@ def relight_evaluation(
     if log is not None and renderer_name().startswith("scalar"):
         n = sum(len(it.probe_ids) for it in with_probes) * (len(methods) + 2) * (len(cfg.objects) + 1)
         log(
-            f"  warning: Mitsuba's {renderer_name()} renders over 100x slower than llvm_ad_rgb (about 0.37 s per sample "
+            f"  warning: Mitsuba's {renderer_name()} renders >100x slower than llvm_ad_rgb (about 0.37 s per sample "
             f"per pixel of a 64x64 object): {n} renders at {square_spp(cfg.spp)} spp; install libLLVM 19 "
             "(make system-deps) or lower --relight-spp"
         )
