@@ -36,6 +36,7 @@ from typing import Any
 import numpy as np
 
 from solidkit.envmap.coords import angles_from_direction, rotation_y
+from solidkit.envmap.perspective import intrinsics_from_fov
 from solidkit.envmap.sun import luminance
 from solidkit.synth.cameras import Camera, pinhole_sensor
 from solidkit.synth.lighting import Lighting
@@ -84,8 +85,7 @@ class RelightView:
         c = np.array([0.0, -0.5, 0.0])
         ce, se = math.cos(self.depression), math.sin(self.depression)
         forward = np.array([ce * math.sin(self.azimuth), se, ce * math.cos(self.azimuth)])
-        f = 0.5 * self.size / math.tan(0.5 * math.radians(self.fov_deg))
-        K = np.array([[f, 0.0, (self.size - 1) / 2], [0.0, f, (self.size - 1) / 2], [0.0, 0.0, 1.0]])
+        K = intrinsics_from_fov(math.radians(self.fov_deg), self.size, self.size)
         return Camera(K, self.size, self.size, c - self.distance * forward, self.azimuth, -self.depression, self.roll)
 
     def base_pixel(self) -> np.ndarray:
