@@ -12,7 +12,9 @@ pixel from: the same azimuth, a depression of the pixel's ray clamped to ``[min,
 alone (the same seed), and labels each pixel: object, plane or background (the probe seen directly).
 Differential rendering (Debevec, "Rendering synthetic objects into real scenes", SIGGRAPH 1998) then
 composites: object pixels take the render with the object; elsewhere the photo gets the difference
-(with - without: the object's shadow and bounce light) added (:func:`composite`).
+(with - without: the object's shadow and bounce light) added, scaled per channel so that the virtual ground
+matches the photo's at the probe's pixel (:func:`composite`). Renders use 64 multi-jittered samples per
+pixel by default in the evaluation, path depth 4, and the probe's upper half only (:func:`upper_hemisphere`).
 
 Objects (:data:`OBJECTS`), all about one unit tall, generated here (no files):
 
