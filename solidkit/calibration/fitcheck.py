@@ -31,6 +31,7 @@ Dark frames (a 1/25000 s sun frame: less than 20 % of the ring usable) get neith
 from __future__ import annotations
 
 import math
+from concurrent.futures import ThreadPoolExecutor
 from typing import Any
 
 import cv2
@@ -102,28 +103,32 @@ def check_profile_fit(
     if len(prof.lenses) != 2:
         return report, warnings
     radius = float(np.mean([lens.max_radius() for lens in prof.lenses]))
-    small, s = _working_copy(image, radius, bgr)
-    sp = prof.scaled(small.shape[1], small.shape[0]) if s < 1.0 else prof
-    seam = prepare_seam_image(small, radius * s, saturation)
-    e = seam_error(seam, sp)
-    report.update(
-        seam_error=None if not math.isfinite(e["seam_error"]) else round(e["seam_error"], 4), seam_samples=e["samples"]
-    )
-    want = arrangement_of_centres([lens.center for lens in prof.lenses])
-    circles: list[Circle] | None
-    try:
-        circles, have = find_image_circles(luminance(small) if small.ndim == 3 else small)
-    except CircleError:
-        circles, have = None, None
-    report["arrangement"] = {"frame": have, "profile": want}
-    frame = _disparity_copy(image, prof, bgr)
-    if circles is not None:  # the frame's circles bound the overlap band (a profile's narrower field does not)
-        k = frame.shape[1] / small.shape[1]
-        circles = [
-            Circle(scale_pixel_coordinates(c.cx, k), scale_pixel_coordinates(c.cy, k), c.r * k, c.inliers)
-            for c in circles
-        ]
-    disparity = seam_disparity(frame, prof, circles)
+    with ThreadPoolExecutor(1) as pool:  # the disparity (SIFT on the ring strips) beside the seam error
+        reduced = pool.submit(_disparity_copy, image, prof, bgr)
+        small, s = _working_copy(image, radius, bgr)
+        want = arrangement_of_centres([lens.center for lens in prof.lenses])
+        circles: list[Circle] | None
+        try:
+            circles, have = find_image_circles(luminance(small) if small.ndim == 3 else small)
+        except CircleError:
+            circles, have = None, None
+        report["arrangement"] = {"frame": have, "profile": want}
+        frame = reduced.result()
+        if circles is not None:  # the frame's circles bound the overlap band (a profile's narrower field does not)
+            k = frame.shape[1] / small.shape[1]
+            circles = [
+                Circle(scale_pixel_coordinates(c.cx, k), scale_pixel_coordinates(c.cy, k), c.r * k, c.inliers)
+                for c in circles
+            ]
+        measuring = pool.submit(seam_disparity, frame, prof, circles)
+        sp = prof.scaled(small.shape[1], small.shape[0]) if s < 1.0 else prof
+        seam = prepare_seam_image(small, radius * s, saturation)
+        e = seam_error(seam, sp)
+        report.update(
+            seam_error=None if not math.isfinite(e["seam_error"]) else round(e["seam_error"], 4),
+            seam_samples=e["samples"],
+        )
+        disparity = measuring.result()
     report.update(seam_disparity=disparity.to_json(), seam_disparity_warn_deg=DISPARITY_WARN_DEG)
     doubled = disparity_warning(disparity)
     if doubled is not None:

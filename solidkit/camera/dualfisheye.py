@@ -228,6 +228,19 @@ class _NodeGrid:
             pad * s : pad * s + (r1 - r0), pad * s : pad * s + self.W
         ]
 
+    def interpolate_columns(self, plane: np.ndarray, r0: int, r1: int, c0: int, c1: int) -> np.ndarray:
+        """:meth:`interpolate` at output columns ``c0:c1`` only, from the nodes they need and one more on each side:
+        the same values (each pixel is the same bilinear blend of the same four nodes), a fraction of the work."""
+        s, pad = self.s, self.pad
+        p = plane[self.slab(r0, r1)]
+        j0 = max(0, (c0 + pad * s) // s - 2)
+        j1 = min(p.shape[1], (c1 - 1 + pad * s) // s + 3)
+        q = p[:, j0:j1]
+        x0 = c0 + pad * s - j0 * s
+        return cv2.resize(q, (q.shape[1] * s, q.shape[0] * s), interpolation=cv2.INTER_LINEAR)[
+            pad * s : pad * s + (r1 - r0), x0 : x0 + (c1 - c0)
+        ]
+
     def samples(self, r0: int, r1: int) -> list[tuple[np.ndarray, np.ndarray, np.ndarray]]:
         """``[(x, y, margin) per lens]`` at output rows ``r0:r1`` (see :func:`lens_samples`)."""
         if self.s == 1:
@@ -493,6 +506,40 @@ def build_cut_maps(
     if grid.s > 1 and all(grid.framed):
         (x0n, y0n, m0_nodes), (x1n, y1n, m1_nodes) = grid.nodes
         dm_nodes = m0_nodes - m1_nodes
+        # the dominant lens' coordinates at the nodes: interpolated, they are the table wherever a cell's four nodes
+        # agree on the lens; in a cell where they do not, every pixel lies in the feather band (checked per block)
+        # and takes both lenses' samples there, blended: what the table says at it is never seen
+        lead_nodes = dm_nodes >= 0
+        xd_nodes, yd_nodes = np.where(lead_nodes, x0n, x1n), np.where(lead_nodes, y0n, y1n)
+
+    def mixed_cells_in_band(r0: int, r1: int) -> bool:
+        """Does every node cell of rows ``r0:r1`` whose nodes disagree on the dominant lens lie in the band?"""
+        d = dm_nodes[grid.slab(r0, r1)]
+        corners = (d[:-1, :-1], d[1:, :-1], d[:-1, 1:], d[1:, 1:])
+        ahead = sum((c >= 0).astype(np.uint8) for c in corners)
+        mixed = (ahead > 0) & (ahead < 4)
+        if not mixed.any():
+            return True
+        reach = np.maximum(
+            np.maximum(np.abs(corners[0]), np.abs(corners[1])), np.maximum(np.abs(corners[2]), np.abs(corners[3]))
+        )
+        return bool(np.all(reach[mixed] < 0.9 * f))
+
+    def band_coordinates(r0: int, r1: int, rows_i: np.ndarray, cols_i: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Both lenses' coordinates ``(n, 2)`` at the band pixels, interpolated over the runs of columns they occupy."""
+        used = np.zeros(W, bool)
+        used[cols_i] = True
+        cols = np.flatnonzero(used)
+        runs = np.split(cols, np.flatnonzero(np.diff(cols) > 4 * grid.s) + 1) if cols.size else []
+        out = []
+        for xn, yn in ((x0n, y0n), (x1n, y1n)):
+            planes = np.empty((2, r1 - r0, W), np.float32)  # only the runs' columns are written and read
+            for run in runs:
+                c0, c1 = int(run[0]), int(run[-1]) + 1
+                planes[0, :, c0:c1] = grid.interpolate_columns(xn, r0, r1, c0, c1)
+                planes[1, :, c0:c1] = grid.interpolate_columns(yn, r0, r1, c0, c1)
+            out.append(np.stack([planes[0][rows_i, cols_i], planes[1][rows_i, cols_i]], axis=-1))
+        return out[0], out[1]
 
     def block(rows: tuple[int, int]) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, int]:
         """Rows ``r0:r1`` of the tables (written in place); returns the block's band and its covered count."""
@@ -504,12 +551,20 @@ def build_cut_maps(
         ):
             # every pixel of the block is seen, and where a lens does not see the other one's weight
             # saturates: w0 = clip(0.5 + (m0 - m1) / 2f) alone, from the interpolated margin difference
-            x0, y0, x1, y1 = (grid.interpolate(p, r0, r1) for p in (x0n, y0n, x1n, y1n))
             w0 = grid.interpolate(dm_nodes, r0, r1)
             w0 *= half_inv_f
             w0 += np.float32(0.5)
             np.clip(w0, 0.0, 1.0, out=w0)
             lens0 = w0 >= 0.5
+            if mixed_cells_in_band(r0, r1):
+                x, y = grid.interpolate(xd_nodes, r0, r1), grid.interpolate(yd_nodes, r0, r1)
+                cv2.convertMaps(x, y, cv2.CV_16SC2, dstmap1=map1[r0:r1], dstmap2=map2[r0:r1])
+                del x, y
+                lead[r0:r1] = lens0
+                rows_i, cols_i = np.divmod(np.flatnonzero((w0 > 0) & (w0 < 1)), W)
+                xy0, xy1 = band_coordinates(r0, r1, rows_i, cols_i)
+                return rows_i * W + cols_i + r0 * W, w0[rows_i, cols_i], xy0, xy1, lens0.size
+            x0, y0, x1, y1 = (grid.interpolate(p, r0, r1) for p in (x0n, y0n, x1n, y1n))
             x = np.where(lens0, x0, x1)
             y = np.where(lens0, y0, y1)
             covered = lens0.size

@@ -70,7 +70,7 @@ from solidkit.camera.lens import LensProfile, load_profile, profile_for_metadata
 from solidkit.camera.metadata import level_rotation, read_metadata
 from solidkit.camera.raw import is_raw_file
 from solidkit.envmap.coords import angles_from_coords, rotation_from_ypr
-from solidkit.envmap.io import LDR_SUFFIXES, imread, read_exr, write_exr
+from solidkit.envmap.io import LDR_SUFFIXES, image_size, imread, read_exr, write_exr
 from solidkit.envmap.perspective import scale_pixel_coordinates
 from solidkit.envmap.resample import resize, rotate, sample_panorama
 from solidkit.envmap.sun import LUMINANCE_WEIGHTS
@@ -579,9 +579,13 @@ def unwarp_file(
         return summary
     if profile is not None:
         prof = load_profile(profile)
-    img, saturation, bgr = _read_for_unwarp(
-        src, len(prof.lenses) == 2 if profile is not None else True, dst.suffix.lower() != ".exr" and vprof is None
-    )
+    with ThreadPoolExecutor(1) as pool:  # the 8-bit path's tables are built (or read) while the file is decoded
+        given = prof if profile is not None else None
+        tables = _prefetch_cut_maps(pool, src, dst, given, meta, out_h, R, upright, feather_deg, cache_dir, vprof)
+        img, saturation, bgr = _read_for_unwarp(
+            src, len(prof.lenses) == 2 if profile is not None else True, dst.suffix.lower() != ".exr" and vprof is None
+        )
+        prefetched = None if tables is None else tables.result()
     h, w = img.shape[:2]
     if profile is None:
         prof = profile_for_metadata(meta.model if meta else None, w, h)
@@ -652,10 +656,13 @@ def unwarp_file(
                 _write(dst, pano, meta_out)
             return cast(TiltEstimate, tilt.result())
 
-    with ThreadPoolExecutor(1) as pool:  # the frame's checks run on the other core while the tables are applied
-        checks = pool.submit(_frame_checks, img, prof, saturation, bgr)
+    with ThreadPoolExecutor(2) as pool:  # the frame's checks run beside the tables' application
+        circle_check = pool.submit(check_image_circles, img, prof, bgr=bgr)
+        fit_check = pool.submit(check_profile_fit, img, prof, saturation, bgr=bgr)
         pano = run(R, stats)
-        circles, circle_warnings, fit, fit_warnings = checks.result()
+        if prefetched is not None and fast and prefetched[1] == (prof.key(), (w, h), out_h):
+            stats["cache"] = prefetched[0]  # where the tables came from, not the in-memory copy the prefetch left
+        (circles, circle_warnings), (fit, fit_warnings) = circle_check.result(), fit_check.result()
     summary["image_circles"] = circles
     summary["warnings"] += circle_warnings
     summary["seam_error"], summary["profile_fit"] = fit.get("seam_error"), fit
@@ -783,12 +790,40 @@ def _write_stitched(src: Path, dst: Path, R: np.ndarray, h: int, out_h: int | No
     }
 
 
-def _frame_checks(img: np.ndarray, prof: LensProfile, saturation: float | None, bgr: bool) -> tuple:
-    """Does the frame fit the profile: image circles (:func:`check_image_circles`), then seam error and
-    layout (:func:`~solidkit.calibration.fitcheck.check_profile_fit`)."""
-    circles, circle_warnings = check_image_circles(img, prof, bgr=bgr)
-    fit, fit_warnings = check_profile_fit(img, prof, saturation, bgr=bgr)
-    return circles, circle_warnings, fit, fit_warnings
+def _prefetch_cut_maps(
+    pool: ThreadPoolExecutor,
+    src: Path,
+    dst: Path,
+    prof: LensProfile | None,
+    meta: Any,
+    out_h: int | None,
+    R: np.ndarray,
+    upright: bool,
+    feather_deg: float,
+    cache_dir: Any,
+    vignetting: Any,
+) -> Any:
+    """Start :func:`~solidkit.camera.dualfisheye.get_cut_maps` for an 8-bit JPEG bound for the 8-bit path, at the size
+    its header states (``None`` where that path is not sure to be taken): a future of ``(source, (profile key, size,
+    output height))``; the tables stay in the in-memory cache, where :func:`unwarp_srgb8` finds them."""
+    if src.suffix.lower() not in (".jpg", ".jpeg") or dst.suffix.lower() == ".exr" or vignetting is not None:
+        return None
+    size = image_size(src)
+    if size is None or min(size) < 2:
+        return None
+    try:
+        prof = prof or profile_for_metadata(meta.model if meta else None, *size)
+    except SolidkitError:
+        return None  # said again, where the file is read
+    if len(prof.lenses) != 2:
+        return None
+    h = out_h or default_out_height(size[0])
+    R_tables = np.eye(3) if upright else R
+
+    def fetch() -> tuple[str, tuple]:
+        return get_cut_maps(prof, size, h, R_tables, feather_deg, cache_dir)[1], (prof.key(), size, h)
+
+    return pool.submit(fetch)
 
 
 def _read_for_unwarp(src: Path, two_lenses: bool, srgb8_out: bool) -> tuple[np.ndarray, float | None, bool]:

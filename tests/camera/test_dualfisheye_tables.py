@@ -69,8 +69,12 @@ def test_cut_tables_are_the_full_tables_of_the_dominant_lens(feather, in_size, H
     assert np.allclose(cut.band_w0.reshape(-1)[: idx.size], w0, atol=1e-6)
     cov = full.coverage
     assert cut.coverage == pytest.approx(float(cov.mean()))
-    assert np.array_equal(np.where(lead[..., None], full.map1[0], full.map1[1])[cov], cut.map1[cov])
-    assert np.array_equal(np.where(lead, full.map2[0], full.map2[1])[cov], cut.map2[cov])
+    # the dominant lens' table wherever one lens is seen alone; in the band, where both lenses are sampled from the
+    # band tables and blended, the node grid's cells across the cut give another position that is never seen
+    one = cov.copy()
+    one.reshape(-1)[idx] = False
+    assert np.array_equal(np.where(lead[..., None], full.map1[0], full.map1[1])[one], cut.map1[one])
+    assert np.array_equal(np.where(lead, full.map2[0], full.map2[1])[one], cut.map2[one])
     img = np.random.default_rng(0).integers(0, 256, (in_size[1], in_size[0], 3), dtype=np.uint8)
     for i in range(2):  # the band tables sample what each lens' full table samples there
         whole = cv2.remap(img, full.map1[i], full.map2[i], cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT)
