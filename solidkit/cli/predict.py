@@ -51,6 +51,17 @@ def predict_command(
     intrinsics: str | None = typer.Option(None, help="fx,fy,cx,cy of IMAGE in pixels (overrides --hfov-deg)."),
     pitch: float = typer.Option(0.0, help="Camera pitch in degrees (positive = looking up)."),
     roll: float = typer.Option(0.0, help="Camera roll in degrees (positive = right side down)."),
+    encoding: str = typer.Option(
+        "srgb",
+        "--encoding",
+        help="How IMAGE encodes light: srgb (a camera's JPEG) or paper (an image made by the paper's tonemap).",
+    ),
+    response: Path | None = typer.Option(
+        None,
+        "--response",
+        help="The camera's inverse response (a 'solidkit calibrate response' profile or a 256x3 curve): "
+        "IMAGE is linearised through it (overrides --encoding).",
+    ),
     as_json: bool = typer.Option(False, "--json", help="Print prediction.json on stdout instead of the summary."),
 ) -> None:
     """Predict the global HDR sky, its sun direction and a local HDR panorama at each --at pixel."""
@@ -63,13 +74,25 @@ def predict_command(
     if hfov_deg is not None:
         hfov_deg = parse_angle(hfov_deg, "--hfov-deg", 1.0, 179.0, open_interval=True)
     K = _intrinsics(intrinsics)
+    if encoding not in ("srgb", "paper"):
+        raise InputError(f"--encoding must be srgb or paper, got {encoding!r}")
+    decoding: str | np.ndarray = encoding
+    if response is not None:
+        from solidkit.capture.frame_merge import load_response
+
+        decoding = load_response(response)
     photo = read_ldr(image)
     model = SolidNet.from_checkpoint(checkpoint)
     if K is None and hfov_deg is not None:
         K = intrinsics_from_fov(math.radians(hfov_deg), photo.shape[1], photo.shape[0])
-    pred = model.predict(photo, pixels, K=K, pitch=math.radians(pitch), roll=math.radians(roll))
+    pred = model.predict(photo, pixels, K=K, pitch=math.radians(pitch), roll=math.radians(roll), encoding=decoding)
     out.mkdir(parents=True, exist_ok=True)
-    meta = {"source": str(image), "hdr_parameterisation": HDR_PARAMETERISATION, "model": model.config.name}
+    meta = {
+        "source": str(image),
+        "hdr_parameterisation": HDR_PARAMETERISATION,
+        "model": model.config.name,
+        "photo_encoding": "response " + str(response) if response is not None else encoding,
+    }
     write_exr(out / "sky.exr", pred.sky, {**meta, "kind": "global sky H_g"})
     write_ldr(out / "sky.png", tonemap(pred.sky))
     probes: list[dict[str, Any]] = []
@@ -92,6 +115,7 @@ def predict_command(
         "conventions_version": CONVENTIONS_VERSION,
         "pitch_deg": pitch,
         "roll_deg": roll,
+        "photo_encoding": meta["photo_encoding"],
         "sun": pred.sun.to_json(),
         **({"sun_network": pred.extra["sun_network"]} if "sun_network" in pred.extra else {}),
         "sky": {"exr": "sky.exr", "png": "sky.png"},

@@ -42,6 +42,7 @@ __all__ = [
     "inverse_tonemap",
     "srgb_encode",
     "srgb_decode",
+    "decode_ldr",
 ]
 
 PAPER_EXPOSURE = -0.3
@@ -218,6 +219,38 @@ def write_exr(
         except RuntimeError as exc:  # OpenEXR's write errors (disk full, I/O) name the temporary file
             raise _write_failed(errno_from_message(str(exc)), data.nbytes) from exc  # uncompressed size
     return path
+
+
+def decode_ldr(ldr: np.ndarray, encoding: str | np.ndarray = "srgb") -> np.ndarray:
+    """Relative linear values ``(H, W, 3)`` float32 behind an LDR image ``(H, W, 3)`` in [0, 1].
+
+    ``encoding``: ``"srgb"`` (:func:`srgb_decode`: a camera's JPEG, display-referred sRGB),
+    ``"paper"`` (:func:`inverse_tonemap`: an image made by the paper's tonemap, as rendered training
+    crops are), or an inverse camera response ``(256, 3)`` (``curve[code, channel]``, e.g. from
+    ``solidkit calibrate response``), looked up at each pixel's nearest 8-bit code. Only ratios
+    between the values are meaningful (clipped pixels stay at the clip level).
+
+    Examples
+    --------
+    >>> x = np.full((1, 1, 3), 0.5, np.float32)
+    >>> [round(float(decode_ldr(x, e)[0, 0, 0]), 4) for e in ("srgb", "paper")]
+    [0.214, 0.2679]
+    >>> curve = np.repeat(np.linspace(0.0, 2.0, 256)[:, None], 3, axis=1)
+    >>> round(float(decode_ldr(x, curve)[0, 0, 0]), 4)  # code 128 of a linear curve
+    1.0039
+    """
+    x = np.clip(np.asarray(ldr, dtype=np.float32), 0.0, 1.0)
+    if isinstance(encoding, str):
+        if encoding == "srgb":
+            return np.asarray(srgb_decode(x), dtype=np.float32)
+        if encoding == "paper":
+            return np.asarray(inverse_tonemap(x), dtype=np.float32)
+        raise InputError(f"unknown LDR encoding {encoding!r} (expected 'srgb', 'paper' or a (256, 3) curve)")
+    curve = np.asarray(encoding, dtype=np.float32)
+    if curve.shape != (256, 3) or not np.isfinite(curve).all() or (curve < 0).any():
+        raise InputError(f"an inverse response curve must be (256, 3), finite and >= 0; got shape {curve.shape}")
+    codes = np.rint(x[..., :3] * 255.0).astype(np.intp)
+    return np.take_along_axis(curve, codes.reshape(-1, 3), axis=0).reshape(codes.shape)
 
 
 def _write_failed(code: int | None, needed: int | None) -> OSError:

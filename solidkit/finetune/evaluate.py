@@ -115,7 +115,9 @@ class EvalItem:
     scene, id : str
         Scene id and item id (equal for a real test set; ``"<index>"`` for synthetic samples).
     image : (H, W, 3) float32
-        LDR photo in [0, 1] (sRGB-encoded), the model's input.
+        LDR photo in [0, 1], the model's input, encoded as ``encoding`` says
+        (:func:`solidkit.envmap.io.decode_ldr`: ``"srgb"`` for camera photos, ``"paper"`` for photos made
+        by the paper's tonemap: synthetic samples and panorama crops).
     K : (3, 3)
         Intrinsics of ``image`` (pixels, OpenCV).
     pitch, roll : float
@@ -134,6 +136,8 @@ class EvalItem:
         HDR probes where they exist (synthetic; a real bracket).
     source : str
         ``"real"`` or ``"synthetic"``.
+    encoding : str or (256, 3)
+        How ``image`` encodes linear light (above).
     """
 
     scene: str
@@ -152,6 +156,7 @@ class EvalItem:
     source: str
     global_valid: np.ndarray | None = None
     photo_path: str | None = None
+    encoding: str | np.ndarray = "srgb"
 
 
 @dataclass
@@ -195,7 +200,9 @@ class ModelMethod(Method):
             t0 = time.perf_counter()
             h, w = item.image.shape[:2]
             pixels = item.pixels if len(item.pixels) else np.array([[(w - 1) / 2, 0.9 * (h - 1)]])  # global map only
-            pred = self.model.predict(item.image, pixels, K=item.K, pitch=item.pitch, roll=item.roll)
+            pred = self.model.predict(
+                item.image, pixels, K=item.K, pitch=item.pitch, roll=item.roll, encoding=item.encoding
+            )
             local = list(pred.local)[: len(item.probe_ids)] if getattr(pred, "local", None) else None
             self._cache[key] = ItemPrediction(
                 pred.sky, local, time.perf_counter() - t0, {"probe_valid": (pred.extra or {}).get("probe_valid")}
@@ -314,6 +321,7 @@ def items_from_synth(
                 probes_saturated=[s[1] for s in sims],
                 probes_hdr=hdr,
                 source="synthetic",
+                encoding="paper",
                 photo_path=str(Path(root) / ds.entries[i]["dir"]),
             )
         )
@@ -392,6 +400,7 @@ def items_from_panoramas(
                     probes_saturated=[],
                     probes_hdr=[],
                     source="real-hdr-crops",
+                    encoding="paper",
                     photo_path=str(path),
                 )
             )

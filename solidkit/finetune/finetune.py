@@ -169,14 +169,18 @@ def _tensor(a: Any) -> torch.Tensor:
     return torch.as_tensor(np.asarray(a), dtype=torch.float32)
 
 
-def _item_inputs(item: EvalItem, size: tuple[int, int]) -> tuple[torch.Tensor, ...]:
+def _item_inputs(item: EvalItem, model: Any) -> tuple[torch.Tensor, ...]:
+    """The model's inputs for ``item``: its photo made as the training photos were
+    (:meth:`~solidkit.model.solidnet.SolidNet.photo_input`, as ``predict`` does), K, pixels, pitch, roll."""
+    size = cast(SolidNetConfig, model.config).image_size
     h, w = item.image.shape[:2]
     if (h, w) != tuple(size):
         raise InputError(
             f"{item.scene}: photo is {w}x{h}, the model takes {size[1]}x{size[0]} (build the test set for it)"
         )
+    photo = model.photo_input(item.image[..., :3], item.encoding)[0] if hasattr(model, "photo_input") else item.image
     return (
-        _tensor(item.image[..., :3]).permute(2, 0, 1)[None],
+        _tensor(photo[..., :3]).permute(2, 0, 1)[None],
         _tensor(item.K)[None],
         _tensor(item.pixels)[None],
         _tensor([item.pitch]),
@@ -224,7 +228,7 @@ def _sun_logits(out: dict[str, torch.Tensor]) -> torch.Tensor:
 
 def real_losses(model: torch.nn.Module, item: EvalItem, sun_weight: float = 1.0) -> dict[str, torch.Tensor]:
     """The fine-tuning loss of one real photo: ``local`` (LDR probes) + ``sun_weight x sun``."""
-    image, K, pixels, pitch, roll = _item_inputs(item, cast(SolidNetConfig, model.config).image_size)
+    image, K, pixels, pitch, roll = _item_inputs(item, model)
     out = model(image, K, pixels, pitch, roll)
     probes = _tensor(np.stack(item.probes_ldr)).permute(0, 3, 1, 2)
     sat = torch.as_tensor(np.stack([M.saturation_mask(p, s) for p, s in zip(item.probes_ldr, item.probes_saturated)]))

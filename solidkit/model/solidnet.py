@@ -41,7 +41,7 @@ import torch
 from torch import nn
 
 from solidkit.envmap.coords import CONVENTIONS_VERSION, angles_from_direction
-from solidkit.envmap.io import inverse_tonemap, read_ldr, tonemap
+from solidkit.envmap.io import decode_ldr, read_ldr, tonemap
 from solidkit.envmap.perspective import intrinsics_from_fov, scale_intrinsics, scale_pixel_coordinates
 from solidkit.envmap.sun import Method, detect_sun
 from solidkit.errors import ConventionsError, InputError, SolidkitError
@@ -186,6 +186,18 @@ class SolidNet(nn.Module):
 
     # ------------------------------------------------------------------ inference
 
+    def photo_input(self, photo: np.ndarray, encoding: str | np.ndarray = "srgb") -> tuple[np.ndarray, float]:
+        """A photo ``(H, W, 3)`` in [0, 1] as the model's training photos were made, and the gain applied.
+
+        Its linear values (:func:`solidkit.envmap.io.decode_ldr` with ``encoding``) times
+        :func:`solidkit.synth.panocrops.metered_gain` (with ``config.exposure_key``; otherwise 1), under the
+        paper's tonemap: ``(H, W, 3)`` float32 in [0, 1] and the gain (divide predicted radiance by it to
+        return to the photo's own linear units).
+        """
+        linear = decode_ldr(photo, encoding)
+        gain = metered_gain(linear, self.config.exposure_key) if self.config.exposure_key > 0 else 1.0
+        return np.clip(np.asarray(tonemap(linear * np.float32(gain))), 0.0, 1.0).astype(np.float32), float(gain)
+
     @torch.no_grad()
     def predict(
         self,
@@ -195,6 +207,7 @@ class SolidNet(nn.Module):
         pitch: float = 0.0,
         roll: float = 0.0,
         sun_method: Method = "core",
+        encoding: str | np.ndarray = "srgb",
     ) -> Prediction:
         """Predict the global sky, its sun direction and one local panorama per pixel.
 
@@ -207,12 +220,15 @@ class SolidNet(nn.Module):
         K : (3, 3) intrinsics of ``image``; default: a centred pinhole with ``config.hfov_deg``.
         pitch, roll : camera pitch and roll in radians (conventions §4); default level.
         sun_method : passed to :func:`solidkit.envmap.sun.detect_sun`.
+        encoding : how ``image`` encodes linear light (:func:`solidkit.envmap.io.decode_ldr`): ``"srgb"``
+            (default: a camera's JPEG), ``"paper"`` (an image made by the paper's tonemap, as the rendered
+            training photos are) or the camera's inverse response ``(256, 3)`` where it is calibrated.
 
-        With ``config.exposure_key`` (the model's inputs were metered to it while training) the photo is
-        first re-exposed the same way: its linear values under the paper's tonemap (exact below
-        saturation) times :func:`solidkit.synth.panocrops.metered_gain`, tonemapped again; the predicted
-        radiance is divided by that gain, so it stays in the photo's own units (``tonemap(H)`` = the photo).
-        The gain is ``extra["exposure_gain"]``.
+        The photo is first given to the model as its training photos were made: its linear values
+        (``encoding``) times :func:`solidkit.synth.panocrops.metered_gain` (with ``config.exposure_key``:
+        the model's inputs were metered to it while training; otherwise 1), under the paper's tonemap.
+        The predicted radiance is divided by that gain, so it stays in the photo's own linear units
+        (``decode_ldr(photo, encoding)``). The gain is ``extra["exposure_gain"]``.
 
         Returns
         -------
@@ -248,11 +264,7 @@ class SolidNet(nn.Module):
         H, W = self.config.image_size
         sx, sy = W / w0, H / h0
         resized = cv2.resize(image, (W, H), interpolation=cv2.INTER_AREA if sx < 1 else cv2.INTER_LINEAR)
-        gain = 1.0
-        if self.config.exposure_key > 0:
-            linear = np.asarray(inverse_tonemap(resized), dtype=np.float32)
-            gain = metered_gain(linear, self.config.exposure_key)
-            resized = np.clip(np.asarray(tonemap(linear * np.float32(gain))), 0.0, 1.0).astype(np.float32)
+        resized, gain = self.photo_input(resized, encoding)
         K_net = scale_intrinsics(K, sx, sy)
         pix_net = np.stack([scale_pixel_coordinates(pix[:, 0], sx), scale_pixel_coordinates(pix[:, 1], sy)], axis=-1)
         pix_net = np.clip(pix_net, 0, [W - 1, H - 1])
@@ -294,8 +306,8 @@ class SolidNet(nn.Module):
 
 @dataclass
 class Prediction:
-    """Result of :meth:`SolidNet.predict` (radiance in the photo's units: ``tonemap(H)`` is the photo; panorama
-    frame)."""
+    """Result of :meth:`SolidNet.predict` (radiance in the photo's own linear units, ``decode_ldr(photo, encoding)``;
+    panorama frame)."""
 
     sky: np.ndarray
     sun: Any

@@ -152,10 +152,35 @@ def test_predict_reexposes_a_photo_and_returns_its_own_units():
     hdr = rng.uniform(0.1, 0.5, (60, 80, 3)).astype(np.float32)
     bright = np.asarray(tonemap(hdr))
     dark = np.asarray(tonemap(hdr / 8.0))
-    a = net.predict(bright, [(40, 30)])
-    b = net.predict(dark, [(40, 30)])
+    a = net.predict(bright, [(40, 30)], encoding="paper")
+    b = net.predict(dark, [(40, 30)], encoding="paper")
     assert b.extra["exposure_gain"] == pytest.approx(8 * a.extra["exposure_gain"], rel=1e-2)
     # the same re-exposed input (up to the meter's floor): the prediction scales with the photo
     assert np.allclose(b.sky * 8.0, a.sky, rtol=2e-2, atol=1e-6)
     fixed = SolidNet(preset("tiny", image_size=(60, 80), pano_height=32, exposure_key=0.0)).eval()
-    assert fixed.predict(dark, [(40, 30)]).extra["exposure_gain"] == 1.0
+    assert fixed.predict(dark, [(40, 30)], encoding="paper").extra["exposure_gain"] == 1.0
+
+
+def test_predict_linearises_a_camera_photo_by_its_encoding_or_its_response():
+    """A camera JPEG is sRGB: decoded by the paper's 2.2 power instead, a photo and one 3 stops darker
+    are not 8x apart; a calibrated response curve is used as given."""
+    from solidkit.envmap.io import srgb_decode, srgb_encode
+
+    torch.manual_seed(2)
+    net = SolidNet(preset("tiny", image_size=(60, 80), pano_height=32)).eval()
+    hdr = np.random.default_rng(1).uniform(0.02, 0.6, (60, 80, 3)).astype(np.float32)
+    bright, dark = np.asarray(srgb_encode(hdr)), np.asarray(srgb_encode(hdr / 8.0))
+    ratio = {
+        enc: net.predict(dark, [(40, 30)], encoding=enc).extra["exposure_gain"]
+        / net.predict(bright, [(40, 30)], encoding=enc).extra["exposure_gain"]
+        for enc in ("srgb", "paper")
+    }
+    assert ratio["srgb"] == pytest.approx(8.0, rel=0.02)
+    assert abs(ratio["paper"] - 8.0) > 0.5
+    curve = np.repeat(np.asarray(srgb_decode(np.arange(256) / 255.0), np.float32)[:, None], 3, axis=1)
+    photo = np.round(bright * 255) / 255
+    by_curve = net.predict(photo, [(40, 30)], encoding=curve)
+    by_name = net.predict(photo, [(40, 30)], encoding="srgb")
+    assert np.allclose(by_curve.sky, by_name.sky, rtol=1e-4, atol=1e-6)
+    with pytest.raises(InputError, match="unknown LDR encoding"):
+        net.predict(photo, [(40, 30)], encoding="gamma")
