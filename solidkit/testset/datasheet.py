@@ -262,8 +262,8 @@ def datasheet(ts: TestSet, facts: CampaignFacts, info: ExportInfo) -> str:
         + "; probe rotation, residual of the alignment cues: "
         + _spread([p.alignment.residual_deg for _, p in probes], "deg")
         + f"; probe pixels: no uncertainty is recorded ({TODO}: how precisely were the pixels marked?).",
-        f"- Open flags: {sum(bool(s.flags) for s in ts.scenes)} scenes, {sum(bool(p.flags) for _, p in probes)} "
-        "probes (listed in records/*.csv).",
+        f"- Open flags: scenes {sum(bool(s.flags) for s in ts.scenes)} of {len(ts.scenes)}, probes "
+        f"{sum(bool(p.flags) for _, p in probes)} of {len(probes)} (listed in records/*.csv).",
     ]
     if facts.campaign_given:
         L.append(
