@@ -43,3 +43,24 @@ def test_apply_sets_torch_opencv_and_blas_and_deterministic_runs_blas_on_one_thr
     finally:
         threads.apply_threads(before[0])
         cv2.setNumThreads(before[1])
+
+
+def test_scipy_loaded_inside_the_block_is_limited_without_importing_it_first():
+    """``deterministic`` loads SciPy's BLAS library by path (importing scipy.linalg cost a third of
+    ``capture merge``'s fixed time); SciPy imported inside the block then runs on one thread too."""
+    import subprocess
+    import sys
+
+    code = (
+        "import sys, cv2\n"
+        "from threadpoolctl import threadpool_info\n"
+        "from solidkit import threads\n"
+        "threads.apply_threads(2)\n"
+        "with threads.deterministic():\n"
+        "    print('scipy.linalg' in sys.modules)\n"
+        "    import scipy.linalg\n"
+        "    print(sorted({lib['num_threads'] for lib in threadpool_info() if lib['user_api'] == 'blas'}))\n"
+        "    print(sum('scipy.libs' in lib['filepath'] for lib in threadpool_info()))\n"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout.split()
+    assert out == ["False", "[1]", "1"]

@@ -196,3 +196,24 @@ def test_times_that_contradict_the_frames_are_refused_naming_them(tmp_path):
     paths = _write_bracket(tmp_path, CURVES["gamma2.2"][0])
     with pytest.raises(ResponseError, match=r"b2\.png \(0\.25 s\) is darker than b3\.png \(0\.0625 s\)"):
         calibrate_response_files(paths, list(TIMES[::-1]))
+
+
+def test_the_channels_solved_apart_are_opencvs_curve_bit_for_bit():
+    """Each channel's Debevec solve runs in its own thread: the curve is OpenCV's three-channel solve, every bit
+    (a bracket of the shipped mini card at half size; BLAS on one thread as in every merge)."""
+    from pathlib import Path
+
+    from solidkit.calibration.response import _debevec_per_channel
+    from solidkit.camera.metadata import read_metadata
+    from solidkit.threads import deterministic
+
+    cam = Path(__file__).resolve().parents[2] / "solidkit" / "assets" / "campaign_mini" / "card" / "scene01" / "cam"
+    files = sorted(cam.glob("R*.JPG"))[:3]
+    imgs = [np.ascontiguousarray(cv2.imread(str(f), cv2.IMREAD_REDUCED_COLOR_2)[..., ::-1]) for f in files]
+    t = np.asarray([read_metadata(f).exposure_time for f in files], np.float32)
+    assert len(set(t.tolist())) == 3
+    with deterministic():
+        whole = cv2.createCalibrateDebevec(samples=400, lambda_=400 / 7).process(imgs, t)[:, 0, :]
+        apart = _debevec_per_channel(imgs, t, 400, 400 / 7)
+    assert apart.dtype == np.float64 and apart.shape == (256, 3)
+    assert np.array_equal(apart, whole.astype(np.float64))

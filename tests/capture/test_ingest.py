@@ -213,6 +213,24 @@ def test_parallel_jobs_give_the_same_manifest(tmp_path):
     assert (tmp_path / "a" / MANIFEST_NAME).read_bytes() == (tmp_path / "b" / MANIFEST_NAME).read_bytes()
 
 
+def test_the_workers_get_the_brackets_before_the_sun_frames():
+    """With a pool the costliest products go first (a bracket's merge, then the larger frames), so the
+    workers end together; the manifest is sorted by id whatever the order (test above)."""
+    from solidkit.capture.campaign import _product_cost
+
+    def task(kind, n, w):
+        return ({"kind": kind}, [{"metadata": {"width": w, "height": w // 2}}] * n, "camp", {})
+
+    tasks = [task("sun_frame", 1, 1920), task("hdr", 3, 1920), task("sun_frame", 1, 5792), task("hdr", 3, 5792)]
+    order = sorted(tasks, key=_product_cost, reverse=True)
+    assert [(t[0]["kind"], t[1][0]["metadata"]["width"]) for t in order] == [
+        ("hdr", 5792),
+        ("hdr", 1920),
+        ("sun_frame", 5792),
+        ("sun_frame", 1920),
+    ]
+
+
 def test_kill9_mid_run_then_resume(tmp_path):
     card = make_card(tmp_path / "card", bad=True, extra_brackets=4)
     camp = tmp_path / "camp"
