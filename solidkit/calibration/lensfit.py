@@ -91,6 +91,8 @@ __all__ = [
     "fit_file",
     "back_tilt_deg",
     "disparity_warnings",
+    "shipped_profile_warning",
+    "SHIPPED_BETTER_DEG",
     "MAX_BACK_TILT_DEG",
 ]
 
@@ -688,6 +690,54 @@ def disparity_warnings(disparity: SeamDisparity | None, seam_error_value: float)
     return out
 
 
+#: A shipped profile is said to fit a frame better than the fit when its median seam disparity is lower by this much
+#: (degrees; 1.5 px at 5376 px, below what a person sees) or by a fifth.
+SHIPPED_BETTER_DEG = 0.1
+
+
+def shipped_profile_warning(
+    ours: SeamDisparity | None,
+    our_seam_error: float,
+    shipped_disparity: dict[str, SeamDisparity],
+    shipped_seam_error: dict[str, float],
+    shipped_back_tilt_deg: dict[str, float],
+    max_back_tilt_deg: float,
+) -> str | None:
+    """``shipped_profile_fits_better`` when a shipped profile of the frame's layout fits it better than the fit: a
+    median seam disparity lower by :data:`SHIPPED_BETTER_DEG` or by a fifth (by the seam error, 10 % lower, where the
+    disparity is unmeasured). The best such profile is named, and so is its back lens' tilt where it exceeds the fit's
+    bound: a shipped profile is used as it is (it was measured on a unit of that camera), while a fit of an unknown
+    camera stays within ``max_back_tilt_deg`` (a rigid twin-lens body; a wider bound lets a single frame's parallax
+    pull the back lens off, and fitted the real Theta S frame worse: 1.02° at 7.25°, against 0.79° within 3°)."""
+    if ours is not None and ours.measured:
+        d = ours.median_deg
+        better = {
+            k: v.median_deg
+            for k, v in shipped_disparity.items()
+            if v.measured and (v.median_deg < d - SHIPPED_BETTER_DEG or (d > 0.1 and v.median_deg < 0.8 * d))
+        }
+    else:
+        better = {k: v for k, v in shipped_seam_error.items() if math.isfinite(v) and v < 0.9 * our_seam_error}
+    if not better:
+        return None
+    best = min(better, key=lambda k: better[k])
+    d = shipped_disparity[best].median_deg if best in shipped_disparity else math.nan
+    text = (
+        f"shipped_profile_fits_better: the shipped profile {best!r} fits this frame better (median seam disparity "
+        f"{d:.2f}°, seam error {shipped_seam_error.get(best, math.nan):.3f}; this fit: "
+        f"{ours.median_deg if ours is not None else math.nan:.2f}°, {our_seam_error:.3f}); "
+        f"use --profile {best} or refine it with 'solidkit calibrate overlap --base {best}'"
+    )
+    tilt = shipped_back_tilt_deg.get(best, 0.0)
+    if tilt > max_back_tilt_deg:
+        text += (
+            f"; its back lens is {tilt:.1f}° off opposite, beyond the {max_back_tilt_deg:g}° this fit may use "
+            "(--max-back-tilt-deg): a shipped profile is used as it was measured, a fit of an unknown camera is held "
+            "to the bound"
+        )
+    return text
+
+
 def fit_file(
     path: str | Path,
     out: str | Path,
@@ -754,20 +804,11 @@ def fit_file(
     summary["shipped_profiles_seam_error"] = shipped
     summary["shipped_profiles_disparity_deg"] = {k: v.to_json()["median_deg"] for k, v in shipped_disp.items()}
     ours = fit.disparity
-    if ours is not None and ours.measured:
-        better_d = {k: v.median_deg for k, v in shipped_disp.items() if v.measured and v.median_deg < ours.median_deg}
-        better = {k: shipped[k] for k, v in better_d.items() if v < 0.8 * ours.median_deg and ours.median_deg > 0.1}
-    else:
-        better = {k: v for k, v in shipped.items() if math.isfinite(v) and v < 0.9 * fit.seam_final["seam_error"]}
-    if better:
-        by_disp = ours is not None and ours.measured
-        best = min(better, key=lambda k: shipped_disp[k].median_deg if by_disp else better[k])
-        summary["warnings"].append(
-            f"shipped_profile_fits_better: the shipped profile {best!r} fits this frame better (median seam disparity "
-            f"{shipped_disp[best].median_deg:.2f}°, seam error {shipped[best]:.3f}; this fit: "
-            f"{ours.median_deg if ours is not None else math.nan:.2f}°, {fit.seam_final['seam_error']:.3f}); "
-            f"use --profile {best} or refine it with 'solidkit calibrate overlap --base {best}'"
-        )
+    tilts = {k: back_tilt_deg(load_profile(k)) for k in shipped}
+    summary["shipped_profiles_back_tilt_deg"] = {k: round(v, 2) for k, v in tilts.items()}
+    note = shipped_profile_warning(ours, fit.seam_final["seam_error"], shipped_disp, shipped, tilts, max_back_tilt_deg)
+    if note is not None:
+        summary["warnings"].append(note)
     summary["warnings"] += disparity_warnings(ours, fit.seam_final["seam_error"])
     summary["ok"] = not any(w.startswith("seam_disparity") for w in summary["warnings"])
     if not fit.upright.confident:

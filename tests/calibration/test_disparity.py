@@ -12,8 +12,14 @@ import numpy as np
 import pytest
 
 from solidkit.calibration.circles import Circle, find_image_circles
-from solidkit.calibration.disparity import DISPARITY_WARN_DEG, seam_disparity
-from solidkit.calibration.lensfit import back_tilt_deg, disparity_warnings, fit_dual_fisheye, start_profile
+from solidkit.calibration.disparity import DISPARITY_WARN_DEG, SeamDisparity, seam_disparity
+from solidkit.calibration.lensfit import (
+    back_tilt_deg,
+    disparity_warnings,
+    fit_dual_fisheye,
+    shipped_profile_warning,
+    start_profile,
+)
 from solidkit.camera.lens import load_profile
 from solidkit.capture.unwarp import render_fisheye
 from solidkit.envmap.io import imread, read_exr, srgb_decode, srgb_encode, tonemap, write_ldr
@@ -132,3 +138,20 @@ def test_real_theta_s_frame(real_data):
         update={"lenses": [shipped.lenses[0], back.model_copy(update={"ypr_deg": (back.ypr_deg[0], 3.0, -90.5)})]}
     )
     assert seam_disparity(img, pitched, circles).median_deg > 2 * d.median_deg  # its back lens 4.8° off its aim
+
+
+def _disp(median: float) -> SeamDisparity:
+    return SeamDisparity(median, 13.0, 2.0, 0.4, 0.0, 0.0, 80, 0.2, 0.5, (82.0, 98.0))
+
+
+def test_a_shipped_profile_past_the_tilt_bound_is_named_with_its_tilt():
+    """The real Theta S frame's figures: the fit within 3° measured 0.79°, the shipped theta-s-video 0.64° with its back
+    lens 9.6° off opposite (a fit may not go there; the shipped profile is offered as it is, its tilt named)."""
+    shipped = {"theta-s-video": _disp(0.64)}
+    w = shipped_profile_warning(_disp(0.79), 0.675, shipped, {"theta-s-video": 0.619}, {"theta-s-video": 9.6}, 3.0)
+    assert w is not None and w.startswith("shipped_profile_fits_better: the shipped profile 'theta-s-video'")
+    assert "0.64°" in w and "0.79°" in w and "9.6° off opposite, beyond the 3° this fit may use" in w
+    within = shipped_profile_warning(_disp(0.79), 0.675, shipped, {"theta-s-video": 0.619}, {"theta-s-video": 2.0}, 3.0)
+    assert within is not None and "off opposite" not in within
+    # as good as the fit (within 0.1° and a fifth): nothing to say
+    assert shipped_profile_warning(_disp(0.79), 0.675, {"x": _disp(0.72)}, {"x": 0.6}, {"x": 9.6}, 3.0) is None

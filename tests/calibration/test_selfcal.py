@@ -299,6 +299,12 @@ def test_real_theta_s_frame_layout_and_circles(real_data, tmp_path):
     assert (
         190.0 < s["fov_deg"] < 210.0
     )  # Ricoh's design table puts 100° on the circle (200°); measured 193.7 (equisolid)
+    # the fit stays within the tilt bound (measured 0.79° median disparity at 3.0°); the shipped profile fits this
+    # frame better (0.64°) with its back lens 9.6° off opposite: the user is told so, with its tilt
+    assert s["back_tilt_deg"] <= s["max_back_tilt_deg"] + 1e-6
+    assert s["shipped_profiles_back_tilt_deg"]["theta-s-video"] > s["max_back_tilt_deg"]
+    better = [w for w in s["warnings"] if w.startswith("shipped_profile_fits_better")]
+    assert len(better) == 1 and "'theta-s-video'" in better[0] and "off opposite, beyond the 3°" in better[0]
 
 
 @pytest.mark.real
