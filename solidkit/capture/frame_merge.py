@@ -499,6 +499,19 @@ def _blocks(h: int, rows: int = BLOCK_ROWS) -> list[slice]:
     return [slice(r, min(r + rows, h)) for r in range(0, h, rows)]
 
 
+def _map_blocks(fn: Any, items: Sequence[Any]) -> list[Any]:
+    """``[fn(item) for item in items]``, the items spread over a thread per core (at most 4; NumPy and OpenCV
+    release the GIL on a block's arrays). Each block is computed alone, whatever thread runs it: the same bits."""
+    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+    workers = min(cores, 4, len(items))
+    if workers <= 1:
+        return [fn(item) for item in items]
+    from concurrent.futures import ThreadPoolExecutor
+
+    with ThreadPoolExecutor(workers) as pool:
+        return list(pool.map(fn, items))
+
+
 def _rows(f: Frame, sl: slice) -> Frame:
     """A view of frame ``f`` restricted to the rows ``sl`` (no copies; ``f``'s cached validity mask carried)."""
     sub = Frame(f.linear[sl], f.codes[sl], f.exposure, f.saturated[sl], f.response, f.name, f.black, f.saturation)
@@ -540,15 +553,17 @@ def merge_frames(
     scores = np.zeros(len(frames))
     i_short = min(range(len(frames)), key=lambda i: frames[i].exposure)
     i_long = max(range(len(frames)), key=lambda i: frames[i].exposure)
-    for sl in _blocks(h):
+
+    def block(sl: slice) -> list[float]:
         sub = [_rows(f, sl) for f in frames]
         num = np.zeros((sl.stop - sl.start, w, 3), np.float32)
         den = np.zeros_like(num)
         sat = np.ones(num.shape[:2], bool)
-        for i, f in enumerate(sub):
+        block_scores = []
+        for f in sub:
             # w = h(Z) t and estimate R(Z)/t: the numerator term is h(Z) R(Z), the denominator h(Z) t
             hz = f.base_weight()
-            scores[i] += float(hz.sum())
+            block_scores.append(float(hz.sum()))
             num += hz * f.linear
             hz *= np.float32(f.exposure)
             den += hz
@@ -566,6 +581,11 @@ def merge_frames(
             sat,
             _any3(fill_long),
         )
+        return block_scores
+
+    for block_scores in _map_blocks(block, _blocks(h)):  # summed in block order, as one loop would
+        for i, v in enumerate(block_scores):
+            scores[i] += v
     # reference frame: the one with most well-exposed samples
     ref = int(np.argmax(scores))
     ghost, sigmas = detect_ghosts(frames, hdr, k=ghost_k)
@@ -619,20 +639,27 @@ def detect_ghosts(
     for f in frames:
         f.valid()  # once for the whole frame: its blocks share it
         samples, kept, kept_bytes = [], {}, 0
-        for b in range(0, len(blocks), step):  # pass 1: the frame's noise level
-            res, valid = _rows(f, blocks[b]).residual(hdr[blocks[b]])
+        firsts = list(range(0, len(blocks), step))
+        for b, (res, valid) in zip(  # pass 1: the frame's noise level
+            firsts, _map_blocks(lambda b: _rows(f, blocks[b]).residual(hdr[blocks[b]]), firsts)
+        ):
             samples.append(res[valid][::stride])
             if kept_bytes + res.nbytes + valid.nbytes <= _GHOST_CACHE_BYTES:  # reused by pass 2
                 kept[b], kept_bytes = (res, valid), kept_bytes + res.nbytes + valid.nbytes
+        del res, valid
         vals = np.concatenate(samples)
         floor = min_sigma if not f.is_raw else 1e-4
         sigma = max(1.4826 * float(np.median(vals)), floor) if vals.size else 0.0
         sigmas.append(sigma)
         if sigma <= 0:
             continue
-        for b, sl in enumerate(blocks):  # pass 2: outliers
+
+        def outliers(b: int) -> None:  # pass 2; each block writes its own rows of cand
+            sl = blocks[b]
             res, valid = kept.pop(b) if b in kept else _rows(f, sl).residual(hdr[sl])
             cand[sl] |= _any3((res > np.float32(k * sigma)) & valid)
+
+        _map_blocks(outliers, range(len(blocks)))
     kernel = np.ones((3, 3), np.uint8)
     mask = cv2.morphologyEx(cand.astype(np.uint8), cv2.MORPH_OPEN, kernel)
     mask = cv2.dilate(mask, kernel) & cand.astype(np.uint8) | mask

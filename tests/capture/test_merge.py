@@ -392,6 +392,29 @@ def test_a_merged_bracket_is_the_same_whatever_the_thread_count(tmp_path):
     assert len(digests) == 1, digests
 
 
+def test_the_merge_in_threads_is_the_merge_in_one(monkeypatch):
+    """The merge and the ghost detector spread their row blocks over threads: a bracket of the shipped card
+    (8 blocks) gives the same radiance, weights, ghost mask, noise levels and reference as block by block."""
+    import solidkit.capture.frame_merge as fm
+    from solidkit.camera.metadata import read_metadata
+
+    paths = sorted((ASSETS.parent / "campaign_mini" / "card" / "scene01" / "p01").glob("R*.JPG"))
+    frames = [fm.load_frame(p, read_metadata(p).exposure_time) for p in paths]
+    threaded = fm.merge_frames(frames)
+    calls = []
+
+    def one_by_one(fn, items):
+        calls.append(len(items))
+        return [fn(item) for item in items]
+
+    monkeypatch.setattr(fm, "_map_blocks", one_by_one)
+    single = fm.merge_frames(frames)
+    assert max(calls) >= 8
+    for name in ("hdr", "weight_sum", "saturated", "underexposed", "ghost"):
+        assert np.array_equal(getattr(threaded, name), getattr(single, name)), name
+    assert threaded.noise_sigma == single.noise_sigma and threaded.reference == single.reference
+
+
 def test_raw_bracket_shift_is_applied(monkeypatch):
     """A raw frame that registers with a shift is moved (RawImage is frozen: a new one replaces it)."""
     import solidkit.capture.bracket_merge as bm
