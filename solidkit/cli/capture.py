@@ -15,7 +15,6 @@ from rich.markup import escape
 from rich.table import Table
 
 from solidkit.camera.metadata import read_metadata
-from solidkit.capture.unwarp import unwarp_file
 from solidkit.cli.output import echo_json
 from solidkit.cli.parsing import parse_angle, parse_exposures, parse_floats, parse_size
 from solidkit.errors import InputError
@@ -267,7 +266,7 @@ def unwarp(
     """Dual-fisheye -> equirectangular panorama in the panorama frame (docs/conventions.md)."""
     out_height = parse_size(size, "--size", equirect=True)[1] if size is not None else None
     feather = parse_angle(feather, "--feather", 0.0, 180.0)
-    from solidkit.capture.unwarp import default_cache_dir, unwarp_files
+    from solidkit.capture.unwarp import default_cache_dir, unwarp_file, unwarp_files
 
     cache_dir = (cache_dir or default_cache_dir()) if disk_cache else None
     options: dict[str, Any] = dict(
