@@ -525,20 +525,25 @@ def build_cut_maps(
         )
         return bool(np.all(reach[mixed] < 0.9 * f))
 
-    def band_coordinates(r0: int, r1: int, rows_i: np.ndarray, cols_i: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Both lenses' coordinates ``(n, 2)`` at the band pixels, interpolated over the runs of columns they occupy."""
+    scratch: list[np.ndarray] = []  # one buffer for all blocks: (lens, x / y, rows, W), written only over the runs
+
+    def band_coordinates(r0: int, r1: int, flat: np.ndarray, cols_i: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Both lenses' coordinates ``(n, 2)`` at the band pixels (``flat``: their indices in the block, ``cols_i``
+        their columns), interpolated over the runs of columns they occupy."""
+        if not scratch:
+            scratch.append(np.empty((2, 2, max(b - a for a, b in grid.blocks()), W), np.float32))
         used = np.zeros(W, bool)
         used[cols_i] = True
         cols = np.flatnonzero(used)
         runs = np.split(cols, np.flatnonzero(np.diff(cols) > 4 * grid.s) + 1) if cols.size else []
         out = []
-        for xn, yn in ((x0n, y0n), (x1n, y1n)):
-            planes = np.empty((2, r1 - r0, W), np.float32)  # only the runs' columns are written and read
+        for k, (xn, yn) in enumerate(((x0n, y0n), (x1n, y1n))):
+            planes = scratch[0][k]
             for run in runs:
                 c0, c1 = int(run[0]), int(run[-1]) + 1
-                planes[0, :, c0:c1] = grid.interpolate_columns(xn, r0, r1, c0, c1)
-                planes[1, :, c0:c1] = grid.interpolate_columns(yn, r0, r1, c0, c1)
-            out.append(np.stack([planes[0][rows_i, cols_i], planes[1][rows_i, cols_i]], axis=-1))
+                planes[0, : r1 - r0, c0:c1] = grid.interpolate_columns(xn, r0, r1, c0, c1)
+                planes[1, : r1 - r0, c0:c1] = grid.interpolate_columns(yn, r0, r1, c0, c1)
+            out.append(np.stack([planes[0].reshape(-1)[flat], planes[1].reshape(-1)[flat]], axis=-1))
         return out[0], out[1]
 
     def block(rows: tuple[int, int]) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, int]:
@@ -561,9 +566,9 @@ def build_cut_maps(
                 cv2.convertMaps(x, y, cv2.CV_16SC2, dstmap1=map1[r0:r1], dstmap2=map2[r0:r1])
                 del x, y
                 lead[r0:r1] = lens0
-                rows_i, cols_i = np.divmod(np.flatnonzero((w0 > 0) & (w0 < 1)), W)
-                xy0, xy1 = band_coordinates(r0, r1, rows_i, cols_i)
-                return rows_i * W + cols_i + r0 * W, w0[rows_i, cols_i], xy0, xy1, lens0.size
+                flat = np.flatnonzero((w0 > 0) & (w0 < 1))
+                xy0, xy1 = band_coordinates(r0, r1, flat, flat % W)
+                return flat + r0 * W, w0.reshape(-1)[flat], xy0, xy1, lens0.size
             x0, y0, x1, y1 = (grid.interpolate(p, r0, r1) for p in (x0n, y0n, x1n, y1n))
             x = np.where(lens0, x0, x1)
             y = np.where(lens0, y0, y1)
