@@ -16,11 +16,14 @@ Three questions, each answered from the frame itself:
   (:func:`~solidkit.calibration.upright.upright_of_panorama`); a confident turn of ±90° is a
   ``layout_mismatch`` (circles turned relative to the profile: a sideways panorama).
 
-Why the disparity decides: on the real indoor Theta S frame its shipped profile measures 0.64° (parallax of objects
-within a metre) and seam error 0.60; the same profile with the back lens yawed 1° or 2°, or pitched 4.8° off its aim,
-measures 1.55°, 2.15° and 2.34° (warned) while their seam errors, 0.68, 0.66 and 0.66, stayed under
+Why the disparity decides: on the real indoor Theta S frame its shipped profile measures 0.70° here (parallax of
+objects within a metre) and seam error 0.60; the same profile with the back lens yawed 1° or 2°, or pitched 4.8° off
+its aim, measures 1.55°, 2.12° and 3.10° (warned) while their seam errors, 0.68, 0.66 and 0.66, stayed under
 :data:`SEAM_ERROR_WARN` (no warning before). The seam error's scale is not comparable between cameras (a right
 hand-made profile of a real Gear 360 frame scored 1.04, a wrong fit 0.74: benchmarks/results/seam_disparity.md).
+The frame is reduced first (a whole factor, where ``calibrate fisheye``'s strips reduce it by any factor) and its
+circles come from the seam error's working copy: the figures differ from ``calibrate fisheye``'s by a few hundredths
+of a degree on this frame (0.70° against 0.64°).
 
 :data:`SEAM_ERROR_WARN` = 0.7 was chosen from measured seam errors (benchmarks/results/selfcal.md): correct profiles
 stay at or below 0.11 on rendered Theta V frames of three real HDR panoramas, 0.48 on the virtual campaign's Theta V
