@@ -64,3 +64,22 @@ def test_scipy_loaded_inside_the_block_is_limited_without_importing_it_first():
     )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout.split()
     assert out == ["False", "[1]", "1"]
+
+
+def test_helper_threads_one_per_core_but_one_in_an_ingest_worker():
+    """A computation's own splits (channel solves, row blocks) use a thread per core, except in a worker of
+    ingest's pool, whose workers already keep the cores busy."""
+    from solidkit.capture.campaign import _pool
+
+    cores = threads.helper_threads()
+    try:
+        threads.set_helper_threads(3)
+        assert threads.helper_threads() == 3
+    finally:
+        threads.set_helper_threads(None)
+    assert threads.helper_threads() == cores >= 1
+    pool = _pool(2)
+    try:
+        assert pool.submit(threads.helper_threads).result(timeout=120) == 1
+    finally:
+        pool.shutdown()

@@ -32,6 +32,7 @@ from solidkit.camera.metadata import read_metadata
 from solidkit.envmap.io import imread
 from solidkit.errors import InputError, SolidkitError
 from solidkit.fsutil import atomic_path
+from solidkit.threads import helper_threads
 
 __all__ = [
     "NORMALISATION_CODE",
@@ -166,8 +167,7 @@ def _debevec_per_channel(images: list[np.ndarray], t: np.ndarray, samples: int, 
         frames = [np.ascontiguousarray(im[..., c]) for im in images]
         return cv2.createCalibrateDebevec(samples=samples, lambda_=smoothness).process(frames, t).reshape(256)
 
-    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
-    if cores <= 1:
+    if helper_threads() <= 1:
         out = [solve(c) for c in range(n)]
     else:  # a thread per channel even on two cores: the three solves end together, not in two waves
         from concurrent.futures import ThreadPoolExecutor

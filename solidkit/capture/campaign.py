@@ -265,8 +265,17 @@ def _pool(jobs: int):
     import multiprocessing as mp
 
     return ProcessPoolExecutor(
-        max_workers=jobs, mp_context=mp.get_context("spawn"), initializer=_die_with_parent, initargs=(os.getpid(),)
+        max_workers=jobs, mp_context=mp.get_context("spawn"), initializer=_init_worker, initargs=(os.getpid(),)
     )
+
+
+def _init_worker(parent: int) -> None:
+    """Worker initializer: dies with the ingest (:func:`_die_with_parent`); computes each product on one
+    thread, the pool's workers keeping the cores busy (:func:`solidkit.threads.helper_threads`)."""
+    from solidkit.threads import set_helper_threads
+
+    set_helper_threads(1)
+    _die_with_parent(parent)
 
 
 def _run_tasks(

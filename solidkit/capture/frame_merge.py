@@ -48,6 +48,7 @@ from solidkit.camera.raw import is_raw_file, read_raw
 from solidkit.envmap.io import check_image_size, jpeg_damage, srgb_decode
 from solidkit.envmap.sun import LUMINANCE_WEIGHTS
 from solidkit.errors import InputError, SolidkitError
+from solidkit.threads import helper_threads
 
 __all__ = [
     "Frame",
@@ -500,10 +501,10 @@ def _blocks(h: int, rows: int = BLOCK_ROWS) -> list[slice]:
 
 
 def _map_blocks(fn: Any, items: Sequence[Any]) -> list[Any]:
-    """``[fn(item) for item in items]``, the items spread over a thread per core (at most 4; NumPy and OpenCV
-    release the GIL on a block's arrays). Each block is computed alone, whatever thread runs it: the same bits."""
-    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
-    workers = min(cores, 4, len(items))
+    """``[fn(item) for item in items]``, the items spread over :func:`~solidkit.threads.helper_threads` threads
+    (at most 4; NumPy and OpenCV release the GIL on a block's arrays). Each block is computed alone, whatever
+    thread runs it: the same bits."""
+    workers = min(helper_threads(), 4, len(items))
     if workers <= 1:
         return [fn(item) for item in items]
     from concurrent.futures import ThreadPoolExecutor
