@@ -70,7 +70,7 @@ from solidkit.camera.lens import LensProfile, load_profile, profile_for_metadata
 from solidkit.camera.metadata import level_rotation, read_metadata
 from solidkit.camera.raw import is_raw_file
 from solidkit.envmap.coords import angles_from_coords, rotation_from_ypr
-from solidkit.envmap.io import LDR_SUFFIXES, image_size, imread, read_exr, write_exr
+from solidkit.envmap.io import LDR_SUFFIXES, check_image_size, image_size, imread, read_exr, write_exr
 from solidkit.envmap.perspective import scale_pixel_coordinates
 from solidkit.envmap.resample import resize, rotate, sample_panorama
 from solidkit.envmap.sun import LUMINANCE_WEIGHTS
@@ -585,7 +585,10 @@ def unwarp_file(
         img, saturation, bgr = _read_for_unwarp(
             src, len(prof.lenses) == 2 if profile is not None else True, dst.suffix.lower() != ".exr" and vprof is None
         )
-        prefetched = None if tables is None else tables.result()
+        try:
+            prefetched = None if tables is None else tables.result()
+        except (SolidkitError, ValueError, OSError, cv2.error):
+            prefetched = None  # the tables are built again below, where what went wrong is said
     h, w = img.shape[:2]
     if profile is None:
         prof = profile_for_metadata(meta.model if meta else None, w, h)
@@ -812,6 +815,7 @@ def _prefetch_cut_maps(
     if size is None or min(size) < 2:
         return None
     try:
+        check_image_size(src, size)  # a header stating too many pixels is refused where the file is read
         prof = prof or profile_for_metadata(meta.model if meta else None, *size)
     except SolidkitError:
         return None  # said again, where the file is read
