@@ -101,7 +101,7 @@ def check_profile_fit(
     """
     h, w = image.shape[:2]
     prof = profile.scaled(w, h) if tuple(profile.reference_size) != (w, h) else profile
-    report: dict[str, Any] = {"seam_error_warn": SEAM_ERROR_WARN}
+    report: dict[str, Any] = {"seam_error_warn": SEAM_ERROR_WARN, "seam_disparity_warn_deg": DISPARITY_WARN_DEG}
     warnings: list[str] = []
     if len(prof.lenses) != 2:
         return report, warnings
@@ -132,7 +132,7 @@ def check_profile_fit(
             seam_samples=e["samples"],
         )
         disparity = measuring.result()
-    report.update(seam_disparity=disparity.to_json(), seam_disparity_warn_deg=DISPARITY_WARN_DEG)
+    report["seam_disparity"] = disparity.to_json()
     doubled = disparity_warning(disparity)
     if doubled is not None:
         warnings.append(doubled)

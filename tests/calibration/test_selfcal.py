@@ -375,3 +375,18 @@ def test_real_theta_s_wrong_profile_warns_by_seam_disparity(real_data, tmp_path,
         d, e, warns = figures[name]
         assert d > 1.0 and e < SEAM_ERROR_WARN
         assert any(w.startswith("seam_disparity: the two lenses put") for w in warns)
+
+
+def test_cli_unwarp_table_with_a_one_lens_profile(city, tmp_path, cli):
+    """A profile with one lens has no seam to judge: the table says so instead of failing on the missing figures."""
+    theta = load_profile("theta-v")
+    one = theta.model_copy(update={"lenses": theta.lenses[:1]})
+    one.save(tmp_path / "one.json")
+    src = tmp_path / "frame.png"
+    write_ldr(src, camera_frame(city, truth_profile("equidistant", 95.0)), encode_srgb=True)
+    code, out, err = cli(
+        "capture", "unwarp", str(src), "-o", str(tmp_path / "p.png"), "--profile", str(tmp_path / "one.json"),
+        "--size", "128x64", "--no-disk-cache",
+    )  # fmt: skip
+    assert code == 0, err
+    assert "seam disparity unmeasured" in out
