@@ -184,12 +184,18 @@ def _env(tree: Path | None) -> dict:
     return env
 
 
-def _timed(cmd: list[str], tree: Path | None, cwd: Path) -> tuple[float, float]:
-    """(wall seconds, 1-minute load average before the run) of one subprocess run."""
+def _timed(cmd: list[str], tree: Path | None, cwd: Path) -> tuple[float, float, float]:
+    """(wall seconds, 1-minute load average before the run, CPU seconds of the run and its children) of one
+    subprocess run. On a machine that other jobs keep busy the CPU seconds move far less than the wall time."""
+    import resource
+
     load = os.getloadavg()[0]
+    r0 = resource.getrusage(resource.RUSAGE_CHILDREN)
     t0 = time.perf_counter()
     subprocess.run(cmd, check=True, capture_output=True, cwd=cwd, env=_env(tree))
-    return time.perf_counter() - t0, load
+    wall = time.perf_counter() - t0
+    r1 = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return wall, load, (r1.ru_utime - r0.ru_utime) + (r1.ru_stime - r0.ru_stime)
 
 
 def _theta_v_card(folder: Path) -> Path:
@@ -231,10 +237,10 @@ def bench_ingest_products(folder: Path, baseline: Path | None, repeats: int) -> 
                     k += 1
                     camp = folder / f"camp{k}"
                     cmd = [str(REPO / ".venv" / "bin" / "solidkit"), "ingest", str(card), "-o", str(camp)]
-                    wall, load = _timed([*cmd, "--jobs", str(jobs)], tree, folder)
+                    wall, load, cpu = _timed([*cmd, "--jobs", str(jobs)], tree, folder)
                     shutil.rmtree(camp, ignore_errors=True)
                     runs.setdefault(f"{card_name}/jobs{jobs}/{label}", []).append(
-                        {"wall_s": wall, "captures_per_min": 60 * n / wall, "load_1min": load}
+                        {"wall_s": wall, "captures_per_min": 60 * n / wall, "load_1min": load, "cpu_s": cpu}
                     )
                     print(
                         card_name,
@@ -242,11 +248,15 @@ def bench_ingest_products(folder: Path, baseline: Path | None, repeats: int) -> 
                         label,
                         f"{wall:.1f} s",
                         f"{60 * n / wall:.0f}/min",
+                        f"cpu {cpu:.1f} s",
                         f"load {load:.1f}",
                         flush=True,
                     )
     out: dict = {"captures": {name: c[1] for name, c in cards.items()}, "repeats": repeats, "runs": runs}
     out["median_captures_per_min"] = {key: _median([r["captures_per_min"] for r in v]) for key, v in runs.items()}
+    out["median_cpu_s_per_capture"] = {
+        key: _median([r["cpu_s"] for r in v]) / out["captures"][key.split("/")[0]] for key, v in runs.items()
+    }
     return out
 
 
@@ -316,15 +326,26 @@ def bench_self_merge(folder: Path, baseline: Path | None, repeats: int) -> dict:
             for name in list(cmds)[:: 1 if rep % 2 == 0 else -1]:
                 make, tree = cmds[name]
                 target = sub / f"{name}.exr"
-                wall, load = _timed(make(str(target)), tree, REPO)
-                runs[name].append({"wall_s": wall, "load_1min": load})
+                wall, load, cpu = _timed(make(str(target)), tree, REPO)
+                runs[name].append({"wall_s": wall, "load_1min": load, "cpu_s": cpu})
                 errors[name] = _log2_error(read_exr(target)[0], hdr, well)
-                print(w, name, f"{wall:.2f} s", f"error {errors[name]:.4f}", f"load {load:.1f}", flush=True)
+                print(
+                    w,
+                    name,
+                    f"{wall:.2f} s",
+                    f"cpu {cpu:.2f} s",
+                    f"error {errors[name]:.4f}",
+                    f"load {load:.1f}",
+                    flush=True,
+                )
         med = {name: _median([r["wall_s"] for r in v]) for name, v in runs.items()}
-        entry = {"runs": runs, "median_wall_s": med, "log2_error": errors}
+        cpu_med = {name: _median([r["cpu_s"] for r in v]) for name, v in runs.items()}
+        entry = {"runs": runs, "median_wall_s": med, "median_cpu_s": cpu_med, "log2_error": errors}
+        entry["cpu_ratio_solidkit_over_opencv"] = cpu_med["solidkit"] / cpu_med["opencv_script"]
         entry["ratio_solidkit_over_opencv"] = med["solidkit"] / med["opencv_script"]
         if baseline is not None:
             entry["ratio_before_over_opencv"] = med["solidkit_before"] / med["opencv_script"]
+            entry["cpu_ratio_before_over_opencv"] = cpu_med["solidkit_before"] / cpu_med["opencv_script"]
         out[f"{w}x{h}"] = entry
         shutil.rmtree(sub, ignore_errors=True)
     return out
@@ -363,9 +384,9 @@ def _markdown(result: dict) -> list[str]:
             f"{sm.get('repeats', '?')} runs each; load average {sm.get('load', '?')}. Error: median |log2| against "
             "the truth after a global scale.",
             "",
-            "| size | solidkit (s) | OpenCV script (s) | ratio | before (s) | ratio before | error solidkit | "
-            "error OpenCV | error before |",
-            "|---|---|---|---|---|---|---|---|---|",
+            "| size | solidkit (s) | OpenCV script (s) | ratio | before (s) | ratio before | CPU ratio "
+            "| CPU ratio before | error solidkit | error OpenCV | error before |",
+            "|---|---|---|---|---|---|---|---|---|---|---|",
         ]
         for size, e in sm["sizes"].items():
             med, err = e["median_wall_s"], e["log2_error"]
@@ -377,7 +398,9 @@ def _markdown(result: dict) -> list[str]:
                     if "solidkit_before" in med
                     else "- | - | "
                 )
-                + f"{err['solidkit']:.4f} | {err['opencv_script']:.4f} | "
+                + f"{e.get('cpu_ratio_solidkit_over_opencv', float('nan')):.2f} | "
+                f"{e.get('cpu_ratio_before_over_opencv', float('nan')):.2f} | "
+                f"{err['solidkit']:.4f} | {err['opencv_script']:.4f} | "
                 f"{err.get('solidkit_before', float('nan')):.4f} |"
             )
         lines.append("")
@@ -390,15 +413,18 @@ def _markdown(result: dict) -> list[str]:
             f"{ip['repeats']} runs each; 1-minute load average before each run in the JSON "
             f"(median {ip.get('median_load', '?')}).",
             "",
-            "| card | jobs | captures | after (captures/min) | before (captures/min) | ratio |",
-            "|---|---|---|---|---|---|",
+            "| card | jobs | captures | after (captures/min) | before (captures/min) | ratio | CPU-s per capture after "
+            "| before |",
+            "|---|---|---|---|---|---|---|---|",
         ]
+        cpu = ip.get("median_cpu_s_per_capture", {})
         for key in sorted({k.rsplit("/", 1)[0] for k in med}):
             card, jobs = key.split("/")
             after, before = med.get(f"{key}/after"), med.get(f"{key}/before")
             lines.append(
                 f"| {card} | {jobs.removeprefix('jobs')} | {ip['captures'][card]} | {after:.0f} | "
                 + (f"{before:.0f} | {after / before:.2f} |" if before else "- | - |")
+                + f" {cpu.get(f'{key}/after', float('nan')):.2f} | {cpu.get(f'{key}/before', float('nan')):.2f} |"
             )
         lines.append("")
     if "ingest_20_captures" in result:
