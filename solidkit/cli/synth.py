@@ -45,6 +45,12 @@ def dataset(
         60.0, "--hfov-deg", min=10.0, max=150.0, help="Horizontal field of view of the photo, degrees."
     ),
     candidates: int = typer.Option(12, "--candidates", min=1, help="Candidate cameras per 60° sector."),
+    denoise: bool = typer.Option(
+        False,
+        "--denoise",
+        help="Denoise the path-traced renders with Intel Open Image Denoise (albedo and normal guides; "
+        "needs the 'denoise' extra, pyoidn).",
+    ),
     reference: Path | None = typer.Option(None, "--reference", help="Folder of real LDR photos for the colour filter."),
     threshold: float = typer.Option(0.7, "--threshold", min=0.0, max=1.0, help="Histogram-intersection threshold."),
     variant: str | None = typer.Option(
@@ -63,8 +69,18 @@ def dataset(
     sh = parse_shard(shard)
     used = select_variant(variant)
     ref = ReferenceSet.from_dir(reference) if reference is not None else None
+    if denoise:
+        from solidkit.synth.denoise import require
+
+        require()
     cfg = SampleConfig(
-        width=width, height=height, hfov_deg=hfov_deg, spp=spp, probe_spp=probe_spp, candidates=candidates
+        width=width,
+        height=height,
+        hfov_deg=hfov_deg,
+        spp=spp,
+        probe_spp=probe_spp,
+        candidates=candidates,
+        denoise=denoise,
     )
     t0 = time.perf_counter()
     with _progress() as bar:
@@ -109,6 +125,12 @@ def sources(
         min=1,
         help="Consecutive panoramas that share one city block (1: every panorama a new block).",
     ),
+    denoise: bool = typer.Option(
+        False,
+        "--denoise",
+        help="Denoise the path-traced renders with Intel Open Image Denoise (albedo and normal guides; "
+        "needs the 'denoise' extra, pyoidn).",
+    ),
     as_json: bool = json_option("the counts"),
 ) -> None:
     """Render city-block HDR panoramas + their lighting: sources of the crop path of I-Net training."""
@@ -119,7 +141,17 @@ def sources(
     output_folder(out)
     sh = parse_shard(shard)
     used = select_variant(variant)
-    cfg = SourceConfig(height=height, spp=spp, exclude_hdr=tuple(exclude_hdr), positions_per_block=positions_per_block)
+    if denoise:
+        from solidkit.synth.denoise import require
+
+        require()
+    cfg = SourceConfig(
+        height=height,
+        spp=spp,
+        exclude_hdr=tuple(exclude_hdr),
+        positions_per_block=positions_per_block,
+        denoise=denoise,
+    )
     t0 = time.perf_counter()
     with _progress() as bar:
         task = bar.add_task(f"sources {sh[0]}/{sh[1]} [{used}]", total=None)
@@ -206,6 +238,12 @@ def campaign(
         help="Every n-th scene (scene02, scene05, ...) has glass facades that glint; 0: none (default 3).",
     ),
     photo_width: int | None = typer.Option(None, "--photo-width", min=16, help="Photo width (px); height at 4:3."),
+    denoise: bool = typer.Option(
+        False,
+        "--denoise",
+        help="Denoise the photo and the Theta panoramas with Intel Open Image Denoise (albedo and normal guides; "
+        "the truth probes never are; needs the 'denoise' extra, pyoidn).",
+    ),
     variant: str | None = typer.Option(None, "--variant", help="Force a Mitsuba variant."),
     as_json: bool = json_option(),
 ) -> None:
@@ -234,6 +272,11 @@ def campaign(
         given["glass_every"] = glass_every
     if photo_width is not None:
         given.update(photo_width=photo_width, photo_height=photo_width * 3 // 4)
+    if denoise:
+        from solidkit.synth.denoise import require
+
+        require()
+        given["denoise"] = True
     cfg = CampaignConfig(**{**PRESETS[preset], **given})
     t0 = time.perf_counter()
     with _progress() as bar:

@@ -119,7 +119,7 @@ from solidkit.envmap import (
 )
 from solidkit.errors import InputError
 from solidkit.fsutil import atomic_write_bytes, atomic_write_text
-from solidkit.synth.cameras import pinhole_sensor
+from solidkit.synth.cameras import equirect_sensor, pinhole_sensor
 from solidkit.synth.campaign_truth import (
     PRESETS,
     SCHEMA_VERSION,
@@ -141,11 +141,9 @@ from solidkit.synth.sample import (
     SampleConfig,
     derive_seed,
     render_buffers,
-    render_panorama,
-    render_rgb,
+    render_clean,
     sun_mask_image,
     sun_mask_panorama,
-    suppress_fireflies,
 )
 from solidkit.synth.scene import CATEGORIES, to_mitsuba
 from solidkit.synth.solar import place_sun, solar_angles_deg, solar_direction, solar_position, utc_offset_text
@@ -491,10 +489,15 @@ def _render_scene(
     # glass reflects the sun onto the street (caustics): more samples keep that noise near the others' level
     spp_scale = cfg.glass_spp_factor if glass else 1
     photo_spp = cfg.photo_spp * spp_scale
-    hdr = render_rgb(
-        scene, pinhole_sensor(cam, spp=photo_spp, seed=derive_seed(seed, s, 1)), photo_spp, seed=derive_seed(seed, s, 1)
+    hdr, _ = render_clean(
+        scene,
+        pinhole_sensor(cam, spp=photo_spp, seed=derive_seed(seed, s, 1)),
+        photo_spp,
+        seed=derive_seed(seed, s, 1),
+        protect=sun_mask_image(light.sun, cam, 6.0),
+        firefly_k=cfg.firefly_k,
+        denoise=cfg.denoise,
     )
-    hdr, _ = suppress_fireflies(hdr, sun_mask_image(light.sun, cam, 6.0), cfg.firefly_k)
     f_number, iso = 2.8, 100
     mean = float(np.mean(hdr))
     t_photo = 0.18 * f_number**2 / (K_SENSOR * max(mean, 1e-9) * iso / 100.0)
@@ -538,15 +541,23 @@ def _render_scene(
         rec_pitch = math.degrees(pitch) + rng.normal(0.0, cfg.gravity_noise_deg)
         rec_roll = math.degrees(roll) + rng.normal(0.0, cfg.gravity_noise_deg)
         rec_heading = (math.degrees(yaw) + rng.normal(0.0, cfg.compass_noise_deg)) % 360.0
-        pano = render_panorama(
-            scene, pos, np.eye(3), cfg.pano_height, cfg.pano_spp * spp_scale, seed=derive_seed(seed, s, 100 + c)
-        )
         keep = sun_mask_panorama(light.sun, np.eye(3), cfg.pano_height, 2.0)
         glint = glint_direction(mi, geometry, pos, light.sun, panels) if (panels and light.sun is not None) else None
         if glint is not None:  # a glint is a real, sharp highlight: not a firefly
             assert keep is not None  # a glint needs a sun
             keep = keep | cast(np.ndarray, sun_mask_panorama(glint, np.eye(3), cfg.pano_height, 2.0))
-        pano, _ = suppress_fireflies(pano, keep, cfg.firefly_k, wrap=True)
+        pano_spp = cfg.pano_spp * spp_scale
+        pseed = derive_seed(seed, s, 100 + c)
+        pano, _ = render_clean(
+            scene,
+            equirect_sensor(pos, np.eye(3), cfg.pano_height, jitter=True, spp=pano_spp, seed=pseed),
+            pano_spp,
+            seed=pseed,
+            protect=keep,
+            firefly_k=cfg.firefly_k,
+            wrap=True,
+            denoise=cfg.denoise,
+        )
         fish = render_fisheye(pano, profile, profile.reference_size, R_level=Rb)
         shots = []
         plan = [(cfg.low_exposure_s, 64, "low_exposure"), (cfg.normal_exposure_s, 100, "normal")]

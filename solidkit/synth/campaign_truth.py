@@ -13,7 +13,7 @@ import os
 from pathlib import Path
 from typing import Any, ClassVar, Literal
 
-from pydantic import BaseModel, Field
+from pydantic import BaseModel, Field, SerializerFunctionWrapHandler, model_serializer
 
 from solidkit.document import DocumentError, VersionedDocument, read_json_object
 from solidkit.envmap import CONVENTIONS_VERSION
@@ -96,6 +96,18 @@ class CampaignConfig(BaseModel):
     block_length: float = 60.0
     sun_attempts: int = 8
     firefly_k: float = 10.0
+    denoise: bool = Field(
+        False,
+        description="photo and Theta panoramas denoised by Open Image Denoise (albedo and normal guides); "
+        "the truth probes never are",
+    )
+
+    @model_serializer(mode="wrap")
+    def _plain_as_before(self, handler: SerializerFunctionWrapHandler) -> dict[str, Any]:
+        d: dict[str, Any] = handler(self)
+        if not self.denoise:  # recorded only when on, so campaigns rendered without it stay as they were
+            d.pop("denoise", None)
+        return d
 
 
 PRESETS: dict[str, dict[str, Any]] = {

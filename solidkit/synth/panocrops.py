@@ -58,10 +58,10 @@ from solidkit.envmap.perspective import intrinsics_from_fov
 from solidkit.envmap.sun import luminance
 from solidkit.errors import InputError
 from solidkit.fsutil import atomic_write_text
-from solidkit.synth.cameras import sample_candidate
+from solidkit.synth.cameras import equirect_sensor, sample_candidate
 from solidkit.synth.lighting import HDR_DIR, random_lighting
 from solidkit.synth.mitsuba_variant import mitsuba, variant
-from solidkit.synth.sample import derive_seed, render_panorama, sun_mask_panorama, suppress_fireflies
+from solidkit.synth.sample import derive_seed, render_clean, sun_mask_panorama
 from solidkit.synth.scene import city_block, to_mitsuba
 
 __all__ = [
@@ -124,10 +124,13 @@ class SourceConfig:
     tex_size: int = 64
     firefly_k: float = 10.0
     exclude_hdr: tuple[str, ...] = ()
+    denoise: bool = False
 
     def to_json(self) -> dict[str, Any]:
         d = asdict(self)
         d["exclude_hdr"] = list(self.exclude_hdr)
+        if not self.denoise:  # recorded only when on, so records of plain renders stay as they were
+            d.pop("denoise")
         return d
 
 
@@ -162,9 +165,16 @@ def render_source(
     )
     scene = to_mitsuba(block, light.emitter(), tex_size=cfg.tex_size)
     sseed = derive_seed(seed, index, 4)
-    img = render_panorama(scene, cam.position, np.eye(3), cfg.height, cfg.spp, max_depth=cfg.max_depth, seed=sseed)
-    img, fireflies = suppress_fireflies(
-        img, sun_mask_panorama(light.sun, np.eye(3), cfg.height), cfg.firefly_k, wrap=True
+    img, fireflies = render_clean(
+        scene,
+        equirect_sensor(cam.position, np.eye(3), cfg.height, jitter=True, spp=cfg.spp, seed=sseed),
+        cfg.spp,
+        max_depth=cfg.max_depth,
+        seed=sseed,
+        protect=sun_mask_panorama(light.sun, np.eye(3), cfg.height),
+        firefly_k=cfg.firefly_k,
+        wrap=True,
+        denoise=cfg.denoise,
     )
     env = np.asarray(rotate(light.panorama, light.rotation), dtype=np.float32)
     target = downsample(env, env.shape[0] // cfg.target_height)

@@ -36,6 +36,7 @@ from solidkit.envmap.perspective import intrinsics_from_fov
 from solidkit.envmap.sun import LUMINANCE_WEIGHTS
 from solidkit.fsutil import atomic_write_text
 from solidkit.synth.cameras import Camera, equirect_sensor, pinhole_sensor
+from solidkit.synth.denoise import denoise_hdr, render_guides
 from solidkit.synth.lighting import Lighting, random_lighting
 from solidkit.synth.mitsuba_variant import mitsuba, variant
 from solidkit.synth.render import render_buffers, render_rgb
@@ -47,6 +48,7 @@ __all__ = [
     "render_rgb",
     "render_buffers",
     "render_panorama",
+    "render_clean",
     "pick_probe_pixels",
     "Generator",
     "derive_seed",
@@ -96,10 +98,13 @@ class SampleConfig:
     p_sunsky: float = 0.5
     block_length: float = 60.0
     exclude_hdr: tuple[str, ...] = ()
+    denoise: bool = False
 
     def to_json(self) -> dict[str, Any]:
         d = asdict(self)
         d["item_size"] = list(self.item_size)
+        if not self.denoise:  # recorded only when on, so records of plain renders stay as they were
+            d.pop("denoise")
         if self.exclude_hdr:  # HDR maps held out (e.g. for a real test); absent when none, as in older datasets
             d["exclude_hdr"] = list(self.exclude_hdr)
         else:
@@ -127,6 +132,32 @@ def render_panorama(
     """HDR equirect ``(height, 2 height, 3)`` seen from ``position`` in the frame ``rotation`` (conventions §3)."""
     sensor = equirect_sensor(position, rotation, height, jitter=True, spp=spp, seed=seed)
     return render_rgb(scene, sensor, spp, max_depth=max_depth, seed=seed)
+
+
+def render_clean(
+    scene: Any,
+    sensor: Any,
+    spp: int,
+    *,
+    max_depth: int = 6,
+    seed: int = 0,
+    protect: np.ndarray | None = None,
+    firefly_k: float = 10.0,
+    wrap: bool = False,
+    denoise: bool = False,
+) -> tuple[np.ndarray, int]:
+    """Path-traced linear RGB ``(H, W, 3)`` after the firefly treatment (:func:`suppress_fireflies`); returns
+    (image, fireflies replaced).
+
+    ``denoise``: then denoised by Open Image Denoise, guided by the albedo and normals of the same camera rays
+    (:mod:`solidkit.synth.denoise`; ``protect`` pixels kept as rendered).
+    """
+    img = render_rgb(scene, sensor, spp, max_depth=max_depth, seed=seed)
+    img, n = suppress_fireflies(img, protect, firefly_k, wrap=wrap)
+    if not denoise:
+        return img, n
+    albedo, normal = render_guides(scene, sensor, spp, seed=seed)
+    return denoise_hdr(img, albedo, normal, protect=protect), n
 
 
 def suppress_fireflies(
@@ -305,10 +336,16 @@ class Generator:
         sseed = derive_seed(self.seed, index, 4)
 
         t0 = time.perf_counter()
-        hdr = render_rgb(
-            scene, pinhole_sensor(cam, spp=cfg.spp, seed=sseed), cfg.spp, max_depth=cfg.max_depth, seed=sseed
+        hdr, fireflies = render_clean(
+            scene,
+            pinhole_sensor(cam, spp=cfg.spp, seed=sseed),
+            cfg.spp,
+            max_depth=cfg.max_depth,
+            seed=sseed,
+            protect=sun_mask_image(light.sun, cam),
+            firefly_k=cfg.firefly_k,
+            denoise=cfg.denoise,
         )
-        hdr, fireflies = suppress_fireflies(hdr, sun_mask_image(light.sun, cam), cfg.firefly_k)
         tm["image"] = time.perf_counter() - t0
         t0 = time.perf_counter()
         buf = render_buffers(scene, cam, spp=cfg.buffer_spp, seed=sseed + 1)
@@ -337,17 +374,19 @@ class Generator:
                 depth=float(buf["depth"][y, x]),
                 category=CATEGORIES[block.category_of(np.array([buf["label"][y, x]]))[0]],
             )
-            img = render_panorama(
+            pseed = sseed + 10 + k
+            img, n_ff = render_clean(
                 scene,
-                centre,
-                cam.pano_rotation,
-                cfg.probe_height,
+                equirect_sensor(
+                    centre, cam.pano_rotation, cfg.probe_height, jitter=True, spp=cfg.probe_spp, seed=pseed
+                ),
                 cfg.probe_spp,
                 max_depth=cfg.max_depth,
-                seed=sseed + 10 + k,
-            )
-            img, n_ff = suppress_fireflies(
-                img, sun_mask_panorama(light.sun, cam.pano_rotation, cfg.probe_height), cfg.firefly_k, wrap=True
+                seed=pseed,
+                protect=sun_mask_panorama(light.sun, cam.pano_rotation, cfg.probe_height),
+                firefly_k=cfg.firefly_k,
+                wrap=True,
+                denoise=cfg.denoise,
             )
             fireflies += n_ff
             probe_imgs.append(img)
