@@ -43,19 +43,17 @@ from solidkit.envmap import tonemap
 from solidkit.envmap.sun import LUMINANCE_WEIGHTS
 from solidkit.synth.cameras import equirect_sensor, pinhole_sensor
 from solidkit.synth.denoise import denoise_hdr, render_guides
-from solidkit.synth.lighting import random_lighting
 from solidkit.synth.mitsuba_variant import mitsuba, variant
-from solidkit.synth.panocrops import HDR_DIR, SourceConfig
+from solidkit.synth.panocrops import SourceConfig
 from solidkit.synth.render import render_rgb
 from solidkit.synth.sample import (
     Generator,
     SampleConfig,
-    derive_seed,
     sun_mask_image,
     sun_mask_panorama,
     suppress_fireflies,
 )
-from solidkit.synth.scene import city_block, to_mitsuba
+from solidkit.synth.scene import to_mitsuba
 
 HERE = Path(__file__).resolve().parent
 PLAIN_SPP = (4, 8, 16, 32, 64, 128, 256)
@@ -81,19 +79,10 @@ def photo_case(seed: int, index: int) -> dict[str, Any]:
 
 
 def source_case(seed: int, index: int, height: int = 128) -> dict[str, Any]:
-    from solidkit.envmap.perspective import intrinsics_from_fov
-    from solidkit.synth.cameras import sample_candidate
+    from solidkit.synth.panocrops import source_setup
 
     cfg = SourceConfig(height=height)
-    block = city_block(derive_seed(seed, index // cfg.positions_per_block, 1), length=cfg.block_length)
-    rng = np.random.default_rng(derive_seed(seed, index, 2))
-    cam = sample_candidate(block, rng, int(rng.integers(6)), intrinsics_from_fov(math.radians(60.0), 64, 48), 64, 48)
-    light = random_lighting(
-        np.random.default_rng(derive_seed(seed, index, 3)),
-        p_sunsky=cfg.p_sunsky,
-        height=cfg.light_height,
-        hdr_dir=HDR_DIR,
-    )
+    block, cam, light = source_setup(seed, index, cfg)
     scene = to_mitsuba(block, light.emitter(), tex_size=cfg.tex_size)
     return {
         "name": f"source seed {seed} index {index}",

@@ -68,6 +68,7 @@ __all__ = [
     "metered_gain",
     "SourceConfig",
     "render_source",
+    "source_setup",
     "real_source",
     "render_sources",
     "Source",
@@ -134,6 +135,22 @@ class SourceConfig:
         return d
 
 
+def source_setup(seed: int, index: int, config: SourceConfig, hdr_dir: Path | None = None) -> tuple[Any, Any, Any]:
+    """The city block, camera and lighting of source ``index`` of the set ``seed`` (what :func:`render_source`
+    renders): block ``index // positions_per_block``, a random walkable camera, a random lighting."""
+    block = city_block(derive_seed(seed, int(index) // config.positions_per_block, 1), length=config.block_length)
+    rng = np.random.default_rng(derive_seed(seed, index, 2))
+    cam = sample_candidate(block, rng, int(rng.integers(6)), intrinsics_from_fov(math.radians(60.0), 64, 48), 64, 48)
+    light = random_lighting(
+        np.random.default_rng(derive_seed(seed, index, 3)),
+        p_sunsky=config.p_sunsky,
+        height=config.light_height,
+        hdr_dir=hdr_dir or HDR_DIR,
+        exclude=config.exclude_hdr,
+    )
+    return block, cam, light
+
+
 def render_source(
     seed: int,
     index: int,
@@ -153,16 +170,7 @@ def render_source(
     t0 = time.perf_counter()
     mi = mitsuba()
     block_id = int(index) // cfg.positions_per_block
-    block = city_block(derive_seed(seed, block_id, 1), length=cfg.block_length)
-    rng = np.random.default_rng(derive_seed(seed, index, 2))
-    cam = sample_candidate(block, rng, int(rng.integers(6)), intrinsics_from_fov(math.radians(60.0), 64, 48), 64, 48)
-    light = random_lighting(
-        np.random.default_rng(derive_seed(seed, index, 3)),
-        p_sunsky=cfg.p_sunsky,
-        height=cfg.light_height,
-        hdr_dir=hdr_dir or HDR_DIR,
-        exclude=cfg.exclude_hdr,
-    )
+    block, cam, light = source_setup(seed, index, cfg, hdr_dir)
     scene = to_mitsuba(block, light.emitter(), tex_size=cfg.tex_size)
     sseed = derive_seed(seed, index, 4)
     img, fireflies = render_clean(

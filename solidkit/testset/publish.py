@@ -29,7 +29,7 @@ from pathlib import Path
 from typing import Any
 
 from solidkit.errors import InputError
-from solidkit.testset.build import MANIFEST_FILE, load_testset
+from solidkit.testset.build import MANIFEST_FILE, _swap, load_testset
 from solidkit.testset.croissant import croissant_metadata, records
 from solidkit.testset.datasheet import dataset_card, datasheet, summary
 from solidkit.testset.facts import ExportInfo, campaign_facts
@@ -98,14 +98,7 @@ def export_croissant(
         for rel, text in texts.items():
             (staging / rel).parent.mkdir(parents=True, exist_ok=True)
             (staging / rel).write_text(text, encoding="utf-8")
-        os.chmod(staging, 0o755)
-        if out.exists():
-            trash = Path(tempfile.mkdtemp(prefix=f".{out.name}.old-", dir=out.parent))
-            os.rename(out, trash / "x")
-            os.rename(staging, out)
-            shutil.rmtree(trash, ignore_errors=True)
-        else:
-            os.rename(staging, out)
+        _swap(staging, out)
     finally:
         if staging.exists():
             shutil.rmtree(staging, ignore_errors=True)
