@@ -131,6 +131,17 @@ def sources(
         help="Denoise the path-traced renders with Intel Open Image Denoise (albedo and normal guides; "
         "needs the 'denoise' extra, pyoidn).",
     ),
+    real_lighting: list[Path] = typer.Option(
+        [],
+        "--real-lighting",
+        help="A folder of real HDR panoramas (e.g. ../shared/data/real/hdr_outdoor) whose maps join the "
+        "lighting pool (repeatable); maps whose brightest spot is not their catalogued sun are left out.",
+    ),
+    real_lighting_split: str = typer.Option(
+        "train",
+        "--real-lighting-split",
+        help="Which split (train, val, test) of the shipped split by whole panorama those maps come from.",
+    ),
     as_json: bool = json_option("the counts"),
 ) -> None:
     """Render city-block HDR panoramas + their lighting: sources of the crop path of I-Net training."""
@@ -151,7 +162,18 @@ def sources(
         exclude_hdr=tuple(exclude_hdr),
         positions_per_block=positions_per_block,
         denoise=denoise,
+        real_lighting=tuple(str(f) for f in real_lighting),
+        real_lighting_split=real_lighting_split,
     )
+    if real_lighting:
+        from solidkit.synth.panocrops import lighting_files
+
+        pool, suns = lighting_files(cfg)
+        sunny = sum(s.visible for s in suns.values())
+        summary.print(
+            f"lighting pool: {len(pool)} HDR maps, {len(suns)} with a catalogued sun "
+            f"({sunny} visible, {len(suns) - sunny} none) from the '{real_lighting_split}' split"
+        )
     t0 = time.perf_counter()
     with _progress() as bar:
         task = bar.add_task(f"sources {sh[0]}/{sh[1]} [{used}]", total=None)

@@ -31,6 +31,7 @@ from __future__ import annotations
 
 import functools
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -44,7 +45,7 @@ from solidkit.envmap import (
     direction_from_angles,
     direction_grid,
     luminance,
-    read_exr,
+    read_panorama,
     rotation_y,
     solid_angle,
     spherical_centroid,
@@ -179,8 +180,7 @@ def hdr(
     path: str | Path, rotation_deg: float = 0.0, *, rng: np.random.Generator | None = None, normalise: bool = True
 ) -> Lighting:
     """A real HDR panorama turned about the vertical by ``rotation_deg`` (moves the sun to the right)."""
-    pano, _ = read_exr(path)
-    pano = np.clip(pano[..., :3], 0.0, None)
+    pano = read_panorama(path)
     scale = 1.0
     if normalise:
         pano, scale = _normalise(pano, rng or np.random.default_rng(0))
@@ -201,12 +201,15 @@ def random_lighting(
     height: int = 512,
     hdr_dir: Path = HDR_DIR,
     exclude: tuple[str, ...] = (),
+    files: Sequence[Path] | None = None,
 ) -> Lighting:
     """Draw a lighting: sunsky (elevation 5-75°, any azimuth, turbidity 2-6) or an HDR map turned by 0-60°.
 
-    ``exclude``: HDR map names (stems) not to draw, e.g. those held out for a real test.
+    ``exclude``: HDR map names (stems) not to draw, e.g. those held out for a real test. ``files``: the HDR
+    maps (EXR or Radiance HDR) to draw from instead of ``hdr_dir``'s EXRs (``exclude`` still applies).
     """
-    files = [f for f in sorted(Path(hdr_dir).glob("*.exr")) if f.stem not in set(exclude)]
+    pool = sorted(Path(hdr_dir).glob("*.exr")) if files is None else list(files)
+    files = [f for f in pool if f.stem not in set(exclude)]
     if rng.random() < p_sunsky or not files:
         az = rng.uniform(-math.pi, math.pi)
         el = math.radians(rng.uniform(5.0, 75.0))

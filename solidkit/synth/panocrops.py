@@ -31,6 +31,7 @@ the camera's panorama frame ``R_y(yaw)`` (conventions §2). Each crop is a pure 
 
 from __future__ import annotations
 
+import functools
 import json
 import math
 import os
@@ -126,13 +127,63 @@ class SourceConfig:
     firefly_k: float = 10.0
     exclude_hdr: tuple[str, ...] = ()
     denoise: bool = False
+    real_lighting: tuple[str, ...] = ()
+    """Folders of real HDR panoramas added to the HDR lighting maps (:func:`lighting_files`)."""
+    real_lighting_split: str = "train"
+    """The split (:data:`SPLITS`) of :func:`real_split` those folders' panoramas are drawn from."""
 
     def to_json(self) -> dict[str, Any]:
         d = asdict(self)
         d["exclude_hdr"] = list(self.exclude_hdr)
-        if not self.denoise:  # recorded only when on, so records of plain renders stay as they were
+        # recorded only when used, so the records of earlier renders stay as they were
+        if not self.denoise:
             d.pop("denoise")
+        if self.real_lighting:
+            d["real_lighting"] = [str(Path(f).resolve()) for f in self.real_lighting]
+        else:
+            d.pop("real_lighting")
+            d.pop("real_lighting_split")
         return d
+
+
+def lighting_files(config: SourceConfig, hdr_dir: Path | None = None) -> tuple[list[Path], dict[str, CatalogSun]]:
+    """The HDR maps rendered sources draw from: ``hdr_dir``'s EXRs (default: the shipped maps) plus the real
+    panoramas of ``config.real_lighting`` in the split ``config.real_lighting_split`` (:func:`load_sources`'
+    rule: a panorama the split file does not list trains), less ``config.exclude_hdr``; and the catalogued sun
+    of each real one (``{stem: CatalogSun}``, from its folder's ``catalog.json``).
+
+    A real map's brightest spot is often not its sun (a street lamp at night, the moon, a bright cloud), so
+    where the catalogue states the sun, the rendered source takes the catalogue's (:func:`source_setup`).
+    """
+    return _lighting_files(
+        str(hdr_dir or HDR_DIR),
+        tuple(str(Path(f).resolve()) for f in config.real_lighting),
+        config.real_lighting_split,
+        tuple(config.exclude_hdr),
+    )
+
+
+@functools.cache
+def _lighting_files(
+    hdr_dir: str, folders: tuple[str, ...], split: str, exclude: tuple[str, ...]
+) -> tuple[list[Path], dict[str, CatalogSun]]:
+    if split not in SPLITS:
+        raise InputError(f"unknown split '{split}' (expected one of {', '.join(SPLITS)})")
+    files = [f for f in sorted(Path(hdr_dir).glob("*.exr")) if f.stem not in exclude]
+    suns: dict[str, CatalogSun] = {}
+    table = real_split()
+    for folder in folders:
+        root = Path(folder)
+        if not root.is_dir():
+            raise InputError(f"{root}: no such folder of real HDR panoramas")
+        found = [p for p in sorted(root.iterdir()) if p.suffix.lower() in (".exr", ".hdr") and p.stem not in exclude]
+        chosen = [p for p in found if table.get(p.stem, "train") == split]
+        if not chosen:
+            raise InputError(f"{root}: no HDR panoramas (*.exr, *.hdr) of the '{split}' split")
+        files += chosen
+        catalog = read_catalog(root)
+        suns.update({p.stem: catalog[p.stem] for p in chosen if p.stem in catalog})
+    return files, suns
 
 
 def source_setup(seed: int, index: int, config: SourceConfig, hdr_dir: Path | None = None) -> tuple[Any, Any, Any]:
@@ -147,7 +198,14 @@ def source_setup(seed: int, index: int, config: SourceConfig, hdr_dir: Path | No
         height=config.light_height,
         hdr_dir=hdr_dir or HDR_DIR,
         exclude=config.exclude_hdr,
+        files=lighting_files(config, hdr_dir)[0] if config.real_lighting else None,
     )
+    known = (
+        lighting_files(config, hdr_dir)[1].get(Path(light.meta.get("file", "")).stem) if config.real_lighting else None
+    )
+    if known is not None:
+        light.sun = light.rotation @ known.direction if known.visible else None
+        light.meta["sun_from"] = "catalogue"
     return block, cam, light
 
 
@@ -328,6 +386,19 @@ class Source:
         return hit[0].astype(np.float32), hit[1]
 
 
+def _rendered_sun(meta: Path) -> CatalogSun | None:
+    """The catalogued sun a rendered source was lit by (its ``source.json``), ``None`` where its lighting's
+    sun is to be detected (Mitsuba's sun and sky, the shipped maps)."""
+    try:
+        record = json.loads(meta.read_text())
+        if record.get("lighting", {}).get("sun_from") != "catalogue":
+            return None
+        sun = record["sun_scene"]
+        return CatalogSun(sun is not None, np.asarray(sun if sun is not None else np.zeros(3), np.float32))
+    except (ValueError, KeyError, TypeError) as exc:
+        raise InputError(f"{meta}: not a rendered source's record ({type(exc).__name__}: {exc})") from None
+
+
 def real_source(path: str | os.PathLike, target_height: int = 128, sun: CatalogSun | None = None) -> Source:
     """A real HDR panorama (EXR or Radiance HDR) as its own scene and global target (area-downsampled to
     ``target_height``); ``sun``: its catalogued sun, if any."""
@@ -354,7 +425,11 @@ def load_sources(root: str | os.PathLike, exclude: tuple[str, ...] = (), split: 
         raise InputError(f"unknown split '{split}' (expected one of {', '.join(SPLITS)})")
     metas = sorted(root.glob(f"*/{SOURCE_FILES['meta']}"))
     if metas:
-        return [Source(m.parent.name, "rendered", m.parent) for m in metas if m.parent.name not in exclude]
+        return [
+            Source(m.parent.name, "rendered", m.parent, sun=_rendered_sun(m))
+            for m in metas
+            if m.parent.name not in exclude
+        ]
     files = [p for p in sorted(root.iterdir()) if p.suffix.lower() in (".exr", ".hdr") and p.stem not in exclude]
     if split is not None:
         table = real_split()

@@ -179,3 +179,46 @@ def test_the_shipped_checkpoint_puts_real_in_view_suns_on_the_sun_and_beats_its_
     assert f["in_view_n"] >= 4 and f["in_view_max_deg"] < 8.0  # found in-view suns sit on the sun
     assert f["angular_deg"] < 0.5 * base["angular_deg"]
     assert f["found_rate"] >= 0.75
+
+
+def test_real_maps_light_rendered_scenes_with_their_catalogued_sun(tmp_path):
+    from solidkit.synth.panocrops import SourceConfig, lighting_files, source_setup
+
+    root = _folder(tmp_path)
+    cfg = SourceConfig(p_sunsky=0.0, exclude_hdr=("city",), real_lighting=(str(root),))
+    files, suns = lighting_files(cfg)
+    assert {"sunny", "grey"} <= {f.stem for f in files} and set(suns) == {"sunny", "grey"}
+    with pytest.raises(InputError, match="'val' split"):  # panoramas the split file does not list only train
+        lighting_files(SourceConfig(real_lighting=(str(root),), real_lighting_split="val"))
+    with pytest.raises(InputError, match="unknown split"):
+        lighting_files(SourceConfig(real_lighting=(str(root),), real_lighting_split="dev"))
+    seen = set()
+    for i in range(40):
+        _, _, light = source_setup(5, i, cfg)
+        name = Path(light.meta["file"]).stem
+        assert name != "city"
+        if name == "grey":  # the catalogue says no sun, whatever the map's brightest spot
+            assert light.sun is None and light.meta["sun_from"] == "catalogue"
+        elif name == "sunny":
+            want = light.rotation @ suns["sunny"].direction
+            assert float(np.dot(light.sun, want)) == pytest.approx(1.0, abs=1e-6)
+        seen.add(name)
+        if {"grey", "sunny"} <= seen:
+            break
+    assert {"grey", "sunny"} <= seen
+    assert "real_lighting" in cfg.to_json() and "real_lighting" not in SourceConfig().to_json()
+
+
+def test_a_rendered_source_lit_by_a_catalogued_map_keeps_its_sun_for_the_sun_stage(tmp_path):
+    root = tmp_path / "sources"
+    for name, sun in (("000000", None), ("000001", [0.0, -0.6, 0.8]), ("000002", [0.6, -0.8, 0.0])):
+        (root / name).mkdir(parents=True)
+        lighting = {"kind": "hdr", "file": "x.hdr"} | ({"sun_from": "catalogue"} if name != "000002" else {})
+        (root / name / "source.json").write_text(json.dumps({"lighting": lighting, "sun_scene": sun}))
+    by = {s.name: s for s in load_sources(root)}
+    assert not by["000000"].sun.visible
+    assert by["000001"].sun.visible and np.allclose(by["000001"].sun.direction, [0.0, -0.6, 0.8])
+    assert by["000002"].sun is None  # detected from its lighting, as before
+    (root / "000000" / "source.json").write_text(json.dumps({"lighting": {"sun_from": "catalogue"}}))
+    with pytest.raises(InputError, match="not a rendered source"):
+        load_sources(root)
