@@ -49,22 +49,42 @@ def cone_radii(logits: torch.Tensor, direction: torch.Tensor, levels: tuple[floa
     return torch.stack(out, dim=1).clamp_min(90.0 / h)
 
 
-def conformal_quantile(scores: np.ndarray, q: float) -> float:
+def conformal_quantile(scores: np.ndarray, q: float, weights: np.ndarray | None = None) -> float:
     """The ``ceil((n + 1) q) / n`` empirical quantile of ``scores (n,)`` (split conformal prediction);
-    ``inf`` when ``n`` is too small for ``q``."""
-    s = np.sort(np.asarray(scores, np.float64))
-    n = len(s)
-    k = math.ceil((n + 1) * q)
-    return float(s[k - 1]) if 0 < k <= n else math.inf
+    ``inf`` when ``n`` is too small for ``q``.
+
+    With ``weights (n,)`` (e.g. ``1 / n_d`` for a crop of domain ``d``, so that each domain counts equally), the
+    weighted version (Tibshirani et al. 2019, "Conformal prediction under covariate shift", §2): the ``q``
+    quantile of the scores' weighted distribution with a mass of the largest weight at ``+inf`` for the new
+    crop; equal weights give the unweighted quantile.
+    """
+    s = np.asarray(scores, np.float64)
+    if weights is None:
+        s = np.sort(s)
+        n = len(s)
+        k = math.ceil((n + 1) * q)
+        return float(s[k - 1]) if 0 < k <= n else math.inf
+    w = np.asarray(weights, np.float64)
+    if w.shape != s.shape or not np.all(np.isfinite(w)) or np.any(w <= 0):
+        raise ValueError(f"weights must be positive and finite, one per score ({s.shape}), got {w.shape}")
+    order = np.argsort(s, kind="stable")
+    s, w = s[order], w[order]
+    cum = np.cumsum(w) / (w.sum() + w.max())
+    k = int(np.searchsorted(cum, q - 1e-12))
+    return float(s[k]) if k < len(s) else math.inf
 
 
 def calibrate_cone_scales(
-    errors_deg: np.ndarray, radii_deg: np.ndarray, levels: tuple[float, ...] = LEVELS
+    errors_deg: np.ndarray,
+    radii_deg: np.ndarray,
+    levels: tuple[float, ...] = LEVELS,
+    weights: np.ndarray | None = None,
 ) -> tuple[float, ...]:
     """Factors ``s_q`` on :func:`cone_radii` so that ``error <= s_q radius_q`` covers ``q`` of calibration
-    crops (``errors_deg (n,)``, ``radii_deg (n, len(levels))``), made non-decreasing across levels."""
+    crops (``errors_deg (n,)``, ``radii_deg (n, len(levels))``, optional ``weights (n,)`` of
+    :func:`conformal_quantile`), made non-decreasing across levels."""
     e, r = np.asarray(errors_deg, np.float64), np.asarray(radii_deg, np.float64)
-    s = [conformal_quantile(e / r[:, k], q) for k, q in enumerate(levels)]
+    s = [conformal_quantile(e / r[:, k], q, weights) for k, q in enumerate(levels)]
     return tuple(float(v) for v in np.maximum.accumulate(s))
 
 

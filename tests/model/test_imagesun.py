@@ -97,6 +97,26 @@ def test_conformal_scales_cover_new_draws_at_the_stated_rate():
     assert conformal_quantile(np.arange(3.0), 0.9) == math.inf
 
 
+def test_weighted_conformal_scales_let_each_domain_count_equally():
+    rng = np.random.default_rng(1)
+    scores = rng.uniform(0.0, 1.0, 50)
+    assert conformal_quantile(scores, 0.68, np.full(50, 0.3)) == conformal_quantile(scores, 0.68)
+    assert conformal_quantile(scores, 0.9, np.full(50, 2.0)) == conformal_quantile(scores, 0.9)
+    # many well-predicted rendered crops, a few badly predicted real ones: pooled cones miss the real domain
+    radii = np.full((440, 2), 10.0) * np.array([1.0, 1.6])
+    err = np.concatenate([10.0 * np.abs(rng.normal(0, 0.8, 400)), 10.0 * np.abs(rng.normal(0, 2.5, 40))])
+    real = np.arange(440) >= 400
+    w = np.where(real, 1.0 / 40, 1.0 / 400)
+    pooled = np.asarray(calibrate_cone_scales(err, radii))
+    balanced = np.asarray(calibrate_cone_scales(err, radii, weights=w))
+    assert (balanced > pooled).all()
+    cov_real = coverage(err[real], radii[real] * balanced)
+    cov_pooled = coverage(err[real], radii[real] * pooled)
+    assert cov_real[0] > cov_pooled[0] + 0.05
+    with pytest.raises(ValueError):
+        conformal_quantile(scores, 0.5, np.zeros(50))
+
+
 def _sunny_source(az_deg: float, el_deg: float) -> Source:
     h = 128
     pano = np.full((h, 2 * h, 3), 0.3, np.float32)
