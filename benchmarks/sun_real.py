@@ -157,6 +157,7 @@ def main() -> None:
         sun_cone_scale=cal["cone_scale"],
         sun_in_image=cal["sun_in_image"],
         sun_blob_gate_deg=cal["gate_deg"],
+        sun_blob_visibility=cal["blob_visibility"],
     )
     before = SolidNet.from_checkpoint(a.before)
     res = {"checkpoint": a.checkpoint, "calibration": cal, "tests": {}}
@@ -166,7 +167,9 @@ def main() -> None:
         "",
         f"Checkpoint `{Path(a.checkpoint).name}`; calibrated on validation crops ({n}): visibility threshold "
         f"{cal['threshold']:.2f} (balanced accuracy {cal['balanced_accuracy']:.3f}, mean over the two), in-image sun "
-        f"{'on, gate ' + str(cal['gate_deg']) + '°' if cal['sun_in_image'] else 'off'}, cone scales "
+        f"{'on, gate ' + str(cal['gate_deg']) + '°' if cal['sun_in_image'] else 'off'}, a blob alone makes a sun "
+        f"visible from p = {cal['blob_visibility']:.2f} (0: off; balanced accuracy "
+        f"{cal['balanced_accuracy_with_blob']:.3f}), cone scales "
         f"{_fmt(list(cal['cone_scale']), 2)} ({cal['n']['found_suns']} found suns). Crops: pitch +5°, 60° hfov, the "
         "sun at relative azimuths 0, ±30, ±90, 150° (panoramas without a sun at the same yaws), metered exposure.",
         "",

@@ -134,6 +134,10 @@ class SolidNetConfig:
         radii holding 68 % / 90 % of the sun network's direction distribution; ``()``: uncalibrated.
     sun_blob_gate_deg : float
         With ``sun_in_image``: the largest angle between the network's sun and a blob it is moved onto.
+    sun_blob_visibility : float
+        With ``sun_in_image``: the visibility probability (at most ``sun_visibility_threshold``) from which a
+        sun-like image blob alone makes the sun visible (:func:`solidkit.model.imagesun.put_sun_on_blob`,
+        ``promote``; tuned on validation); 0: off.
     sun_aureole : float
         At evaluation, the fraction of the rendered sun's energy spread over its 68 % direction cone
         (:func:`solidkit.model.sunhead.render_sun_with_aureole`; needs the cones of a ``sun_net``):
@@ -168,6 +172,7 @@ class SolidNetConfig:
     sun_in_image: bool = False
     sun_cone_scale: tuple[float, ...] = ()
     sun_blob_gate_deg: float = 60.0
+    sun_blob_visibility: float = 0.0
     sun_aureole: float = 0.0
     loss_variant: str = "paper"
     loss_weights: dict[str, float] = field(default_factory=_default_loss_weights)
@@ -186,6 +191,11 @@ class SolidNetConfig:
             raise ConfigError(f"sun_cone_scale must be () or two values 0 < s68 <= s90, got {v}")
         if not 0.0 < self.sun_blob_gate_deg <= 180.0:
             raise ConfigError(f"sun_blob_gate_deg must be in (0, 180], got {self.sun_blob_gate_deg}")
+        if not 0.0 <= self.sun_blob_visibility <= self.sun_visibility_threshold:
+            raise ConfigError(
+                f"sun_blob_visibility must be in [0, sun_visibility_threshold = {self.sun_visibility_threshold}], "
+                f"got {self.sun_blob_visibility}"
+            )
         if not 0.0 <= self.sun_aureole < 1.0:
             raise ConfigError(f"sun_aureole must be in [0, 1), got {self.sun_aureole}")
         if self.sun_aureole and not self.sun_net:

@@ -134,23 +134,36 @@ def put_sun_on_blob(
     logits: torch.Tensor | None = None,
     gate_deg: float = GATE_DEG,
     logit_margin: float = LOGIT_MARGIN,
-) -> tuple[torch.Tensor, torch.Tensor]:
+    promote: float = 0.0,
+) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
     """The network's ``sun_dir (B, 3)`` moved onto a sun-like blob of ``image (B, 3, H, W)`` where its
     ``visible (B,)`` probability is ``>= threshold`` and the blob is one the network agrees with: within
     ``gate_deg`` of its direction, or (with its ``logits (B, 1, h, 2h)``) where its logit is within
-    ``logit_margin`` of its highest; of those the nearest to its direction. Returns ``(sun_dir (B, 3),
-    on_blob (B,) bool)``. ``K (B, 3, 3)`` in pixels of ``image``; ``pitch``, ``roll (B,)`` radians."""
+    ``logit_margin`` of its highest; of those the nearest to its direction.
+
+    ``promote`` (0: off; at most ``threshold``): where the probability is in ``[promote, threshold)``, a
+    sun-like blob alone makes the sun visible (a clipped compact disc is the sun's own signature; the network
+    only has to find a sun not quite unlikely), and the sun goes onto the blob nearest to the network's
+    direction, whatever the gate. Returns ``(sun_dir (B, 3), on_blob (B,) bool, promoted (B,) bool)``.
+    ``K (B, 3, 3)`` in pixels of ``image``; ``pitch``, ``roll (B,)`` radians."""
     out = sun_dir.clone()
     on = torch.zeros(sun_dir.shape[0], dtype=torch.bool, device=sun_dir.device)
+    promoted = torch.zeros_like(on)
     cos_gate = math.cos(math.radians(gate_deg))
     imgs = image.detach().permute(0, 2, 3, 1).cpu().numpy()
     for i in range(sun_dir.shape[0]):
-        if float(visible[i]) < threshold:
+        p = float(visible[i])
+        if p < threshold and not (0.0 < promote <= p):
             continue
         blobs = image_sun_blobs(imgs[i], K[i].detach().cpu().double().numpy(), float(pitch[i]), float(roll[i]))
         if not blobs:
             continue
         net = sun_dir[i].detach().cpu().double().numpy()
+        if p < threshold:
+            pick = max(blobs, key=lambda b: float(np.dot(b.direction, net)))
+            out[i] = torch.as_tensor(pick.direction, dtype=sun_dir.dtype, device=sun_dir.device)
+            on[i] = promoted[i] = True
+            continue
         agree = [float(np.dot(b.direction, net)) >= cos_gate for b in blobs]
         if logits is not None:
             lg = logits[i, 0].detach().cpu().numpy()
@@ -163,4 +176,4 @@ def put_sun_on_blob(
             pick = max(cands, key=lambda b: float(np.dot(b.direction, net)))
             out[i] = torch.as_tensor(pick.direction, dtype=sun_dir.dtype, device=sun_dir.device)
             on[i] = True
-    return out, on
+    return out, on, promoted

@@ -272,11 +272,12 @@ class INet(nn.Module):
     def finish_sun(
         self, out: dict[str, torch.Tensor], image: torch.Tensor, view: tuple[torch.Tensor, torch.Tensor, torch.Tensor]
     ) -> None:
-        """The network's sun moved onto a sun-like image blob (``config.sun_in_image``; ``sun_on_blob (B,)``)
-        and its cones (``sun_cone_deg (B, 2)``: 68 % / 90 %, calibrated where the config has the scales)."""
+        """The network's sun moved onto a sun-like image blob (``config.sun_in_image``; ``sun_on_blob (B,)``;
+        with ``config.sun_blob_visibility`` a blob may also make the sun visible, ``sun_visible`` raised to the
+        threshold) and its cones (``sun_cone_deg (B, 2)``: 68 % / 90 %, calibrated where the config has the scales)."""
         on = torch.zeros(image.shape[0], dtype=torch.bool, device=image.device)
         if self.config.sun_in_image and "sun_visible" in out:
-            out["sun_dir"], on = put_sun_on_blob(
+            out["sun_dir"], on, promoted = put_sun_on_blob(
                 out["sun_dir"],
                 out["sun_visible"],
                 image,
@@ -284,7 +285,11 @@ class INet(nn.Module):
                 threshold=self.config.sun_visibility_threshold,
                 logits=out.get("sun_logits"),
                 gate_deg=self.config.sun_blob_gate_deg,
+                promote=self.config.sun_blob_visibility,
             )
+            if bool(promoted.any()):  # the visibility after the image's own cue: at the threshold where a blob decided
+                t = torch.full_like(out["sun_visible"], self.config.sun_visibility_threshold)
+                out["sun_visible"] = torch.where(promoted, torch.maximum(out["sun_visible"], t), out["sun_visible"])
         out["sun_on_blob"] = on
         if "sun_logits" in out:
             radii = cone_radii(out["sun_logits"], out["sun_dir"])

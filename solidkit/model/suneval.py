@@ -217,6 +217,8 @@ def evaluate_sun_crops(model: Any, crops: list[ProtocolCrop]) -> dict[str, dict[
 
 GATE_GRID_DEG = (15.0, 30.0, 60.0)
 """Blob gates tried by :func:`calibrate_sun` (besides no in-image sun at all)."""
+PROMOTE_GRID = (0.01, 0.02, 0.05, 0.1, 0.15, 0.2, 0.3, 0.4, 0.5)
+"""Probabilities from which a sun-like blob alone may make the sun visible, tried by :func:`calibrate_sun`."""
 
 
 def _balanced_accuracy(prob: np.ndarray, vis: np.ndarray, t: float) -> float:
@@ -235,14 +237,18 @@ def calibrate_sun(
     1. the visibility threshold of the highest balanced accuracy (mean over domains) on a 0.05-0.99 grid;
     2. the in-image sun (:mod:`solidkit.model.imagesun`): off, or the gate of :data:`GATE_GRID_DEG` with the
        lowest median angular error of the found suns (mean over domains);
-    3. at those settings, the conformal 68 % / 90 % cone scales (:mod:`solidkit.model.sununcertainty`) on
+    3. with the in-image sun on, the probability from which a sun-like blob alone makes the sun visible
+       (``sun_blob_visibility``, :data:`PROMOTE_GRID` or off): the highest balanced accuracy of the decisions,
+       kept only where it beats the network alone;
+    4. at those settings, the conformal 68 % / 90 % cone scales (:mod:`solidkit.model.sununcertainty`) on
        the found suns of all domains, each domain weighing equally (weighted conformal quantile): a few real
        crops are not drowned by many rendered ones.
 
-    Returns ``{"threshold", "balanced_accuracy", "sun_in_image", "gate_deg", "cone_scale", "n", "trials"}``;
+    Returns ``{"threshold", "balanced_accuracy", "sun_in_image", "gate_deg", "blob_visibility",
+    "balanced_accuracy_with_blob", "cone_scale", "n", "trials", "blob_trials"}``;
     the model is left as it was.
     """
-    saved = model.reconfigure(sun_cone_scale=(), sun_in_image=False)
+    saved = model.reconfigure(sun_cone_scale=(), sun_in_image=False, sun_blob_visibility=0.0)
     try:
         probs = {d: predict_model(model, c)["visible_prob"] for d, c in domains.items()}
         vis = {d: np.array([x.visible for x in c]) for d, c in domains.items()}
@@ -264,6 +270,17 @@ def calibrate_sun(
             )
         best = min(trials, key=lambda t: t["score"])
         model.reconfigure(sun_in_image=best["sun_in_image"], sun_blob_gate_deg=best["gate_deg"])
+        promote, promote_acc = 0.0, float(max(acc))
+        promote_trials = []
+        if best["sun_in_image"]:
+            for p in [g for g in PROMOTE_GRID if g < threshold]:
+                model.reconfigure(sun_blob_visibility=p)
+                says = {d: predict_model(model, c)["says_sun"] for d, c in domains.items()}
+                a = float(np.mean([_balanced_accuracy(says[d].astype(float), vis[d], 0.5) for d in domains]))
+                promote_trials.append({"sun_blob_visibility": p, "balanced_accuracy": a})
+                if a > promote_acc + 1e-9:
+                    promote, promote_acc = p, a
+            model.reconfigure(sun_blob_visibility=promote)
         errs, radii = [], []
         for c in domains.values():
             pred = predict_model(model, c)
@@ -282,6 +299,9 @@ def calibrate_sun(
         "balanced_accuracy": float(max(acc)),
         "sun_in_image": best["sun_in_image"],
         "gate_deg": best["gate_deg"],
+        "blob_visibility": promote,
+        "balanced_accuracy_with_blob": promote_acc,
+        "blob_trials": promote_trials,
         "cone_scale": tuple(float(s) for s in scale),
         "trials": trials,
         "n": {d: {"crops": len(c), "suns": int(vis[d].sum())} for d, c in domains.items()}

@@ -56,7 +56,8 @@ def test_the_network_sun_moves_onto_a_blob_only_when_it_says_sun_and_agrees():
     behind = torch.as_tensor(direction_from_angles(math.radians(170.0), math.radians(20.0)), dtype=torch.float32)
     dirs = torch.stack([near, behind, near])
     vis = torch.tensor([0.9, 0.9, 0.1])
-    out, on = put_sun_on_blob(dirs, vis, img, Kt, z, z, threshold=0.5)
+    out, on, promoted = put_sun_on_blob(dirs, vis, img, Kt, z, z, threshold=0.5)
+    assert not promoted.any()
     assert on.tolist() == [True, False, False]
     assert math.degrees(float(angular_distance(out[0].double(), torch.as_tensor(blob).double()))) < 1e-4
     assert torch.equal(out[1:], dirs[1:])
@@ -64,8 +65,24 @@ def test_the_network_sun_moves_onto_a_blob_only_when_it_says_sun_and_agrees():
     logits = torch.zeros(3, 1, 64, 128)
     x, y = coords_from_direction(blob.astype(np.float64), 64)
     logits[1, 0, int(y), int(x)] = 5.0
-    _, on = put_sun_on_blob(dirs, vis, img, Kt, z, z, threshold=0.5, logits=logits)
+    _, on, _ = put_sun_on_blob(dirs, vis, img, Kt, z, z, threshold=0.5, logits=logits)
     assert on.tolist() == [True, True, False]
+
+
+def test_a_blob_makes_an_unlikely_sun_visible_only_from_the_promote_level():
+    img = torch.as_tensor(_image_with_disc(160.0, 50.0, 7.0)).permute(2, 0, 1)[None].repeat(3, 1, 1, 1)
+    img[2] = torch.as_tensor(_image_with_disc(160.0, 50.0, 0.0)).permute(2, 0, 1)  # no blob
+    Kt = torch.as_tensor(K, dtype=torch.float32)[None].repeat(3, 1, 1)
+    z = torch.zeros(3)
+    blob = image_sun_blobs(img[0].permute(1, 2, 0).numpy(), K, 0.0, 0.0)[0].direction
+    behind = torch.as_tensor(direction_from_angles(math.radians(170.0), math.radians(20.0)), dtype=torch.float32)
+    dirs = behind[None].repeat(3, 1)
+    vis = torch.tensor([0.2, 0.05, 0.2])
+    out, on, promoted = put_sun_on_blob(dirs, vis, img, Kt, z, z, threshold=0.5, promote=0.1)
+    assert promoted.tolist() == [True, False, False] and on.tolist() == [True, False, False]
+    assert math.degrees(float(angular_distance(out[0].double(), torch.as_tensor(blob).double()))) < 1e-4
+    _, on, promoted = put_sun_on_blob(dirs, vis, img, Kt, z, z, threshold=0.5)
+    assert not promoted.any() and not on.any()
 
 
 def test_cone_radii_grow_with_the_spread_and_hold_their_mass():
