@@ -217,7 +217,7 @@ def evaluate_sun_crops(model: Any, crops: list[ProtocolCrop]) -> dict[str, dict[
 
 GATE_GRID_DEG = (15.0, 30.0, 60.0)
 """Blob gates tried by :func:`calibrate_sun` (besides no in-image sun at all)."""
-PROMOTE_GRID = (0.01, 0.02, 0.05, 0.1, 0.15, 0.2, 0.3, 0.4, 0.5)
+PROMOTE_GRID = (1e-6, 1e-4, 0.01, 0.02, 0.05, 0.1, 0.15, 0.2, 0.3, 0.4, 0.5)
 """Probabilities from which a sun-like blob alone may make the sun visible, tried by :func:`calibrate_sun`."""
 
 

@@ -83,6 +83,12 @@ def test_a_blob_makes_an_unlikely_sun_visible_only_from_the_promote_level():
     assert math.degrees(float(angular_distance(out[0].double(), torch.as_tensor(blob).double()))) < 1e-4
     _, on, promoted = put_sun_on_blob(dirs, vis, img, Kt, z, z, threshold=0.5)
     assert not promoted.any() and not on.any()
+    two = torch.as_tensor(np.maximum(_image_with_disc(160.0, 50.0, 7.0), _image_with_disc(60.0, 150.0, 7.0)))
+    assert len(image_sun_blobs(two.numpy(), K, 0.0, 0.0)) == 2
+    _, on, promoted = put_sun_on_blob(
+        dirs[:1], vis[:1], two.permute(2, 0, 1)[None], Kt[:1], z[:1], z[:1], 0.5, promote=0.1
+    )
+    assert not promoted.any()  # two "suns": lamps or a canopy, not a sun
 
 
 def test_cone_radii_grow_with_the_spread_and_hold_their_mass():
