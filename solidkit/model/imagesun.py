@@ -144,7 +144,8 @@ def put_sun_on_blob(
     ``promote`` (0: off; at most ``threshold``): where the probability is in ``[promote, threshold)`` and the
     image has exactly one sun-like blob, that blob alone makes the sun visible and the sun goes onto it,
     whatever the gate: a clipped compact disc is the sun's own signature, and there is one sun (gaps in a
-    canopy and lamps clip in many places; in the real validation crops they gave 2-25 blobs, a sun 1). Returns ``(sun_dir (B, 3), on_blob (B,) bool, promoted (B,) bool)``.
+    canopy and lamps clip in many places; in the real validation crops they gave 2-25 blobs, a sun 1).
+    Returns ``(sun_dir (B, 3), on_blob (B,) bool, promoted (B,) bool)``.
     ``K (B, 3, 3)`` in pixels of ``image``; ``pitch``, ``roll (B,)`` radians."""
     out = sun_dir.clone()
     on = torch.zeros(sun_dir.shape[0], dtype=torch.bool, device=sun_dir.device)
