@@ -139,7 +139,8 @@ class SolidNetConfig:
         sun-like image blob alone makes the sun visible (:func:`solidkit.model.imagesun.put_sun_on_blob`,
         ``promote``; tuned on validation); 0: off.
     sun_aureole : float
-        At evaluation, the fraction of the rendered sun's energy spread over its 68 % direction cone
+        At evaluation, the fraction of the rendered sun's energy spread over the sun network's own (uncalibrated)
+        68 % direction radius
         (:func:`solidkit.model.sunhead.render_sun_with_aureole`; needs the cones of a ``sun_net``):
         the global map's brightest region is then where its sun is. 0: a sharp sun only.
     loss_variant : str

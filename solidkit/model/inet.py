@@ -245,12 +245,14 @@ class INet(nn.Module):
         # the size is learnt from its own loss only (losses.sun_size_loss): through the radiance terms it
         # would grow to hedge an uncertain direction
         sigma = out["sun_sigma"].detach()
-        if not self.training and self.config.sun_aureole and "sun_cone_deg" in out:
+        if not self.training and self.config.sun_aureole and "sun_cone_radius_deg" in out:
+            # the network's own 68 % radius, not the calibrated cone: recalibrating the stated uncertainty for
+            # another domain leaves the sky the aureole was tuned for
             sun = render_sun_with_aureole(
                 out["sun_dir"],
                 out["sun_energy"],
                 sigma,
-                out["sun_cone_deg"][:, 0],
+                out["sun_cone_radius_deg"][:, 0],
                 self.config.sun_aureole,
                 self.config.pano_height,
             )

@@ -71,3 +71,17 @@ def test_config_checks_the_aureole():
     with pytest.raises(ConfigError, match="needs the direction cones"):
         preset("small").replace(sun_aureole=0.5)
     assert preset("small-sun").replace(sun_aureole=0.8).sun_aureole == 0.8
+
+
+def test_recalibrated_cones_leave_the_global_map_as_the_aureole_was_tuned():
+    from solidkit.model import SolidNet
+
+    torch.manual_seed(0)
+    model = SolidNet(preset("small-sun").replace(sun_aureole=0.8, sun_cone_scale=(1.0, 1.1))).eval()
+    image = torch.rand(1, 3, 240, 320)
+    with torch.no_grad():
+        a = model.inet(image, intrinsics=False)
+        model.reconfigure(sun_cone_scale=(1.3, 1.4))
+        b = model.inet(image, intrinsics=False)
+    assert (b["sun_cone_deg"] > a["sun_cone_deg"]).all()  # an untrained network: wide cones, capped at 180°
+    assert torch.equal(a["sky"], b["sky"])
