@@ -135,7 +135,7 @@ def sources(
         [],
         "--real-lighting",
         help="A folder of real HDR panoramas (e.g. ../shared/data/real/hdr_outdoor) whose maps join the "
-        "lighting pool (repeatable); maps whose brightest spot is not their catalogued sun are left out.",
+        "lighting pool (repeatable); each source lit by one takes the sun from its catalog.json.",
     ),
     real_lighting_split: str = typer.Option(
         "train",
