@@ -148,9 +148,9 @@ class SourceConfig:
 
 def lighting_files(config: SourceConfig, hdr_dir: Path | None = None) -> tuple[list[Path], dict[str, CatalogSun]]:
     """The HDR maps rendered sources draw from: ``hdr_dir``'s EXRs (default: the shipped maps) plus the real
-    panoramas of ``config.real_lighting`` in the split ``config.real_lighting_split`` (:func:`load_sources`'
-    rule: a panorama the split file does not list trains), less ``config.exclude_hdr``; and the catalogued sun
-    of each real one (``{stem: CatalogSun}``, from its folder's ``catalog.json``).
+    panoramas of ``config.real_lighting`` in the split ``config.real_lighting_split`` (:func:`of_split`), less
+    ``config.exclude_hdr``; and the catalogued sun of each real one (``{stem: CatalogSun}``, from its folder's
+    ``catalog.json``).
 
     A real map's brightest spot is often not its sun (a street lamp at night, the moon, a bright cloud), so
     where the catalogue states the sun, the rendered source takes the catalogue's (:func:`source_setup`).
@@ -171,13 +171,12 @@ def _lighting_files(
         raise InputError(f"unknown split '{split}' (expected one of {', '.join(SPLITS)})")
     files = [f for f in sorted(Path(hdr_dir).glob("*.exr")) if f.stem not in exclude]
     suns: dict[str, CatalogSun] = {}
-    table = real_split()
     for folder in folders:
         root = Path(folder)
         if not root.is_dir():
             raise InputError(f"{root}: no such folder of real HDR panoramas")
         found = [p for p in sorted(root.iterdir()) if p.suffix.lower() in (".exr", ".hdr") and p.stem not in exclude]
-        chosen = [p for p in found if table.get(p.stem, "train") == split]
+        chosen = of_split(found, split)
         if not chosen:
             raise InputError(f"{root}: no HDR panoramas (*.exr, *.hdr) of the '{split}' split")
         files += chosen
@@ -324,6 +323,16 @@ def real_split(path: Path = SPLIT_FILE) -> dict[str, str]:
     return {name: split for split in SPLITS for name in data[split]}
 
 
+def of_split(files: list[Path], split: str) -> list[Path]:
+    """The panoramas of ``files`` in ``split`` of the shipped split file (:func:`real_split`). Where the split
+    file covers the folder (it lists one of ``files``), a panorama it does not list (one added later) belongs to
+    ``train``, so it never leaks into validation or test; files it does not cover at all are kept."""
+    table = real_split()
+    if not any(p.stem in table for p in files):
+        return list(files)
+    return [p for p in files if table.get(p.stem, "train") == split]
+
+
 def read_catalog(root: str | os.PathLike) -> dict[str, CatalogSun]:
     """``{file stem: CatalogSun}`` from ``root/catalog.json`` (records with ``file``, ``sun_visible`` and, when
     visible, ``sun_azimuth_deg`` / ``sun_elevation_deg`` in the project's convention); ``{}`` when absent."""
@@ -413,10 +422,8 @@ def load_sources(root: str | os.PathLike, exclude: tuple[str, ...] = (), split: 
     (``*.exr``, ``*.hdr``; with their sun from ``root/catalog.json`` when there is one).
 
     ``exclude``: names (folder names or file stems) to leave out, e.g. a held-out real panorama.
-    ``split``: one of :data:`SPLITS`: keep only the real panoramas of that split of the shipped split
-    file (:func:`real_split`). In a folder the split file covers, a panorama it does not list (one added
-    later) belongs to ``train``, so it never leaks into validation or test; a folder it does not cover, and
-    rendered sources (split by folder), are not filtered.
+    ``split``: one of :data:`SPLITS`: keep only the real panoramas of that split (:func:`of_split`);
+    rendered sources (split by folder) are not filtered.
     """
     root = Path(root)
     if not root.is_dir():
@@ -432,9 +439,7 @@ def load_sources(root: str | os.PathLike, exclude: tuple[str, ...] = (), split: 
         ]
     files = [p for p in sorted(root.iterdir()) if p.suffix.lower() in (".exr", ".hdr") and p.stem not in exclude]
     if split is not None:
-        table = real_split()
-        if any(p.stem in table for p in files):  # a folder the split covers: a panorama it does not list only trains
-            files = [p for p in files if table.get(p.stem, "train") == split]
+        files = of_split(files, split)
     if not files:
         raise InputError(
             f"{root}: no rendered sources (*/source.json) and no HDR panoramas"

@@ -181,15 +181,21 @@ def test_the_shipped_checkpoint_puts_real_in_view_suns_on_the_sun_and_beats_its_
     assert f["found_rate"] >= 0.75
 
 
-def test_real_maps_light_rendered_scenes_with_their_catalogued_sun(tmp_path):
+def test_real_maps_light_rendered_scenes_with_their_catalogued_sun(tmp_path, monkeypatch):
+    import solidkit.synth.panocrops as pc
     from solidkit.synth.panocrops import SourceConfig, lighting_files, source_setup
 
     root = _folder(tmp_path)
     cfg = SourceConfig(p_sunsky=0.0, exclude_hdr=("city",), real_lighting=(str(root),))
     files, suns = lighting_files(cfg)
     assert {"sunny", "grey"} <= {f.stem for f in files} and set(suns) == {"sunny", "grey"}
-    with pytest.raises(InputError, match="'val' split"):  # panoramas the split file does not list only train
+    monkeypatch.setattr(pc, "real_split", lambda: {"sunny": "test"})  # the same rule as load_sources'
+    test_cfg = SourceConfig(exclude_hdr=("city",), real_lighting=(str(root),), real_lighting_split="test")
+    files, _ = lighting_files(test_cfg)
+    assert "sunny" in {f.stem for f in files} and "grey" not in {f.stem for f in files}
+    with pytest.raises(InputError, match="'val' split"):  # a panorama the split file does not list only trains
         lighting_files(SourceConfig(real_lighting=(str(root),), real_lighting_split="val"))
+    monkeypatch.undo()
     with pytest.raises(InputError, match="unknown split"):
         lighting_files(SourceConfig(real_lighting=(str(root),), real_lighting_split="dev"))
     seen = set()
