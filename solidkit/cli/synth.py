@@ -45,6 +45,9 @@ def dataset(
         60.0, "--hfov-deg", min=10.0, max=150.0, help="Horizontal field of view of the photo, degrees."
     ),
     candidates: int = typer.Option(12, "--candidates", min=1, help="Candidate cameras per 60° sector."),
+    exclude_hdr: list[str] = typer.Option(
+        [], "--exclude-hdr", help="HDR lighting maps to leave out (e.g. a held-out real test)."
+    ),
     denoise: bool = typer.Option(
         False,
         "--denoise",
@@ -80,6 +83,7 @@ def dataset(
         spp=spp,
         probe_spp=probe_spp,
         candidates=candidates,
+        exclude_hdr=tuple(exclude_hdr),
         denoise=denoise,
     )
     t0 = time.perf_counter()

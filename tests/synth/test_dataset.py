@@ -153,3 +153,18 @@ def test_cli_errors_are_one_line(tmp_path: Path, cli) -> None:
     assert code == 2 and "need 0 <= i < N" in err and "Traceback" not in err
     code, _, err = cli("synth", "filter", str(tmp_path), "--reference", str(tmp_path / "none"))
     assert code == 2 and "no samples (not a dataset" in err and len(err.strip().splitlines()) == 1  # checked first
+
+
+def test_cli_holds_out_hdr_maps(tmp_path: Path, cli, monkeypatch) -> None:
+    import solidkit.synth.dataset as ds
+
+    seen = {}
+
+    def fake_generate(out, n, *, config, **kw):  # the renderer is tested above; this checks what the CLI passes
+        seen["config"] = config
+        return {"rendered": 0, "skipped": n, "kept": 0}
+
+    monkeypatch.setattr(ds, "generate", fake_generate)
+    code, _, err = cli("synth", "dataset", "--n", "1", "--out", str(tmp_path / "d"), "--exclude-hdr", "city")
+    assert code == 0, err
+    assert seen["config"].exclude_hdr == ("city",) and seen["config"].to_json()["exclude_hdr"] == ["city"]
