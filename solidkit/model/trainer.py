@@ -51,7 +51,7 @@ import tomllib
 import torch
 
 from solidkit.envmap.coords import CONVENTIONS_VERSION
-from solidkit.envmap.io import tonemap
+from solidkit.envmap.io import decode_ldr, tonemap
 from solidkit.envmap.sun import detect_sun
 from solidkit.errors import InputError
 from solidkit.fsutil import atomic_write_bytes, atomic_write_text, sha256_file
@@ -63,7 +63,7 @@ from solidkit.model.solidnet import CHECKPOINT_VERSION, SolidNet, load_checkpoin
 from solidkit.model.suncrops import SunCropBank
 from solidkit.model.warp import camera_rotation
 from solidkit.synth.dataset import SynthDataset
-from solidkit.synth.panocrops import CropConfig, CropSampler, load_sources
+from solidkit.synth.panocrops import CropConfig, CropSampler, load_sources, metered_gain
 from solidkit.synth.sample import derive_seed
 
 __all__ = [
@@ -136,6 +136,9 @@ class TrainConfig:
     ``sun_target_deg``: width (degrees) of the sun-direction target (:func:`solidkit.model.losses.
     sun_direction_loss`); two values ``[start, end]`` anneal it geometrically over
     ``sun_target_anneal_steps`` I-Net steps (0: the whole stage), coarse to fine.
+    ``meter_samples``: full samples are metered as crops are and as ``predict`` meters a photo (the gain of
+    :func:`solidkit.synth.panocrops.metered_gain` on the linear values behind the LDR photo, applied to photo,
+    global map and probes before the jitter; needs the model's ``exposure_key``); off: their stored exposure.
     """
 
     out: str = "runs/solidnet"
@@ -159,6 +162,7 @@ class TrainConfig:
     max_minutes: float = 0.0
     sun_target_deg: list[float] = field(default_factory=lambda: [2.0])
     sun_target_anneal_steps: int = 0
+    meter_samples: bool = False
     sun: StageConfig = field(default_factory=lambda: StageConfig(steps=0, batch_size=32))
     inet: StageConfig = field(default_factory=lambda: StageConfig(steps=1000, batch_size=8))
     pnet: StageConfig = field(default_factory=lambda: StageConfig(steps=0, batch_size=4))
@@ -293,8 +297,10 @@ class _Data:
         *,
         split: str = "train",
         weights: list[float] | None = None,
+        meter_samples: bool = False,
     ) -> None:
         self.crop_dirs, self.exclude, self.seed = list(crops), tuple(exclude), seed
+        self.meter_samples = bool(meter_samples and exposure_key)
         self.split, self.folder_weights = split, list(weights or [])
         self.source_folders: list[int] = []
         self.exposure_key = exposure_key or None  # the model's input exposure (SolidNetConfig.exposure_key)
@@ -354,8 +360,21 @@ class _Data:
         items = [self.synth[k][i] for k, i in (self.synth_index[int(j)] for j in pick)]
         flip = rng.random(size)[rank::world] < 0.5
         gains = (2.0 ** rng.uniform(-0.5, 0.5, (size, 1)) * np.exp(rng.uniform(-0.08, 0.08, (size, 3))))[rank::world]
+        if self.meter_samples:
+            assert self.exposure_key is not None
+            gains = gains * np.asarray([[sample_meter_gain(it, self.exposure_key)] for it in items])
         items = [_relight_item(it, g) for it, g in zip(items, gains)]
         return "synth", synth_batch([_flip_item(it) if f else it for it, f in zip(items, flip)])
+
+
+def sample_meter_gain(it: dict[str, Any], key: float) -> float:
+    """The gain that meters a SynthDataset item's photo as ``predict`` meters a photo: ``metered_gain`` of the
+    linear values behind its LDR photo (the paper's tonemap of the HDR photo, clipped, decoded again), so clipped
+    pixels count at the clip level; 1 for an item without its HDR photo."""
+    if "hdr" not in it:
+        return 1.0
+    ldr = np.clip(np.asarray(tonemap(it["hdr"][:3])), 0.0, 1.0).transpose(1, 2, 0)
+    return metered_gain(decode_ldr(ldr, "paper"), key)
 
 
 def _relight_item(it: dict[str, Any], gain: np.ndarray) -> dict[str, Any]:
@@ -561,11 +580,19 @@ class Trainer:
                 )
         self.model.to(self.device)
         key = self.model.config.exposure_key
-        self.data = _Data(cfg.crops, cfg.crops_exclude, cfg.synth, cfg.seed, key, weights=cfg.crop_weights)
+        self.data = _Data(
+            cfg.crops,
+            cfg.crops_exclude,
+            cfg.synth,
+            cfg.seed,
+            key,
+            weights=cfg.crop_weights,
+            meter_samples=cfg.meter_samples,
+        )
         if cfg.crops:
             self.data.refresh()  # bad data folders fail here, before the run folder is created
         self.val = (
-            _Data(cfg.val_crops, [], cfg.val_synth, cfg.seed + 1, key, split="val")
+            _Data(cfg.val_crops, [], cfg.val_synth, cfg.seed + 1, key, split="val", meter_samples=cfg.meter_samples)
             if (cfg.val_crops or cfg.val_synth)
             else None
         )

@@ -224,3 +224,25 @@ def test_frozen_names_must_be_parts_of_the_stage(tmp_path, sources):
     path.write_text(path.read_text() + 'frozen = ["encoder", "skyy"]\n')
     with pytest.raises(InputError, match=r"frozen names \['skyy'\]"):
         load_train_config(path)
+
+
+def test_metered_samples_are_exposed_as_predict_exposes_a_photo():
+    from solidkit.envmap.io import decode_ldr, tonemap
+    from solidkit.model.trainer import _relight_item, sample_meter_gain
+    from solidkit.synth.panocrops import METER_EPS
+
+    rng = np.random.default_rng(0)
+    hdr = torch.as_tensor(rng.uniform(0.002, 0.02, (3, 12, 16)), dtype=torch.float32)  # a dark render
+    probes = torch.ones(2, 3, 8, 16)
+    item = {"hdr": hdr, "image": tonemap(hdr).clamp(0, 1), "probes": probes}
+    g = sample_meter_gain(item, 0.18)
+    out = _relight_item(item, np.full(3, g))
+    lin = decode_ldr(out["image"].numpy().transpose(1, 2, 0), "paper")
+    y = lin @ np.asarray([0.2126, 0.7152, 0.0722], np.float32)
+    assert math.exp(np.mean(np.log(METER_EPS + y))) == pytest.approx(0.18, rel=0.02)  # what predict would meter
+    assert torch.allclose(out["probes"], probes * g)  # the light moves with the photo
+    bright = {"hdr": torch.full((3, 4, 4), 1e4)}  # clipped pixels count at the clip level, not their radiance
+    assert sample_meter_gain(bright, 0.18) == pytest.approx(
+        0.18 / float(decode_ldr(np.ones((1, 1, 3)), "paper")[0, 0, 1]), rel=1e-3
+    )
+    assert sample_meter_gain({"image": item["image"]}, 0.18) == 1.0
